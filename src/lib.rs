@@ -1,0 +1,12 @@
+//! # hybsim
+//!
+//! Simulation, design and property testing of hybrid dynamical systems
+//! (flows in a set C, jumps in a set D, solutions on hybrid time domains).
+#![warn(missing_docs)]
+
+// clarabel's SDP support links BLAS/LAPACK; this pulls in the system OpenBLAS.
+extern crate openblas_src;
+
+pub mod arc;
+pub mod engine;
+pub mod layout;
