@@ -76,4 +76,284 @@ pub trait ArcSink {
         pre: &[f64],
         post: &[f64],
     ) -> std::ops::ControlFlow<()>;
+
+    /// Called once when the run ends, with where and why (after the `Final`
+    /// sample). Default: nothing. Sinks that write files may record it.
+    fn finish(&mut self, _termination: &Termination) {}
+}
+
+/// Why a solution ended. Reaching a horizon, suspecting Zeno behaviour and
+/// getting stuck are *outcomes* of a simulation, not errors: they are values
+/// of this enum, returned inside [`Termination`].
+#[derive(Debug, Clone, PartialEq, Serialize)]
+#[serde(tag = "cause", rename_all = "snake_case")]
+pub enum TerminationCause {
+    /// Ordinary time reached the horizon T (`SimSettings::horizon_t`).
+    HorizonT,
+    /// The jump count reached the horizon J (`SimSettings::horizon_j`).
+    HorizonJ,
+    /// A Zeno guard fired before rule `rule` could jump again.
+    ZenoSuspected {
+        /// Index of the rule that was about to fire.
+        rule: usize,
+        /// Its name.
+        rule_name: String,
+        /// Which guard fired.
+        detail: ZenoDetail,
+    },
+    /// The state is neither in C (or cannot flow inside C) nor in D: the
+    /// solution is maximal and ends here.
+    CannotFlowOrJump,
+    /// The sink asked to stop (e.g. a file limit or a user interrupt).
+    StoppedBySink,
+}
+
+/// Which Zeno guard stopped a run.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+#[serde(tag = "guard", rename_all = "snake_case")]
+pub enum ZenoDetail {
+    /// `jumps` jumps (the window) happened within ordinary time `within`,
+    /// faster than `SimSettings::zeno_max_rate` allows.
+    Rate {
+        /// Number of jumps in the window.
+        jumps: u32,
+        /// Ordinary time they spanned.
+        within: f64,
+    },
+    /// The total number of jumps reached `SimSettings::max_total_jumps`.
+    TotalJumps {
+        /// The limit.
+        limit: u64,
+    },
+}
+
+/// Where and why a solution ended.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Termination {
+    /// Hybrid time of the last point of the solution.
+    pub at: HybridTime,
+    /// Why it ended there.
+    pub cause: TerminationCause,
+}
+
+impl Termination {
+    /// One sentence on what to change if this ending was not wanted.
+    pub fn help(&self) -> &'static str {
+        match &self.cause {
+            TerminationCause::HorizonT => "raise `horizon_t` to simulate longer",
+            TerminationCause::HorizonJ => "raise `horizon_j` to allow more jumps",
+            TerminationCause::ZenoSuspected {
+                detail: ZenoDetail::Rate { .. },
+                ..
+            } => {
+                "the named rule fires ever faster (Zeno behaviour?); if this is intended, raise \
+                 `zeno_max_rate` or `zeno_window`, or set `zeno_max_rate` to infinity"
+            }
+            TerminationCause::ZenoSuspected {
+                detail: ZenoDetail::TotalJumps { .. },
+                ..
+            } => "raise `max_total_jumps` if this many jumps are intended",
+            TerminationCause::CannotFlowOrJump => {
+                "the state left C without entering D: check the flow set, the jump sets and \
+                 their guards at this point"
+            }
+            TerminationCause::StoppedBySink => "the output sink stopped the run; see its error",
+        }
+    }
+}
+
+impl std::fmt::Display for Termination {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match &self.cause {
+            TerminationCause::HorizonT => write!(f, "reached the time horizon at {}", self.at),
+            TerminationCause::HorizonJ => write!(f, "reached the jump horizon at {}", self.at),
+            TerminationCause::ZenoSuspected {
+                rule_name, detail, ..
+            } => match detail {
+                ZenoDetail::Rate { jumps, within } => write!(
+                    f,
+                    "Zeno behaviour suspected at {}: rule `{rule_name}` about to fire after \
+                     {jumps} jumps within Δt = {within:e}",
+                    self.at
+                ),
+                ZenoDetail::TotalJumps { limit } => write!(
+                    f,
+                    "stopped at {} before rule `{rule_name}` fired: {limit} jumps in total",
+                    self.at
+                ),
+            },
+            TerminationCause::CannotFlowOrJump => {
+                write!(f, "the solution can neither flow nor jump at {}", self.at)
+            }
+            TerminationCause::StoppedBySink => write!(f, "stopped by the sink at {}", self.at),
+        }
+    }
+}
+
+/// One sample of a [`HybridArc`], borrowed from it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Sample<'a> {
+    /// Hybrid time of the sample.
+    pub at: HybridTime,
+    /// Where it sits on the domain.
+    pub kind: SampleKind,
+    /// The state.
+    pub x: &'a [f64],
+}
+
+/// A solution held in memory: samples `(t, j, x)` in hybrid-time order, the
+/// jump records and the termination. It is also an [`ArcSink`], so the
+/// engine can write into it directly (`engine::simulate_arc` does).
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct HybridArc {
+    dim: usize,
+    times: Vec<HybridTime>,
+    kinds: Vec<SampleKind>,
+    states: Vec<f64>,
+    jumps: Vec<JumpRecord>,
+    rule_names: Vec<String>,
+    termination: Option<Termination>,
+}
+
+impl HybridArc {
+    /// An empty arc for states of dimension `dim` whose jump rules are named
+    /// `rule_names` (in declaration order).
+    pub fn new(dim: usize, rule_names: Vec<String>) -> Self {
+        Self {
+            dim,
+            rule_names,
+            ..Self::default()
+        }
+    }
+
+    /// Dimension of the state.
+    pub fn dim(&self) -> usize {
+        self.dim
+    }
+
+    /// Number of samples.
+    pub fn len(&self) -> usize {
+        self.times.len()
+    }
+
+    /// `true` if the arc holds no sample.
+    pub fn is_empty(&self) -> bool {
+        self.times.is_empty()
+    }
+
+    /// The `i`-th sample, if any.
+    pub fn sample_at(&self, i: usize) -> Option<Sample<'_>> {
+        let at = *self.times.get(i)?;
+        Some(Sample {
+            at,
+            kind: self.kinds[i],
+            x: &self.states[i * self.dim..(i + 1) * self.dim],
+        })
+    }
+
+    /// All samples in hybrid-time order.
+    pub fn samples(&self) -> impl ExactSizeIterator<Item = Sample<'_>> + '_ {
+        (0..self.len()).map(|i| Sample {
+            at: self.times[i],
+            kind: self.kinds[i],
+            x: &self.states[i * self.dim..(i + 1) * self.dim],
+        })
+    }
+
+    /// The last sample, if any.
+    pub fn last(&self) -> Option<Sample<'_>> {
+        self.len().checked_sub(1).and_then(|i| self.sample_at(i))
+    }
+
+    /// The jumps, in order.
+    pub fn jumps(&self) -> &[JumpRecord] {
+        &self.jumps
+    }
+
+    /// Names of the jump rules (index = [`JumpRecord::rule`]).
+    pub fn rule_names(&self) -> &[String] {
+        &self.rule_names
+    }
+
+    /// Name of the rule of a jump record, if known.
+    pub fn rule_name(&self, rule: usize) -> Option<&str> {
+        self.rule_names.get(rule).map(String::as_str)
+    }
+
+    /// Ordinary times of the jumps of rule `rule`, in order.
+    pub fn jump_times(&self, rule: usize) -> Vec<f64> {
+        self.jumps
+            .iter()
+            .filter(|r| r.rule == rule)
+            .map(|r| r.at.t)
+            .collect()
+    }
+
+    /// Where and why the solution ended (set by `engine::simulate_arc`).
+    pub fn termination(&self) -> Option<&Termination> {
+        self.termination.as_ref()
+    }
+
+    /// Records the termination (done by `engine::simulate_arc`).
+    pub fn set_termination(&mut self, termination: Termination) {
+        self.termination = Some(termination);
+    }
+
+    /// The state at hybrid time `(t, j)`: linear interpolation between the
+    /// two samples of flow interval `j` around `t` (exact at samples; use a
+    /// fine `dt_out` or step output for accuracy between them). `None` if
+    /// `(t, j)` is not in the arc's domain.
+    pub fn value_at(&self, at: HybridTime) -> Option<Vec<f64>> {
+        // Samples are sorted by (j, t): find the range of interval j.
+        let lo = self.times.partition_point(|s| s.j < at.j);
+        let hi = self.times.partition_point(|s| s.j <= at.j);
+        let interval = &self.times[lo..hi];
+        let first = interval.first()?;
+        let last = interval.last()?;
+        if !(first.t <= at.t && at.t <= last.t) {
+            return None;
+        }
+        // First sample with t >= at.t.
+        let k = lo + interval.partition_point(|s| s.t < at.t);
+        let xk = &self.states[k * self.dim..(k + 1) * self.dim];
+        if self.times[k].t == at.t || k == lo {
+            return Some(xk.to_vec());
+        }
+        let (t0, t1) = (self.times[k - 1].t, self.times[k].t);
+        let x0 = &self.states[(k - 1) * self.dim..k * self.dim];
+        let w = (at.t - t0) / (t1 - t0);
+        Some(x0.iter().zip(xk).map(|(a, b)| a + w * (b - a)).collect())
+    }
+}
+
+impl ArcSink for HybridArc {
+    fn sample(&mut self, at: HybridTime, x: &[f64], kind: SampleKind) -> std::ops::ControlFlow<()> {
+        if self.dim == 0 && self.times.is_empty() {
+            self.dim = x.len();
+        }
+        self.times.push(at);
+        self.kinds.push(kind);
+        self.states.extend_from_slice(x);
+        std::ops::ControlFlow::Continue(())
+    }
+
+    fn jump(
+        &mut self,
+        at: HybridTime,
+        rule: usize,
+        pre: &[f64],
+        post: &[f64],
+    ) -> std::ops::ControlFlow<()> {
+        self.jumps.push(JumpRecord {
+            at,
+            rule,
+            pre: pre.to_vec(),
+            post: post.to_vec(),
+        });
+        std::ops::ControlFlow::Continue(())
+    }
+
+    fn finish(&mut self, termination: &Termination) {
+        self.termination = Some(termination.clone());
+    }
 }

@@ -1,0 +1,100 @@
+//! Errors of the engine: the run could not produce a solution (bad settings,
+//! an inconsistent system, a state that blew up, an integrator that gave
+//! up). Outcomes such as reaching a horizon are not errors; they are
+//! [`TerminationCause`](crate::arc::TerminationCause) values.
+
+use crate::arc::HybridTime;
+
+/// Why a simulation failed. Each variant names where it happened (`at`) and
+/// which state or rule is involved, by index so that a front end can map
+/// indices back to source spans; [`SimError::help`] says what to change.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum SimError {
+    /// A setting is out of range.
+    #[error("invalid setting `{field}`: {reason}")]
+    InvalidSettings {
+        /// Name of the field (e.g. `horizon_t`, `solver.rtol`).
+        field: &'static str,
+        /// What is wrong with its value.
+        reason: String,
+    },
+    /// The initial state does not have the system's dimension.
+    #[error("the initial state has {found} components but the system has {expected}")]
+    StateDimension {
+        /// The system's `state_dim()`.
+        expected: usize,
+        /// Length of the given initial state.
+        found: usize,
+    },
+    /// The system's own description is inconsistent (timer index out of
+    /// range, affine matrices of the wrong size, no state, ...).
+    #[error("invalid system: {what}")]
+    InvalidSystem {
+        /// What is inconsistent.
+        what: String,
+    },
+    /// The system has noise inputs but the solver is deterministic.
+    #[error(
+        "the system is driven by {noise_dim} Wiener processes but the solver is not EulerMaruyama"
+    )]
+    NoiseNeedsEulerMaruyama {
+        /// The system's `noise_dim()`.
+        noise_dim: usize,
+    },
+    /// A state component became NaN or infinite.
+    #[error("state component {component} (`{name}`) became {value} at {at}")]
+    NonFinite {
+        /// Hybrid time of the first non-finite state seen.
+        at: HybridTime,
+        /// Index of the component.
+        component: usize,
+        /// Its name from `state_names()`.
+        name: String,
+        /// The value (NaN or ±∞).
+        value: f64,
+    },
+    /// The adaptive integrator could not meet its tolerance with a step
+    /// above the rounding level.
+    #[error("the step size collapsed at {at} (last accepted step {h:e})")]
+    StepSizeCollapse {
+        /// Hybrid time where the integrator stopped.
+        at: HybridTime,
+        /// The last accepted step size (0 if none was accepted).
+        h: f64,
+    },
+    /// The adaptive integrator detected stiffness.
+    #[error("the flow became stiff at {at}")]
+    Stiff {
+        /// Hybrid time where the integrator stopped.
+        at: HybridTime,
+    },
+}
+
+impl SimError {
+    /// One sentence on what to change.
+    pub fn help(&self) -> &'static str {
+        match self {
+            SimError::InvalidSettings { .. } => "change the named setting to a value in its range",
+            SimError::StateDimension { .. } => {
+                "give one initial value per state component, in `state_names()` order"
+            }
+            SimError::InvalidSystem { .. } => {
+                "fix the system definition: timer indices and affine matrices must match the state"
+            }
+            SimError::NoiseNeedsEulerMaruyama { .. } => {
+                "choose `Solver::EulerMaruyama { h }` for systems with noise"
+            }
+            SimError::NonFinite { .. } => {
+                "the flow or jump map produced NaN/∞ here: check divisions and unstable dynamics, \
+                 or shorten the horizon"
+            }
+            SimError::StepSizeCollapse { .. } => {
+                "the flow may blow up or be discontinuous here: check the flow map, loosen \
+                 `rtol`/`atol`, or make the discontinuity a jump"
+            }
+            SimError::Stiff { .. } => {
+                "the flow is stiff: use smaller horizons, `Rk4` with a small `h`, or rescale the model"
+            }
+        }
+    }
+}

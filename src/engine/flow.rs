@@ -1,0 +1,725 @@
+//! Flow segments: advancing the state from local time 0 to the first event,
+//! the segment end `d_end` (next timer event or horizon), or a chunk end.
+//!
+//! Three methods share the event watcher and the output logic:
+//! - ode_solvers steppers (Dopri5, Dop853, Rk4) driven through `solout`
+//!   with sparse output; events are localized on the cubic Hermite
+//!   interpolant of the step ends;
+//! - exact advance of affine flows `ẋ = A x + b` by the exponential of the
+//!   augmented matrix `[[A, b], [0, 0]]`, cached per distinct step length;
+//!   events are localized on the exact solution;
+//! - Euler–Maruyama with fixed step for noisy flows; events are localized
+//!   on the linear interpolant of the step ends.
+
+use std::ops::ControlFlow;
+
+use nalgebra::{DMatrix, DVector};
+use ode_solvers::{Dop853, Dopri5, OutputType, Rk4, System, dop_shared::IntegrationError};
+
+use super::HybridSystem;
+use super::error::SimError;
+use super::events::{EventKind, Hermite, Linear, StepPath, Watcher};
+use super::settings::{SimSettings, Solver};
+use super::system::SimRng;
+use crate::arc::{ArcSink, HybridTime, SampleKind};
+
+/// Steps per ode_solvers stepper before it is restarted from its last state
+/// (bounds the memory of its sparse output and of `Rk4`'s preallocation).
+const MAX_STEPS_PER_STEPPER: u32 = 10_000;
+
+/// Why a flow segment ended.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum EndWhy {
+    /// Reached `d_end`.
+    Reached,
+    /// Stopped early at a chunk boundary; keep flowing.
+    Partial,
+    /// An event was localized.
+    Event(EventKind),
+    /// The sink asked to stop.
+    Stopped,
+}
+
+/// Output of flow samples to the sink: every step end, or a fixed grid.
+pub(crate) struct Output<'a> {
+    pub sink: &'a mut dyn ArcSink,
+    dt: Option<f64>,
+    next_k: u64,
+    buf: Vec<f64>,
+}
+
+impl<'a> Output<'a> {
+    pub fn new(sink: &'a mut dyn ArcSink, dt: Option<f64>, n: usize) -> Self {
+        Self {
+            sink,
+            dt,
+            next_k: 1,
+            buf: vec![0.0; n],
+        }
+    }
+
+    /// Pushes the flow samples of the step `(s_lo, s_hi]` (local times,
+    /// global `t0 + s`) that lie strictly before `limit`.
+    #[allow(clippy::too_many_arguments)]
+    fn step<P: StepPath>(
+        &mut self,
+        t0: f64,
+        j: u64,
+        path: &mut P,
+        s_lo: f64,
+        s_hi: f64,
+        y_hi: &[f64],
+        limit: f64,
+    ) -> ControlFlow<()> {
+        match self.dt {
+            None => {
+                if s_hi < limit {
+                    self.sink
+                        .sample(HybridTime::new(t0 + s_hi, j), y_hi, SampleKind::Flow)?;
+                }
+            }
+            Some(dt) => loop {
+                let tg = self.next_k as f64 * dt;
+                let sg = tg - t0;
+                if sg > s_hi || sg >= limit {
+                    break;
+                }
+                if sg > s_lo {
+                    path.eval(sg, &mut self.buf);
+                    self.sink
+                        .sample(HybridTime::new(tg, j), &self.buf, SampleKind::Flow)?;
+                }
+                self.next_k += 1;
+            },
+        }
+        ControlFlow::Continue(())
+    }
+
+    /// Local time of the next grid point after `s`, if any.
+    fn next_grid_after(&self, t0: f64, s: f64) -> Option<f64> {
+        let dt = self.dt?;
+        let mut k = self.next_k;
+        loop {
+            let sg = k as f64 * dt - t0;
+            if sg > s {
+                return Some(sg);
+            }
+            k += 1;
+        }
+    }
+}
+
+/// How flows are advanced.
+pub(crate) enum Method {
+    Ode(Solver),
+    Affine(Box<Affine>),
+    EulerMaruyama { h: f64 },
+}
+
+/// Exact propagators of `ẋ = A x + b`.
+pub(crate) struct Affine {
+    n: usize,
+    /// The augmented generator `[[A, b], [0, 0]]`, (n+1)×(n+1).
+    gen_: DMatrix<f64>,
+    cache: Vec<(u64, DMatrix<f64>)>,
+    next_slot: usize,
+    /// Longest step between guard checks: 1/‖A‖∞.
+    watch_step: f64,
+}
+
+const AFFINE_CACHE: usize = 8;
+
+impl Affine {
+    pub fn new(n: usize, a: &[f64], b: &[f64]) -> Result<Self, SimError> {
+        if a.len() != n * n || b.len() != n {
+            return Err(SimError::InvalidSystem {
+                what: format!(
+                    "FlowStructure::Affine needs A with {} entries and b with {n}, got {} and {}",
+                    n * n,
+                    a.len(),
+                    b.len()
+                ),
+            });
+        }
+        if a.iter().chain(b).any(|v| !v.is_finite()) {
+            return Err(SimError::InvalidSystem {
+                what: "FlowStructure::Affine has a non-finite entry in A or b".into(),
+            });
+        }
+        let mut gen_ = DMatrix::zeros(n + 1, n + 1);
+        let mut norm: f64 = 0.0;
+        for r in 0..n {
+            let mut row = 0.0;
+            for c in 0..n {
+                gen_[(r, c)] = a[r * n + c];
+                row += a[r * n + c].abs();
+            }
+            gen_[(r, n)] = b[r];
+            norm = norm.max(row);
+        }
+        let watch_step = if norm > 0.0 {
+            1.0 / norm
+        } else {
+            f64::INFINITY
+        };
+        Ok(Self {
+            n,
+            gen_,
+            cache: Vec::with_capacity(AFFINE_CACHE),
+            next_slot: 0,
+            watch_step,
+        })
+    }
+
+    fn propagator(&mut self, h: f64) -> &DMatrix<f64> {
+        let key = h.to_bits();
+        if let Some(i) = self.cache.iter().position(|(k, _)| *k == key) {
+            return &self.cache[i].1;
+        }
+        let p = (&self.gen_ * h).exp();
+        let slot = if self.cache.len() < AFFINE_CACHE {
+            self.cache.push((key, p));
+            self.cache.len() - 1
+        } else {
+            let slot = self.next_slot;
+            self.cache[slot] = (key, p);
+            self.next_slot = (slot + 1) % AFFINE_CACHE;
+            slot
+        };
+        &self.cache[slot].1
+    }
+
+    /// `out = Φ x + γ` with `p = [[Φ, γ], [0, 1]]`.
+    fn apply(n: usize, p: &DMatrix<f64>, x: &[f64], out: &mut [f64]) {
+        for (r, o) in out.iter_mut().enumerate() {
+            *o = p[(r, n)];
+        }
+        for (c, &xc) in x.iter().enumerate() {
+            let col = p.column(c);
+            for (r, o) in out.iter_mut().enumerate() {
+                *o += col[r] * xc;
+            }
+        }
+    }
+}
+
+/// The exact solution of an affine flow on one step.
+struct AffinePath<'a> {
+    n: usize,
+    gen_: &'a DMatrix<f64>,
+    s0: f64,
+    s1: f64,
+    y0: &'a [f64],
+    y1: &'a [f64],
+}
+
+impl StepPath for AffinePath<'_> {
+    fn eval(&mut self, s: f64, out: &mut [f64]) {
+        if s == self.s1 {
+            out.copy_from_slice(self.y1);
+        } else if s == self.s0 {
+            out.copy_from_slice(self.y0);
+        } else {
+            let p = (self.gen_ * (s - self.s0)).exp();
+            Affine::apply(self.n, &p, self.y0, out);
+        }
+    }
+}
+
+/// Buffers reused across segments (no allocation per segment besides the
+/// ode_solvers stepper's own).
+pub(crate) struct Flows {
+    pub method: Method,
+    pub watcher: Watcher,
+    max_step: f64,
+    need_derivative: bool,
+    y_prev: Vec<f64>,
+    f_prev: Vec<f64>,
+    f_cur: Vec<f64>,
+    y_end: Vec<f64>,
+    noise_g: Vec<f64>,
+    noise_dw: Vec<f64>,
+    /// Last full accepted step of an adaptive solver, for diagnostics.
+    last_h: f64,
+}
+
+/// End of a flow segment: local time reached and why; the state is written
+/// back into the caller's vector.
+pub(crate) struct SegmentEnd {
+    pub s: f64,
+    pub why: EndWhy,
+}
+
+pub(crate) fn check_finite<S: HybridSystem + ?Sized>(
+    sys: &S,
+    at: HybridTime,
+    x: &[f64],
+) -> Option<SimError> {
+    let i = x.iter().position(|v| !v.is_finite())?;
+    Some(SimError::NonFinite {
+        at,
+        component: i,
+        name: sys.state_names().get(i).cloned().unwrap_or_default(),
+        value: x[i],
+    })
+}
+
+impl Flows {
+    pub fn new<S: HybridSystem + ?Sized>(
+        sys: &S,
+        settings: &SimSettings,
+        method: Method,
+        x0: &[f64],
+    ) -> Self {
+        let n = x0.len();
+        let watcher = Watcher::new(sys, settings, x0);
+        let m = sys.noise_dim();
+        let has_timers = sys
+            .jump_rules()
+            .iter()
+            .any(|r| matches!(r.guard, super::GuardKind::Timer { .. }));
+        let need_derivative = has_timers || !watcher.is_empty() || settings.dt_out.is_some();
+        Self {
+            method,
+            watcher,
+            max_step: settings.max_step,
+            need_derivative,
+            y_prev: vec![0.0; n],
+            f_prev: vec![0.0; n],
+            f_cur: vec![0.0; n],
+            y_end: vec![0.0; n],
+            noise_g: vec![0.0; n * m],
+            noise_dw: vec![0.0; m],
+            last_h: 0.0,
+        }
+    }
+
+    /// Prepares a segment starting at global time `t0` from `x`; returns
+    /// f(t0, x) (zeros if no one needs it), whose timer components give the
+    /// timers' constant rates.
+    pub fn start<S: HybridSystem + ?Sized>(&mut self, sys: &S, t0: f64, x: &[f64]) -> &[f64] {
+        if self.need_derivative {
+            sys.flow_map(t0, x, &mut self.f_prev);
+        }
+        self.watcher.start(sys, t0, x);
+        &self.f_prev
+    }
+
+    /// Post-crossing state of the last event found.
+    pub fn event_post_state(&self) -> &[f64] {
+        self.watcher.post_state()
+    }
+
+    /// Advances `x` (at global time `t0`, jump count `j`) by at most `d_end`.
+    /// Call [`start`](Self::start) first.
+    #[allow(clippy::too_many_arguments)]
+    pub fn segment<S: HybridSystem + ?Sized>(
+        &mut self,
+        sys: &S,
+        out: &mut Output<'_>,
+        rng: &mut SimRng,
+        t0: f64,
+        j: u64,
+        x: &mut [f64],
+        d_end: f64,
+    ) -> Result<SegmentEnd, SimError> {
+        self.y_prev.copy_from_slice(x);
+        let end = match &mut self.method {
+            Method::Ode(solver) => {
+                let solver = *solver;
+                self.ode_segment(sys, out, solver, t0, j, d_end)?
+            }
+            Method::Affine(_) => self.affine_segment(sys, out, t0, j, d_end)?,
+            Method::EulerMaruyama { h } => {
+                let h = *h;
+                self.em_segment(sys, out, rng, h, t0, j, d_end)?
+            }
+        };
+        x.copy_from_slice(&self.y_end);
+        Ok(end)
+    }
+
+    fn ode_segment<S: HybridSystem + ?Sized>(
+        &mut self,
+        sys: &S,
+        out: &mut Output<'_>,
+        solver: Solver,
+        t0: f64,
+        j: u64,
+        d_end: f64,
+    ) -> Result<SegmentEnd, SimError> {
+        let y0 = DVector::from_column_slice(&self.y_prev);
+        let (d_stop, reach_why, last_from, f_is_start, h_fixed) = match solver {
+            Solver::Rk4 { h } => {
+                let chunk = d_end.min(h * f64::from(MAX_STEPS_PER_STEPPER));
+                let steps = (chunk / h).ceil().max(1.0);
+                let h_eff = chunk / steps;
+                let why = if chunk < d_end {
+                    EndWhy::Partial
+                } else {
+                    EndWhy::Reached
+                };
+                (chunk, why, chunk - 0.5 * h_eff, true, h_eff)
+            }
+            _ => (
+                d_end,
+                EndWhy::Reached,
+                d_end - 4.0 * f64::EPSILON * d_end,
+                false,
+                0.0,
+            ),
+        };
+        let mut step = Stepper {
+            sys,
+            fl: self,
+            out,
+            t0,
+            j,
+            d_stop,
+            last_from,
+            reach_why,
+            f_is_start,
+            s_prev: 0.0,
+            end: None,
+        };
+        let h_max = step.fl.max_step.min(d_end);
+        let result = match solver {
+            Solver::Dopri5 { rtol, atol } => {
+                let mut st = Dopri5::from_param(
+                    &mut step,
+                    0.0,
+                    d_stop,
+                    d_stop,
+                    y0,
+                    rtol,
+                    atol,
+                    0.9,
+                    0.04,
+                    0.2,
+                    10.0,
+                    h_max,
+                    0.0,
+                    MAX_STEPS_PER_STEPPER,
+                    1000,
+                    OutputType::Sparse,
+                );
+                st.integrate().map(|_| ())
+            }
+            Solver::Dop853 { rtol, atol } => {
+                let mut st = Dop853::from_param(
+                    &mut step,
+                    0.0,
+                    d_stop,
+                    d_stop,
+                    y0,
+                    rtol,
+                    atol,
+                    0.9,
+                    0.0,
+                    0.333,
+                    6.0,
+                    h_max,
+                    0.0,
+                    MAX_STEPS_PER_STEPPER,
+                    1000,
+                    OutputType::Sparse,
+                );
+                st.integrate().map(|_| ())
+            }
+            Solver::Rk4 { .. } | Solver::EulerMaruyama { .. } => {
+                let mut st = Rk4::new(&mut step, 0.0, y0, d_stop, h_fixed);
+                st.integrate().map(|_| ())
+            }
+        };
+        let (s_prev, end) = (step.s_prev, step.end.take());
+        match (end, result) {
+            (Some(end), _) => end,
+            (None, Ok(())) | (None, Err(IntegrationError::MaxNumStepReached { .. })) => {
+                // Ended without our last-step test firing (or hit the step
+                // limit): continue from the last accepted step end.
+                self.y_end.copy_from_slice(&self.y_prev);
+                Ok(SegmentEnd {
+                    s: s_prev,
+                    why: EndWhy::Partial,
+                })
+            }
+            (None, Err(IntegrationError::StepSizeUnderflow { x })) => {
+                Err(SimError::StepSizeCollapse {
+                    at: HybridTime::new(t0 + x, j),
+                    h: self.last_h,
+                })
+            }
+            (None, Err(IntegrationError::StiffnessDetected { x })) => Err(SimError::Stiff {
+                at: HybridTime::new(t0 + x, j),
+            }),
+        }
+    }
+
+    fn affine_segment<S: HybridSystem + ?Sized>(
+        &mut self,
+        sys: &S,
+        out: &mut Output<'_>,
+        t0: f64,
+        j: u64,
+        d_end: f64,
+    ) -> Result<SegmentEnd, SimError> {
+        let Method::Affine(aff) = &mut self.method else {
+            unreachable!("affine method")
+        };
+        let n = aff.n;
+        let watch = !self.watcher.is_empty();
+        let hw = if watch {
+            self.max_step.min(aff.watch_step)
+        } else {
+            f64::INFINITY
+        };
+        let mut s = 0.0;
+        loop {
+            let mut s1 = d_end.min(s + hw);
+            if let Some(sg) = out.next_grid_after(t0, s)
+                && sg < s1
+            {
+                s1 = sg;
+            }
+            let last = s1 >= d_end;
+            if last {
+                s1 = d_end;
+            }
+            let p = aff.propagator(s1 - s);
+            Affine::apply(n, p, &self.y_prev, &mut self.f_cur);
+            if let Some(e) = check_finite(sys, HybridTime::new(t0 + s1, j), &self.f_cur) {
+                return Err(e);
+            }
+            let mut path = AffinePath {
+                n,
+                gen_: &aff.gen_,
+                s0: s,
+                s1,
+                y0: &self.y_prev,
+                y1: &self.f_cur,
+            };
+            if watch
+                && let Some((se, kind)) = self.watcher.scan(sys, t0, &mut path, s, s1, &self.f_cur)
+            {
+                self.y_end.copy_from_slice(&self.watcher.event_state);
+                if out
+                    .step(t0, j, &mut path, s, s1, &self.f_cur, se)
+                    .is_break()
+                {
+                    return Ok(SegmentEnd {
+                        s: se,
+                        why: EndWhy::Stopped,
+                    });
+                }
+                return Ok(SegmentEnd {
+                    s: se,
+                    why: EndWhy::Event(kind),
+                });
+            }
+            let limit = if last { d_end } else { f64::INFINITY };
+            if out
+                .step(t0, j, &mut path, s, s1, &self.f_cur, limit)
+                .is_break()
+            {
+                self.y_end.copy_from_slice(&self.f_cur);
+                return Ok(SegmentEnd {
+                    s: s1,
+                    why: EndWhy::Stopped,
+                });
+            }
+            std::mem::swap(&mut self.y_prev, &mut self.f_cur);
+            s = s1;
+            if last {
+                self.y_end.copy_from_slice(&self.y_prev);
+                return Ok(SegmentEnd {
+                    s: d_end,
+                    why: EndWhy::Reached,
+                });
+            }
+        }
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    fn em_segment<S: HybridSystem + ?Sized>(
+        &mut self,
+        sys: &S,
+        out: &mut Output<'_>,
+        rng: &mut SimRng,
+        h: f64,
+        t0: f64,
+        j: u64,
+        d_end: f64,
+    ) -> Result<SegmentEnd, SimError> {
+        let m = self.noise_dw.len();
+        let watch = !self.watcher.is_empty();
+        let mut s = 0.0;
+        let mut y1 = std::mem::take(&mut self.f_cur);
+        let result = loop {
+            let remaining = d_end - s;
+            let last = remaining <= h * (1.0 + 1e-9);
+            let (s1, dt) = if last { (d_end, remaining) } else { (s + h, h) };
+            sys.flow_map(t0 + s, &self.y_prev, &mut y1);
+            for (yn, &yo) in y1.iter_mut().zip(self.y_prev.iter()) {
+                *yn = yo + dt * *yn;
+            }
+            if m > 0 {
+                sys.diffusion(t0 + s, &self.y_prev, &mut self.noise_g);
+                let sq = dt.sqrt();
+                for w in self.noise_dw.iter_mut() {
+                    *w = sq * rng.standard_normal();
+                }
+                for (r, yn) in y1.iter_mut().enumerate() {
+                    let row = &self.noise_g[r * m..(r + 1) * m];
+                    *yn += row
+                        .iter()
+                        .zip(&self.noise_dw)
+                        .map(|(g, w)| g * w)
+                        .sum::<f64>();
+                }
+            }
+            if let Some(e) = check_finite(sys, HybridTime::new(t0 + s1, j), &y1) {
+                break Err(e);
+            }
+            let mut path = Linear {
+                s0: s,
+                s1,
+                y0: &self.y_prev,
+                y1: &y1,
+            };
+            if watch && let Some((se, kind)) = self.watcher.scan(sys, t0, &mut path, s, s1, &y1) {
+                self.y_end.copy_from_slice(&self.watcher.event_state);
+                if out.step(t0, j, &mut path, s, s1, &y1, se).is_break() {
+                    break Ok(SegmentEnd {
+                        s: se,
+                        why: EndWhy::Stopped,
+                    });
+                }
+                break Ok(SegmentEnd {
+                    s: se,
+                    why: EndWhy::Event(kind),
+                });
+            }
+            let limit = if last { d_end } else { f64::INFINITY };
+            if out.step(t0, j, &mut path, s, s1, &y1, limit).is_break() {
+                self.y_end.copy_from_slice(&y1);
+                break Ok(SegmentEnd {
+                    s: s1,
+                    why: EndWhy::Stopped,
+                });
+            }
+            std::mem::swap(&mut self.y_prev, &mut y1);
+            s = s1;
+            if last {
+                self.y_end.copy_from_slice(&self.y_prev);
+                break Ok(SegmentEnd {
+                    s: d_end,
+                    why: EndWhy::Reached,
+                });
+            }
+        };
+        self.f_cur = y1;
+        result
+    }
+}
+
+/// The `ode_solvers::System` seen by the steppers: the flow map in local
+/// time, and `solout` doing event detection and output after each step.
+struct Stepper<'f, 'o, S: ?Sized> {
+    sys: &'f S,
+    fl: &'f mut Flows,
+    out: &'f mut Output<'o>,
+    t0: f64,
+    j: u64,
+    d_stop: f64,
+    last_from: f64,
+    reach_why: EndWhy,
+    /// `Rk4` passes f at the step's start to `solout`; Dopri5/Dop853 at its end.
+    f_is_start: bool,
+    s_prev: f64,
+    end: Option<Result<SegmentEnd, SimError>>,
+}
+
+impl<S: HybridSystem + ?Sized> Stepper<'_, '_, S> {
+    fn finish(&mut self, end: Result<SegmentEnd, SimError>) -> bool {
+        self.end = Some(end);
+        true
+    }
+
+    /// After each accepted step ending at local time `s` with state `y`;
+    /// returns `true` to stop the stepper.
+    fn on_step(&mut self, s: f64, y: &[f64], dy: &[f64]) -> bool {
+        if let Some(e) = check_finite(self.sys, HybridTime::new(self.t0 + s, self.j), y) {
+            return self.finish(Err(e));
+        }
+        let last = s >= self.last_from;
+        let s1 = if last { self.d_stop } else { s };
+        let fl = &mut *self.fl;
+        if fl.need_derivative {
+            if self.f_is_start {
+                self.sys.flow_map(self.t0 + s1, y, &mut fl.f_cur);
+            } else {
+                fl.f_cur.copy_from_slice(dy);
+            }
+        }
+        let mut path = Hermite {
+            s0: self.s_prev,
+            s1,
+            y0: &fl.y_prev,
+            f0: &fl.f_prev,
+            y1: y,
+            f1: &fl.f_cur,
+        };
+        if !fl.watcher.is_empty()
+            && let Some((se, kind)) =
+                fl.watcher
+                    .scan(self.sys, self.t0, &mut path, self.s_prev, s1, y)
+        {
+            fl.y_end.copy_from_slice(&fl.watcher.event_state);
+            let why = if self
+                .out
+                .step(self.t0, self.j, &mut path, self.s_prev, s1, y, se)
+                .is_break()
+            {
+                EndWhy::Stopped
+            } else {
+                EndWhy::Event(kind)
+            };
+            return self.finish(Ok(SegmentEnd { s: se, why }));
+        }
+        let limit = if last { s1 } else { f64::INFINITY };
+        if self
+            .out
+            .step(self.t0, self.j, &mut path, self.s_prev, s1, y, limit)
+            .is_break()
+        {
+            fl.y_end.copy_from_slice(y);
+            return self.finish(Ok(SegmentEnd {
+                s: s1,
+                why: EndWhy::Stopped,
+            }));
+        }
+        if last {
+            fl.y_end.copy_from_slice(y);
+            let why = self.reach_why;
+            return self.finish(Ok(SegmentEnd { s: s1, why }));
+        }
+        if s1 - self.s_prev > 0.0 {
+            fl.last_h = s1 - self.s_prev;
+        }
+        self.s_prev = s1;
+        fl.y_prev.copy_from_slice(y);
+        std::mem::swap(&mut fl.f_prev, &mut fl.f_cur);
+        false
+    }
+}
+
+impl<S: HybridSystem + ?Sized> System<f64, DVector<f64>> for &mut Stepper<'_, '_, S> {
+    fn system(&self, s: f64, y: &DVector<f64>, dy: &mut DVector<f64>) {
+        self.sys
+            .flow_map(self.t0 + s, y.as_slice(), dy.as_mut_slice());
+    }
+
+    fn solout(&mut self, s: f64, y: &DVector<f64>, dy: &DVector<f64>) -> bool {
+        self.on_step(s, y.as_slice(), dy.as_slice())
+    }
+}
