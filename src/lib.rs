@@ -10,3 +10,4 @@ extern crate openblas_src;
 pub mod arc;
 pub mod engine;
 pub mod layout;
+pub mod sinks;

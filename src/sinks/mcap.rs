@@ -1,0 +1,629 @@
+//! The MCAP log of a run: JSON messages with per-model JSON Schemas, zstd
+//! chunks, metadata and attachments that make the run reproducible from the
+//! file alone. Opens in Foxglove and the official MCAP readers.
+//!
+//! # Layout of the file
+//!
+//! | record | content |
+//! |---|---|
+//! | metadata `hybsim.run` | `version`, `model` (path), `model_name`, `model_sha256`, `seed`, `state_names`, `output_names`, `rule_names`, `argv` (JSON arrays) |
+//! | metadata `hybsim.parameters` | one entry per resolved parameter (JSON value) |
+//! | metadata `hybsim.solver` | one entry per setting (JSON value) |
+//! | metadata `hybsim.design` | design results, when the model has design blocks |
+//! | attachment `<model file name>` | the model source (`text/plain`) |
+//! | attachment `run.json` | the resolved run description (`application/json`) |
+//! | channel `/hybsim/state` | one message per logged sample: `{t, j, <states>}` |
+//! | channel `/hybsim/outputs` | one message per logged sample: `{t, j, <outputs>}` (if the model has outputs) |
+//! | channel `/hybsim/jumps` | one message per jump: `{t, j, rule, rule_id, index?, pre, post}` |
+//! | channel `/hybsim/log` | run start and end (`foxglove.Log`) |
+//! | metadata `hybsim.result` | `termination`, `message`, `ok`, `t_end`, `j_end`, `jumps` (per rule), `samples_logged` |
+//!
+//! `log_time = publish_time = round((t − t0)·10⁹)` ns, with t0 the time of
+//! the first sample; every payload carries the exact `t` and `j`, because
+//! samples closer than 1 ns share a log time. A jump writes the pre-jump
+//! sample, the jump record and the post-jump sample in that order, with the
+//! same log time. Nothing time-of-day dependent is written, so the same
+//! seed and command line give a byte-identical file.
+
+use std::collections::BTreeMap;
+use std::fs::File;
+use std::io::BufWriter;
+use std::ops::ControlFlow;
+use std::path::{Path, PathBuf};
+
+use mcap::records::{MessageHeader, Metadata};
+use mcap::{Attachment, Compression, WriteOptions, Writer};
+use serde::Serialize;
+use serde_json::{Value, json};
+
+use super::json::{
+    JumpRecordJson, LogLevel, LogRecord, LogTimestamp, SampleRecord, Values, jump_schema,
+    log_schema, sample_schema,
+};
+use super::{
+    Decimation, Decimator, OutputFn, RunInfo, RunOutcome, SinkError, Tally, commit_file,
+    first_non_finite, rule_name, temp_path,
+};
+use crate::arc::{ArcSink, HybridTime, SampleKind};
+
+/// Topic of state samples.
+pub const STATE_TOPIC: &str = "/hybsim/state";
+/// Topic of output samples.
+pub const OUTPUTS_TOPIC: &str = "/hybsim/outputs";
+/// Topic of jump records.
+pub const JUMPS_TOPIC: &str = "/hybsim/jumps";
+/// Topic of log messages (`foxglove.Log`).
+pub const LOG_TOPIC: &str = "/hybsim/log";
+
+/// Options of the MCAP sink.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct McapOptions {
+    /// Which samples to write. Default: all.
+    pub decimation: Decimation,
+    /// zstd level. Default 1 (fast; level 3 saves a few percent more).
+    pub zstd_level: u32,
+}
+
+impl Default for McapOptions {
+    fn default() -> Self {
+        Self {
+            decimation: Decimation::default(),
+            zstd_level: 1,
+        }
+    }
+}
+
+impl McapOptions {
+    /// Sets the decimation.
+    pub fn decimation(self, decimation: Decimation) -> Self {
+        Self { decimation, ..self }
+    }
+
+    /// Sets the zstd level (1–19).
+    pub fn zstd_level(self, zstd_level: u32) -> Self {
+        Self { zstd_level, ..self }
+    }
+}
+
+/// What [`McapSink::finish`] wrote.
+#[derive(Debug, Clone, PartialEq)]
+pub struct McapSummary {
+    /// The final file.
+    pub path: PathBuf,
+    /// Messages per topic.
+    pub messages: BTreeMap<String, u64>,
+    /// Samples and jumps seen.
+    pub tally: Tally,
+    /// The outcome written to `hybsim.result` (the caller's, or
+    /// `non_finite` if this sink stopped the run on a non-finite value).
+    pub outcome: RunOutcome,
+}
+
+struct Channels {
+    state: u16,
+    outputs: Option<u16>,
+    jumps: u16,
+    log: u16,
+}
+
+/// Writes a run to an MCAP file; see the module documentation for the
+/// layout. Create it before the run, push the run into it, then call
+/// [`finish`](Self::finish): only then does the file appear at its path.
+pub struct McapSink<'a> {
+    path: PathBuf,
+    tmp: PathBuf,
+    writer: Option<Writer<BufWriter<File>>>,
+    info: &'a RunInfo,
+    outputs: Option<OutputFn<'a>>,
+    channels: Channels,
+    decimator: Decimator,
+    tally: Tally,
+    t0: Option<f64>,
+    last_log_time: u64,
+    sequence: u32,
+    y: Vec<f64>,
+    buf: Vec<u8>,
+    error: Option<SinkError>,
+    state_names: Vec<String>,
+    output_names: Vec<String>,
+    finished: bool,
+}
+
+fn meta_entries<I, K>(entries: I) -> BTreeMap<String, String>
+where
+    I: IntoIterator<Item = (K, Value)>,
+    K: Into<String>,
+{
+    entries
+        .into_iter()
+        .map(|(k, v)| {
+            let s = match v {
+                Value::String(s) => s,
+                other => other.to_string(),
+            };
+            (k.into(), s)
+        })
+        .collect()
+}
+
+/// One metadata entry per key of a JSON object, or a single `value` entry.
+fn object_entries(v: &Value) -> BTreeMap<String, String> {
+    match v {
+        Value::Object(map) => meta_entries(map.iter().map(|(k, v)| (k.clone(), v.clone()))),
+        other => meta_entries([("value", other.clone())]),
+    }
+}
+
+impl<'a> McapSink<'a> {
+    /// Creates `<path>.tmp` and writes the run's metadata, attachments,
+    /// schemas and channels. `outputs` evaluates the model's outputs for
+    /// each logged sample (required if `info.output_dim > 0`).
+    pub fn create(
+        path: impl AsRef<Path>,
+        info: &'a RunInfo,
+        outputs: Option<OutputFn<'a>>,
+        options: McapOptions,
+    ) -> Result<Self, SinkError> {
+        let path = path.as_ref().to_path_buf();
+        info.validate()?;
+        options.decimation.validate()?;
+        if info.output_dim > 0 && outputs.is_none() {
+            return Err(SinkError::Option {
+                option: "outputs",
+                message: "the model has outputs but no output function was given".into(),
+            });
+        }
+        let tmp = temp_path(&path);
+        let file = File::create(&tmp).map_err(|e| SinkError::io(&tmp, e))?;
+        let mcap_err = |source| SinkError::Mcap {
+            path: tmp.clone(),
+            source,
+        };
+        let mut writer = WriteOptions::new()
+            .compression(Some(Compression::Zstd))
+            .compression_level(options.zstd_level)
+            .compression_threads(1)
+            .profile("")
+            .library(format!("hybsim {}", env!("CARGO_PKG_VERSION")))
+            .create(BufWriter::new(file))
+            .map_err(mcap_err)?;
+
+        let state_names = info.state_names();
+        let output_names = info.output_names();
+        let run = meta_entries([
+            ("version", json!(env!("CARGO_PKG_VERSION"))),
+            ("model", json!(info.model_path)),
+            ("model_name", json!(info.model_name)),
+            ("model_sha256", json!(info.source_sha256())),
+            ("seed", json!(info.seed.to_string())),
+            ("state_names", Value::String(json!(state_names).to_string())),
+            (
+                "output_names",
+                Value::String(json!(output_names).to_string()),
+            ),
+            (
+                "rule_names",
+                Value::String(json!(info.rule_names).to_string()),
+            ),
+            ("argv", Value::String(json!(info.argv).to_string())),
+            (
+                "decimation",
+                Value::String(json!(options.decimation).to_string()),
+            ),
+        ]);
+        let mut records = vec![
+            ("hybsim.run", run),
+            ("hybsim.parameters", object_entries(&info.parameters)),
+            ("hybsim.solver", object_entries(&info.solver)),
+        ];
+        if let Some(design) = &info.design {
+            records.push(("hybsim.design", object_entries(design)));
+        }
+        for (name, metadata) in records {
+            writer
+                .write_metadata(&Metadata {
+                    name: name.into(),
+                    metadata,
+                })
+                .map_err(mcap_err)?;
+        }
+
+        let source_name = Path::new(&info.model_path)
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .filter(|n| !n.is_empty())
+            .unwrap_or_else(|| format!("{}.hyb", info.model_name));
+        let description = json!({
+            "hybsim_version": env!("CARGO_PKG_VERSION"),
+            "model": {"name": info.model_name, "path": info.model_path,
+                      "sha256": info.source_sha256(), "attachment": source_name},
+            "seed": info.seed,
+            "argv": info.argv,
+            "overrides": info.overrides,
+            "parameters": info.parameters,
+            "solver": info.solver,
+            "design": info.design,
+            "decimation": options.decimation,
+            "state": {"dim": info.state_dim, "layout": info.state_layout, "names": state_names},
+            "outputs": {"dim": info.output_dim, "layout": info.output_layout, "names": output_names},
+            "rules": info.rule_names,
+        });
+        let description =
+            serde_json::to_vec_pretty(&description).expect("a JSON value always serializes");
+        for (name, media_type, data) in [
+            (source_name, "text/plain", info.source.as_bytes().to_vec()),
+            ("run.json".to_string(), "application/json", description),
+        ] {
+            writer
+                .attach(&Attachment {
+                    log_time: 0,
+                    create_time: 0,
+                    name,
+                    media_type: media_type.into(),
+                    data: data.into(),
+                })
+                .map_err(mcap_err)?;
+        }
+
+        let mut channel = |topic: &str, title: &str, schema: Value| {
+            let data = serde_json::to_vec(&schema).expect("a JSON value always serializes");
+            let schema_id = writer.add_schema(title, "jsonschema", &data)?;
+            writer.add_channel(schema_id, topic, "json", &BTreeMap::new())
+        };
+        let model = &info.model_name;
+        let state = channel(
+            STATE_TOPIC,
+            &format!("hybsim.{model}.State"),
+            sample_schema(&format!("hybsim.{model}.State"), &info.state_layout),
+        )
+        .map_err(mcap_err)?;
+        let outputs_channel = if info.output_dim > 0 {
+            Some(
+                channel(
+                    OUTPUTS_TOPIC,
+                    &format!("hybsim.{model}.Outputs"),
+                    sample_schema(&format!("hybsim.{model}.Outputs"), &info.output_layout),
+                )
+                .map_err(mcap_err)?,
+            )
+        } else {
+            None
+        };
+        let jumps = channel(
+            JUMPS_TOPIC,
+            &format!("hybsim.{model}.Jump"),
+            jump_schema(&format!("hybsim.{model}.Jump"), &info.state_layout),
+        )
+        .map_err(mcap_err)?;
+        let log = channel(LOG_TOPIC, "foxglove.Log", log_schema()).map_err(mcap_err)?;
+
+        Ok(Self {
+            path,
+            tmp,
+            writer: Some(writer),
+            info,
+            outputs,
+            channels: Channels {
+                state,
+                outputs: outputs_channel,
+                jumps,
+                log,
+            },
+            decimator: Decimator::new(options.decimation),
+            tally: Tally::new(info.rule_names.len()),
+            t0: None,
+            last_log_time: 0,
+            sequence: 0,
+            y: vec![0.0; info.output_dim],
+            buf: Vec::with_capacity(256),
+            error: None,
+            state_names,
+            output_names,
+            finished: false,
+        })
+    }
+
+    /// `round((t − t0)·10⁹)` ns, clamped to the u64 range.
+    fn log_time(&mut self, t: f64) -> u64 {
+        let t0 = *self.t0.get_or_insert(t);
+        let ns = ((t - t0) * 1e9).round();
+        let ns = if ns.is_nan() || ns <= 0.0 {
+            0
+        } else if ns >= u64::MAX as f64 {
+            u64::MAX
+        } else {
+            ns as u64
+        };
+        self.last_log_time = ns;
+        ns
+    }
+
+    /// Writes the serialized `self.buf` to `channel`.
+    fn write_buf(&mut self, channel: u16, log_time: u64) -> Result<(), SinkError> {
+        let writer = self
+            .writer
+            .as_mut()
+            .expect("the writer is present until finish");
+        self.sequence = self.sequence.wrapping_add(1);
+        writer
+            .write_to_known_channel(
+                &MessageHeader {
+                    channel_id: channel,
+                    sequence: self.sequence,
+                    log_time,
+                    publish_time: log_time,
+                },
+                &self.buf,
+            )
+            .map_err(|source| SinkError::Mcap {
+                path: self.tmp.clone(),
+                source,
+            })
+    }
+
+    fn serialize<T: Serialize>(&mut self, value: &T) {
+        self.buf.clear();
+        serde_json::to_writer(&mut self.buf, value).expect("records of finite numbers serialize");
+    }
+
+    fn write_log(
+        &mut self,
+        level: LogLevel,
+        message: &str,
+        log_time: u64,
+    ) -> Result<(), SinkError> {
+        let file = self.info.model_path.clone();
+        self.serialize(&LogRecord {
+            timestamp: LogTimestamp::from_nanos(log_time),
+            level: level as u8,
+            message,
+            name: "hybsim",
+            file: &file,
+            line: 0,
+        });
+        self.write_buf(self.channels.log, log_time)
+    }
+
+    fn write_sample(&mut self, at: HybridTime, x: &[f64]) -> Result<ControlFlow<()>, SinkError> {
+        if let Some((k, value)) = first_non_finite(x) {
+            return Err(SinkError::NonFinite {
+                what: "state",
+                name: self.state_names[k].clone(),
+                value,
+                at,
+            });
+        }
+        let mut y = std::mem::take(&mut self.y);
+        if let (Some(outputs), Some(_)) = (self.outputs, self.channels.outputs) {
+            outputs(at.t, x, &mut y);
+            if let Some((k, value)) = first_non_finite(&y) {
+                self.y = y;
+                return Err(SinkError::NonFinite {
+                    what: "output",
+                    name: self.output_names[k].clone(),
+                    value,
+                    at,
+                });
+            }
+        }
+        let first = self.t0.is_none();
+        let log_time = self.log_time(at.t);
+        if first {
+            let message = format!(
+                "run of model `{}` ({}) started at {at} with seed {}",
+                self.info.model_name, self.info.model_path, self.info.seed
+            );
+            self.write_log(LogLevel::Info, &message, log_time)?;
+        }
+        let info = self.info;
+        self.serialize(&SampleRecord {
+            at,
+            values: Values {
+                layout: &info.state_layout,
+                x,
+            },
+        });
+        self.write_buf(self.channels.state, log_time)?;
+        if let Some(channel) = self.channels.outputs {
+            self.serialize(&SampleRecord {
+                at,
+                values: Values {
+                    layout: &info.output_layout,
+                    x: &y,
+                },
+            });
+            self.write_buf(channel, log_time)?;
+        }
+        self.y = y;
+        Ok(ControlFlow::Continue(()))
+    }
+
+    fn write_jump(
+        &mut self,
+        at: HybridTime,
+        rule: usize,
+        pre: &[f64],
+        post: &[f64],
+    ) -> Result<ControlFlow<()>, SinkError> {
+        for x in [pre, post] {
+            if let Some((k, value)) = first_non_finite(x) {
+                return Err(SinkError::NonFinite {
+                    what: "state",
+                    name: self.state_names[k].clone(),
+                    value,
+                    at,
+                });
+            }
+        }
+        let log_time = self.log_time(at.t);
+        let info = self.info;
+        let name = rule_name(&info.rule_names, rule);
+        self.serialize(&JumpRecordJson {
+            at,
+            rule: &name,
+            rule_id: rule,
+            pre: Values {
+                layout: &info.state_layout,
+                x: pre,
+            },
+            post: Values {
+                layout: &info.state_layout,
+                x: post,
+            },
+        });
+        self.write_buf(self.channels.jumps, log_time)?;
+        Ok(ControlFlow::Continue(()))
+    }
+
+    /// Stores the first error and stops the run.
+    fn settle(&mut self, r: Result<ControlFlow<()>, SinkError>) -> ControlFlow<()> {
+        match r {
+            Ok(flow) => flow,
+            Err(e) => {
+                self.error.get_or_insert(e);
+                ControlFlow::Break(())
+            }
+        }
+    }
+
+    /// The tally so far.
+    pub fn tally(&self) -> &Tally {
+        &self.tally
+    }
+
+    /// Writes the final log message and `hybsim.result`, finishes the MCAP
+    /// file, syncs it and renames it into place. If this sink stopped the
+    /// run on a non-finite value, the file is still completed and its
+    /// result (and the returned [`McapSummary::outcome`]) names that cause;
+    /// if writing failed, the temporary file is removed and the error
+    /// returned.
+    pub fn finish(mut self, outcome: &RunOutcome) -> Result<McapSummary, SinkError> {
+        let error = self.error.take();
+        let outcome = match &error {
+            Some(e @ SinkError::NonFinite { .. }) => RunOutcome {
+                cause: "non_finite".into(),
+                message: e.to_string(),
+                ok: false,
+            },
+            _ => outcome.clone(),
+        };
+        if let Some(e) = error
+            && !matches!(e, SinkError::NonFinite { .. })
+        {
+            // The writer itself failed: the file cannot be trusted.
+            self.discard();
+            return Err(e);
+        }
+        self.complete(&outcome).inspect_err(|_| self.discard())
+    }
+
+    /// Why this sink stopped the run, if it did (a write error or a
+    /// non-finite value).
+    pub fn stopped_by(&self) -> Option<&SinkError> {
+        self.error.as_ref()
+    }
+
+    fn complete(&mut self, outcome: &RunOutcome) -> Result<McapSummary, SinkError> {
+        let level = if outcome.ok {
+            LogLevel::Info
+        } else {
+            LogLevel::Error
+        };
+        let end = self.tally.end;
+        let log_time = self.last_log_time;
+        let message = match end {
+            Some(end) => format!("run ended at {end}: {}", outcome.message),
+            None => format!("run ended before its first sample: {}", outcome.message),
+        };
+        self.write_log(level, &message, log_time)?;
+        let jumps = self.tally.per_rule(&self.info.rule_names);
+        let result = meta_entries([
+            ("termination", json!(outcome.cause)),
+            ("message", json!(outcome.message)),
+            ("ok", json!(outcome.ok.to_string())),
+            (
+                "t_end",
+                json!(end.map(|e| e.t.to_string()).unwrap_or_default()),
+            ),
+            (
+                "j_end",
+                json!(end.map(|e| e.j.to_string()).unwrap_or_default()),
+            ),
+            ("jumps", Value::String(json!(jumps).to_string())),
+            ("jumps_total", json!(self.tally.total_jumps().to_string())),
+            ("samples", json!(self.tally.samples.to_string())),
+        ]);
+        let tmp = self.tmp.clone();
+        let mcap_err = |source| SinkError::Mcap {
+            path: tmp.clone(),
+            source,
+        };
+        let mut writer = self.writer.take().expect("finish is called once");
+        writer
+            .write_metadata(&Metadata {
+                name: "hybsim.result".into(),
+                metadata: result,
+            })
+            .map_err(mcap_err)?;
+        let summary = writer.finish().map_err(mcap_err)?;
+        let file = writer
+            .into_inner()
+            .into_inner()
+            .map_err(|e| SinkError::io(&self.tmp, e.into_error()))?;
+        commit_file(file, &self.tmp, &self.path)?;
+        self.finished = true;
+        let mut messages = BTreeMap::new();
+        if let Some(stats) = &summary.stats {
+            for (id, count) in &stats.channel_message_counts {
+                if let Some(ch) = summary.channels.get(id) {
+                    messages.insert(ch.topic.clone(), *count);
+                }
+            }
+        }
+        Ok(McapSummary {
+            path: self.path.clone(),
+            messages,
+            tally: self.tally.clone(),
+            outcome: outcome.clone(),
+        })
+    }
+
+    fn discard(&mut self) {
+        self.writer = None;
+        let _ = std::fs::remove_file(&self.tmp);
+        self.finished = true;
+    }
+}
+
+impl Drop for McapSink<'_> {
+    fn drop(&mut self) {
+        if !self.finished {
+            // Not finished: never leave a half-written file behind.
+            self.writer = None;
+            let _ = std::fs::remove_file(&self.tmp);
+        }
+    }
+}
+
+impl ArcSink for McapSink<'_> {
+    fn sample(&mut self, at: HybridTime, x: &[f64], kind: SampleKind) -> ControlFlow<()> {
+        if self.error.is_some() {
+            return ControlFlow::Break(());
+        }
+        self.tally.sample(at);
+        if !self.decimator.keep(at, kind) {
+            return ControlFlow::Continue(());
+        }
+        let r = self.write_sample(at, x);
+        self.settle(r)
+    }
+
+    fn jump(&mut self, at: HybridTime, rule: usize, pre: &[f64], post: &[f64]) -> ControlFlow<()> {
+        if self.error.is_some() {
+            return ControlFlow::Break(());
+        }
+        self.tally.jump(rule);
+        let r = self.write_jump(at, rule, pre, post);
+        self.settle(r)
+    }
+}

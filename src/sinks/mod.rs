@@ -1,0 +1,491 @@
+//! Outputs of a run: implementors of [`ArcSink`] that write a solution to
+//! disk as it is computed.
+//!
+//! | sink | file | for |
+//! |---|---|---|
+//! | [`mcap::McapSink`] | `.mcap` (JSON messages, zstd chunks) | Foxglove, the MCAP readers, archiving a run with everything needed to reproduce it |
+//! | [`csv::CsvSink`] | `.csv`, one row per logged sample | spreadsheets, pandas |
+//! | [`plot::PlotSink`] | `.svg`, one panel per state entry | a first look at a run |
+//!
+//! The engine pushes every sample and jump; each sink decides what to keep
+//! through a [`Decimation`] that always keeps the initial, pre-jump,
+//! post-jump and final samples. [`Fanout`] forwards one run to several
+//! sinks. File sinks write to `<path>.tmp` and rename it into place only when
+//! their `finish` succeeds, so a file at `<path>` is always complete.
+//!
+//! Sinks never write non-finite numbers: a sample with a NaN or infinite
+//! component stops the run ([`std::ops::ControlFlow::Break`]) and `finish`
+//! reports it as [`SinkError::NonFinite`]. The engine normally stops first,
+//! with its own error naming (t, j) and the component.
+
+pub mod csv;
+pub mod json;
+pub mod mcap;
+pub mod plot;
+
+use std::collections::BTreeMap;
+use std::ops::ControlFlow;
+use std::path::{Path, PathBuf};
+
+use serde::Serialize;
+
+use crate::arc::{ArcSink, HybridTime, SampleKind};
+use crate::layout::{Entry, Field, Layout};
+
+/// Errors of the output sinks.
+#[derive(Debug, thiserror::Error)]
+pub enum SinkError {
+    /// A file could not be created, written, synced or renamed.
+    #[error("cannot write `{path}`: {source}")]
+    Io {
+        /// The file concerned.
+        path: PathBuf,
+        /// The underlying error.
+        source: std::io::Error,
+    },
+    /// The MCAP writer failed.
+    #[error("cannot write MCAP file `{path}`: {source}")]
+    Mcap {
+        /// The file concerned.
+        path: PathBuf,
+        /// The underlying error.
+        source: ::mcap::McapError,
+    },
+    /// The CSV writer failed.
+    #[error("cannot write CSV file `{path}`: {source}")]
+    Csv {
+        /// The file concerned.
+        path: PathBuf,
+        /// The underlying error.
+        source: ::csv::Error,
+    },
+    /// Plotting failed.
+    #[error("cannot draw plot `{path}`: {message}")]
+    Plot {
+        /// The file concerned.
+        path: PathBuf,
+        /// What went wrong.
+        message: String,
+    },
+    /// A layout does not describe a vector of the given dimension.
+    #[error("the {what} layout does not match its dimension {dim}: {problem}")]
+    Layout {
+        /// `state` or `output`.
+        what: &'static str,
+        /// The dimension of the vector.
+        dim: usize,
+        /// Which component is missing, doubly covered or out of range.
+        problem: String,
+    },
+    /// A sample carried a NaN or infinite value, which JSON cannot represent;
+    /// the run was stopped before it was written.
+    #[error(
+        "{what} `{name}` is not finite ({value}) at {at}; the run was stopped there and nothing non-finite was written"
+    )]
+    NonFinite {
+        /// `state` or `output`.
+        what: &'static str,
+        /// Flat name of the component (e.g. `P[1,2]`).
+        name: String,
+        /// The offending value.
+        value: f64,
+        /// Where on the hybrid time domain.
+        at: HybridTime,
+    },
+    /// The options are inconsistent.
+    #[error("invalid option `{option}`: {message}")]
+    Option {
+        /// Option name (as on the command line).
+        option: &'static str,
+        /// What to change.
+        message: String,
+    },
+    /// A plot selection names something that is neither a state nor an output.
+    #[error("`{name}` is neither a state nor an output of the model (known: {known})")]
+    UnknownSignal {
+        /// The name asked for.
+        name: String,
+        /// The names that exist.
+        known: String,
+    },
+}
+
+impl SinkError {
+    pub(crate) fn io(path: &Path, source: std::io::Error) -> Self {
+        Self::Io {
+            path: path.to_path_buf(),
+            source,
+        }
+    }
+}
+
+/// Checks that `layout` covers each component of a vector of dimension `dim`
+/// exactly once.
+pub fn check_layout(layout: &Layout, dim: usize, what: &'static str) -> Result<(), SinkError> {
+    let mut covered = vec![false; dim];
+    let err = |problem: String| SinkError::Layout { what, dim, problem };
+    let mut mark = |f: &Field, prefix: &str| -> Result<(), SinkError> {
+        let end = f.offset + f.shape.len();
+        if end > dim {
+            return Err(err(format!(
+                "`{prefix}{}` spans components {}..{end}",
+                f.name, f.offset
+            )));
+        }
+        for (k, c) in covered[f.offset..end].iter_mut().enumerate() {
+            if *c {
+                return Err(err(format!(
+                    "component {} is covered twice (again by `{prefix}{}`)",
+                    f.offset + k,
+                    f.name
+                )));
+            }
+            *c = true;
+        }
+        Ok(())
+    };
+    for e in &layout.entries {
+        match e {
+            Entry::Field(f) => mark(f, "")?,
+            Entry::Family {
+                name,
+                labels,
+                members,
+            } => {
+                if labels.len() != members.len() {
+                    return Err(err(format!(
+                        "family `{name}` has {} labels for {} members",
+                        labels.len(),
+                        members.len()
+                    )));
+                }
+                for (label, fields) in labels.iter().zip(members) {
+                    for f in fields {
+                        mark(f, &format!("{name}[{label}]."))?;
+                    }
+                }
+            }
+        }
+    }
+    match covered.iter().position(|c| !c) {
+        Some(k) => Err(err(format!("component {k} is not covered"))),
+        None => Ok(()),
+    }
+}
+
+/// Names of the top-level entries of a layout (fields and families).
+pub fn entry_names(layout: &Layout) -> Vec<&str> {
+    layout
+        .entries
+        .iter()
+        .map(|e| match e {
+            Entry::Field(f) => f.name.as_str(),
+            Entry::Family { name, .. } => name.as_str(),
+        })
+        .collect()
+}
+
+/// A model's output map y = h(t, x), evaluated by the sinks for each logged
+/// sample. Writes `y` (length = the output layout's dimension).
+pub type OutputFn<'a> = &'a (dyn Fn(f64, &[f64], &mut [f64]) + 'a);
+
+/// What the sinks know about a run: structure of the logged vectors and
+/// everything needed to reproduce the run from its log.
+#[derive(Debug, Clone, Serialize)]
+pub struct RunInfo {
+    /// Model name (the `model` header).
+    pub model_name: String,
+    /// Path of the model file, as given on the command line.
+    pub model_path: String,
+    /// The model source exactly as parsed.
+    #[serde(skip)]
+    pub source: String,
+    /// Seed of the run's random generator.
+    pub seed: u64,
+    /// Command line of the run (empty for library use).
+    pub argv: Vec<String>,
+    /// `--set name=value` overrides as given.
+    pub overrides: Vec<(String, String)>,
+    /// Structure of the state vector.
+    pub state_layout: Layout,
+    /// Dimension of the state vector.
+    pub state_dim: usize,
+    /// Structure of the output vector (empty if the model has no outputs).
+    pub output_layout: Layout,
+    /// Dimension of the output vector.
+    pub output_dim: usize,
+    /// Names of the jump rules, in the system's order.
+    pub rule_names: Vec<String>,
+    /// Resolved parameters (after overrides), name → value.
+    pub parameters: serde_json::Value,
+    /// Simulation settings (horizons, solver, tolerances, priority).
+    pub solver: serde_json::Value,
+    /// Results of `design` blocks, if the model has any.
+    pub design: Option<serde_json::Value>,
+}
+
+impl RunInfo {
+    /// Run information for a system with scalar states `state_names`, no
+    /// outputs, and jump rules `rule_names`; fill in the other fields as
+    /// needed.
+    pub fn new<S: AsRef<str>>(model_name: &str, state_names: &[S], rule_names: &[S]) -> Self {
+        Self {
+            model_name: model_name.to_string(),
+            model_path: String::new(),
+            source: String::new(),
+            seed: 0,
+            argv: Vec::new(),
+            overrides: Vec::new(),
+            state_layout: Layout::scalars(state_names),
+            state_dim: state_names.len(),
+            output_layout: Layout::default(),
+            output_dim: 0,
+            rule_names: rule_names.iter().map(|s| s.as_ref().to_string()).collect(),
+            parameters: serde_json::Value::Object(Default::default()),
+            solver: serde_json::Value::Object(Default::default()),
+            design: None,
+        }
+    }
+
+    /// Checks that both layouts match their dimensions.
+    pub fn validate(&self) -> Result<(), SinkError> {
+        check_layout(&self.state_layout, self.state_dim, "state")?;
+        check_layout(&self.output_layout, self.output_dim, "output")
+    }
+
+    /// Hex SHA-256 of the model source.
+    pub fn source_sha256(&self) -> String {
+        use sha2::Digest;
+        let digest = sha2::Sha256::digest(self.source.as_bytes());
+        digest.iter().map(|b| format!("{b:02x}")).collect()
+    }
+
+    /// Flat names of the state components (`h`, `x[2]`, `P[1,2]`, `agent[3].xhat[1]`).
+    pub fn state_names(&self) -> Vec<String> {
+        self.state_layout.flat_names(self.state_dim)
+    }
+
+    /// Flat names of the output components.
+    pub fn output_names(&self) -> Vec<String> {
+        self.output_layout.flat_names(self.output_dim)
+    }
+}
+
+/// Which samples a sink keeps. The initial, pre-jump, post-jump and final
+/// samples are always kept, so that every jump appears as a vertical segment
+/// and the end of the run is visible; flow samples are thinned.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct Decimation {
+    /// Keep every `every`-th flow sample (1 = all). Default 1.
+    pub every: u64,
+    /// Keep a flow sample only if at least `dt` (model time units) passed
+    /// since the last kept sample. Default: no minimum.
+    pub dt: Option<f64>,
+}
+
+impl Default for Decimation {
+    fn default() -> Self {
+        Self { every: 1, dt: None }
+    }
+}
+
+impl Decimation {
+    /// Keep every sample.
+    pub fn all() -> Self {
+        Self::default()
+    }
+
+    /// Keep every `n`-th flow sample.
+    pub fn every(self, n: u64) -> Self {
+        Self { every: n, ..self }
+    }
+
+    /// Keep flow samples at least `dt` apart.
+    pub fn dt(self, dt: Option<f64>) -> Self {
+        Self { dt, ..self }
+    }
+
+    /// Checks `every ≥ 1` and `dt > 0` finite.
+    pub fn validate(&self) -> Result<(), SinkError> {
+        if self.every == 0 {
+            return Err(SinkError::Option {
+                option: "--log-every",
+                message: "must be at least 1 (1 keeps every sample)".into(),
+            });
+        }
+        if let Some(dt) = self.dt
+            && !(dt.is_finite() && dt > 0.0)
+        {
+            return Err(SinkError::Option {
+                option: "--log-dt",
+                message: format!("must be a positive number of time units, got {dt}"),
+            });
+        }
+        Ok(())
+    }
+}
+
+/// The state of a [`Decimation`] along one run.
+#[derive(Debug, Clone)]
+pub struct Decimator {
+    rule: Decimation,
+    flow_count: u64,
+    last_kept_t: Option<f64>,
+}
+
+impl Decimator {
+    /// Starts a run.
+    pub fn new(rule: Decimation) -> Self {
+        Self {
+            rule,
+            flow_count: 0,
+            last_kept_t: None,
+        }
+    }
+
+    /// Whether to keep the sample at `at` of kind `kind`.
+    pub fn keep(&mut self, at: HybridTime, kind: SampleKind) -> bool {
+        let keep = match kind {
+            SampleKind::Flow => {
+                self.flow_count += 1;
+                let by_count = self.flow_count >= self.rule.every;
+                let by_time = match (self.rule.dt, self.last_kept_t) {
+                    (Some(dt), Some(last)) => at.t - last >= dt,
+                    _ => true,
+                };
+                by_count && by_time
+            }
+            _ => true,
+        };
+        if keep {
+            self.flow_count = 0;
+            self.last_kept_t = Some(at.t);
+        }
+        keep
+    }
+}
+
+/// Counts of what a run produced, kept by every sink.
+#[derive(Debug, Clone, Default, PartialEq, Serialize)]
+pub struct Tally {
+    /// First sample's time (t0 of the log).
+    pub start: Option<HybridTime>,
+    /// Last sample's time.
+    pub end: Option<HybridTime>,
+    /// Samples received (before decimation).
+    pub samples: u64,
+    /// Jumps per rule index.
+    pub jumps: Vec<u64>,
+}
+
+impl Tally {
+    /// A tally for a system with `rules` jump rules.
+    pub fn new(rules: usize) -> Self {
+        Self {
+            jumps: vec![0; rules],
+            ..Self::default()
+        }
+    }
+
+    /// Records a sample.
+    pub fn sample(&mut self, at: HybridTime) {
+        self.start.get_or_insert(at);
+        self.end = Some(at);
+        self.samples += 1;
+    }
+
+    /// Records a jump of rule `rule`.
+    pub fn jump(&mut self, rule: usize) {
+        if rule >= self.jumps.len() {
+            self.jumps.resize(rule + 1, 0);
+        }
+        self.jumps[rule] += 1;
+    }
+
+    /// Total number of jumps.
+    pub fn total_jumps(&self) -> u64 {
+        self.jumps.iter().sum()
+    }
+
+    /// Jumps per rule name, in name order (rules without a name are `#k`).
+    pub fn per_rule(&self, names: &[String]) -> BTreeMap<String, u64> {
+        self.jumps
+            .iter()
+            .enumerate()
+            .map(|(k, &n)| (rule_name(names, k), n))
+            .collect()
+    }
+}
+
+/// Name of rule `k`, or `#k` if the system has fewer names.
+pub fn rule_name(names: &[String], k: usize) -> String {
+    names.get(k).cloned().unwrap_or_else(|| format!("#{k}"))
+}
+
+/// How a run ended, as the sinks record it (`hybsim.result` in MCAP, the
+/// final `/hybsim/log` message).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct RunOutcome {
+    /// Stable identifier of the cause (`horizon_t`, `horizon_j`, `zeno_suspected`, `non_finite`, ...).
+    pub cause: String,
+    /// One sentence for people.
+    pub message: String,
+    /// Whether this is a normal end of the run (horizon reached) rather than a failure.
+    pub ok: bool,
+}
+
+/// Forwards one run to several sinks; stops the run as soon as one sink asks to.
+pub struct Fanout<'a> {
+    sinks: Vec<&'a mut dyn ArcSink>,
+}
+
+impl<'a> Fanout<'a> {
+    /// Forwards to `sinks`, in order.
+    pub fn new(sinks: Vec<&'a mut dyn ArcSink>) -> Self {
+        Self { sinks }
+    }
+}
+
+impl ArcSink for Fanout<'_> {
+    fn sample(&mut self, at: HybridTime, x: &[f64], kind: SampleKind) -> ControlFlow<()> {
+        let mut flow = ControlFlow::Continue(());
+        for s in &mut self.sinks {
+            if s.sample(at, x, kind).is_break() {
+                flow = ControlFlow::Break(());
+            }
+        }
+        flow
+    }
+
+    fn jump(&mut self, at: HybridTime, rule: usize, pre: &[f64], post: &[f64]) -> ControlFlow<()> {
+        let mut flow = ControlFlow::Continue(());
+        for s in &mut self.sinks {
+            if s.jump(at, rule, pre, post).is_break() {
+                flow = ControlFlow::Break(());
+            }
+        }
+        flow
+    }
+}
+
+/// Returns the first non-finite component of `x`, as (index, value).
+pub(crate) fn first_non_finite(x: &[f64]) -> Option<(usize, f64)> {
+    x.iter().position(|v| !v.is_finite()).map(|k| (k, x[k]))
+}
+
+/// `<path>.tmp`, the file a sink writes before renaming it to `path`.
+pub(crate) fn temp_path(path: &Path) -> PathBuf {
+    let mut s = path.as_os_str().to_owned();
+    s.push(".tmp");
+    PathBuf::from(s)
+}
+
+/// Syncs `file` and renames `tmp` to `path`.
+pub(crate) fn commit_file(file: std::fs::File, tmp: &Path, path: &Path) -> Result<(), SinkError> {
+    file.sync_all().map_err(|e| SinkError::io(tmp, e))?;
+    drop(file);
+    std::fs::rename(tmp, path).map_err(|e| SinkError::io(path, e))
+}
+
+#[cfg(test)]
+mod tests;

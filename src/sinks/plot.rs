@@ -1,0 +1,599 @@
+//! SVG plots with plotters' SVG backend (no fonts or system libraries
+//! needed).
+//!
+//! Two levels:
+//! - a small plotting API for any line data: [`Figure`] (panels stacked
+//!   vertically) of [`Panel`]s (axes, optional log-y) of [`Series`] (named
+//!   polylines, optionally broken into pieces, with markers or dashed
+//!   connectors). Paper reproductions use it for sweeps and error norms:
+//!
+//!   ```
+//!   use hybsim::sinks::plot::{Figure, Panel, Series};
+//!   let e: Vec<(f64, f64)> = (0..50).map(|k| (k as f64 * 0.1, (-(k as f64) * 0.1).exp())).collect();
+//!   let svg = Figure::new()
+//!       .panel(Panel::new("|e| over t").x_label("t").y_label("|e|").log_y(true)
+//!           .series(Series::line("|e|", e)))
+//!       .to_svg_string()
+//!       .unwrap();
+//!   assert!(svg.starts_with("<svg"));
+//!   ```
+//! - [`PlotSink`], an [`ArcSink`] that keeps the selected states/outputs of
+//!   a run and draws one panel per model entry against t, each flow
+//!   interval a solid piece and each jump a dashed vertical segment.
+
+use std::ops::ControlFlow;
+use std::path::{Path, PathBuf};
+
+use plotters::coord::Shift;
+use plotters::coord::ranged1d::{AsRangedCoord, ValueFormatter};
+use plotters::element::DashedPathElement;
+use plotters::prelude::*;
+
+use super::{Decimation, Decimator, OutputFn, RunInfo, SinkError, entry_names, temp_path};
+use crate::arc::{ArcSink, HybridTime, SampleKind};
+use crate::layout::{Entry, Field, Layout, Shape};
+
+/// Colours of successive series (a colour-blind-friendly palette).
+const COLORS: [RGBColor; 10] = [
+    RGBColor(31, 119, 180),
+    RGBColor(255, 127, 14),
+    RGBColor(44, 160, 44),
+    RGBColor(214, 39, 40),
+    RGBColor(148, 103, 189),
+    RGBColor(140, 86, 75),
+    RGBColor(227, 119, 194),
+    RGBColor(127, 127, 127),
+    RGBColor(188, 189, 34),
+    RGBColor(23, 190, 207),
+];
+
+/// At most this many series are drawn (and listed) in one panel.
+pub const MAX_SERIES_PER_PANEL: usize = 10;
+
+/// One named line: polyline pieces, optional dashed connectors between
+/// points (jumps), optional markers at the points.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct Series {
+    /// Legend text.
+    pub name: String,
+    /// Solid polylines; each piece is drawn separately (no line between pieces).
+    pub pieces: Vec<Vec<(f64, f64)>>,
+    /// Dashed segments, e.g. a jump from `(t, pre)` to `(t, post)`.
+    pub connectors: Vec<[(f64, f64); 2]>,
+    /// Draw a marker at every point of the pieces.
+    pub markers: bool,
+}
+
+impl Series {
+    /// One polyline through `points`.
+    pub fn line(name: impl Into<String>, points: Vec<(f64, f64)>) -> Self {
+        Self {
+            name: name.into(),
+            pieces: vec![points],
+            ..Self::default()
+        }
+    }
+
+    /// Markers only (no line), e.g. for a parameter sweep.
+    pub fn points(name: impl Into<String>, points: Vec<(f64, f64)>) -> Self {
+        Self {
+            markers: true,
+            ..Self::line(name, points).lines(false)
+        }
+    }
+
+    /// A hybrid arc of one scalar: `samples[k] = ((t, j), value)` in domain
+    /// order. Each flow interval (constant j) is one piece; consecutive
+    /// pieces are joined by a dashed segment (the jump).
+    pub fn hybrid(name: impl Into<String>, samples: &[(HybridTime, f64)]) -> Self {
+        let mut pieces: Vec<Vec<(f64, f64)>> = Vec::new();
+        let mut connectors = Vec::new();
+        let mut last: Option<(HybridTime, f64)> = None;
+        for &(at, v) in samples {
+            match last {
+                Some((prev, _)) if prev.j == at.j => {
+                    pieces.last_mut().expect("a piece exists").push((at.t, v))
+                }
+                Some((prev, pv)) => {
+                    connectors.push([(prev.t, pv), (at.t, v)]);
+                    pieces.push(vec![(at.t, v)]);
+                }
+                None => pieces.push(vec![(at.t, v)]),
+            }
+            last = Some((at, v));
+        }
+        Self {
+            name: name.into(),
+            pieces,
+            connectors,
+            markers: false,
+        }
+    }
+
+    /// Draw markers at the points.
+    pub fn markers(self, markers: bool) -> Self {
+        Self { markers, ..self }
+    }
+
+    /// `false` keeps only the markers (the pieces are not joined by lines).
+    fn lines(self, lines: bool) -> Self {
+        if lines {
+            self
+        } else {
+            Self {
+                pieces: self.pieces.into_iter().flatten().map(|p| vec![p]).collect(),
+                ..self
+            }
+        }
+    }
+
+    fn all_points(&self) -> impl Iterator<Item = (f64, f64)> + '_ {
+        self.pieces
+            .iter()
+            .flatten()
+            .copied()
+            .chain(self.connectors.iter().flatten().copied())
+    }
+}
+
+/// One set of axes.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct Panel {
+    /// Caption above the axes.
+    pub title: String,
+    /// x-axis label.
+    pub x_label: String,
+    /// y-axis label.
+    pub y_label: String,
+    /// The lines.
+    pub series: Vec<Series>,
+    /// Logarithmic y axis; points with y ≤ 0 are left out (breaking the line).
+    pub log_y: bool,
+}
+
+impl Panel {
+    /// An empty panel with a caption.
+    pub fn new(title: impl Into<String>) -> Self {
+        Self {
+            title: title.into(),
+            ..Self::default()
+        }
+    }
+
+    /// Sets the x label.
+    pub fn x_label(self, x_label: impl Into<String>) -> Self {
+        Self {
+            x_label: x_label.into(),
+            ..self
+        }
+    }
+
+    /// Sets the y label.
+    pub fn y_label(self, y_label: impl Into<String>) -> Self {
+        Self {
+            y_label: y_label.into(),
+            ..self
+        }
+    }
+
+    /// Logarithmic y axis.
+    pub fn log_y(self, log_y: bool) -> Self {
+        Self { log_y, ..self }
+    }
+
+    /// Adds a series.
+    pub fn series(mut self, series: Series) -> Self {
+        self.series.push(series);
+        self
+    }
+}
+
+/// Panels stacked vertically, sharing the width.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Figure {
+    /// The panels, top to bottom.
+    pub panels: Vec<Panel>,
+    /// Width in pixels. Default 900.
+    pub width: u32,
+    /// Height of each panel in pixels. Default 260.
+    pub panel_height: u32,
+}
+
+impl Default for Figure {
+    fn default() -> Self {
+        Self {
+            panels: Vec::new(),
+            width: 900,
+            panel_height: 260,
+        }
+    }
+}
+
+/// Finite, non-degenerate bounds of `values`, padded by 5 %.
+fn bounds(values: impl Iterator<Item = f64>, log: bool) -> (f64, f64) {
+    let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
+    for v in values.filter(|v| v.is_finite() && (!log || *v > 0.0)) {
+        lo = lo.min(v);
+        hi = hi.max(v);
+    }
+    if lo > hi {
+        return if log { (0.1, 10.0) } else { (-1.0, 1.0) };
+    }
+    if log {
+        if hi / lo < 1.0 + 1e-9 {
+            return (lo / 2.0, hi * 2.0);
+        }
+        let r = (hi / lo).powf(0.05);
+        return (lo / r, hi * r);
+    }
+    if hi - lo <= f64::EPSILON * hi.abs().max(lo.abs()).max(1e-300) {
+        let d = if lo == 0.0 { 1.0 } else { lo.abs() * 0.1 };
+        return (lo - d, hi + d);
+    }
+    let pad = (hi - lo) * 0.05;
+    (lo - pad, hi + pad)
+}
+
+/// Splits a piece where a point cannot be drawn (non-finite, or y ≤ 0 on a log axis).
+fn drawable_runs(piece: &[(f64, f64)], log: bool) -> Vec<Vec<(f64, f64)>> {
+    let mut runs = vec![Vec::new()];
+    for &(x, y) in piece {
+        if x.is_finite() && y.is_finite() && (!log || y > 0.0) {
+            runs.last_mut().expect("a run exists").push((x, y));
+        } else if !runs.last().expect("a run exists").is_empty() {
+            runs.push(Vec::new());
+        }
+    }
+    runs.retain(|r| !r.is_empty());
+    runs
+}
+
+/// Plotters failed to draw (its message).
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("{0}")]
+pub struct PlotError(pub String);
+
+type DrawResult<T> = Result<T, PlotError>;
+
+fn draw_panel<Y>(
+    area: &DrawingArea<SVGBackend<'_>, Shift>,
+    panel: &Panel,
+    x_range: (f64, f64),
+    y_range: Y,
+) -> DrawResult<()>
+where
+    Y: AsRangedCoord<Value = f64>,
+    Y::CoordDescType: ValueFormatter<f64>,
+{
+    let err = |e: &dyn std::fmt::Display| PlotError(e.to_string());
+    let mut chart = ChartBuilder::on(area)
+        .caption(&panel.title, ("sans-serif", 16))
+        .margin(10)
+        .x_label_area_size(36)
+        .y_label_area_size(70)
+        .build_cartesian_2d(x_range.0..x_range.1, y_range)
+        .map_err(|e| err(&e))?;
+    chart
+        .configure_mesh()
+        .x_desc(panel.x_label.as_str())
+        .y_desc(panel.y_label.as_str())
+        .light_line_style(RGBColor(235, 235, 235))
+        .draw()
+        .map_err(|e| err(&e))?;
+    let shown = panel.series.len().min(MAX_SERIES_PER_PANEL);
+    for (k, s) in panel.series.iter().take(shown).enumerate() {
+        let color = COLORS[k % COLORS.len()];
+        let line = color.stroke_width(2);
+        let mut labelled = false;
+        for piece in &s.pieces {
+            for run in drawable_runs(piece, panel.log_y) {
+                let drawn = chart
+                    .draw_series(LineSeries::new(run.iter().copied(), line))
+                    .map_err(|e| err(&e))?;
+                if !labelled {
+                    drawn.label(s.name.as_str()).legend(move |(x, y)| {
+                        PathElement::new(vec![(x, y), (x + 20, y)], color.stroke_width(2))
+                    });
+                    labelled = true;
+                }
+                if s.markers {
+                    chart
+                        .draw_series(run.iter().map(|&p| Circle::new(p, 3, color.filled())))
+                        .map_err(|e| err(&e))?;
+                }
+            }
+        }
+        let jumps = s
+            .connectors
+            .iter()
+            .flat_map(|c| drawable_runs(c, panel.log_y))
+            .filter(|r| r.len() == 2);
+        chart
+            .draw_series(
+                jumps.map(|r| DashedPathElement::new(r, 4, 3, color.mix(0.7).stroke_width(1))),
+            )
+            .map_err(|e| err(&e))?;
+    }
+    if shown > 0 {
+        chart
+            .configure_series_labels()
+            .background_style(WHITE.mix(0.85))
+            .border_style(RGBColor(200, 200, 200))
+            .position(SeriesLabelPosition::UpperRight)
+            .draw()
+            .map_err(|e| err(&e))?;
+    }
+    Ok(())
+}
+
+impl Figure {
+    /// An empty figure.
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// Adds a panel below the others.
+    pub fn panel(mut self, panel: Panel) -> Self {
+        self.panels.push(panel);
+        self
+    }
+
+    /// Sets width and per-panel height in pixels.
+    pub fn size(self, width: u32, panel_height: u32) -> Self {
+        Self {
+            width,
+            panel_height,
+            ..self
+        }
+    }
+
+    /// Renders the figure as an SVG document.
+    pub fn to_svg_string(&self) -> Result<String, PlotError> {
+        let mut svg = String::new();
+        let height = self.panel_height * (self.panels.len().max(1) as u32);
+        {
+            let root = SVGBackend::with_string(&mut svg, (self.width, height)).into_drawing_area();
+            root.fill(&WHITE).map_err(|e| PlotError(e.to_string()))?;
+            let areas = root.split_evenly((self.panels.len().max(1), 1));
+            for (panel, area) in self.panels.iter().zip(&areas) {
+                let shown = &panel.series[..panel.series.len().min(MAX_SERIES_PER_PANEL)];
+                let x_range = bounds(
+                    shown.iter().flat_map(|s| s.all_points().map(|p| p.0)),
+                    false,
+                );
+                let y_range = bounds(
+                    shown.iter().flat_map(|s| s.all_points().map(|p| p.1)),
+                    panel.log_y,
+                );
+                if panel.log_y {
+                    draw_panel(area, panel, x_range, (y_range.0..y_range.1).log_scale())?;
+                } else {
+                    draw_panel(area, panel, x_range, y_range.0..y_range.1)?;
+                }
+            }
+            root.present().map_err(|e| PlotError(e.to_string()))?;
+        }
+        Ok(svg)
+    }
+
+    /// Renders the figure to `path` (written to `<path>.tmp`, then renamed).
+    pub fn save(&self, path: impl AsRef<Path>) -> Result<(), SinkError> {
+        let path = path.as_ref();
+        let svg = self.to_svg_string().map_err(|e| SinkError::Plot {
+            path: path.to_path_buf(),
+            message: e.0,
+        })?;
+        let tmp = temp_path(path);
+        std::fs::write(&tmp, svg).map_err(|e| SinkError::io(&tmp, e))?;
+        let file = std::fs::File::open(&tmp).map_err(|e| SinkError::io(&tmp, e))?;
+        super::commit_file(file, &tmp, path)
+    }
+}
+
+/// Which vector a plotted component comes from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Source {
+    State,
+    Output,
+}
+
+/// One panel of a [`PlotSink`]: a title and its (label, source, component) series.
+#[derive(Debug, Clone)]
+struct PanelSpec {
+    title: String,
+    series: Vec<(String, Source, usize)>,
+    total: usize,
+}
+
+fn field_components(prefix: &str, f: &Field) -> Vec<(String, usize)> {
+    match f.shape {
+        Shape::Scalar => vec![(format!("{prefix}{}", f.name), f.offset)],
+        Shape::Vector(n) => (0..n)
+            .map(|i| (format!("{prefix}{}[{}]", f.name, i + 1), f.offset + i))
+            .collect(),
+        Shape::Matrix { rows, cols } => (0..rows * cols)
+            .map(|k| {
+                (
+                    format!("{prefix}{}[{},{}]", f.name, k / cols + 1, k % cols + 1),
+                    f.offset + k,
+                )
+            })
+            .collect(),
+    }
+}
+
+/// Panels for one layout entry: one for a field, one per member field for a family.
+fn entry_panels(entry: &Entry, source: Source) -> Vec<PanelSpec> {
+    let spec = |title: String, comps: Vec<(String, usize)>| PanelSpec {
+        title,
+        total: comps.len(),
+        series: comps
+            .into_iter()
+            .take(MAX_SERIES_PER_PANEL)
+            .map(|(n, k)| (n, source, k))
+            .collect(),
+    };
+    match entry {
+        Entry::Field(f) => vec![spec(f.name.clone(), field_components("", f))],
+        Entry::Family {
+            name,
+            labels,
+            members,
+        } => {
+            let fields = members.first().map(Vec::as_slice).unwrap_or(&[]);
+            fields
+                .iter()
+                .enumerate()
+                .map(|(k, field)| {
+                    let comps = labels
+                        .iter()
+                        .zip(members)
+                        .filter_map(|(label, m)| m.get(k).map(|f| (label, f)))
+                        .flat_map(|(label, f)| field_components(&format!("{name}[{label}]."), f))
+                        .collect();
+                    spec(format!("{name}[·].{}", field.name), comps)
+                })
+                .collect()
+        }
+    }
+}
+
+fn find_entry<'l>(layout: &'l Layout, name: &str) -> Option<&'l Entry> {
+    layout.entries.iter().find(|e| match e {
+        Entry::Field(f) => f.name == name,
+        Entry::Family { name: n, .. } => n == name,
+    })
+}
+
+/// Keeps the selected states and outputs of a run and draws them against t
+/// when [`finish`](Self::finish)ed.
+pub struct PlotSink<'a> {
+    path: PathBuf,
+    outputs: Option<OutputFn<'a>>,
+    panels: Vec<PanelSpec>,
+    model_name: String,
+    decimator: Decimator,
+    times: Vec<HybridTime>,
+    /// Row-major: one row per kept sample, one column per plotted component.
+    values: Vec<f64>,
+    columns: Vec<(Source, usize)>,
+    y: Vec<f64>,
+}
+
+/// At most this many panels are drawn when no selection is given.
+pub const MAX_DEFAULT_PANELS: usize = 8;
+
+impl<'a> PlotSink<'a> {
+    /// A plot of the entries named in `select` (state or output entries, in
+    /// that order of lookup), or of the first [`MAX_DEFAULT_PANELS`] state
+    /// entries if `select` is empty.
+    pub fn new(
+        path: impl AsRef<Path>,
+        info: &RunInfo,
+        outputs: Option<OutputFn<'a>>,
+        select: &[String],
+        decimation: Decimation,
+    ) -> Result<Self, SinkError> {
+        info.validate()?;
+        decimation.validate()?;
+        let mut panels = Vec::new();
+        if select.is_empty() {
+            for e in info.state_layout.entries.iter().take(MAX_DEFAULT_PANELS) {
+                panels.extend(entry_panels(e, Source::State));
+            }
+        }
+        for name in select {
+            if let Some(e) = find_entry(&info.state_layout, name) {
+                panels.extend(entry_panels(e, Source::State));
+            } else if let (Some(e), true) = (
+                find_entry(&info.output_layout, name),
+                info.output_dim > 0 && outputs.is_some(),
+            ) {
+                panels.extend(entry_panels(e, Source::Output));
+            } else {
+                let mut known = entry_names(&info.state_layout);
+                known.extend(entry_names(&info.output_layout));
+                return Err(SinkError::UnknownSignal {
+                    name: name.clone(),
+                    known: known.join(", "),
+                });
+            }
+        }
+        let columns = panels
+            .iter()
+            .flat_map(|p| p.series.iter().map(|&(_, s, k)| (s, k)))
+            .collect();
+        Ok(Self {
+            path: path.as_ref().to_path_buf(),
+            outputs,
+            panels,
+            model_name: info.model_name.clone(),
+            decimator: Decimator::new(decimation),
+            times: Vec::new(),
+            values: Vec::new(),
+            columns,
+            y: vec![0.0; info.output_dim],
+        })
+    }
+
+    /// The figure of what was kept so far.
+    pub fn figure(&self) -> Figure {
+        let ncols = self.columns.len();
+        let mut col = 0;
+        let mut figure = Figure::new();
+        for spec in &self.panels {
+            let mut title = format!("{}: {}", self.model_name, spec.title);
+            if spec.total > spec.series.len() {
+                title.push_str(&format!(
+                    " (first {} of {} components)",
+                    spec.series.len(),
+                    spec.total
+                ));
+            }
+            let mut panel = Panel::new(title).x_label("t");
+            for (label, _, _) in &spec.series {
+                let samples: Vec<(HybridTime, f64)> = self
+                    .times
+                    .iter()
+                    .enumerate()
+                    .map(|(r, &at)| (at, self.values[r * ncols + col]))
+                    .collect();
+                panel = panel.series(Series::hybrid(label.clone(), &samples));
+                col += 1;
+            }
+            figure = figure.panel(panel);
+        }
+        figure
+    }
+
+    /// Draws the figure to the file.
+    pub fn finish(self) -> Result<PathBuf, SinkError> {
+        self.figure().save(&self.path)?;
+        Ok(self.path)
+    }
+}
+
+impl ArcSink for PlotSink<'_> {
+    fn sample(&mut self, at: HybridTime, x: &[f64], kind: SampleKind) -> ControlFlow<()> {
+        if !self.decimator.keep(at, kind) {
+            return ControlFlow::Continue(());
+        }
+        if let Some(outputs) = self.outputs
+            && self.columns.iter().any(|c| c.0 == Source::Output)
+        {
+            outputs(at.t, x, &mut self.y);
+        }
+        self.times.push(at);
+        for &(source, k) in &self.columns {
+            self.values.push(match source {
+                Source::State => x[k],
+                Source::Output => self.y[k],
+            });
+        }
+        ControlFlow::Continue(())
+    }
+
+    fn jump(&mut self, _: HybridTime, _: usize, _: &[f64], _: &[f64]) -> ControlFlow<()> {
+        ControlFlow::Continue(())
+    }
+}

@@ -1,0 +1,288 @@
+use serde_json::{Value, json};
+
+use super::json::{JumpRecordJson, SampleRecord, Values, jump_schema, rule_indices, sample_schema};
+use super::plot::{Figure, Panel, Series};
+use super::*;
+use crate::layout::{Entry, Field, Layout, Shape};
+
+fn field(name: &str, shape: Shape, offset: usize) -> Field {
+    Field {
+        name: name.into(),
+        shape,
+        offset,
+    }
+}
+
+/// h (scalar), x (vector 2), P (2×2), agent family of 2 with xhat (vector 2) and s (scalar).
+fn rich_layout() -> (Layout, usize) {
+    let agent = |base: usize| {
+        vec![
+            field("xhat", Shape::Vector(2), base),
+            field("s", Shape::Scalar, base + 2),
+        ]
+    };
+    let layout = Layout {
+        entries: vec![
+            Entry::Field(field("h", Shape::Scalar, 0)),
+            Entry::Field(field("x", Shape::Vector(2), 1)),
+            Entry::Field(field("P", Shape::Matrix { rows: 2, cols: 2 }, 3)),
+            Entry::Family {
+                name: "agent".into(),
+                labels: vec!["1".into(), "2".into()],
+                members: vec![agent(7), agent(10)],
+            },
+        ],
+    };
+    (layout, 13)
+}
+
+#[test]
+fn layouts_are_checked_against_their_dimension() {
+    let (layout, dim) = rich_layout();
+    check_layout(&layout, dim, "state").unwrap();
+    let short = check_layout(&layout, dim - 1, "state").unwrap_err();
+    assert!(short.to_string().contains("agent[2].s"), "{short}");
+    let long = check_layout(&layout, dim + 1, "state").unwrap_err();
+    assert!(
+        long.to_string().contains("component 13 is not covered"),
+        "{long}"
+    );
+    let mut twice = layout.clone();
+    twice
+        .entries
+        .push(Entry::Field(field("again", Shape::Scalar, 0)));
+    let e = check_layout(&twice, dim, "state").unwrap_err();
+    assert!(e.to_string().contains("covered twice"), "{e}");
+}
+
+#[test]
+fn records_follow_the_layout_shapes() {
+    let (layout, dim) = rich_layout();
+    let x: Vec<f64> = (0..dim).map(|k| k as f64 + 0.5).collect();
+    let rec = SampleRecord {
+        at: HybridTime::new(0.25, 3),
+        values: Values {
+            layout: &layout,
+            x: &x,
+        },
+    };
+    let v: Value = serde_json::from_slice(&serde_json::to_vec(&rec).unwrap()).unwrap();
+    assert_eq!(
+        v,
+        json!({
+            "t": 0.25, "j": 3, "h": 0.5, "x": [1.5, 2.5],
+            "P": {"rows": 2, "cols": 2, "data": [3.5, 4.5, 5.5, 6.5]},
+            "agent": [{"xhat": [7.5, 8.5], "s": 9.5}, {"xhat": [10.5, 11.5], "s": 12.5}]
+        })
+    );
+    assert_conforms(&v, &sample_schema("S", &layout), "$");
+}
+
+#[test]
+fn jump_records_carry_rule_index_pre_and_post() {
+    let layout = Layout::scalars(&["h", "v"]);
+    let rec = JumpRecordJson {
+        at: HybridTime::new(1.5, 0),
+        rule: "transmit[2]",
+        rule_id: 4,
+        pre: Values {
+            layout: &layout,
+            x: &[0.0, -3.0],
+        },
+        post: Values {
+            layout: &layout,
+            x: &[0.0, 2.4],
+        },
+    };
+    let v: Value = serde_json::to_value(&rec).unwrap();
+    assert_eq!(
+        v,
+        json!({"t": 1.5, "j": 0, "rule": "transmit[2]", "rule_id": 4, "index": [2],
+               "pre": {"h": 0.0, "v": -3.0}, "post": {"h": 0.0, "v": 2.4}})
+    );
+    assert_conforms(&v, &jump_schema("J", &layout), "$");
+    assert_eq!(rule_indices("edge[1, 3]"), Some(vec![1, 3]));
+    assert_eq!(rule_indices("impact"), None);
+    assert_eq!(rule_indices("odd[i]"), None);
+}
+
+/// Schemas use no `$ref`, no unions and no arrays of arrays (what Foxglove
+/// can address with message paths).
+#[test]
+fn schemas_stay_in_the_foxglove_subset() {
+    let (layout, _) = rich_layout();
+    for schema in [
+        sample_schema("S", &layout),
+        jump_schema("J", &layout),
+        super::json::log_schema(),
+    ] {
+        assert_foxglove_subset(&schema, false);
+    }
+}
+
+fn assert_foxglove_subset(s: &Value, inside_array: bool) {
+    let obj = s.as_object().expect("a schema is an object");
+    for banned in ["$ref", "oneOf", "anyOf", "allOf"] {
+        assert!(!obj.contains_key(banned), "{banned} in {s}");
+    }
+    let ty = obj["type"].as_str().expect("one type, no unions");
+    if inside_array {
+        assert_ne!(ty, "array", "array of arrays: {s}");
+    }
+    if let Some(props) = obj.get("properties") {
+        for p in props.as_object().unwrap().values() {
+            assert_foxglove_subset(p, false);
+        }
+    }
+    if let Some(items) = obj.get("items") {
+        assert_foxglove_subset(items, true);
+    }
+}
+
+/// A small validator for the subset of JSON Schema the sinks generate:
+/// type, properties, required, items, min/maxItems, const, minimum.
+pub(crate) fn assert_conforms(v: &Value, s: &Value, path: &str) {
+    let ty = s["type"].as_str().unwrap();
+    let ok = match ty {
+        "object" => v.is_object(),
+        "array" => v.is_array(),
+        "number" => v.is_number(),
+        "integer" => v.is_u64() || v.is_i64(),
+        "string" => v.is_string(),
+        other => panic!("unexpected schema type {other}"),
+    };
+    assert!(ok, "{path}: {v} is not {ty}");
+    if let Some(c) = s.get("const") {
+        assert_eq!(v, c, "{path}");
+    }
+    if let Some(min) = s.get("minimum") {
+        assert!(v.as_f64().unwrap() >= min.as_f64().unwrap(), "{path}");
+    }
+    if let Some(obj) = v.as_object() {
+        for r in s["required"].as_array().unwrap() {
+            assert!(obj.contains_key(r.as_str().unwrap()), "{path}: missing {r}");
+        }
+        let props = s["properties"].as_object().unwrap();
+        for (k, x) in obj {
+            let p = props
+                .get(k)
+                .unwrap_or_else(|| panic!("{path}: `{k}` not in schema"));
+            assert_conforms(x, p, &format!("{path}.{k}"));
+        }
+    }
+    if let Some(arr) = v.as_array() {
+        if let Some(n) = s.get("minItems") {
+            assert!(arr.len() as u64 >= n.as_u64().unwrap(), "{path}");
+        }
+        if let Some(n) = s.get("maxItems") {
+            assert!(arr.len() as u64 <= n.as_u64().unwrap(), "{path}");
+        }
+        for (k, x) in arr.iter().enumerate() {
+            assert_conforms(x, &s["items"], &format!("{path}[{k}]"));
+        }
+    }
+}
+
+#[test]
+fn decimation_keeps_jump_and_end_samples() {
+    let mut d = Decimator::new(Decimation::all().every(3));
+    let kinds = [
+        SampleKind::Initial,
+        SampleKind::Flow,
+        SampleKind::Flow,
+        SampleKind::Flow, // 3rd flow sample: kept
+        SampleKind::Flow,
+        SampleKind::PreJump,
+        SampleKind::PostJump,
+        SampleKind::Flow,
+        SampleKind::Final,
+    ];
+    let kept: Vec<bool> = kinds
+        .iter()
+        .enumerate()
+        .map(|(k, &kind)| d.keep(HybridTime::new(k as f64, 0), kind))
+        .collect();
+    assert_eq!(
+        kept,
+        [true, false, false, true, false, true, true, false, true]
+    );
+
+    let mut d = Decimator::new(Decimation::all().dt(Some(0.5)));
+    let ts = [0.0, 0.2, 0.4, 0.6, 0.8, 1.2];
+    let kept: Vec<bool> = ts
+        .iter()
+        .enumerate()
+        .map(|(k, &t)| {
+            let kind = if k == 0 {
+                SampleKind::Initial
+            } else {
+                SampleKind::Flow
+            };
+            d.keep(HybridTime::new(t, 0), kind)
+        })
+        .collect();
+    assert_eq!(kept, [true, false, false, true, false, true]);
+
+    assert!(Decimation::all().every(0).validate().is_err());
+    assert!(Decimation::all().dt(Some(-1.0)).validate().is_err());
+    assert!(Decimation::all().dt(Some(f64::NAN)).validate().is_err());
+}
+
+#[test]
+fn tally_counts_jumps_per_rule_name() {
+    let mut t = Tally::new(2);
+    t.sample(HybridTime::new(0.0, 0));
+    t.jump(1);
+    t.jump(1);
+    t.jump(0);
+    t.sample(HybridTime::new(2.0, 3));
+    let names = vec!["a".to_string(), "b".to_string()];
+    assert_eq!(t.total_jumps(), 3);
+    assert_eq!(
+        t.per_rule(&names).into_iter().collect::<Vec<_>>(),
+        [("a".to_string(), 1), ("b".to_string(), 2)]
+    );
+    assert_eq!(t.start, Some(HybridTime::new(0.0, 0)));
+    assert_eq!(t.end, Some(HybridTime::new(2.0, 3)));
+}
+
+#[test]
+fn hybrid_series_split_at_jumps() {
+    let samples = [
+        (HybridTime::new(0.0, 0), 1.0),
+        (HybridTime::new(0.5, 0), 0.0),
+        (HybridTime::new(0.5, 1), 0.8),
+        (HybridTime::new(1.0, 1), 0.1),
+    ];
+    let s = Series::hybrid("v", &samples);
+    assert_eq!(
+        s.pieces,
+        vec![vec![(0.0, 1.0), (0.5, 0.0)], vec![(0.5, 0.8), (1.0, 0.1)]]
+    );
+    assert_eq!(s.connectors, vec![[(0.5, 0.0), (0.5, 0.8)]]);
+}
+
+#[test]
+fn figures_render_linear_and_log_panels() {
+    let e: Vec<(f64, f64)> = (0..20)
+        .map(|k| (k as f64, if k == 5 { 0.0 } else { (-(k as f64)).exp() }))
+        .collect();
+    let svg = Figure::new()
+        .panel(
+            Panel::new("decay")
+                .x_label("t")
+                .y_label("|e|")
+                .log_y(true)
+                .series(Series::line("|e|", e.clone())),
+        )
+        .panel(Panel::new("sweep").series(Series::points("delta", e)))
+        .panel(Panel::new("empty"))
+        .to_svg_string()
+        .unwrap();
+    assert!(svg.starts_with("<svg"));
+    for text in ["decay", "sweep", "empty", "|e|", "delta"] {
+        assert!(svg.contains(text), "{text} missing");
+    }
+    // The log panel skipped the zero: no NaN coordinates anywhere.
+    assert!(!svg.contains("NaN") && !svg.contains("inf"));
+}
