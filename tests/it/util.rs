@@ -1,0 +1,137 @@
+//! Helpers shared by the integration tests.
+
+use std::ops::ControlFlow;
+
+use hybsim::arc::{ArcSink, HybridTime, SampleKind};
+use serde_json::Value;
+
+/// Gravity and restitution of the test ball.
+pub const G: f64 = 9.81;
+/// Restitution coefficient.
+pub const LAMBDA: f64 = 0.8;
+
+/// Closed-form impact times of a ball dropped from `h0` at rest.
+pub fn ball_impacts(h0: f64, n: usize) -> Vec<f64> {
+    let mut t = (2.0 * h0 / G).sqrt();
+    let mut v = (2.0 * G * h0).sqrt();
+    let mut out = Vec::new();
+    for _ in 0..n {
+        out.push(t);
+        v *= LAMBDA;
+        t += 2.0 * v / G;
+    }
+    out
+}
+
+/// Pushes the exact bouncing-ball arc (state h, v) with `n` impacts into
+/// `sink`, flow samples every `dt`, stopping early if the sink asks to.
+/// Returns the number of samples pushed.
+pub fn push_ball(sink: &mut dyn ArcSink, h0: f64, n: usize, dt: f64) -> usize {
+    let impacts = ball_impacts(h0, n);
+    let (mut t0, mut h, mut v) = (0.0, h0, 0.0);
+    let mut pushed = 0;
+    let mut push = |sink: &mut dyn ArcSink, at, x: &[f64], kind| {
+        pushed += 1;
+        sink.sample(at, x, kind)
+    };
+    if push(sink, HybridTime::new(0.0, 0), &[h, v], SampleKind::Initial).is_break() {
+        return pushed;
+    }
+    for (j, &ti) in impacts.iter().enumerate() {
+        let j = j as u64;
+        let mut k = 1;
+        while t0 + k as f64 * dt < ti {
+            let s = k as f64 * dt;
+            let x = [h + v * s - 0.5 * G * s * s, v - G * s];
+            if push(sink, HybridTime::new(t0 + s, j), &x, SampleKind::Flow).is_break() {
+                return pushed;
+            }
+            k += 1;
+        }
+        let s = ti - t0;
+        let pre = [0.0, v - G * s];
+        let post = [0.0, -LAMBDA * pre[1]];
+        let at = HybridTime::new(ti, j);
+        if push(sink, at, &pre, SampleKind::PreJump).is_break()
+            || sink.jump(at, 0, &pre, &post).is_break()
+            || push(
+                sink,
+                HybridTime::new(ti, j + 1),
+                &post,
+                SampleKind::PostJump,
+            )
+            .is_break()
+        {
+            return pushed;
+        }
+        (t0, h, v) = (ti, post[0], post[1]);
+    }
+    let _ = push(
+        sink,
+        HybridTime::new(t0, n as u64),
+        &[h, v],
+        SampleKind::Final,
+    );
+    pushed
+}
+
+/// A sink that records nothing and stops after `n` samples.
+pub struct StopAfter(pub usize);
+
+impl ArcSink for StopAfter {
+    fn sample(&mut self, _: HybridTime, _: &[f64], _: SampleKind) -> ControlFlow<()> {
+        self.0 = self.0.saturating_sub(1);
+        if self.0 == 0 {
+            ControlFlow::Break(())
+        } else {
+            ControlFlow::Continue(())
+        }
+    }
+    fn jump(&mut self, _: HybridTime, _: usize, _: &[f64], _: &[f64]) -> ControlFlow<()> {
+        ControlFlow::Continue(())
+    }
+}
+
+/// Asserts that `v` conforms to `s`, for the subset of JSON Schema the sinks
+/// generate: type, properties, required, items, min/maxItems, const, minimum.
+pub fn assert_conforms(v: &Value, s: &Value, path: &str) {
+    let ty = s["type"].as_str().unwrap();
+    let ok = match ty {
+        "object" => v.is_object(),
+        "array" => v.is_array(),
+        "number" => v.is_number(),
+        "integer" => v.is_u64() || v.is_i64(),
+        "string" => v.is_string(),
+        other => panic!("unexpected schema type {other}"),
+    };
+    assert!(ok, "{path}: {v} is not {ty}");
+    if let Some(c) = s.get("const") {
+        assert_eq!(v, c, "{path}");
+    }
+    if let Some(min) = s.get("minimum") {
+        assert!(v.as_f64().unwrap() >= min.as_f64().unwrap(), "{path}");
+    }
+    if let Some(obj) = v.as_object() {
+        for r in s["required"].as_array().unwrap() {
+            assert!(obj.contains_key(r.as_str().unwrap()), "{path}: missing {r}");
+        }
+        let props = s["properties"].as_object().unwrap();
+        for (k, x) in obj {
+            let p = props
+                .get(k)
+                .unwrap_or_else(|| panic!("{path}: `{k}` not in schema"));
+            assert_conforms(x, p, &format!("{path}.{k}"));
+        }
+    }
+    if let Some(arr) = v.as_array() {
+        if let Some(n) = s.get("minItems") {
+            assert!(arr.len() as u64 >= n.as_u64().unwrap(), "{path}");
+        }
+        if let Some(n) = s.get("maxItems") {
+            assert!(arr.len() as u64 <= n.as_u64().unwrap(), "{path}");
+        }
+        for (k, x) in arr.iter().enumerate() {
+            assert_conforms(x, &s["items"], &format!("{path}[{k}]"));
+        }
+    }
+}
