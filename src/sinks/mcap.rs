@@ -16,7 +16,7 @@
 //! | channel `/hybsim/outputs` | one message per logged sample: `{t, j, <outputs>}` (if the model has outputs) |
 //! | channel `/hybsim/jumps` | one message per jump: `{t, j, rule, rule_id, index?, pre, post}` |
 //! | channel `/hybsim/log` | run start and end (`foxglove.Log`) |
-//! | metadata `hybsim.result` | `termination`, `message`, `ok`, `t_end`, `j_end`, `jumps` (per rule), `samples_logged` |
+//! | metadata `hybsim.result` | `termination`, `message`, `status` (`completed`, `ended`, `failed`), `t_end`, `j_end`, `jumps` (per rule), `samples_logged` |
 //!
 //! `log_time = publish_time = round((t − t0)·10⁹)` ns, with t0 the time of
 //! the first sample; every payload carries the exact `t` and `j`, because
@@ -41,7 +41,7 @@ use super::json::{
     log_schema, sample_schema,
 };
 use super::{
-    Decimation, Decimator, OutputFn, RunInfo, RunOutcome, SinkError, Tally, commit_file,
+    Decimation, Decimator, OutputFn, RunInfo, RunOutcome, RunStatus, SinkError, Tally, commit_file,
     first_non_finite, rule_name, temp_path,
 };
 use crate::arc::{ArcSink, HybridTime, SampleKind};
@@ -503,7 +503,7 @@ impl<'a> McapSink<'a> {
             Some(e @ SinkError::NonFinite { .. }) => RunOutcome {
                 cause: "non_finite".into(),
                 message: e.to_string(),
-                ok: false,
+                status: RunStatus::Failed,
             },
             _ => outcome.clone(),
         };
@@ -524,10 +524,10 @@ impl<'a> McapSink<'a> {
     }
 
     fn complete(&mut self, outcome: &RunOutcome) -> Result<McapSummary, SinkError> {
-        let level = if outcome.ok {
-            LogLevel::Info
-        } else {
-            LogLevel::Error
+        let level = match outcome.status {
+            RunStatus::Completed => LogLevel::Info,
+            RunStatus::Ended => LogLevel::Warning,
+            RunStatus::Failed => LogLevel::Error,
         };
         let end = self.tally.end;
         let log_time = self.last_log_time;
@@ -540,7 +540,10 @@ impl<'a> McapSink<'a> {
         let result = meta_entries([
             ("termination", json!(outcome.cause)),
             ("message", json!(outcome.message)),
-            ("ok", json!(outcome.ok.to_string())),
+            (
+                "status",
+                serde_json::to_value(outcome.status).expect("an enum serializes"),
+            ),
             (
                 "t_end",
                 json!(end.map(|e| e.t.to_string()).unwrap_or_default()),

@@ -430,8 +430,21 @@ pub struct RunOutcome {
     pub cause: String,
     /// One sentence for people.
     pub message: String,
-    /// Whether this is a normal end of the run (horizon reached) rather than a failure.
-    pub ok: bool,
+    /// How the run ended, in three degrees.
+    pub status: RunStatus,
+}
+
+/// How a run ended, as far as logs and exit codes are concerned.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum RunStatus {
+    /// A horizon (T or J) was reached.
+    Completed,
+    /// The solution ended for a documented reason worth a look (Zeno
+    /// suspected, cannot flow or jump, interrupted).
+    Ended,
+    /// The run failed (engine error, non-finite value, write error).
+    Failed,
 }
 
 /// Forwards one run to several sinks; stops the run as soon as one sink asks to.

@@ -8,7 +8,7 @@ use hybsim::layout::Layout;
 use hybsim::sinks::csv::CsvSink;
 use hybsim::sinks::mcap::{McapOptions, McapSink};
 use hybsim::sinks::plot::PlotSink;
-use hybsim::sinks::{Decimation, Fanout, RunInfo, RunOutcome, SinkError};
+use hybsim::sinks::{Decimation, Fanout, RunInfo, RunOutcome, RunStatus, SinkError};
 use mcap::records::Record;
 use serde_json::{Value, json};
 
@@ -37,7 +37,7 @@ fn horizon() -> RunOutcome {
     RunOutcome {
         cause: "horizon_j".into(),
         message: "jump horizon J reached".into(),
-        ok: true,
+        status: RunStatus::Completed,
     }
 }
 
@@ -259,6 +259,7 @@ fn mcap_stores_metadata_and_attachments_for_reproduction() {
     assert_eq!(meta["hybsim.solver"]["solver"], "dopri5");
     let result = &meta["hybsim.result"];
     assert_eq!(result["termination"], "horizon_j");
+    assert_eq!(result["status"], "completed");
     assert_eq!(result["j_end"], n.to_string());
     assert_eq!(result["t_end"], ball_impacts(1.0, n)[n - 1].to_string());
     assert_eq!(result["jumps"], format!(r#"{{"impact":{n}}}"#));
@@ -386,13 +387,14 @@ fn mcap_stops_the_run_before_writing_non_finite_values() {
     ));
     let summary = sink.finish(&horizon()).unwrap();
     assert_eq!(summary.outcome.cause, "non_finite");
-    assert!(!summary.outcome.ok);
+    assert_eq!(summary.outcome.status, RunStatus::Failed);
     let bytes = std::fs::read(&path).unwrap();
-    let states = messages(&bytes)
-        .into_iter()
-        .filter(|m| m.topic == "/hybsim/state")
-        .count();
+    let msgs = messages(&bytes);
+    let states = msgs.iter().filter(|m| m.topic == "/hybsim/state").count();
     assert_eq!(states, 1);
+    let end = msgs.last().unwrap();
+    assert_eq!(end.topic, "/hybsim/log");
+    assert_eq!(end.body["level"], 4, "an error-level log entry");
     let meta = metadata(&bytes);
     assert_eq!(meta["hybsim.result"]["termination"], "non_finite");
     assert!(meta["hybsim.result"]["message"].contains("`h` is not finite"));
