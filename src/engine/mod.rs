@@ -127,7 +127,6 @@ mod run;
 mod settings;
 pub mod system;
 
-
 pub use crate::arc::{Termination, TerminationCause, ZenoDetail};
 pub use error::SimError;
 pub use run::{simulate, simulate_arc};
