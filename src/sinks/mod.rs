@@ -29,7 +29,7 @@ use std::path::{Path, PathBuf};
 
 use serde::Serialize;
 
-use crate::arc::{ArcSink, HybridTime, SampleKind};
+use crate::arc::{ArcSink, HybridTime, SampleKind, Termination};
 use crate::layout::{Entry, Field, Layout};
 
 /// Errors of the output sinks.
@@ -478,6 +478,12 @@ impl ArcSink for Fanout<'_> {
             }
         }
         flow
+    }
+
+    fn finish(&mut self, termination: &Termination) {
+        for s in &mut self.sinks {
+            s.finish(termination);
+        }
     }
 }
 
