@@ -500,11 +500,9 @@ impl<'a> McapSink<'a> {
     pub fn finish(mut self, outcome: &RunOutcome) -> Result<McapSummary, SinkError> {
         let error = self.error.take();
         let outcome = match &error {
-            Some(e @ SinkError::NonFinite { .. }) => RunOutcome {
-                cause: "non_finite".into(),
-                message: e.to_string(),
-                status: RunStatus::Failed,
-            },
+            Some(e @ SinkError::NonFinite { .. }) => {
+                RunOutcome::failed("non_finite", e.to_string())
+            }
             _ => outcome.clone(),
         };
         if let Some(e) = error

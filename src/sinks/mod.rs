@@ -29,7 +29,7 @@ use std::path::{Path, PathBuf};
 
 use serde::Serialize;
 
-use crate::arc::{ArcSink, HybridTime, SampleKind, Termination};
+use crate::arc::{ArcSink, HybridTime, SampleKind, Termination, TerminationCause};
 use crate::layout::{Entry, Field, Layout};
 
 /// Errors of the output sinks.
@@ -432,6 +432,33 @@ pub struct RunOutcome {
     pub message: String,
     /// How the run ended, in three degrees.
     pub status: RunStatus,
+}
+
+impl RunOutcome {
+    /// The outcome of a run that the engine ended with `termination`.
+    pub fn from_termination(termination: &Termination) -> Self {
+        let (cause, status) = match termination.cause {
+            TerminationCause::HorizonT => ("horizon_t", RunStatus::Completed),
+            TerminationCause::HorizonJ => ("horizon_j", RunStatus::Completed),
+            TerminationCause::ZenoSuspected { .. } => ("zeno_suspected", RunStatus::Ended),
+            TerminationCause::CannotFlowOrJump => ("cannot_flow_or_jump", RunStatus::Ended),
+            TerminationCause::StoppedBySink => ("stopped_by_sink", RunStatus::Ended),
+        };
+        Self {
+            cause: cause.into(),
+            message: termination.to_string(),
+            status,
+        }
+    }
+
+    /// A failed run: `cause` is a stable identifier (`error`, `non_finite`).
+    pub fn failed(cause: &str, message: impl Into<String>) -> Self {
+        Self {
+            cause: cause.into(),
+            message: message.into(),
+            status: RunStatus::Failed,
+        }
+    }
 }
 
 /// How a run ended, as far as logs and exit codes are concerned.
