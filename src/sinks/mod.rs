@@ -29,7 +29,7 @@ use std::path::{Path, PathBuf};
 
 use serde::Serialize;
 
-use crate::arc::{ArcSink, HybridTime, SampleKind, Termination, TerminationCause};
+use crate::arc::{ArcSink, HybridArc, HybridTime, SampleKind, Termination, TerminationCause};
 use crate::layout::{Entry, Field, Layout};
 
 /// Errors of the output sinks.
@@ -512,6 +512,26 @@ impl ArcSink for Fanout<'_> {
             s.finish(termination);
         }
     }
+}
+
+/// Pushes a solution held in memory into `sink` in the order the engine
+/// would: samples in order, each jump record right after its pre-jump
+/// sample, then [`ArcSink::finish`] with the arc's termination (if set).
+/// Use it to log an arc computed with `engine::simulate_arc`.
+pub fn replay(arc: &HybridArc, sink: &mut dyn ArcSink) -> ControlFlow<()> {
+    let mut jumps = arc.jumps().iter();
+    for s in arc.samples() {
+        sink.sample(s.at, s.x, s.kind)?;
+        if s.kind == SampleKind::PreJump
+            && let Some(jump) = jumps.next()
+        {
+            sink.jump(jump.at, jump.rule, &jump.pre, &jump.post)?;
+        }
+    }
+    if let Some(termination) = arc.termination() {
+        sink.finish(termination);
+    }
+    ControlFlow::Continue(())
 }
 
 /// Returns the first non-finite component of `x`, as (index, value).

@@ -629,3 +629,33 @@ fn engine_run_logged_to_mcap_matches_closed_form_impacts() {
         assert!((e - expected).abs() < 1e-5 * G, "E = {e} at j = {j}");
     }
 }
+
+/// Replaying an in-memory arc gives the same file as logging the run directly.
+#[test]
+fn replayed_arc_gives_the_same_mcap_as_a_direct_run() {
+    use hybsim::engine::models::BouncingBall;
+    use hybsim::engine::{SimRng, SimSettings, simulate, simulate_arc};
+
+    let dir = tempfile::tempdir().unwrap();
+    let info = ball_info();
+    let ball = BouncingBall::new(G, 0.8);
+    let settings = SimSettings::default().horizon_j(7).dt_out(Some(0.05));
+    let x0 = [1.0, 0.0];
+
+    let direct = dir.path().join("direct.mcap");
+    let mut sink = McapSink::create(&direct, &info, Some(&energy), McapOptions::default()).unwrap();
+    let term = simulate(&ball, &x0, &settings, &mut SimRng::seed_from(3), &mut sink).unwrap();
+    sink.finish(&RunOutcome::from_termination(&term)).unwrap();
+
+    let arc = simulate_arc(&ball, &x0, &settings, &mut SimRng::seed_from(3)).unwrap();
+    let replayed = dir.path().join("replayed.mcap");
+    let mut sink =
+        McapSink::create(&replayed, &info, Some(&energy), McapOptions::default()).unwrap();
+    assert!(hybsim::sinks::replay(&arc, &mut sink).is_continue());
+    let summary = sink
+        .finish(&RunOutcome::from_termination(arc.termination().unwrap()))
+        .unwrap();
+    assert_eq!(summary.messages["/hybsim/jumps"], 7);
+    assert_eq!(summary.outcome.cause, "horizon_j");
+    assert!(std::fs::read(&direct).unwrap() == std::fs::read(&replayed).unwrap());
+}
