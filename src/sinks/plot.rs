@@ -474,11 +474,19 @@ pub struct PlotSink<'a> {
     model_name: String,
     decimator: Decimator,
     times: Vec<HybridTime>,
+    /// Whether sample k may be thinned (a flow sample).
+    thinnable: Vec<bool>,
     /// Row-major: one row per kept sample, one column per plotted component.
     values: Vec<f64>,
     columns: Vec<(Source, usize)>,
     y: Vec<f64>,
 }
+
+/// A [`PlotSink`] keeps between this many and twice this many samples: when
+/// it holds twice as many, it drops every other flow sample (initial,
+/// jump and final samples stay), so long runs draw in bounded memory and
+/// the SVG stays small.
+pub const MAX_PLOT_SAMPLES: usize = 4000;
 
 /// At most this many panels are drawn when no selection is given.
 pub const MAX_DEFAULT_PANELS: usize = 8;
@@ -530,10 +538,46 @@ impl<'a> PlotSink<'a> {
             model_name: info.model_name.clone(),
             decimator: Decimator::new(decimation),
             times: Vec::new(),
+            thinnable: Vec::new(),
             values: Vec::new(),
             columns,
             y: vec![0.0; info.output_dim],
         })
+    }
+
+    /// Drops every other flow sample.
+    fn thin(&mut self) {
+        let ncols = self.columns.len();
+        let mut keep_flow = false;
+        let mut w = 0;
+        for r in 0..self.times.len() {
+            let keep = if self.thinnable[r] {
+                keep_flow = !keep_flow;
+                keep_flow
+            } else {
+                true
+            };
+            if keep {
+                self.times[w] = self.times[r];
+                self.thinnable[w] = self.thinnable[r];
+                self.values
+                    .copy_within(r * ncols..(r + 1) * ncols, w * ncols);
+                w += 1;
+            }
+        }
+        self.times.truncate(w);
+        self.thinnable.truncate(w);
+        self.values.truncate(w * ncols);
+    }
+
+    /// Number of samples held.
+    pub fn len(&self) -> usize {
+        self.times.len()
+    }
+
+    /// Whether no sample is held.
+    pub fn is_empty(&self) -> bool {
+        self.times.is_empty()
     }
 
     /// The figure of what was kept so far.
@@ -583,7 +627,11 @@ impl ArcSink for PlotSink<'_> {
         {
             outputs(at.t, x, &mut self.y);
         }
+        if self.times.len() >= 2 * MAX_PLOT_SAMPLES {
+            self.thin();
+        }
         self.times.push(at);
+        self.thinnable.push(kind == SampleKind::Flow);
         for &(source, k) in &self.columns {
             self.values.push(match source {
                 Source::State => x[k],

@@ -659,3 +659,29 @@ fn replayed_arc_gives_the_same_mcap_as_a_direct_run() {
     assert_eq!(summary.outcome.cause, "horizon_j");
     assert!(std::fs::read(&direct).unwrap() == std::fs::read(&replayed).unwrap());
 }
+
+/// Long runs are thinned in the plot sink, keeping every jump.
+#[test]
+fn plot_sink_thins_long_runs_but_keeps_jumps() {
+    use hybsim::sinks::plot::MAX_PLOT_SAMPLES;
+    let dir = tempfile::tempdir().unwrap();
+    let info = ball_info();
+    let mut plot = PlotSink::new(
+        dir.path().join("long.svg"),
+        &info,
+        None,
+        &[],
+        Decimation::all(),
+    )
+    .unwrap();
+    let pushed = push_ball(&mut plot, 1.0, 10, 1e-4);
+    assert!(pushed > 3 * MAX_PLOT_SAMPLES, "{pushed}");
+    assert!(plot.len() <= 2 * MAX_PLOT_SAMPLES && plot.len() >= MAX_PLOT_SAMPLES / 2);
+    let figure = plot.figure();
+    let v = &figure.panels[1].series[0];
+    assert_eq!(v.connectors.len(), 10, "one dashed segment per jump");
+    for (k, [pre, post]) in v.connectors.iter().enumerate() {
+        assert_eq!(pre.0, post.0);
+        assert!((post.1 + 0.8 * pre.1).abs() < 1e-12, "jump {k}");
+    }
+}
