@@ -10,4 +10,5 @@ extern crate openblas_src;
 pub mod arc;
 pub mod engine;
 pub mod layout;
+pub mod props;
 pub mod sinks;
