@@ -8,6 +8,7 @@
 extern crate openblas_src;
 
 pub mod arc;
+pub mod design;
 pub mod engine;
 pub mod layout;
 pub mod props;
