@@ -61,6 +61,7 @@
 
 mod monitor;
 mod property;
+mod report;
 mod runner;
 #[cfg(feature = "proptest")]
 pub mod strategy;
@@ -71,6 +72,7 @@ pub use monitor::{Conclusion, PropertySink, Verdict, Violation, ViolationDetail,
 pub use property::{
     JumpPredicate, JumpView, Monotonicity, Property, ScalarFn, Scope, StatePredicate,
 };
+pub use report::replay_args;
 pub use runner::{
     Case, Counterexample, Dist, Input, Outcome, Subject, SystemSubject, TestConfig, TestReport,
     run_case, run_tests, sample_case, shrink,

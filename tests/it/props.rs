@@ -60,6 +60,8 @@ fn ball_never_above_1_5_is_refuted_and_shrinks_to_1_5() {
     // A drop from rest fails at its initial point, so no jump is needed.
     assert_eq!((cx.violation.at.t, cx.violation.at.j), (0.0, 0));
     assert_eq!(cx.case.horizon_j, Some(0));
+    let text = cx.describe(subject.inputs(), &subject.state_names());
+    assert!(text.contains("never above 1.5") && text.contains(&format!("--set h={h0}")), "{text}");
     // Replaying the shrunk case gives the same violation.
     let again = run_case(&subject, &props, &cx.case).unwrap();
     assert_eq!(again.violation(), Some(&cx.violation));
