@@ -326,3 +326,22 @@ fn sampled_cases_are_reproducible_and_in_range() {
         assert!((0.0..=2.0).contains(&c.values[0]) && c.values[1] == 0.0);
     }
 }
+
+#[test]
+fn shortest_decimals_stay_in_the_bracket() {
+    use super::runner::shortest_decimal_between;
+    assert_eq!(
+        shortest_decimal_between(1.4999999999996, 1.5000000000004547),
+        Some(1.5)
+    );
+    assert_eq!(
+        shortest_decimal_between(1.5, 1.5000000000004547),
+        Some(1.5000000000004)
+    );
+    assert_eq!(
+        shortest_decimal_between(-1.5, -1.5000000000004547),
+        Some(-1.5000000000004)
+    );
+    assert_eq!(shortest_decimal_between(1.5, 1.5000000000000002), None);
+    assert_eq!(shortest_decimal_between(0.0, 0.012345), Some(0.01));
+}

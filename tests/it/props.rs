@@ -61,7 +61,10 @@ fn ball_never_above_1_5_is_refuted_and_shrinks_to_1_5() {
     assert_eq!((cx.violation.at.t, cx.violation.at.j), (0.0, 0));
     assert_eq!(cx.case.horizon_j, Some(0));
     let text = cx.describe(subject.inputs(), &subject.state_names());
-    assert!(text.contains("never above 1.5") && text.contains(&format!("--set h={h0}")), "{text}");
+    assert!(
+        text.contains("never above 1.5") && text.contains(&format!("--set h={h0}")),
+        "{text}"
+    );
     // Replaying the shrunk case gives the same violation.
     let again = run_case(&subject, &props, &cx.case).unwrap();
     assert_eq!(again.violation(), Some(&cx.violation));
@@ -249,4 +252,29 @@ fn the_proptest_helper_reports_a_false_property() {
     });
     let err = result.unwrap_err().to_string();
     assert!(err.contains("never above 1.5"), "{err}");
+}
+
+#[test]
+fn the_counterexample_does_not_depend_on_the_number_of_threads() {
+    let subject = ball(
+        Dist::Uniform { lo: 0.0, hi: 2.0 },
+        Dist::Uniform { lo: -8.0, hi: 8.0 },
+        4.0,
+    );
+    let props = [Property::always("never above 1.5", |_, x| x[0] <= 1.5)];
+    let config = TestConfig::default().cases(64).seed(9);
+    let with = |threads| {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap();
+        match pool
+            .install(|| run_tests(&subject, &props, &config))
+            .outcome
+        {
+            Outcome::Failed(cx) => cx,
+            other => panic!("expected a counterexample, got {other:?}"),
+        }
+    };
+    assert_eq!(with(1), with(3));
 }
