@@ -438,36 +438,41 @@ impl<S: Subject + ?Sized> Shrinker<'_, S> {
     }
 }
 
-/// A value with few significant digits in the half-open interval from
-/// `pass` (excluded) to `fail` (included), if one differs from `fail`:
-/// `fail` cut (toward zero) or rounded to 1, 2, … significant digits.
-pub(crate) fn shortest_decimal_between(pass: f64, fail: f64) -> Option<f64> {
+/// Values with few significant digits in the half-open interval from
+/// `pass` (excluded) to `fail` (included), other than `fail`, shortest
+/// first: `fail` cut (toward zero) or rounded to 0, 1, 2, … digits after
+/// the point of its scientific form.
+pub(crate) fn short_decimals_between(pass: f64, fail: f64) -> Vec<f64> {
     let inside = |r: f64| {
         if pass < fail {
-            pass < r && r <= fail
+            pass < r && r < fail
         } else {
-            fail <= r && r < pass
+            fail < r && r < pass
         }
     };
     let full = format!("{:.16e}", fail.abs());
-    let (mantissa, exponent) = full.split_once('e')?;
+    let Some((mantissa, exponent)) = full.split_once('e') else {
+        return Vec::new();
+    };
     let sign = if fail < 0.0 { "-" } else { "" };
+    let mut out: Vec<f64> = Vec::new();
     for digits in 0..17 {
-        // `digits` digits after the point: cut, then rounded.
         let cut = &mantissa[..if digits == 0 { 1 } else { 2 + digits }];
-        let cut: f64 = format!("{sign}{cut}e{exponent}").parse().ok()?;
-        let rounded: f64 = format!("{fail:.digits$e}").parse().ok()?;
-        if let Some(r) = [cut, rounded].into_iter().find(|&r| inside(r)) {
-            return (r != fail).then_some(r);
+        let cut = format!("{sign}{cut}e{exponent}").parse::<f64>();
+        let rounded = format!("{fail:.digits$e}").parse::<f64>();
+        for r in [cut, rounded].into_iter().flatten() {
+            if inside(r) && !out.contains(&r) {
+                out.push(r);
+            }
         }
     }
-    None
+    out
 }
 
 /// Shrinks a failing case within `budget` runs: each input moves toward its
 /// [`Dist::shrink_target`] (the target itself if it still fails, else the
 /// failing value closest to it found by bisection, to a relative width of
-/// 1e-12, then the shortest decimal in the last bracket if it fails too),
+/// 1e-12, then the shortest of a few short decimals in the last bracket that fails),
 /// repeated while anything changes; then the horizons are cut to
 /// the failure: `horizon_j` to the failing jump count (fewer jumps) and
 /// `horizon_t` to the failing time. A candidate is kept only if the same
@@ -527,10 +532,11 @@ pub fn shrink<S: Subject + ?Sized>(
             }
             // The shortest decimal between the two, if it still fails: a
             // shorter `--set` value in the replay.
-            if let Some(r) = shortest_decimal_between(pass, fail) {
+            for r in short_decimals_between(pass, fail).into_iter().take(4) {
                 candidate.values[k] = r;
                 if let Some(v) = s.fails(&candidate) {
                     (best, best_v, changed) = (candidate, v, true);
+                    break;
                 }
             }
         }

@@ -328,20 +328,14 @@ fn sampled_cases_are_reproducible_and_in_range() {
 }
 
 #[test]
-fn shortest_decimals_stay_in_the_bracket() {
-    use super::runner::shortest_decimal_between;
-    assert_eq!(
-        shortest_decimal_between(1.4999999999996, 1.5000000000004547),
-        Some(1.5)
-    );
-    assert_eq!(
-        shortest_decimal_between(1.5, 1.5000000000004547),
-        Some(1.5000000000004)
-    );
-    assert_eq!(
-        shortest_decimal_between(-1.5, -1.5000000000004547),
-        Some(-1.5000000000004)
-    );
-    assert_eq!(shortest_decimal_between(1.5, 1.5000000000000002), None);
-    assert_eq!(shortest_decimal_between(0.0, 0.012345), Some(0.01));
+fn short_decimals_stay_in_the_bracket_shortest_first() {
+    use super::runner::short_decimals_between;
+    let c = short_decimals_between(1.4999999999996, 1.5000000000004547);
+    assert_eq!(c[..2], [1.5, 1.5000000000004]);
+    let c = short_decimals_between(1.5, 1.5000000000013636);
+    assert_eq!(c[..2], [1.500000000001, 1.5000000000013]);
+    let c = short_decimals_between(-1.5, -1.5000000000004547);
+    assert_eq!(c[0], -1.5000000000004);
+    assert!(short_decimals_between(1.5, 1.5000000000000002).is_empty());
+    assert_eq!(short_decimals_between(0.0, 0.012345)[0], 0.01);
 }

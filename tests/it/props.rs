@@ -57,6 +57,8 @@ fn ball_never_above_1_5_is_refuted_and_shrinks_to_1_5() {
     assert!(cx.original.values[0] > 1.5);
     let h0 = cx.case.values[0];
     assert!(h0 > 1.5 && h0 - 1.5 <= 1e-11, "shrunk to h0 = {h0}");
+    // … and to a short decimal, for a readable replay command.
+    assert!(format!("{h0}").len() <= 16, "h0 = {h0}");
     // A drop from rest fails at its initial point, so no jump is needed.
     assert_eq!((cx.violation.at.t, cx.violation.at.j), (0.0, 0));
     assert_eq!(cx.case.horizon_j, Some(0));
