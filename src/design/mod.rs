@@ -12,3 +12,4 @@
 //!   constraint at the returned point.
 
 pub mod control;
+pub mod lmi;

@@ -41,7 +41,7 @@ mod lyapunov;
 mod norms;
 mod riccati;
 #[cfg(test)]
-mod tests;
+pub(crate) mod tests;
 
 pub use lyapunov::{dlyap, lyap};
 pub use norms::{HinfNorm, Sampling, StateSpace, h2_norm, hinf_norm};
