@@ -224,6 +224,18 @@ impl Watcher {
                         continue;
                     }
                     let w = self.watched[i];
+                    if let Some((sb, _)) = best {
+                        // Cheap test against the event already found: a
+                        // crossing after it, or inside the same tolerance
+                        // bracket (the earlier-declared function wins, so a
+                        // rule wins over leaving C), cannot replace it.
+                        let tb = t0 + sb;
+                        let at_post = Self::value(sys, w, tb, &self.buf_best_post);
+                        let at_pre = Self::value(sys, w, tb, &self.buf_best);
+                        if !Self::is_triggered(w, at_post) || !Self::is_triggered(w, at_pre) {
+                            continue;
+                        }
+                    }
                     let (a, b) = self.localize(sys, w, t0, path, prev, s);
                     if best.is_some_and(|(sb, _)| sb <= a) {
                         continue;
@@ -310,5 +322,38 @@ impl Watcher {
             }
         }
         (a, b)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn hermite_is_exact_for_cubics() {
+        // y = s³ - 2s on [0.5, 2]: y' = 3s² - 2.
+        let y = |s: f64| s * s * s - 2.0 * s;
+        let f = |s: f64| 3.0 * s * s - 2.0;
+        let (s0, s1) = (0.5, 2.0);
+        let (y0, f0, y1, f1) = ([y(s0)], [f(s0)], [y(s1)], [f(s1)]);
+        let mut p = Hermite {
+            s0,
+            s1,
+            y0: &y0,
+            f0: &f0,
+            y1: &y1,
+            f1: &f1,
+        };
+        let mut out = [0.0];
+        for k in 0..=10 {
+            let s = s0 + (s1 - s0) * k as f64 / 10.0;
+            p.eval(s, &mut out);
+            assert!(
+                (out[0] - y(s)).abs() < 1e-14,
+                "at {s}: {} vs {}",
+                out[0],
+                y(s)
+            );
+        }
     }
 }

@@ -13,7 +13,7 @@
 
 use std::ops::ControlFlow;
 
-use nalgebra::{DMatrix, DVector};
+use nalgebra::{DMatrix, DVector, DVectorView, DVectorViewMut};
 use ode_solvers::{Dop853, Dopri5, OutputType, Rk4, System, dop_shared::IntegrationError};
 
 use super::HybridSystem;
@@ -26,6 +26,8 @@ use crate::arc::{ArcSink, HybridTime, SampleKind};
 /// Steps per ode_solvers stepper before it is restarted from its last state
 /// (bounds the memory of its sparse output and of `Rk4`'s preallocation).
 const MAX_STEPS_PER_STEPPER: u32 = 10_000;
+
+const CARRY_STEP: bool = option_env!("HYBSIM_NO_CARRY").is_none();
 
 /// Why a flow segment ended.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -191,15 +193,14 @@ impl Affine {
 
     /// `out = Φ x + γ` with `p = [[Φ, γ], [0, 1]]`.
     fn apply(n: usize, p: &DMatrix<f64>, x: &[f64], out: &mut [f64]) {
-        for (r, o) in out.iter_mut().enumerate() {
-            *o = p[(r, n)];
-        }
-        for (c, &xc) in x.iter().enumerate() {
-            let col = p.column(c);
-            for (r, o) in out.iter_mut().enumerate() {
-                *o += col[r] * xc;
-            }
-        }
+        out.copy_from_slice(&p.as_slice()[n * (n + 1)..n * (n + 1) + n]);
+        let mut y = DVectorViewMut::from_slice(out, n);
+        y.gemv(
+            1.0,
+            &p.view((0, 0), (n, n)),
+            &DVectorView::from_slice(x, n),
+            1.0,
+        );
     }
 }
 
@@ -231,6 +232,8 @@ impl StepPath for AffinePath<'_> {
 pub(crate) struct Flows {
     pub method: Method,
     pub watcher: Watcher,
+    /// State indices of the timers of timer rules.
+    timer_rows: Vec<usize>,
     max_step: f64,
     need_derivative: bool,
     y_prev: Vec<f64>,
@@ -274,14 +277,20 @@ impl Flows {
         let n = x0.len();
         let watcher = Watcher::new(sys, settings, x0);
         let m = sys.noise_dim();
-        let has_timers = sys
+        let timer_rows: Vec<usize> = sys
             .jump_rules()
             .iter()
-            .any(|r| matches!(r.guard, super::GuardKind::Timer { .. }));
-        let need_derivative = has_timers || !watcher.is_empty() || settings.dt_out.is_some();
+            .filter_map(|r| match r.guard {
+                super::GuardKind::Timer { index, .. } => Some(index),
+                super::GuardKind::General => None,
+            })
+            .collect();
+        let need_derivative =
+            !timer_rows.is_empty() || !watcher.is_empty() || settings.dt_out.is_some();
         Self {
             method,
             watcher,
+            timer_rows,
             max_step: settings.max_step,
             need_derivative,
             y_prev: vec![0.0; n],
@@ -298,8 +307,24 @@ impl Flows {
     /// f(t0, x) (zeros if no one needs it), whose timer components give the
     /// timers' constant rates.
     pub fn start<S: HybridSystem + ?Sized>(&mut self, sys: &S, t0: f64, x: &[f64]) -> &[f64] {
-        if self.need_derivative {
-            sys.flow_map(t0, x, &mut self.f_prev);
+        match &self.method {
+            // Exact flows need no interpolant: only the timers' rates, one
+            // row of [A, b] each.
+            Method::Affine(aff) => {
+                let n = aff.n;
+                for &i in &self.timer_rows {
+                    let row = aff.gen_.row(i);
+                    self.f_prev[i] = row[n]
+                        + row
+                            .columns(0, n)
+                            .iter()
+                            .zip(x)
+                            .map(|(a, x)| a * x)
+                            .sum::<f64>();
+                }
+            }
+            _ if self.need_derivative => sys.flow_map(t0, x, &mut self.f_prev),
+            _ => {}
         }
         self.watcher.start(sys, t0, x);
         &self.f_prev
@@ -383,6 +408,13 @@ impl Flows {
             end: None,
         };
         let h_max = step.fl.max_step.min(d_end);
+        // First step: the last full step of the previous segment, or
+        // ode_solvers' own estimate (2 more f-evaluations) for the first.
+        let h_init = if CARRY_STEP {
+            step.fl.last_h.min(d_stop)
+        } else {
+            0.0
+        };
         let result = match solver {
             Solver::Dopri5 { rtol, atol } => {
                 let mut st = Dopri5::from_param(
@@ -398,7 +430,7 @@ impl Flows {
                     0.2,
                     10.0,
                     h_max,
-                    0.0,
+                    h_init,
                     MAX_STEPS_PER_STEPPER,
                     1000,
                     OutputType::Sparse,
@@ -419,7 +451,7 @@ impl Flows {
                     0.333,
                     6.0,
                     h_max,
-                    0.0,
+                    h_init,
                     MAX_STEPS_PER_STEPPER,
                     1000,
                     OutputType::Sparse,

@@ -2,7 +2,7 @@
 //! their solutions. They serve as examples of implementing
 //! [`HybridSystem`], as the engine's test models, and as benchmark models.
 
-use nalgebra::{DMatrix, DVector};
+use nalgebra::{DMatrix, DVector, DVectorView, DVectorViewMut};
 
 use super::{FlowStructure, GuardKind, HybridSystem, JumpRule, SimRng};
 use crate::arc::HybridTime;
@@ -247,18 +247,12 @@ impl SampleAndHold {
     /// hand-written benchmark reference): `dx = [A x + B u, 0, 1]`.
     pub fn flow(&self, x: &[f64], dx: &mut [f64]) {
         let (n, m) = (self.n(), self.m());
-        dx[n..].fill(0.0);
-        dx[n + m] = 1.0;
-        for (r, d) in dx[..n].iter_mut().enumerate() {
-            let mut acc = 0.0;
-            for (c, xc) in x[..n].iter().enumerate() {
-                acc += self.a[(r, c)] * xc;
-            }
-            for (c, uc) in x[n..n + m].iter().enumerate() {
-                acc += self.b[(r, c)] * uc;
-            }
-            *d = acc;
-        }
+        let (dxp, rest) = dx.split_at_mut(n);
+        rest.fill(0.0);
+        rest[m] = 1.0;
+        let mut out = DVectorViewMut::from_slice(dxp, n);
+        out.gemv(1.0, &self.a, &DVectorView::from_slice(&x[..n], n), 0.0);
+        out.gemv(1.0, &self.b, &DVectorView::from_slice(&x[n..n + m], m), 1.0);
     }
 
     /// The jump map without the trait indirection: `u⁺ = -K x`, `τ⁺ = 0`.
