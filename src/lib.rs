@@ -9,7 +9,13 @@ extern crate openblas_src;
 
 pub mod arc;
 pub mod design;
+pub mod check;
+pub mod diagnostics;
 pub mod engine;
+pub mod ir;
+pub mod lang;
 pub mod layout;
 pub mod props;
 pub mod sinks;
+pub mod source;
+pub mod syntax;

@@ -1,0 +1,545 @@
+//! The scalar expression graph every checked expression is lowered into.
+//!
+//! Shapes are static, so matrix expressions become scalar nodes (one per
+//! element). Nodes are hash-consed (common subexpressions are shared) and
+//! folded when their inputs are constants, so parameters cost nothing at run
+//! time and products with sparse constant matrices only keep non-zero terms.
+//! Node ids increase in dependency order, which the code generator uses as a
+//! topological order. Operations that do not scalarize (matrix inverse,
+//! linear solve, matrix exponential, spectral norm) are [`Block`] nodes.
+
+use std::collections::HashMap;
+
+use nalgebra::DMatrix;
+
+/// Index of a node.
+pub type NodeId = u32;
+
+/// Unary scalar functions.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum UnFn {
+    /// −a
+    Neg,
+    /// |a|
+    Abs,
+    /// √a
+    Sqrt,
+    /// eᵃ
+    Exp,
+    /// ln a
+    Log,
+    /// sin a
+    Sin,
+    /// cos a
+    Cos,
+    /// tan a
+    Tan,
+    /// atan a
+    Atan,
+    /// tanh a
+    Tanh,
+    /// sign a (−1, 0, 1)
+    Sign,
+    /// ⌊a⌋
+    Floor,
+    /// logical not (1 if a == 0)
+    Not,
+}
+
+/// Binary scalar functions; comparisons and logic return 1.0 or 0.0.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum BinFn {
+    /// a + b
+    Add,
+    /// a − b
+    Sub,
+    /// a · b
+    Mul,
+    /// a / b
+    Div,
+    /// aᵇ
+    Pow,
+    /// min(a, b)
+    Min,
+    /// max(a, b)
+    Max,
+    /// atan2(a, b)
+    Atan2,
+    /// a mod b (floored)
+    Mod,
+    /// a < b
+    Lt,
+    /// a ≤ b
+    Le,
+    /// a > b
+    Gt,
+    /// a ≥ b
+    Ge,
+    /// a == b
+    Eq,
+    /// a ≠ b
+    Ne,
+    /// a ∧ b
+    And,
+    /// a ∨ b
+    Or,
+}
+
+/// A distribution of a random draw.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Dist {
+    /// uniform(lo, hi)
+    Uniform,
+    /// normal(mean, std)
+    Normal,
+    /// bernoulli(p): 1 with probability p, else 0.
+    Bernoulli,
+}
+
+/// Operations on whole matrices (inputs and outputs row-major).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum BlockKind {
+    /// inv(A), A n×n.
+    Inv {
+        /// n
+        n: u32,
+    },
+    /// solve(A, B) = A⁻¹B, A n×n, B n×m.
+    Solve {
+        /// n
+        n: u32,
+        /// m
+        m: u32,
+    },
+    /// expm(A), A n×n.
+    Expm {
+        /// n
+        n: u32,
+    },
+    /// Spectral norm of an r×c matrix (one output).
+    Norm2 {
+        /// rows
+        r: u32,
+        /// cols
+        c: u32,
+    },
+}
+
+impl BlockKind {
+    /// Number of outputs.
+    pub fn outputs(self) -> usize {
+        match self {
+            BlockKind::Inv { n } | BlockKind::Expm { n } => (n * n) as usize,
+            BlockKind::Solve { n, m } => (n * m) as usize,
+            BlockKind::Norm2 { .. } => 1,
+        }
+    }
+
+    /// Applies the operation to `inputs`, writing the outputs; returns
+    /// false if the result is undefined (singular matrix).
+    pub fn apply(self, inputs: &[f64], out: &mut [f64]) -> bool {
+        match self {
+            BlockKind::Inv { n } => {
+                let n = n as usize;
+                let a = DMatrix::from_row_slice(n, n, inputs);
+                match a.try_inverse() {
+                    Some(inv) => {
+                        copy_row_major(&inv, out);
+                        true
+                    }
+                    None => {
+                        out.fill(f64::NAN);
+                        false
+                    }
+                }
+            }
+            BlockKind::Solve { n, m } => {
+                let (n, m) = (n as usize, m as usize);
+                let a = DMatrix::from_row_slice(n, n, &inputs[..n * n]);
+                let b = DMatrix::from_row_slice(n, m, &inputs[n * n..]);
+                match a.lu().solve(&b) {
+                    Some(x) => {
+                        copy_row_major(&x, out);
+                        true
+                    }
+                    None => {
+                        out.fill(f64::NAN);
+                        false
+                    }
+                }
+            }
+            BlockKind::Expm { n } => {
+                let n = n as usize;
+                let a = DMatrix::from_row_slice(n, n, inputs);
+                let e = a.exp();
+                copy_row_major(&e, out);
+                e.iter().all(|v| v.is_finite())
+            }
+            BlockKind::Norm2 { r, c } => {
+                let a = DMatrix::from_row_slice(r as usize, c as usize, inputs);
+                let s = a.singular_values();
+                out[0] = s.iter().copied().fold(0.0, f64::max);
+                out[0].is_finite()
+            }
+        }
+    }
+}
+
+fn copy_row_major(m: &DMatrix<f64>, out: &mut [f64]) {
+    let c = m.ncols();
+    for (k, o) in out.iter_mut().enumerate() {
+        *o = m[(k / c, k % c)];
+    }
+}
+
+/// A block operation on constants is undefined (singular matrix).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Singular;
+
+/// A node of the graph.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Node {
+    /// A constant (f64 bits).
+    Const(u64),
+    /// State component x[k].
+    State(u32),
+    /// Ordinary time t.
+    Time,
+    /// Component k of the white-noise increment (flows only).
+    Wiener(u32),
+    /// f(a).
+    Un(UnFn, NodeId),
+    /// f(a, b).
+    Bin(BinFn, NodeId, NodeId),
+    /// if c then a else b.
+    Select(NodeId, NodeId, NodeId),
+    /// A random draw with parameters (a, b); `id` keeps draws distinct.
+    Rand(Dist, NodeId, NodeId, u32),
+    /// Output k of block b.
+    BlockOut(u32, u32),
+}
+
+/// A block operation with its inputs.
+#[derive(Debug, Clone, PartialEq, Eq, Hash)]
+pub struct Block {
+    /// The operation.
+    pub kind: BlockKind,
+    /// Input nodes, row-major.
+    pub inputs: Vec<NodeId>,
+    /// Index into the span table of the expression that created it.
+    pub origin: u32,
+}
+
+/// The graph: nodes, blocks and the hash-consing memo.
+#[derive(Debug, Clone, Default)]
+pub struct Dag {
+    nodes: Vec<Node>,
+    memo: HashMap<Node, NodeId>,
+    blocks: Vec<Block>,
+    block_memo: HashMap<(BlockKind, Vec<NodeId>), u32>,
+    draws: u32,
+}
+
+/// Evaluates a unary function.
+pub fn eval_un(f: UnFn, a: f64) -> f64 {
+    match f {
+        UnFn::Neg => -a,
+        UnFn::Abs => a.abs(),
+        UnFn::Sqrt => a.sqrt(),
+        UnFn::Exp => a.exp(),
+        UnFn::Log => a.ln(),
+        UnFn::Sin => a.sin(),
+        UnFn::Cos => a.cos(),
+        UnFn::Tan => a.tan(),
+        UnFn::Atan => a.atan(),
+        UnFn::Tanh => a.tanh(),
+        UnFn::Sign => {
+            if a > 0.0 {
+                1.0
+            } else if a < 0.0 {
+                -1.0
+            } else {
+                0.0
+            }
+        }
+        UnFn::Floor => a.floor(),
+        UnFn::Not => b2f(a == 0.0),
+    }
+}
+
+#[inline]
+fn b2f(b: bool) -> f64 {
+    if b { 1.0 } else { 0.0 }
+}
+
+/// Evaluates a binary function.
+#[inline]
+pub fn eval_bin(f: BinFn, a: f64, b: f64) -> f64 {
+    match f {
+        BinFn::Add => a + b,
+        BinFn::Sub => a - b,
+        BinFn::Mul => a * b,
+        BinFn::Div => a / b,
+        BinFn::Pow => {
+            if b == 2.0 {
+                a * a
+            } else {
+                a.powf(b)
+            }
+        }
+        BinFn::Min => a.min(b),
+        BinFn::Max => a.max(b),
+        BinFn::Atan2 => a.atan2(b),
+        BinFn::Mod => a - b * (a / b).floor(),
+        BinFn::Lt => b2f(a < b),
+        BinFn::Le => b2f(a <= b),
+        BinFn::Gt => b2f(a > b),
+        BinFn::Ge => b2f(a >= b),
+        BinFn::Eq => b2f(a == b),
+        BinFn::Ne => b2f(a != b),
+        BinFn::And => b2f(a != 0.0 && b != 0.0),
+        BinFn::Or => b2f(a != 0.0 || b != 0.0),
+    }
+}
+
+impl Dag {
+    /// An empty graph.
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// The node with id `id`.
+    pub fn node(&self, id: NodeId) -> Node {
+        self.nodes[id as usize]
+    }
+
+    /// Number of nodes.
+    pub fn len(&self) -> usize {
+        self.nodes.len()
+    }
+
+    /// True if there are no nodes.
+    pub fn is_empty(&self) -> bool {
+        self.nodes.is_empty()
+    }
+
+    /// The block with index `b`.
+    pub fn block(&self, b: u32) -> &Block {
+        &self.blocks[b as usize]
+    }
+
+    fn intern(&mut self, n: Node) -> NodeId {
+        if let Some(&id) = self.memo.get(&n) {
+            return id;
+        }
+        let id = self.nodes.len() as NodeId;
+        self.nodes.push(n);
+        self.memo.insert(n, id);
+        id
+    }
+
+    /// A constant.
+    pub fn konst(&mut self, v: f64) -> NodeId {
+        // Normalize −0 so that hash-consing treats 0 and −0 alike.
+        let v = if v == 0.0 { 0.0 } else { v };
+        self.intern(Node::Const(v.to_bits()))
+    }
+
+    /// The constant value of `id`, if it is a constant.
+    pub fn as_const(&self, id: NodeId) -> Option<f64> {
+        match self.nodes[id as usize] {
+            Node::Const(b) => Some(f64::from_bits(b)),
+            _ => None,
+        }
+    }
+
+    /// State component `k`.
+    pub fn state(&mut self, k: usize) -> NodeId {
+        self.intern(Node::State(k as u32))
+    }
+
+    /// Ordinary time.
+    pub fn time(&mut self) -> NodeId {
+        self.intern(Node::Time)
+    }
+
+    /// White-noise component `k`.
+    pub fn wiener(&mut self, k: usize) -> NodeId {
+        self.intern(Node::Wiener(k as u32))
+    }
+
+    /// f(a), folded if a is constant.
+    pub fn un(&mut self, f: UnFn, a: NodeId) -> NodeId {
+        if let Some(x) = self.as_const(a) {
+            return self.konst(eval_un(f, x));
+        }
+        if f == UnFn::Neg
+            && let Node::Un(UnFn::Neg, inner) = self.node(a)
+        {
+            return inner;
+        }
+        self.intern(Node::Un(f, a))
+    }
+
+    /// f(a, b), folded and simplified where exact.
+    pub fn bin(&mut self, f: BinFn, a: NodeId, b: NodeId) -> NodeId {
+        let (ca, cb) = (self.as_const(a), self.as_const(b));
+        if let (Some(x), Some(y)) = (ca, cb) {
+            return self.konst(eval_bin(f, x, y));
+        }
+        match f {
+            BinFn::Add => {
+                if ca == Some(0.0) {
+                    return b;
+                }
+                if cb == Some(0.0) {
+                    return a;
+                }
+                // Canonical order for commutative ops helps sharing.
+                let (a, b) = if a <= b { (a, b) } else { (b, a) };
+                return self.intern(Node::Bin(f, a, b));
+            }
+            BinFn::Sub => {
+                if cb == Some(0.0) {
+                    return a;
+                }
+                if ca == Some(0.0) {
+                    return self.un(UnFn::Neg, b);
+                }
+            }
+            BinFn::Mul => {
+                if ca == Some(0.0) || cb == Some(0.0) {
+                    return self.konst(0.0);
+                }
+                if ca == Some(1.0) {
+                    return b;
+                }
+                if cb == Some(1.0) {
+                    return a;
+                }
+                if ca == Some(-1.0) {
+                    return self.un(UnFn::Neg, b);
+                }
+                if cb == Some(-1.0) {
+                    return self.un(UnFn::Neg, a);
+                }
+                let (a, b) = if a <= b { (a, b) } else { (b, a) };
+                return self.intern(Node::Bin(f, a, b));
+            }
+            BinFn::Div if cb == Some(1.0) => return a,
+            BinFn::And => {
+                if ca == Some(1.0) {
+                    return b;
+                }
+                if cb == Some(1.0) {
+                    return a;
+                }
+            }
+            BinFn::Or => {
+                if ca == Some(0.0) {
+                    return b;
+                }
+                if cb == Some(0.0) {
+                    return a;
+                }
+            }
+            _ => {}
+        }
+        self.intern(Node::Bin(f, a, b))
+    }
+
+    /// if c then a else b, folded if c is constant.
+    pub fn select(&mut self, c: NodeId, a: NodeId, b: NodeId) -> NodeId {
+        match self.as_const(c) {
+            Some(v) if v != 0.0 => a,
+            Some(_) => b,
+            None if a == b => a,
+            None => self.intern(Node::Select(c, a, b)),
+        }
+    }
+
+    /// A fresh random draw (never shared with another draw).
+    pub fn rand(&mut self, d: Dist, a: NodeId, b: NodeId) -> NodeId {
+        self.draws += 1;
+        self.intern(Node::Rand(d, a, b, self.draws))
+    }
+
+    /// A block operation; folded when all inputs are constants. Returns the
+    /// output nodes (row-major), or an error if a constant input makes it
+    /// undefined ([`Singular`]).
+    pub fn add_block(
+        &mut self,
+        kind: BlockKind,
+        inputs: Vec<NodeId>,
+        origin: u32,
+    ) -> Result<Vec<NodeId>, Singular> {
+        let consts: Option<Vec<f64>> = inputs.iter().map(|&i| self.as_const(i)).collect();
+        if let Some(vals) = consts {
+            let mut out = vec![0.0; kind.outputs()];
+            if !kind.apply(&vals, &mut out) {
+                return Err(Singular);
+            }
+            return Ok(out.into_iter().map(|v| self.konst(v)).collect());
+        }
+        let key = (kind, inputs.clone());
+        let b = match self.block_memo.get(&key) {
+            Some(&b) => b,
+            None => {
+                let b = self.blocks.len() as u32;
+                self.blocks.push(Block {
+                    kind,
+                    inputs,
+                    origin,
+                });
+                self.block_memo.insert(key, b);
+                b
+            }
+        };
+        Ok((0..kind.outputs())
+            .map(|k| self.intern(Node::BlockOut(b, k as u32)))
+            .collect())
+    }
+
+    /// Visits the direct inputs of `id`.
+    pub fn inputs(&self, id: NodeId, mut f: impl FnMut(NodeId)) {
+        match self.nodes[id as usize] {
+            Node::Const(_) | Node::State(_) | Node::Time | Node::Wiener(_) => {}
+            Node::Un(_, a) => f(a),
+            Node::Bin(_, a, b) | Node::Rand(_, a, b, _) => {
+                f(a);
+                f(b);
+            }
+            Node::Select(c, a, b) => {
+                f(c);
+                f(a);
+                f(b);
+            }
+            Node::BlockOut(b, _) => {
+                for &i in &self.blocks[b as usize].inputs {
+                    f(i);
+                }
+            }
+        }
+    }
+
+    /// Marks every node reachable from `roots` (inputs included).
+    pub fn reachable(&self, roots: &[NodeId]) -> Vec<bool> {
+        let mut seen = vec![false; self.nodes.len()];
+        let mut stack: Vec<NodeId> = roots.to_vec();
+        while let Some(id) = stack.pop() {
+            if std::mem::replace(&mut seen[id as usize], true) {
+                continue;
+            }
+            self.inputs(id, |i| stack.push(i));
+        }
+        seen
+    }
+
+    /// True if any node reachable from `roots` satisfies `pred`.
+    pub fn any_reachable(&self, roots: &[NodeId], pred: impl Fn(Node) -> bool) -> bool {
+        self.reachable(roots)
+            .iter()
+            .enumerate()
+            .any(|(i, &r)| r && pred(self.nodes[i]))
+    }
+}

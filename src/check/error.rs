@@ -1,0 +1,366 @@
+//! Errors found by the checker: names, shapes, arities, indices and the
+//! structure of flows and jumps. Each converts into a [`Diagnostic`].
+
+use crate::diagnostics::Diagnostic;
+use crate::source::Span;
+
+/// Shape of a value, for messages: rows × cols.
+pub type Dims = (usize, usize);
+
+fn shape(d: Dims) -> String {
+    match d {
+        (1, 1) => "scalar".to_string(),
+        (r, 1) => format!("{r}×1 vector"),
+        (r, c) => format!("{r}×{c} matrix"),
+    }
+}
+
+fn did_you_mean(s: &Option<String>) -> Option<String> {
+    s.as_ref().map(|s| format!("did you mean `{s}`?"))
+}
+
+/// A checker error.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum CheckError {
+    /// A name that is not declared (before this point).
+    #[error("unknown name `{name}`")]
+    UnknownName {
+        /// The name.
+        name: String,
+        /// Where.
+        span: Span,
+        /// The closest declared name.
+        suggestion: Option<String>,
+    },
+    /// A name declared twice.
+    #[error("`{name}` is declared twice")]
+    Duplicate {
+        /// The name.
+        name: String,
+        /// The second declaration.
+        span: Span,
+        /// The first declaration.
+        first: Span,
+    },
+    /// A call of a function that does not exist.
+    #[error("unknown function `{name}`")]
+    UnknownFunction {
+        /// The name.
+        name: String,
+        /// Where.
+        span: Span,
+        /// The closest built-in function.
+        suggestion: Option<String>,
+    },
+    /// A `sim` key or override that does not exist.
+    #[error("unknown setting `{name}`")]
+    UnknownSetting {
+        /// The key.
+        name: String,
+        /// Where (empty for overrides).
+        span: Span,
+        /// The closest known key.
+        suggestion: Option<String>,
+    },
+    /// Operands of incompatible shapes.
+    #[error("shape mismatch in `{op}`: {} and {}", shape(*left), shape(*right))]
+    ShapeMismatch {
+        /// The operation.
+        op: String,
+        /// Left operand's shape.
+        left: Dims,
+        /// Right operand's shape.
+        right: Dims,
+        /// Where.
+        span: Span,
+    },
+    /// A left-hand side and right-hand side of different shapes.
+    #[error("`{target}` is a {} but the right-hand side is a {}", shape(*expected), shape(*found))]
+    AssignShape {
+        /// The assigned thing as written (`x'`, `v+`, `h`).
+        target: String,
+        /// Its shape.
+        expected: Dims,
+        /// The value's shape.
+        found: Dims,
+        /// The right-hand side.
+        span: Span,
+    },
+    /// Wrong number of arguments.
+    #[error("`{func}` takes {expected} but got {found}")]
+    Arity {
+        /// Function name.
+        func: String,
+        /// Expected count in words ("2 arguments").
+        expected: String,
+        /// Given count.
+        found: usize,
+        /// The call.
+        span: Span,
+    },
+    /// A value of the wrong kind (e.g. not a square matrix, not a condition).
+    #[error("expected {expected}, found {found}")]
+    Expected {
+        /// What was expected.
+        expected: String,
+        /// What was found.
+        found: String,
+        /// Where.
+        span: Span,
+    },
+    /// Something that must be known before the run depends on states,
+    /// time or random draws.
+    #[error("{what} must be a constant")]
+    NotConstant {
+        /// What must be constant.
+        what: String,
+        /// Where.
+        span: Span,
+    },
+    /// An index outside a vector or matrix.
+    #[error("index {index} is out of range 1..{len}")]
+    IndexOutOfRange {
+        /// The index (1-based).
+        index: i64,
+        /// The dimension's length.
+        len: usize,
+        /// Where.
+        span: Span,
+    },
+    /// A family indexed outside its members.
+    #[error("`{name}` has no member [{index}]")]
+    FamilyOutOfRange {
+        /// The family.
+        name: String,
+        /// The index as written out.
+        index: String,
+        /// The members, in words.
+        members: String,
+        /// Where.
+        span: Span,
+    },
+    /// A family used without its index, or a plain name indexed as a family.
+    #[error("`{name}` is a family; index it as `{name}[i]`")]
+    FamilyIndex {
+        /// The family.
+        name: String,
+        /// Where.
+        span: Span,
+    },
+    /// Assignment (`x' =`, `x+ =`) to something that is not a state.
+    #[error("`{name}` is {kind}, not a state; only states can be assigned")]
+    AssignToNonState {
+        /// The name.
+        name: String,
+        /// What it is ("a parameter").
+        kind: String,
+        /// Where.
+        span: Span,
+    },
+    /// A state component reset twice in one rule.
+    #[error("`{name}` is reset twice in rule `{rule}`")]
+    ResetTwice {
+        /// The state (component).
+        name: String,
+        /// The rule.
+        rule: String,
+        /// The second reset.
+        span: Span,
+        /// The first reset.
+        first: Span,
+    },
+    /// A state component with two flow equations.
+    #[error("`{name}` has two flow equations")]
+    FlowTwice {
+        /// The state (component).
+        name: String,
+        /// The second equation.
+        span: Span,
+        /// The first equation.
+        first: Span,
+    },
+    /// A state declared without an initial value.
+    #[error("state `{name}` has no initial value")]
+    MissingInit {
+        /// The state.
+        name: String,
+        /// Its declaration.
+        span: Span,
+    },
+    /// A random draw where the value must be deterministic.
+    #[error("random draws are not allowed in {place}")]
+    RandomNotAllowed {
+        /// Where ("a flow equation", ...).
+        place: String,
+        /// The draw.
+        span: Span,
+    },
+    /// A bad value of a `sim` setting.
+    #[error("invalid `{key}`: {reason}")]
+    BadSetting {
+        /// The key.
+        key: String,
+        /// Why.
+        reason: String,
+        /// Where.
+        span: Span,
+    },
+    /// A language feature reserved for later.
+    #[error("{what} is not supported yet")]
+    Unsupported {
+        /// The feature.
+        what: String,
+        /// Where.
+        span: Span,
+    },
+    /// A failure while computing a parameter (singular matrix, Riccati
+    /// equation without a solution, ...).
+    #[error("cannot compute `{func}`: {reason}")]
+    Compute {
+        /// The function.
+        func: String,
+        /// Why.
+        reason: String,
+        /// Where.
+        span: Span,
+    },
+    /// An error inside a `--set name=value` override.
+    #[error("in override `{name}={value}`: {message}")]
+    Override {
+        /// The overridden name.
+        name: String,
+        /// The value text.
+        value: String,
+        /// The underlying message.
+        message: String,
+    },
+}
+
+impl CheckError {
+    /// The primary span.
+    pub fn span(&self) -> Span {
+        use CheckError::*;
+        match self {
+            UnknownName { span, .. }
+            | Duplicate { span, .. }
+            | UnknownFunction { span, .. }
+            | UnknownSetting { span, .. }
+            | ShapeMismatch { span, .. }
+            | AssignShape { span, .. }
+            | Arity { span, .. }
+            | Expected { span, .. }
+            | NotConstant { span, .. }
+            | IndexOutOfRange { span, .. }
+            | FamilyOutOfRange { span, .. }
+            | FamilyIndex { span, .. }
+            | AssignToNonState { span, .. }
+            | ResetTwice { span, .. }
+            | FlowTwice { span, .. }
+            | MissingInit { span, .. }
+            | RandomNotAllowed { span, .. }
+            | BadSetting { span, .. }
+            | Unsupported { span, .. }
+            | Compute { span, .. } => *span,
+            Override { .. } => Span::default(),
+        }
+    }
+
+    /// The stable code (E02xx names, E03xx shapes and kinds, E04xx indices,
+    /// E05xx structure).
+    pub fn code(&self) -> &'static str {
+        use CheckError::*;
+        match self {
+            UnknownName { .. } => "E0201",
+            Duplicate { .. } => "E0202",
+            UnknownFunction { .. } => "E0203",
+            UnknownSetting { .. } => "E0204",
+            ShapeMismatch { .. } => "E0301",
+            AssignShape { .. } => "E0302",
+            Arity { .. } => "E0303",
+            Expected { .. } => "E0304",
+            NotConstant { .. } => "E0305",
+            Compute { .. } => "E0306",
+            IndexOutOfRange { .. } => "E0401",
+            FamilyOutOfRange { .. } => "E0402",
+            FamilyIndex { .. } => "E0403",
+            AssignToNonState { .. } => "E0501",
+            ResetTwice { .. } => "E0502",
+            FlowTwice { .. } => "E0503",
+            MissingInit { .. } => "E0504",
+            RandomNotAllowed { .. } => "E0505",
+            BadSetting { .. } => "E0506",
+            Unsupported { .. } => "E0507",
+            Override { .. } => "E0508",
+        }
+    }
+
+    /// The error as a diagnostic, with labels and help.
+    pub fn to_diagnostic(&self) -> Diagnostic {
+        use CheckError::*;
+        let d = Diagnostic::error(self.code(), self.to_string());
+        match self {
+            UnknownName {
+                span, suggestion, ..
+            }
+            | UnknownFunction {
+                span, suggestion, ..
+            }
+            | UnknownSetting {
+                span, suggestion, ..
+            } => {
+                let d = if matches!(self, UnknownSetting { .. }) && *span == Span::default() {
+                    d
+                } else {
+                    d.primary(*span, "not found")
+                };
+                match did_you_mean(suggestion) {
+                    Some(h) => d.help(h),
+                    None => d,
+                }
+            }
+            Duplicate { span, first, .. } => d
+                .primary(*span, "declared again here")
+                .secondary(*first, "first declared here")
+                .help("rename one of them"),
+            ShapeMismatch {
+                span, left, right, ..
+            } => d
+                .primary(*span, format!("{} and {}", shape(*left), shape(*right)))
+                .help("check the dimensions; use `'` to transpose"),
+            AssignShape { span, found, .. } => d
+                .primary(*span, format!("this is a {}", shape(*found)))
+                .help("make both sides the same shape"),
+            Arity { span, .. } => d.primary(*span, "wrong number of arguments"),
+            Expected { span, expected, .. } => d.primary(*span, format!("expected {expected}")),
+            NotConstant { span, .. } => d
+                .primary(*span, "depends on states, time or random draws")
+                .help("use only numbers, parameters and index variables here"),
+            Compute { span, .. } => d.primary(*span, "while computing this"),
+            IndexOutOfRange { span, .. } => d.primary(*span, "out of range"),
+            FamilyOutOfRange { span, members, .. } => d
+                .primary(*span, "no such member")
+                .note(format!("its members are {members}")),
+            FamilyIndex { span, .. } => d.primary(*span, "needs a member index"),
+            AssignToNonState { span, .. } => d
+                .primary(*span, "not a state")
+                .help("declare it with `state`, or assign another name"),
+            ResetTwice { span, first, .. } => d
+                .primary(*span, "reset again here")
+                .secondary(*first, "first reset here")
+                .help("keep one reset per state in each rule"),
+            FlowTwice { span, first, .. } => d
+                .primary(*span, "second equation")
+                .secondary(*first, "first equation")
+                .help("keep one equation per state"),
+            MissingInit { span, name } => d.primary(*span, "no initial value").help(format!(
+                "write `{name} = value` or `{name} ~ uniform(lo, hi)`"
+            )),
+            RandomNotAllowed { span, .. } => d
+                .primary(*span, "random draw")
+                .help("draw in a jump reset or an initial value, or declare `noise`"),
+            BadSetting { span, .. } => d.primary(*span, "invalid value"),
+            Unsupported { span, .. } => d.primary(*span, "not supported yet"),
+            Override { .. } => d.help("fix the value given with --set"),
+        }
+    }
+}

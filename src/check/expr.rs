@@ -1,0 +1,1266 @@
+//! Elaboration of expressions: names, shapes, arities and constant
+//! indices, lowering into the scalar graph.
+
+use super::dag::{BinFn, BlockKind, Dist, NodeId, UnFn};
+use super::error::{CheckError, Dims};
+use super::{Checker, Sym};
+use crate::source::Span;
+use crate::syntax::ast::{BinOp, Binder, Expr, ExprKind, IndexArg, IndexSet, UnOp};
+
+/// A checked value: a rows × cols matrix of scalar nodes (row-major).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Val {
+    /// Rows.
+    pub rows: usize,
+    /// Columns.
+    pub cols: usize,
+    /// Elements, row-major.
+    pub e: Vec<NodeId>,
+    /// True for conditions (comparisons, logic, `bernoulli`).
+    pub boolean: bool,
+}
+
+impl Val {
+    /// A scalar.
+    pub fn scalar(n: NodeId) -> Self {
+        Self {
+            rows: 1,
+            cols: 1,
+            e: vec![n],
+            boolean: false,
+        }
+    }
+    /// The shape.
+    pub fn dims(&self) -> Dims {
+        (self.rows, self.cols)
+    }
+    fn is_scalar(&self) -> bool {
+        self.rows == 1 && self.cols == 1
+    }
+    fn at(&self, r: usize, c: usize) -> NodeId {
+        self.e[r * self.cols + c]
+    }
+}
+
+/// Where an expression appears: what it may refer to.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Ctx {
+    /// Random draws allowed (initial values, resets).
+    pub random: bool,
+    /// White noise allowed (flow equations).
+    pub wiener: bool,
+    /// Words for messages: "a flow equation".
+    pub place: &'static str,
+}
+
+/// Names of built-in functions, for suggestions.
+pub(crate) const BUILTINS: &[&str] = &[
+    "eye",
+    "zeros",
+    "ones",
+    "diag",
+    "blkdiag",
+    "kron",
+    "inv",
+    "solve",
+    "trace",
+    "norm",
+    "expm",
+    "min",
+    "max",
+    "abs",
+    "sqrt",
+    "exp",
+    "log",
+    "sin",
+    "cos",
+    "tan",
+    "atan",
+    "atan2",
+    "tanh",
+    "sign",
+    "floor",
+    "mod",
+    "rows",
+    "cols",
+    "length",
+    "uniform",
+    "normal",
+    "bernoulli",
+    "dare",
+    "care",
+    "dlqr",
+    "lqr",
+    "c2d",
+    "wiener",
+];
+
+impl Checker {
+    pub(crate) fn err(&mut self, e: CheckError) {
+        self.errors.push(e);
+    }
+
+    fn konst_val(&mut self, rows: usize, cols: usize, f: impl Fn(usize, usize) -> f64) -> Val {
+        let mut e = Vec::with_capacity(rows * cols);
+        for r in 0..rows {
+            for c in 0..cols {
+                e.push(self.dag.konst(f(r, c)));
+            }
+        }
+        Val {
+            rows,
+            cols,
+            e,
+            boolean: false,
+        }
+    }
+
+    /// The constant value of a scalar expression.
+    pub(crate) fn const_scalar(&mut self, e: &Expr, what: &str) -> Option<f64> {
+        let v = self.expr(e, &CONST_CTX)?;
+        if !v.is_scalar() {
+            self.err(CheckError::Expected {
+                expected: format!("a scalar for {what}"),
+                found: dims_words(v.dims()),
+                span: e.span,
+            });
+            return None;
+        }
+        match self.dag.as_const(v.e[0]) {
+            Some(x) => Some(x),
+            None => {
+                self.err(CheckError::NotConstant {
+                    what: what.to_string(),
+                    span: e.span,
+                });
+                None
+            }
+        }
+    }
+
+    /// The constant integer value of an expression.
+    pub(crate) fn const_int(&mut self, e: &Expr, what: &str) -> Option<i64> {
+        let x = self.const_scalar(e, what)?;
+        if x.fract() != 0.0 || x.abs() > 1e15 {
+            self.err(CheckError::Expected {
+                expected: format!("an integer for {what}"),
+                found: format!("{x}"),
+                span: e.span,
+            });
+            return None;
+        }
+        Some(x as i64)
+    }
+
+    /// The constant matrix value of an expression.
+    pub(crate) fn const_matrix(&mut self, e: &Expr, what: &str) -> Option<(Val, Vec<f64>)> {
+        let v = self.expr(e, &CONST_CTX)?;
+        let vals: Option<Vec<f64>> = v.e.iter().map(|&n| self.dag.as_const(n)).collect();
+        match vals {
+            Some(x) => Some((v, x)),
+            None => {
+                self.err(CheckError::NotConstant {
+                    what: what.to_string(),
+                    span: e.span,
+                });
+                None
+            }
+        }
+    }
+
+    /// The members of a binder's index set (tuples of 1-based indices),
+    /// before filtering.
+    pub(crate) fn index_set(&mut self, b: &Binder) -> Option<Vec<Vec<i64>>> {
+        let want = match b.set {
+            IndexSet::Edges(_) => 2,
+            _ => 1,
+        };
+        if b.vars.len() != want {
+            self.err(CheckError::Expected {
+                expected: format!("{want} index variable(s) for this set"),
+                found: format!("{}", b.vars.len()),
+                span: b.span,
+            });
+            return None;
+        }
+        let adjacency = |this: &mut Self, g: &Expr| -> Option<(usize, Vec<f64>)> {
+            let (v, x) = this.const_matrix(g, "a graph's adjacency matrix")?;
+            if v.rows != v.cols {
+                this.err(CheckError::Expected {
+                    expected: "a square adjacency matrix".into(),
+                    found: dims_words(v.dims()),
+                    span: g.span,
+                });
+                return None;
+            }
+            Some((v.rows, x))
+        };
+        Some(match &b.set {
+            IndexSet::Range(lo, hi) => {
+                let lo = self.const_int(lo, "a range bound")?;
+                let hi = self.const_int(hi, "a range bound")?;
+                if hi - lo > 1_000_000 {
+                    self.err(CheckError::Expected {
+                        expected: "at most 10^6 members".into(),
+                        found: format!("{}", hi - lo + 1),
+                        span: b.span,
+                    });
+                    return None;
+                }
+                (lo..=hi).map(|i| vec![i]).collect()
+            }
+            IndexSet::In(g, i) | IndexSet::Out(g, i) => {
+                let (n, a) = adjacency(self, g)?;
+                let iv = self.const_int(i, "an agent index")?;
+                if iv < 1 || iv as usize > n {
+                    self.err(CheckError::IndexOutOfRange {
+                        index: iv,
+                        len: n,
+                        span: i.span,
+                    });
+                    return None;
+                }
+                let iv = iv as usize - 1;
+                let inward = matches!(b.set, IndexSet::In(..));
+                (0..n)
+                    .filter(|&k| {
+                        let w = if inward { a[iv * n + k] } else { a[k * n + iv] };
+                        w != 0.0
+                    })
+                    .map(|k| vec![k as i64 + 1])
+                    .collect()
+            }
+            IndexSet::Edges(g) => {
+                let (n, a) = adjacency(self, g)?;
+                let mut out = Vec::new();
+                for i in 0..n {
+                    for k in 0..n {
+                        if a[i * n + k] != 0.0 {
+                            out.push(vec![i as i64 + 1, k as i64 + 1]);
+                        }
+                    }
+                }
+                out
+            }
+        })
+    }
+
+    /// Runs `body` once per member of the binder's set that passes its
+    /// filter, with the index variables bound.
+    pub(crate) fn for_each(&mut self, b: &Binder, body: &mut dyn FnMut(&mut Self)) {
+        let Some(members) = self.index_set(b) else {
+            return;
+        };
+        for m in members {
+            let depth = self.scopes.len();
+            for (v, &i) in b.vars.iter().zip(&m) {
+                self.scopes.push((v.name.clone(), i));
+            }
+            let keep = match &b.filter {
+                None => true,
+                Some(f) => match self.expr(f, &CONST_CTX) {
+                    Some(v) if v.is_scalar() => match self.dag.as_const(v.e[0]) {
+                        Some(x) => x != 0.0,
+                        None => {
+                            self.err(CheckError::NotConstant {
+                                what: "a filter".into(),
+                                span: f.span,
+                            });
+                            self.scopes.truncate(depth);
+                            return;
+                        }
+                    },
+                    _ => {
+                        self.scopes.truncate(depth);
+                        return;
+                    }
+                },
+            };
+            if keep {
+                body(self);
+            }
+            self.scopes.truncate(depth);
+        }
+    }
+
+    fn scope_lookup(&self, name: &str) -> Option<i64> {
+        self.scopes
+            .iter()
+            .rev()
+            .find(|(n, _)| n == name)
+            .map(|&(_, i)| i)
+    }
+
+    /// All names visible now, for suggestions.
+    pub(crate) fn visible_names(&self) -> Vec<String> {
+        let mut v: Vec<String> = self.syms.keys().cloned().collect();
+        v.extend(self.scopes.iter().map(|(n, _)| n.clone()));
+        v.push("t".into());
+        v.push("pi".into());
+        v
+    }
+
+    fn unknown(&mut self, name: &str, span: Span) {
+        let suggestion = suggest(name, self.visible_names().iter().map(|s| s.as_str()));
+        self.err(CheckError::UnknownName {
+            name: name.to_string(),
+            span,
+            suggestion,
+        });
+    }
+
+    /// Resolves a family member key `[i, k]` of `name`.
+    pub(crate) fn family_key(&mut self, args: &[IndexArg]) -> Option<Vec<i64>> {
+        let mut key = Vec::new();
+        for a in args {
+            match a {
+                IndexArg::One(e) => key.push(self.const_int(e, "a family index")?),
+                IndexArg::Slice(lo, _) => {
+                    self.err(CheckError::Expected {
+                        expected: "one index per family dimension".into(),
+                        found: "a slice".into(),
+                        span: lo.span,
+                    });
+                    return None;
+                }
+                IndexArg::All(s) => {
+                    self.err(CheckError::Expected {
+                        expected: "one index per family dimension".into(),
+                        found: "`:`".into(),
+                        span: *s,
+                    });
+                    return None;
+                }
+            }
+        }
+        Some(key)
+    }
+
+    fn name_val(&mut self, name: &str, span: Span, ctx: &Ctx) -> Option<Val> {
+        if let Some(i) = self.scope_lookup(name) {
+            return Some(Val::scalar(self.dag.konst(i as f64)));
+        }
+        match self.syms.get(name) {
+            Some(Sym::Param { val, .. }) | Some(Sym::Output { val, .. }) => Some(val.clone()),
+            Some(Sym::State { field, .. }) => Some(self.field_val(*field)),
+            Some(Sym::Wiener { val, .. }) => {
+                let val = val.clone();
+                if !ctx.wiener {
+                    self.err(CheckError::RandomNotAllowed {
+                        place: ctx.place.to_string(),
+                        span,
+                    });
+                    return None;
+                }
+                Some(val)
+            }
+            Some(Sym::ParamFamily { .. }) | Some(Sym::StateFamily { .. }) => {
+                self.err(CheckError::FamilyIndex {
+                    name: name.to_string(),
+                    span,
+                });
+                None
+            }
+            None => match name {
+                "t" => Some(Val::scalar(self.dag.time())),
+                "pi" => Some(Val::scalar(self.dag.konst(std::f64::consts::PI))),
+                "inf" => Some(Val::scalar(self.dag.konst(f64::INFINITY))),
+                _ => {
+                    self.unknown(name, span);
+                    None
+                }
+            },
+        }
+    }
+
+    /// The value of state field `field`.
+    pub(crate) fn field_val(&mut self, field: usize) -> Val {
+        let f = &self.fields[field];
+        let (rows, cols, off) = (f.rows, f.cols, f.offset);
+        let e = (0..rows * cols).map(|k| self.dag.state(off + k)).collect();
+        Val {
+            rows,
+            cols,
+            e,
+            boolean: false,
+        }
+    }
+
+    /// Elaborates `name[args]` where `name` is a family.
+    fn family_member(&mut self, name: &str, span: Span, args: &[IndexArg]) -> Option<Val> {
+        let key = self.family_key(args)?;
+        let label = key
+            .iter()
+            .map(|i| i.to_string())
+            .collect::<Vec<_>>()
+            .join(",");
+        let found = match self.syms.get(name) {
+            Some(Sym::ParamFamily { members, .. }) => members.get(&key).cloned().map(Ok),
+            Some(Sym::StateFamily { members, .. }) => members.get(&key).copied().map(Err),
+            _ => None,
+        };
+        match found {
+            Some(Ok(v)) => Some(v),
+            Some(Err(field)) => Some(self.field_val(field)),
+            None => {
+                let members = self.family_members_words(name);
+                self.err(CheckError::FamilyOutOfRange {
+                    name: name.to_string(),
+                    index: label,
+                    members,
+                    span,
+                });
+                None
+            }
+        }
+    }
+
+    pub(crate) fn family_members_words(&self, name: &str) -> String {
+        let keys: Vec<Vec<i64>> = match self.syms.get(name) {
+            Some(Sym::ParamFamily { members, .. }) => members.keys().cloned().collect(),
+            Some(Sym::StateFamily { members, .. }) => members.keys().cloned().collect(),
+            _ => Vec::new(),
+        };
+        let show = |k: &Vec<i64>| {
+            format!(
+                "[{}]",
+                k.iter()
+                    .map(|i| i.to_string())
+                    .collect::<Vec<_>>()
+                    .join(",")
+            )
+        };
+        match keys.len() {
+            0 => "none".into(),
+            n if n <= 6 => keys.iter().map(show).collect::<Vec<_>>().join(", "),
+            n => format!("{} … {} ({n} members)", show(&keys[0]), show(&keys[n - 1])),
+        }
+    }
+
+    pub(crate) fn is_family(&self, name: &str) -> bool {
+        matches!(
+            self.syms.get(name),
+            Some(Sym::ParamFamily { .. }) | Some(Sym::StateFamily { .. })
+        )
+    }
+
+    /// Elaborates an expression. `None` means an error was recorded.
+    pub(crate) fn expr(&mut self, e: &Expr, ctx: &Ctx) -> Option<Val> {
+        match &e.kind {
+            ExprKind::Num(x) => Some(Val::scalar(self.dag.konst(*x))),
+            ExprKind::Bool(b) => {
+                let mut v = Val::scalar(self.dag.konst(if *b { 1.0 } else { 0.0 }));
+                v.boolean = true;
+                Some(v)
+            }
+            ExprKind::Name(n) => self.name_val(n, e.span, ctx),
+            ExprKind::Matrix(rows) => self.matrix_lit(rows, e.span, ctx),
+            ExprKind::Unary(op, a) => {
+                let v = self.expr(a, ctx)?;
+                Some(match op {
+                    UnOp::Neg => self.map(&v, UnFn::Neg),
+                    UnOp::Not => {
+                        let mut r = self.map(&v, UnFn::Not);
+                        r.boolean = true;
+                        r
+                    }
+                    UnOp::Transpose => transpose(&v),
+                })
+            }
+            ExprKind::Binary(op, a, b) => {
+                let l = self.expr(a, ctx);
+                let r = self.expr(b, ctx);
+                self.binary(*op, l?, r?, e.span)
+            }
+            ExprKind::If(c, a, b) => {
+                let cv = self.expr(c, ctx);
+                let av = self.expr(a, ctx);
+                let bv = self.expr(b, ctx);
+                let (cv, av, bv) = (cv?, av?, bv?);
+                if !cv.is_scalar() {
+                    self.err(CheckError::Expected {
+                        expected: "a scalar condition".into(),
+                        found: dims_words(cv.dims()),
+                        span: c.span,
+                    });
+                    return None;
+                }
+                let (av, bv) = self.broadcast(av, bv, "if", e.span)?;
+                let boolean = av.boolean && bv.boolean;
+                let el =
+                    av.e.iter()
+                        .zip(&bv.e)
+                        .map(|(&x, &y)| self.dag.select(cv.e[0], x, y))
+                        .collect();
+                Some(Val {
+                    rows: av.rows,
+                    cols: av.cols,
+                    e: el,
+                    boolean,
+                })
+            }
+            ExprKind::Sum(b, body) => {
+                let mut acc: Option<Val> = None;
+                let mut failed = false;
+                self.for_each(b, &mut |this| {
+                    if failed {
+                        return;
+                    }
+                    match this.expr(body, ctx) {
+                        Some(v) => {
+                            acc = match acc.take() {
+                                None => Some(v),
+                                Some(a) => {
+                                    let r = this.binary(BinOp::Add, a, v, body.span);
+                                    failed |= r.is_none();
+                                    r
+                                }
+                            }
+                        }
+                        None => failed = true,
+                    }
+                });
+                if failed {
+                    return None;
+                }
+                Some(acc.unwrap_or_else(|| Val::scalar(self.dag.konst(0.0))))
+            }
+            ExprKind::Index(base, args) => {
+                if let ExprKind::Name(n) = &base.kind
+                    && self.scope_lookup(n).is_none()
+                    && self.is_family(n)
+                {
+                    return self.family_member(n, e.span, args);
+                }
+                let v = self.expr(base, ctx)?;
+                self.index(&v, args, e.span)
+            }
+            ExprKind::Call(f, args) => self.call(&f.name, f.span, args, e.span, ctx),
+        }
+    }
+
+    fn matrix_lit(&mut self, rows: &[Vec<Expr>], span: Span, ctx: &Ctx) -> Option<Val> {
+        let mut out: Option<Val> = None;
+        let mut ok = true;
+        for row in rows {
+            let mut acc: Option<Val> = None;
+            for b in row {
+                let Some(v) = self.expr(b, ctx) else {
+                    ok = false;
+                    continue;
+                };
+                acc = match acc {
+                    None => Some(v),
+                    Some(a) if a.rows == v.rows => Some(hcat(&a, &v)),
+                    Some(a) => {
+                        self.err(CheckError::ShapeMismatch {
+                            op: "[a, b] (side by side)".into(),
+                            left: a.dims(),
+                            right: v.dims(),
+                            span: b.span,
+                        });
+                        ok = false;
+                        Some(a)
+                    }
+                };
+            }
+            let Some(r) = acc else { continue };
+            out = match out {
+                None => Some(r),
+                Some(a) if a.cols == r.cols => Some(vcat(&a, &r)),
+                Some(a) => {
+                    let rspan = row[0].span.to(row[row.len() - 1].span);
+                    self.err(CheckError::ShapeMismatch {
+                        op: "[a; b] (stacked)".into(),
+                        left: a.dims(),
+                        right: r.dims(),
+                        span: rspan,
+                    });
+                    ok = false;
+                    Some(a)
+                }
+            };
+        }
+        if !ok {
+            return None;
+        }
+        let _ = span;
+        Some(out.unwrap_or(Val {
+            rows: 0,
+            cols: 0,
+            e: Vec::new(),
+            boolean: false,
+        }))
+    }
+
+    fn map(&mut self, v: &Val, f: UnFn) -> Val {
+        Val {
+            rows: v.rows,
+            cols: v.cols,
+            e: v.e.iter().map(|&n| self.dag.un(f, n)).collect(),
+            boolean: false,
+        }
+    }
+
+    fn broadcast(&mut self, a: Val, b: Val, op: &str, span: Span) -> Option<(Val, Val)> {
+        if a.dims() == b.dims() {
+            return Some((a, b));
+        }
+        if a.is_scalar() {
+            let e = vec![a.e[0]; b.e.len()];
+            return Some((
+                Val {
+                    rows: b.rows,
+                    cols: b.cols,
+                    e,
+                    boolean: a.boolean,
+                },
+                b,
+            ));
+        }
+        if b.is_scalar() {
+            let e = vec![b.e[0]; a.e.len()];
+            let bb = Val {
+                rows: a.rows,
+                cols: a.cols,
+                e,
+                boolean: b.boolean,
+            };
+            return Some((a, bb));
+        }
+        self.err(CheckError::ShapeMismatch {
+            op: op.to_string(),
+            left: a.dims(),
+            right: b.dims(),
+            span,
+        });
+        None
+    }
+
+    fn zip(&mut self, a: &Val, b: &Val, f: BinFn) -> Val {
+        Val {
+            rows: a.rows,
+            cols: a.cols,
+            e: a.e
+                .iter()
+                .zip(&b.e)
+                .map(|(&x, &y)| self.dag.bin(f, x, y))
+                .collect(),
+            boolean: false,
+        }
+    }
+
+    fn matmul(&mut self, a: &Val, b: &Val) -> Val {
+        let mut e = Vec::with_capacity(a.rows * b.cols);
+        for i in 0..a.rows {
+            for j in 0..b.cols {
+                let mut acc = self.dag.konst(0.0);
+                for k in 0..a.cols {
+                    let p = self.dag.bin(BinFn::Mul, a.at(i, k), b.at(k, j));
+                    acc = self.dag.bin(BinFn::Add, acc, p);
+                }
+                e.push(acc);
+            }
+        }
+        Val {
+            rows: a.rows,
+            cols: b.cols,
+            e,
+            boolean: false,
+        }
+    }
+
+    pub(crate) fn binary(&mut self, op: BinOp, a: Val, b: Val, span: Span) -> Option<Val> {
+        let sym = op.symbol();
+        let elem = |this: &mut Self, a: Val, b: Val, f: BinFn, boolean: bool| {
+            let (a, b) = this.broadcast(a, b, sym, span)?;
+            let mut r = this.zip(&a, &b, f);
+            r.boolean = boolean;
+            Some(r)
+        };
+        match op {
+            BinOp::Add => elem(self, a, b, BinFn::Add, false),
+            BinOp::Sub => elem(self, a, b, BinFn::Sub, false),
+            BinOp::ElemMul => elem(self, a, b, BinFn::Mul, false),
+            BinOp::ElemDiv => elem(self, a, b, BinFn::Div, false),
+            BinOp::Lt => elem(self, a, b, BinFn::Lt, true),
+            BinOp::Le => elem(self, a, b, BinFn::Le, true),
+            BinOp::Gt => elem(self, a, b, BinFn::Gt, true),
+            BinOp::Ge => elem(self, a, b, BinFn::Ge, true),
+            BinOp::Eq => elem(self, a, b, BinFn::Eq, true),
+            BinOp::Ne => elem(self, a, b, BinFn::Ne, true),
+            BinOp::And => elem(self, a, b, BinFn::And, true),
+            BinOp::Or => elem(self, a, b, BinFn::Or, true),
+            BinOp::Mul => {
+                if a.is_scalar() || b.is_scalar() {
+                    elem(self, a, b, BinFn::Mul, false)
+                } else if a.cols == b.rows {
+                    Some(self.matmul(&a, &b))
+                } else {
+                    self.err(CheckError::ShapeMismatch {
+                        op: "*".into(),
+                        left: a.dims(),
+                        right: b.dims(),
+                        span,
+                    });
+                    None
+                }
+            }
+            BinOp::Div => {
+                if b.is_scalar() {
+                    elem(self, a, b, BinFn::Div, false)
+                } else {
+                    self.err(CheckError::ShapeMismatch {
+                        op: "/ (divide by a scalar; use solve or inv for matrices)".into(),
+                        left: a.dims(),
+                        right: b.dims(),
+                        span,
+                    });
+                    None
+                }
+            }
+            BinOp::Pow => {
+                if a.is_scalar() && b.is_scalar() {
+                    return elem(self, a, b, BinFn::Pow, false);
+                }
+                let k = if b.is_scalar() {
+                    self.dag.as_const(b.e[0])
+                } else {
+                    None
+                };
+                match k {
+                    Some(k) if a.rows == a.cols && k >= 0.0 && k.fract() == 0.0 && k <= 64.0 => {
+                        let mut r = identity(self, a.rows);
+                        for _ in 0..k as usize {
+                            r = self.matmul(&r, &a);
+                        }
+                        Some(r)
+                    }
+                    _ => {
+                        self.err(CheckError::ShapeMismatch {
+                            op: "^ (scalars, or a square matrix to a constant integer power)"
+                                .into(),
+                            left: a.dims(),
+                            right: b.dims(),
+                            span,
+                        });
+                        None
+                    }
+                }
+            }
+        }
+    }
+
+    /// Resolves one index argument against a dimension of length `len`:
+    /// the 0-based positions it selects.
+    fn selection(&mut self, a: &IndexArg, len: usize) -> Option<Vec<usize>> {
+        let check = |this: &mut Self, e: &Expr| -> Option<usize> {
+            let i = this.const_int(e, "an index")?;
+            if i < 1 || i as usize > len {
+                this.err(CheckError::IndexOutOfRange {
+                    index: i,
+                    len,
+                    span: e.span,
+                });
+                return None;
+            }
+            Some(i as usize - 1)
+        };
+        match a {
+            IndexArg::All(_) => Some((0..len).collect()),
+            IndexArg::One(e) => Some(vec![check(self, e)?]),
+            IndexArg::Slice(lo, hi) => {
+                let l = check(self, lo);
+                let h = check(self, hi);
+                let (l, h) = (l?, h?);
+                Some((l..=h).collect())
+            }
+        }
+    }
+
+    pub(crate) fn index(&mut self, v: &Val, args: &[IndexArg], span: Span) -> Option<Val> {
+        match args.len() {
+            1 if v.cols == 1 || v.rows == 1 => {
+                let len = v.e.len();
+                let sel = self.selection(&args[0], len)?;
+                let e: Vec<NodeId> = sel.iter().map(|&k| v.e[k]).collect();
+                let n = e.len();
+                let (rows, cols) = if v.cols == 1 { (n, 1) } else { (1, n) };
+                Some(Val {
+                    rows,
+                    cols,
+                    e,
+                    boolean: v.boolean,
+                })
+            }
+            2 => {
+                let rs = self.selection(&args[0], v.rows);
+                let cs = self.selection(&args[1], v.cols);
+                let (rs, cs) = (rs?, cs?);
+                let mut e = Vec::with_capacity(rs.len() * cs.len());
+                for &r in &rs {
+                    for &c in &cs {
+                        e.push(v.at(r, c));
+                    }
+                }
+                Some(Val {
+                    rows: rs.len(),
+                    cols: cs.len(),
+                    e,
+                    boolean: v.boolean,
+                })
+            }
+            n => {
+                self.err(CheckError::Expected {
+                    expected: if v.cols == 1 || v.rows == 1 {
+                        "one index for a vector (or two)".into()
+                    } else {
+                        "two indices `[row, col]` for a matrix".into()
+                    },
+                    found: format!("{n} indices"),
+                    span,
+                });
+                None
+            }
+        }
+    }
+
+    fn call(
+        &mut self,
+        name: &str,
+        name_span: Span,
+        args: &[Expr],
+        span: Span,
+        ctx: &Ctx,
+    ) -> Option<Val> {
+        let arity = |this: &mut Self, ok: bool, expected: &str| -> Option<()> {
+            if ok {
+                Some(())
+            } else {
+                this.err(CheckError::Arity {
+                    func: name.to_string(),
+                    expected: expected.to_string(),
+                    found: args.len(),
+                    span,
+                });
+                None
+            }
+        };
+        let n = args.len();
+        let elementwise = |f: UnFn| Some(f);
+        let un = match name {
+            "abs" => elementwise(UnFn::Abs),
+            "sqrt" => elementwise(UnFn::Sqrt),
+            "exp" => elementwise(UnFn::Exp),
+            "log" => elementwise(UnFn::Log),
+            "sin" => elementwise(UnFn::Sin),
+            "cos" => elementwise(UnFn::Cos),
+            "tan" => elementwise(UnFn::Tan),
+            "atan" => elementwise(UnFn::Atan),
+            "tanh" => elementwise(UnFn::Tanh),
+            "sign" => elementwise(UnFn::Sign),
+            "floor" => elementwise(UnFn::Floor),
+            _ => None,
+        };
+        if let Some(f) = un {
+            arity(self, n == 1, "1 argument")?;
+            let v = self.expr(&args[0], ctx)?;
+            return Some(self.map(&v, f));
+        }
+        match name {
+            "eye" | "zeros" | "ones" => {
+                arity(self, n == 1 || n == 2, "1 or 2 arguments")?;
+                let r = self.const_int(&args[0], "a dimension");
+                let c = match args.get(1) {
+                    Some(a) => self.const_int(a, "a dimension"),
+                    None if name == "eye" => r,
+                    None => Some(1),
+                };
+                let (r, c) = (r?, c?);
+                if !(0..=100_000).contains(&r) || !(0..=100_000).contains(&c) || r * c > 1_000_000 {
+                    self.err(CheckError::Expected {
+                        expected: "dimensions between 0 and 10^5 (10^6 elements)".into(),
+                        found: format!("{r}×{c}"),
+                        span,
+                    });
+                    return None;
+                }
+                let (r, c) = (r as usize, c as usize);
+                Some(match name {
+                    "eye" => self.konst_val(r, c, |i, j| if i == j { 1.0 } else { 0.0 }),
+                    "zeros" => self.konst_val(r, c, |_, _| 0.0),
+                    _ => self.konst_val(r, c, |_, _| 1.0),
+                })
+            }
+            "rows" | "cols" | "length" => {
+                arity(self, n == 1, "1 argument")?;
+                let v = self.expr(&args[0], ctx)?;
+                let x = match name {
+                    "rows" => v.rows,
+                    "cols" => v.cols,
+                    _ => v.rows.max(v.cols),
+                };
+                Some(Val::scalar(self.dag.konst(x as f64)))
+            }
+            "diag" => {
+                arity(self, n == 1, "1 argument")?;
+                let v = self.expr(&args[0], ctx)?;
+                if v.rows == 1 || v.cols == 1 {
+                    let k = v.e.len();
+                    let zero = self.dag.konst(0.0);
+                    let mut e = vec![zero; k * k];
+                    for i in 0..k {
+                        e[i * k + i] = v.e[i];
+                    }
+                    Some(Val {
+                        rows: k,
+                        cols: k,
+                        e,
+                        boolean: false,
+                    })
+                } else if v.rows == v.cols {
+                    let e = (0..v.rows).map(|i| v.at(i, i)).collect();
+                    Some(Val {
+                        rows: v.rows,
+                        cols: 1,
+                        e,
+                        boolean: false,
+                    })
+                } else {
+                    self.expected(&args[0], "a vector or a square matrix", &v)
+                }
+            }
+            "blkdiag" => {
+                arity(self, n >= 1, "at least 1 argument")?;
+                let vs: Option<Vec<Val>> = args.iter().map(|a| self.expr(a, ctx)).collect();
+                let vs = vs?;
+                let rows: usize = vs.iter().map(|v| v.rows).sum();
+                let cols: usize = vs.iter().map(|v| v.cols).sum();
+                let zero = self.dag.konst(0.0);
+                let mut e = vec![zero; rows * cols];
+                let (mut r0, mut c0) = (0, 0);
+                for v in &vs {
+                    for i in 0..v.rows {
+                        for j in 0..v.cols {
+                            e[(r0 + i) * cols + c0 + j] = v.at(i, j);
+                        }
+                    }
+                    r0 += v.rows;
+                    c0 += v.cols;
+                }
+                Some(Val {
+                    rows,
+                    cols,
+                    e,
+                    boolean: false,
+                })
+            }
+            "kron" => {
+                arity(self, n == 2, "2 arguments")?;
+                let a = self.expr(&args[0], ctx);
+                let b = self.expr(&args[1], ctx);
+                let (a, b) = (a?, b?);
+                let (rows, cols) = (a.rows * b.rows, a.cols * b.cols);
+                let mut e = Vec::with_capacity(rows * cols);
+                for i in 0..rows {
+                    for j in 0..cols {
+                        let x = a.at(i / b.rows, j / b.cols);
+                        let y = b.at(i % b.rows, j % b.cols);
+                        e.push(self.dag.bin(BinFn::Mul, x, y));
+                    }
+                }
+                Some(Val {
+                    rows,
+                    cols,
+                    e,
+                    boolean: false,
+                })
+            }
+            "trace" => {
+                arity(self, n == 1, "1 argument")?;
+                let v = self.expr(&args[0], ctx)?;
+                if v.rows != v.cols {
+                    return self.expected(&args[0], "a square matrix", &v);
+                }
+                let mut acc = self.dag.konst(0.0);
+                for i in 0..v.rows {
+                    acc = self.dag.bin(BinFn::Add, acc, v.at(i, i));
+                }
+                Some(Val::scalar(acc))
+            }
+            "norm" => {
+                arity(self, n == 1, "1 argument")?;
+                let v = self.expr(&args[0], ctx)?;
+                if v.rows == 1 || v.cols == 1 {
+                    let mut acc = self.dag.konst(0.0);
+                    for &x in &v.e {
+                        let sq = self.dag.bin(BinFn::Mul, x, x);
+                        acc = self.dag.bin(BinFn::Add, acc, sq);
+                    }
+                    Some(Val::scalar(self.dag.un(UnFn::Sqrt, acc)))
+                } else {
+                    let kind = BlockKind::Norm2 {
+                        r: v.rows as u32,
+                        c: v.cols as u32,
+                    };
+                    self.block(kind, v.e.clone(), name, span, 1, 1)
+                }
+            }
+            "inv" | "expm" => {
+                arity(self, n == 1, "1 argument")?;
+                let v = self.expr(&args[0], ctx)?;
+                if v.rows != v.cols {
+                    return self.expected(&args[0], "a square matrix", &v);
+                }
+                let k = v.rows as u32;
+                let kind = if name == "inv" {
+                    BlockKind::Inv { n: k }
+                } else {
+                    BlockKind::Expm { n: k }
+                };
+                if name == "inv" && v.rows == 1 {
+                    let one = self.dag.konst(1.0);
+                    return Some(Val::scalar(self.dag.bin(BinFn::Div, one, v.e[0])));
+                }
+                self.block(kind, v.e.clone(), name, span, v.rows, v.cols)
+            }
+            "solve" => {
+                arity(self, n == 2, "2 arguments")?;
+                let a = self.expr(&args[0], ctx);
+                let b = self.expr(&args[1], ctx);
+                let (a, b) = (a?, b?);
+                if a.rows != a.cols {
+                    return self.expected(&args[0], "a square matrix", &a);
+                }
+                if b.rows != a.rows {
+                    self.err(CheckError::ShapeMismatch {
+                        op: "solve".into(),
+                        left: a.dims(),
+                        right: b.dims(),
+                        span,
+                    });
+                    return None;
+                }
+                let kind = BlockKind::Solve {
+                    n: a.rows as u32,
+                    m: b.cols as u32,
+                };
+                let mut inputs = a.e.clone();
+                inputs.extend_from_slice(&b.e);
+                self.block(kind, inputs, name, span, b.rows, b.cols)
+            }
+            "min" | "max" => {
+                let f = if name == "min" {
+                    BinFn::Min
+                } else {
+                    BinFn::Max
+                };
+                arity(self, n == 1 || n == 2, "1 or 2 arguments")?;
+                if n == 1 {
+                    let v = self.expr(&args[0], ctx)?;
+                    let Some((&first, rest)) = v.e.split_first() else {
+                        return self.expected(&args[0], "a non-empty matrix", &v);
+                    };
+                    let mut acc = first;
+                    for &x in rest {
+                        acc = self.dag.bin(f, acc, x);
+                    }
+                    return Some(Val::scalar(acc));
+                }
+                let a = self.expr(&args[0], ctx);
+                let b = self.expr(&args[1], ctx);
+                let (a, b) = self.broadcast(a?, b?, name, span)?;
+                Some(self.zip(&a, &b, f))
+            }
+            "atan2" | "mod" => {
+                arity(self, n == 2, "2 arguments")?;
+                let f = if name == "mod" {
+                    BinFn::Mod
+                } else {
+                    BinFn::Atan2
+                };
+                let a = self.expr(&args[0], ctx);
+                let b = self.expr(&args[1], ctx);
+                let (a, b) = self.broadcast(a?, b?, name, span)?;
+                Some(self.zip(&a, &b, f))
+            }
+            "uniform" | "normal" | "bernoulli" => {
+                if !ctx.random {
+                    self.err(CheckError::RandomNotAllowed {
+                        place: ctx.place.to_string(),
+                        span,
+                    });
+                    return None;
+                }
+                let (dist, want) = match name {
+                    "uniform" => (Dist::Uniform, 2),
+                    "normal" => (Dist::Normal, 2),
+                    _ => (Dist::Bernoulli, 1),
+                };
+                arity(
+                    self,
+                    n == want,
+                    if want == 2 {
+                        "2 arguments"
+                    } else {
+                        "1 argument"
+                    },
+                )?;
+                let a = self.expr(&args[0], ctx);
+                let b = match args.get(1) {
+                    Some(x) => self.expr(x, ctx),
+                    None => Some(Val::scalar(self.dag.konst(0.0))),
+                };
+                let (a, b) = self.broadcast(a?, b?, name, span)?;
+                let e =
+                    a.e.iter()
+                        .zip(&b.e)
+                        .map(|(&x, &y)| self.dag.rand(dist, x, y))
+                        .collect();
+                Some(Val {
+                    rows: a.rows,
+                    cols: a.cols,
+                    e,
+                    boolean: dist == Dist::Bernoulli,
+                })
+            }
+            "dare" | "care" | "dlqr" | "lqr" | "c2d" => self.control(name, args, span),
+            "wiener" => {
+                self.err(CheckError::Expected {
+                    expected: "`wiener(m)` only in `noise w ~ wiener(m)`".into(),
+                    found: "a call".into(),
+                    span,
+                });
+                None
+            }
+            _ => {
+                let suggestion = suggest(name, BUILTINS.iter().copied());
+                self.err(CheckError::UnknownFunction {
+                    name: name.to_string(),
+                    span: name_span,
+                    suggestion,
+                });
+                None
+            }
+        }
+    }
+
+    fn expected(&mut self, e: &Expr, what: &str, v: &Val) -> Option<Val> {
+        self.err(CheckError::Expected {
+            expected: what.to_string(),
+            found: dims_words(v.dims()),
+            span: e.span,
+        });
+        None
+    }
+
+    fn block(
+        &mut self,
+        kind: BlockKind,
+        inputs: Vec<NodeId>,
+        func: &str,
+        span: Span,
+        rows: usize,
+        cols: usize,
+    ) -> Option<Val> {
+        let origin = self.block_spans.len() as u32;
+        self.block_spans.push(span);
+        match self.dag.add_block(kind, inputs, origin) {
+            Ok(e) => Some(Val {
+                rows,
+                cols,
+                e,
+                boolean: false,
+            }),
+            Err(_) => {
+                self.err(CheckError::Compute {
+                    func: func.to_string(),
+                    reason: "the matrix is singular".into(),
+                    span,
+                });
+                None
+            }
+        }
+    }
+}
+
+impl Checker {
+    /// Control-design functions on constant matrices (`design::control`).
+    fn control(&mut self, name: &str, _args: &[Expr], span: Span) -> Option<Val> {
+        self.err(CheckError::Unsupported {
+            what: format!("`{name}` (control functions arrive with design::control)"),
+            span,
+        });
+        None
+    }
+}
+
+/// Context for constants (parameters, indices, settings).
+pub(crate) const CONST_CTX: Ctx = Ctx {
+    random: false,
+    wiener: false,
+    place: "a parameter",
+};
+
+pub(crate) fn dims_words(d: Dims) -> String {
+    match d {
+        (1, 1) => "a scalar".into(),
+        (r, 1) => format!("a {r}×1 vector"),
+        (r, c) => format!("a {r}×{c} matrix"),
+    }
+}
+
+fn transpose(v: &Val) -> Val {
+    let mut e = Vec::with_capacity(v.e.len());
+    for c in 0..v.cols {
+        for r in 0..v.rows {
+            e.push(v.at(r, c));
+        }
+    }
+    Val {
+        rows: v.cols,
+        cols: v.rows,
+        e,
+        boolean: v.boolean,
+    }
+}
+
+fn hcat(a: &Val, b: &Val) -> Val {
+    let cols = a.cols + b.cols;
+    let mut e = Vec::with_capacity(a.rows * cols);
+    for r in 0..a.rows {
+        e.extend_from_slice(&a.e[r * a.cols..(r + 1) * a.cols]);
+        e.extend_from_slice(&b.e[r * b.cols..(r + 1) * b.cols]);
+    }
+    Val {
+        rows: a.rows,
+        cols,
+        e,
+        boolean: false,
+    }
+}
+
+fn vcat(a: &Val, b: &Val) -> Val {
+    let mut e = a.e.clone();
+    e.extend_from_slice(&b.e);
+    Val {
+        rows: a.rows + b.rows,
+        cols: a.cols,
+        e,
+        boolean: false,
+    }
+}
+
+fn identity(c: &mut Checker, n: usize) -> Val {
+    c.konst_val(n, n, |i, j| if i == j { 1.0 } else { 0.0 })
+}
+
+/// The closest candidate to `name` (Jaro–Winkler ≥ 0.8), if any.
+pub(crate) fn suggest<'a>(name: &str, candidates: impl Iterator<Item = &'a str>) -> Option<String> {
+    candidates
+        .filter(|c| *c != name)
+        .map(|c| (strsim::jaro_winkler(name, c), c))
+        .filter(|(s, _)| *s >= 0.8)
+        .max_by(|a, b| a.0.total_cmp(&b.0))
+        .map(|(_, c)| c.to_string())
+}

@@ -1,0 +1,89 @@
+//! The checker: resolves names, computes shapes, evaluates parameters and
+//! index sets, unrolls families and `for` loops, and lowers every expression
+//! into the scalar graph [`dag::Dag`]. All errors are collected and reported
+//! at once.
+//!
+//! Declarations are read in two passes: parameters, graphs, states and
+//! noise first (in source order; a parameter may use only parameters
+//! declared before it), then flows, jumps, outputs and the `sim` block,
+//! which may refer to every state.
+
+pub mod dag;
+mod error;
+mod expr;
+mod model;
+#[cfg(test)]
+mod tests;
+
+use std::collections::{BTreeMap, HashMap};
+
+pub use error::{CheckError, Dims};
+pub use expr::Val;
+pub use model::{CheckedModel, CheckedRule, OutputField, Override, StateField};
+
+use crate::source::Span;
+use dag::Dag;
+
+/// What a name refers to.
+#[derive(Debug, Clone)]
+pub(crate) enum Sym {
+    /// A parameter with its constant value.
+    Param { val: Val, span: Span },
+    /// A family of parameters.
+    ParamFamily {
+        members: BTreeMap<Vec<i64>, Val>,
+        span: Span,
+    },
+    /// A state field.
+    State { field: usize, span: Span },
+    /// A family of state fields.
+    StateFamily {
+        members: BTreeMap<Vec<i64>, usize>,
+        span: Span,
+    },
+    /// A white-noise input.
+    Wiener { val: Val, span: Span },
+    /// A named output.
+    Output { val: Val, span: Span },
+}
+
+impl Sym {
+    fn span(&self) -> Span {
+        match self {
+            Sym::Param { span, .. }
+            | Sym::ParamFamily { span, .. }
+            | Sym::State { span, .. }
+            | Sym::StateFamily { span, .. }
+            | Sym::Wiener { span, .. }
+            | Sym::Output { span, .. } => *span,
+        }
+    }
+
+    fn kind_words(&self) -> &'static str {
+        match self {
+            Sym::Param { .. } | Sym::ParamFamily { .. } => "a parameter",
+            Sym::State { .. } | Sym::StateFamily { .. } => "a state",
+            Sym::Wiener { .. } => "a white-noise input",
+            Sym::Output { .. } => "an output",
+        }
+    }
+}
+
+/// The checker's working state.
+pub(crate) struct Checker {
+    pub(crate) dag: Dag,
+    pub(crate) errors: Vec<CheckError>,
+    pub(crate) syms: HashMap<String, Sym>,
+    pub(crate) scopes: Vec<(String, i64)>,
+    pub(crate) fields: Vec<StateField>,
+    pub(crate) block_spans: Vec<Span>,
+}
+
+/// Checks a parsed model with overrides; on success returns the checked
+/// model, otherwise every error found.
+pub fn check(
+    model: &crate::syntax::ast::Model,
+    overrides: &[Override],
+) -> Result<CheckedModel, Vec<CheckError>> {
+    model::check_model(model, overrides)
+}

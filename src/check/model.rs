@@ -1,0 +1,1123 @@
+//! Checking of declarations: parameters, states, noise, flows, jumps,
+//! outputs and simulation settings.
+
+use std::collections::{BTreeMap, HashMap};
+
+use super::dag::{BinFn, Dag, Node, NodeId};
+use super::error::{CheckError, Dims};
+use super::expr::{CONST_CTX, Ctx, Val, dims_words, suggest};
+use super::{Checker, Sym};
+use crate::engine::{Priority, SimSettings, Solver};
+use crate::source::Span;
+use crate::syntax::ast::*;
+
+/// A `--set name=value` override: `value` is an expression.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Override {
+    /// A parameter, a state (its initial value) or a `sim` key.
+    pub name: String,
+    /// The value's source text.
+    pub value: String,
+    /// The parsed value.
+    pub expr: Expr,
+}
+
+/// A state field: a named scalar, vector or matrix in the flat state.
+#[derive(Debug, Clone, PartialEq)]
+pub struct StateField {
+    /// Name as shown (`h`, `x[2]` for family member 2, `step.timer`).
+    pub name: String,
+    /// Rows.
+    pub rows: usize,
+    /// Columns.
+    pub cols: usize,
+    /// First component.
+    pub offset: usize,
+    /// The declaration.
+    pub span: Span,
+    /// True for states the language adds (timers of `every` and `noise`).
+    pub generated: bool,
+}
+
+/// A checked jump rule.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CheckedRule {
+    /// Name (`impact`, `flash[3]`).
+    pub name: String,
+    /// Its jump set as a condition node.
+    pub guard: NodeId,
+    /// For `every` rules: the timer component and the period.
+    pub timer: Option<(usize, f64)>,
+    /// Reset components and their new values (over pre-jump values).
+    pub resets: Vec<(usize, NodeId)>,
+    /// The rule's head.
+    pub span: Span,
+}
+
+/// A named output.
+#[derive(Debug, Clone, PartialEq)]
+pub struct OutputField {
+    /// Name.
+    pub name: String,
+    /// Rows.
+    pub rows: usize,
+    /// Columns.
+    pub cols: usize,
+    /// Element nodes, row-major.
+    pub nodes: Vec<NodeId>,
+    /// The definition.
+    pub span: Span,
+}
+
+/// A model after checking: every expression lowered into one scalar graph.
+#[derive(Debug, Clone)]
+pub struct CheckedModel {
+    /// The model's name.
+    pub name: String,
+    /// The scalar graph.
+    pub dag: Dag,
+    /// State fields in order.
+    pub fields: Vec<StateField>,
+    /// Dimension of the state.
+    pub dim: usize,
+    /// Initial value node per component.
+    pub init: Vec<NodeId>,
+    /// Derivative node per component.
+    pub flow: Vec<NodeId>,
+    /// The flow equation of each component, if any.
+    pub flow_spans: Vec<Option<Span>>,
+    /// Flow set condition (`None`: everywhere).
+    pub flow_set: Option<(NodeId, Span)>,
+    /// Jump rules in order.
+    pub rules: Vec<CheckedRule>,
+    /// Outputs in order.
+    pub outputs: Vec<OutputField>,
+    /// Number of white-noise components.
+    pub wiener_dim: usize,
+    /// Simulation settings after overrides.
+    pub settings: SimSettings,
+    /// Seed of the run.
+    pub seed: u64,
+    /// Resolved parameters: name, shape, row-major values.
+    pub params: Vec<(String, Dims, Vec<f64>)>,
+    /// Span of each block operation, by its origin index.
+    pub block_spans: Vec<Span>,
+}
+
+const FLOW_CTX: Ctx = Ctx {
+    random: false,
+    wiener: true,
+    place: "a flow equation",
+};
+const GUARD_CTX: Ctx = Ctx {
+    random: false,
+    wiener: false,
+    place: "a condition",
+};
+const INIT_CTX: Ctx = Ctx {
+    random: true,
+    wiener: false,
+    place: "an initial value",
+};
+const RESET_CTX: Ctx = Ctx {
+    random: true,
+    wiener: false,
+    place: "a reset",
+};
+const OUTPUT_CTX: Ctx = Ctx {
+    random: false,
+    wiener: false,
+    place: "an output",
+};
+
+/// Known `sim` keys.
+const SIM_KEYS: &[&str] = &[
+    "T",
+    "J",
+    "solver",
+    "rtol",
+    "atol",
+    "h",
+    "priority",
+    "dt_out",
+    "seed",
+    "max_step",
+    "event_tol",
+    "zeno_rate",
+    "horizon_t",
+    "horizon_j",
+];
+
+struct ModelChecker<'o> {
+    c: Checker,
+    overrides: HashMap<&'o str, &'o Override>,
+    used: Vec<String>,
+    init: Vec<Option<NodeId>>,
+    flow: Vec<Option<(NodeId, Span)>>,
+    flow_set: Option<(NodeId, Span)>,
+    rules: Vec<CheckedRule>,
+    rule_names: HashMap<String, Span>,
+    outputs: Vec<OutputField>,
+    wiener_dim: usize,
+    sim: Vec<(String, Expr, Span)>,
+    params: Vec<(String, Dims, Vec<f64>)>,
+    anonymous_every: usize,
+}
+
+pub(crate) fn check_model(
+    model: &Model,
+    overrides: &[Override],
+) -> Result<CheckedModel, Vec<CheckError>> {
+    let mut m = ModelChecker {
+        c: Checker {
+            dag: Dag::new(),
+            errors: Vec::new(),
+            syms: HashMap::new(),
+            scopes: Vec::new(),
+            fields: Vec::new(),
+            block_spans: Vec::new(),
+        },
+        overrides: overrides.iter().map(|o| (o.name.as_str(), o)).collect(),
+        used: Vec::new(),
+        init: Vec::new(),
+        flow: Vec::new(),
+        flow_set: None,
+        rules: Vec::new(),
+        rule_names: HashMap::new(),
+        outputs: Vec::new(),
+        wiener_dim: 0,
+        sim: Vec::new(),
+        params: Vec::new(),
+        anonymous_every: 0,
+    };
+    for it in &model.items {
+        m.pass1(it);
+    }
+    for it in &model.items {
+        m.pass2(it);
+    }
+    let (settings, seed) = m.settings();
+    for o in overrides {
+        if !m.used.iter().any(|u| u == &o.name) && !SIM_KEYS.contains(&o.name.as_str()) {
+            let mut cands: Vec<String> = m.c.syms.keys().cloned().collect();
+            cands.extend(SIM_KEYS.iter().map(|s| s.to_string()));
+            let suggestion = suggest(&o.name, cands.iter().map(|s| s.as_str()));
+            m.c.err(CheckError::UnknownSetting {
+                name: o.name.clone(),
+                span: Span::default(),
+                suggestion,
+            });
+        }
+    }
+    if !m.c.errors.is_empty() {
+        return Err(m.c.errors);
+    }
+    let dim = m.c.fields.iter().map(|f| f.rows * f.cols).sum();
+    let zero = m.c.dag.konst(0.0);
+    let init = m.init.iter().map(|i| i.unwrap_or(zero)).collect();
+    let flow = m.flow.iter().map(|f| f.map_or(zero, |(n, _)| n)).collect();
+    let flow_spans = m.flow.iter().map(|f| f.map(|(_, s)| s)).collect();
+    Ok(CheckedModel {
+        name: model.name.name.clone(),
+        dag: m.c.dag,
+        fields: m.c.fields,
+        dim,
+        init,
+        flow,
+        flow_spans,
+        flow_set: m.flow_set,
+        rules: m.rules,
+        outputs: m.outputs,
+        wiener_dim: m.wiener_dim,
+        settings,
+        seed,
+        params: m.params,
+        block_spans: m.c.block_spans,
+    })
+}
+
+fn label(key: &[i64]) -> String {
+    key.iter()
+        .map(|i| i.to_string())
+        .collect::<Vec<_>>()
+        .join(",")
+}
+
+impl ModelChecker<'_> {
+    /// Elaborates `e`, or the override for `name` if there is one (errors in
+    /// the override are reported as such).
+    fn value_with_override(&mut self, name: &str, e: &Expr, ctx: &Ctx) -> Option<Val> {
+        let Some(o) = self.overrides.get(name).copied() else {
+            return self.c.expr(e, ctx);
+        };
+        self.used.push(name.to_string());
+        let before = self.c.errors.len();
+        let v = self.c.expr(&o.expr, ctx);
+        let new: Vec<CheckError> = self.c.errors.drain(before..).collect();
+        for err in new {
+            self.c.err(CheckError::Override {
+                name: o.name.clone(),
+                value: o.value.clone(),
+                message: err.to_string(),
+            });
+        }
+        v
+    }
+
+    /// Declares `target` as a name (or family member); returns the display
+    /// name and the family key, if any.
+    fn declare(
+        &mut self,
+        target: &Target,
+        sym: impl FnOnce(Option<&[i64]>) -> Sym,
+    ) -> Option<String> {
+        let name = &target.name.name;
+        let span = target.span;
+        match target.indices.len() {
+            0 => {
+                if let Some(prev) = self.c.syms.get(name) {
+                    self.c.err(CheckError::Duplicate {
+                        name: name.clone(),
+                        span: target.name.span,
+                        first: prev.span(),
+                    });
+                    return None;
+                }
+                let s = sym(None);
+                self.c.syms.insert(name.clone(), s);
+                Some(name.clone())
+            }
+            1 => {
+                let key = self.c.family_key(&target.indices[0])?;
+                let s = sym(Some(&key));
+                let display = format!("{name}[{}]", label(&key));
+                let dup = |prev: Span| CheckError::Duplicate {
+                    name: display.clone(),
+                    span,
+                    first: prev,
+                };
+                match (self.c.syms.get_mut(name), s) {
+                    (None, Sym::Param { val, span: sp }) => {
+                        let mut members = BTreeMap::new();
+                        members.insert(key, val);
+                        self.c
+                            .syms
+                            .insert(name.clone(), Sym::ParamFamily { members, span: sp });
+                    }
+                    (None, Sym::State { field, span: sp }) => {
+                        let mut members = BTreeMap::new();
+                        members.insert(key, field);
+                        self.c
+                            .syms
+                            .insert(name.clone(), Sym::StateFamily { members, span: sp });
+                    }
+                    (
+                        Some(Sym::ParamFamily {
+                            members,
+                            span: first,
+                        }),
+                        Sym::Param { val, .. },
+                    ) => {
+                        if members.contains_key(&key) {
+                            let e = dup(*first);
+                            self.c.err(e);
+                            return None;
+                        }
+                        members.insert(key, val);
+                    }
+                    (
+                        Some(Sym::StateFamily {
+                            members,
+                            span: first,
+                        }),
+                        Sym::State { field, .. },
+                    ) => {
+                        if members.contains_key(&key) {
+                            let e = dup(*first);
+                            self.c.err(e);
+                            return None;
+                        }
+                        members.insert(key, field);
+                    }
+                    (Some(prev), _) => {
+                        let first = prev.span();
+                        self.c.err(CheckError::Duplicate {
+                            name: name.clone(),
+                            span: target.name.span,
+                            first,
+                        });
+                        return None;
+                    }
+                    (None, _) => {
+                        self.c.err(CheckError::Unsupported {
+                            what: "families of this kind".into(),
+                            span,
+                        });
+                        return None;
+                    }
+                }
+                Some(display)
+            }
+            _ => {
+                self.c.err(CheckError::Expected {
+                    expected: "a name or `name[i]`".into(),
+                    found: "several index lists".into(),
+                    span,
+                });
+                None
+            }
+        }
+    }
+
+    fn add_field(
+        &mut self,
+        name: String,
+        rows: usize,
+        cols: usize,
+        span: Span,
+        generated: bool,
+    ) -> usize {
+        let offset = self.init.len();
+        self.c.fields.push(StateField {
+            name,
+            rows,
+            cols,
+            offset,
+            span,
+            generated,
+        });
+        self.init.extend(std::iter::repeat_n(None, rows * cols));
+        self.flow.extend(std::iter::repeat_n(None, rows * cols));
+        self.c.fields.len() - 1
+    }
+
+    fn pass1(&mut self, item: &Item) {
+        match item {
+            Item::Param(defs) => {
+                for d in defs {
+                    self.param(d, false);
+                }
+            }
+            Item::Graph(d) => self.param(d, true),
+            Item::State(defs) => {
+                for sd in defs {
+                    self.state(sd);
+                }
+            }
+            Item::Noise(n) => self.noise_decl(n),
+            Item::For(b, items) => self.c_for(b, &mut |this| {
+                for it in items {
+                    this.pass1(it);
+                }
+            }),
+            Item::Design(d) => self.c.err(CheckError::Unsupported {
+                what: "`design` blocks".into(),
+                span: d.name.span,
+            }),
+            Item::Flow(_) | Item::Jump(_) | Item::Output(_) | Item::Sim(_) => {}
+        }
+    }
+
+    fn pass2(&mut self, item: &Item) {
+        match item {
+            Item::Flow(f) => self.flow_block(f),
+            Item::Jump(j) => self.jump(j),
+            Item::Noise(n) => self.noise_rule(n),
+            Item::Output(defs) => {
+                for d in defs {
+                    self.output(d);
+                }
+            }
+            Item::Sim(settings) => {
+                for s in settings {
+                    self.sim
+                        .push((s.key.name.clone(), s.value.clone(), s.key.span));
+                }
+            }
+            Item::For(b, items) => self.c_for(b, &mut |this| {
+                for it in items {
+                    this.pass2(it);
+                }
+            }),
+            Item::Param(_) | Item::Graph(_) | Item::State(_) | Item::Design(_) => {}
+        }
+    }
+
+    /// `for` over a binder with `self` (not just the inner checker).
+    fn c_for(&mut self, b: &Binder, body: &mut dyn FnMut(&mut Self)) {
+        let Some(members) = self.c.index_set(b) else {
+            return;
+        };
+        for m in members {
+            let depth = self.c.scopes.len();
+            for (v, &i) in b.vars.iter().zip(&m) {
+                self.c.scopes.push((v.name.clone(), i));
+            }
+            let keep = match &b.filter {
+                None => true,
+                Some(f) => match self.c.expr(f, &CONST_CTX) {
+                    Some(v) if v.rows * v.cols == 1 => match self.c.dag.as_const(v.e[0]) {
+                        Some(x) => x != 0.0,
+                        None => {
+                            self.c.err(CheckError::NotConstant {
+                                what: "a filter".into(),
+                                span: f.span,
+                            });
+                            false
+                        }
+                    },
+                    _ => false,
+                },
+            };
+            if keep {
+                body(self);
+            }
+            self.c.scopes.truncate(depth);
+        }
+    }
+
+    fn param(&mut self, d: &Definition, graph: bool) {
+        let name = d.target.name.name.clone();
+        let v = if d.target.indices.is_empty() {
+            self.value_with_override(&name, &d.value, &CONST_CTX)
+        } else {
+            self.c.expr(&d.value, &CONST_CTX)
+        };
+        let Some(v) = v else {
+            // Declare anyway (as 0) so that later uses do not cascade.
+            let z = self.c.dag.konst(0.0);
+            let span = d.target.name.span;
+            self.declare(&d.target, |_| Sym::Param {
+                val: Val::scalar(z),
+                span,
+            });
+            return;
+        };
+        let vals: Option<Vec<f64>> = v.e.iter().map(|&n| self.c.dag.as_const(n)).collect();
+        let Some(vals) = vals else {
+            self.c.err(CheckError::NotConstant {
+                what: format!("parameter `{name}`"),
+                span: d.value.span,
+            });
+            return;
+        };
+        if graph && v.rows != v.cols {
+            self.c.err(CheckError::Expected {
+                expected: "a square adjacency matrix".into(),
+                found: dims_words(v.dims()),
+                span: d.value.span,
+            });
+            return;
+        }
+        let dims = v.dims();
+        let span = d.target.name.span;
+        if let Some(display) = self.declare(&d.target, |_| Sym::Param { val: v, span }) {
+            self.params.push((display, dims, vals));
+        }
+    }
+
+    fn state(&mut self, sd: &StateDef) {
+        let name = sd.target.name.name.clone();
+        let Some(init_expr) = &sd.init else {
+            self.c.err(CheckError::MissingInit {
+                name,
+                span: sd.target.span,
+            });
+            return;
+        };
+        let v = if sd.target.indices.is_empty() {
+            self.value_with_override(&name, init_expr, &INIT_CTX)
+        } else {
+            self.c.expr(init_expr, &INIT_CTX)
+        };
+        let Some(v) = v else { return };
+        if v.rows * v.cols == 0 {
+            self.c.err(CheckError::Expected {
+                expected: "a non-empty initial value".into(),
+                found: dims_words(v.dims()),
+                span: init_expr.span,
+            });
+            return;
+        }
+        if self
+            .c
+            .dag
+            .any_reachable(&v.e, |n| matches!(n, Node::State(_) | Node::Time))
+        {
+            self.c.err(CheckError::NotConstant {
+                what: format!("the initial value of `{name}`"),
+                span: init_expr.span,
+            });
+            return;
+        }
+        let field_idx = self.c.fields.len();
+        let span = sd.target.name.span;
+        if let Some(display) = self.declare(&sd.target, |_| Sym::State {
+            field: field_idx,
+            span,
+        }) {
+            let f = self.add_field(display, v.rows, v.cols, sd.target.span, false);
+            let off = self.c.fields[f].offset;
+            for (k, &n) in v.e.iter().enumerate() {
+                self.init[off + k] = Some(n);
+            }
+        }
+    }
+
+    fn noise_decl(&mut self, n: &NoiseDecl) {
+        if let ExprKind::Call(f, args) = &n.dist.kind
+            && f.name == "wiener"
+        {
+            if n.every.is_some() {
+                self.c.err(CheckError::Expected {
+                    expected: "no `every` for white noise".into(),
+                    found: "`every`".into(),
+                    span: n.span,
+                });
+                return;
+            }
+            if args.len() > 1 {
+                self.c.err(CheckError::Arity {
+                    func: "wiener".into(),
+                    expected: "0 or 1 argument".into(),
+                    found: args.len(),
+                    span: n.dist.span,
+                });
+                return;
+            }
+            let m = match args.first() {
+                Some(a) => match self.c.const_int(a, "the number of noise channels") {
+                    Some(m) if (1..=10_000).contains(&m) => m as usize,
+                    Some(m) => {
+                        self.c.err(CheckError::Expected {
+                            expected: "between 1 and 10000 channels".into(),
+                            found: m.to_string(),
+                            span: a.span,
+                        });
+                        return;
+                    }
+                    None => return,
+                },
+                None => 1,
+            };
+            let base = self.wiener_dim;
+            self.wiener_dim += m;
+            let e = (0..m).map(|k| self.c.dag.wiener(base + k)).collect();
+            let val = Val {
+                rows: m,
+                cols: 1,
+                e,
+                boolean: false,
+            };
+            let span = n.target.name.span;
+            self.declare(&n.target, |_| Sym::Wiener { val, span });
+            return;
+        }
+        // Held noise: a state drawn initially and at every period.
+        if n.every.is_none() {
+            self.c.err(CheckError::Expected {
+                expected: "`every PERIOD` after a held noise (or `~ wiener(m)`)".into(),
+                found: "no period".into(),
+                span: n.span,
+            });
+            return;
+        }
+        let sd = StateDef {
+            target: n.target.clone(),
+            init: Some(n.dist.clone()),
+        };
+        self.state(&sd);
+    }
+
+    fn noise_rule(&mut self, n: &NoiseDecl) {
+        let Some(every) = &n.every else { return };
+        let Some((comps, dims, display)) = self.resolve_state(&n.target, true) else {
+            return;
+        };
+        let resets: Vec<ResetStmt> = vec![ResetStmt::Eq(Definition {
+            target: n.target.clone(),
+            value: n.dist.clone(),
+        })];
+        let _ = (comps, dims);
+        self.rule(
+            format!("{display}.redraw"),
+            &Trigger::Every(every.clone()),
+            &resets,
+            n.span,
+        );
+    }
+
+    /// Resolves an assigned target to state components.
+    fn resolve_state(&mut self, t: &Target, quiet: bool) -> Option<(Vec<usize>, Dims, String)> {
+        let name = &t.name.name;
+        let (val, rest, display) = match self.c.syms.get(name).cloned() {
+            Some(Sym::State { field, .. }) => {
+                (self.c.field_val(field), &t.indices[..], name.clone())
+            }
+            Some(Sym::StateFamily { members, .. }) => {
+                let Some(first) = t.indices.first() else {
+                    self.c.err(CheckError::FamilyIndex {
+                        name: name.clone(),
+                        span: t.span,
+                    });
+                    return None;
+                };
+                let key = self.c.family_key(first)?;
+                let Some(&field) = members.get(&key) else {
+                    let members = self.c.family_members_words(name);
+                    self.c.err(CheckError::FamilyOutOfRange {
+                        name: name.clone(),
+                        index: label(&key),
+                        members,
+                        span: t.span,
+                    });
+                    return None;
+                };
+                let display = format!("{name}[{}]", label(&key));
+                (self.c.field_val(field), &t.indices[1..], display)
+            }
+            Some(other) => {
+                if !quiet {
+                    self.c.err(CheckError::AssignToNonState {
+                        name: name.clone(),
+                        kind: other.kind_words().into(),
+                        span: t.name.span,
+                    });
+                }
+                return None;
+            }
+            None => {
+                if !quiet {
+                    let suggestion =
+                        suggest(name, self.c.visible_names().iter().map(|s| s.as_str()));
+                    self.c.err(CheckError::UnknownName {
+                        name: name.clone(),
+                        span: t.name.span,
+                        suggestion,
+                    });
+                }
+                return None;
+            }
+        };
+        let val = match rest {
+            [] => val,
+            [args] => self.c.index(&val, args, t.span)?,
+            _ => {
+                self.c.err(CheckError::Expected {
+                    expected: "at most one index list after the state".into(),
+                    found: "more".into(),
+                    span: t.span,
+                });
+                return None;
+            }
+        };
+        let comps = val
+            .e
+            .iter()
+            .map(|&n| match self.c.dag.node(n) {
+                Node::State(k) => k as usize,
+                _ => usize::MAX,
+            })
+            .collect();
+        let text = if rest.is_empty() {
+            display
+        } else {
+            format!("{display}[…]")
+        };
+        Some((comps, val.dims(), text))
+    }
+
+    fn flow_block(&mut self, f: &FlowBlock) {
+        for s in &f.stmts {
+            self.flow_stmt(s);
+        }
+        if let Some(set) = &f.set
+            && let Some(node) = self.condition(set)
+        {
+            if let Some((_, prev)) = self.flow_set {
+                self.c.err(CheckError::Duplicate {
+                    name: "flow set".into(),
+                    span: set.span,
+                    first: prev,
+                });
+            } else {
+                self.flow_set = Some((node, set.span));
+            }
+        }
+    }
+
+    fn flow_stmt(&mut self, s: &FlowStmt) {
+        match s {
+            FlowStmt::For(b, body) => self.c_for(b, &mut |this| {
+                for s in body {
+                    this.flow_stmt(s);
+                }
+            }),
+            FlowStmt::Eq(d) => {
+                let target = self.resolve_state(&d.target, false);
+                let v = self.c.expr(&d.value, &FLOW_CTX);
+                let (Some((comps, dims, display)), Some(v)) = (target, v) else {
+                    return;
+                };
+                if v.dims() != dims {
+                    self.c.err(CheckError::AssignShape {
+                        target: format!("{display}'"),
+                        expected: dims,
+                        found: v.dims(),
+                        span: d.value.span,
+                    });
+                    return;
+                }
+                let span = d.target.span.to(d.value.span);
+                for (&k, &n) in comps.iter().zip(&v.e) {
+                    if let Some((_, first)) = self.flow[k] {
+                        let name = self.component_name(k);
+                        self.c.err(CheckError::FlowTwice {
+                            name,
+                            span: d.target.span,
+                            first,
+                        });
+                        return;
+                    }
+                    self.flow[k] = Some((n, span));
+                }
+            }
+        }
+    }
+
+    fn component_name(&self, k: usize) -> String {
+        for f in &self.c.fields {
+            let len = f.rows * f.cols;
+            if k >= f.offset && k < f.offset + len {
+                let i = k - f.offset;
+                return match (f.rows, f.cols) {
+                    (1, 1) => f.name.clone(),
+                    (_, 1) => format!("{}[{}]", f.name, i + 1),
+                    (_, c) => format!("{}[{},{}]", f.name, i / c + 1, i % c + 1),
+                };
+            }
+        }
+        format!("x[{}]", k + 1)
+    }
+
+    fn condition(&mut self, e: &Expr) -> Option<NodeId> {
+        let v = self.c.expr(e, &GUARD_CTX)?;
+        if v.rows * v.cols != 1 || !v.boolean {
+            self.c.err(CheckError::Expected {
+                expected: "a condition such as `h >= 0`".into(),
+                found: if v.rows * v.cols == 1 {
+                    "a number".into()
+                } else {
+                    dims_words(v.dims())
+                },
+                span: e.span,
+            });
+            return None;
+        }
+        Some(v.e[0])
+    }
+
+    fn jump(&mut self, j: &JumpDecl) {
+        let name = match &j.name {
+            Some(t) => match t.indices.as_slice() {
+                [] => t.name.name.clone(),
+                [args] => match self.c.family_key(args) {
+                    Some(k) => format!("{}[{}]", t.name.name, label(&k)),
+                    None => return,
+                },
+                _ => {
+                    self.c.err(CheckError::Expected {
+                        expected: "a rule name or `name[i]`".into(),
+                        found: "several index lists".into(),
+                        span: t.span,
+                    });
+                    return;
+                }
+            },
+            None => {
+                self.anonymous_every += 1;
+                if self.anonymous_every == 1 {
+                    "step".to_string()
+                } else {
+                    format!("step{}", self.anonymous_every)
+                }
+            }
+        };
+        self.rule(name, &j.trigger, &j.resets, j.span);
+    }
+
+    fn rule(&mut self, name: String, trigger: &Trigger, resets: &[ResetStmt], span: Span) {
+        if let Some(&first) = self.rule_names.get(&name) {
+            self.c.err(CheckError::Duplicate { name, span, first });
+            return;
+        }
+        self.rule_names.insert(name.clone(), span);
+        let mut assigned: HashMap<usize, Span> = HashMap::new();
+        let mut out: Vec<(usize, NodeId)> = Vec::new();
+        let (guard, timer) = match trigger {
+            Trigger::When(e) => match self.condition(e) {
+                Some(g) => (g, None),
+                None => (self.c.dag.konst(0.0), None),
+            },
+            Trigger::Every(p) => {
+                let Some(period) = self.c.const_scalar(p, "the period of `every`") else {
+                    return;
+                };
+                if !(period > 0.0 && period.is_finite()) {
+                    self.c.err(CheckError::Expected {
+                        expected: "a positive period".into(),
+                        found: format!("{period}"),
+                        span: p.span,
+                    });
+                    return;
+                }
+                let f = self.add_field(format!("{name}.timer"), 1, 1, span, true);
+                let k = self.c.fields[f].offset;
+                let zero = self.c.dag.konst(0.0);
+                let one = self.c.dag.konst(1.0);
+                self.init[k] = Some(zero);
+                self.flow[k] = Some((one, span));
+                let x = self.c.dag.state(k);
+                let th = self.c.dag.konst(period);
+                let g = self.c.dag.bin(BinFn::Ge, x, th);
+                out.push((k, zero));
+                assigned.insert(k, span);
+                (g, Some((k, period)))
+            }
+        };
+        for r in resets {
+            self.reset(&name, r, &mut assigned, &mut out);
+        }
+        self.rules.push(CheckedRule {
+            name,
+            guard,
+            timer,
+            resets: out,
+            span,
+        });
+    }
+
+    fn reset(
+        &mut self,
+        rule: &str,
+        r: &ResetStmt,
+        assigned: &mut HashMap<usize, Span>,
+        out: &mut Vec<(usize, NodeId)>,
+    ) {
+        match r {
+            ResetStmt::For(b, body) => self.c_for(b, &mut |this| {
+                for r in body {
+                    this.reset(rule, r, assigned, out);
+                }
+            }),
+            ResetStmt::Eq(d) => {
+                let target = self.resolve_state(&d.target, false);
+                let v = self.c.expr(&d.value, &RESET_CTX);
+                let (Some((comps, dims, display)), Some(v)) = (target, v) else {
+                    return;
+                };
+                let v = if v.dims() != dims && v.rows * v.cols == 1 {
+                    Val {
+                        rows: dims.0,
+                        cols: dims.1,
+                        e: vec![v.e[0]; dims.0 * dims.1],
+                        boolean: v.boolean,
+                    }
+                } else {
+                    v
+                };
+                if v.dims() != dims {
+                    self.c.err(CheckError::AssignShape {
+                        target: format!("{display}+"),
+                        expected: dims,
+                        found: v.dims(),
+                        span: d.value.span,
+                    });
+                    return;
+                }
+                for (&k, &n) in comps.iter().zip(&v.e) {
+                    if let Some(&first) = assigned.get(&k) {
+                        let name = self.component_name(k);
+                        self.c.err(CheckError::ResetTwice {
+                            name,
+                            rule: rule.to_string(),
+                            span: d.target.span,
+                            first,
+                        });
+                        return;
+                    }
+                    assigned.insert(k, d.target.span);
+                    out.push((k, n));
+                }
+            }
+        }
+    }
+
+    fn output(&mut self, d: &Definition) {
+        let v = self.c.expr(&d.value, &OUTPUT_CTX);
+        let Some(v) = v else { return };
+        let span = d.target.name.span;
+        let val = v.clone();
+        if let Some(name) = self.declare(&d.target, |_| Sym::Output { val, span }) {
+            self.outputs.push(OutputField {
+                name,
+                rows: v.rows,
+                cols: v.cols,
+                nodes: v.e,
+                span: d.target.span,
+            });
+        }
+    }
+
+    fn sim_number(&mut self, key: &str, e: &Expr) -> Option<f64> {
+        let ov = self.overrides.get(key).copied();
+        let e = match ov {
+            Some(o) => {
+                self.used.push(key.to_string());
+                &o.expr
+            }
+            None => e,
+        };
+        self.c.const_scalar(e, &format!("`{key}`"))
+    }
+
+    fn settings(&mut self) -> (SimSettings, u64) {
+        let mut s = SimSettings::default();
+        let mut seed = 0u64;
+        let mut solver_name: Option<(String, Span)> = None;
+        let (mut rtol, mut atol, mut h) = (None, None, None);
+        let mut items = std::mem::take(&mut self.sim);
+        // Sim keys given only as overrides.
+        for key in SIM_KEYS {
+            if let Some(o) = self.overrides.get(key)
+                && !items.iter().any(|(k, _, _)| k == key)
+            {
+                items.push((key.to_string(), o.expr.clone(), Span::default()));
+            }
+        }
+        let mut seen: HashMap<String, Span> = HashMap::new();
+        for (key, e, span) in &items {
+            let canon = match key.as_str() {
+                "horizon_t" => "T",
+                "horizon_j" => "J",
+                k => k,
+            };
+            if let Some(&first) = seen.get(canon) {
+                self.c.err(CheckError::Duplicate {
+                    name: key.clone(),
+                    span: *span,
+                    first,
+                });
+                continue;
+            }
+            seen.insert(canon.to_string(), *span);
+            let bad = |this: &mut Self, reason: String| {
+                this.c.err(CheckError::BadSetting {
+                    key: key.clone(),
+                    reason,
+                    span: e.span,
+                })
+            };
+            let word = |this: &Self| -> Option<String> {
+                let e = match this.overrides.get(key.as_str()) {
+                    Some(o) => &o.expr,
+                    None => e,
+                };
+                match &e.kind {
+                    ExprKind::Name(n) => Some(n.clone()),
+                    _ => None,
+                }
+            };
+            match canon {
+                "solver" => {
+                    if self.overrides.contains_key("solver") {
+                        self.used.push("solver".into());
+                    }
+                    match word(self) {
+                        Some(w) => solver_name = Some((w, e.span)),
+                        None => bad(
+                            self,
+                            "write one of dopri5, dop853, rk4, euler_maruyama".into(),
+                        ),
+                    }
+                }
+                "priority" => {
+                    if self.overrides.contains_key("priority") {
+                        self.used.push("priority".into());
+                    }
+                    match word(self).as_deref() {
+                        Some("jumps") => s.priority = Priority::Jumps,
+                        Some("flows") => s.priority = Priority::Flows,
+                        Some("random") => s.priority = Priority::Random,
+                        _ => bad(self, "write one of jumps, flows, random".into()),
+                    }
+                }
+                _ => {
+                    let Some(x) = self.sim_number(key, e) else {
+                        continue;
+                    };
+                    match canon {
+                        "T" if x > 0.0 && x.is_finite() => s.horizon_t = x,
+                        "J" if x >= 0.0 && x.fract() == 0.0 => {
+                            s.horizon_j = x.min(u64::MAX as f64) as u64
+                        }
+                        "rtol" if x > 0.0 => rtol = Some(x),
+                        "atol" if x > 0.0 => atol = Some(x),
+                        "h" if x > 0.0 && x.is_finite() => h = Some(x),
+                        "dt_out" if x > 0.0 && x.is_finite() => s.dt_out = Some(x),
+                        "seed" if x >= 0.0 && x.fract() == 0.0 && x < 2f64.powi(64) => {
+                            seed = x as u64
+                        }
+                        "max_step" if x > 0.0 => s.max_step = x,
+                        "event_tol" if x >= 0.0 => s.event_tol = x,
+                        "zeno_rate" if x > 0.0 => s.zeno_max_rate = x,
+                        "T" | "J" | "rtol" | "atol" | "h" | "dt_out" | "seed" | "max_step"
+                        | "event_tol" | "zeno_rate" => bad(self, format!("{x} is out of range")),
+                        _ => {
+                            let suggestion = suggest(key, SIM_KEYS.iter().copied());
+                            self.c.err(CheckError::UnknownSetting {
+                                name: key.clone(),
+                                span: *span,
+                                suggestion,
+                            });
+                        }
+                    }
+                }
+            }
+        }
+        let noisy = self.wiener_dim > 0;
+        let default_name = if noisy { "euler_maruyama" } else { "dopri5" };
+        let (name, span) = solver_name.unwrap_or((default_name.into(), Span::default()));
+        let (r0, a0) = match Solver::default() {
+            Solver::Dopri5 { rtol, atol } | Solver::Dop853 { rtol, atol } => (rtol, atol),
+            _ => (1e-6, 1e-9),
+        };
+        let (rtol, atol) = (rtol.unwrap_or(r0), atol.unwrap_or(a0));
+        s.solver = match name.as_str() {
+            "dopri5" => Solver::Dopri5 { rtol, atol },
+            "dop853" => Solver::Dop853 { rtol, atol },
+            "rk4" => Solver::Rk4 {
+                h: h.unwrap_or(1e-3),
+            },
+            "euler_maruyama" => Solver::EulerMaruyama {
+                h: h.unwrap_or(1e-3),
+            },
+            other => {
+                self.c.err(CheckError::BadSetting {
+                    key: "solver".into(),
+                    reason: format!("`{other}` is not a solver; write one of dopri5, dop853, rk4, euler_maruyama"),
+                    span,
+                });
+                s.solver
+            }
+        };
+        if noisy && !matches!(s.solver, Solver::EulerMaruyama { .. }) {
+            self.c.err(CheckError::BadSetting {
+                key: "solver".into(),
+                reason: "white noise needs `solver = euler_maruyama`".into(),
+                span,
+            });
+        }
+        (s, seed)
+    }
+}

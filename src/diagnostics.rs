@@ -1,0 +1,182 @@
+//! Diagnostics: what went wrong, where, and what to change. Every layer
+//! converts its own error type into a [`Diagnostic`]; this module holds the
+//! only renderer (codespan-reporting): `file:line:col`, the source line and
+//! carets under the offending text.
+
+use codespan_reporting::diagnostic as cs;
+use codespan_reporting::files::SimpleFile;
+use codespan_reporting::term::{self, Config, termcolor};
+
+use crate::source::{LineCol, SourceFile, Span};
+
+/// How serious a diagnostic is.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Severity {
+    /// The model cannot be compiled or run.
+    Error,
+    /// Suspicious but accepted.
+    Warning,
+}
+
+/// A span with a message: the primary label points at the error, secondary
+/// labels at related places (e.g. the first of two definitions).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Label {
+    /// Where.
+    pub span: Span,
+    /// What is there (may be empty).
+    pub message: String,
+    /// True for the main location of the diagnostic.
+    pub primary: bool,
+}
+
+/// One diagnostic: a stable code (e.g. `E0201`), a message, labelled source
+/// locations, notes and an optional help sentence saying what to change.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Diagnostic {
+    /// Error or warning.
+    pub severity: Severity,
+    /// Stable code, e.g. `E0201`; documented in LANGUAGE.md.
+    pub code: &'static str,
+    /// One plain sentence.
+    pub message: String,
+    /// Locations in the source, the primary one first.
+    pub labels: Vec<Label>,
+    /// Additional facts.
+    pub notes: Vec<String>,
+    /// What to change, if known.
+    pub help: Option<String>,
+}
+
+impl Diagnostic {
+    /// An error with code `code` and message `message`, without labels.
+    pub fn error(code: &'static str, message: impl Into<String>) -> Self {
+        Self {
+            severity: Severity::Error,
+            code,
+            message: message.into(),
+            labels: Vec::new(),
+            notes: Vec::new(),
+            help: None,
+        }
+    }
+
+    /// Adds the primary label.
+    pub fn primary(mut self, span: Span, message: impl Into<String>) -> Self {
+        self.labels.push(Label {
+            span,
+            message: message.into(),
+            primary: true,
+        });
+        self
+    }
+
+    /// Adds a secondary label.
+    pub fn secondary(mut self, span: Span, message: impl Into<String>) -> Self {
+        self.labels.push(Label {
+            span,
+            message: message.into(),
+            primary: false,
+        });
+        self
+    }
+
+    /// Adds a note.
+    pub fn note(mut self, note: impl Into<String>) -> Self {
+        self.notes.push(note.into());
+        self
+    }
+
+    /// Sets the help sentence.
+    pub fn help(mut self, help: impl Into<String>) -> Self {
+        self.help = Some(help.into());
+        self
+    }
+
+    /// The primary span, if any.
+    pub fn primary_span(&self) -> Option<Span> {
+        self.labels.iter().find(|l| l.primary).map(|l| l.span)
+    }
+
+    /// Line and column of the primary span in `src`.
+    pub fn line_col(&self, src: &SourceFile) -> Option<LineCol> {
+        self.primary_span().map(|s| src.line_col(s.start))
+    }
+
+    fn to_codespan(&self, src: &SourceFile) -> cs::Diagnostic<()> {
+        let len = src.text().len();
+        let clamp = |s: Span| {
+            let start = s.start.min(len);
+            start..s.end.clamp(start, len)
+        };
+        let severity = match self.severity {
+            Severity::Error => cs::Severity::Error,
+            Severity::Warning => cs::Severity::Warning,
+        };
+        let labels = self
+            .labels
+            .iter()
+            .map(|l| {
+                let style = if l.primary {
+                    cs::LabelStyle::Primary
+                } else {
+                    cs::LabelStyle::Secondary
+                };
+                cs::Label::new(style, (), clamp(l.span)).with_message(l.message.clone())
+            })
+            .collect();
+        let mut notes = self.notes.clone();
+        if let Some(h) = &self.help {
+            notes.push(format!("help: {h}"));
+        }
+        cs::Diagnostic::new(severity)
+            .with_code(self.code)
+            .with_message(self.message.clone())
+            .with_labels(labels)
+            .with_notes(notes)
+    }
+}
+
+/// Renders `diags` against `src`: for each, `error[E0201]: message`, then
+/// `┌─ file:line:col`, the source line with carets, notes and help. With
+/// `color`, ANSI colour codes are included (for terminals).
+pub fn render(diags: &[Diagnostic], src: &SourceFile, color: bool) -> String {
+    let file = SimpleFile::new(src.name(), src.text());
+    let config = Config::default();
+    let mut out = String::new();
+    for d in diags {
+        let cd = d.to_codespan(src);
+        if color {
+            let mut buf = termcolor::Buffer::ansi();
+            if term::emit_to_write_style(&mut buf, &config, &file, &cd).is_ok() {
+                out.push_str(&String::from_utf8_lossy(buf.as_slice()));
+                continue;
+            }
+        }
+        if term::emit_to_string(&mut out, &config, &file, &cd).is_err() {
+            // Rendering can only fail on spans outside the file, which
+            // `to_codespan` clamps; fall back to a plain line regardless.
+            out.push_str(&format!("error[{}]: {}\n", d.code, d.message));
+        }
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn renders_file_line_col_and_caret() {
+        let src = SourceFile::new("ball.hyb", "model b\nstate h = x\n");
+        let d = Diagnostic::error("E0201", "unknown name `x`")
+            .primary(Span::new(18, 19), "not declared")
+            .help("declare it with `param x = ...`");
+        let text = render(&[d], &src, false);
+        assert!(text.contains("error[E0201]: unknown name `x`"), "{text}");
+        assert!(text.contains("ball.hyb:2:11"), "{text}");
+        assert!(text.contains("state h = x"), "{text}");
+        assert!(text.contains('^'), "{text}");
+        assert!(text.contains("help: declare it"), "{text}");
+    }
+}

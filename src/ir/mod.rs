@@ -1,0 +1,495 @@
+//! The compiled model: a checked model turned into register programs that
+//! implement [`HybridSystem`].
+//!
+//! | piece of the model | program |
+//! |---|---|
+//! | flow equations (f, with noise set to 0) | `flow` |
+//! | diffusion g (coefficients of the white noise) | `diffusion` |
+//! | flow set C and its guard | `flow_set`, `flow_guard` |
+//! | rule i: D_i, its guard, G_i | `rules[i].set`, `.guard`, `.map` |
+//! | initial values, outputs | `init`, `outputs` |
+//!
+//! Each program runs on a thread-local register file sized once, so the hot
+//! path (flow map, guards) neither allocates nor looks anything up by name.
+
+mod analysis;
+mod program;
+#[cfg(test)]
+mod tests;
+
+use std::cell::RefCell;
+use std::collections::HashMap;
+
+use crate::arc::HybridTime;
+use crate::check::dag::Node;
+use crate::check::{CheckedModel, StateField};
+use crate::diagnostics::Diagnostic;
+use crate::engine::{
+    FlowStructure, GuardKind, HybridSystem, JumpRule, SimError, SimRng, SimSettings,
+};
+use crate::layout::{Entry, Field, Layout, Shape};
+use crate::source::{SourceFile, Span};
+use program::{Frame, Program};
+
+thread_local! {
+    static REGS: RefCell<Vec<f64>> = const { RefCell::new(Vec::new()) };
+}
+
+/// Runs `f` with a register file of at least `need` registers.
+#[inline]
+fn with_regs<R>(need: usize, f: impl FnOnce(&mut [f64]) -> R) -> R {
+    REGS.with(|cell| match cell.try_borrow_mut() {
+        Ok(mut regs) => {
+            if regs.len() < need {
+                regs.resize(need, 0.0);
+            }
+            f(&mut regs)
+        }
+        // Re-entrant use (not expected): a private register file.
+        Err(_) => f(&mut vec![0.0; need]),
+    })
+}
+
+#[derive(Debug, Clone)]
+struct RuleCode {
+    set: Program,
+    guard: Program,
+    map: Program,
+    /// State component of each output of `map`.
+    targets: Vec<usize>,
+    span: Span,
+}
+
+/// A `.hyb` model compiled for the engine. Build with
+/// [`crate::lang::compile`].
+#[derive(Debug, Clone)]
+pub struct CompiledModel {
+    name: String,
+    source: SourceFile,
+    frame: Frame,
+    nregs: usize,
+    names: Vec<String>,
+    state_layout: Layout,
+    output_layout: Layout,
+    output_dim: usize,
+    fields: Vec<StateField>,
+    flow: Program,
+    diffusion: Program,
+    flow_set: Option<(Program, Program, Span)>,
+    rules: Vec<JumpRule>,
+    rule_code: Vec<RuleCode>,
+    init: Program,
+    outputs: Program,
+    structure: FlowStructure,
+    flow_spans: Vec<Option<Span>>,
+    block_spans: Vec<Span>,
+    settings: SimSettings,
+    seed: u64,
+    params: Vec<(String, (usize, usize), Vec<f64>)>,
+}
+
+fn shape(rows: usize, cols: usize) -> Shape {
+    match (rows, cols) {
+        (1, 1) => Shape::Scalar,
+        (r, 1) => Shape::Vector(r),
+        (rows, cols) => Shape::Matrix { rows, cols },
+    }
+}
+
+impl CompiledModel {
+    /// Compiles a checked model (`source` is kept for diagnostics and logs).
+    pub fn new(mut m: CheckedModel, source: SourceFile) -> Self {
+        let frame = Frame {
+            n: m.dim,
+            m: m.wiener_dim,
+        };
+        // Flow: drift (noise = 0) and diffusion columns.
+        let mut memo = HashMap::new();
+        let drift: Vec<_> = m
+            .flow
+            .iter()
+            .map(|&f| analysis::substitute_wiener(&mut m.dag, f, &|_| 0.0, &mut memo))
+            .collect();
+        let mut diff = Vec::with_capacity(m.dim * m.wiener_dim);
+        for (i, &f) in m.flow.iter().enumerate() {
+            for k in 0..m.wiener_dim as u32 {
+                let mut memo = HashMap::new();
+                let unit = move |j: u32| if j == k { 1.0 } else { 0.0 };
+                let with = analysis::substitute_wiener(&mut m.dag, f, &unit, &mut memo);
+                diff.push(m.dag.bin(crate::check::dag::BinFn::Sub, with, drift[i]));
+            }
+        }
+        let structure = if m.wiener_dim == 0 {
+            match analysis::affine_forms(&m.dag, &drift) {
+                Some(forms) => {
+                    let n = m.dim;
+                    let mut a = vec![0.0; n * n];
+                    let mut b = vec![0.0; n];
+                    for (i, l) in forms.iter().enumerate() {
+                        b[i] = l.c;
+                        for &(k, v) in &l.terms {
+                            a[i * n + k as usize] += v;
+                        }
+                    }
+                    FlowStructure::Affine { a, b }
+                }
+                None => FlowStructure::General,
+            }
+        } else {
+            FlowStructure::General
+        };
+        let flow_set = m.flow_set.map(|(cond, span)| {
+            let g = analysis::guard_of(&mut m.dag, cond);
+            (
+                Program::compile(&m.dag, frame, &[cond]),
+                Program::compile(&m.dag, frame, &[g]),
+                span,
+            )
+        });
+        let mut rules = Vec::new();
+        let mut rule_code = Vec::new();
+        for r in &m.rules {
+            let g = analysis::guard_of(&mut m.dag, r.guard);
+            let kind = match r.timer {
+                Some((index, threshold)) => GuardKind::Timer { index, threshold },
+                None => detect_timer(&m, r.guard).unwrap_or(GuardKind::General),
+            };
+            rules.push(JumpRule {
+                name: r.name.clone(),
+                guard: kind,
+            });
+            let values: Vec<_> = r.resets.iter().map(|&(_, n)| n).collect();
+            rule_code.push(RuleCode {
+                set: Program::compile(&m.dag, frame, &[r.guard]),
+                guard: Program::compile(&m.dag, frame, &[g]),
+                map: Program::compile(&m.dag, frame, &values),
+                targets: r.resets.iter().map(|&(k, _)| k).collect(),
+                span: r.span,
+            });
+        }
+        let out_nodes: Vec<_> = m.outputs.iter().flat_map(|o| o.nodes.clone()).collect();
+        let flow = Program::compile(&m.dag, frame, &drift);
+        let diffusion = Program::compile(&m.dag, frame, &diff);
+        let init = Program::compile(&m.dag, frame, &m.init);
+        let outputs = Program::compile(&m.dag, frame, &out_nodes);
+        let mut nregs = [&flow, &diffusion, &init, &outputs]
+            .iter()
+            .map(|p| p.nregs)
+            .max()
+            .unwrap_or(0);
+        for rc in &rule_code {
+            nregs = nregs
+                .max(rc.set.nregs)
+                .max(rc.guard.nregs)
+                .max(rc.map.nregs);
+        }
+        if let Some((a, b, _)) = &flow_set {
+            nregs = nregs.max(a.nregs).max(b.nregs);
+        }
+        nregs = nregs.max(frame.fixed());
+        let state_layout = Layout {
+            entries: m
+                .fields
+                .iter()
+                .map(|f| {
+                    Entry::Field(Field {
+                        name: f.name.clone(),
+                        shape: shape(f.rows, f.cols),
+                        offset: f.offset,
+                    })
+                })
+                .collect(),
+        };
+        let mut off = 0;
+        let output_layout = Layout {
+            entries: m
+                .outputs
+                .iter()
+                .map(|o| {
+                    let f = Field {
+                        name: o.name.clone(),
+                        shape: shape(o.rows, o.cols),
+                        offset: off,
+                    };
+                    off += o.rows * o.cols;
+                    Entry::Field(f)
+                })
+                .collect(),
+        };
+        let names = state_layout.flat_names(m.dim);
+        CompiledModel {
+            name: m.name,
+            source,
+            frame,
+            nregs,
+            names,
+            state_layout,
+            output_layout,
+            output_dim: off,
+            fields: m.fields,
+            flow,
+            diffusion,
+            flow_set,
+            rules,
+            rule_code,
+            init,
+            outputs,
+            structure,
+            flow_spans: m.flow_spans,
+            block_spans: m.block_spans,
+            settings: m.settings,
+            seed: m.seed,
+            params: m.params,
+        }
+    }
+
+    /// The model's name (`model NAME`).
+    pub fn name(&self) -> &str {
+        &self.name
+    }
+
+    /// The source it was compiled from.
+    pub fn source(&self) -> &SourceFile {
+        &self.source
+    }
+
+    /// Simulation settings from the `sim` block after overrides.
+    pub fn settings(&self) -> SimSettings {
+        self.settings.clone()
+    }
+
+    /// The run's seed (`sim { seed = N }`, default 0).
+    pub fn seed(&self) -> u64 {
+        self.seed
+    }
+
+    /// Structure of the state vector.
+    pub fn state_layout(&self) -> &Layout {
+        &self.state_layout
+    }
+
+    /// Structure of the output vector.
+    pub fn output_layout(&self) -> &Layout {
+        &self.output_layout
+    }
+
+    /// Number of output components.
+    pub fn output_dim(&self) -> usize {
+        self.output_dim
+    }
+
+    /// One name per output component (`e`, `err[2]`).
+    pub fn output_names(&self) -> Vec<String> {
+        self.output_layout.flat_names(self.output_dim)
+    }
+
+    /// Names of the jump rules, in order.
+    pub fn rule_names(&self) -> Vec<String> {
+        self.rules.iter().map(|r| r.name.clone()).collect()
+    }
+
+    /// Span of rule `rule`'s declaration.
+    pub fn rule_span(&self, rule: usize) -> Option<Span> {
+        self.rule_code.get(rule).map(|r| r.span)
+    }
+
+    /// The flow equation of state component `k`, if it has one.
+    pub fn flow_span(&self, k: usize) -> Option<Span> {
+        self.flow_spans.get(k).copied().flatten()
+    }
+
+    /// Number of instructions of the flow map (for benchmarks and tests).
+    pub fn flow_instructions(&self) -> usize {
+        self.flow.len()
+    }
+
+    /// Draws an initial state (random initial values use `rng`).
+    pub fn initial_state(&self, rng: &mut SimRng) -> Vec<f64> {
+        let mut x0 = vec![0.0; self.frame.n];
+        let zero = vec![0.0; self.frame.n];
+        with_regs(self.nregs, |regs| {
+            self.load(regs, 0.0, &zero);
+            self.init.run(regs, Some(rng));
+            for (o, &r) in x0.iter_mut().zip(&self.init.outs) {
+                *o = regs[r as usize];
+            }
+        });
+        x0
+    }
+
+    /// Evaluates the outputs at (t, x) into `out` (length
+    /// [`output_dim`](Self::output_dim)).
+    pub fn outputs(&self, t: f64, x: &[f64], out: &mut [f64]) {
+        with_regs(self.nregs, |regs| {
+            self.load(regs, t, x);
+            self.outputs.run(regs, None);
+            for (o, &r) in out.iter_mut().zip(&self.outputs.outs) {
+                *o = regs[r as usize];
+            }
+        });
+    }
+
+    /// Resolved parameters as JSON: `{name: number | [..] | [[..], ..]}`.
+    pub fn parameters_json(&self) -> serde_json::Value {
+        let mut map = serde_json::Map::new();
+        for (name, (rows, cols), vals) in &self.params {
+            let v = match (rows, cols) {
+                (1, 1) => serde_json::json!(vals[0]),
+                (_, 1) => serde_json::json!(vals),
+                (_, c) => serde_json::json!(vals.chunks(*c).collect::<Vec<_>>()),
+            };
+            map.insert(name.clone(), v);
+        }
+        serde_json::Value::Object(map)
+    }
+
+    /// A diagnostic for a simulation error that points into the model: the
+    /// flow equation of a component that became non-finite, or the matrix
+    /// operation that failed, with the hybrid time.
+    pub fn runtime_diagnostic(&self, err: &SimError) -> Diagnostic {
+        let mut d = Diagnostic::error("E0601", err.to_string()).help(err.help());
+        if let Some(origin) = program::take_fault()
+            && let Some(&span) = self.block_spans.get(origin as usize)
+        {
+            d = d.primary(span, "this matrix was singular during the run");
+        }
+        if let SimError::NonFinite { component, at, .. } = err {
+            d.code = "E0602";
+            if let Some(span) = self.flow_span(*component) {
+                let label = format!("became non-finite at (t, j) = ({}, {})", at.t, at.j);
+                d = if d.labels.is_empty() {
+                    d.primary(span, label)
+                } else {
+                    d.secondary(span, label)
+                };
+            } else if let Some(f) = self
+                .fields
+                .iter()
+                .find(|f| *component >= f.offset && *component < f.offset + f.rows * f.cols)
+            {
+                d = d.primary(f.span, "this state became non-finite");
+            }
+        }
+        d
+    }
+
+    #[inline]
+    fn load(&self, regs: &mut [f64], t: f64, x: &[f64]) {
+        regs[..self.frame.n].copy_from_slice(x);
+        regs[self.frame.n] = t;
+    }
+
+    #[inline]
+    fn scalar(&self, p: &Program, t: f64, x: &[f64]) -> f64 {
+        with_regs(self.nregs, |regs| {
+            self.load(regs, t, x);
+            p.run(regs, None);
+            regs[p.outs[0] as usize]
+        })
+    }
+}
+
+/// A `when` rule whose condition is `x[k] >= c` (or `<=`) for a state with
+/// constant rate in the right direction is a timer.
+fn detect_timer(m: &CheckedModel, cond: crate::check::dag::NodeId) -> Option<GuardKind> {
+    use crate::check::dag::BinFn;
+    let Node::Bin(f, a, b) = m.dag.node(cond) else {
+        return None;
+    };
+    let Node::State(k) = m.dag.node(a) else {
+        return None;
+    };
+    let threshold = m.dag.as_const(b)?;
+    let rate = m.dag.as_const(*m.flow.get(k as usize)?)?;
+    let ok = match f {
+        BinFn::Ge | BinFn::Gt => rate > 0.0,
+        BinFn::Le | BinFn::Lt => rate < 0.0,
+        _ => false,
+    };
+    (ok && m.wiener_dim == 0).then_some(GuardKind::Timer {
+        index: k as usize,
+        threshold,
+    })
+}
+
+impl HybridSystem for CompiledModel {
+    fn state_dim(&self) -> usize {
+        self.frame.n
+    }
+
+    fn state_names(&self) -> Vec<String> {
+        self.names.clone()
+    }
+
+    fn flow_map(&self, t: f64, x: &[f64], dx: &mut [f64]) {
+        with_regs(self.nregs, |regs| {
+            self.load(regs, t, x);
+            self.flow.run(regs, None);
+            for (d, &r) in dx.iter_mut().zip(&self.flow.outs) {
+                *d = regs[r as usize];
+            }
+        });
+    }
+
+    fn flow_set(&self, t: f64, x: &[f64]) -> bool {
+        match &self.flow_set {
+            Some((set, _, _)) => self.scalar(set, t, x) != 0.0,
+            None => true,
+        }
+    }
+
+    fn flow_guard(&self, t: f64, x: &[f64]) -> Option<f64> {
+        self.flow_set
+            .as_ref()
+            .map(|(_, guard, _)| self.scalar(guard, t, x))
+    }
+
+    fn jump_rules(&self) -> &[JumpRule] {
+        &self.rules
+    }
+
+    fn jump_set(&self, rule: usize, t: f64, x: &[f64]) -> bool {
+        self.scalar(&self.rule_code[rule].set, t, x) != 0.0
+    }
+
+    fn jump_guard(&self, rule: usize, t: f64, x: &[f64]) -> f64 {
+        self.scalar(&self.rule_code[rule].guard, t, x)
+    }
+
+    fn jump_map(
+        &self,
+        rule: usize,
+        at: HybridTime,
+        x: &[f64],
+        rng: &mut SimRng,
+        x_plus: &mut [f64],
+    ) {
+        let code = &self.rule_code[rule];
+        with_regs(self.nregs, |regs| {
+            self.load(regs, at.t, x);
+            code.map.run(regs, Some(rng));
+            x_plus.copy_from_slice(x);
+            for (&k, &r) in code.targets.iter().zip(&code.map.outs) {
+                x_plus[k] = regs[r as usize];
+            }
+        });
+    }
+
+    fn flow_structure(&self) -> FlowStructure {
+        self.structure.clone()
+    }
+
+    fn noise_dim(&self) -> usize {
+        self.frame.m
+    }
+
+    fn diffusion(&self, t: f64, x: &[f64], g: &mut [f64]) {
+        with_regs(self.nregs, |regs| {
+            self.load(regs, t, x);
+            self.diffusion.run(regs, None);
+            for (o, &r) in g.iter_mut().zip(&self.diffusion.outs) {
+                *o = regs[r as usize];
+            }
+        });
+    }
+}

@@ -1,0 +1,75 @@
+//! The `.hyb` language front end in one call: parse, check, compile.
+//!
+//! ```
+//! use hybsim::lang;
+//! use hybsim::source::SourceFile;
+//! use hybsim::engine::{simulate_arc, SimRng};
+//!
+//! let src = SourceFile::new("ball.hyb", "model ball
+//! param g = 9.81, lambda = 0.8
+//! state h = 1, v = 0
+//! flow { h' = v; v' = -g } in h >= 0
+//! jump impact when h <= 0 && v <= 0 { v+ = -lambda * v }
+//! sim { T = 1 }
+//! ");
+//! let model = lang::compile(&src, &[]).expect("a valid model");
+//! let mut rng = SimRng::seed_from(model.seed());
+//! let x0 = model.initial_state(&mut rng);
+//! let arc = simulate_arc(&model, &x0, &model.settings(), &mut rng).unwrap();
+//! let t1 = (2.0_f64 / 9.81).sqrt();
+//! assert!((arc.jumps()[0].at.t - t1).abs() < 1e-9);
+//! ```
+
+use std::str::FromStr;
+
+use crate::check;
+use crate::diagnostics::Diagnostic;
+use crate::source::SourceFile;
+use crate::syntax;
+
+pub use crate::check::Override;
+pub use crate::ir::CompiledModel;
+
+impl FromStr for Override {
+    type Err = Diagnostic;
+
+    /// Parses `name=value`; the value is any `.hyb` expression.
+    fn from_str(s: &str) -> Result<Self, Diagnostic> {
+        let Some((name, value)) = s.split_once('=') else {
+            return Err(Diagnostic::error(
+                "E0508",
+                format!("override `{s}` is not of the form name=value"),
+            )
+            .help("write e.g. --set g=9.81"));
+        };
+        let name = name.trim().to_string();
+        let value = value.trim().to_string();
+        let expr = syntax::parse_expr(&value).map_err(|e| {
+            Diagnostic::error("E0508", format!("in override `{name}={value}`: {e}"))
+                .help("the value must be an expression such as 2.5, -1e-3 or [1, 2; 3, 4]")
+        })?;
+        Ok(Override { name, value, expr })
+    }
+}
+
+/// Parses, checks and compiles `src` with `overrides` applied. On failure
+/// returns every diagnostic found (render them with
+/// [`crate::diagnostics::render`]).
+pub fn compile(src: &SourceFile, overrides: &[Override]) -> Result<CompiledModel, Vec<Diagnostic>> {
+    let model = syntax::parse_model(src.text()).map_err(|e| vec![e.to_diagnostic()])?;
+    let checked = check::check(&model, overrides)
+        .map_err(|errs| errs.iter().map(|e| e.to_diagnostic()).collect::<Vec<_>>())?;
+    Ok(CompiledModel::new(checked, src.clone()))
+}
+
+/// Runs only the checks (`hybsim check`): the diagnostics, empty if the
+/// model is valid.
+pub fn check_only(src: &SourceFile, overrides: &[Override]) -> Vec<Diagnostic> {
+    match syntax::parse_model(src.text()) {
+        Err(e) => vec![e.to_diagnostic()],
+        Ok(model) => match check::check(&model, overrides) {
+            Ok(_) => Vec::new(),
+            Err(errs) => errs.iter().map(|e| e.to_diagnostic()).collect(),
+        },
+    }
+}

@@ -1,0 +1,301 @@
+//! The abstract syntax tree of a `.hyb` model. Every node carries the
+//! [`Span`] of its source text.
+
+use crate::source::Span;
+
+/// A name with its location.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Ident {
+    /// The name.
+    pub name: String,
+    /// Where it is written.
+    pub span: Span,
+}
+
+/// A whole model: `model NAME` followed by items.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Model {
+    /// The model's name.
+    pub name: Ident,
+    /// Items in source order.
+    pub items: Vec<Item>,
+}
+
+/// One top-level declaration.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Item {
+    /// `param a = 1, b = [1; 2]`.
+    Param(Vec<Definition>),
+    /// `graph G = adjacency`: a square constant matrix used for neighbour sets.
+    Graph(Definition),
+    /// `state x = 0, P = eye(2), h ~ uniform(0, 1)`.
+    State(Vec<StateDef>),
+    /// `noise v ~ normal(0, s) every h` (held) or `noise w ~ wiener(2)` (white).
+    Noise(NoiseDecl),
+    /// `flow { x' = ... } in predicate`.
+    Flow(FlowBlock),
+    /// `jump name when predicate { x+ = ... }` or `jump name every Ts { ... }`.
+    Jump(JumpDecl),
+    /// `output e = x - xhat`.
+    Output(Vec<Definition>),
+    /// `sim { T = 10; J = 100; ... }`.
+    Sim(Vec<Setting>),
+    /// `for i in 1..N { items }`.
+    For(Binder, Vec<Item>),
+    /// `design name { ... }` (reserved for the design layer).
+    Design(DesignBlock),
+}
+
+/// A declared or assigned name with optional index lists: `x`, `x[i]`,
+/// `m[i, k]`, `x[i][2]`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Target {
+    /// The name.
+    pub name: Ident,
+    /// Index lists in order.
+    pub indices: Vec<Vec<IndexArg>>,
+    /// The whole target.
+    pub span: Span,
+}
+
+/// `target = expr`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Definition {
+    /// Left-hand side.
+    pub target: Target,
+    /// Right-hand side.
+    pub value: Expr,
+}
+
+/// One state declaration.
+#[derive(Debug, Clone, PartialEq)]
+pub struct StateDef {
+    /// The state (indexed for families).
+    pub target: Target,
+    /// Its initial value; `None` is an error reported by the checker.
+    pub init: Option<Expr>,
+}
+
+/// A noise signal declaration.
+#[derive(Debug, Clone, PartialEq)]
+pub struct NoiseDecl {
+    /// Its name.
+    pub target: Target,
+    /// The distribution (`normal(..)`, `uniform(..)`, `wiener(m)`).
+    pub dist: Expr,
+    /// The hold period for held noise.
+    pub every: Option<Expr>,
+    /// The whole declaration.
+    pub span: Span,
+}
+
+/// Statements of a flow block.
+#[derive(Debug, Clone, PartialEq)]
+pub enum FlowStmt {
+    /// `x' = expr`.
+    Eq(Definition),
+    /// `for i in S { ... }`.
+    For(Binder, Vec<FlowStmt>),
+}
+
+/// A flow block.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FlowBlock {
+    /// Derivative equations.
+    pub stmts: Vec<FlowStmt>,
+    /// The flow set predicate (`in ...`); the whole space if absent.
+    pub set: Option<Expr>,
+    /// The `flow` keyword.
+    pub span: Span,
+}
+
+/// When a jump rule fires.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Trigger {
+    /// `when predicate`.
+    When(Expr),
+    /// `every period`: a timer.
+    Every(Expr),
+}
+
+/// Statements of a reset block.
+#[derive(Debug, Clone, PartialEq)]
+pub enum ResetStmt {
+    /// `x+ = expr`.
+    Eq(Definition),
+    /// `for i in S { ... }`.
+    For(Binder, Vec<ResetStmt>),
+}
+
+/// A jump rule.
+#[derive(Debug, Clone, PartialEq)]
+pub struct JumpDecl {
+    /// Rule name (`None` for a bare `every Ts { }`).
+    pub name: Option<Target>,
+    /// Guard.
+    pub trigger: Trigger,
+    /// Resets.
+    pub resets: Vec<ResetStmt>,
+    /// The `jump`/`every` keyword up to the guard.
+    pub span: Span,
+}
+
+/// `key = value` in a `sim` block.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Setting {
+    /// The key.
+    pub key: Ident,
+    /// The value.
+    pub value: Expr,
+}
+
+/// The index variables, set and filter of `for`/`sum`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Binder {
+    /// One variable, or two for `edges(G)`.
+    pub vars: Vec<Ident>,
+    /// The index set.
+    pub set: IndexSet,
+    /// `if predicate`: keep only members satisfying it.
+    pub filter: Option<Expr>,
+    /// The whole binder.
+    pub span: Span,
+}
+
+/// An index set.
+#[derive(Debug, Clone, PartialEq)]
+pub enum IndexSet {
+    /// `a..b` (inclusive).
+    Range(Expr, Expr),
+    /// `in(G, i)`: the in-neighbours k of i (`G[i, k] != 0`).
+    In(Expr, Expr),
+    /// `out(G, i)`: the out-neighbours k of i (`G[k, i] != 0`).
+    Out(Expr, Expr),
+    /// `edges(G)`: pairs (i, k) with `G[i, k] != 0`.
+    Edges(Expr),
+}
+
+/// An index argument: `e`, `a:b` or `:`.
+#[derive(Debug, Clone, PartialEq)]
+pub enum IndexArg {
+    /// One index.
+    One(Expr),
+    /// An inclusive range.
+    Slice(Expr, Expr),
+    /// All.
+    All(Span),
+}
+
+/// A reserved `design` block (issue 5).
+#[derive(Debug, Clone, PartialEq)]
+pub struct DesignBlock {
+    /// Its name.
+    pub name: Ident,
+    /// The body's text span.
+    pub body: Span,
+    /// The whole block.
+    pub span: Span,
+}
+
+/// An expression.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Expr {
+    /// What it is.
+    pub kind: ExprKind,
+    /// Where.
+    pub span: Span,
+}
+
+/// Unary operators.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum UnOp {
+    /// `-a`.
+    Neg,
+    /// `!a`.
+    Not,
+    /// `a'`.
+    Transpose,
+}
+
+/// Binary operators.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum BinOp {
+    /// `+`
+    Add,
+    /// `-`
+    Sub,
+    /// `*` (matrix product, or scaling)
+    Mul,
+    /// `/` (by a scalar)
+    Div,
+    /// `.*`
+    ElemMul,
+    /// `./`
+    ElemDiv,
+    /// `^` (scalars)
+    Pow,
+    /// `<`
+    Lt,
+    /// `<=`
+    Le,
+    /// `>`
+    Gt,
+    /// `>=`
+    Ge,
+    /// `==`
+    Eq,
+    /// `!=`
+    Ne,
+    /// `&&`
+    And,
+    /// `||`
+    Or,
+}
+
+impl BinOp {
+    /// The operator as written.
+    pub fn symbol(self) -> &'static str {
+        match self {
+            BinOp::Add => "+",
+            BinOp::Sub => "-",
+            BinOp::Mul => "*",
+            BinOp::Div => "/",
+            BinOp::ElemMul => ".*",
+            BinOp::ElemDiv => "./",
+            BinOp::Pow => "^",
+            BinOp::Lt => "<",
+            BinOp::Le => "<=",
+            BinOp::Gt => ">",
+            BinOp::Ge => ">=",
+            BinOp::Eq => "==",
+            BinOp::Ne => "!=",
+            BinOp::And => "&&",
+            BinOp::Or => "||",
+        }
+    }
+}
+
+/// Expression forms.
+#[derive(Debug, Clone, PartialEq)]
+pub enum ExprKind {
+    /// A number literal.
+    Num(f64),
+    /// `true` / `false`.
+    Bool(bool),
+    /// A name.
+    Name(String),
+    /// `[a, b; c, d]`: rows of blocks.
+    Matrix(Vec<Vec<Expr>>),
+    /// A unary operation.
+    Unary(UnOp, Box<Expr>),
+    /// A binary operation.
+    Binary(BinOp, Box<Expr>, Box<Expr>),
+    /// `f(args)`.
+    Call(Ident, Vec<Expr>),
+    /// `e[args]`.
+    Index(Box<Expr>, Vec<IndexArg>),
+    /// `if c then a else b`.
+    If(Box<Expr>, Box<Expr>, Box<Expr>),
+    /// `sum(k in S: body)`.
+    Sum(Box<Binder>, Box<Expr>),
+}

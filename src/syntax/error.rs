@@ -1,0 +1,176 @@
+//! Syntax errors, translated from pest's into plain words.
+
+use pest::error::{ErrorVariant, InputLocation};
+
+use super::parse::Rule;
+use crate::diagnostics::Diagnostic;
+use crate::source::Span;
+
+/// A syntax error: where, what was found and what was expected.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum SyntaxError {
+    /// The parser could not continue at `span`.
+    #[error("unexpected {found}; expected {expected}")]
+    Unexpected {
+        /// Where.
+        span: Span,
+        /// What was found, in words (e.g. "`}`", "end of file").
+        found: String,
+        /// What would have been accepted, in words.
+        expected: String,
+    },
+    /// Brackets nested deeper than [`super::MAX_NESTING`].
+    #[error("nesting deeper than {limit} levels")]
+    TooDeep {
+        /// The opening bracket that exceeds the limit.
+        span: Span,
+        /// The limit.
+        limit: usize,
+    },
+    /// A number literal that does not fit in an f64.
+    #[error("number `{text}` is out of range")]
+    BadNumber {
+        /// Where.
+        span: Span,
+        /// The literal.
+        text: String,
+    },
+}
+
+impl SyntaxError {
+    /// Where the error is.
+    pub fn span(&self) -> Span {
+        match self {
+            SyntaxError::Unexpected { span, .. }
+            | SyntaxError::TooDeep { span, .. }
+            | SyntaxError::BadNumber { span, .. } => *span,
+        }
+    }
+
+    /// The error as a diagnostic (codes E01xx).
+    pub fn to_diagnostic(&self) -> Diagnostic {
+        match self {
+            SyntaxError::Unexpected {
+                span,
+                found,
+                expected,
+            } => Diagnostic::error("E0101", format!("unexpected {found}; expected {expected}"))
+                .primary(*span, format!("expected {expected} here")),
+            SyntaxError::TooDeep { span, limit } => Diagnostic::error(
+                "E0102",
+                format!("brackets nested deeper than {limit} levels"),
+            )
+            .primary(*span, "too deep")
+            .help("split the expression into named parameters or outputs"),
+            SyntaxError::BadNumber { span, text } => {
+                Diagnostic::error("E0103", format!("number `{text}` is out of range"))
+                    .primary(*span, "too large for a 64-bit float")
+            }
+        }
+    }
+
+    /// Translates a pest error on `text`.
+    pub(crate) fn from_pest(err: pest::error::Error<Rule>, text: &str) -> Self {
+        let pos = match err.location {
+            InputLocation::Pos(p) => p,
+            InputLocation::Span((s, _)) => s,
+        };
+        let mut expected: Vec<&'static str> = match &err.variant {
+            ErrorVariant::ParsingError { positives, .. } => {
+                positives.iter().filter_map(|r| describe(*r)).collect()
+            }
+            ErrorVariant::CustomError { .. } => Vec::new(),
+        };
+        expected.sort_unstable();
+        expected.dedup();
+        let expected = match expected.len() {
+            0 => "something else".to_string(),
+            1 => expected[0].to_string(),
+            n => format!("{} or {}", expected[..n - 1].join(", "), expected[n - 1]),
+        };
+        let (found, len) = found_at(text, pos);
+        SyntaxError::Unexpected {
+            span: Span::new(pos, pos + len),
+            found,
+            expected,
+        }
+    }
+}
+
+/// The token at `pos`, in words, and its length in bytes.
+fn found_at(text: &str, pos: usize) -> (String, usize) {
+    let rest = text.get(pos..).unwrap_or("");
+    let Some(c) = rest.chars().next() else {
+        return ("end of file".into(), 0);
+    };
+    if c == '\n' || c == '\r' {
+        return ("end of line".into(), c.len_utf8());
+    }
+    let word: String = if c.is_ascii_alphanumeric() || c == '_' {
+        rest.chars()
+            .take_while(|c| c.is_ascii_alphanumeric() || *c == '_' || *c == '.')
+            .take(24)
+            .collect()
+    } else {
+        c.to_string()
+    };
+    let len = word.len();
+    (format!("`{word}`"), len)
+}
+
+/// What a grammar rule means to a user; `None` for rules that never appear
+/// alone in an expectation.
+fn describe(rule: Rule) -> Option<&'static str> {
+    Some(match rule {
+        Rule::EOI => "end of file",
+        Rule::header => "`model NAME` at the start of the file",
+        Rule::ident | Rule::target => "a name",
+        Rule::number => "a number",
+        Rule::expr
+        | Rule::if_expr
+        | Rule::or_expr
+        | Rule::and_expr
+        | Rule::cmp_expr
+        | Rule::add_expr
+        | Rule::mul_expr
+        | Rule::unary
+        | Rule::power
+        | Rule::postfix
+        | Rule::paren
+        | Rule::call
+        | Rule::matrix
+        | Rule::sum_expr
+        | Rule::boolean
+        | Rule::prefix_op => "an expression",
+        Rule::param_decl
+        | Rule::graph_decl
+        | Rule::state_decl
+        | Rule::noise_decl
+        | Rule::flow_block
+        | Rule::jump_decl
+        | Rule::every_decl
+        | Rule::output_decl
+        | Rule::sim_block
+        | Rule::for_item
+        | Rule::design_block => "a declaration (param, state, flow, jump, every, output, sim, ...)",
+        Rule::flow_eq | Rule::flow_for => "an equation `x' = ...`",
+        Rule::reset_eq | Rule::reset_for => "a reset `x+ = ...`",
+        Rule::when_clause | Rule::every_clause => "`when` or `every`",
+        Rule::reset_block => "`{`",
+        Rule::sim_setting => "a setting `key = value`",
+        Rule::index_list => "`[`",
+        Rule::index_arg | Rule::slice | Rule::colon_all => "an index",
+        Rule::transpose => "`'`",
+        Rule::op_or | Rule::op_and | Rule::cmp_op | Rule::add_op | Rule::mul_op | Rule::op_pow => {
+            "an operator"
+        }
+        Rule::binder | Rule::binder_vars => "an index variable",
+        Rule::set | Rule::set_range | Rule::set_in | Rule::set_out | Rule::set_edges => {
+            "an index set (`1..N`, `in(G, i)`, `out(G, i)`, `edges(G)`)"
+        }
+        Rule::init_eq | Rule::init_draw => "`=` or `~` and an initial value",
+        Rule::definition => "a definition `name = value`",
+        Rule::state_def => "a state name",
+        _ => return None,
+    })
+}

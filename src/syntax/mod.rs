@@ -1,0 +1,11 @@
+//! Parsing: the pest binding of `grammar/hyb.pest`, the AST with spans, and
+//! [`SyntaxError`] in the user's words.
+
+pub mod ast;
+mod error;
+mod parse;
+#[cfg(test)]
+mod tests;
+
+pub use error::SyntaxError;
+pub use parse::{MAX_NESTING, parse_expr, parse_model};

@@ -1,0 +1,473 @@
+//! The pest binding and the conversion of pest pairs into the AST.
+
+use pest::Parser;
+use pest::iterators::{Pair, Pairs};
+
+use super::ast::*;
+use super::error::SyntaxError;
+use crate::source::Span;
+
+/// The pest parser generated from `grammar/hyb.pest`.
+#[derive(pest_derive::Parser)]
+#[grammar = "../grammar/hyb.pest"]
+pub(crate) struct HybParser;
+
+/// Deepest nesting of brackets, `if`s and powers accepted in one
+/// expression; deeper input is a [`SyntaxError::TooDeep`], so that no input
+/// can exhaust the stack.
+pub const MAX_NESTING: usize = 48;
+
+type Res<T> = Result<T, SyntaxError>;
+
+/// Parses a whole model.
+pub fn parse_model(text: &str) -> Result<Model, SyntaxError> {
+    check_depth(text)?;
+    let mut pairs =
+        HybParser::parse(Rule::model, text).map_err(|e| SyntaxError::from_pest(e, text))?;
+    let model = first(&mut pairs, Span::new(0, text.len()))?;
+    let span = model.as_span().into();
+    let mut inner = model.into_inner();
+    let header = first(&mut inner, span)?;
+    let name = ident(first(&mut header.into_inner(), span)?);
+    let mut items = Vec::new();
+    for p in inner {
+        if p.as_rule() != Rule::EOI {
+            items.push(item(p)?);
+        }
+    }
+    Ok(Model { name, items })
+}
+
+/// Parses one expression (an override value `--set name=EXPR`).
+pub fn parse_expr(text: &str) -> Result<Expr, SyntaxError> {
+    check_depth(text)?;
+    let mut pairs = HybParser::parse(Rule::override_value, text)
+        .map_err(|e| SyntaxError::from_pest(e, text))?;
+    let span = Span::new(0, text.len());
+    let top = first(&mut pairs, span)?;
+    expr(first(&mut top.into_inner(), span)?)
+}
+
+/// Rejects input nested deeper than [`MAX_NESTING`] before pest sees it.
+fn check_depth(text: &str) -> Res<()> {
+    // Per open bracket: how many levels it and the `^`/`if` inside it add.
+    let mut stack: Vec<(usize, usize)> = Vec::new();
+    let mut depth = 0usize;
+    let bytes = text.as_bytes();
+    let mut i = 0;
+    while i < bytes.len() {
+        let c = bytes[i];
+        let level = match c {
+            b'#' => {
+                while i < bytes.len() && bytes[i] != b'\n' {
+                    i += 1;
+                }
+                continue;
+            }
+            b'(' | b'[' | b'{' => {
+                stack.push((i, 1));
+                1
+            }
+            b')' | b']' | b'}' => {
+                if let Some((_, n)) = stack.pop() {
+                    depth = depth.saturating_sub(n);
+                }
+                0
+            }
+            b'^' => 1,
+            b'i' if text[i..].starts_with("if")
+                && (i == 0 || !is_ident_byte(bytes[i - 1]))
+                && !bytes.get(i + 2).is_some_and(|b| is_ident_byte(*b)) =>
+            {
+                1
+            }
+            _ => 0,
+        };
+        if level > 0 {
+            if c == b'^' || c == b'i' {
+                if let Some(top) = stack.last_mut() {
+                    top.1 += 1;
+                } else {
+                    stack.push((i, 1));
+                    stack.push((i, 0));
+                }
+            }
+            depth += 1;
+            if depth > MAX_NESTING {
+                return Err(SyntaxError::TooDeep {
+                    span: Span::new(i, i + 1),
+                    limit: MAX_NESTING,
+                });
+            }
+        }
+        i += 1;
+    }
+    Ok(())
+}
+
+fn is_ident_byte(b: u8) -> bool {
+    b.is_ascii_alphanumeric() || b == b'_'
+}
+
+fn first<'a>(pairs: &mut Pairs<'a, Rule>, parent: Span) -> Res<Pair<'a, Rule>> {
+    pairs.next().ok_or_else(|| SyntaxError::Unexpected {
+        span: parent,
+        found: "an incomplete construct".into(),
+        expected: "more input".into(),
+    })
+}
+
+fn ident(p: Pair<'_, Rule>) -> Ident {
+    Ident {
+        name: p.as_str().to_string(),
+        span: p.as_span().into(),
+    }
+}
+
+fn item(p: Pair<'_, Rule>) -> Res<Item> {
+    let span: Span = p.as_span().into();
+    let rule = p.as_rule();
+    let mut inner = p.into_inner();
+    Ok(match rule {
+        Rule::param_decl => Item::Param(inner.map(definition).collect::<Res<_>>()?),
+        Rule::output_decl => Item::Output(inner.map(definition).collect::<Res<_>>()?),
+        Rule::graph_decl => Item::Graph(definition(first(&mut inner, span)?)?),
+        Rule::state_decl => Item::State(
+            inner
+                .map(|sd| {
+                    let sspan = sd.as_span().into();
+                    let mut it = sd.into_inner();
+                    let target = target(first(&mut it, sspan)?)?;
+                    let init = match it.next() {
+                        Some(i) => {
+                            let ispan = i.as_span().into();
+                            Some(expr(first(&mut i.into_inner(), ispan)?)?)
+                        }
+                        None => None,
+                    };
+                    Ok(StateDef { target, init })
+                })
+                .collect::<Res<_>>()?,
+        ),
+        Rule::noise_decl => {
+            let target = target(first(&mut inner, span)?)?;
+            let dist = expr(first(&mut inner, span)?)?;
+            let every = inner.next().map(expr).transpose()?;
+            Item::Noise(NoiseDecl {
+                target,
+                dist,
+                every,
+                span,
+            })
+        }
+        Rule::flow_block => {
+            let mut stmts = Vec::new();
+            let mut set = None;
+            for q in inner {
+                match q.as_rule() {
+                    Rule::flow_eq | Rule::flow_for => stmts.push(flow_stmt(q)?),
+                    _ => set = Some(expr(q)?),
+                }
+            }
+            Item::Flow(FlowBlock {
+                stmts,
+                set,
+                span: Span::new(span.start, span.start + 4),
+            })
+        }
+        Rule::jump_decl => {
+            let name = target(first(&mut inner, span)?)?;
+            let trig = first(&mut inner, span)?;
+            let head = Span::new(span.start, trig.as_span().end());
+            let trigger = trigger(trig)?;
+            let resets = reset_block(first(&mut inner, span)?)?;
+            Item::Jump(JumpDecl {
+                name: Some(name),
+                trigger,
+                resets,
+                span: head,
+            })
+        }
+        Rule::every_decl => {
+            let trig = first(&mut inner, span)?;
+            let head = Span::new(span.start, trig.as_span().end());
+            let trigger = trigger(trig)?;
+            let resets = reset_block(first(&mut inner, span)?)?;
+            Item::Jump(JumpDecl {
+                name: None,
+                trigger,
+                resets,
+                span: head,
+            })
+        }
+        Rule::sim_block => Item::Sim(
+            inner
+                .map(|s| {
+                    let sspan = s.as_span().into();
+                    let mut it = s.into_inner();
+                    let key = ident(first(&mut it, sspan)?);
+                    let value = expr(first(&mut it, sspan)?)?;
+                    Ok(Setting { key, value })
+                })
+                .collect::<Res<_>>()?,
+        ),
+        Rule::for_item => {
+            let b = binder(first(&mut inner, span)?)?;
+            let items = inner.map(item).collect::<Res<_>>()?;
+            Item::For(b, items)
+        }
+        Rule::design_block => {
+            let name = ident(first(&mut inner, span)?);
+            let body = match (inner.clone().next(), inner.last()) {
+                (Some(a), Some(b)) => Span::new(a.as_span().start(), b.as_span().end()),
+                _ => Span::new(name.span.end, name.span.end),
+            };
+            Item::Design(DesignBlock { name, body, span })
+        }
+        _ => {
+            return Err(SyntaxError::Unexpected {
+                span,
+                found: "this".into(),
+                expected: "a declaration".into(),
+            });
+        }
+    })
+}
+
+fn definition(p: Pair<'_, Rule>) -> Res<Definition> {
+    let span = p.as_span().into();
+    let mut it = p.into_inner();
+    let target = target(first(&mut it, span)?)?;
+    let value = expr(first(&mut it, span)?)?;
+    Ok(Definition { target, value })
+}
+
+fn target(p: Pair<'_, Rule>) -> Res<Target> {
+    let span: Span = p.as_span().into();
+    let mut it = p.into_inner();
+    let name = ident(first(&mut it, span)?);
+    let indices = it.map(index_list).collect::<Res<_>>()?;
+    Ok(Target {
+        name,
+        indices,
+        span,
+    })
+}
+
+fn index_list(p: Pair<'_, Rule>) -> Res<Vec<IndexArg>> {
+    p.into_inner()
+        .map(|a| {
+            let aspan: Span = a.as_span().into();
+            let q = first(&mut a.into_inner(), aspan)?;
+            Ok(match q.as_rule() {
+                Rule::colon_all => IndexArg::All(aspan),
+                Rule::slice => {
+                    let mut it = q.into_inner();
+                    let lo = expr(first(&mut it, aspan)?)?;
+                    let hi = expr(first(&mut it, aspan)?)?;
+                    IndexArg::Slice(lo, hi)
+                }
+                _ => IndexArg::One(expr(q)?),
+            })
+        })
+        .collect()
+}
+
+fn flow_stmt(p: Pair<'_, Rule>) -> Res<FlowStmt> {
+    let span = p.as_span().into();
+    match p.as_rule() {
+        Rule::flow_eq => {
+            let mut it = p.into_inner();
+            let target = target(first(&mut it, span)?)?;
+            let value = expr(first(&mut it, span)?)?;
+            Ok(FlowStmt::Eq(Definition { target, value }))
+        }
+        _ => {
+            let mut it = p.into_inner();
+            let b = binder(first(&mut it, span)?)?;
+            Ok(FlowStmt::For(b, it.map(flow_stmt).collect::<Res<_>>()?))
+        }
+    }
+}
+
+fn trigger(p: Pair<'_, Rule>) -> Res<Trigger> {
+    let span = p.as_span().into();
+    let rule = p.as_rule();
+    let e = expr(first(&mut p.into_inner(), span)?)?;
+    Ok(match rule {
+        Rule::every_clause => Trigger::Every(e),
+        _ => Trigger::When(e),
+    })
+}
+
+fn reset_block(p: Pair<'_, Rule>) -> Res<Vec<ResetStmt>> {
+    p.into_inner().map(reset_stmt).collect()
+}
+
+fn reset_stmt(p: Pair<'_, Rule>) -> Res<ResetStmt> {
+    let span = p.as_span().into();
+    match p.as_rule() {
+        Rule::reset_eq => {
+            let mut it = p.into_inner();
+            let target = target(first(&mut it, span)?)?;
+            let value = expr(first(&mut it, span)?)?;
+            Ok(ResetStmt::Eq(Definition { target, value }))
+        }
+        _ => {
+            let mut it = p.into_inner();
+            let b = binder(first(&mut it, span)?)?;
+            Ok(ResetStmt::For(b, it.map(reset_stmt).collect::<Res<_>>()?))
+        }
+    }
+}
+
+fn binder(p: Pair<'_, Rule>) -> Res<Binder> {
+    let span: Span = p.as_span().into();
+    let mut it = p.into_inner();
+    let vars = first(&mut it, span)?.into_inner().map(ident).collect();
+    let set_pair = first(&mut it, span)?;
+    let sspan: Span = set_pair.as_span().into();
+    let s = first(&mut set_pair.into_inner(), sspan)?;
+    let rule = s.as_rule();
+    let mut parts = s.into_inner();
+    let set = match rule {
+        Rule::set_range => {
+            let a = expr(first(&mut parts, sspan)?)?;
+            IndexSet::Range(a, expr(first(&mut parts, sspan)?)?)
+        }
+        Rule::set_in => {
+            let a = expr(first(&mut parts, sspan)?)?;
+            IndexSet::In(a, expr(first(&mut parts, sspan)?)?)
+        }
+        Rule::set_out => {
+            let a = expr(first(&mut parts, sspan)?)?;
+            IndexSet::Out(a, expr(first(&mut parts, sspan)?)?)
+        }
+        _ => IndexSet::Edges(expr(first(&mut parts, sspan)?)?),
+    };
+    let filter = it.next().map(expr).transpose()?;
+    Ok(Binder {
+        vars,
+        set,
+        filter,
+        span,
+    })
+}
+
+fn mk(kind: ExprKind, span: Span) -> Expr {
+    Expr { kind, span }
+}
+
+/// Converts any expression-level pair.
+fn expr(p: Pair<'_, Rule>) -> Res<Expr> {
+    let span: Span = p.as_span().into();
+    let rule = p.as_rule();
+    let text = p.as_str();
+    let mut it = p.into_inner();
+    match rule {
+        Rule::expr | Rule::paren => expr(first(&mut it, span)?),
+        Rule::if_expr => {
+            let c = expr(first(&mut it, span)?)?;
+            let a = expr(first(&mut it, span)?)?;
+            let b = expr(first(&mut it, span)?)?;
+            Ok(mk(
+                ExprKind::If(Box::new(c), Box::new(a), Box::new(b)),
+                span,
+            ))
+        }
+        Rule::or_expr
+        | Rule::and_expr
+        | Rule::cmp_expr
+        | Rule::add_expr
+        | Rule::mul_expr
+        | Rule::power => {
+            let mut lhs = expr(first(&mut it, span)?)?;
+            while let Some(op) = it.next() {
+                let rhs = expr(first(&mut it, span)?)?;
+                let op = match op.as_str() {
+                    "||" => BinOp::Or,
+                    "&&" => BinOp::And,
+                    "<" => BinOp::Lt,
+                    "<=" => BinOp::Le,
+                    ">" => BinOp::Gt,
+                    ">=" => BinOp::Ge,
+                    "==" => BinOp::Eq,
+                    "!=" => BinOp::Ne,
+                    "+" => BinOp::Add,
+                    "-" => BinOp::Sub,
+                    "*" => BinOp::Mul,
+                    "/" => BinOp::Div,
+                    ".*" => BinOp::ElemMul,
+                    "./" => BinOp::ElemDiv,
+                    _ => BinOp::Pow,
+                };
+                let s = lhs.span.to(rhs.span);
+                lhs = mk(ExprKind::Binary(op, Box::new(lhs), Box::new(rhs)), s);
+            }
+            Ok(lhs)
+        }
+        Rule::unary => {
+            let parts: Vec<Pair<'_, Rule>> = it.collect();
+            let Some((last, prefixes)) = parts.split_last() else {
+                return Err(SyntaxError::Unexpected {
+                    span,
+                    found: "this".into(),
+                    expected: "an expression".into(),
+                });
+            };
+            let mut e = expr(last.clone())?;
+            for op in prefixes.iter().rev() {
+                let uop = if op.as_str() == "-" {
+                    UnOp::Neg
+                } else {
+                    UnOp::Not
+                };
+                let s = Span::new(op.as_span().start(), e.span.end);
+                e = mk(ExprKind::Unary(uop, Box::new(e)), s);
+            }
+            Ok(e)
+        }
+        Rule::postfix => {
+            let mut e = expr(first(&mut it, span)?)?;
+            for post in it {
+                let end = post.as_span().end();
+                let s = Span::new(e.span.start, end);
+                e = match post.as_rule() {
+                    Rule::transpose => mk(ExprKind::Unary(UnOp::Transpose, Box::new(e)), s),
+                    _ => mk(ExprKind::Index(Box::new(e), index_list(post)?), s),
+                };
+            }
+            Ok(e)
+        }
+        Rule::number => match text.parse::<f64>() {
+            Ok(v) if v.is_finite() => Ok(mk(ExprKind::Num(v), span)),
+            _ => Err(SyntaxError::BadNumber {
+                span,
+                text: text.to_string(),
+            }),
+        },
+        Rule::boolean => Ok(mk(ExprKind::Bool(text == "true"), span)),
+        Rule::ident => Ok(mk(ExprKind::Name(text.to_string()), span)),
+        Rule::call => {
+            let name = ident(first(&mut it, span)?);
+            let args = it.map(expr).collect::<Res<_>>()?;
+            Ok(mk(ExprKind::Call(name, args), span))
+        }
+        Rule::matrix => {
+            let rows = it
+                .map(|r| r.into_inner().map(expr).collect::<Res<Vec<_>>>())
+                .collect::<Res<_>>()?;
+            Ok(mk(ExprKind::Matrix(rows), span))
+        }
+        Rule::sum_expr => {
+            let b = binder(first(&mut it, span)?)?;
+            let body = expr(first(&mut it, span)?)?;
+            Ok(mk(ExprKind::Sum(Box::new(b), Box::new(body)), span))
+        }
+        _ => Err(SyntaxError::Unexpected {
+            span,
+            found: "this".into(),
+            expected: "an expression".into(),
+        }),
+    }
+}

@@ -1,0 +1,77 @@
+use super::ast::*;
+use super::*;
+
+#[test]
+fn parses_the_bouncing_ball() {
+    let m = parse_model(
+        "model bouncing_ball\nparam g = 9.81, lambda = 0.8\nstate h = 1, v = 0\n\
+         flow { h' = v; v' = -g } in h >= 0 || v >= 0\n\
+         jump impact when h <= 0 && v < 0 { v+ = -lambda * v }\n\
+         sim { T = 10; J = 200; priority = jumps }\n",
+    )
+    .unwrap();
+    assert_eq!(m.name.name, "bouncing_ball");
+    assert_eq!(m.items.len(), 5);
+    let Item::Flow(f) = &m.items[2] else { panic!() };
+    assert_eq!(f.stmts.len(), 2);
+    assert!(matches!(
+        f.set.as_ref().unwrap().kind,
+        ExprKind::Binary(BinOp::Or, _, _)
+    ));
+}
+
+#[test]
+fn precedence_and_postfix() {
+    let e = parse_expr("-a*b' + c[1, 2:3]^2 < 3 && !d").unwrap();
+    let ExprKind::Binary(BinOp::And, l, r) = e.kind else {
+        panic!()
+    };
+    assert!(matches!(r.kind, ExprKind::Unary(UnOp::Not, _)));
+    let ExprKind::Binary(BinOp::Lt, sum, _) = l.kind else {
+        panic!()
+    };
+    let ExprKind::Binary(BinOp::Add, prod, pow) = sum.kind else {
+        panic!()
+    };
+    let ExprKind::Binary(BinOp::Mul, neg, tr) = prod.kind else {
+        panic!()
+    };
+    assert!(matches!(neg.kind, ExprKind::Unary(UnOp::Neg, _)));
+    assert!(matches!(tr.kind, ExprKind::Unary(UnOp::Transpose, _)));
+    assert!(matches!(pow.kind, ExprKind::Binary(BinOp::Pow, _, _)));
+}
+
+#[test]
+fn syntax_errors_speak_plainly() {
+    let err = parse_model("model m\nstate x = 1 +\n").unwrap_err();
+    let d = err.to_diagnostic();
+    assert!(
+        d.message.contains("expected an expression"),
+        "{}",
+        d.message
+    );
+    assert!(
+        !d.message.replace("expression", "").contains("expr"),
+        "{}",
+        d.message
+    );
+    assert_eq!(err.span().start, 22);
+}
+
+#[test]
+fn deep_nesting_is_an_error_not_a_crash() {
+    let deep = format!(
+        "model m\nparam a = {}1{}\n",
+        "(".repeat(10_000),
+        ")".repeat(10_000)
+    );
+    assert!(matches!(
+        parse_model(&deep),
+        Err(SyntaxError::TooDeep { .. })
+    ));
+    let pow = format!("model m\nparam a = 2{}\n", "^2".repeat(10_000));
+    assert!(matches!(
+        parse_model(&pow),
+        Err(SyntaxError::TooDeep { .. })
+    ));
+}
