@@ -8,8 +8,8 @@
 extern crate openblas_src;
 
 pub mod arc;
-pub mod design;
 pub mod check;
+pub mod design;
 pub mod diagnostics;
 pub mod engine;
 pub mod ir;

@@ -1185,13 +1185,83 @@ impl Checker {
 }
 
 impl Checker {
-    /// Control-design functions on constant matrices (`design::control`).
-    fn control(&mut self, name: &str, _args: &[Expr], span: Span) -> Option<Val> {
-        self.err(CheckError::Unsupported {
-            what: format!("`{name}` (control functions arrive with design::control)"),
-            span,
-        });
-        None
+    /// Control-design functions on constant matrices (`design::control`),
+    /// all results: `dare`/`care` → (P), `dlqr`/`lqr` → (K, P),
+    /// `c2d` → (Ad, Bd).
+    pub(crate) fn control_multi(
+        &mut self,
+        name: &str,
+        args: &[Expr],
+        span: Span,
+    ) -> Option<Vec<Val>> {
+        use crate::design::control;
+        let want = if name == "c2d" { 3 } else { 4 };
+        if args.len() != want {
+            self.err(CheckError::Arity {
+                func: name.to_string(),
+                expected: format!("{want} arguments"),
+                found: args.len(),
+                span,
+            });
+            return None;
+        }
+        let mut mats = Vec::new();
+        let mut ok = true;
+        for a in args {
+            match self.const_matrix(a, &format!("an argument of `{name}`")) {
+                Some((v, x)) => mats.push(nalgebra::DMatrix::from_row_slice(v.rows, v.cols, &x)),
+                None => ok = false,
+            }
+        }
+        if !ok {
+            return None;
+        }
+        let result = match name {
+            "dare" => control::dare(&mats[0], &mats[1], &mats[2], &mats[3]).map(|p| vec![p]),
+            "care" => control::care(&mats[0], &mats[1], &mats[2], &mats[3]).map(|p| vec![p]),
+            "dlqr" => control::dlqr(&mats[0], &mats[1], &mats[2], &mats[3]).map(|l| vec![l.k, l.p]),
+            "lqr" => control::lqr(&mats[0], &mats[1], &mats[2], &mats[3]).map(|l| vec![l.k, l.p]),
+            _ => {
+                if mats[2].len() != 1 {
+                    self.err(CheckError::Expected {
+                        expected: "a scalar sampling time".into(),
+                        found: dims_words((mats[2].nrows(), mats[2].ncols())),
+                        span: args[2].span,
+                    });
+                    return None;
+                }
+                control::c2d(&mats[0], &mats[1], mats[2][(0, 0)]).map(|(a, b)| vec![a, b])
+            }
+        };
+        match result {
+            Ok(ms) => Some(
+                ms.iter()
+                    .map(|m| self.konst_val(m.nrows(), m.ncols(), |i, j| m[(i, j)]))
+                    .collect(),
+            ),
+            Err(e) => {
+                self.err(CheckError::Compute {
+                    func: name.to_string(),
+                    reason: e.to_string(),
+                    span,
+                });
+                None
+            }
+        }
+    }
+
+    /// A control function in an expression: its first result, except
+    /// `c2d`, whose two results must be named.
+    fn control(&mut self, name: &str, args: &[Expr], span: Span) -> Option<Val> {
+        if name == "c2d" {
+            self.err(CheckError::Expected {
+                expected: "`param (Ad, Bd) = c2d(A, B, Ts)`".into(),
+                found: "`c2d` inside an expression".into(),
+                span,
+            });
+            return None;
+        }
+        self.control_multi(name, args, span)?.into_iter().next()
     }
 }
 

@@ -399,6 +399,7 @@ impl ModelChecker<'_> {
                 }
             }
             Item::Graph(d) => self.param(d, true),
+            Item::ParamTuple(targets, value) => self.param_tuple(targets, value),
             Item::State(defs) => {
                 for sd in defs {
                     self.state(sd);
@@ -439,7 +440,11 @@ impl ModelChecker<'_> {
                     this.pass2(it);
                 }
             }),
-            Item::Param(_) | Item::Graph(_) | Item::State(_) | Item::Design(_) => {}
+            Item::Param(_)
+            | Item::ParamTuple(..)
+            | Item::Graph(_)
+            | Item::State(_)
+            | Item::Design(_) => {}
         }
     }
 
@@ -513,6 +518,42 @@ impl ModelChecker<'_> {
         let span = d.target.name.span;
         if let Some(display) = self.declare(&d.target, |_| Sym::Param { val: v, span }) {
             self.params.push((display, dims, vals));
+        }
+    }
+
+    fn param_tuple(&mut self, targets: &[Target], value: &Expr) {
+        let vals = match &value.kind {
+            ExprKind::Call(f, args)
+                if matches!(f.name.as_str(), "c2d" | "dlqr" | "lqr" | "dare" | "care") =>
+            {
+                self.c.control_multi(&f.name, args, value.span)
+            }
+            _ => {
+                self.c.err(CheckError::Expected {
+                    expected: "a call of c2d, dlqr, lqr, dare or care".into(),
+                    found: "another expression".into(),
+                    span: value.span,
+                });
+                None
+            }
+        };
+        let Some(vals) = vals else { return };
+        if vals.len() != targets.len() {
+            self.c.err(CheckError::Arity {
+                func: "this destructuring".into(),
+                expected: format!("{} names", vals.len()),
+                found: targets.len(),
+                span: value.span,
+            });
+            return;
+        }
+        for (t, v) in targets.iter().zip(vals) {
+            let vals: Vec<f64> = v.e.iter().filter_map(|&n| self.c.dag.as_const(n)).collect();
+            let dims = v.dims();
+            let span = t.name.span;
+            if let Some(display) = self.declare(t, |_| Sym::Param { val: v, span }) {
+                self.params.push((display, dims, vals));
+            }
         }
     }
 

@@ -26,6 +26,8 @@ pub struct Model {
 pub enum Item {
     /// `param a = 1, b = [1; 2]`.
     Param(Vec<Definition>),
+    /// `param (Ad, Bd) = c2d(A, B, Ts)`: several results of a control function.
+    ParamTuple(Vec<Target>, Expr),
     /// `graph G = adjacency`: a square constant matrix used for neighbour sets.
     Graph(Definition),
     /// `state x = 0, P = eye(2), h ~ uniform(0, 1)`.

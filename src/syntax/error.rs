@@ -143,6 +143,7 @@ fn describe(rule: Rule) -> Option<&'static str> {
         | Rule::boolean
         | Rule::prefix_op => "an expression",
         Rule::param_decl
+        | Rule::param_tuple
         | Rule::graph_decl
         | Rule::state_decl
         | Rule::noise_decl

@@ -131,6 +131,18 @@ fn item(p: Pair<'_, Rule>) -> Res<Item> {
     Ok(match rule {
         Rule::param_decl => Item::Param(inner.map(definition).collect::<Res<_>>()?),
         Rule::output_decl => Item::Output(inner.map(definition).collect::<Res<_>>()?),
+        Rule::param_tuple => {
+            let mut parts: Vec<Pair<'_, Rule>> = inner.collect();
+            let Some(value) = parts.pop() else {
+                return Err(SyntaxError::Unexpected {
+                    span,
+                    found: "this".into(),
+                    expected: "a value".into(),
+                });
+            };
+            let targets = parts.into_iter().map(target).collect::<Res<_>>()?;
+            Item::ParamTuple(targets, expr(value)?)
+        }
         Rule::graph_decl => Item::Graph(definition(first(&mut inner, span)?)?),
         Rule::state_decl => Item::State(
             inner
