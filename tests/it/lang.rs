@@ -71,3 +71,18 @@ fn overrides_change_parameters_and_settings() {
     assert!((arc.jumps()[0].at.t - t1).abs() < 1e-9);
     assert_eq!(m.parameters_json()["lambda"], serde_json::json!(0.5));
 }
+
+#[test]
+fn control_functions_compute_parameters() {
+    let src = SourceFile::new(
+        "c.hyb",
+        "model c\nparam A = [0, 1; 0, 0], B = [0; 1]\nparam (Ad, Bd) = c2d(A, B, 0.1)\n\
+         param K = dlqr(Ad, Bd, eye(2), 1)\nstate x = [1; 0]\nevery 0.1 { x+ = (Ad - Bd*K) * x }\n",
+    );
+    let m = lang::compile(&src, &[])
+        .unwrap_or_else(|d| panic!("{}", hybsim::diagnostics::render(&d, &src, false)));
+    let p = m.parameters_json();
+    assert!((p["Ad"][0][1].as_f64().unwrap() - 0.1).abs() < 1e-12);
+    assert!((p["Bd"][0].as_f64().unwrap() - 0.005).abs() < 1e-12);
+    assert!(p["K"][0][0].as_f64().unwrap() > 0.0);
+}
