@@ -37,7 +37,12 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     for i in 1..m {
         c[(i, 2 * (i - 1) + 1)] = 1.0;
     }
-    let lqr = dlqr(&a, &b, &DMatrix::identity(n, n), &(DMatrix::identity(m, m) * 100.0))?;
+    let lqr = dlqr(
+        &a,
+        &b,
+        &DMatrix::identity(n, n),
+        &(DMatrix::identity(m, m) * 100.0),
+    )?;
     let acl0 = &a - &b * &lqr.k; // A + BF with F = −K
     // Uniform noise: w ∈ [−0.1, 0.1] (variance 0.2²/12), input noise ∈ [−0.01, 0.01].
     let w_half = DMatrix::<f64>::identity(m, m) * (0.2f64.powi(2) / 12.0).sqrt();
@@ -53,7 +58,11 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let lmi1 = Expr::blocks(&[
         vec![Some(eye_n.clone()), None, Some(eye_n.clone())],
         vec![None, Some(p.clone()), Some(p_ahat.clone())],
-        vec![Some(eye_n.clone()), Some(p_ahat.transpose()), Some(p.clone())],
+        vec![
+            Some(eye_n.clone()),
+            Some(p_ahat.transpose()),
+            Some(p.clone()),
+        ],
     ])?;
     prob.constrain("(39) performance/stability", &lmi1, Relation::PosDef)?;
     // P B̂₂ = [−U W^{1/2}, (P − U C) V^{1/2}]
@@ -77,12 +86,18 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let mut ek = DMatrix::<f64>::zeros(m, 1);
         ek[(k, 0)] = 1.0;
         let u_k = u.right_mul(&ek)?; // n×1
-        let off = p.sub(&u_k.right_mul(&c.rows(k, 1).into_owned())?)?.right_mul(&acl0)?;
+        let off = p
+            .sub(&u_k.right_mul(&c.rows(k, 1).into_owned())?)?
+            .right_mul(&acl0)?;
         let sk = Expr::blocks(&[
             vec![Some(p.clone()), Some(off.clone())],
             vec![Some(off.transpose()), Some(p.clone())],
         ])?;
-        prob.constrain(&format!("(26) m = {}", k + 1), &sk.sub(&s0.scale(factor))?, Relation::PosDef)?;
+        prob.constrain(
+            &format!("(26) m = {}", k + 1),
+            &sk.sub(&s0.scale(factor))?,
+            Relation::PosDef,
+        )?;
     }
     prob.minimize(&x.trace()?)?;
     let built = start.elapsed().as_secs_f64();
@@ -100,7 +115,13 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             );
             println!(
                 "variables {}, cone rows {}, nonzeros {}, passes {}, iterations {}, solve {:.2} s, total {:.2} s",
-                i.variables, i.cone_rows, i.nonzeros, i.passes, i.iterations, i.solve_time, i.total_time
+                i.variables,
+                i.cone_rows,
+                i.nonzeros,
+                i.passes,
+                i.iterations,
+                i.solve_time,
+                i.total_time
             );
             let pm = d.value("P").ok_or("P")?;
             let um = d.value("U").ok_or("U")?;
