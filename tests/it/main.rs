@@ -1,6 +1,7 @@
 //! Integration tests, one binary, a module per area.
 
 mod lang;
+mod muehlebach;
 mod props;
 mod sinks;
 mod util;
