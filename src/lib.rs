@@ -7,6 +7,7 @@
 // clarabel's SDP support links BLAS/LAPACK; this pulls in the system OpenBLAS.
 extern crate openblas_src;
 
+pub mod analysis;
 pub mod arc;
 pub mod check;
 pub mod design;
