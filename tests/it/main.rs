@@ -6,3 +6,4 @@ mod muehlebach;
 mod props;
 mod sinks;
 mod util;
+mod variance_trigger;
