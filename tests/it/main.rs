@@ -1,5 +1,6 @@
 //! Integration tests, one binary, a module per area.
 
+mod cli;
 mod intermittent_estimation;
 mod lang;
 mod muehlebach;

@@ -1,0 +1,175 @@
+//! The `hybsim` command line: clap arguments, one file per subcommand, and
+//! the mapping of outcomes to exit codes (the binary edge: errors here are
+//! `anyhow`, everything below is typed).
+
+mod check;
+mod progress;
+mod run;
+
+use std::ffi::OsString;
+use std::process::ExitCode;
+
+use clap::{Parser, Subcommand};
+use hybsim::diagnostics::render;
+use hybsim::lang::Override;
+use hybsim::source::SourceFile;
+
+/// Exit code: the command did what was asked (a run reached its end, a
+/// check found no error).
+pub const EXIT_OK: u8 = 0;
+/// Exit code: the run failed (engine error, non-finite value, output not
+/// written) or a property test found a counterexample.
+pub const EXIT_FAILED: u8 = 1;
+/// Exit code: the model has errors (syntax, names, shapes, a bad `--set`),
+/// or the command line is malformed.
+pub const EXIT_MODEL_ERROR: u8 = 2;
+/// Exit code: interrupted with Ctrl-C (the output files are still completed).
+pub const EXIT_INTERRUPTED: u8 = 130;
+
+const EXAMPLES: &str = "\
+Examples:
+  hybsim run models/bouncing_ball.hyb                 simulate, write bouncing_ball.mcap
+  hybsim run models/bouncing_ball.hyb -o ball.mcap --T 5 --J 30 --seed 1
+  hybsim run models/bouncing_ball.hyb --set lambda=0.5 --csv ball.csv --plot ball.svg
+  hybsim run models/bouncing_ball.hyb --no-mcap --plot ball.svg --plot-vars h,v
+  hybsim check models/bouncing_ball.hyb               check the model only
+
+Exit codes:
+  0    success (a run ended: horizon reached, or an outcome such as Zeno suspected)
+  1    the run failed (engine error, non-finite value, output file not written)
+  2    the model has errors, or the command line is malformed
+  130  interrupted (Ctrl-C); output files are completed up to that point";
+
+/// Simulate, design and test hybrid dynamical systems written in `.hyb`.
+#[derive(Debug, Parser)]
+#[command(name = "hybsim", version, about, after_help = EXAMPLES)]
+pub struct Cli {
+    /// What to do.
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+/// The subcommands.
+#[derive(Debug, Subcommand)]
+#[allow(clippy::large_enum_variant)] // built once per process
+
+pub enum Command {
+    /// Simulate a model and log the solution (MCAP by default; CSV and SVG on request).
+    #[command(after_help = EXAMPLES)]
+    Run(run::RunArgs),
+    /// Parse and check a model without simulating it.
+    Check(check::CheckArgs),
+}
+
+/// Parses `args` (including the program name), runs the subcommand, and
+/// returns the process exit code. Errors are printed to stderr.
+pub fn run<I, T>(args: I) -> ExitCode
+where
+    I: IntoIterator<Item = T>,
+    T: Into<OsString> + Clone,
+{
+    let cli = match Cli::try_parse_from(args) {
+        Ok(cli) => cli,
+        Err(e) => {
+            // --help and --version print and succeed; usage errors exit 2.
+            let _ = e.print();
+            return ExitCode::from(if e.use_stderr() {
+                EXIT_MODEL_ERROR
+            } else {
+                EXIT_OK
+            });
+        }
+    };
+    let result = match cli.command {
+        Command::Run(args) => run::execute(args),
+        Command::Check(args) => check::execute(args),
+    };
+    match result {
+        Ok(code) => ExitCode::from(code),
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            ExitCode::from(EXIT_FAILED)
+        }
+    }
+}
+
+/// Reads the model file and parses the `--set` overrides. Prints the
+/// problem and returns `None` if either fails (exit code 2).
+fn load(
+    path: &std::path::Path,
+    set: &[String],
+) -> anyhow::Result<Option<(SourceFile, Vec<Override>)>> {
+    let src = match SourceFile::read(path) {
+        Ok(src) => src,
+        Err(e) => {
+            eprintln!("error: cannot read model file `{}`: {e}", path.display());
+            return Ok(None);
+        }
+    };
+    let mut overrides = Vec::new();
+    let mut problems = Vec::new();
+    for s in set {
+        match s.parse::<Override>() {
+            Ok(o) => overrides.push(o),
+            Err(d) => problems.push(d),
+        }
+    }
+    if !problems.is_empty() {
+        let color = std::io::IsTerminal::is_terminal(&std::io::stderr());
+        eprint!("{}", render(&problems, &src, color));
+        return Ok(None);
+    }
+    Ok(Some((src, overrides)))
+}
+
+#[cfg(test)]
+mod tests {
+    use clap::CommandFactory;
+
+    use super::*;
+
+    #[test]
+    fn the_command_line_is_consistent() {
+        Cli::command().debug_assert();
+    }
+
+    #[test]
+    fn run_arguments_parse() {
+        let cli = Cli::try_parse_from([
+            "hybsim",
+            "run",
+            "m.hyb",
+            "-o",
+            "x.mcap",
+            "--T",
+            "5",
+            "--J",
+            "30",
+            "--seed",
+            "3",
+            "--set",
+            "g=9.8",
+            "--set",
+            "K=[1, 2]",
+            "--csv",
+            "x.csv",
+            "--plot",
+            "x.svg",
+            "--plot-vars",
+            "h,v",
+            "--log-every",
+            "10",
+        ])
+        .unwrap();
+        let Command::Run(a) = cli.command else {
+            panic!("not run")
+        };
+        assert_eq!(a.horizon_t, Some(5.0));
+        assert_eq!(a.horizon_j, Some(30));
+        assert_eq!(a.seed, Some(3));
+        assert_eq!(a.set, ["g=9.8", "K=[1, 2]"]);
+        assert_eq!(a.plot_vars, ["h", "v"]);
+        assert_eq!(a.log_every, 10);
+        assert!(Cli::try_parse_from(["hybsim", "run", "m.hyb", "--log-every", "0"]).is_err());
+    }
+}

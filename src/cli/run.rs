@@ -1,0 +1,564 @@
+//! `hybsim run`: compile a model, simulate it into the requested sinks,
+//! print a one-line summary.
+
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+use clap::Args;
+use std::io::IsTerminal;
+
+use hybsim::arc::{ArcSink, Termination, TerminationCause};
+use hybsim::diagnostics::render;
+use hybsim::engine::{HybridSystem, Priority, SimError, SimRng, SimSettings, Solver, simulate};
+use hybsim::lang;
+use hybsim::sinks::csv::CsvSink;
+use hybsim::sinks::mcap::{McapOptions, McapSink};
+use hybsim::sinks::plot::PlotSink;
+use hybsim::sinks::{
+    Decimation, Fanout, OutputFn, RunInfo, RunOutcome, RunStatus, Tally, rule_name,
+};
+use serde_json::{Value, json};
+
+use super::progress::{Progress, interrupt_flag};
+use super::{EXIT_FAILED, EXIT_INTERRUPTED, EXIT_MODEL_ERROR, EXIT_OK};
+
+/// Arguments of `hybsim run`.
+#[derive(Debug, Args)]
+pub struct RunArgs {
+    /// The model file (`.hyb`).
+    pub model: PathBuf,
+    /// MCAP output file. Default: the model's file name with `.mcap`, in
+    /// the current directory.
+    #[arg(short = 'o', long = "output", value_name = "OUT.mcap")]
+    pub output: Option<PathBuf>,
+    /// Do not write an MCAP file.
+    #[arg(long, conflicts_with = "output")]
+    pub no_mcap: bool,
+    /// Horizon T in ordinary time (overrides the model's `sim` block).
+    #[arg(long = "T", value_name = "T")]
+    pub horizon_t: Option<f64>,
+    /// Horizon J in jumps (overrides the model's `sim` block).
+    #[arg(long = "J", value_name = "J")]
+    pub horizon_j: Option<u64>,
+    /// Output grid: flow samples at t = k·DT instead of every integrator step
+    /// (overrides the model's `sim` block).
+    #[arg(long, value_name = "DT")]
+    pub dt_out: Option<f64>,
+    /// Integrator for flows (overrides the model's).
+    #[arg(long, value_enum)]
+    pub solver: Option<SolverKind>,
+    /// Relative tolerance of the adaptive solvers.
+    #[arg(long, value_name = "RTOL")]
+    pub rtol: Option<f64>,
+    /// Absolute tolerance of the adaptive solvers.
+    #[arg(long, value_name = "ATOL")]
+    pub atol: Option<f64>,
+    /// Step of the fixed-step solvers (rk4, euler-maruyama).
+    #[arg(long, value_name = "H")]
+    pub step: Option<f64>,
+    /// Largest integrator step of the adaptive solvers.
+    #[arg(long, value_name = "H")]
+    pub max_step: Option<f64>,
+    /// What to do when the state is in both C and D.
+    #[arg(long, value_enum)]
+    pub priority: Option<PriorityKind>,
+    /// Seed of the run's random generator (overrides the model's).
+    #[arg(long, value_name = "N")]
+    pub seed: Option<u64>,
+    /// Override a parameter: `--set name=value` (repeatable); the value is
+    /// an expression of the model language, e.g. `--set K="[1, 2]"`.
+    #[arg(long = "set", value_name = "NAME=VALUE")]
+    pub set: Vec<String>,
+    /// Also write the logged samples as CSV.
+    #[arg(long, value_name = "OUT.csv")]
+    pub csv: Option<PathBuf>,
+    /// Also draw the states (or `--plot-vars`) against t as SVG.
+    #[arg(long, value_name = "OUT.svg")]
+    pub plot: Option<PathBuf>,
+    /// States or outputs to plot, by name (comma-separated). Default: the states.
+    #[arg(long, value_name = "NAMES", value_delimiter = ',', requires = "plot")]
+    pub plot_vars: Vec<String>,
+    /// Log every N-th flow sample (jump and end samples are always logged).
+    #[arg(long, value_name = "N", default_value_t = 1, value_parser = clap::value_parser!(u64).range(1..))]
+    pub log_every: u64,
+    /// Log flow samples at least DT apart in t (jump and end samples are always logged).
+    #[arg(long, value_name = "DT")]
+    pub log_dt: Option<f64>,
+    /// No progress bar.
+    #[arg(short, long)]
+    pub quiet: bool,
+}
+
+/// Solver names on the command line.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum SolverKind {
+    /// Dormand–Prince 5(4), adaptive.
+    Dopri5,
+    /// Dormand–Prince 8(5,3), adaptive.
+    Dop853,
+    /// Runge–Kutta 4, fixed step (`--step`).
+    Rk4,
+    /// Euler–Maruyama, fixed step (`--step`), for noise-driven flows.
+    EulerMaruyama,
+}
+
+/// Priority names on the command line.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum PriorityKind {
+    /// Jump whenever x ∈ D.
+    Jumps,
+    /// Flow while possible; jump only when the flow would leave C.
+    Flows,
+    /// A fair coin from the run's generator.
+    Random,
+}
+
+/// The solver after the command-line flags, or what to change.
+fn solver_from_flags(current: Solver, args: &RunArgs) -> Result<Solver, String> {
+    let kind = args.solver.unwrap_or(match current {
+        Solver::Dopri5 { .. } => SolverKind::Dopri5,
+        Solver::Dop853 { .. } => SolverKind::Dop853,
+        Solver::Rk4 { .. } => SolverKind::Rk4,
+        Solver::EulerMaruyama { .. } => SolverKind::EulerMaruyama,
+    });
+    let (rtol0, atol0, h0) = match current {
+        Solver::Dopri5 { rtol, atol } | Solver::Dop853 { rtol, atol } => (rtol, atol, None),
+        Solver::Rk4 { h } | Solver::EulerMaruyama { h } => (1e-6, 1e-9, Some(h)),
+    };
+    match kind {
+        SolverKind::Dopri5 | SolverKind::Dop853 => {
+            if args.step.is_some() {
+                return Err(
+                    "`--step` applies to the fixed-step solvers; use `--solver rk4` or `--max-step`"
+                        .into(),
+                );
+            }
+            let (rtol, atol) = (args.rtol.unwrap_or(rtol0), args.atol.unwrap_or(atol0));
+            Ok(if kind == SolverKind::Dopri5 {
+                Solver::Dopri5 { rtol, atol }
+            } else {
+                Solver::Dop853 { rtol, atol }
+            })
+        }
+        SolverKind::Rk4 | SolverKind::EulerMaruyama => {
+            if args.rtol.is_some() || args.atol.is_some() {
+                return Err(
+                    "`--rtol`/`--atol` apply to the adaptive solvers dopri5 and dop853".into(),
+                );
+            }
+            let h = args
+                .step
+                .or(h0)
+                .ok_or_else(|| "a fixed-step solver needs its step: add `--step H`".to_string())?;
+            Ok(if kind == SolverKind::Rk4 {
+                Solver::Rk4 { h }
+            } else {
+                Solver::EulerMaruyama { h }
+            })
+        }
+    }
+}
+
+/// The model's settings with the command-line overrides applied.
+pub fn settings_from_flags(
+    mut settings: SimSettings,
+    args: &RunArgs,
+) -> Result<SimSettings, String> {
+    if let Some(t) = args.horizon_t {
+        settings = settings.horizon_t(t);
+    }
+    if let Some(j) = args.horizon_j {
+        settings = settings.horizon_j(j);
+    }
+    if args.dt_out.is_some() {
+        settings = settings.dt_out(args.dt_out);
+    }
+    if let Some(h) = args.max_step {
+        settings = settings.max_step(h);
+    }
+    if let Some(p) = args.priority {
+        settings = settings.priority(match p {
+            PriorityKind::Jumps => Priority::Jumps,
+            PriorityKind::Flows => Priority::Flows,
+            PriorityKind::Random => Priority::Random,
+        });
+    }
+    let solver = solver_from_flags(settings.solver, args)?;
+    let settings = settings.solver(solver);
+    settings
+        .validate()
+        .map_err(|e| format!("{e}; {}", e.help()))?;
+    Ok(settings)
+}
+
+/// The files a run writes.
+#[derive(Debug, Clone, Default)]
+pub struct Outputs {
+    /// MCAP file, if any.
+    pub mcap: Option<PathBuf>,
+    /// CSV file, if any.
+    pub csv: Option<PathBuf>,
+    /// SVG file, if any.
+    pub plot: Option<PathBuf>,
+    /// Entries to plot.
+    pub plot_vars: Vec<String>,
+    /// Which samples to write.
+    pub decimation: Decimation,
+    /// Show a progress bar (if stderr is a terminal).
+    pub progress: bool,
+}
+
+/// What a run produced.
+#[derive(Debug)]
+pub struct Report {
+    /// The outcome as written to the logs.
+    pub outcome: RunOutcome,
+    /// Counts of samples and jumps.
+    pub tally: Tally,
+    /// Files written.
+    pub written: Vec<PathBuf>,
+    /// Wall-clock time of the simulation.
+    pub wall: Duration,
+    /// Ctrl-C stopped the run.
+    pub interrupted: bool,
+}
+
+/// The outcome of a run for the logs.
+fn outcome_of(result: &Result<Termination, SimError>, interrupted: bool) -> RunOutcome {
+    match result {
+        Ok(term) if interrupted && term.cause == TerminationCause::StoppedBySink => RunOutcome {
+            cause: "interrupted".into(),
+            message: format!("interrupted (Ctrl-C) at {}", term.at),
+            status: RunStatus::Ended,
+        },
+        Ok(term) => RunOutcome::from_termination(term),
+        Err(e) => RunOutcome::failed("error", format!("{e}; {}", e.help())),
+    }
+}
+
+/// Simulation settings as JSON for the logs (non-finite numbers as strings).
+pub fn settings_json(s: &SimSettings) -> Value {
+    let num = |x: f64| {
+        if x.is_finite() {
+            json!(x)
+        } else {
+            json!(x.to_string())
+        }
+    };
+    let solver = match s.solver {
+        Solver::Dopri5 { rtol, atol } => json!({"method": "dopri5", "rtol": rtol, "atol": atol}),
+        Solver::Dop853 { rtol, atol } => json!({"method": "dop853", "rtol": rtol, "atol": atol}),
+        Solver::Rk4 { h } => json!({"method": "rk4", "h": h}),
+        Solver::EulerMaruyama { h } => json!({"method": "euler_maruyama", "h": h}),
+    };
+    let priority = match s.priority {
+        Priority::Jumps => "jumps",
+        Priority::Flows => "flows",
+        Priority::Random => "random",
+    };
+    json!({
+        "horizon_t": num(s.horizon_t),
+        "horizon_j": s.horizon_j,
+        "solver": solver,
+        "priority": priority,
+        "dt_out": s.dt_out.map(num),
+        "max_step": num(s.max_step),
+        "event_tol": num(s.event_tol),
+        "guard_checks": s.guard_checks,
+        "zeno_max_rate": num(s.zeno_max_rate),
+        "zeno_window": s.zeno_window,
+        "max_total_jumps": s.max_total_jumps,
+        "exact_affine": s.exact_affine,
+    })
+}
+
+/// Simulates `sys` from `x0` into the sinks named by `outputs`; every file
+/// is completed (or removed) before this returns. Returns the report and the
+/// engine's error, if the run failed (the files then record the failure).
+pub fn simulate_to_files<S: HybridSystem + ?Sized>(
+    sys: &S,
+    x0: &[f64],
+    settings: &SimSettings,
+    rng: &mut SimRng,
+    info: &RunInfo,
+    output_fn: Option<OutputFn<'_>>,
+    outputs: &Outputs,
+) -> anyhow::Result<(Report, Option<SimError>)> {
+    let mut mcap = match &outputs.mcap {
+        Some(path) => Some(McapSink::create(
+            path,
+            info,
+            output_fn,
+            McapOptions::default().decimation(outputs.decimation),
+        )?),
+        None => None,
+    };
+    let mut csv = match &outputs.csv {
+        Some(path) => Some(CsvSink::create(path, info, output_fn, outputs.decimation)?),
+        None => None,
+    };
+    let mut plot = match &outputs.plot {
+        Some(path) => Some(PlotSink::new(
+            path,
+            info,
+            output_fn,
+            &outputs.plot_vars,
+            outputs.decimation,
+        )?),
+        None => None,
+    };
+    let mut progress = Progress::new(
+        settings.horizon_t,
+        settings.horizon_j,
+        info.rule_names.len(),
+        outputs.progress,
+        interrupt_flag(),
+    );
+
+    let start = Instant::now();
+    let result = {
+        let mut sinks: Vec<&mut dyn ArcSink> = vec![&mut progress];
+        if let Some(s) = mcap.as_mut() {
+            sinks.push(s);
+        }
+        if let Some(s) = csv.as_mut() {
+            sinks.push(s);
+        }
+        if let Some(s) = plot.as_mut() {
+            sinks.push(s);
+        }
+        let mut fan = Fanout::new(sinks);
+        simulate(sys, x0, settings, rng, &mut fan)
+    };
+    let error = result.as_ref().err().cloned();
+    let wall = start.elapsed();
+    progress.clear();
+    let interrupted = progress.was_interrupted();
+
+    let mut outcome = outcome_of(&result, interrupted);
+    let mut written = Vec::new();
+    let mut first_error: Option<anyhow::Error> = None;
+    if let Some(sink) = mcap {
+        match sink.finish(&outcome) {
+            Ok(summary) => {
+                outcome = summary.outcome;
+                written.push(summary.path);
+            }
+            Err(e) => {
+                first_error.get_or_insert(e.into());
+            }
+        }
+    }
+    if let Some(sink) = csv {
+        match sink.finish() {
+            Ok(path) => written.push(path),
+            Err(e) => {
+                first_error.get_or_insert(e.into());
+            }
+        }
+    }
+    if let Some(sink) = plot {
+        match sink.finish() {
+            Ok(path) => written.push(path),
+            Err(e) => {
+                first_error.get_or_insert(e.into());
+            }
+        }
+    }
+    if let Some(e) = first_error {
+        return Err(e.context("the run's output could not be written"));
+    }
+    let report = Report {
+        outcome,
+        tally: progress.tally,
+        written,
+        wall,
+        interrupted,
+    };
+    Ok((report, error))
+}
+
+/// The one-line summary: final (t, j), jumps per rule, cause, wall time.
+pub fn summary_line(model: &str, report: &Report, rule_names: &[String]) -> String {
+    let end = match report.tally.end {
+        Some(at) => format!("(t = {}, j = {})", at.t, at.j),
+        None => "(no sample)".to_string(),
+    };
+    let jumps: Vec<String> = report
+        .tally
+        .jumps
+        .iter()
+        .enumerate()
+        .filter(|(_, n)| **n > 0)
+        .map(|(k, n)| format!("{} {n}", rule_name(rule_names, k)))
+        .collect();
+    let jumps = if jumps.is_empty() {
+        "none".to_string()
+    } else {
+        jumps.join(", ")
+    };
+    format!(
+        "{model}: ended at {end}; jumps: {jumps}; {}; {} samples; wall {:.3} s",
+        report.outcome.message,
+        report.tally.samples,
+        report.wall.as_secs_f64()
+    )
+}
+
+/// The exit code of a finished run.
+pub fn exit_code(report: &Report) -> u8 {
+    if report.interrupted {
+        EXIT_INTERRUPTED
+    } else if report.outcome.status == RunStatus::Failed {
+        EXIT_FAILED
+    } else {
+        EXIT_OK
+    }
+}
+
+/// Default MCAP path: the model's file name with `.mcap`, in the current directory.
+pub fn default_mcap_path(model: &Path) -> PathBuf {
+    let stem = model
+        .file_stem()
+        .map(|s| s.to_os_string())
+        .unwrap_or_else(|| "run".into());
+    PathBuf::from(stem).with_extension("mcap")
+}
+
+/// `hybsim run`.
+pub fn execute(args: RunArgs) -> anyhow::Result<u8> {
+    let Some((src, overrides)) = super::load(&args.model, &args.set)? else {
+        return Ok(EXIT_MODEL_ERROR);
+    };
+    let model = match lang::compile(&src, &overrides) {
+        Ok(model) => model,
+        Err(diags) => {
+            eprint!("{}", render(&diags, &src, stderr_is_terminal()));
+            return Ok(EXIT_MODEL_ERROR);
+        }
+    };
+    let settings = match settings_from_flags(model.settings(), &args) {
+        Ok(s) => s,
+        Err(message) => {
+            eprintln!("error: {message}");
+            return Ok(EXIT_MODEL_ERROR);
+        }
+    };
+    let seed = args.seed.unwrap_or(model.seed());
+    let info = RunInfo {
+        model_name: model.name().to_string(),
+        model_path: args.model.display().to_string(),
+        source: src.text().to_string(),
+        seed,
+        // The program's own path would make files depend on where it is installed.
+        argv: std::iter::once("hybsim".to_string())
+            .chain(std::env::args().skip(1))
+            .collect(),
+        overrides: overrides
+            .iter()
+            .map(|o| (o.name.clone(), o.value.clone()))
+            .collect(),
+        state_layout: model.state_layout().clone(),
+        state_dim: model.state_dim(),
+        output_layout: model.output_layout().clone(),
+        output_dim: model.output_dim(),
+        rule_names: model.rule_names(),
+        parameters: model.parameters_json(),
+        solver: settings_json(&settings),
+        design: None,
+    };
+    let outputs = Outputs {
+        mcap: if args.no_mcap {
+            None
+        } else {
+            Some(
+                args.output
+                    .clone()
+                    .unwrap_or_else(|| default_mcap_path(&args.model)),
+            )
+        },
+        csv: args.csv.clone(),
+        plot: args.plot.clone(),
+        plot_vars: args.plot_vars.clone(),
+        decimation: Decimation::all().every(args.log_every).dt(args.log_dt),
+        progress: !args.quiet,
+    };
+    let output_fn = |t: f64, x: &[f64], y: &mut [f64]| model.outputs(t, x, y);
+    let mut rng = SimRng::seed_from(seed);
+    let x0 = model.initial_state(&mut rng);
+    let (report, error) = simulate_to_files(
+        &model,
+        &x0,
+        &settings,
+        &mut rng,
+        &info,
+        Some(&output_fn),
+        &outputs,
+    )?;
+    if let Some(e) = &error {
+        eprint!(
+            "{}",
+            render(&[model.runtime_diagnostic(e)], &src, stderr_is_terminal())
+        );
+    }
+    println!("{}", summary_line(model.name(), &report, &info.rule_names));
+    for path in &report.written {
+        eprintln!("wrote {}", path.display());
+    }
+    Ok(exit_code(&report))
+}
+
+fn stderr_is_terminal() -> bool {
+    std::io::stderr().is_terminal()
+}
+
+#[cfg(test)]
+mod tests {
+    use hybsim::engine::models::BouncingBall;
+
+    use super::*;
+
+    fn ball_info() -> RunInfo {
+        let mut info = RunInfo::new("ball", &["h", "v"], &["impact"]);
+        info.solver = settings_json(&SimSettings::default());
+        info
+    }
+
+    #[test]
+    fn engine_runs_land_in_all_files() {
+        let dir = tempfile::tempdir().unwrap();
+        let ball = BouncingBall::new(9.81, 0.8);
+        let settings = SimSettings::default().horizon_j(5);
+        let outputs = Outputs {
+            mcap: Some(dir.path().join("b.mcap")),
+            csv: Some(dir.path().join("b.csv")),
+            plot: Some(dir.path().join("b.svg")),
+            ..Outputs::default()
+        };
+        let info = ball_info();
+        let (report, error) = simulate_to_files(
+            &ball,
+            &[1.0, 0.0],
+            &settings,
+            &mut SimRng::seed_from(1),
+            &info,
+            None,
+            &outputs,
+        )
+        .unwrap();
+        assert!(error.is_none());
+        assert_eq!(report.outcome.cause, "horizon_j");
+        assert_eq!(report.outcome.status, RunStatus::Completed);
+        assert_eq!(report.tally.jumps, [5]);
+        assert_eq!(report.written.len(), 3);
+        assert_eq!(exit_code(&report), EXIT_OK);
+        let line = summary_line("ball", &report, &info.rule_names);
+        assert!(
+            line.contains("j = 5") && line.contains("impact 5"),
+            "{line}"
+        );
+        for f in &report.written {
+            assert!(f.exists());
+        }
+    }
+}

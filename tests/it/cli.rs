@@ -1,0 +1,231 @@
+//! The `hybsim` binary: exit codes and files (values are read back from the
+//! files; the library tests cover the rest).
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+use serde_json::Value;
+
+const BIN: &str = env!("CARGO_BIN_EXE_hybsim");
+
+fn ball_model() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("models/bouncing_ball.hyb")
+}
+
+fn hybsim(dir: &Path, args: &[&str]) -> Output {
+    Command::new(BIN)
+        .args(args)
+        .current_dir(dir)
+        .output()
+        .expect("the binary runs")
+}
+
+fn code(out: &Output) -> i32 {
+    out.status.code().expect("exited normally")
+}
+
+fn stderr(out: &Output) -> String {
+    String::from_utf8_lossy(&out.stderr).into_owned()
+}
+
+fn write(dir: &Path, name: &str, text: &str) -> PathBuf {
+    let path = dir.join(name);
+    std::fs::write(&path, text).unwrap();
+    path
+}
+
+#[test]
+fn help_and_usage_errors() {
+    let dir = tempfile::tempdir().unwrap();
+    let help = hybsim(dir.path(), &["--help"]);
+    assert_eq!(code(&help), 0);
+    let text = String::from_utf8_lossy(&help.stdout);
+    assert!(
+        text.contains("Examples:") && text.contains("Exit codes:"),
+        "{text}"
+    );
+    let run_help = hybsim(dir.path(), &["run", "--help"]);
+    assert_eq!(code(&run_help), 0);
+    assert!(String::from_utf8_lossy(&run_help.stdout).contains("--log-every"));
+    assert_eq!(code(&hybsim(dir.path(), &["run"])), 2);
+    assert_eq!(code(&hybsim(dir.path(), &["frobnicate"])), 2);
+    assert_eq!(code(&hybsim(dir.path(), &["run", "missing.hyb"])), 2);
+}
+
+#[test]
+fn run_writes_mcap_csv_and_svg_and_prints_a_summary() {
+    let dir = tempfile::tempdir().unwrap();
+    let model = ball_model();
+    let out = hybsim(
+        dir.path(),
+        &[
+            "run",
+            model.to_str().unwrap(),
+            "--csv",
+            "ball.csv",
+            "--plot",
+            "ball.svg",
+            "--dt-out",
+            "0.01",
+            "--J",
+            "5",
+        ],
+    );
+    assert_eq!(code(&out), 0, "{}", stderr(&out));
+    let summary = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        summary.starts_with("bouncing_ball: ended at (t = ") && summary.contains("j = 5)"),
+        "{summary}"
+    );
+    assert!(
+        summary.contains("jumps: impact 5") && summary.contains("wall"),
+        "{summary}"
+    );
+    // Default MCAP name: the model's, in the current directory.
+    for f in ["bouncing_ball.mcap", "ball.csv", "ball.svg"] {
+        assert!(dir.path().join(f).exists(), "{f} missing");
+        assert!(!dir.path().join(format!("{f}.tmp")).exists());
+    }
+
+    // Impact times in the file against the closed form (g = 9.81, λ = 0.8, h0 = 1).
+    let bytes = std::fs::read(dir.path().join("bouncing_ball.mcap")).unwrap();
+    let mut impacts = Vec::new();
+    for m in mcap::MessageStream::new(&bytes).unwrap() {
+        let m = m.unwrap();
+        if m.channel.topic == "/hybsim/jumps" {
+            let body: Value = serde_json::from_slice(&m.data).unwrap();
+            impacts.push(body["t"].as_f64().unwrap());
+        }
+    }
+    let (g, lambda) = (9.81_f64, 0.8_f64);
+    let mut t = (2.0 / g).sqrt();
+    let v0 = (2.0 * g).sqrt();
+    assert_eq!(impacts.len(), 5);
+    for (k, tk) in impacts.iter().enumerate() {
+        assert!((tk - t).abs() < 1e-9, "impact {k}: {tk} vs {t}");
+        t += 2.0 * lambda.powi(k as i32 + 1) * v0 / g;
+    }
+}
+
+#[test]
+fn same_seed_same_bytes_and_overrides_are_recorded() {
+    let dir = tempfile::tempdir().unwrap();
+    let model = ball_model();
+    let args = [
+        "run",
+        model.to_str().unwrap(),
+        "-o",
+        "a.mcap",
+        "--seed",
+        "11",
+        "--set",
+        "lambda=0.5",
+    ];
+    assert_eq!(code(&hybsim(dir.path(), &args)), 0);
+    let first = std::fs::read(dir.path().join("a.mcap")).unwrap();
+    assert_eq!(code(&hybsim(dir.path(), &args)), 0);
+    let second = std::fs::read(dir.path().join("a.mcap")).unwrap();
+    assert!(first == second, "same seed and command, different bytes");
+
+    let summary = mcap::read::Summary::read(&first).unwrap().unwrap();
+    let meta: std::collections::BTreeMap<String, _> = summary
+        .metadata_indexes
+        .iter()
+        .map(|i| {
+            let m = mcap::read::metadata(&first, i).unwrap();
+            (m.name, m.metadata)
+        })
+        .collect();
+    assert_eq!(meta["hybsim.run"]["seed"], "11");
+    assert_eq!(meta["hybsim.parameters"]["lambda"], "0.5");
+    assert!(meta["hybsim.run"]["argv"].contains("lambda=0.5"));
+    let source = std::fs::read_to_string(&model).unwrap();
+    let attached = summary
+        .attachment_indexes
+        .iter()
+        .map(|i| mcap::read::attachment(&first, i).unwrap())
+        .find(|a| a.name == "bouncing_ball.hyb")
+        .unwrap();
+    assert_eq!(attached.data.as_ref(), source.as_bytes());
+}
+
+#[test]
+fn model_errors_exit_2_with_located_diagnostics() {
+    let dir = tempfile::tempdir().unwrap();
+    let bad = write(
+        dir.path(),
+        "bad.hyb",
+        "model bad\nstate x = 1\nflow { x' = y }\n",
+    );
+    for sub in ["check", "run"] {
+        let out = hybsim(dir.path(), &[sub, bad.to_str().unwrap()]);
+        assert_eq!(code(&out), 2, "{sub}");
+        let err = stderr(&out);
+        assert!(err.contains("bad.hyb:3:13"), "{sub}: {err}");
+    }
+    assert!(!dir.path().join("bad.mcap").exists());
+
+    let model = ball_model();
+    let ok = hybsim(dir.path(), &["check", model.to_str().unwrap()]);
+    assert_eq!(code(&ok), 0, "{}", stderr(&ok));
+    let unknown = hybsim(
+        dir.path(),
+        &["run", model.to_str().unwrap(), "--set", "nosuch=1"],
+    );
+    assert_eq!(code(&unknown), 2);
+    let malformed = hybsim(
+        dir.path(),
+        &["run", model.to_str().unwrap(), "--set", "lambda=*"],
+    );
+    assert_eq!(code(&malformed), 2);
+    let inconsistent = hybsim(
+        dir.path(),
+        &["run", model.to_str().unwrap(), "--solver", "rk4"],
+    );
+    assert_eq!(code(&inconsistent), 2);
+    assert!(stderr(&inconsistent).contains("--step"));
+}
+
+#[test]
+fn failed_runs_exit_1_and_still_leave_a_complete_file() {
+    let dir = tempfile::tempdir().unwrap();
+    // ẋ = x², x(0) = 1 blows up at t = 1.
+    let model = write(
+        dir.path(),
+        "blowup.hyb",
+        "model blowup\nstate x = 1\nflow { x' = x^2 }\nsim { T = 2 }\n",
+    );
+    let out = hybsim(
+        dir.path(),
+        &[
+            "run",
+            model.to_str().unwrap(),
+            "--no-mcap",
+            "--csv",
+            "b.csv",
+        ],
+    );
+    assert_eq!(code(&out), 1, "{}", stderr(&out));
+    assert!(dir.path().join("b.csv").exists());
+    assert!(!dir.path().join("blowup.mcap").exists());
+
+    let out = hybsim(
+        dir.path(),
+        &["run", model.to_str().unwrap(), "-o", "b.mcap"],
+    );
+    assert_eq!(code(&out), 1);
+    let bytes = std::fs::read(dir.path().join("b.mcap")).unwrap();
+    let summary = mcap::read::Summary::read(&bytes).unwrap().unwrap();
+    let result = summary
+        .metadata_indexes
+        .iter()
+        .map(|i| mcap::read::metadata(&bytes, i).unwrap())
+        .find(|m| m.name == "hybsim.result")
+        .unwrap();
+    assert_eq!(result.metadata["status"], "failed");
+    let t_end: f64 = result.metadata["t_end"].parse().unwrap();
+    assert!(
+        (t_end - 1.0).abs() < 1e-3,
+        "blow-up near t = 1, stopped at {t_end}"
+    );
+}
