@@ -52,7 +52,6 @@ pub struct Cli {
 /// The subcommands.
 #[derive(Debug, Subcommand)]
 #[allow(clippy::large_enum_variant)] // built once per process
-
 pub enum Command {
     /// Simulate a model and log the solution (MCAP by default; CSV and SVG on request).
     #[command(after_help = EXAMPLES)]
