@@ -364,9 +364,7 @@ pub fn sync(table: &Table, path: &Path, mode: SyncMode) -> Result<SyncOutcome, R
                     (format!("{text}{sep}{fresh}"), SyncOutcome::Appended)
                 }
             };
-            let tmp = path.with_extension("md.tmp");
-            std::fs::write(&tmp, new_text).map_err(io)?;
-            std::fs::rename(&tmp, path).map_err(io)?;
+            crate::atomic_file::write(path, new_text.as_bytes()).map_err(io)?;
             Ok(outcome)
         }
     }

@@ -530,44 +530,22 @@ impl Flows {
                 y0: &self.y_prev,
                 y1: &self.f_cur,
             };
-            if watch
-                && let Some((se, kind)) = self.watcher.scan(sys, t0, &mut path, s, s1, &self.f_cur)
-            {
-                self.y_end.copy_from_slice(&self.watcher.event_state);
-                if out
-                    .step(t0, j, &mut path, s, s1, &self.f_cur, se)
-                    .is_break()
-                {
-                    return Ok(SegmentEnd {
-                        s: se,
-                        why: EndWhy::Stopped,
-                    });
-                }
-                return Ok(SegmentEnd {
-                    s: se,
-                    why: EndWhy::Event(kind),
-                });
-            }
-            let limit = if last { d_end } else { f64::INFINITY };
-            if out
-                .step(t0, j, &mut path, s, s1, &self.f_cur, limit)
-                .is_break()
-            {
-                self.y_end.copy_from_slice(&self.f_cur);
-                return Ok(SegmentEnd {
-                    s: s1,
-                    why: EndWhy::Stopped,
-                });
+            let reach = last.then_some(EndWhy::Reached);
+            if let Some(end) = close_step(
+                sys,
+                &mut self.watcher,
+                &mut self.y_end,
+                out,
+                &mut path,
+                (t0, j),
+                (s, s1),
+                &self.f_cur,
+                reach,
+            ) {
+                return Ok(end);
             }
             std::mem::swap(&mut self.y_prev, &mut self.f_cur);
             s = s1;
-            if last {
-                self.y_end.copy_from_slice(&self.y_prev);
-                return Ok(SegmentEnd {
-                    s: d_end,
-                    why: EndWhy::Reached,
-                });
-            }
         }
     }
 
@@ -583,7 +561,6 @@ impl Flows {
         d_end: f64,
     ) -> Result<SegmentEnd, SimError> {
         let m = self.noise_dw.len();
-        let watch = !self.watcher.is_empty();
         let mut s = 0.0;
         let mut y1 = std::mem::take(&mut self.f_cur);
         let result = loop {
@@ -618,40 +595,68 @@ impl Flows {
                 y0: &self.y_prev,
                 y1: &y1,
             };
-            if watch && let Some((se, kind)) = self.watcher.scan(sys, t0, &mut path, s, s1, &y1) {
-                self.y_end.copy_from_slice(&self.watcher.event_state);
-                if out.step(t0, j, &mut path, s, s1, &y1, se).is_break() {
-                    break Ok(SegmentEnd {
-                        s: se,
-                        why: EndWhy::Stopped,
-                    });
-                }
-                break Ok(SegmentEnd {
-                    s: se,
-                    why: EndWhy::Event(kind),
-                });
-            }
-            let limit = if last { d_end } else { f64::INFINITY };
-            if out.step(t0, j, &mut path, s, s1, &y1, limit).is_break() {
-                self.y_end.copy_from_slice(&y1);
-                break Ok(SegmentEnd {
-                    s: s1,
-                    why: EndWhy::Stopped,
-                });
+            let reach = last.then_some(EndWhy::Reached);
+            if let Some(end) = close_step(
+                sys,
+                &mut self.watcher,
+                &mut self.y_end,
+                out,
+                &mut path,
+                (t0, j),
+                (s, s1),
+                &y1,
+                reach,
+            ) {
+                break Ok(end);
             }
             std::mem::swap(&mut self.y_prev, &mut y1);
             s = s1;
-            if last {
-                self.y_end.copy_from_slice(&self.y_prev);
-                break Ok(SegmentEnd {
-                    s: d_end,
-                    why: EndWhy::Reached,
-                });
-            }
         };
         self.f_cur = y1;
         result
     }
+}
+
+/// The end of one accepted step over `[s0, s1]`, shared by the three
+/// methods: localize the first guard event on `path` (the state on the
+/// step), emit output up to the event or the step end, and say whether the
+/// segment ends here. `reach` is `Some(why)` when `s1` is the segment's
+/// last point. On an end, `y_end` holds the state where the segment ends.
+#[allow(clippy::too_many_arguments)]
+fn close_step<S: HybridSystem + ?Sized, P: StepPath>(
+    sys: &S,
+    watcher: &mut Watcher,
+    y_end: &mut [f64],
+    out: &mut Output<'_>,
+    path: &mut P,
+    (t0, j): (f64, u64),
+    (s0, s1): (f64, f64),
+    y1: &[f64],
+    reach: Option<EndWhy>,
+) -> Option<SegmentEnd> {
+    if !watcher.is_empty()
+        && let Some((se, kind)) = watcher.scan(sys, t0, path, s0, s1, y1)
+    {
+        y_end.copy_from_slice(&watcher.event_state);
+        let why = if out.step(t0, j, path, s0, s1, y1, se).is_break() {
+            EndWhy::Stopped
+        } else {
+            EndWhy::Event(kind)
+        };
+        return Some(SegmentEnd { s: se, why });
+    }
+    let limit = if reach.is_some() { s1 } else { f64::INFINITY };
+    if out.step(t0, j, path, s0, s1, y1, limit).is_break() {
+        y_end.copy_from_slice(y1);
+        return Some(SegmentEnd {
+            s: s1,
+            why: EndWhy::Stopped,
+        });
+    }
+    reach.map(|why| {
+        y_end.copy_from_slice(y1);
+        SegmentEnd { s: s1, why }
+    })
 }
 
 /// The `ode_solvers::System` seen by the steppers: the flow map in local
@@ -701,39 +706,19 @@ impl<S: HybridSystem + ?Sized> Stepper<'_, '_, S> {
             y1: y,
             f1: &fl.f_cur,
         };
-        if !fl.watcher.is_empty()
-            && let Some((se, kind)) =
-                fl.watcher
-                    .scan(self.sys, self.t0, &mut path, self.s_prev, s1, y)
-        {
-            fl.y_end.copy_from_slice(&fl.watcher.event_state);
-            let why = if self
-                .out
-                .step(self.t0, self.j, &mut path, self.s_prev, s1, y, se)
-                .is_break()
-            {
-                EndWhy::Stopped
-            } else {
-                EndWhy::Event(kind)
-            };
-            return self.finish(Ok(SegmentEnd { s: se, why }));
-        }
-        let limit = if last { s1 } else { f64::INFINITY };
-        if self
-            .out
-            .step(self.t0, self.j, &mut path, self.s_prev, s1, y, limit)
-            .is_break()
-        {
-            fl.y_end.copy_from_slice(y);
-            return self.finish(Ok(SegmentEnd {
-                s: s1,
-                why: EndWhy::Stopped,
-            }));
-        }
-        if last {
-            fl.y_end.copy_from_slice(y);
-            let why = self.reach_why;
-            return self.finish(Ok(SegmentEnd { s: s1, why }));
+        let reach = last.then_some(self.reach_why);
+        if let Some(end) = close_step(
+            self.sys,
+            &mut fl.watcher,
+            &mut fl.y_end,
+            self.out,
+            &mut path,
+            (self.t0, self.j),
+            (self.s_prev, s1),
+            y,
+            reach,
+        ) {
+            return self.finish(Ok(end));
         }
         if s1 - self.s_prev > 0.0 {
             fl.last_h = s1 - self.s_prev;

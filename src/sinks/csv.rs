@@ -5,13 +5,15 @@
 //! round-trip form, so reading a file back gives the exact values.
 
 use std::fmt::Write as _;
-use std::fs::File;
 use std::io::BufWriter;
 use std::ops::ControlFlow;
 use std::path::{Path, PathBuf};
 
-use super::{Decimation, Decimator, OutputFn, RunInfo, SinkError, Tally, commit_file, temp_path};
+use tempfile::NamedTempFile;
+
+use super::{Decimation, Decimator, OutputFn, RunInfo, SinkError, Tally};
 use crate::arc::{ArcSink, HybridTime, SampleKind};
+use crate::atomic_file;
 
 /// Column names of the fixed leading columns.
 pub const FIXED_COLUMNS: [&str; 3] = ["t", "j", "kind"];
@@ -27,12 +29,11 @@ pub fn kind_name(kind: SampleKind) -> &'static str {
     }
 }
 
-/// Writes logged samples as CSV rows to `<path>.tmp`, renamed to `path` by
-/// [`finish`](Self::finish).
+/// Writes logged samples as CSV rows to a temporary file, renamed to `path`
+/// by [`finish`](Self::finish); dropped unfinished, it leaves no file.
 pub struct CsvSink<'a> {
     path: PathBuf,
-    tmp: PathBuf,
-    writer: Option<::csv::Writer<BufWriter<File>>>,
+    writer: Option<::csv::Writer<BufWriter<NamedTempFile>>>,
     outputs: Option<OutputFn<'a>>,
     decimator: Decimator,
     tally: Tally,
@@ -42,7 +43,7 @@ pub struct CsvSink<'a> {
 }
 
 impl<'a> CsvSink<'a> {
-    /// Creates `<path>.tmp` and writes the header. Output columns are
+    /// Creates the temporary file and writes the header. Output columns are
     /// written if `info.output_dim > 0` and `outputs` is given.
     pub fn create(
         path: impl AsRef<Path>,
@@ -54,8 +55,7 @@ impl<'a> CsvSink<'a> {
         info.validate()?;
         decimation.validate()?;
         let outputs = outputs.filter(|_| info.output_dim > 0);
-        let tmp = temp_path(&path);
-        let file = File::create(&tmp).map_err(|e| SinkError::io(&tmp, e))?;
+        let file = atomic_file::create(&path).map_err(|e| SinkError::io(&path, e))?;
         let mut writer = ::csv::Writer::from_writer(BufWriter::new(file));
         let mut header: Vec<String> = FIXED_COLUMNS.iter().map(|s| s.to_string()).collect();
         header.extend(info.state_names());
@@ -65,12 +65,11 @@ impl<'a> CsvSink<'a> {
         writer
             .write_record(&header)
             .map_err(|source| SinkError::Csv {
-                path: tmp.clone(),
+                path: path.clone(),
                 source,
             })?;
         Ok(Self {
             path,
-            tmp,
             writer: Some(writer),
             y: vec![
                 0.0;
@@ -123,42 +122,21 @@ impl<'a> CsvSink<'a> {
 
     /// Flushes, syncs and renames the file into place.
     pub fn finish(mut self) -> Result<PathBuf, SinkError> {
-        let csv_err = |source| SinkError::Csv {
-            path: self.tmp.clone(),
-            source,
-        };
-        let result = match self.error.take() {
-            Some(e) => Err(e),
-            None => {
-                let writer = self.writer.take().expect("finish is called once");
-                writer
-                    .into_inner()
-                    .map_err(|e| csv_err(e.into_error().into()))
-                    .and_then(|buf| {
-                        buf.into_inner()
-                            .map_err(|e| SinkError::io(&self.tmp, e.into_error()))
-                    })
-                    .and_then(|file| commit_file(file, &self.tmp, &self.path))
-            }
-        };
-        match result {
-            Ok(()) => Ok(self.path.clone()),
-            Err(e) => {
-                self.writer = None;
-                let _ = std::fs::remove_file(&self.tmp);
-                Err(e)
-            }
+        if let Some(e) = self.error.take() {
+            return Err(e);
         }
-    }
-}
-
-impl Drop for CsvSink<'_> {
-    fn drop(&mut self) {
-        if self.writer.is_some() {
-            // Dropped without finish: remove the partial file.
-            self.writer = None;
-            let _ = std::fs::remove_file(&self.tmp);
-        }
+        let path = &self.path;
+        let writer = self.writer.take().expect("finish is called once");
+        let file = writer
+            .into_inner()
+            .map_err(|e| SinkError::Csv {
+                path: path.clone(),
+                source: e.into_error().into(),
+            })?
+            .into_inner()
+            .map_err(|e| SinkError::io(path, e.into_error()))?;
+        atomic_file::commit(file, path).map_err(|e| SinkError::io(path, e))?;
+        Ok(self.path)
     }
 }
 
@@ -175,7 +153,7 @@ impl ArcSink for CsvSink<'_> {
             Ok(()) => ControlFlow::Continue(()),
             Err(source) => {
                 self.error = Some(SinkError::Csv {
-                    path: self.tmp.clone(),
+                    path: self.path.clone(),
                     source,
                 });
                 ControlFlow::Break(())

@@ -26,7 +26,6 @@
 //! seed and command line give a byte-identical file.
 
 use std::collections::BTreeMap;
-use std::fs::File;
 use std::io::BufWriter;
 use std::ops::ControlFlow;
 use std::path::{Path, PathBuf};
@@ -35,16 +34,18 @@ use mcap::records::{MessageHeader, Metadata};
 use mcap::{Attachment, Compression, WriteOptions, Writer};
 use serde::Serialize;
 use serde_json::{Value, json};
+use tempfile::NamedTempFile;
 
 use super::json::{
     JumpRecordJson, LogLevel, LogRecord, LogTimestamp, SampleRecord, Values, jump_schema,
     log_schema, sample_schema,
 };
 use super::{
-    Decimation, Decimator, OutputFn, RunInfo, RunOutcome, RunStatus, SinkError, Tally, commit_file,
-    first_non_finite, rule_name, temp_path,
+    Decimation, Decimator, OutputFn, RunInfo, RunOutcome, RunStatus, SinkError, Tally,
+    first_non_finite, rule_name,
 };
 use crate::arc::{ArcSink, HybridTime, SampleKind};
+use crate::atomic_file;
 
 /// Topic of state samples.
 pub const STATE_TOPIC: &str = "/hybsim/state";
@@ -111,8 +112,7 @@ struct Channels {
 /// [`finish`](Self::finish): only then does the file appear at its path.
 pub struct McapSink<'a> {
     path: PathBuf,
-    tmp: PathBuf,
-    writer: Option<Writer<BufWriter<File>>>,
+    writer: Option<Writer<BufWriter<NamedTempFile>>>,
     info: &'a RunInfo,
     outputs: Option<OutputFn<'a>>,
     channels: Channels,
@@ -126,7 +126,6 @@ pub struct McapSink<'a> {
     error: Option<SinkError>,
     state_names: Vec<String>,
     output_names: Vec<String>,
-    finished: bool,
 }
 
 fn meta_entries<I, K>(entries: I) -> BTreeMap<String, String>
@@ -155,7 +154,7 @@ fn object_entries(v: &Value) -> BTreeMap<String, String> {
 }
 
 impl<'a> McapSink<'a> {
-    /// Creates `<path>.tmp` and writes the run's metadata, attachments,
+    /// Creates the temporary file and writes the run's metadata, attachments,
     /// schemas and channels. `outputs` evaluates the model's outputs for
     /// each logged sample (required if `info.output_dim > 0`).
     pub fn create(
@@ -173,10 +172,9 @@ impl<'a> McapSink<'a> {
                 message: "the model has outputs but no output function was given".into(),
             });
         }
-        let tmp = temp_path(&path);
-        let file = File::create(&tmp).map_err(|e| SinkError::io(&tmp, e))?;
+        let file = atomic_file::create(&path).map_err(|e| SinkError::io(&path, e))?;
         let mcap_err = |source| SinkError::Mcap {
-            path: tmp.clone(),
+            path: path.clone(),
             source,
         };
         let mut writer = WriteOptions::new()
@@ -299,7 +297,6 @@ impl<'a> McapSink<'a> {
 
         Ok(Self {
             path,
-            tmp,
             writer: Some(writer),
             info,
             outputs,
@@ -319,7 +316,6 @@ impl<'a> McapSink<'a> {
             error: None,
             state_names,
             output_names,
-            finished: false,
         })
     }
 
@@ -356,7 +352,7 @@ impl<'a> McapSink<'a> {
                 &self.buf,
             )
             .map_err(|source| SinkError::Mcap {
-                path: self.tmp.clone(),
+                path: self.path.clone(),
                 source,
             })
     }
@@ -554,9 +550,9 @@ impl<'a> McapSink<'a> {
             ("jumps_total", json!(self.tally.total_jumps().to_string())),
             ("samples", json!(self.tally.samples.to_string())),
         ]);
-        let tmp = self.tmp.clone();
+        let path = self.path.clone();
         let mcap_err = |source| SinkError::Mcap {
-            path: tmp.clone(),
+            path: path.clone(),
             source,
         };
         let mut writer = self.writer.take().expect("finish is called once");
@@ -570,9 +566,8 @@ impl<'a> McapSink<'a> {
         let file = writer
             .into_inner()
             .into_inner()
-            .map_err(|e| SinkError::io(&self.tmp, e.into_error()))?;
-        commit_file(file, &self.tmp, &self.path)?;
-        self.finished = true;
+            .map_err(|e| SinkError::io(&self.path, e.into_error()))?;
+        atomic_file::commit(file, &self.path).map_err(|e| SinkError::io(&self.path, e))?;
         let mut messages = BTreeMap::new();
         if let Some(stats) = &summary.stats {
             for (id, count) in &stats.channel_message_counts {
@@ -590,19 +585,8 @@ impl<'a> McapSink<'a> {
     }
 
     fn discard(&mut self) {
+        // Dropping the writer drops the temporary file, which removes it.
         self.writer = None;
-        let _ = std::fs::remove_file(&self.tmp);
-        self.finished = true;
-    }
-}
-
-impl Drop for McapSink<'_> {
-    fn drop(&mut self) {
-        if !self.finished {
-            // Not finished: never leave a half-written file behind.
-            self.writer = None;
-            let _ = std::fs::remove_file(&self.tmp);
-        }
     }
 }
 

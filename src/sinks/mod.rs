@@ -10,8 +10,9 @@
 //! The engine pushes every sample and jump; each sink decides what to keep
 //! through a [`Decimation`] that always keeps the initial, pre-jump,
 //! post-jump and final samples. [`Fanout`] forwards one run to several
-//! sinks. File sinks write to `<path>.tmp` and rename it into place only when
-//! their `finish` succeeds, so a file at `<path>` is always complete.
+//! sinks. File sinks write to a temporary file beside `<path>` and rename it
+//! into place only when their `finish` succeeds, so a file at `<path>` is
+//! always complete, and an unfinished sink leaves nothing behind.
 //!
 //! Sinks never write non-finite numbers: a sample with a NaN or infinite
 //! component stops the run ([`std::ops::ControlFlow::Break`]) and `finish`
@@ -537,20 +538,6 @@ pub fn replay(arc: &HybridArc, sink: &mut dyn ArcSink) -> ControlFlow<()> {
 /// Returns the first non-finite component of `x`, as (index, value).
 pub(crate) fn first_non_finite(x: &[f64]) -> Option<(usize, f64)> {
     x.iter().position(|v| !v.is_finite()).map(|k| (k, x[k]))
-}
-
-/// `<path>.tmp`, the file a sink writes before renaming it to `path`.
-pub(crate) fn temp_path(path: &Path) -> PathBuf {
-    let mut s = path.as_os_str().to_owned();
-    s.push(".tmp");
-    PathBuf::from(s)
-}
-
-/// Syncs `file` and renames `tmp` to `path`.
-pub(crate) fn commit_file(file: std::fs::File, tmp: &Path, path: &Path) -> Result<(), SinkError> {
-    file.sync_all().map_err(|e| SinkError::io(tmp, e))?;
-    drop(file);
-    std::fs::rename(tmp, path).map_err(|e| SinkError::io(path, e))
 }
 
 #[cfg(test)]

@@ -29,8 +29,9 @@ use plotters::coord::ranged1d::{AsRangedCoord, ValueFormatter};
 use plotters::element::DashedPathElement;
 use plotters::prelude::*;
 
-use super::{Decimation, Decimator, OutputFn, RunInfo, SinkError, entry_names, temp_path};
+use super::{Decimation, Decimator, OutputFn, RunInfo, SinkError, entry_names};
 use crate::arc::{ArcSink, HybridTime, SampleKind};
+use crate::atomic_file;
 use crate::layout::{Entry, Field, Layout, Shape};
 
 /// Colours of successive series (a colour-blind-friendly palette).
@@ -376,17 +377,15 @@ impl Figure {
         Ok(svg)
     }
 
-    /// Renders the figure to `path` (written to `<path>.tmp`, then renamed).
+    /// Renders the figure to `path` (through a temporary file, renamed when
+    /// complete).
     pub fn save(&self, path: impl AsRef<Path>) -> Result<(), SinkError> {
         let path = path.as_ref();
         let svg = self.to_svg_string().map_err(|e| SinkError::Plot {
             path: path.to_path_buf(),
             message: e.0,
         })?;
-        let tmp = temp_path(path);
-        std::fs::write(&tmp, svg).map_err(|e| SinkError::io(&tmp, e))?;
-        let file = std::fs::File::open(&tmp).map_err(|e| SinkError::io(&tmp, e))?;
-        super::commit_file(file, &tmp, path)
+        atomic_file::write(path, svg.as_bytes()).map_err(|e| SinkError::io(path, e))
     }
 }
 

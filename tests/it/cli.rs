@@ -6,6 +6,8 @@ use std::process::{Command, Output};
 
 use serde_json::Value;
 
+use crate::util::temp_files;
+
 const BIN: &str = env!("CARGO_BIN_EXE_hybsim");
 
 fn ball_model() -> PathBuf {
@@ -84,8 +86,8 @@ fn run_writes_mcap_csv_and_svg_and_prints_a_summary() {
     // Default MCAP name: the model's, in the current directory.
     for f in ["bouncing_ball.mcap", "ball.csv", "ball.svg"] {
         assert!(dir.path().join(f).exists(), "{f} missing");
-        assert!(!dir.path().join(format!("{f}.tmp")).exists());
     }
+    assert_eq!(temp_files(dir.path()), Vec::<String>::new());
 
     // Impact times in the file against the closed form (g = 9.81, λ = 0.8, h0 = 1).
     let bytes = std::fs::read(dir.path().join("bouncing_ball.mcap")).unwrap();

@@ -12,7 +12,7 @@ use hybsim::sinks::{Decimation, Fanout, RunInfo, RunOutcome, RunStatus, SinkErro
 use mcap::records::Record;
 use serde_json::{Value, json};
 
-use crate::util::{G, StopAfter, assert_conforms, ball_impacts, push_ball};
+use crate::util::{G, StopAfter, assert_conforms, ball_impacts, push_ball, temp_files};
 
 const SOURCE: &str = "model ball\nparam g = 9.81\nstate h = 1, v = 0\n";
 
@@ -317,7 +317,7 @@ fn mcap_same_input_gives_identical_bytes() {
     assert!(first.len() > 1000);
     assert!(first == second, "same run, different bytes");
     // No temporary file is left behind.
-    assert!(!a.path().join("x.mcap.tmp").exists());
+    assert_eq!(temp_files(a.path()), Vec::<String>::new());
 }
 
 #[test]
@@ -427,10 +427,14 @@ fn unfinished_sinks_leave_no_file() {
         let mut sink =
             McapSink::create(&path, &info, Some(&energy), McapOptions::default()).unwrap();
         push_ball(&mut sink, 1.0, 2, 0.01);
-        assert!(dir.path().join("gone.mcap.tmp").exists());
+        let partial = temp_files(dir.path());
+        assert!(
+            partial.len() == 1 && partial[0].starts_with(".gone.mcap."),
+            "{partial:?}"
+        );
     }
     assert!(!path.exists());
-    assert!(!dir.path().join("gone.mcap.tmp").exists());
+    assert_eq!(temp_files(dir.path()), Vec::<String>::new());
 }
 
 #[test]
@@ -536,7 +540,7 @@ fn csv_round_trips_exact_values() {
     assert_eq!(kinds.iter().filter(|k| **k == "post_jump").count(), 3);
     assert_eq!(kinds.first(), Some(&"initial"));
     assert_eq!(kinds.last(), Some(&"final"));
-    assert!(!dir.path().join("ball.csv.tmp").exists());
+    assert_eq!(temp_files(dir.path()), Vec::<String>::new());
 }
 
 #[derive(Default)]

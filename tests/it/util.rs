@@ -135,3 +135,18 @@ pub fn assert_conforms(v: &Value, s: &Value, path: &str) {
         }
     }
 }
+
+/// Files in `dir` whose names end in `.tmp`: what an unfinished or failed
+/// write would leave behind (the sinks' temporary files are `.NAME.XXXXXX.tmp`).
+pub fn temp_files(dir: &std::path::Path) -> Vec<String> {
+    std::fs::read_dir(dir)
+        .expect("a readable directory")
+        .map(|e| {
+            e.expect("a directory entry")
+                .file_name()
+                .to_string_lossy()
+                .into_owned()
+        })
+        .filter(|n| n.ends_with(".tmp"))
+        .collect()
+}
