@@ -3,7 +3,7 @@
 //! ```
 //! use hybsim::lang;
 //! use hybsim::source::SourceFile;
-//! use hybsim::engine::{simulate_arc, SimRng};
+//! use hybsim::engine::simulate_arc;
 //!
 //! let src = SourceFile::new("ball.hyb", "model ball
 //! param g = 9.81, lambda = 0.8
@@ -13,8 +13,7 @@
 //! sim { T = 1 }
 //! ");
 //! let model = lang::compile(&src, &[]).expect("a valid model");
-//! let mut rng = SimRng::seed_from(model.seed());
-//! let x0 = model.initial_state(&mut rng);
+//! let (x0, mut rng) = model.start(model.seed());
 //! let arc = simulate_arc(&model, &x0, &model.settings(), &mut rng).unwrap();
 //! let t1 = (2.0_f64 / 9.81).sqrt();
 //! assert!((arc.jumps()[0].at.t - t1).abs() < 1e-9);

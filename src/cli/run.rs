@@ -484,8 +484,7 @@ pub fn execute(args: RunArgs) -> anyhow::Result<u8> {
         progress: !args.quiet,
     };
     let output_fn = |t: f64, x: &[f64], y: &mut [f64]| model.outputs(t, x, y);
-    let mut rng = SimRng::seed_from(seed);
-    let x0 = model.initial_state(&mut rng);
+    let (x0, mut rng) = model.start(seed);
     let (report, error) = simulate_to_files(
         &model,
         &x0,

@@ -13,6 +13,7 @@
 //! path (flow map, guards) neither allocates nor looks anything up by name.
 
 mod analysis;
+mod inputs;
 mod program;
 #[cfg(test)]
 mod tests;
@@ -86,6 +87,7 @@ pub struct CompiledModel {
     settings: SimSettings,
     seed: u64,
     params: Vec<(String, (usize, usize), Vec<f64>)>,
+    inputs: Vec<crate::props::Input>,
 }
 
 fn shape(rows: usize, cols: usize) -> Shape {
@@ -217,6 +219,7 @@ impl CompiledModel {
                 .collect(),
         };
         let names = state_layout.flat_names(m.dim);
+        let inputs = inputs::random_inputs(&m);
         CompiledModel {
             name: m.name,
             source,
@@ -240,6 +243,7 @@ impl CompiledModel {
             settings: m.settings,
             seed: m.seed,
             params: m.params,
+            inputs,
         }
     }
 
@@ -303,7 +307,26 @@ impl CompiledModel {
         self.flow.len()
     }
 
-    /// Draws an initial state (random initial values use `rng`).
+    /// The scalar states whose initial value is a draw `uniform(lo, hi)` or
+    /// `normal(mean, std)` (constant arguments), in declaration order: the
+    /// inputs `hybsim test` samples and `--set name=value` pins.
+    pub fn random_inputs(&self) -> &[crate::props::Input] {
+        &self.inputs
+    }
+
+    /// How every run of the model starts (`hybsim run`, `hybsim test`):
+    /// the initial state, its random values drawn from
+    /// [`props::input_stream(seed)`](crate::props::input_stream), and the
+    /// run's own generator `SimRng::seed_from(seed)` for everything drawn
+    /// later (resets, noise, random priority). The two streams are separate,
+    /// so pinning an initial value with `--set` changes no later draw.
+    pub fn start(&self, seed: u64) -> (Vec<f64>, SimRng) {
+        let x0 = self.initial_state(&mut crate::props::input_stream(seed));
+        (x0, SimRng::seed_from(seed))
+    }
+
+    /// Draws an initial state (random initial values use `rng`); runs use
+    /// [`start`](Self::start).
     pub fn initial_state(&self, rng: &mut SimRng) -> Vec<f64> {
         let mut x0 = vec![0.0; self.frame.n];
         let zero = vec![0.0; self.frame.n];

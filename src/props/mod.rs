@@ -59,6 +59,7 @@
 //! assert!(cx.case.values[0] > 1.5 && cx.case.values[0] < 1.5 + 1e-9);
 //! ```
 
+mod model;
 mod monitor;
 mod property;
 mod report;
@@ -68,6 +69,7 @@ pub mod strategy;
 #[cfg(test)]
 mod tests;
 
+pub use model::{ModelRunError, ModelSubject};
 pub use monitor::{Conclusion, PropertySink, Verdict, Violation, ViolationDetail, check_arc};
 pub use property::{
     JumpPredicate, JumpView, Monotonicity, Property, ScalarFn, Scope, StatePredicate,
@@ -75,5 +77,5 @@ pub use property::{
 pub use report::replay_args;
 pub use runner::{
     Case, Counterexample, Dist, Input, Outcome, Subject, SystemSubject, TestConfig, TestReport,
-    run_case, run_tests, sample_case, shrink,
+    input_stream, run_case, run_tests, sample_case, shrink,
 };

@@ -233,6 +233,16 @@ fn splitmix64(mut z: u64) -> u64 {
     z ^ (z >> 31)
 }
 
+/// The generator of the initial draws of a run with seed `seed`, separate
+/// from the run's own stream `SimRng::seed_from(seed)`: pinning an initial
+/// value (`--set h=1.5`) then leaves every later draw of the run unchanged.
+/// [`sample_case`] draws a case's inputs from it, and so does
+/// [`CompiledModel::start`](crate::lang::CompiledModel::start) for the
+/// random initial values of a `.hyb` model.
+pub fn input_stream(seed: u64) -> SimRng {
+    SimRng::seed_from(splitmix64(seed))
+}
+
 /// Case number `index` of a test with master seed `master`: its run seed
 /// is `splitmix64(master + index)`, its input values are drawn from a
 /// generator seeded with `splitmix64(seed)` (a stream separate from the
@@ -240,7 +250,7 @@ fn splitmix64(mut z: u64) -> u64 {
 /// in which cases run.
 pub fn sample_case(inputs: &[Input], master: u64, index: u64) -> Case {
     let seed = splitmix64(master.wrapping_add(index));
-    let mut rng = SimRng::seed_from(splitmix64(seed));
+    let mut rng = input_stream(seed);
     Case {
         seed,
         values: inputs.iter().map(|i| i.dist.sample(&mut rng)).collect(),

@@ -2,7 +2,7 @@
 //! simulate with the engine.
 
 use hybsim::arc::HybridArc;
-use hybsim::engine::{HybridSystem, SimRng, simulate_arc};
+use hybsim::engine::{HybridSystem, simulate_arc};
 use hybsim::lang::{self, CompiledModel, Override};
 use hybsim::source::SourceFile;
 
@@ -20,8 +20,7 @@ pub fn load(name: &str, overrides: &[&str]) -> CompiledModel {
 }
 
 pub fn run(m: &CompiledModel) -> HybridArc {
-    let mut rng = SimRng::seed_from(m.seed());
-    let x0 = m.initial_state(&mut rng);
+    let (x0, mut rng) = m.start(m.seed());
     simulate_arc(m, &x0, &m.settings(), &mut rng).expect("simulation")
 }
 

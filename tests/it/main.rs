@@ -5,6 +5,7 @@ mod intermittent_estimation;
 mod lang;
 mod muehlebach;
 mod props;
+mod props_model;
 mod sinks;
 mod util;
 mod variance_trigger;
