@@ -1,6 +1,7 @@
 //! Integration tests, one binary, a module per area.
 
 mod cli;
+mod engine;
 mod intermittent_estimation;
 mod lang;
 mod muehlebach;

@@ -570,7 +570,7 @@ fn fanout_feeds_all_sinks_and_stops_when_one_asks() {
         Decimation::all(),
     )
     .unwrap();
-    let mut stop = StopAfter(50);
+    let mut stop = StopAfter::new(50);
     let pushed = {
         let mut fan = Fanout::new(vec![&mut csv, &mut plot, &mut stop]);
         push_ball(&mut fan, 1.0, 10, 0.01)

@@ -2,7 +2,8 @@
 
 use std::ops::ControlFlow;
 
-use hybsim::arc::{ArcSink, HybridTime, SampleKind};
+use hybsim::arc::{ArcSink, HybridTime, SampleKind, Termination};
+use hybsim::engine::models::BouncingBall;
 use serde_json::Value;
 
 /// Gravity and restitution of the test ball.
@@ -10,17 +11,13 @@ pub const G: f64 = 9.81;
 /// Restitution coefficient.
 pub const LAMBDA: f64 = 0.8;
 
-/// Closed-form impact times of a ball dropped from `h0` at rest.
+/// Closed-form impact times of the test ball dropped from `h0` at rest.
 pub fn ball_impacts(h0: f64, n: usize) -> Vec<f64> {
-    let mut t = (2.0 * h0 / G).sqrt();
-    let mut v = (2.0 * G * h0).sqrt();
-    let mut out = Vec::new();
-    for _ in 0..n {
-        out.push(t);
-        v *= LAMBDA;
-        t += 2.0 * v / G;
-    }
-    out
+    BouncingBall::new(G, LAMBDA)
+        .impacts(h0, n)
+        .into_iter()
+        .map(|(t, _)| t)
+        .collect()
 }
 
 /// Pushes the exact bouncing-ball arc (state h, v) with `n` impacts into
@@ -75,13 +72,29 @@ pub fn push_ball(sink: &mut dyn ArcSink, h0: f64, n: usize, dt: f64) -> usize {
     pushed
 }
 
-/// A sink that records nothing and stops after `n` samples.
-pub struct StopAfter(pub usize);
+/// A sink that records nothing but the termination, and stops after `left`
+/// samples.
+pub struct StopAfter {
+    /// Samples still to accept.
+    pub left: usize,
+    /// The termination the engine reported, once it has.
+    pub termination: Option<Termination>,
+}
+
+impl StopAfter {
+    /// Stops after `n` samples.
+    pub fn new(n: usize) -> Self {
+        Self {
+            left: n,
+            termination: None,
+        }
+    }
+}
 
 impl ArcSink for StopAfter {
     fn sample(&mut self, _: HybridTime, _: &[f64], _: SampleKind) -> ControlFlow<()> {
-        self.0 = self.0.saturating_sub(1);
-        if self.0 == 0 {
+        self.left = self.left.saturating_sub(1);
+        if self.left == 0 {
             ControlFlow::Break(())
         } else {
             ControlFlow::Continue(())
@@ -89,6 +102,9 @@ impl ArcSink for StopAfter {
     }
     fn jump(&mut self, _: HybridTime, _: usize, _: &[f64], _: &[f64]) -> ControlFlow<()> {
         ControlFlow::Continue(())
+    }
+    fn finish(&mut self, t: &Termination) {
+        self.termination = Some(t.clone());
     }
 }
 

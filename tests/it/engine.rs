@@ -314,9 +314,8 @@ mod invariants {
 
 mod semantics {
     use super::*;
-    use hybsim::arc::{ArcSink, HybridTime, Termination};
+    use hybsim::arc::HybridTime;
     use hybsim::engine::{GuardKind, JumpRule, SimError, simulate};
-    use std::ops::ControlFlow;
 
     /// `ẋ = rate`, C the whole space, one rule whose jump set is the thin
     /// band `|x - 0.5| ≤ 0.01`, reset to `x⁺ = 2`. Optional blow-up flow
@@ -514,28 +513,11 @@ mod semantics {
             (TerminationCause::HorizonJ, 3)
         );
 
-        struct StopAfter(usize, Option<Termination>);
-        impl ArcSink for StopAfter {
-            fn sample(&mut self, _: HybridTime, _: &[f64], _: SampleKind) -> ControlFlow<()> {
-                self.0 = self.0.saturating_sub(1);
-                if self.0 == 0 {
-                    ControlFlow::Break(())
-                } else {
-                    ControlFlow::Continue(())
-                }
-            }
-            fn jump(&mut self, _: HybridTime, _: usize, _: &[f64], _: &[f64]) -> ControlFlow<()> {
-                ControlFlow::Continue(())
-            }
-            fn finish(&mut self, t: &Termination) {
-                self.1 = Some(t.clone());
-            }
-        }
-        let mut sink = StopAfter(5, None);
+        let mut sink = crate::util::StopAfter::new(5);
         let s = SimSettings::default();
         let term = simulate(&ball, &[1.0, 0.0], &s, &mut SimRng::seed_from(0), &mut sink).unwrap();
         assert_eq!(term.cause, TerminationCause::StoppedBySink);
-        assert_eq!(sink.1, Some(term));
+        assert_eq!(sink.termination, Some(term));
     }
 
     #[test]
