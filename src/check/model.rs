@@ -775,15 +775,12 @@ impl ModelChecker<'_> {
         if let Some(set) = &f.set
             && let Some(node) = self.condition(set)
         {
-            if let Some((_, prev)) = self.flow_set {
-                self.c.err(CheckError::Duplicate {
-                    name: "flow set".into(),
-                    span: set.span,
-                    first: prev,
-                });
-            } else {
-                self.flow_set = Some((node, set.span));
-            }
+            // Several `in` clauses (e.g. one per family member): C is
+            // their intersection.
+            self.flow_set = Some(match self.flow_set {
+                Some((prev, span)) => (self.c.dag.bin(BinFn::And, prev, node), span),
+                None => (node, set.span),
+            });
         }
     }
 

@@ -4,6 +4,7 @@ mod cli;
 mod engine;
 mod intermittent_estimation;
 mod lang;
+mod models;
 mod muehlebach;
 mod props;
 mod props_model;
