@@ -26,7 +26,7 @@ use crate::diagnostics::Diagnostic;
 use crate::source::SourceFile;
 use crate::syntax;
 
-pub use crate::check::Override;
+pub use crate::check::{DesignReport, Override, SolveSummary};
 pub use crate::ir::CompiledModel;
 
 impl FromStr for Override {
@@ -71,4 +71,16 @@ pub fn check_only(src: &SourceFile, overrides: &[Override]) -> Vec<Diagnostic> {
             Err(errs) => errs.iter().map(|e| e.to_diagnostic()).collect(),
         },
     }
+}
+
+/// Runs the checks and the `design` blocks (`hybsim design`): the design
+/// reports in source order, or every diagnostic.
+pub fn design_only(
+    src: &SourceFile,
+    overrides: &[Override],
+) -> Result<Vec<DesignReport>, Vec<Diagnostic>> {
+    let model = syntax::parse_model(src.text()).map_err(|e| vec![e.to_diagnostic()])?;
+    check::check(&model, overrides)
+        .map(|m| m.designs)
+        .map_err(|errs| errs.iter().map(|e| e.to_diagnostic()).collect())
 }

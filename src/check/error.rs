@@ -224,6 +224,9 @@ pub enum CheckError {
         /// Where.
         span: Span,
     },
+    /// An error in a `design` block (E07xx).
+    #[error(transparent)]
+    Design(super::design::DesignError),
     /// An error inside a `--set name=value` override.
     #[error("in override `{name}={value}`: {message}")]
     Override {
@@ -261,6 +264,7 @@ impl CheckError {
             | BadSetting { span, .. }
             | Unsupported { span, .. }
             | Compute { span, .. } => *span,
+            Design(e) => e.span(),
             Override { .. } => Span::default(),
         }
     }
@@ -291,6 +295,7 @@ impl CheckError {
             BadSetting { .. } => "E0506",
             Unsupported { .. } => "E0507",
             Override { .. } => "E0508",
+            Design(e) => e.code(),
         }
     }
 
@@ -361,6 +366,7 @@ impl CheckError {
             BadSetting { span, .. } => d.primary(*span, "invalid value"),
             Unsupported { span, .. } => d.primary(*span, "not supported yet"),
             Override { .. } => d.help("fix the value given with --set"),
+            Design(e) => e.to_diagnostic(),
         }
     }
 }

@@ -230,6 +230,24 @@ impl Checker {
                     .map(|k| vec![k as i64 + 1])
                     .collect()
             }
+            IndexSet::Named(id) => {
+                match self.set_scopes.iter().rev().find(|(n, _)| *n == id.name) {
+                    Some((_, members)) => members.iter().map(|&i| vec![i]).collect(),
+                    None => {
+                        self.unknown(&id.name, id.span);
+                        return None;
+                    }
+                }
+            }
+            IndexSet::Subsets(_) => {
+                self.err(CheckError::Expected {
+                    expected: "`subsets(..)` only in `for S in subsets(..)` of a design block"
+                        .into(),
+                    found: "`subsets` here".into(),
+                    span: b.span,
+                });
+                return None;
+            }
             IndexSet::Edges(g) => {
                 let (n, a) = adjacency(self, g)?;
                 let mut out = Vec::new();
@@ -753,7 +771,7 @@ impl Checker {
 
     /// Resolves one index argument against a dimension of length `len`:
     /// the 0-based positions it selects.
-    fn selection(&mut self, a: &IndexArg, len: usize) -> Option<Vec<usize>> {
+    pub(crate) fn selection(&mut self, a: &IndexArg, len: usize) -> Option<Vec<usize>> {
         let check = |this: &mut Self, e: &Expr| -> Option<usize> {
             let i = this.const_int(e, "an index")?;
             if i < 1 || i as usize > len {

@@ -9,6 +9,7 @@
 //! which may refer to every state.
 
 pub mod dag;
+mod design;
 mod error;
 mod expr;
 mod model;
@@ -17,6 +18,7 @@ mod tests;
 
 use std::collections::{BTreeMap, HashMap};
 
+pub use design::{DesignError, DesignReport, SolveSummary};
 pub use error::{CheckError, Dims};
 pub use expr::Val;
 pub use model::{CheckedModel, CheckedRule, OutputField, Override, StateField};
@@ -75,6 +77,8 @@ pub(crate) struct Checker {
     pub(crate) errors: Vec<CheckError>,
     pub(crate) syms: HashMap<String, Sym>,
     pub(crate) scopes: Vec<(String, i64)>,
+    /// Sets bound by `for S in subsets(..)` in design blocks.
+    pub(crate) set_scopes: Vec<(String, Vec<i64>)>,
     pub(crate) fields: Vec<StateField>,
     pub(crate) block_spans: Vec<Span>,
 }

@@ -6,7 +6,7 @@ use std::collections::{BTreeMap, HashMap};
 use super::dag::{BinFn, Dag, Node, NodeId};
 use super::error::{CheckError, Dims};
 use super::expr::{CONST_CTX, Ctx, Val, dims_words, suggest};
-use super::{Checker, Sym};
+use super::{Checker, DesignReport, Sym};
 use crate::engine::{Priority, SimSettings, Solver};
 use crate::source::Span;
 use crate::syntax::ast::*;
@@ -102,6 +102,8 @@ pub struct CheckedModel {
     pub params: Vec<(String, Dims, Vec<f64>)>,
     /// Span of each block operation, by its origin index.
     pub block_spans: Vec<Span>,
+    /// The `design` blocks in order: solver figures and results.
+    pub designs: Vec<DesignReport>,
 }
 
 const FLOW_CTX: Ctx = Ctx {
@@ -162,6 +164,7 @@ struct ModelChecker<'o> {
     sim: Vec<(String, Expr, Span)>,
     params: Vec<(String, Dims, Vec<f64>)>,
     anonymous_every: usize,
+    designs: Vec<DesignReport>,
 }
 
 pub(crate) fn check_model(
@@ -174,6 +177,7 @@ pub(crate) fn check_model(
             errors: Vec::new(),
             syms: HashMap::new(),
             scopes: Vec::new(),
+            set_scopes: Vec::new(),
             fields: Vec::new(),
             block_spans: Vec::new(),
         },
@@ -189,6 +193,7 @@ pub(crate) fn check_model(
         sim: Vec::new(),
         params: Vec::new(),
         anonymous_every: 0,
+        designs: Vec::new(),
     };
     for it in &model.items {
         m.pass1(it);
@@ -233,6 +238,7 @@ pub(crate) fn check_model(
         seed,
         params: m.params,
         block_spans: m.c.block_spans,
+        designs: m.designs,
     })
 }
 
@@ -411,10 +417,7 @@ impl ModelChecker<'_> {
                     this.pass1(it);
                 }
             }),
-            Item::Design(d) => self.c.err(CheckError::Unsupported {
-                what: "`design` blocks".into(),
-                span: d.name.span,
-            }),
+            Item::Design(d) => self.design(d),
             Item::Flow(_) | Item::Jump(_) | Item::Output(_) | Item::Sim(_) => {}
         }
     }
@@ -519,6 +522,53 @@ impl ModelChecker<'_> {
         if let Some(display) = self.declare(&d.target, |_| Sym::Param { val: v, span }) {
             self.params.push((display, dims, vals));
         }
+    }
+
+    /// A `design` block: solved (unless `--set` gives every result), then its
+    /// results declared as parameters with the variables bound to their values.
+    fn design(&mut self, d: &DesignBlock) {
+        let mut targets: Vec<&Target> = Vec::new();
+        for s in &d.stmts {
+            match s {
+                DesignStmt::Param(defs) => targets.extend(defs.iter().map(|d| &d.target)),
+                DesignStmt::ParamTuple(t, _) => targets.extend(t.iter()),
+                _ => {}
+            }
+        }
+        let all_set = !targets.is_empty()
+            && targets
+                .iter()
+                .all(|t| self.overrides.contains_key(t.name.name.as_str()));
+        let Some(solved) = self.c.design_block(d, !all_set) else {
+            // Declare the results anyway (as 0) so that later uses do not cascade.
+            for t in targets {
+                let z = self.c.dag.konst(0.0);
+                let span = t.name.span;
+                self.declare(t, |_| Sym::Param {
+                    val: Val::scalar(z),
+                    span,
+                });
+            }
+            return;
+        };
+        self.c.bind_design_values(&solved.values);
+        let first = self.params.len();
+        for s in &d.stmts {
+            match s {
+                DesignStmt::Param(defs) => defs.iter().for_each(|p| self.param(p, false)),
+                DesignStmt::ParamTuple(t, v) => self.param_tuple(t, v),
+                _ => {}
+            }
+        }
+        for (name, _, _) in &solved.values {
+            self.c.syms.remove(name);
+        }
+        self.designs.push(DesignReport {
+            name: d.name.name.clone(),
+            span: d.name.span,
+            solve: solved.summary,
+            results: self.params[first..].to_vec(),
+        });
     }
 
     fn param_tuple(&mut self, targets: &[Target], value: &Expr) {

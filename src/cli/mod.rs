@@ -3,6 +3,7 @@
 //! `anyhow`, everything below is typed).
 
 mod check;
+mod design;
 mod progress;
 mod run;
 
@@ -33,6 +34,7 @@ Examples:
   hybsim run models/bouncing_ball.hyb --set lambda=0.5 --csv ball.csv --plot ball.svg
   hybsim run models/bouncing_ball.hyb --no-mcap --plot ball.svg --plot-vars h,v
   hybsim check models/bouncing_ball.hyb               check the model only
+  hybsim design models/platoon.hyb                    solve the design blocks, print the results
 
 Exit codes:
   0    success (a run ended: horizon reached, or an outcome such as Zeno suspected)
@@ -58,6 +60,8 @@ pub enum Command {
     Run(run::RunArgs),
     /// Parse and check a model without simulating it.
     Check(check::CheckArgs),
+    /// Solve the model's `design` blocks and print their reports and results.
+    Design(design::DesignArgs),
 }
 
 /// Parses `args` (including the program name), runs the subcommand, and
@@ -82,6 +86,7 @@ where
     let result = match cli.command {
         Command::Run(args) => run::execute(args),
         Command::Check(args) => check::execute(args),
+        Command::Design(args) => design::execute(args),
     };
     match result {
         Ok(code) => ExitCode::from(code),

@@ -465,8 +465,11 @@ pub fn execute(args: RunArgs) -> anyhow::Result<u8> {
         rule_names: model.rule_names(),
         parameters: model.parameters_json(),
         solver: settings_json(&settings),
-        design: None,
+        design: model.design_json(),
     };
+    for report in model.design_reports() {
+        eprintln!("{}", report.summary_line());
+    }
     let outputs = Outputs {
         mcap: if args.no_mcap {
             None

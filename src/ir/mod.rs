@@ -88,6 +88,7 @@ pub struct CompiledModel {
     seed: u64,
     params: Vec<(String, (usize, usize), Vec<f64>)>,
     inputs: Vec<crate::props::Input>,
+    designs: Vec<crate::check::DesignReport>,
 }
 
 fn shape(rows: usize, cols: usize) -> Shape {
@@ -244,6 +245,7 @@ impl CompiledModel {
             seed: m.seed,
             params: m.params,
             inputs,
+            designs: m.designs,
         }
     }
 
@@ -350,6 +352,25 @@ impl CompiledModel {
                 *o = regs[r as usize];
             }
         });
+    }
+
+    /// The `design` blocks' reports in source order (solver figures, results).
+    pub fn design_reports(&self) -> &[crate::check::DesignReport] {
+        &self.designs
+    }
+
+    /// The design reports as JSON, `{block name: report}` (the MCAP metadata
+    /// `hybsim.design`); `None` without `design` blocks.
+    pub fn design_json(&self) -> Option<serde_json::Value> {
+        if self.designs.is_empty() {
+            return None;
+        }
+        let blocks: serde_json::Map<String, serde_json::Value> = self
+            .designs
+            .iter()
+            .map(|d| (d.name.clone(), d.to_json()))
+            .collect();
+        Some(serde_json::Value::Object(blocks))
     }
 
     /// Resolved parameters as JSON: `{name: number | [..] | [[..], ..]}`.

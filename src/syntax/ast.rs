@@ -44,7 +44,7 @@ pub enum Item {
     Sim(Vec<Setting>),
     /// `for i in 1..N { items }`.
     For(Binder, Vec<Item>),
-    /// `design name { ... }` (reserved for the design layer).
+    /// `design name { ... }`: an LMI problem whose results become parameters.
     Design(DesignBlock),
 }
 
@@ -175,6 +175,10 @@ pub enum IndexSet {
     Out(Expr, Expr),
     /// `edges(G)`: pairs (i, k) with `G[i, k] != 0`.
     Edges(Expr),
+    /// `subsets(S)`: every subset of S, including ∅ and S (design loops only).
+    Subsets(Box<IndexSet>),
+    /// A set bound by `for S in subsets(..)`.
+    Named(Ident),
 }
 
 /// An index argument: `e`, `a:b` or `:`.
@@ -188,16 +192,9 @@ pub enum IndexArg {
     All(Span),
 }
 
-/// A reserved `design` block (issue 5).
-#[derive(Debug, Clone, PartialEq)]
-pub struct DesignBlock {
-    /// Its name.
-    pub name: Ident,
-    /// The body's text span.
-    pub body: Span,
-    /// The whole block.
-    pub span: Span,
-}
+pub use super::design::{
+    Constraint, DesignBlock, DesignStmt, LmiSide, Rel, Sense, VarDecl, VarShape,
+};
 
 /// An expression.
 #[derive(Debug, Clone, PartialEq)]

@@ -169,6 +169,20 @@ fn describe(rule: Rule) -> Option<&'static str> {
         Rule::set | Rule::set_range | Rule::set_in | Rule::set_out | Rule::set_edges => {
             "an index set (`1..N`, `in(G, i)`, `out(G, i)`, `edges(G)`)"
         }
+        // --- design ---
+        Rule::set_subsets | Rule::set_named => "an index set (`1..N`, `subsets(1..N)`, `S`)",
+        Rule::design_var | Rule::var_kind => {
+            "a decision variable (`sym P[n]`, `full U[n, m]`, `diag D[n]`, `scalar g`)"
+        }
+        Rule::var_decl => "a variable name",
+        Rule::design_obj | Rule::obj_sense => "`minimize` or `maximize`",
+        Rule::design_for => "`for`",
+        Rule::design_cons | Rule::lmi_side | Rule::lmi_blocks | Rule::lmi_row | Rule::lmi_elem => {
+            "a constraint such as `[P, A'*P; *, P] > 0`"
+        }
+        Rule::lmi_star => "`*`",
+        Rule::lmi_rel => "a relation (`>`, `>=`, `<`, `<=`, `==`)",
+        Rule::cons_label => "a constraint label",
         Rule::init_eq | Rule::init_draw => "`=` or `~` and an initial value",
         Rule::definition => "a definition `name = value`",
         Rule::state_def => "a state name",

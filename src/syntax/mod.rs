@@ -2,6 +2,7 @@
 //! [`SyntaxError`] in the user's words.
 
 pub mod ast;
+mod design;
 mod error;
 mod parse;
 #[cfg(test)]

@@ -109,7 +109,7 @@ fn is_ident_byte(b: u8) -> bool {
     b.is_ascii_alphanumeric() || b == b'_'
 }
 
-fn first<'a>(pairs: &mut Pairs<'a, Rule>, parent: Span) -> Res<Pair<'a, Rule>> {
+pub(super) fn first<'a>(pairs: &mut Pairs<'a, Rule>, parent: Span) -> Res<Pair<'a, Rule>> {
     pairs.next().ok_or_else(|| SyntaxError::Unexpected {
         span: parent,
         found: "an incomplete construct".into(),
@@ -117,7 +117,7 @@ fn first<'a>(pairs: &mut Pairs<'a, Rule>, parent: Span) -> Res<Pair<'a, Rule>> {
     })
 }
 
-fn ident(p: Pair<'_, Rule>) -> Ident {
+pub(super) fn ident(p: Pair<'_, Rule>) -> Ident {
     Ident {
         name: p.as_str().to_string(),
         span: p.as_span().into(),
@@ -127,6 +127,7 @@ fn ident(p: Pair<'_, Rule>) -> Ident {
 fn item(p: Pair<'_, Rule>) -> Res<Item> {
     let span: Span = p.as_span().into();
     let rule = p.as_rule();
+    let p_design = p.clone();
     let mut inner = p.into_inner();
     Ok(match rule {
         Rule::param_decl => Item::Param(inner.map(definition).collect::<Res<_>>()?),
@@ -229,12 +230,8 @@ fn item(p: Pair<'_, Rule>) -> Res<Item> {
             Item::For(b, items)
         }
         Rule::design_block => {
-            let name = ident(first(&mut inner, span)?);
-            let body = match (inner.clone().next(), inner.last()) {
-                (Some(a), Some(b)) => Span::new(a.as_span().start(), b.as_span().end()),
-                _ => Span::new(name.span.end, name.span.end),
-            };
-            Item::Design(DesignBlock { name, body, span })
+            let _ = inner;
+            Item::Design(super::design::design_block(p_design)?)
         }
         _ => {
             return Err(SyntaxError::Unexpected {
@@ -246,7 +243,7 @@ fn item(p: Pair<'_, Rule>) -> Res<Item> {
     })
 }
 
-fn definition(p: Pair<'_, Rule>) -> Res<Definition> {
+pub(super) fn definition(p: Pair<'_, Rule>) -> Res<Definition> {
     let span = p.as_span().into();
     let mut it = p.into_inner();
     let target = target(first(&mut it, span)?)?;
@@ -254,7 +251,7 @@ fn definition(p: Pair<'_, Rule>) -> Res<Definition> {
     Ok(Definition { target, value })
 }
 
-fn target(p: Pair<'_, Rule>) -> Res<Target> {
+pub(super) fn target(p: Pair<'_, Rule>) -> Res<Target> {
     let span: Span = p.as_span().into();
     let mut it = p.into_inner();
     let name = ident(first(&mut it, span)?);
@@ -333,16 +330,27 @@ fn reset_stmt(p: Pair<'_, Rule>) -> Res<ResetStmt> {
     }
 }
 
-fn binder(p: Pair<'_, Rule>) -> Res<Binder> {
+pub(super) fn binder(p: Pair<'_, Rule>) -> Res<Binder> {
     let span: Span = p.as_span().into();
     let mut it = p.into_inner();
     let vars = first(&mut it, span)?.into_inner().map(ident).collect();
-    let set_pair = first(&mut it, span)?;
+    let set = index_set(first(&mut it, span)?)?;
+    let filter = it.next().map(expr).transpose()?;
+    Ok(Binder {
+        vars,
+        set,
+        filter,
+        span,
+    })
+}
+
+/// Converts a `set` pair.
+fn index_set(set_pair: Pair<'_, Rule>) -> Res<IndexSet> {
     let sspan: Span = set_pair.as_span().into();
     let s = first(&mut set_pair.into_inner(), sspan)?;
     let rule = s.as_rule();
     let mut parts = s.into_inner();
-    let set = match rule {
+    Ok(match rule {
         Rule::set_range => {
             let a = expr(first(&mut parts, sspan)?)?;
             IndexSet::Range(a, expr(first(&mut parts, sspan)?)?)
@@ -355,14 +363,9 @@ fn binder(p: Pair<'_, Rule>) -> Res<Binder> {
             let a = expr(first(&mut parts, sspan)?)?;
             IndexSet::Out(a, expr(first(&mut parts, sspan)?)?)
         }
-        _ => IndexSet::Edges(expr(first(&mut parts, sspan)?)?),
-    };
-    let filter = it.next().map(expr).transpose()?;
-    Ok(Binder {
-        vars,
-        set,
-        filter,
-        span,
+        Rule::set_edges => IndexSet::Edges(expr(first(&mut parts, sspan)?)?),
+        Rule::set_subsets => IndexSet::Subsets(Box::new(index_set(first(&mut parts, sspan)?)?)),
+        _ => IndexSet::Named(ident(first(&mut parts, sspan)?)),
     })
 }
 
@@ -371,7 +374,7 @@ fn mk(kind: ExprKind, span: Span) -> Expr {
 }
 
 /// Converts any expression-level pair.
-fn expr(p: Pair<'_, Rule>) -> Res<Expr> {
+pub(super) fn expr(p: Pair<'_, Rule>) -> Res<Expr> {
     let span: Span = p.as_span().into();
     let rule = p.as_rule();
     let text = p.as_str();

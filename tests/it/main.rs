@@ -2,6 +2,7 @@
 
 mod cli;
 mod engine;
+mod design;
 mod intermittent_estimation;
 mod lang;
 mod models;
