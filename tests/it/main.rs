@@ -1,8 +1,8 @@
 //! Integration tests, one binary, a module per area.
 
 mod cli;
-mod engine;
 mod design;
+mod engine;
 mod intermittent_estimation;
 mod lang;
 mod models;
