@@ -13,6 +13,7 @@ mod design;
 mod error;
 mod expr;
 mod model;
+pub mod property;
 #[cfg(test)]
 mod tests;
 

@@ -104,6 +104,9 @@ pub struct CheckedModel {
     pub block_spans: Vec<Span>,
     /// The `design` blocks in order: solver figures and results.
     pub designs: Vec<DesignReport>,
+    /// The `property` declarations (nodes in the property frame, see
+    /// [`super::property`]).
+    pub properties: Vec<super::property::CheckedProperty>,
 }
 
 const FLOW_CTX: Ctx = Ctx {
@@ -201,6 +204,9 @@ pub(crate) fn check_model(
     for it in &model.items {
         m.pass2(it);
     }
+    let rule_names: Vec<String> = m.rules.iter().map(|r| r.name.clone()).collect();
+    let properties =
+        super::property::check_properties(&mut m.c, &model.items, &rule_names, m.init.len());
     let (settings, seed) = m.settings();
     for o in overrides {
         if !m.used.iter().any(|u| u == &o.name) && !SIM_KEYS.contains(&o.name.as_str()) {
@@ -239,6 +245,7 @@ pub(crate) fn check_model(
         params: m.params,
         block_spans: m.c.block_spans,
         designs: m.designs,
+        properties,
     })
 }
 
@@ -418,7 +425,7 @@ impl ModelChecker<'_> {
                 }
             }),
             Item::Design(d) => self.design(d),
-            Item::Flow(_) | Item::Jump(_) | Item::Output(_) | Item::Sim(_) => {}
+            Item::Flow(_) | Item::Jump(_) | Item::Output(_) | Item::Sim(_) | Item::Property(_) => {}
         }
     }
 
@@ -447,7 +454,8 @@ impl ModelChecker<'_> {
             | Item::ParamTuple(..)
             | Item::Graph(_)
             | Item::State(_)
-            | Item::Design(_) => {}
+            | Item::Design(_)
+            | Item::Property(_) => {}
         }
     }
 

@@ -6,6 +6,7 @@ mod check;
 mod design;
 mod progress;
 mod run;
+mod test;
 
 use std::ffi::OsString;
 use std::process::ExitCode;
@@ -35,10 +36,12 @@ Examples:
   hybsim run models/bouncing_ball.hyb --no-mcap --plot ball.svg --plot-vars h,v
   hybsim check models/bouncing_ball.hyb               check the model only
   hybsim design models/platoon.hyb                    solve the design blocks, print the results
+  hybsim test models/bouncing_ball.hyb --cases 500    check its `property` declarations
 
 Exit codes:
   0    success (a run ended: horizon reached, or an outcome such as Zeno suspected)
-  1    the run failed (engine error, non-finite value, output file not written)
+  1    the run failed (engine error, non-finite value, output file not written),
+       or `hybsim test` found a counterexample
   2    the model has errors, or the command line is malformed
   130  interrupted (Ctrl-C); output files are completed up to that point";
 
@@ -62,6 +65,9 @@ pub enum Command {
     Check(check::CheckArgs),
     /// Solve the model's `design` blocks and print their reports and results.
     Design(design::DesignArgs),
+    /// Check the model's `property` declarations on sampled cases; shrink and
+    /// print the first counterexample with a command that replays it.
+    Test(test::TestArgs),
 }
 
 /// Parses `args` (including the program name), runs the subcommand, and
@@ -87,6 +93,7 @@ where
         Command::Run(args) => run::execute(args),
         Command::Check(args) => check::execute(args),
         Command::Design(args) => design::execute(args),
+        Command::Test(args) => test::execute(args),
     };
     match result {
         Ok(code) => ExitCode::from(code),

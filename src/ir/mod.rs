@@ -15,6 +15,7 @@
 mod analysis;
 mod inputs;
 mod program;
+mod property;
 #[cfg(test)]
 mod tests;
 
@@ -89,6 +90,7 @@ pub struct CompiledModel {
     params: Vec<(String, (usize, usize), Vec<f64>)>,
     inputs: Vec<crate::props::Input>,
     designs: Vec<crate::check::DesignReport>,
+    properties: Vec<(crate::props::Property, Span)>,
 }
 
 fn shape(rows: usize, cols: usize) -> Shape {
@@ -221,6 +223,7 @@ impl CompiledModel {
         };
         let names = state_layout.flat_names(m.dim);
         let inputs = inputs::random_inputs(&m);
+        let properties = property::compile(&m.dag, &m.properties, m.dim, &source);
         CompiledModel {
             name: m.name,
             source,
@@ -246,6 +249,7 @@ impl CompiledModel {
             params: m.params,
             inputs,
             designs: m.designs,
+            properties,
         }
     }
 
@@ -314,6 +318,21 @@ impl CompiledModel {
     /// inputs `hybsim test` samples and `--set name=value` pins.
     pub fn random_inputs(&self) -> &[crate::props::Input] {
         &self.inputs
+    }
+
+    /// The model's `property` declarations, in order, ready for
+    /// [`props::run_tests`](crate::props::run_tests) or a
+    /// [`PropertySink`](crate::props::PropertySink).
+    pub fn properties(&self) -> Vec<crate::props::Property> {
+        self.properties.iter().map(|(p, _)| p.clone()).collect()
+    }
+
+    /// Span of the declaration of property `name`.
+    pub fn property_span(&self, name: &str) -> Option<Span> {
+        self.properties
+            .iter()
+            .find(|(p, _)| p.name() == name)
+            .map(|&(_, s)| s)
     }
 
     /// How every run of the model starts (`hybsim run`, `hybsim test`):

@@ -90,7 +90,14 @@ impl ModelSubject {
     /// # Errors
     /// A diagnostic if a pinned value does not parse (not expected).
     pub fn case_overrides(&self, case: &Case) -> Result<Vec<Override>, Diagnostic> {
-        let mut all = self.overrides.clone();
+        // An input the user made random with `--set x=uniform(..)` is pinned
+        // instead of drawn: its user override gives way.
+        let mut all: Vec<Override> = self
+            .overrides
+            .iter()
+            .filter(|o| !self.inputs.iter().any(|i| i.name == o.name))
+            .cloned()
+            .collect();
         for (input, v) in self.inputs.iter().zip(&case.values) {
             all.push(format!("{}={v}", input.name).parse()?);
         }

@@ -46,6 +46,8 @@ pub enum Item {
     For(Binder, Vec<Item>),
     /// `design name { ... }`: an LMI problem whose results become parameters.
     Design(DesignBlock),
+    /// `property NAME: BODY`.
+    Property(PropertyDecl),
 }
 
 /// A declared or assigned name with optional index lists: `x`, `x[i]`,
@@ -297,4 +299,69 @@ pub enum ExprKind {
     If(Box<Expr>, Box<Expr>, Box<Expr>),
     /// `sum(k in S: body)`.
     Sum(Box<Binder>, Box<Expr>),
+}
+
+/// `property NAME: BODY`: what must hold on every solution.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PropertyDecl {
+    /// The property's name.
+    pub name: Ident,
+    /// What must hold.
+    pub body: PropertyBody,
+    /// The body's text span (shown in reports).
+    pub body_span: Span,
+    /// The whole declaration.
+    pub span: Span,
+}
+
+/// The body of a property declaration.
+#[derive(Debug, Clone, PartialEq)]
+pub enum PropertyBody {
+    /// `always P`.
+    Always(Expr),
+    /// `during flows P`.
+    DuringFlows(Expr),
+    /// `after E always P`: P from the first sample where E holds on.
+    AlwaysAfter {
+        /// E.
+        enter: Expr,
+        /// P.
+        pred: Expr,
+    },
+    /// `at jumps [RULE] P`, with `post(expr)` for post-jump values.
+    AtJumps {
+        /// Only jumps of this rule.
+        rule: Option<Target>,
+        /// The predicate.
+        pred: Expr,
+    },
+    /// `eventually within T P`.
+    EventuallyWithin {
+        /// The deadline T.
+        within: Expr,
+        /// The predicate.
+        pred: Expr,
+    },
+    /// `decreasing V during flows [tol ε]`, `nonincreasing V at jumps [tol ε]`, ...
+    Monotone {
+        /// `decreasing` (else `nonincreasing`).
+        decreasing: bool,
+        /// `at jumps` (else `during flows`).
+        jumps: bool,
+        /// V.
+        v: Expr,
+        /// ε.
+        tol: Option<Expr>,
+    },
+    /// `exponential V kappa κ alpha α [tol ε]`.
+    Exponential {
+        /// `|x|_A`.
+        v: Expr,
+        /// κ.
+        kappa: Expr,
+        /// α.
+        alpha: Expr,
+        /// ε.
+        tol: Option<Expr>,
+    },
 }

@@ -5,6 +5,7 @@ pub mod ast;
 mod design;
 mod error;
 mod parse;
+mod property;
 #[cfg(test)]
 mod tests;
 

@@ -17,7 +17,7 @@ pub(crate) struct HybParser;
 /// can exhaust the stack.
 pub const MAX_NESTING: usize = 48;
 
-type Res<T> = Result<T, SyntaxError>;
+pub(super) type Res<T> = Result<T, SyntaxError>;
 
 /// Parses a whole model.
 pub fn parse_model(text: &str) -> Result<Model, SyntaxError> {
@@ -224,6 +224,7 @@ fn item(p: Pair<'_, Rule>) -> Res<Item> {
                 })
                 .collect::<Res<_>>()?,
         ),
+        Rule::property_decl => Item::Property(super::property::property_decl(inner, span)?),
         Rule::for_item => {
             let b = binder(first(&mut inner, span)?)?;
             let items = inner.map(item).collect::<Res<_>>()?;

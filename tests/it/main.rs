@@ -8,6 +8,7 @@ mod lang;
 mod models;
 mod muehlebach;
 mod props;
+mod props_cli;
 mod props_model;
 mod sinks;
 mod util;

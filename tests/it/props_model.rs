@@ -91,3 +91,107 @@ fn a_false_height_bound_on_a_model_is_refuted_and_shrunk_to_1_5() {
     assert!(h0 > 1.5 && h0 - 1.5 <= 1e-11, "shrunk to {h0}");
     assert_eq!((cx.violation.at.t, cx.violation.at.j), (0.0, 0));
 }
+
+/// Diagnostics of `hybsim check` for a ball model with `extra` appended:
+/// (code, line:col of the primary label) of each.
+fn property_errors(extra: &str) -> Vec<(String, String)> {
+    let text = format!(
+        "model b\nparam g = 9.81, alpha = 1, tol = 2\nstate h ~ uniform(0, 2), v = 0\n\
+         flow {{ h' = v; v' = -g }} in h >= 0\njump impact when h <= 0 && v <= 0 {{ v+ = -0.8 * v }}\n{extra}\n"
+    );
+    let src = SourceFile::new("b.hyb", text);
+    lang::check_only(&src, &[])
+        .iter()
+        .map(|d| {
+            let lc = d.line_col(&src).map(|lc| format!("{}:{}", lc.line, lc.col));
+            (d.code.to_string(), lc.unwrap_or_default())
+        })
+        .collect()
+}
+
+#[test]
+fn property_declarations_are_checked_with_located_diagnostics() {
+    // Valid: contextual words as parameter names, rule names, post(), t, j.
+    assert_eq!(
+        property_errors(
+            "property a: always h >= -tol * alpha\nproperty b: at jumps impact post(v) >= 0\n\
+             property c: exponential abs(v) kappa alpha alpha alpha tol tol\n\
+             property d: eventually within 2 * alpha t >= 1 || j >= 1"
+        ),
+        vec![]
+    );
+    let one = |s: &str| property_errors(s);
+    assert_eq!(
+        one("property p: always hh >= 0"),
+        [("E0201".into(), "6:20".into())]
+    );
+    assert_eq!(
+        one("property p: always h + 1"),
+        [("E0304".into(), "6:20".into())]
+    );
+    assert_eq!(
+        one("property p: always [h; v] >= 0"),
+        [("E0304".into(), "6:20".into())]
+    );
+    assert_eq!(
+        one("property p: decreasing [h; v] during flows"),
+        [("E0304".into(), "6:24".into())]
+    );
+    assert_eq!(
+        one("property p: always post(h) >= 0"),
+        [("E0304".into(), "6:20".into())]
+    );
+    assert_eq!(
+        one("property p: at jumps bounce post(v) >= 0"),
+        [("E0201".into(), "6:22".into())]
+    );
+    assert_eq!(
+        one("property p: eventually within h h >= 0"),
+        [("E0305".into(), "6:31".into())]
+    );
+    assert_eq!(
+        one("property p: nonincreasing h at jumps tol -1"),
+        [("E0304".into(), "6:42".into())]
+    );
+    assert_eq!(
+        one("property p: always h >= 0\nproperty p: always v >= 0"),
+        [("E0202".into(), "7:10".into())]
+    );
+    assert_eq!(one("property p: sometimes h >= 0")[0].0, "E0101");
+}
+
+#[test]
+fn declared_properties_compile_onto_props_properties() {
+    let src = SourceFile::read(test_model("ball_props.hyb")).unwrap();
+    let m = lang::compile(&src, &[]).unwrap();
+    let props = m.properties();
+    let names: Vec<&str> = props.iter().map(|p| p.name()).collect();
+    assert_eq!(names[..3], ["ground", "flows_above", "energy_jumps"]);
+    assert_eq!(
+        props[3].text(),
+        Some("at jumps post(energy) <= energy + 1e-9")
+    );
+    // One run from h = 1: every property but `below` holds.
+    let (x0, mut rng) = compile("ball_props.hyb", &["h=1".into()]).start(0);
+    let arc = simulate_arc(&m, &x0, &m.settings(), &mut rng).unwrap();
+    for p in &props {
+        assert!(p.check(&arc).is_ok(), "{p}");
+    }
+    // From h = 1.6, `below` fails at the start, and `energy_post` with a
+    // wrong sign fails at the first impact, whose (t, j) it reports.
+    let wrong = SourceFile::new(
+        "w.hyb",
+        src.text()
+            .replace("post(energy) <= energy + 1e-9", "post(energy) >= energy"),
+    );
+    let w = lang::compile(&wrong, &["h=1.6".parse().unwrap()]).unwrap();
+    let (x0, mut rng) = w.start(0);
+    let arc = simulate_arc(&w, &x0, &w.settings(), &mut rng).unwrap();
+    let ps = w.properties();
+    let below = ps.iter().find(|p| p.name() == "below").unwrap();
+    assert_eq!(below.check(&arc).unwrap_err().at.t, 0.0);
+    let post = ps.iter().find(|p| p.name() == "energy_post").unwrap();
+    let v = post.check(&arc).unwrap_err();
+    let t1 = (2.0 * 1.6 / 9.81_f64).sqrt();
+    assert!((v.at.t - t1).abs() < 1e-9 && v.at.j == 0, "{v}");
+}

@@ -1,0 +1,448 @@
+//! Checking `property` declarations: names, shapes, constants, rule names,
+//! and `post(…)` inside `at jumps`; every expression is lowered into the
+//! model's scalar graph.
+//!
+//! Property expressions see a larger frame than the model's: with `n` state
+//! components, `State(k)` for `k < n` is the (pre-jump) state, `State(n)` is
+//! the jump counter `j`, and `State(n + 1 + k)` is component `k` of the
+//! post-jump state (only reachable through `post(…)`).
+
+use std::collections::HashMap;
+
+use super::dag::{Dag, Node, NodeId};
+use super::error::CheckError;
+use super::expr::{Ctx, Val, dims_words, suggest};
+use super::{Checker, Sym};
+use crate::source::Span;
+use crate::syntax::ast::{Expr, ExprKind, IndexArg, Item, PropertyBody, PropertyDecl, Target};
+
+/// A checked property.
+#[derive(Debug, Clone)]
+pub struct CheckedProperty {
+    /// Its name.
+    pub name: String,
+    /// The whole declaration.
+    pub span: Span,
+    /// The body (what must hold), for reports.
+    pub body_span: Span,
+    /// What must hold, lowered into the graph.
+    pub kind: PropertyKind,
+}
+
+/// What a checked property requires; nodes use the property frame (see
+/// the module docs).
+#[derive(Debug, Clone)]
+pub enum PropertyKind {
+    /// `always P`.
+    Always(NodeId),
+    /// `during flows P`.
+    DuringFlows(NodeId),
+    /// `after E always P`.
+    AlwaysAfter {
+        /// E.
+        enter: NodeId,
+        /// P.
+        pred: NodeId,
+    },
+    /// `at jumps [RULE] P`.
+    AtJumps {
+        /// Index of the rule, if one is named.
+        rule: Option<usize>,
+        /// The predicate (may read post-jump values).
+        pred: NodeId,
+    },
+    /// `eventually within T P`.
+    EventuallyWithin {
+        /// T.
+        within: f64,
+        /// P.
+        pred: NodeId,
+    },
+    /// `decreasing`/`nonincreasing V during flows`/`at jumps` `tol ε`.
+    Monotone {
+        /// `decreasing` (else `nonincreasing`).
+        decreasing: bool,
+        /// Across jumps (else along flows).
+        jumps: bool,
+        /// V.
+        v: NodeId,
+        /// ε.
+        tol: f64,
+    },
+    /// `exponential V kappa κ alpha α tol ε`.
+    Exponential {
+        /// `|x|_A`.
+        v: NodeId,
+        /// κ.
+        kappa: f64,
+        /// α.
+        alpha: f64,
+        /// ε.
+        tol: f64,
+    },
+}
+
+const PROP_CTX: Ctx = Ctx {
+    random: false,
+    wiener: false,
+    place: "a property",
+};
+
+/// Checks the model-level `property` declarations of `items`; `rules` are
+/// the jump rules' names and `dim` the state dimension. Errors go to `c`.
+pub(crate) fn check_properties(
+    c: &mut Checker,
+    items: &[Item],
+    rules: &[String],
+    dim: usize,
+) -> Vec<CheckedProperty> {
+    // `j` (the jump counter) is visible in properties unless the model
+    // declares its own `j`.
+    let j_added = !c.syms.contains_key("j");
+    if j_added {
+        let val = Val::scalar(c.dag.state(dim));
+        c.syms.insert(
+            "j".into(),
+            Sym::Output {
+                val,
+                span: Span::default(),
+            },
+        );
+    }
+    let mut seen: HashMap<String, Span> = HashMap::new();
+    let mut out = Vec::new();
+    for it in items {
+        match it {
+            Item::Property(p) => {
+                if let Some(&first) = seen.get(&p.name.name) {
+                    c.err(CheckError::Duplicate {
+                        name: p.name.name.clone(),
+                        span: p.name.span,
+                        first,
+                    });
+                    continue;
+                }
+                seen.insert(p.name.name.clone(), p.name.span);
+                if let Some(kind) = property(c, p, rules, dim) {
+                    out.push(CheckedProperty {
+                        name: p.name.name.clone(),
+                        span: p.span,
+                        body_span: p.body_span,
+                        kind,
+                    });
+                }
+            }
+            Item::For(_, inner) => nested(c, inner),
+            _ => {}
+        }
+    }
+    if j_added {
+        c.syms.remove("j");
+    }
+    out
+}
+
+/// Properties inside `for` loops are not supported.
+fn nested(c: &mut Checker, items: &[Item]) {
+    for it in items {
+        match it {
+            Item::Property(p) => c.err(CheckError::Unsupported {
+                what: "properties inside `for` loops (declare them at model level)".into(),
+                span: p.name.span,
+            }),
+            Item::For(_, inner) => nested(c, inner),
+            _ => {}
+        }
+    }
+}
+
+fn property(
+    c: &mut Checker,
+    p: &PropertyDecl,
+    rules: &[String],
+    dim: usize,
+) -> Option<PropertyKind> {
+    Some(match &p.body {
+        PropertyBody::Always(e) => PropertyKind::Always(predicate(c, e, dim, false)?),
+        PropertyBody::DuringFlows(e) => PropertyKind::DuringFlows(predicate(c, e, dim, false)?),
+        PropertyBody::AlwaysAfter { enter, pred } => {
+            let enter = predicate(c, enter, dim, false);
+            let pred = predicate(c, pred, dim, false);
+            PropertyKind::AlwaysAfter {
+                enter: enter?,
+                pred: pred?,
+            }
+        }
+        PropertyBody::AtJumps { rule, pred } => {
+            let rule = match rule {
+                Some(t) => Some(rule_index(c, t, rules)?),
+                None => None,
+            };
+            PropertyKind::AtJumps {
+                rule,
+                pred: predicate(c, pred, dim, true)?,
+            }
+        }
+        PropertyBody::EventuallyWithin { within, pred } => {
+            let pred = predicate(c, pred, dim, false);
+            let within = constant(c, within, "the deadline of `eventually within`", 0.0)?;
+            PropertyKind::EventuallyWithin {
+                within,
+                pred: pred?,
+            }
+        }
+        PropertyBody::Monotone {
+            decreasing,
+            jumps,
+            v,
+            tol,
+        } => {
+            let v = scalar(c, v, dim);
+            let tol = tolerance(c, tol.as_ref())?;
+            PropertyKind::Monotone {
+                decreasing: *decreasing,
+                jumps: *jumps,
+                v: v?,
+                tol,
+            }
+        }
+        PropertyBody::Exponential {
+            v,
+            kappa,
+            alpha,
+            tol,
+        } => {
+            let v = scalar(c, v, dim);
+            let kappa = constant(c, kappa, "`kappa`", 0.0);
+            let alpha = constant(c, alpha, "`alpha`", f64::NEG_INFINITY);
+            let tol = tolerance(c, tol.as_ref())?;
+            PropertyKind::Exponential {
+                v: v?,
+                kappa: kappa?,
+                alpha: alpha?,
+                tol,
+            }
+        }
+    })
+}
+
+/// A constant scalar `≥ min`, finite.
+fn constant(c: &mut Checker, e: &Expr, what: &str, min: f64) -> Option<f64> {
+    let x = c.const_scalar(e, what)?;
+    if x.is_finite() && x >= min {
+        Some(x)
+    } else {
+        let expected = if min == 0.0 {
+            format!("a finite number ≥ 0 for {what}")
+        } else {
+            format!("a finite number for {what}")
+        };
+        c.err(CheckError::Expected {
+            expected,
+            found: x.to_string(),
+            span: e.span,
+        });
+        None
+    }
+}
+
+fn tolerance(c: &mut Checker, e: Option<&Expr>) -> Option<f64> {
+    match e {
+        Some(e) => constant(c, e, "the tolerance `tol`", 0.0),
+        None => Some(0.0),
+    }
+}
+
+fn rule_index(c: &mut Checker, t: &Target, rules: &[String]) -> Option<usize> {
+    let name = match t.indices.first() {
+        None => t.name.name.clone(),
+        Some(args) => {
+            let key = c.family_key(args)?;
+            let key: Vec<String> = key.iter().map(|k| k.to_string()).collect();
+            format!("{}[{}]", t.name.name, key.join(","))
+        }
+    };
+    if let Some(k) = rules.iter().position(|r| *r == name) {
+        return Some(k);
+    }
+    let suggestion = suggest(&name, rules.iter().map(|s| s.as_str()));
+    c.err(CheckError::UnknownName {
+        name,
+        span: t.span,
+        suggestion,
+    });
+    None
+}
+
+/// A scalar condition.
+fn predicate(c: &mut Checker, e: &Expr, dim: usize, post: bool) -> Option<NodeId> {
+    let v = lower(c, e, dim, post)?;
+    if v.rows * v.cols != 1 || !v.boolean {
+        let found = if v.rows * v.cols != 1 {
+            dims_words(v.dims())
+        } else {
+            "a number".to_string()
+        };
+        c.err(CheckError::Expected {
+            expected: "a condition such as `h >= 0` (one true/false value)".into(),
+            found,
+            span: e.span,
+        });
+        return None;
+    }
+    Some(v.e[0])
+}
+
+/// A scalar value V.
+fn scalar(c: &mut Checker, e: &Expr, dim: usize) -> Option<NodeId> {
+    let v = lower(c, e, dim, false)?;
+    if v.rows * v.cols != 1 {
+        c.err(CheckError::Expected {
+            expected: "a scalar (e.g. `norm(x)` or `x' * P * x`)".into(),
+            found: dims_words(v.dims()),
+            span: e.span,
+        });
+        return None;
+    }
+    Some(v.e[0])
+}
+
+/// Lowers `e`, first replacing each `post(a)` (allowed if `post`) by a
+/// hidden name bound to `a` evaluated on the post-jump state.
+fn lower(c: &mut Checker, e: &Expr, dim: usize, post: bool) -> Option<Val> {
+    let mut e = e.clone();
+    let mut hidden = Vec::new();
+    let ok = replace_post(c, &mut e, dim, post, &mut hidden);
+    let v = if ok { c.expr(&e, &PROP_CTX) } else { None };
+    for name in hidden {
+        c.syms.remove(&name);
+    }
+    v
+}
+
+fn replace_post(
+    c: &mut Checker,
+    e: &mut Expr,
+    dim: usize,
+    allowed: bool,
+    hidden: &mut Vec<String>,
+) -> bool {
+    let span = e.span;
+    match &mut e.kind {
+        ExprKind::Call(f, args) if f.name == "post" => {
+            if !allowed {
+                c.err(CheckError::Expected {
+                    expected: "`post(…)` only in `at jumps` properties (and not nested)".into(),
+                    found: "`post`".into(),
+                    span,
+                });
+                return false;
+            }
+            if args.len() != 1 {
+                c.err(CheckError::Arity {
+                    func: "post".into(),
+                    expected: "1 argument".into(),
+                    found: args.len(),
+                    span,
+                });
+                return false;
+            }
+            if !replace_post(c, &mut args[0], dim, false, hidden) {
+                return false;
+            }
+            let Some(v) = c.expr(&args[0], &PROP_CTX) else {
+                return false;
+            };
+            let mut memo = HashMap::new();
+            let e2: Vec<NodeId> =
+                v.e.iter()
+                    .map(|&n| to_post(&mut c.dag, n, dim, &mut memo))
+                    .collect();
+            let name = format!("post#{}", hidden.len());
+            c.syms.insert(
+                name.clone(),
+                Sym::Output {
+                    val: Val { e: e2, ..v },
+                    span,
+                },
+            );
+            hidden.push(name.clone());
+            e.kind = ExprKind::Name(name);
+            true
+        }
+        ExprKind::Unary(_, a) => replace_post(c, a, dim, allowed, hidden),
+        ExprKind::Binary(_, a, b) => {
+            replace_post(c, a, dim, allowed, hidden) & replace_post(c, b, dim, allowed, hidden)
+        }
+        ExprKind::If(a, b, d) => {
+            replace_post(c, a, dim, allowed, hidden)
+                & replace_post(c, b, dim, allowed, hidden)
+                & replace_post(c, d, dim, allowed, hidden)
+        }
+        ExprKind::Call(_, args) => args
+            .iter_mut()
+            .fold(true, |ok, a| replace_post(c, a, dim, allowed, hidden) & ok),
+        ExprKind::Matrix(rows) => rows
+            .iter_mut()
+            .flatten()
+            .fold(true, |ok, a| replace_post(c, a, dim, allowed, hidden) & ok),
+        ExprKind::Index(a, args) => {
+            let mut ok = replace_post(c, a, dim, allowed, hidden);
+            for arg in args {
+                ok &= match arg {
+                    IndexArg::One(x) => replace_post(c, x, dim, allowed, hidden),
+                    IndexArg::Slice(x, y) => {
+                        replace_post(c, x, dim, allowed, hidden)
+                            & replace_post(c, y, dim, allowed, hidden)
+                    }
+                    IndexArg::All(_) => true,
+                };
+            }
+            ok
+        }
+        // `post` inside a `sum` body stays a call (an unknown function).
+        ExprKind::Num(_) | ExprKind::Bool(_) | ExprKind::Name(_) | ExprKind::Sum(..) => true,
+    }
+}
+
+/// `n` with every state component `x[k]` (k < dim) replaced by its
+/// post-jump value `State(dim + 1 + k)`.
+fn to_post(dag: &mut Dag, n: NodeId, dim: usize, memo: &mut HashMap<NodeId, NodeId>) -> NodeId {
+    if let Some(&r) = memo.get(&n) {
+        return r;
+    }
+    let r = match dag.node(n) {
+        Node::State(k) if (k as usize) < dim => dag.state(dim + 1 + k as usize),
+        Node::Const(_) | Node::State(_) | Node::Time | Node::Wiener(_) | Node::Rand(..) => n,
+        Node::Un(f, a) => {
+            let a = to_post(dag, a, dim, memo);
+            dag.un(f, a)
+        }
+        Node::Bin(f, a, b) => {
+            let a = to_post(dag, a, dim, memo);
+            let b = to_post(dag, b, dim, memo);
+            dag.bin(f, a, b)
+        }
+        Node::Select(s, a, b) => {
+            let s = to_post(dag, s, dim, memo);
+            let a = to_post(dag, a, dim, memo);
+            let b = to_post(dag, b, dim, memo);
+            dag.select(s, a, b)
+        }
+        Node::BlockOut(b, k) => {
+            let block = dag.block(b).clone();
+            let inputs: Vec<NodeId> = block
+                .inputs
+                .iter()
+                .map(|&i| to_post(dag, i, dim, memo))
+                .collect();
+            match dag.add_block(block.kind, inputs, block.origin) {
+                Ok(outs) => outs[k as usize],
+                // Constant inputs were folded when first built.
+                Err(_) => n,
+            }
+        }
+    };
+    memo.insert(n, r);
+    r
+}

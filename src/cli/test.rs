@@ -1,0 +1,186 @@
+//! `hybsim test`: sample cases of a model's random initial values, check
+//! its `property` declarations on each (in parallel), shrink the first
+//! failure and print it with the `hybsim run` command that replays it.
+
+use std::path::PathBuf;
+use std::time::Instant;
+
+use clap::Args;
+use hybsim::diagnostics::render;
+use hybsim::props::{
+    ModelRunError, ModelSubject, Outcome, Property, Subject, TestConfig, replay_args, run_tests,
+};
+
+use super::{EXIT_FAILED, EXIT_MODEL_ERROR, EXIT_OK};
+
+/// Arguments of `hybsim test`.
+#[derive(Debug, Args)]
+pub struct TestArgs {
+    /// The model file (`.hyb`) with `property` declarations.
+    pub model: PathBuf,
+    /// Number of sampled cases.
+    #[arg(long, value_name = "N", default_value_t = 100)]
+    pub cases: usize,
+    /// Master seed from which each case's seed is derived (default: the
+    /// model's `sim { seed }`).
+    #[arg(long, value_name = "S")]
+    pub seed: Option<u64>,
+    /// Check only this property (repeatable). Default: all.
+    #[arg(long = "property", value_name = "NAME")]
+    pub property: Vec<String>,
+    /// Override a parameter, initial value or `sim` key, as for `hybsim run`
+    /// (a pinned initial value is no longer sampled).
+    #[arg(long = "set", value_name = "NAME=VALUE")]
+    pub set: Vec<String>,
+    /// Most runs spent shrinking a counterexample (0: no shrinking).
+    #[arg(long, value_name = "N", default_value_t = 400)]
+    pub max_shrink: usize,
+}
+
+/// `arg` as one shell word (single-quoted unless plainly safe).
+fn shell_word(arg: &str) -> String {
+    let safe = !arg.is_empty()
+        && arg
+            .chars()
+            .all(|c| c.is_ascii_alphanumeric() || "_-+=.,/:@%".contains(c));
+    if safe {
+        arg.to_string()
+    } else {
+        format!("'{}'", arg.replace('\'', r"'\''"))
+    }
+}
+
+/// `hybsim test`.
+pub fn execute(args: TestArgs) -> anyhow::Result<u8> {
+    let Some((src, overrides)) = super::load(&args.model, &args.set)? else {
+        return Ok(EXIT_MODEL_ERROR);
+    };
+    let color = std::io::IsTerminal::is_terminal(&std::io::stderr());
+    let subject = match ModelSubject::new(src.clone(), overrides) {
+        Ok(s) => s,
+        Err(diags) => {
+            eprint!("{}", render(&diags, &src, color));
+            return Ok(EXIT_MODEL_ERROR);
+        }
+    };
+    let model = subject.model();
+    let all = model.properties();
+    if all.is_empty() {
+        eprintln!(
+            "error: `{}` declares no property; add e.g. `property ground: always h >= -1e-9`",
+            args.model.display()
+        );
+        return Ok(EXIT_MODEL_ERROR);
+    }
+    let mut props: Vec<Property> = Vec::new();
+    for name in &args.property {
+        match all.iter().find(|p| p.name() == name) {
+            Some(p) => props.push(p.clone()),
+            None => {
+                let names: Vec<&str> = all.iter().map(|p| p.name()).collect();
+                eprintln!(
+                    "error: no property `{name}` in `{}`; it declares: {}",
+                    args.model.display(),
+                    names.join(", ")
+                );
+                return Ok(EXIT_MODEL_ERROR);
+            }
+        }
+    }
+    if props.is_empty() {
+        props = all;
+    }
+    let config = TestConfig::default()
+        .cases(args.cases)
+        .seed(args.seed.unwrap_or(model.seed()))
+        .max_shrink_runs(args.max_shrink);
+    let inputs = subject.inputs();
+    let described: Vec<String> = inputs
+        .iter()
+        .map(|i| format!("{} ~ {}", i.name, i.dist))
+        .collect();
+    println!(
+        "testing {} propert{} of {} on {} cases (master seed {}); sampled: {}",
+        props.len(),
+        if props.len() == 1 { "y" } else { "ies" },
+        model.name(),
+        config.cases,
+        config.seed,
+        if described.is_empty() {
+            "nothing (one initial state; runs differ only by seed)".to_string()
+        } else {
+            described.join(", ")
+        }
+    );
+    let start = Instant::now();
+    let report = run_tests(&subject, &props, &config);
+    let summary = |verdict: &str| {
+        format!(
+            "{verdict}: {} cases, {} inconclusive, {:.2} s",
+            report.cases_run,
+            report.inconclusive,
+            start.elapsed().as_secs_f64()
+        )
+    };
+    match &report.outcome {
+        Outcome::Passed => {
+            for p in &props {
+                println!("  ok  {p}");
+            }
+            println!("{}", summary("passed"));
+            Ok(EXIT_OK)
+        }
+        Outcome::Failed(cx) => {
+            let p = props.iter().find(|p| p.name() == cx.violation.property);
+            if let Some(p) = p {
+                println!("FAILED  {p}");
+            }
+            print!("{}", cx.describe(inputs, &subject.state_names()));
+            let mut cmd = vec![
+                "hybsim".to_string(),
+                "run".to_string(),
+                args.model.display().to_string(),
+            ];
+            for o in subject.overrides() {
+                if !inputs.iter().any(|i| i.name == o.name) {
+                    cmd.push("--set".into());
+                    cmd.push(format!("{}={}", o.name, o.value));
+                }
+            }
+            cmd.extend(replay_args(&cx.case, inputs));
+            cmd.extend(["-o".to_string(), "replay.mcap".to_string()]);
+            let cmd: Vec<String> = cmd.iter().map(|a| shell_word(a)).collect();
+            println!("replay: {}", cmd.join(" "));
+            println!("{}", summary("counterexample"));
+            Ok(EXIT_FAILED)
+        }
+        Outcome::Error { index, case, error } => {
+            match error {
+                ModelRunError::Compile(diags) => eprint!("{}", render(diags, &src, color)),
+                ModelRunError::Sim(e) => {
+                    eprint!("{}", render(&[model.runtime_diagnostic(e)], &src, color))
+                }
+            }
+            eprintln!(
+                "error: case {index} (seed {}) could not run; replay flags: {}",
+                case.seed,
+                replay_args(case, inputs).join(" ")
+            );
+            println!("{}", summary("error"));
+            Ok(EXIT_MODEL_ERROR)
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::shell_word;
+
+    #[test]
+    fn shell_words_quote_only_what_needs_it() {
+        assert_eq!(shell_word("h=1.5000000000000002"), "h=1.5000000000000002");
+        assert_eq!(shell_word("v=-0.25"), "v=-0.25");
+        assert_eq!(shell_word("K=[1, 2]"), "'K=[1, 2]'");
+        assert_eq!(shell_word("a'b"), r"'a'\''b'");
+    }
+}

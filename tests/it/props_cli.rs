@@ -1,0 +1,234 @@
+//! `hybsim test` as a process: exit codes, the printed counterexample, and
+//! the printed replay command run for real, its CSV read back.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+const BIN: &str = env!("CARGO_BIN_EXE_hybsim");
+
+fn model(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/models")
+        .join(name)
+}
+
+fn hybsim(dir: &Path, args: &[&str]) -> Output {
+    Command::new(BIN)
+        .args(args)
+        .current_dir(dir)
+        .output()
+        .expect("the binary runs")
+}
+
+fn stdout(out: &Output) -> String {
+    String::from_utf8_lossy(&out.stdout).into_owned()
+}
+
+fn code(out: &Output) -> i32 {
+    out.status.code().expect("exited normally")
+}
+
+/// The words of the printed `replay: hybsim run …` line (no quoting needed
+/// for these models).
+fn replay_words(text: &str) -> Vec<String> {
+    let line = text
+        .lines()
+        .find_map(|l| l.strip_prefix("replay: "))
+        .unwrap_or_else(|| panic!("no replay line in:\n{text}"));
+    line.split_whitespace().map(|s| s.to_string()).collect()
+}
+
+/// Rows of a CSV written by `hybsim run --csv`: header and numeric rows
+/// (`kind` column dropped).
+fn read_csv(path: &Path) -> (Vec<String>, Vec<Vec<f64>>) {
+    let text = std::fs::read_to_string(path).unwrap();
+    let mut lines = text.lines();
+    let header: Vec<String> = lines.next().unwrap().split(',').map(String::from).collect();
+    let kind = header.iter().position(|h| h == "kind").unwrap();
+    let rows = lines
+        .map(|l| {
+            l.split(',')
+                .enumerate()
+                .filter(|(i, _)| *i != kind)
+                .map(|(_, v)| v.parse::<f64>().unwrap())
+                .collect()
+        })
+        .collect();
+    let header = header.into_iter().filter(|h| h != "kind").collect();
+    (header, rows)
+}
+
+fn value_after(text: &str, key: &str) -> f64 {
+    let i = text
+        .find(key)
+        .unwrap_or_else(|| panic!("no `{key}` in:\n{text}"))
+        + key.len();
+    let num: String = text[i..]
+        .chars()
+        .take_while(|c| c.is_ascii_digit() || "-+.eE".contains(*c))
+        .collect();
+    num.parse()
+        .unwrap_or_else(|_| panic!("no number after `{key}` in:\n{text}"))
+}
+
+#[test]
+fn properties_that_hold_pass_with_exit_0() {
+    let dir = tempfile::tempdir().unwrap();
+    let m = model("ball_props.hyb");
+    let mut args = vec!["test", m.to_str().unwrap(), "--cases", "200", "--seed", "4"];
+    for p in [
+        "ground",
+        "flows_above",
+        "energy_jumps",
+        "energy_post",
+        "bounce",
+        "energy_flow",
+        "lands",
+        "few_jumps",
+        "decay",
+    ] {
+        args.extend(["--property", p]);
+    }
+    let out = hybsim(dir.path(), &args);
+    let text = stdout(&out);
+    assert_eq!(
+        code(&out),
+        0,
+        "{text}\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(text.contains("h ~ uniform(0, 2)"), "{text}");
+    assert!(text.contains("passed: 200 cases, 0 inconclusive"), "{text}");
+    assert!(
+        text.contains("ok  energy_post: at jumps post(energy) <= energy + 1e-9"),
+        "{text}"
+    );
+}
+
+#[test]
+fn the_ball_above_1_5_is_refuted_shrunk_and_replayed_exactly() {
+    let dir = tempfile::tempdir().unwrap();
+    let m = model("ball_props.hyb");
+    let out = hybsim(
+        dir.path(),
+        &[
+            "test",
+            m.to_str().unwrap(),
+            "--cases",
+            "100",
+            "--property",
+            "below",
+        ],
+    );
+    let text = stdout(&out);
+    assert_eq!(code(&out), 1, "{text}");
+    assert!(text.contains("`below` fails at (t = 0, j = 0)"), "{text}");
+    let h0 = value_after(&text, "input h = ");
+    assert!(h0 > 1.5 && h0 - 1.5 <= 1e-11, "shrunk to {h0}:\n{text}");
+    // Run the printed command (with a CSV too) and read the failure back.
+    let mut words = replay_words(&text);
+    assert_eq!(&words[..2], ["hybsim", "run"]);
+    assert!(words.contains(&format!("h={h0}")), "{words:?}");
+    words.extend(["--csv".into(), "replay.csv".into()]);
+    let replay = hybsim(
+        dir.path(),
+        &words[1..].iter().map(|s| s.as_str()).collect::<Vec<_>>(),
+    );
+    assert_eq!(
+        code(&replay),
+        0,
+        "{}",
+        String::from_utf8_lossy(&replay.stderr)
+    );
+    assert!(dir.path().join("replay.mcap").exists());
+    let (header, rows) = read_csv(&dir.path().join("replay.csv"));
+    let h = header.iter().position(|c| c == "h").unwrap();
+    assert_eq!((rows[0][0], rows[0][1]), (0.0, 0.0));
+    assert_eq!(
+        rows[0][h], h0,
+        "the replay starts at the printed height, bit for bit"
+    );
+    assert!(rows[0][h] > 1.5);
+}
+
+#[test]
+fn a_wrong_lyapunov_candidate_is_refuted_and_the_replay_shows_the_increase() {
+    let dir = tempfile::tempdir().unwrap();
+    let m = model("sample_hold.hyb");
+    let out = hybsim(
+        dir.path(),
+        &["test", m.to_str().unwrap(), "--cases", "50", "--seed", "1"],
+    );
+    let text = stdout(&out);
+    assert_eq!(code(&out), 1, "{text}");
+    assert!(
+        text.contains("FAILED  lyapunov: decreasing V during flows tol 1e-9"),
+        "{text}"
+    );
+    // "`lyapunov` fails at (t = T, j = J): V did not decrease during the
+    // flow from A at (t = T0, j = J) to B (tolerance 1e-9)"
+    let msg = &text[text.find("`lyapunov` fails at").expect("violation line")..];
+    let t = value_after(msg, "fails at (t = ");
+    let j = value_after(msg, ", j = ");
+    let from = value_after(msg, "did not decrease during the flow from ");
+    let to = value_after(&msg[msg.find("did not decrease").unwrap()..], ") to ");
+    assert!(to >= from && to > 1e-9, "{text}");
+    let mut words = replay_words(&text);
+    words.extend(["--csv".into(), "replay.csv".into()]);
+    let replay = hybsim(
+        dir.path(),
+        &words[1..].iter().map(|s| s.as_str()).collect::<Vec<_>>(),
+    );
+    assert_eq!(
+        code(&replay),
+        0,
+        "{}",
+        String::from_utf8_lossy(&replay.stderr)
+    );
+    let (header, rows) = read_csv(&dir.path().join("replay.csv"));
+    let col = |name: &str| header.iter().position(|c| c == name).unwrap();
+    let (x1, x2) = (col("x1"), col("x2"));
+    let v = |r: &Vec<f64>| r[x1] * r[x1] + r[x2] * r[x2];
+    // The failing sample is in the replay with exactly the printed V, and
+    // V increased into it along the flow.
+    let k = rows
+        .iter()
+        .position(|r| r[0] == t && r[1] == j && v(r) == to)
+        .unwrap_or_else(|| panic!("no sample at ({t}, {j}) with V = {to}"));
+    assert!(
+        k > 0 && rows[k - 1][1] == j && v(&rows[k - 1]) == from,
+        "{:?}",
+        &rows[k - 1]
+    );
+}
+
+#[test]
+fn model_errors_and_unknown_properties_exit_2() {
+    let dir = tempfile::tempdir().unwrap();
+    let bad = dir.path().join("bad.hyb");
+    std::fs::write(
+        &bad,
+        "model bad\nstate h ~ uniform(0, 1)\nflow { h' = -1 }\nproperty p: always hh >= 0\n",
+    )
+    .unwrap();
+    let out = hybsim(dir.path(), &["test", bad.to_str().unwrap()]);
+    assert_eq!(code(&out), 2);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("unknown name `hh`") && err.contains("bad.hyb:4:20"),
+        "{err}"
+    );
+    let m = model("ball_props.hyb");
+    let out = hybsim(
+        dir.path(),
+        &["test", m.to_str().unwrap(), "--property", "nope"],
+    );
+    assert_eq!(code(&out), 2);
+    assert!(String::from_utf8_lossy(&out.stderr).contains("no property `nope`"));
+    let none = dir.path().join("none.hyb");
+    std::fs::write(&none, "model none\nstate h = 1\nflow { h' = -1 }\n").unwrap();
+    assert_eq!(
+        code(&hybsim(dir.path(), &["test", none.to_str().unwrap()])),
+        2
+    );
+}
