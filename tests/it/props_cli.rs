@@ -86,6 +86,7 @@ fn properties_that_hold_pass_with_exit_0() {
         "lands",
         "few_jumps",
         "decay",
+        "stays_low",
     ] {
         args.extend(["--property", p]);
     }
