@@ -40,6 +40,16 @@ fn random_initial_values_are_inputs_with_their_distribution() {
             .random_inputs()
             .is_empty()
     );
+    // An override may make a fixed initial value random (`hybsim test --set`).
+    let m = compile("random_ball.hyb", &["v=normal(0, 0.5)".into()]);
+    assert_eq!(m.random_inputs()[1].name, "v");
+    assert_eq!(
+        m.random_inputs()[1].dist,
+        Dist::Normal {
+            mean: 0.0,
+            std: 0.5
+        }
+    );
 }
 
 #[test]
@@ -116,7 +126,8 @@ fn property_declarations_are_checked_with_located_diagnostics() {
         property_errors(
             "property a: always h >= -tol * alpha\nproperty b: at jumps impact post(v) >= 0\n\
              property c: exponential abs(v) kappa alpha alpha alpha tol tol\n\
-             property d: eventually within 2 * alpha t >= 1 || j >= 1"
+             property d: eventually within 2 * alpha t >= 1 || j >= 1\n\
+             property e: after h <= 1 always h <= 1 + tol"
         ),
         vec![]
     );
