@@ -238,6 +238,9 @@ pub struct Dag {
     blocks: Vec<Block>,
     block_memo: HashMap<(BlockKind, Vec<NodeId>), u32>,
     draws: u32,
+    /// Work done so far (nodes requested, loop iterations charged): the
+    /// checker bounds it so that no input makes compilation hang.
+    ops: u64,
 }
 
 /// Evaluates a unary function.
@@ -328,7 +331,19 @@ impl Dag {
         &self.blocks[b as usize]
     }
 
+    /// Work done so far: every node requested (shared or not) plus what
+    /// [`charge`](Self::charge) added.
+    pub fn ops(&self) -> u64 {
+        self.ops
+    }
+
+    /// Adds `n` units of work (e.g. loop iterations).
+    pub fn charge(&mut self, n: u64) {
+        self.ops = self.ops.saturating_add(n);
+    }
+
     fn intern(&mut self, n: Node) -> NodeId {
+        self.ops += 1;
         if let Some(&id) = self.memo.get(&n) {
             return id;
         }

@@ -227,6 +227,15 @@ pub enum CheckError {
     /// An error in a `design` block (E07xx).
     #[error(transparent)]
     Design(super::design::DesignError),
+    /// A model whose compilation would exceed the work budget (huge
+    /// matrices or loops).
+    #[error("the model is too large to compile (more than {limit} scalar operations)")]
+    TooLarge {
+        /// The budget.
+        limit: u64,
+        /// Where the budget ran out.
+        span: Span,
+    },
     /// An error inside a `--set name=value` override.
     #[error("in override `{name}={value}`: {message}")]
     Override {
@@ -263,7 +272,8 @@ impl CheckError {
             | RandomNotAllowed { span, .. }
             | BadSetting { span, .. }
             | Unsupported { span, .. }
-            | Compute { span, .. } => *span,
+            | Compute { span, .. }
+            | TooLarge { span, .. } => *span,
             Design(e) => e.span(),
             Override { .. } => Span::default(),
         }
@@ -284,6 +294,7 @@ impl CheckError {
             Expected { .. } => "E0304",
             NotConstant { .. } => "E0305",
             Compute { .. } => "E0306",
+            TooLarge { .. } => "E0307",
             IndexOutOfRange { .. } => "E0401",
             FamilyOutOfRange { .. } => "E0402",
             FamilyIndex { .. } => "E0403",
@@ -341,6 +352,9 @@ impl CheckError {
                 .primary(*span, "depends on states, time or random draws")
                 .help("use only numbers, parameters and index variables here"),
             Compute { span, .. } => d.primary(*span, "while computing this"),
+            TooLarge { span, .. } => d
+                .primary(*span, "the budget ran out here")
+                .help("use smaller dimensions, fewer family members or shorter loops"),
             IndexOutOfRange { span, .. } => d.primary(*span, "out of range"),
             FamilyOutOfRange { span, members, .. } => d
                 .primary(*span, "no such member")

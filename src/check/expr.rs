@@ -95,7 +95,31 @@ pub(crate) const BUILTINS: &[&str] = &[
     "wiener",
 ];
 
+/// Most scalar operations (and loop iterations) a model may take to compile.
+pub(crate) const MAX_OPS: u64 = 50_000_000;
+
 impl Checker {
+    /// False (and one error recorded) once the work done plus `cost`
+    /// exceeds [`MAX_OPS`].
+    pub(crate) fn within_budget(&mut self, cost: u64, span: Span) -> bool {
+        if self.dag.ops().saturating_add(cost) <= MAX_OPS {
+            return true;
+        }
+        if !self
+            .errors
+            .iter()
+            .any(|e| matches!(e, CheckError::TooLarge { .. }))
+        {
+            self.err(CheckError::TooLarge {
+                limit: MAX_OPS,
+                span,
+            });
+        }
+        // Stay over the budget so that every later check fails fast.
+        self.dag.charge(MAX_OPS);
+        false
+    }
+
     pub(crate) fn err(&mut self, e: CheckError) {
         self.errors.push(e);
     }
@@ -270,6 +294,10 @@ impl Checker {
             return;
         };
         for m in members {
+            self.dag.charge(1);
+            if !self.within_budget(0, b.span) {
+                return;
+            }
             let depth = self.scopes.len();
             for (v, &i) in b.vars.iter().zip(&m) {
                 self.scopes.push((v.name.clone(), i));
@@ -464,6 +492,9 @@ impl Checker {
 
     /// Elaborates an expression. `None` means an error was recorded.
     pub(crate) fn expr(&mut self, e: &Expr, ctx: &Ctx) -> Option<Val> {
+        if !self.within_budget(0, e.span) {
+            return None;
+        }
         match &e.kind {
             ExprKind::Num(x) => Some(Val::scalar(self.dag.konst(*x))),
             ExprKind::Bool(b) => {
@@ -713,7 +744,9 @@ impl Checker {
                 if a.is_scalar() || b.is_scalar() {
                     elem(self, a, b, BinFn::Mul, false)
                 } else if a.cols == b.rows {
-                    Some(self.matmul(&a, &b))
+                    let cost = (a.rows * a.cols) as u64 * b.cols as u64;
+                    self.within_budget(2 * cost, span)
+                        .then(|| self.matmul(&a, &b))
                 } else {
                     self.err(CheckError::ShapeMismatch {
                         op: "*".into(),
@@ -748,6 +781,10 @@ impl Checker {
                 };
                 match k {
                     Some(k) if a.rows == a.cols && k >= 0.0 && k.fract() == 0.0 && k <= 64.0 => {
+                        let n = a.rows as u64;
+                        if !self.within_budget(2 * k as u64 * n * n * n, span) {
+                            return None;
+                        }
                         let mut r = identity(self, a.rows);
                         for _ in 0..k as usize {
                             r = self.matmul(&r, &a);
@@ -925,6 +962,9 @@ impl Checker {
                 let v = self.expr(&args[0], ctx)?;
                 if v.rows == 1 || v.cols == 1 {
                     let k = v.e.len();
+                    if !self.within_budget(k as u64 * k as u64, span) {
+                        return None;
+                    }
                     let zero = self.dag.konst(0.0);
                     let mut e = vec![zero; k * k];
                     for i in 0..k {
@@ -954,6 +994,9 @@ impl Checker {
                 let vs = vs?;
                 let rows: usize = vs.iter().map(|v| v.rows).sum();
                 let cols: usize = vs.iter().map(|v| v.cols).sum();
+                if !self.within_budget(rows as u64 * cols as u64, span) {
+                    return None;
+                }
                 let zero = self.dag.konst(0.0);
                 let mut e = vec![zero; rows * cols];
                 let (mut r0, mut c0) = (0, 0);
@@ -979,6 +1022,9 @@ impl Checker {
                 let b = self.expr(&args[1], ctx);
                 let (a, b) = (a?, b?);
                 let (rows, cols) = (a.rows * b.rows, a.cols * b.cols);
+                if !self.within_budget(rows as u64 * cols as u64, span) {
+                    return None;
+                }
                 let mut e = Vec::with_capacity(rows * cols);
                 for i in 0..rows {
                     for j in 0..cols {

@@ -465,6 +465,10 @@ impl ModelChecker<'_> {
             return;
         };
         for m in members {
+            self.c.dag.charge(1);
+            if !self.c.within_budget(0, b.span) {
+                return;
+            }
             let depth = self.c.scopes.len();
             for (v, &i) in b.vars.iter().zip(&m) {
                 self.c.scopes.push((v.name.clone(), i));

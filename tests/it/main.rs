@@ -2,6 +2,7 @@
 
 mod cli;
 mod design;
+mod diagnostics;
 mod engine;
 mod intermittent_estimation;
 mod lang;

@@ -6,7 +6,7 @@ use std::path::Path;
 use std::process::Command;
 
 use hybsim::engine::models::SampleAndHold;
-use hybsim::engine::{FlowStructure, HybridSystem, SimRng, Solver, simulate_arc};
+use hybsim::engine::{FlowStructure, HybridSystem, Solver, simulate_arc};
 use nalgebra::{DMatrix, DVector};
 use serde_json::Value;
 
@@ -116,8 +116,8 @@ fn thermostat_switches_at_the_closed_form_instants() {
         rtol: 1e-10,
         atol: 1e-12,
     });
-    let mut rng = SimRng::seed_from(0);
-    let arc = simulate_arc(&m, &m.initial_state(&mut rng), &s, &mut rng).unwrap();
+    let (x0, mut rng) = m.start(m.seed());
+    let arc = simulate_arc(&m, &x0, &s, &mut rng).unwrap();
     assert_eq!(arc.jumps().len(), expect.len());
     for (jr, &(t, _, _)) in arc.jumps().iter().zip(&expect) {
         assert!((jr.at.t - t).abs() < 1e-7, "dopri5: {} vs {t}", jr.at.t);
@@ -195,7 +195,7 @@ fn sample_and_hold_matches_the_exact_discretisation() {
     // The flow is affine: the engine propagates it exactly between samples.
     assert!(matches!(m.flow_structure(), FlowStructure::Affine { .. }));
     let arc = run(&m);
-    let x_init = m.initial_state(&mut SimRng::seed_from(0));
+    let (x_init, _) = m.start(m.seed());
     assert_eq!(x_init, reference.initial_state(&x0), "[x0, -K x0, 0]");
     assert_eq!(arc.jumps().len(), steps);
     let mut worst: f64 = 0.0;
@@ -218,8 +218,8 @@ fn sample_and_hold_matches_the_exact_discretisation() {
         rtol: 1e-10,
         atol: 1e-12,
     });
-    let mut rng = SimRng::seed_from(0);
-    let arc = simulate_arc(&m, &m.initial_state(&mut rng), &s, &mut rng).unwrap();
+    let (x0, mut rng) = m.start(m.seed());
+    let arc = simulate_arc(&m, &x0, &s, &mut rng).unwrap();
     let last = arc.jumps().last().unwrap();
     let e = &exact[steps];
     let dev = (DVector::from_column_slice(&last.pre[..39]) - e).norm() / e.norm();
@@ -292,8 +292,7 @@ fn fireflies_follow_the_event_map_and_synchronise() {
             m.rule_names(),
             ["flash[1]", "flash[2]", "flash[3]", "flash[4]", "flash[5]"]
         );
-        let mut rng = SimRng::seed_from(m.seed());
-        let x0 = m.initial_state(&mut rng);
+        let (x0, mut rng) = m.start(m.seed());
         let arc = simulate_arc(&m, &x0, &m.settings(), &mut rng).unwrap();
         let reference = fireflies_reference(&x0, 0.1, 60.0);
         let jumps = arc.jumps();

@@ -1,0 +1,613 @@
+//! Malformed and ill-typed models: each case asserts the first diagnostic's
+//! code, its `line:col` and its message exactly (and, for a few, the whole
+//! rendering with the caret). Plus a property test: random and mutated
+//! sources never make the front end panic.
+
+use hybsim::diagnostics::{Diagnostic, render};
+
+fn find(name: &str) -> &'static Case {
+    CASES
+        .iter()
+        .find(|c| c.name == name)
+        .expect("a case of the table")
+}
+use hybsim::lang::{self, Override};
+use hybsim::source::SourceFile;
+
+/// One malformed model and what `hybsim check` must say about it first.
+struct Case {
+    name: &'static str,
+    src: &'static str,
+    overrides: &'static [&'static str],
+    code: &'static str,
+    /// `line:col` of the primary label, or "" when the error is not in the
+    /// file (overrides).
+    at: &'static str,
+    message: &'static str,
+}
+
+const fn case(
+    name: &'static str,
+    src: &'static str,
+    code: &'static str,
+    at: &'static str,
+    message: &'static str,
+) -> Case {
+    Case {
+        name,
+        src,
+        overrides: &[],
+        code,
+        at,
+        message,
+    }
+}
+
+fn diagnostics(src: &SourceFile, overrides: &[&str]) -> Vec<Diagnostic> {
+    let mut ov: Vec<Override> = Vec::new();
+    for s in overrides {
+        match s.parse() {
+            Ok(o) => ov.push(o),
+            Err(d) => return vec![d],
+        }
+    }
+    lang::check_only(src, &ov)
+}
+
+const CASES: &[Case] = &[
+    // ---- syntax (E01xx) ----
+    case(
+        "incomplete expression",
+        "model m\nparam a = 1 +\nstate x = 0\n",
+        "E0101",
+        "3:1",
+        "unexpected `state`; expected an expression",
+    ),
+    case(
+        "unclosed matrix",
+        "model m\nparam A = [1, 2; 3, 4\nstate x = 0\n",
+        "E0101",
+        "3:1",
+        "unexpected `state`; expected `'`, `[` or an operator",
+    ),
+    case(
+        "flow equation without a right-hand side",
+        "model m\nstate x = 0\nflow { x' = }\n",
+        "E0101",
+        "3:13",
+        "unexpected `}`; expected an expression",
+    ),
+    case(
+        "reset written without +",
+        "model m\nstate x = 0\njump r when x >= 1 { x = 0 }\n",
+        "E0101",
+        "3:24",
+        "unexpected `=`; expected `[`",
+    ),
+    case(
+        "number out of range",
+        "model m\nparam a = 1e999\n",
+        "E0103",
+        "2:11",
+        "number `1e999` is out of range",
+    ),
+    // ---- names (E02xx) ----
+    case(
+        "unknown name with a suggestion",
+        "model m\nparam gravity = 9.81\nstate h = 1, v = 0\nflow { h' = v; v' = -gravty }\n",
+        "E0201",
+        "4:22",
+        "unknown name `gravty`",
+    ),
+    case(
+        "unknown name in a reset",
+        "model m\nstate x = 0\njump r when x >= 1 { x+ = zzz }\n",
+        "E0201",
+        "3:27",
+        "unknown name `zzz`",
+    ),
+    case(
+        "parameter used before its declaration",
+        "model m\nparam a = b + 1\nparam b = 2\n",
+        "E0201",
+        "2:11",
+        "unknown name `b`",
+    ),
+    case(
+        "duplicate parameter",
+        "model m\nparam a = 1\nparam a = 2\n",
+        "E0202",
+        "3:7",
+        "`a` is declared twice",
+    ),
+    case(
+        "state and parameter with one name",
+        "model m\nparam x = 1\nstate x = 0\n",
+        "E0202",
+        "3:7",
+        "`x` is declared twice",
+    ),
+    case(
+        "duplicate rule",
+        "model m\nstate x = 0\nflow { x' = 1 }\njump r when x >= 1 { x+ = 0 }\njump r when x >= 2 { x+ = 0 }\n",
+        "E0202",
+        "5:1",
+        "`r` is declared twice",
+    ),
+    case(
+        "duplicate family member",
+        "model m\nfor i in 1..2 { state x[1] = 0 }\n",
+        "E0202",
+        "2:23",
+        "`x[1]` is declared twice",
+    ),
+    case(
+        "unknown function with a suggestion",
+        "model m\nparam a = sqr(2)\n",
+        "E0203",
+        "2:11",
+        "unknown function `sqr`",
+    ),
+    case(
+        "unknown sim key with a suggestion",
+        "model m\nstate x = 0\nsim { seeed = 3 }\n",
+        "E0204",
+        "3:7",
+        "unknown setting `seeed`",
+    ),
+    // ---- shapes and kinds (E03xx) ----
+    case(
+        "matrix times vector of the wrong length",
+        "model m\nparam A = [1, 2; 3, 4], b = [1; 2; 3]\nparam c = A * b\n",
+        "E0301",
+        "3:11",
+        "shape mismatch in `*`: 2×2 matrix and 3×1 vector",
+    ),
+    case(
+        "sum of vectors of different lengths",
+        "model m\nstate x = [0; 0]\nflow { x' = x + [1; 2; 3] }\n",
+        "E0301",
+        "3:13",
+        "shape mismatch in `+`: 2×1 vector and 3×1 vector",
+    ),
+    case(
+        "flow equation of the wrong shape",
+        "model m\nstate x = [0; 0]\nflow { x' = [1; 2; 3] }\n",
+        "E0302",
+        "3:13",
+        "`x'` is a 2×1 vector but the right-hand side is a 3×1 vector",
+    ),
+    case(
+        "reset of the wrong shape",
+        "model m\nstate P = eye(2)\njump r when P[1, 1] >= 1 { P+ = [1; 2] }\n",
+        "E0302",
+        "3:33",
+        "`P+` is a 2×2 matrix but the right-hand side is a 2×1 vector",
+    ),
+    case(
+        "arity",
+        "model m\nparam a = atan2(1)\n",
+        "E0303",
+        "2:11",
+        "`atan2` takes 2 arguments but got 1",
+    ),
+    case(
+        "inverse of a non-square matrix",
+        "model m\nparam a = inv([1, 2])\n",
+        "E0304",
+        "2:15",
+        "expected a square matrix, found a 1×2 matrix",
+    ),
+    case(
+        "guard that is not a condition",
+        "model m\nstate x = 0\njump r when x + 1 { x+ = 0 }\n",
+        "E0304",
+        "3:13",
+        "expected a condition such as `h >= 0`, found a number",
+    ),
+    case(
+        "period that depends on a state",
+        "model m\nstate x = 1\nevery x { x+ = 0 }\n",
+        "E0305",
+        "3:7",
+        "the period of `every` must be a constant",
+    ),
+    case(
+        "singular matrix in a parameter",
+        "model m\nparam P = inv([1, 2; 2, 4])\n",
+        "E0306",
+        "2:11",
+        "cannot compute `inv`: the matrix is singular",
+    ),
+    case(
+        "model too large to compile",
+        "model m\nparam A = ones(900, 900)\nparam B = A * A * A\n",
+        "E0307",
+        "3:11",
+        "the model is too large to compile (more than 50000000 scalar operations)",
+    ),
+    // ---- indices (E04xx) ----
+    case(
+        "index out of range",
+        "model m\nstate x = [0; 0]\noutput y = x[3]\n",
+        "E0401",
+        "3:14",
+        "index 3 is out of range 1..2",
+    ),
+    case(
+        "family member out of range",
+        "model m\nfor i in 1..3 { state x[i] = 0 }\noutput y = x[4]\n",
+        "E0402",
+        "3:12",
+        "`x` has no member [4]",
+    ),
+    case(
+        "family used without an index",
+        "model m\nfor i in 1..3 { state x[i] = 0 }\noutput y = x\n",
+        "E0403",
+        "3:12",
+        "`x` is a family; index it as `x[i]`",
+    ),
+    // ---- structure (E05xx) ----
+    case(
+        "assignment to a parameter",
+        "model m\nparam g = 1\nstate x = 0\nflow { g' = 0 }\n",
+        "E0501",
+        "4:8",
+        "`g` is a parameter, not a state; only states can be assigned",
+    ),
+    case(
+        "reset twice in one rule",
+        "model m\nstate x = 0, y = 0\njump r when x >= 1 { x+ = 0; y+ = 1; x+ = 2 }\n",
+        "E0502",
+        "3:38",
+        "`x` is reset twice in rule `r`",
+    ),
+    case(
+        "family reset twice through a loop",
+        "model m\nfor i in 1..2 { state x[i] = 0 }\njump r when x[1] >= 1 { for i in 1..2 { x[1]+ = i } }\n",
+        "E0502",
+        "3:41",
+        "`x[1]` is reset twice in rule `r`",
+    ),
+    case(
+        "two flow equations",
+        "model m\nstate x = 0\nflow { x' = 1; x' = 2 }\n",
+        "E0503",
+        "3:16",
+        "`x` has two flow equations",
+    ),
+    case(
+        "missing initial value",
+        "model m\nstate x\nflow { x' = 1 }\n",
+        "E0504",
+        "2:7",
+        "state `x` has no initial value",
+    ),
+    case(
+        "random draw in a flow",
+        "model m\nstate x = 0\nflow { x' = uniform(0, 1) }\n",
+        "E0505",
+        "3:13",
+        "random draws are not allowed in a flow equation",
+    ),
+    case(
+        "negative horizon",
+        "model m\nstate x = 0\nsim { T = -1 }\n",
+        "E0506",
+        "3:11",
+        "invalid `T`: -1 is out of range",
+    ),
+    case(
+        "unknown solver",
+        "model m\nstate x = 0\nsim { solver = rk5 }\n",
+        "E0506",
+        "3:16",
+        "invalid `solver`: `rk5` is not a solver; write one of dopri5, dop853, rk4, euler_maruyama",
+    ),
+    case(
+        "white noise without a stochastic solver",
+        "model m\nnoise w ~ wiener(1)\nstate x = 0\nflow { x' = -x + w }\nsim { solver = dopri5 }\n",
+        "E0506",
+        "5:16",
+        "invalid `solver`: white noise needs `solver = euler_maruyama`",
+    ),
+    Case {
+        name: "override of an unknown name",
+        src: "model m\nparam lambda = 0.8\nstate x = 0\n",
+        overrides: &["lamda=0.5"],
+        code: "E0204",
+        at: "",
+        message: "unknown setting `lamda`",
+    },
+    Case {
+        name: "override that is not an expression",
+        src: "model m\nparam g = 1\nstate x = 0\n",
+        overrides: &["g=[1,"],
+        code: "E0508",
+        at: "",
+        message: "in override `g=[1,`: unexpected end of file; expected an expression",
+    },
+    Case {
+        name: "override whose value names an unknown parameter",
+        src: "model m\nparam g = 1\nstate x = g\nflow { x' = g }\n",
+        overrides: &["g=foo"],
+        code: "E0508",
+        at: "",
+        message: "in override `g=foo`: unknown name `foo`",
+    },
+    Case {
+        name: "override of the wrong shape",
+        src: "model m\nparam g = 1\nparam v = [1; 2] + g\n",
+        overrides: &["g=[1; 2; 3]"],
+        code: "E0301",
+        at: "3:11",
+        message: "shape mismatch in `+`: 2×1 vector and 3×1 vector",
+    },
+];
+
+#[test]
+fn malformed_models_report_location_and_message() {
+    assert!(CASES.len() >= 25);
+    let mut failures = Vec::new();
+    for c in CASES {
+        let src = SourceFile::new("m.hyb", c.src);
+        let diags = diagnostics(&src, c.overrides);
+        let Some(d) = diags.first() else {
+            failures.push(format!("{}: no diagnostic", c.name));
+            continue;
+        };
+        let at = d
+            .line_col(&src)
+            .map(|lc| lc.to_string())
+            .unwrap_or_default();
+        if (d.code, at.as_str(), d.message.as_str()) != (c.code, c.at, c.message) {
+            failures.push(format!(
+                "{}:\n    expected {} {} {:?}\n    found    {} {} {:?}",
+                c.name, c.code, c.at, c.message, d.code, at, d.message
+            ));
+        }
+    }
+    assert!(failures.is_empty(), "{}", failures.join("\n"));
+}
+
+/// Suggestions for misspelt names (strsim over the declared names).
+#[test]
+fn unknown_names_come_with_the_closest_declared_name() {
+    for (name, help) in [
+        ("unknown name with a suggestion", "did you mean `gravity`?"),
+        ("unknown function with a suggestion", "did you mean `sqrt`?"),
+        ("unknown sim key with a suggestion", "did you mean `seed`?"),
+        ("override of an unknown name", "did you mean `lambda`?"),
+    ] {
+        let c = find(name);
+        let d = diagnostics(&SourceFile::new("m.hyb", c.src), c.overrides);
+        assert_eq!(d[0].help.as_deref(), Some(help), "{name}");
+    }
+}
+
+/// The whole rendering: file:line:col, the line, the caret and its label,
+/// the second place involved, and the help.
+#[test]
+fn renderings_show_the_line_and_the_caret() {
+    let mut got = Vec::new();
+    for (name, expected) in RENDERED {
+        let c = find(name);
+        let src = SourceFile::new("m.hyb", c.src);
+        let text = render(&diagnostics(&src, c.overrides), &src, false);
+        got.push((text, expected));
+    }
+    for (text, expected) in got {
+        assert_eq!(text, *expected);
+    }
+}
+
+const RENDERED: &[(&str, &str)] = &[
+    (
+        "unknown name with a suggestion",
+        "error[E0201]: unknown name `gravty`\n  ┌─ m.hyb:4:22\n  │\n4 │ flow { h' = v; v' = -gravty }\n  │                      ^^^^^^ not found\n  │\n  = help: did you mean `gravity`?\n\n",
+    ),
+    (
+        "matrix times vector of the wrong length",
+        "error[E0301]: shape mismatch in `*`: 2×2 matrix and 3×1 vector\n  ┌─ m.hyb:3:11\n  │\n3 │ param c = A * b\n  │           ^^^^^ 2×2 matrix and 3×1 vector\n  │\n  = help: check the dimensions; use `'` to transpose\n\n",
+    ),
+    (
+        "reset twice in one rule",
+        "error[E0502]: `x` is reset twice in rule `r`\n  ┌─ m.hyb:3:38\n  │\n3 │ jump r when x >= 1 { x+ = 0; y+ = 1; x+ = 2 }\n  │                      -               ^ reset again here\n  │                      │                \n  │                      first reset here\n  │\n  = help: keep one reset per state in each rule\n\n",
+    ),
+    (
+        "family member out of range",
+        "error[E0402]: `x` has no member [4]\n  ┌─ m.hyb:3:12\n  │\n3 │ output y = x[4]\n  │            ^^^^ no such member\n  │\n  = its members are [1], [2], [3]\n\n",
+    ),
+];
+
+// ------------------------------------------------------------ no panics --
+
+mod no_panic {
+    use proptest::prelude::*;
+    use proptest::test_runner::Config;
+
+    use hybsim::diagnostics::render;
+    use hybsim::lang;
+    use hybsim::source::SourceFile;
+
+    /// Every model of `models/`.
+    fn models() -> Vec<String> {
+        let dir = concat!(env!("CARGO_MANIFEST_DIR"), "/models");
+        let mut paths: Vec<_> = std::fs::read_dir(dir)
+            .unwrap()
+            .map(|e| e.unwrap().path())
+            .filter(|p| p.extension().is_some_and(|e| e == "hyb"))
+            .collect();
+        paths.sort();
+        paths
+            .iter()
+            .map(|p| std::fs::read_to_string(p).unwrap())
+            .collect()
+    }
+
+    /// Pieces of the language a mutation inserts.
+    const TOKENS: &[&str] = &[
+        "model",
+        "param",
+        "state",
+        "flow",
+        "jump",
+        "when",
+        "every",
+        "noise",
+        "output",
+        "sim",
+        "graph",
+        "for",
+        "in",
+        "if",
+        "then",
+        "else",
+        "sum",
+        "out",
+        "edges",
+        "{",
+        "}",
+        "(",
+        ")",
+        "[",
+        "]",
+        ",",
+        ";",
+        ":",
+        "..",
+        "'",
+        "+",
+        "-",
+        "*",
+        "/",
+        ".*",
+        "./",
+        "^",
+        "=",
+        "~",
+        "<=",
+        ">=",
+        "==",
+        "!=",
+        "&&",
+        "||",
+        "!",
+        "x",
+        "i",
+        "N",
+        "0",
+        "1",
+        "-1",
+        "1e308",
+        "1e999",
+        "0.5",
+        "1000000",
+        "x[0]",
+        "x[1]",
+        "x[i]",
+        "[1, 2; 3, 4]",
+        "eye(3)",
+        "inv(",
+        "expm(",
+        "kron(",
+        "wiener(2)",
+        "uniform(0, 1)",
+        "sum(i in 1..3: ",
+        "for i in 1..3 {",
+        "\n",
+        "#",
+        "\"",
+        "é",
+        "∞",
+    ];
+
+    #[derive(Debug, Clone)]
+    enum Mutation {
+        Delete(f64, usize),
+        Insert(f64, usize),
+        Replace(f64, char),
+        Duplicate(f64, usize),
+    }
+
+    fn mutation() -> impl Strategy<Value = Mutation> {
+        prop_oneof![
+            (0.0..1.0, 1..40usize).prop_map(|(p, n)| Mutation::Delete(p, n)),
+            (0.0..1.0, 0..TOKENS.len()).prop_map(|(p, k)| Mutation::Insert(p, k)),
+            (0.0..1.0, any::<char>()).prop_map(|(p, c)| Mutation::Replace(p, c)),
+            (0.0..1.0, 1..40usize).prop_map(|(p, n)| Mutation::Duplicate(p, n)),
+        ]
+    }
+
+    fn apply(text: &str, muts: &[Mutation]) -> String {
+        let mut s: Vec<char> = text.chars().collect();
+        for m in muts {
+            let at = |p: f64, len: usize| ((p * len as f64) as usize).min(len);
+            match *m {
+                Mutation::Delete(p, n) => {
+                    let i = at(p, s.len());
+                    let j = (i + n).min(s.len());
+                    s.drain(i..j);
+                }
+                Mutation::Insert(p, k) => {
+                    let i = at(p, s.len());
+                    let tok: Vec<char> = format!(" {} ", TOKENS[k]).chars().collect();
+                    s.splice(i..i, tok);
+                }
+                Mutation::Replace(p, c) => {
+                    if !s.is_empty() {
+                        let i = at(p, s.len() - 1);
+                        s[i] = c;
+                    }
+                }
+                Mutation::Duplicate(p, n) => {
+                    let i = at(p, s.len());
+                    let j = (i + n).min(s.len());
+                    let piece: Vec<char> = s[i..j].to_vec();
+                    s.splice(j..j, piece);
+                }
+            }
+        }
+        s.into_iter().collect()
+    }
+
+    /// Parses, checks, compiles and renders the diagnostics: none may panic.
+    fn front_end(text: &str) {
+        let src = SourceFile::new("fuzz.hyb", text);
+        let diags = lang::check_only(&src, &[]);
+        let _ = render(&diags, &src, false);
+        if let Err(diags) = lang::compile(&src, &[]) {
+            assert!(!diags.is_empty());
+            let _ = render(&diags, &src, true);
+        }
+    }
+
+    proptest! {
+        #![proptest_config(Config { cases: 300, failure_persistence: None, ..Config::default() })]
+
+        #[test]
+        fn mutated_models_never_panic(
+            k in 0..64usize,
+            muts in proptest::collection::vec(mutation(), 1..6),
+        ) {
+            let models = models();
+            let text = apply(&models[k % models.len()], &muts);
+            front_end(&text);
+        }
+    }
+
+    proptest! {
+        #![proptest_config(Config { cases: 100, failure_persistence: None, ..Config::default() })]
+
+        #[test]
+        fn random_sources_never_panic(
+            text in "\\PC{0,200}",
+            toks in proptest::collection::vec(0..TOKENS.len(), 0..60),
+        ) {
+            front_end(&text);
+            let soup: Vec<&str> = toks.iter().map(|&k| TOKENS[k]).collect();
+            front_end(&format!("model m\n{}", soup.join(" ")));
+        }
+    }
+}
