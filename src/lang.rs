@@ -58,6 +58,10 @@ pub fn compile(src: &SourceFile, overrides: &[Override]) -> Result<CompiledModel
     let model = syntax::parse_model(src.text()).map_err(|e| vec![e.to_diagnostic()])?;
     let checked = check::check(&model, overrides)
         .map_err(|errs| errs.iter().map(|e| e.to_diagnostic()).collect::<Vec<_>>())?;
+    let errs = crate::ir::structural_errors(&checked);
+    if !errs.is_empty() {
+        return Err(errs.iter().map(|e| e.to_diagnostic()).collect());
+    }
     Ok(CompiledModel::new(checked, src.clone()))
 }
 
@@ -67,7 +71,10 @@ pub fn check_only(src: &SourceFile, overrides: &[Override]) -> Vec<Diagnostic> {
     match syntax::parse_model(src.text()) {
         Err(e) => vec![e.to_diagnostic()],
         Ok(model) => match check::check(&model, overrides) {
-            Ok(_) => Vec::new(),
+            Ok(checked) => crate::ir::structural_errors(&checked)
+                .iter()
+                .map(|e| e.to_diagnostic())
+                .collect(),
             Err(errs) => errs.iter().map(|e| e.to_diagnostic()).collect(),
         },
     }

@@ -236,6 +236,15 @@ pub enum CheckError {
         /// Where the budget ran out.
         span: Span,
     },
+    /// A flow equation in which white noise does not enter linearly
+    /// (`x' = w^2`): the engine needs `x' = f(x) + G(x) w`.
+    #[error("white noise must enter `{target}` linearly")]
+    NoiseNotAffine {
+        /// The equation's left-hand side (`x'`).
+        target: String,
+        /// The equation.
+        span: Span,
+    },
     /// An error inside a `--set name=value` override.
     #[error("in override `{name}={value}`: {message}")]
     Override {
@@ -273,7 +282,8 @@ impl CheckError {
             | BadSetting { span, .. }
             | Unsupported { span, .. }
             | Compute { span, .. }
-            | TooLarge { span, .. } => *span,
+            | TooLarge { span, .. }
+            | NoiseNotAffine { span, .. } => *span,
             Design(e) => e.span(),
             Override { .. } => Span::default(),
         }
@@ -306,6 +316,7 @@ impl CheckError {
             BadSetting { .. } => "E0506",
             Unsupported { .. } => "E0507",
             Override { .. } => "E0508",
+            NoiseNotAffine { .. } => "E0509",
             Design(e) => e.code(),
         }
     }
@@ -380,6 +391,10 @@ impl CheckError {
             BadSetting { span, .. } => d.primary(*span, "invalid value"),
             Unsupported { span, .. } => d.primary(*span, "not supported yet"),
             Override { .. } => d.help("fix the value given with --set"),
+            NoiseNotAffine { span, .. } => d
+                .primary(*span, "a nonlinear function of white noise")
+                .note("flows with noise are read as x' = f(x) + G(x) w, w white noise")
+                .help("write the noise term as a coefficient times the noise, e.g. `sigma * x * w`; the coefficient may depend on the state"),
             Design(e) => e.to_diagnostic(),
         }
     }

@@ -96,22 +96,69 @@ impl Lin {
     }
 }
 
+/// The variables of an affine analysis.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum Vars {
+    /// The state components; only numbers are coefficients (time, noise
+    /// and every other leaf make a form non-affine).
+    State,
+    /// The white-noise components; any expression free of noise (states,
+    /// time, functions of them) is a coefficient, of unknown value (`c` and
+    /// the term coefficients of such forms are NaN).
+    Wiener,
+}
+
 /// The affine forms of `roots` in the state, or `None` if any is not affine
 /// (or depends on time or noise).
 pub(crate) fn affine_forms(dag: &Dag, roots: &[NodeId]) -> Option<Vec<Lin>> {
+    affine_in(dag, roots, Vars::State).into_iter().collect()
+}
+
+/// The affine form of each root in `vars` (`None` for a root that is not
+/// affine in them).
+pub(crate) fn affine_in(dag: &Dag, roots: &[NodeId], vars: Vars) -> Vec<Option<Lin>> {
     let reach = dag.reachable(roots);
     let mut lin: HashMap<NodeId, Option<Lin>> = HashMap::new();
+    // For `Vars::Wiener`: nodes that depend on no noise component.
+    let mut free: HashMap<NodeId, bool> = HashMap::new();
     for id in 0..dag.len() as NodeId {
         if !reach[id as usize] {
             continue;
         }
         let get = |x: NodeId, lin: &HashMap<NodeId, Option<Lin>>| lin.get(&x).cloned().flatten();
+        if vars == Vars::Wiener {
+            let node = dag.node(id);
+            let is_free = match node {
+                Node::Wiener(_) => false,
+                Node::Un(_, a) => free[&a],
+                Node::Bin(_, a, b) => free[&a] && free[&b],
+                Node::Select(c, a, b) => free[&c] && free[&a] && free[&b],
+                Node::BlockOut(b, _) => dag.block(b).inputs.iter().all(|i| free[i]),
+                Node::Rand(_, a, b, _) => free[&a] && free[&b],
+                Node::Const(_) | Node::State(_) | Node::Time => true,
+            };
+            free.insert(id, is_free);
+            if is_free && !matches!(node, Node::Const(_)) {
+                lin.insert(
+                    id,
+                    Some(Lin {
+                        terms: Vec::new(),
+                        c: f64::NAN,
+                    }),
+                );
+                continue;
+            }
+        }
         let l = match dag.node(id) {
             Node::Const(b) => Some(Lin {
                 terms: Vec::new(),
                 c: f64::from_bits(b),
             }),
-            Node::State(k) => Some(Lin {
+            Node::State(k) if vars == Vars::State => Some(Lin {
+                terms: vec![(k, 1.0)],
+                c: 0.0,
+            }),
+            Node::Wiener(k) if vars == Vars::Wiener => Some(Lin {
                 terms: vec![(k, 1.0)],
                 c: 0.0,
             }),

@@ -452,6 +452,40 @@ impl CompiledModel {
     }
 }
 
+/// Errors of a checked model that need the IR's analyses: flow equations
+/// in which white noise does not enter affinely (the diffusion is computed
+/// as f(x, e_k) − f(x, 0), which is only right for `f(x) + G(x) w`).
+pub fn structural_errors(m: &CheckedModel) -> Vec<crate::check::CheckError> {
+    if m.wiener_dim == 0 {
+        return Vec::new();
+    }
+    let forms = analysis::affine_in(&m.dag, &m.flow, analysis::Vars::Wiener);
+    let mut seen = Vec::new();
+    let mut errors = Vec::new();
+    for (k, form) in forms.iter().enumerate() {
+        if form.is_some() {
+            continue;
+        }
+        let Some(span) = m.flow_spans[k] else {
+            continue;
+        };
+        // One error per equation (a vector equation covers many components).
+        if seen.contains(&span) {
+            continue;
+        }
+        seen.push(span);
+        let field = m
+            .fields
+            .iter()
+            .find(|f| k >= f.offset && k < f.offset + f.rows * f.cols);
+        errors.push(crate::check::CheckError::NoiseNotAffine {
+            target: format!("{}'", field.map_or("x", |f| f.name.as_str())),
+            span,
+        });
+    }
+    errors
+}
+
 /// A `when` rule whose condition is `x[k] >= c` (or `<=`) for a state with
 /// constant rate in the right direction is a timer.
 fn detect_timer(m: &CheckedModel, cond: crate::check::dag::NodeId) -> Option<GuardKind> {

@@ -312,6 +312,13 @@ const CASES: &[Case] = &[
         "5:16",
         "invalid `solver`: white noise needs `solver = euler_maruyama`",
     ),
+    case(
+        "white noise squared",
+        "model m\nnoise w ~ wiener(1)\nstate x = 0\nflow { x' = -x + w^2 }\nsim { solver = euler_maruyama }\n",
+        "E0509",
+        "4:8",
+        "white noise must enter `x'` linearly",
+    ),
     Case {
         name: "override of an unknown name",
         src: "model m\nparam lambda = 0.8\nstate x = 0\n",

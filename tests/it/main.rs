@@ -4,6 +4,7 @@ mod cli;
 mod design;
 mod diagnostics;
 mod engine;
+mod features;
 mod intermittent_estimation;
 mod lang;
 mod models;
