@@ -107,7 +107,7 @@ pub fn execute(args: TestArgs) -> anyhow::Result<u8> {
         config.cases,
         config.seed,
         if described.is_empty() {
-            "nothing (one initial state; runs differ only by seed)".to_string()
+            "no named input (other random draws come from each case's seed)".to_string()
         } else {
             described.join(", ")
         }

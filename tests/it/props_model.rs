@@ -206,3 +206,33 @@ fn declared_properties_compile_onto_props_properties() {
     let t1 = (2.0 * 1.6 / 9.81_f64).sqrt();
     assert!((v.at.t - t1).abs() < 1e-9 && v.at.j == 0, "{v}");
 }
+
+fn shipped(name: &str, sets: &[&str]) -> ModelSubject {
+    let path = format!("{}/models/{name}", env!("CARGO_MANIFEST_DIR"));
+    let ov = sets.iter().map(|s| s.parse().unwrap()).collect();
+    ModelSubject::new(SourceFile::read(path).unwrap(), ov).unwrap()
+}
+
+#[test]
+fn the_shipped_models_properties_hold_over_many_cases() {
+    for (name, sets, cases) in [
+        ("thermostat.hyb", &["x=uniform(10, 28)"][..], 100),
+        ("fireflies.hyb", &[][..], 100),
+        ("sample_and_hold.hyb", &["N=2"][..], 10),
+    ] {
+        let s = shipped(name, sets);
+        let props = s.model().properties();
+        assert!(!props.is_empty(), "{name}");
+        let report = run_tests(&s, &props, &TestConfig::default().cases(cases).seed(5));
+        assert!(report.passed(), "{name}: {:?}", report.outcome);
+        assert_eq!(report.inconclusive, 0, "{name}");
+    }
+    // The thermostat's sampled start is an input; fireflies' clocks (a
+    // family) are drawn from each case's seed.
+    assert_eq!(
+        shipped("thermostat.hyb", &["x=uniform(10, 28)"])
+            .inputs()
+            .len(),
+        1
+    );
+}
