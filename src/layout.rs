@@ -51,7 +51,9 @@ pub struct Field {
 }
 
 /// One top-level entry: a field, or a family (an array of records, one per
-/// agent or edge, e.g. `agent[i].xhat`).
+/// agent or edge, e.g. `agent[i].xhat`). A family whose members have one
+/// field with an empty name is an array of values (`x[1]`, `x[2]`, … for the
+/// `.hyb` family `state x[i]`).
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub enum Entry {
     /// A plain field.
@@ -93,7 +95,8 @@ impl Layout {
     }
 
     /// One flat name per component, in component order: `h`, `x[2]`,
-    /// `P[1,2]`, `agent[3].xhat[1]` (1-based indices, as in the models).
+    /// `P[1,2]`, `agent[3].xhat[1]`, `tau[3]` (1-based indices, as in the
+    /// models).
     pub fn flat_names(&self, dim: usize) -> Vec<String> {
         let mut names = vec![String::new(); dim];
         let mut put = |prefix: &str, f: &Field| match f.shape {
@@ -122,12 +125,65 @@ impl Layout {
                 } => {
                     for (label, fields) in labels.iter().zip(members) {
                         for f in fields {
-                            put(&format!("{name}[{label}]."), f);
+                            put(&member_prefix(name, label, f), f);
                         }
                     }
                 }
             }
         }
         names
+    }
+}
+
+/// The prefix of field `f` of member `label` of family `family` in flat
+/// names: `agent[2].` (then the field's name), or `x[2]` for an unnamed field.
+pub fn member_prefix(family: &str, label: &str, f: &Field) -> String {
+    if f.name.is_empty() {
+        format!("{family}[{label}]")
+    } else {
+        format!("{family}[{label}].")
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn families_of_values_are_named_like_the_model() {
+        let field = |name: &str, shape, offset| Field {
+            name: name.into(),
+            shape,
+            offset,
+        };
+        let layout = Layout {
+            entries: vec![
+                Entry::Field(field("h", Shape::Scalar, 0)),
+                Entry::Family {
+                    name: "x".into(),
+                    labels: vec!["1".into(), "2".into()],
+                    members: vec![
+                        vec![field("", Shape::Vector(2), 1)],
+                        vec![field("", Shape::Vector(2), 3)],
+                    ],
+                },
+                Entry::Family {
+                    name: "agent".into(),
+                    labels: vec!["1,2".into()],
+                    members: vec![vec![field("xhat", Shape::Scalar, 5)]],
+                },
+            ],
+        };
+        assert_eq!(
+            layout.flat_names(6),
+            [
+                "h",
+                "x[1][1]",
+                "x[1][2]",
+                "x[2][1]",
+                "x[2][2]",
+                "agent[1,2].xhat"
+            ]
+        );
     }
 }

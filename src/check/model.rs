@@ -37,6 +37,9 @@ pub struct StateField {
     pub span: Span,
     /// True for states the language adds (timers of `every` and `noise`).
     pub generated: bool,
+    /// For a member of a state family (`x[2]`): the family's name and the
+    /// member's label (`"2"`, `"1,3"`).
+    pub family: Option<(String, String)>,
 }
 
 /// A checked jump rule.
@@ -398,6 +401,7 @@ impl ModelChecker<'_> {
             offset,
             span,
             generated,
+            family: None,
         });
         self.init.extend(std::iter::repeat_n(None, rows * cols));
         self.flow.extend(std::iter::repeat_n(None, rows * cols));
@@ -659,7 +663,12 @@ impl ModelChecker<'_> {
             field: field_idx,
             span,
         }) {
-            let f = self.add_field(display, v.rows, v.cols, sd.target.span, false);
+            let f = self.add_field(display.clone(), v.rows, v.cols, sd.target.span, false);
+            if !sd.target.indices.is_empty() {
+                // `name[label]`, as built by `declare`.
+                let label = display[name.len() + 1..display.len() - 1].to_string();
+                self.c.fields[f].family = Some((name.clone(), label));
+            }
             let off = self.c.fields[f].offset;
             for (k, &n) in v.e.iter().enumerate() {
                 self.init[off + k] = Some(n);

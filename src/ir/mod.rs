@@ -192,19 +192,7 @@ impl CompiledModel {
             nregs = nregs.max(a.nregs).max(b.nregs);
         }
         nregs = nregs.max(frame.fixed());
-        let state_layout = Layout {
-            entries: m
-                .fields
-                .iter()
-                .map(|f| {
-                    Entry::Field(Field {
-                        name: f.name.clone(),
-                        shape: shape(f.rows, f.cols),
-                        offset: f.offset,
-                    })
-                })
-                .collect(),
-        };
+        let state_layout = state_layout(&m.fields);
         let mut off = 0;
         let output_layout = Layout {
             entries: m
@@ -450,6 +438,52 @@ impl CompiledModel {
             regs[p.outs[0] as usize]
         })
     }
+}
+
+/// The state layout: plain fields, and one `Family` entry per state family
+/// (at its first member's place) whose members are all of one shape, so
+/// that sinks write `x: [..]` and name the components `x[1]`, `x[2]`, ….
+fn state_layout(fields: &[StateField]) -> Layout {
+    let field = |f: &StateField, name: String| Field {
+        name,
+        shape: shape(f.rows, f.cols),
+        offset: f.offset,
+    };
+    let uniform = |family: &str| {
+        let mut shapes = fields
+            .iter()
+            .filter(|f| f.family.as_ref().is_some_and(|(n, _)| n == family))
+            .map(|f| (f.rows, f.cols));
+        let first = shapes.next();
+        shapes.all(|s| Some(s) == first)
+    };
+    let mut entries: Vec<Entry> = Vec::new();
+    let mut families: HashMap<&str, usize> = HashMap::new();
+    for f in fields {
+        match &f.family {
+            Some((family, label)) if uniform(family) => match families.get(family.as_str()) {
+                Some(&e) => {
+                    if let Entry::Family {
+                        labels, members, ..
+                    } = &mut entries[e]
+                    {
+                        labels.push(label.clone());
+                        members.push(vec![field(f, String::new())]);
+                    }
+                }
+                None => {
+                    families.insert(family, entries.len());
+                    entries.push(Entry::Family {
+                        name: family.clone(),
+                        labels: vec![label.clone()],
+                        members: vec![vec![field(f, String::new())]],
+                    });
+                }
+            },
+            _ => entries.push(Entry::Field(field(f, f.name.clone()))),
+        }
+    }
+    Layout { entries }
 }
 
 /// Errors of a checked model that need the IR's analyses: flow equations

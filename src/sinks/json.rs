@@ -69,8 +69,15 @@ fn layout_properties(layout: &Layout) -> (serde_json::Map<String, Value>, Vec<St
                 members,
             } => {
                 // All members have the same fields; an empty family has no items.
-                let (item_props, item_required) =
-                    fields_schema(members.first().map(Vec::as_slice).unwrap_or(&[]));
+                let first = members.first().map(Vec::as_slice).unwrap_or(&[]);
+                let items = match first {
+                    // A family of values: an array of them.
+                    [f] if f.name.is_empty() => field_schema(f.shape),
+                    _ => {
+                        let (item_props, item_required) = fields_schema(first);
+                        json!({"type": "object", "properties": item_props, "required": item_required})
+                    }
+                };
                 props.insert(
                     name.clone(),
                     json!({
@@ -78,7 +85,7 @@ fn layout_properties(layout: &Layout) -> (serde_json::Map<String, Value>, Vec<St
                         "description": format!("members in order: {}", labels.join("; ")),
                         "minItems": labels.len(),
                         "maxItems": labels.len(),
-                        "items": {"type": "object", "properties": item_props, "required": item_required}
+                        "items": items
                     }),
                 );
                 required.push(name.clone());
@@ -255,18 +262,28 @@ impl Serialize for Matrix<'_> {
 }
 
 fn put_field<M: SerializeMap>(m: &mut M, f: &Field, x: &[f64]) -> Result<(), M::Error> {
-    let v = &x[f.offset..f.offset + f.shape.len()];
-    match f.shape {
-        Shape::Scalar => m.serialize_entry(&f.name, &v[0]),
-        Shape::Vector(_) => m.serialize_entry(&f.name, v),
-        Shape::Matrix { rows, cols } => m.serialize_entry(
-            &f.name,
-            &Matrix {
+    m.serialize_entry(&f.name, &FieldValue { f, x })
+}
+
+/// The value of one field: a number, an array or a matrix object.
+struct FieldValue<'a> {
+    f: &'a Field,
+    x: &'a [f64],
+}
+
+impl Serialize for FieldValue<'_> {
+    fn serialize<S: Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        let v = &self.x[self.f.offset..self.f.offset + self.f.shape.len()];
+        match self.f.shape {
+            Shape::Scalar => v[0].serialize(s),
+            Shape::Vector(_) => v.serialize(s),
+            Shape::Matrix { rows, cols } => Matrix {
                 rows,
                 cols,
                 data: v,
-            },
-        ),
+            }
+            .serialize(s),
+        }
     }
 }
 
@@ -277,6 +294,11 @@ struct Member<'a> {
 
 impl Serialize for Member<'_> {
     fn serialize<S: Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        if let [f] = self.fields
+            && f.name.is_empty()
+        {
+            return FieldValue { f, x: self.x }.serialize(s);
+        }
         let mut m = s.serialize_map(Some(self.fields.len()))?;
         for f in self.fields {
             put_field(&mut m, f, self.x)?;

@@ -448,9 +448,16 @@ fn entry_panels(entry: &Entry, source: Source) -> Vec<PanelSpec> {
                         .iter()
                         .zip(members)
                         .filter_map(|(label, m)| m.get(k).map(|f| (label, f)))
-                        .flat_map(|(label, f)| field_components(&format!("{name}[{label}]."), f))
+                        .flat_map(|(label, f)| {
+                            field_components(&crate::layout::member_prefix(name, label, f), f)
+                        })
                         .collect();
-                    spec(format!("{name}[·].{}", field.name), comps)
+                    let title = if field.name.is_empty() {
+                        format!("{name}[·]")
+                    } else {
+                        format!("{name}[·].{}", field.name)
+                    };
+                    spec(title, comps)
                 })
                 .collect()
         }

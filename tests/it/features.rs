@@ -305,3 +305,56 @@ fn matrix_parameters_from_control_functions_agree_with_design_control() {
         assert_eq!(p["Bd"][c].as_f64().unwrap(), bd[(c, 0)]);
     }
 }
+
+#[test]
+fn state_families_are_family_entries_of_the_layout() {
+    use hybsim::layout::{Entry, Shape};
+    let m = compile(
+        "model f
+         for i in 1..3 { state x[i] = [i; 0], z[i] = i }
+         state h = 0
+         for i in 1..2 { state odd[i] = zeros(i, 1) }",
+    );
+    let entries = &m.state_layout().entries;
+    let Entry::Family {
+        name,
+        labels,
+        members,
+    } = &entries[0]
+    else {
+        panic!("{entries:?}")
+    };
+    assert_eq!(name, "x");
+    assert_eq!(labels, &["1", "2", "3"]);
+    assert_eq!(members[2][0].shape, Shape::Vector(2));
+    assert_eq!(members[2][0].offset, 6, "x[1], z[1], x[2], z[2], x[3]");
+    assert!(matches!(&entries[1], Entry::Family { name, .. } if name == "z"));
+    // Members of different shapes stay plain fields.
+    assert!(matches!(&entries[3], Entry::Field(f) if f.name == "odd[1]"));
+    assert_eq!(
+        m.state_names(),
+        [
+            "x[1][1]",
+            "x[1][2]",
+            "z[1]",
+            "x[2][1]",
+            "x[2][2]",
+            "z[2]",
+            "x[3][1]",
+            "x[3][2]",
+            "z[3]",
+            "h",
+            "odd[1]",
+            "odd[2][1]",
+            "odd[2][2]"
+        ]
+    );
+    hybsim::sinks::check_layout(m.state_layout(), m.state_dim(), "state").unwrap();
+    // In MCAP records a family of values is an array: `z: [1, 2, 3]`.
+    let schema = hybsim::sinks::json::sample_schema("state", m.state_layout());
+    let z = &schema["properties"]["z"];
+    assert_eq!(z["type"], "array");
+    assert_eq!(z["minItems"], 3);
+    assert_eq!(z["items"]["type"], "number");
+    assert_eq!(schema["properties"]["x"]["items"]["maxItems"], 2);
+}
