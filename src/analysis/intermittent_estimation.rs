@@ -36,6 +36,9 @@
 use nalgebra::{DMatrix, DVector};
 use thiserror::Error;
 
+mod certificate;
+pub use certificate::{Prop35, Vertices};
+
 /// Wrong shapes or values in the data of a [`Network`].
 #[derive(Debug, Clone, PartialEq, Error)]
 pub enum NetworkError {

@@ -400,7 +400,9 @@ impl Checker {
                 }
                 Some(val)
             }
-            Some(Sym::ParamFamily { .. }) | Some(Sym::StateFamily { .. }) => {
+            Some(Sym::ParamFamily { .. })
+            | Some(Sym::StateFamily { .. })
+            | Some(Sym::OutputFamily { .. }) => {
                 self.err(CheckError::FamilyIndex {
                     name: name.to_string(),
                     span,
@@ -441,7 +443,9 @@ impl Checker {
             .collect::<Vec<_>>()
             .join(",");
         let found = match self.syms.get(name) {
-            Some(Sym::ParamFamily { members, .. }) => members.get(&key).cloned().map(Ok),
+            Some(Sym::ParamFamily { members, .. }) | Some(Sym::OutputFamily { members, .. }) => {
+                members.get(&key).cloned().map(Ok)
+            }
             Some(Sym::StateFamily { members, .. }) => members.get(&key).copied().map(Err),
             _ => None,
         };
@@ -463,7 +467,9 @@ impl Checker {
 
     pub(crate) fn family_members_words(&self, name: &str) -> String {
         let keys: Vec<Vec<i64>> = match self.syms.get(name) {
-            Some(Sym::ParamFamily { members, .. }) => members.keys().cloned().collect(),
+            Some(Sym::ParamFamily { members, .. }) | Some(Sym::OutputFamily { members, .. }) => {
+                members.keys().cloned().collect()
+            }
             Some(Sym::StateFamily { members, .. }) => members.keys().cloned().collect(),
             _ => Vec::new(),
         };
@@ -486,7 +492,9 @@ impl Checker {
     pub(crate) fn is_family(&self, name: &str) -> bool {
         matches!(
             self.syms.get(name),
-            Some(Sym::ParamFamily { .. }) | Some(Sym::StateFamily { .. })
+            Some(Sym::ParamFamily { .. })
+                | Some(Sym::StateFamily { .. })
+                | Some(Sym::OutputFamily { .. })
         )
     }
 

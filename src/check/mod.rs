@@ -48,6 +48,11 @@ pub(crate) enum Sym {
     Wiener { val: Val, span: Span },
     /// A named output.
     Output { val: Val, span: Span },
+    /// A family of outputs (`for i in 1..N { output e[i] = ... }`).
+    OutputFamily {
+        members: BTreeMap<Vec<i64>, Val>,
+        span: Span,
+    },
 }
 
 impl Sym {
@@ -58,7 +63,8 @@ impl Sym {
             | Sym::State { span, .. }
             | Sym::StateFamily { span, .. }
             | Sym::Wiener { span, .. }
-            | Sym::Output { span, .. } => *span,
+            | Sym::Output { span, .. }
+            | Sym::OutputFamily { span, .. } => *span,
         }
     }
 
@@ -67,7 +73,7 @@ impl Sym {
             Sym::Param { .. } | Sym::ParamFamily { .. } => "a parameter",
             Sym::State { .. } | Sym::StateFamily { .. } => "a state",
             Sym::Wiener { .. } => "a white-noise input",
-            Sym::Output { .. } => "an output",
+            Sym::Output { .. } | Sym::OutputFamily { .. } => "an output",
         }
     }
 }

@@ -320,6 +320,13 @@ impl ModelChecker<'_> {
                             .syms
                             .insert(name.clone(), Sym::ParamFamily { members, span: sp });
                     }
+                    (None, Sym::Output { val, span: sp }) => {
+                        let mut members = BTreeMap::new();
+                        members.insert(key, val);
+                        self.c
+                            .syms
+                            .insert(name.clone(), Sym::OutputFamily { members, span: sp });
+                    }
                     (None, Sym::State { field, span: sp }) => {
                         let mut members = BTreeMap::new();
                         members.insert(key, field);
@@ -333,6 +340,20 @@ impl ModelChecker<'_> {
                             span: first,
                         }),
                         Sym::Param { val, .. },
+                    ) => {
+                        if members.contains_key(&key) {
+                            let e = dup(*first);
+                            self.c.err(e);
+                            return None;
+                        }
+                        members.insert(key, val);
+                    }
+                    (
+                        Some(Sym::OutputFamily {
+                            members,
+                            span: first,
+                        }),
+                        Sym::Output { val, .. },
                     ) => {
                         if members.contains_key(&key) {
                             let e = dup(*first);

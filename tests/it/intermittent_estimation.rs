@@ -167,6 +167,11 @@ pub fn decay(obs: &Observer, arc: &HybridArc) -> Decay {
         .samples()
         .map(|s| (s.at.t, obs.error_norm(s.x)))
         .collect();
+    decay_of(&pts)
+}
+
+/// Decay statistics of the points `(t, |e(t)|)` of one run.
+pub fn decay_of(pts: &[(f64, f64)]) -> Decay {
     let e0 = pts[0].1;
     let n = pts.len() as f64;
     let (st, sl) = pts
