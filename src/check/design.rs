@@ -489,16 +489,12 @@ impl Checker {
         span: Span,
         name_span: Span,
     ) {
-        if let Some(prev) = cx.vars.get(name).map(|v| v.span).or_else(|| {
-            self.syms.get(name).map(|s| match s {
-                Sym::Param { span, .. }
-                | Sym::ParamFamily { span, .. }
-                | Sym::State { span, .. }
-                | Sym::StateFamily { span, .. }
-                | Sym::Wiener { span, .. }
-                | Sym::Output { span, .. } => *span,
-            })
-        }) {
+        if let Some(prev) = cx
+            .vars
+            .get(name)
+            .map(|v| v.span)
+            .or_else(|| self.syms.get(name).map(Sym::span))
+        {
             self.err(CheckError::Duplicate {
                 name: name.to_string(),
                 span: name_span,
