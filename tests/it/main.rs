@@ -8,6 +8,7 @@ mod features;
 mod intermittent_certificate;
 mod intermittent_estimation;
 mod intermittent_model;
+mod intermittent_reproduction;
 mod lang;
 mod models;
 mod muehlebach;
