@@ -18,7 +18,7 @@ use thiserror::Error;
 
 use crate::arc::HybridArc;
 use crate::diagnostics::Diagnostic;
-use crate::engine::{HybridSystem, SimError, SimRng, simulate_arc};
+use crate::engine::{HybridSystem, SimError, simulate_arc};
 use crate::lang::{self, CompiledModel, Override};
 use crate::source::SourceFile;
 
@@ -95,8 +95,8 @@ pub fn compile<S: AsRef<str>>(
     })
 }
 
-/// Simulates `model` as `hybsim run` does: one [`SimRng`] seeded with the
-/// model's seed draws the initial state and then drives the run.
+/// Simulates `model` as `hybsim run` does, with the model's seed
+/// ([`CompiledModel::start`]: initial draws and the run's generator).
 pub fn simulate(model: &CompiledModel) -> Result<HybridArc, ExperimentError> {
     simulate_seeded(model, model.seed())
 }
@@ -104,8 +104,7 @@ pub fn simulate(model: &CompiledModel) -> Result<HybridArc, ExperimentError> {
 /// As [`simulate`] with another seed (same as `hybsim run --seed SEED`), so
 /// that an ensemble of runs needs one compilation.
 pub fn simulate_seeded(model: &CompiledModel, seed: u64) -> Result<HybridArc, ExperimentError> {
-    let mut rng = SimRng::seed_from(seed);
-    let x0 = model.initial_state(&mut rng);
+    let (x0, mut rng) = model.start(seed);
     simulate_arc(model, &x0, &model.settings(), &mut rng).map_err(|error| {
         ExperimentError::Simulation {
             model: model.name().to_string(),
