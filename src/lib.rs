@@ -14,6 +14,7 @@ pub mod check;
 pub mod design;
 pub mod diagnostics;
 pub mod engine;
+pub mod experiments;
 pub mod ir;
 pub mod lang;
 pub mod layout;

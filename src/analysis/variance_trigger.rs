@@ -456,7 +456,8 @@ impl VarianceIteration {
 
     /// The N-cycle of Theorem 2: the fixed point `p*` of `h^N` in `I_1`
     /// (found by iterating `h^N` from `t`, at most `max_cycles` times, until
-    /// successive iterates agree to `1e-14` relative), followed by
+    /// successive iterates agree to `1e-14` relative, then taking the point
+    /// of that cycle in `I_1`), followed by
     /// `h(p*), …, h^{N−1}(p*)`. `None` if the iteration did not settle or a
     /// point of the cycle is not in the interval Proposition 4 puts it in
     /// (`h^k(p*) ∈ I_{N−k+1}`).
@@ -479,7 +480,14 @@ impl VarianceIteration {
         if !settled {
             return None;
         }
-        let cycle = self.iterate(p, n - 1);
+        // Start the cycle at its point in I_1. (The iteration from t may
+        // settle on another phase: in floating point t itself can test
+        // below the threshold, c²(t − p̄) < δ by one rounding.)
+        let start = self
+            .iterate(p, n - 1)
+            .into_iter()
+            .find(|&pk| partition.locate(pk).map(|i| i.index) == Some(1))?;
+        let cycle = self.iterate(start, n - 1);
         for (k, &pk) in cycle.iter().enumerate() {
             // h^k(p*) ∈ I_{N-k+1}, with I_{N+1} meaning I_1.
             let expected = if k == 0 { 1 } else { n - k + 1 };

@@ -457,6 +457,17 @@ impl Checker {
             }
             DesignStmt::Constraint(c) => self.d_constraint(cx, c),
             DesignStmt::For(b, body) => self.d_for(cx, b, body),
+            DesignStmt::If(c, body) => {
+                if let Some(x) = self.const_scalar(c, "the condition of `if` in a design") {
+                    if x != 0.0 {
+                        for s in body {
+                            self.d_stmt(cx, s, false);
+                        }
+                    }
+                } else {
+                    cx.failed = true;
+                }
+            }
             DesignStmt::Param(defs) => {
                 if !top {
                     let span = defs.first().map_or(Span::default(), |d| d.target.span);
@@ -579,8 +590,13 @@ impl Checker {
     }
 
     fn d_for(&mut self, cx: &mut Cx, b: &Binder, body: &[DesignStmt]) {
+        // After an error in one iteration, the others are skipped (same error).
+        let before = self.errors.len();
         let IndexSet::Subsets(base) = &b.set else {
             self.for_each(b, &mut |this| {
+                if this.errors.len() > before {
+                    return;
+                }
                 for s in body {
                     this.d_stmt(cx, s, false);
                 }
@@ -628,6 +644,9 @@ impl Checker {
                 self.d_stmt(cx, s, false);
             }
             self.set_scopes.pop();
+            if self.errors.len() > before {
+                break;
+            }
         }
     }
 

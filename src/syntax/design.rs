@@ -135,6 +135,8 @@ pub enum DesignStmt {
     Constraint(Constraint),
     /// `for m in 1..N { ... }`, `for S in subsets(1..N) { ... }`.
     For(Binder, Vec<DesignStmt>),
+    /// `if c { ... }` with a constant condition.
+    If(Expr, Vec<DesignStmt>),
     /// `param a = ..., b = ...`: results.
     Param(Vec<Definition>),
     /// `param (K, S) = dlqr(...)`: results of a control function.
@@ -190,6 +192,10 @@ fn stmt(p: Pair<'_, Rule>) -> Res<DesignStmt> {
         Rule::design_for => {
             let b = binder(first(&mut inner, span)?)?;
             DesignStmt::For(b, inner.map(stmt).collect::<Res<_>>()?)
+        }
+        Rule::design_if => {
+            let c = expr(first(&mut inner, span)?)?;
+            DesignStmt::If(c, inner.map(stmt).collect::<Res<_>>()?)
         }
         Rule::param_decl => DesignStmt::Param(inner.map(definition).collect::<Res<_>>()?),
         Rule::param_tuple => {

@@ -176,7 +176,7 @@ fn describe(rule: Rule) -> Option<&'static str> {
         }
         Rule::var_decl => "a variable name",
         Rule::design_obj | Rule::obj_sense => "`minimize` or `maximize`",
-        Rule::design_for => "`for`",
+        Rule::design_for | Rule::design_if => "`for` or `if`",
         Rule::design_cons | Rule::lmi_side | Rule::lmi_blocks | Rule::lmi_row | Rule::lmi_elem => {
             "a constraint such as `[P, A'*P; *, P] > 0`"
         }

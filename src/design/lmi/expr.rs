@@ -218,10 +218,16 @@ impl Expr {
             if other.shape() == (1, 1) && self.shape().1 != 1 {
                 return Ok(self.scale(other.constant[(0, 0)]));
             }
+            if self.shape() == (1, 1) && other.shape().0 != 1 {
+                return Ok(self.kron_left(&other.constant));
+            }
             self.right_mul(&other.constant)
         } else if self.is_constant() {
             if self.shape() == (1, 1) && other.shape().0 != 1 {
                 return Ok(other.scale(self.constant[(0, 0)]));
+            }
+            if other.shape() == (1, 1) && self.shape().1 != 1 {
+                return Ok(other.kron_left(&self.constant));
             }
             other.left_mul(&self.constant)
         } else {
