@@ -275,8 +275,20 @@ impl DesignReport {
 /// A solved block before its results are declared: variable values and the
 /// solver figures.
 pub(crate) struct Solved {
-    pub values: Vec<(String, DMatrix<f64>, Span)>,
+    pub values: Vec<SolvedVar>,
     pub summary: Option<SolveSummary>,
+}
+
+/// The value of one decision variable (or family member) at the solution.
+pub(crate) struct SolvedVar {
+    /// The variable's (or family's) name.
+    pub name: String,
+    /// The family index of a member of a variable family.
+    pub member: Option<Vec<i64>>,
+    /// Its value.
+    pub value: DMatrix<f64>,
+    /// Its declaration.
+    pub span: Span,
 }
 
 /// A declared decision variable.
@@ -285,12 +297,24 @@ struct DVar {
     expr: LExpr,
     shape: VarShape,
     span: Span,
+    /// `(family, index)` for a member of a variable family.
+    member: Option<(String, Vec<i64>)>,
+}
+
+/// The key of member `index` of variable family `name` (also its name in
+/// the LMI problem): `P[2]`, `F[1,3]`.
+fn member_key(name: &str, index: &[i64]) -> String {
+    let idx: Vec<String> = index.iter().map(|i| i.to_string()).collect();
+    format!("{name}[{}]", idx.join(","))
 }
 
 /// Elaboration state of one block.
 struct Cx {
     block: String,
     vars: HashMap<String, DVar>,
+    /// Variable families (`sym P[k][n]`): name → first declaration. Members
+    /// are in `vars` under [`member_key`].
+    families: HashMap<String, Span>,
     problem: Problem,
     objective: Option<Span>,
     /// Scope depth at the start of the block (loop indices above it label constraints).
@@ -307,6 +331,7 @@ impl Checker {
         let mut cx = Cx {
             block: d.name.name.clone(),
             vars: HashMap::new(),
+            families: HashMap::new(),
             problem: Problem::new().with_settings(design_settings()),
             objective: None,
             depth: self.scopes.len(),
@@ -364,11 +389,20 @@ impl Checker {
                     let Some(raw) = design.value(name) else {
                         continue;
                     };
-                    let m = match v.shape {
+                    let value = match v.shape {
                         VarShape::Diagonal => DMatrix::from_diagonal(&raw.column(0).into_owned()),
                         _ => raw.clone(),
                     };
-                    values.push((name.clone(), m, v.span));
+                    let (name, member) = match &v.member {
+                        Some((family, index)) => (family.clone(), Some(index.clone())),
+                        None => (name.clone(), None),
+                    };
+                    values.push(SolvedVar {
+                        name,
+                        member,
+                        value,
+                        span: v.span,
+                    });
                 }
                 let info = &design.info;
                 return Some(Solved {
@@ -402,9 +436,10 @@ impl Checker {
     }
 
     /// Binds solved variable values as constant parameters (for the block's
-    /// results); returns the names bound.
-    pub(crate) fn bind_design_values(&mut self, values: &[(String, DMatrix<f64>, Span)]) {
-        for (name, m, span) in values {
+    /// results); members of a variable family become a parameter family.
+    pub(crate) fn bind_design_values(&mut self, values: &[SolvedVar]) {
+        for v in values {
+            let m = &v.value;
             let mut e = Vec::with_capacity(m.len());
             for i in 0..m.nrows() {
                 for j in 0..m.ncols() {
@@ -417,8 +452,24 @@ impl Checker {
                 e,
                 boolean: false,
             };
-            self.syms
-                .insert(name.clone(), Sym::Param { val, span: *span });
+            match &v.member {
+                None => {
+                    self.syms
+                        .insert(v.name.clone(), Sym::Param { val, span: v.span });
+                }
+                Some(index) => {
+                    let entry =
+                        self.syms
+                            .entry(v.name.clone())
+                            .or_insert_with(|| Sym::ParamFamily {
+                                members: std::collections::BTreeMap::new(),
+                                span: v.span,
+                            });
+                    if let Sym::ParamFamily { members, .. } = entry {
+                        members.insert(index.clone(), val);
+                    }
+                }
+            }
         }
     }
 
@@ -426,7 +477,7 @@ impl Checker {
         match s {
             DesignStmt::Var(shape, decls) => {
                 for d in decls {
-                    self.d_var(cx, *shape, &d.name.name, &d.dims, d.span, d.name.span);
+                    self.d_var(cx, *shape, d);
                 }
             }
             DesignStmt::Objective(sense, e, span) => {
@@ -469,21 +520,23 @@ impl Checker {
                 }
             }
             DesignStmt::Param(defs) => {
-                if !top {
+                // Results inside `for` and `if` are declared by the model
+                // checker (it walks the same loops); not inside `subsets`.
+                if !top && !self.set_scopes.is_empty() {
                     let span = defs.first().map_or(Span::default(), |d| d.target.span);
                     self.err(CheckError::Expected {
-                        expected: "results (`param`) at the top level of the design block".into(),
-                        found: "a result inside a loop".into(),
+                        expected: "results (`param`) outside `for S in subsets(..)`".into(),
+                        found: "a result inside a loop over subsets".into(),
                         span,
                     });
                 }
             }
             DesignStmt::ParamTuple(t, _) => {
-                if !top {
+                if !top && !self.set_scopes.is_empty() {
                     let span = t.first().map_or(Span::default(), |d| d.span);
                     self.err(CheckError::Expected {
-                        expected: "results (`param`) at the top level of the design block".into(),
-                        found: "a result inside a loop".into(),
+                        expected: "results (`param`) outside `for S in subsets(..)`".into(),
+                        found: "a result inside a loop over subsets".into(),
                         span,
                     });
                 }
@@ -491,29 +544,54 @@ impl Checker {
         }
     }
 
-    fn d_var(
-        &mut self,
-        cx: &mut Cx,
-        shape: VarShape,
-        name: &str,
-        dims: &[Expr],
-        span: Span,
-        name_span: Span,
-    ) {
+    fn d_var(&mut self, cx: &mut Cx, shape: VarShape, d: &crate::syntax::ast::VarDecl) {
+        let (dims, span, name_span) = (&d.dims, d.span, d.name.span);
+        let family = &d.name.name;
+        let member = if d.member.is_empty() {
+            None
+        } else {
+            let mut index = Vec::new();
+            for e in &d.member {
+                match self.const_int(e, "a family index") {
+                    Some(i) => index.push(i),
+                    None => {
+                        cx.failed = true;
+                        return;
+                    }
+                }
+            }
+            Some(index)
+        };
+        let name = match &member {
+            Some(index) => member_key(family, index),
+            None => family.clone(),
+        };
+        // A plain variable and a family share one name space (with the
+        // model's names); members of one family must differ.
+        let clash = match &member {
+            None => cx.families.get(family).copied(),
+            Some(_) => cx
+                .vars
+                .get(family)
+                .filter(|v| v.member.is_none())
+                .map(|v| v.span),
+        };
         if let Some(prev) = cx
             .vars
-            .get(name)
+            .get(&name)
             .map(|v| v.span)
-            .or_else(|| self.syms.get(name).map(Sym::span))
+            .or(clash)
+            .or_else(|| self.syms.get(family).map(Sym::span))
         {
             self.err(CheckError::Duplicate {
-                name: name.to_string(),
+                name: name.clone(),
                 span: name_span,
                 first: prev,
             });
             cx.failed = true;
             return;
         }
+        let name = name.as_str();
         let want = match shape {
             VarShape::Scalar => 0..=0,
             VarShape::Symmetric | VarShape::Diagonal => 1..=1,
@@ -579,12 +657,16 @@ impl Checker {
             },
             _ => v,
         };
+        if member.is_some() {
+            cx.families.entry(family.clone()).or_insert(name_span);
+        }
         cx.vars.insert(
             name.to_string(),
             DVar {
                 expr,
                 shape,
                 span: name_span,
+                member: member.map(|index| (family.clone(), index)),
             },
         );
     }
@@ -870,7 +952,8 @@ impl Checker {
         match &e.kind {
             ExprKind::Num(_) | ExprKind::Bool(_) => false,
             ExprKind::Name(n) => {
-                cx.vars.contains_key(n) && !self.scopes.iter().any(|(s, _)| s == n)
+                (cx.vars.contains_key(n) || cx.families.contains_key(n))
+                    && !self.scopes.iter().any(|(s, _)| s == n)
             }
             ExprKind::Matrix(rows) => rows.iter().flatten().any(|x| self.mentions(cx, x)),
             ExprKind::Unary(_, a) => self.mentions(cx, a),
@@ -921,7 +1004,50 @@ impl Checker {
             None
         };
         match &e.kind {
+            ExprKind::Name(n) if cx.families.contains_key(n) => {
+                self.err(CheckError::FamilyIndex {
+                    name: n.clone(),
+                    span: e.span,
+                });
+                None
+            }
             ExprKind::Name(n) => cx.vars.get(n).map(|v| v.expr.clone()),
+            ExprKind::Index(base, args)
+                if matches!(&base.kind, ExprKind::Name(n) if cx.families.contains_key(n)
+                    && !self.scopes.iter().any(|(s, _)| s == n)) =>
+            {
+                let ExprKind::Name(n) = &base.kind else {
+                    return None;
+                };
+                let key = self.family_key(args)?;
+                match cx.vars.get(&member_key(n, &key)) {
+                    Some(v) => Some(v.expr.clone()),
+                    None => {
+                        let mut keys: Vec<&Vec<i64>> = cx
+                            .vars
+                            .values()
+                            .filter_map(|v| v.member.as_ref())
+                            .filter(|(f, _)| f == n)
+                            .map(|(_, k)| k)
+                            .collect();
+                        keys.sort();
+                        let words: Vec<String> = keys.iter().map(|k| member_key("", k)).collect();
+                        self.err(CheckError::FamilyOutOfRange {
+                            name: n.clone(),
+                            index: member_key("", &key)
+                                .trim_matches(|c| c == '[' || c == ']')
+                                .to_string(),
+                            members: if words.is_empty() {
+                                "none".into()
+                            } else {
+                                words.join(", ")
+                            },
+                            span: e.span,
+                        });
+                        None
+                    }
+                }
+            }
             ExprKind::Unary(UnOp::Neg, a) => Some(self.aff(cx, a)?.neg()),
             ExprKind::Unary(UnOp::Transpose, a) => Some(self.aff(cx, a)?.transpose()),
             ExprKind::Unary(UnOp::Not, _) => non_affine(self, "a logical `!`"),

@@ -565,46 +565,83 @@ impl ModelChecker<'_> {
     /// results declared as parameters with the variables bound to their values.
     fn design(&mut self, d: &DesignBlock) {
         let mut targets: Vec<&Target> = Vec::new();
+        let mut nested = false;
         for s in &d.stmts {
             match s {
                 DesignStmt::Param(defs) => targets.extend(defs.iter().map(|d| &d.target)),
                 DesignStmt::ParamTuple(t, _) => targets.extend(t.iter()),
+                DesignStmt::For(..) | DesignStmt::If(..) => nested = true,
                 _ => {}
             }
         }
+        // Results inside loops (families) cannot all be given with --set.
         let all_set = !targets.is_empty()
+            && !(nested && has_results(&d.stmts, false))
             && targets
                 .iter()
                 .all(|t| self.overrides.contains_key(t.name.name.as_str()));
         let Some(solved) = self.c.design_block(d, !all_set) else {
             // Declare the results anyway (as 0) so that later uses do not cascade.
-            for t in targets {
-                let z = self.c.dag.konst(0.0);
-                let span = t.name.span;
-                self.declare(t, |_| Sym::Param {
-                    val: Val::scalar(z),
-                    span,
-                });
-            }
+            self.design_results(&d.stmts, false);
             return;
         };
         self.c.bind_design_values(&solved.values);
         let first = self.params.len();
-        for s in &d.stmts {
-            match s {
-                DesignStmt::Param(defs) => defs.iter().for_each(|p| self.param(p, false)),
-                DesignStmt::ParamTuple(t, v) => self.param_tuple(t, v),
-                _ => {}
-            }
-        }
-        for (name, _, _) in &solved.values {
-            self.c.syms.remove(name);
+        self.design_results(&d.stmts, true);
+        for v in &solved.values {
+            self.c.syms.remove(&v.name);
         }
         self.designs.push(DesignReport {
             name: d.name.name.clone(),
             span: d.name.span,
             solve: solved.summary,
             results: self.params[first..].to_vec(),
+        });
+    }
+
+    /// Declares the results (`param` lines) of a design block, also those in
+    /// its `for` loops and `if`s: evaluated (`solved`) or as 0 after a
+    /// failed design, so that later uses do not cascade.
+    fn design_results(&mut self, stmts: &[DesignStmt], solved: bool) {
+        for s in stmts {
+            match s {
+                DesignStmt::Param(defs) if solved => defs.iter().for_each(|p| self.param(p, false)),
+                DesignStmt::ParamTuple(t, v) if solved => self.param_tuple(t, v),
+                DesignStmt::Param(defs) => {
+                    for d in defs {
+                        self.declare_zero(&d.target);
+                    }
+                }
+                DesignStmt::ParamTuple(t, _) => {
+                    for t in t {
+                        self.declare_zero(t);
+                    }
+                }
+                DesignStmt::For(b, body)
+                    if !matches!(b.set, crate::syntax::ast::IndexSet::Subsets(_))
+                        && has_results(body, true) =>
+                {
+                    self.c_for(b, &mut |this| this.design_results(body, solved));
+                }
+                DesignStmt::If(c, body) if has_results(body, true) => {
+                    if let Some(x) = self.c.const_scalar(c, "the condition of `if` in a design")
+                        && x != 0.0
+                    {
+                        self.design_results(body, solved);
+                    }
+                }
+                _ => {}
+            }
+        }
+    }
+
+    /// Declares `t` as the parameter 0.
+    fn declare_zero(&mut self, t: &Target) {
+        let z = self.c.dag.konst(0.0);
+        let span = t.name.span;
+        self.declare(t, |_| Sym::Param {
+            val: Val::scalar(z),
+            span,
         });
     }
 
@@ -1250,4 +1287,14 @@ impl ModelChecker<'_> {
         }
         (s, seed)
     }
+}
+
+/// Whether design statements declare results (`param` lines), at this level
+/// (`deep`: also inside `for` and `if`).
+fn has_results(stmts: &[DesignStmt], deep: bool) -> bool {
+    stmts.iter().any(|s| match s {
+        DesignStmt::Param(_) | DesignStmt::ParamTuple(..) => deep,
+        DesignStmt::For(_, body) | DesignStmt::If(_, body) => has_results(body, true),
+        _ => false,
+    })
 }

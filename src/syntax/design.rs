@@ -3,6 +3,7 @@
 //! ```text
 //! design observer {
 //!     sym P[n]; full U[n, p]; sym X[k]; diag Delta[p]; scalar g
+//!     for i in 1..N { sym Q[i][n] }          # a family of variables: Q[1], …, Q[N]
 //!     minimize trace(X)                       # or `maximize e`; none: feasibility
 //!     stab: [P, (P - U*C)*A; *, P] > 0        # `*`: the transpose of the mirror block
 //!     for S in subsets(1..p) { [P, (P - sum(m in S: U[:, m]*C[m, :]))*A; *, P] > 0 }
@@ -46,6 +47,9 @@ pub enum VarShape {
 pub struct VarDecl {
     /// Its name.
     pub name: Ident,
+    /// The family index of a member of a variable family (`sym P[k][n]`:
+    /// `[k]`); empty for a plain variable.
+    pub member: Vec<Expr>,
     /// Its size expressions (`[n]`, `[r, c]`).
     pub dims: Vec<Expr>,
     /// The declaration.
@@ -172,9 +176,22 @@ fn stmt(p: Pair<'_, Rule>) -> Res<DesignStmt> {
                     let dspan: Span = d.as_span().into();
                     let mut it = d.into_inner();
                     let name = ident(first(&mut it, dspan)?);
-                    let dims = it.map(expr).collect::<Res<_>>()?;
+                    let mut member = Vec::new();
+                    let mut dims = Vec::new();
+                    for q in it {
+                        if q.as_rule() == Rule::var_member {
+                            member = q
+                                .into_inner()
+                                .filter(|e| e.as_rule() != Rule::member_close)
+                                .map(expr)
+                                .collect::<Res<_>>()?;
+                        } else {
+                            dims.push(expr(q)?);
+                        }
+                    }
                     Ok(VarDecl {
                         name,
+                        member,
                         dims,
                         span: dspan,
                     })

@@ -175,6 +175,7 @@ fn describe(rule: Rule) -> Option<&'static str> {
             "a decision variable (`sym P[n]`, `full U[n, m]`, `diag D[n]`, `scalar g`)"
         }
         Rule::var_decl => "a variable name",
+        Rule::var_member | Rule::member_close => "a family index and a size (`sym P[k][n]`)",
         Rule::design_obj | Rule::obj_sense => "`minimize` or `maximize`",
         Rule::design_for | Rule::design_if => "`for` or `if`",
         Rule::design_cons | Rule::lmi_side | Rule::lmi_blocks | Rule::lmi_row | Rule::lmi_elem => {

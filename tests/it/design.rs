@@ -304,3 +304,69 @@ fn cli_design_prints_reports_and_run_records_them() {
     assert_eq!(block["status"], "Solved");
     assert!((block["results"]["trP"].as_f64().unwrap() - 0.8333333).abs() < 1e-6);
 }
+
+/// Two agents with their own Lyapunov matrices P[k] (a variable family),
+/// coupled through one constraint on both; results per agent (a parameter
+/// family declared inside the block's loop).
+const FAMILY: &str = "model fam
+param N = 2
+param A[1] = [-1, 2; 0, -3]
+param A[2] = [-2, 0; 1, -1]
+design lyap {
+    for k in 1..N { sym P[k][2] }
+    scalar g
+    minimize g
+    for k in 1..N {
+        lyap: A[k]'*P[k] + P[k]*A[k] + eye(2) == 0
+        P[k][1, 1] <= g
+    }
+    sum(k in 1..N: P[k]) >= 0
+    for k in 1..N { param X[k] = P[k] }
+    param gmax = g
+}
+state x = 0
+flow { x' = -x }
+output y = X[2][1, 1]
+";
+
+#[test]
+fn variable_families_are_declared_per_member_and_give_result_families() {
+    let m = ok(FAMILY, &[]);
+    for (k, a) in [
+        (1, dmatrix![-1.0, 2.0; 0.0, -3.0]),
+        (2, dmatrix![-2.0, 0.0; 1.0, -1.0]),
+    ] {
+        let want = lyap(&a.transpose(), &DMatrix::identity(2, 2)).unwrap();
+        let got = param(&m, &format!("X[{k}]"));
+        assert!((&got - &want).norm() < 1e-6, "X[{k}] = {got}, want {want}");
+    }
+    let g = param(&m, "gmax")[(0, 0)];
+    let x11 = param(&m, "X[1]")[(0, 0)].max(param(&m, "X[2]")[(0, 0)]);
+    assert!((g - x11).abs() < 1e-6);
+    let labels: Vec<String> = m.design_reports()[0]
+        .results
+        .iter()
+        .map(|r| r.0.clone())
+        .collect();
+    assert_eq!(labels, ["X[1]", "X[2]", "gmax"]);
+    // Errors: a member outside the family, the family without an index, a
+    // member declared twice.
+    let bad = FAMILY.replace("P[k][1, 1] <= g", "P[k + 1][1, 1] <= g");
+    let Err((d, src)) = compile(&bad, &[]) else {
+        panic!("expected an error")
+    };
+    assert_eq!(
+        d[0].code,
+        "E0402",
+        "{}",
+        hybsim::diagnostics::render(&d, &src, false)
+    );
+    assert!(d[0].message.contains("P"), "{}", d[0].message);
+    let (code, at, _) = error(&FAMILY.replace("sum(k in 1..N: P[k]) >= 0", "P >= 0"));
+    assert_eq!((code.as_str(), at.as_str()), ("E0403", "13:5"));
+    let Err((d, _)) = compile(&FAMILY.replace("{ sym P[k][2] }", "{ sym P[1][2] }"), &[]) else {
+        panic!("expected an error")
+    };
+    assert_eq!(d[0].code, "E0202", "{}", d[0].message);
+    assert!(d[0].message.contains("`P[1]`"), "{}", d[0].message);
+}

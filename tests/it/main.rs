@@ -18,3 +18,4 @@ mod props_model;
 mod sinks;
 mod util;
 mod variance_trigger;
+mod wu_ugrinovskii_allgower;
