@@ -565,18 +565,17 @@ impl ModelChecker<'_> {
     /// results declared as parameters with the variables bound to their values.
     fn design(&mut self, d: &DesignBlock) {
         let mut targets: Vec<&Target> = Vec::new();
-        let mut nested = false;
         for s in &d.stmts {
             match s {
                 DesignStmt::Param(defs) => targets.extend(defs.iter().map(|d| &d.target)),
                 DesignStmt::ParamTuple(t, _) => targets.extend(t.iter()),
-                DesignStmt::For(..) | DesignStmt::If(..) => nested = true,
                 _ => {}
             }
         }
         // Results inside loops (families) cannot all be given with --set.
-        let all_set = !targets.is_empty()
-            && !(nested && has_results(&d.stmts, false))
+        let nested_results = has_results(&d.stmts, false);
+        let all_set = !nested_results
+            && !targets.is_empty()
             && targets
                 .iter()
                 .all(|t| self.overrides.contains_key(t.name.name.as_str()));
