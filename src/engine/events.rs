@@ -276,6 +276,13 @@ impl Watcher {
         path.eval(b, &mut self.buf_b);
         let mut fa = Self::value(sys, w, t0 + a, &self.buf_a);
         let mut fb = Self::value(sys, w, t0 + b, &self.buf_b);
+        if fb == 0.0 && matches!(w, Watched::Rule(_)) {
+            // b is an exact root (a clock reaching its threshold at a step
+            // end, e.g. on a timer's instant): the crossing is at b. Secant
+            // and bisection would only creep towards b for ~50 iterations.
+            self.buf_a.copy_from_slice(&self.buf_b);
+            return (b, b);
+        }
         let mut side = 0i8;
         let mut widths = [f64::INFINITY; 2];
         for _ in 0..200 {

@@ -636,6 +636,7 @@ fn close_step<S: HybridSystem + ?Sized, P: StepPath>(
 ) -> Option<SegmentEnd> {
     if !watcher.is_empty()
         && let Some((se, kind)) = watcher.scan(sys, t0, path, s0, s1, y1)
+        && !(reach.is_some() && se >= s1)
     {
         y_end.copy_from_slice(&watcher.event_state);
         let why = if out.step(t0, j, path, s0, s1, y1, se).is_break() {

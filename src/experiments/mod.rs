@@ -5,6 +5,8 @@
 //!
 //! * [`StepTable`]: the per-step values (states and outputs) of a
 //!   discrete-time run, one row per jump index `j = k`.
+//! * [`consensus_estimation`]: `models/consensus_estimation.hyb` (Perez-Salesa
+//!   et al.), the metrics of Sec. 5 and the constants of Prop. 1.
 //! * [`variance_trigger`]: `models/variance_triggering.hyb` (Trimpe and
 //!   D'Andrea) for given parameters, and the Fig. 4 δ sweep against the
 //!   library's Algorithm 1.
@@ -12,6 +14,7 @@
 //! Used by the reproduction tests and the `examples/` figure programs, so
 //! both compute the same data in the same way.
 
+pub mod consensus_estimation;
 pub mod variance_trigger;
 
 use thiserror::Error;

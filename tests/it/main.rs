@@ -12,6 +12,7 @@ mod intermittent_reproduction;
 mod lang;
 mod models;
 mod muehlebach;
+mod perez_salesa;
 mod props;
 mod props_cli;
 mod props_model;
