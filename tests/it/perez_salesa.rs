@@ -321,3 +321,34 @@ fn perez_salesa_model_properties_hold() {
         assert_eq!(report.inconclusive, 0);
     }
 }
+
+/// A clock guard `c >= 1 && …` that reaches its threshold exactly when a
+/// timer rule is due fires at that very instant, after the timer rule
+/// declared before it, not one rounding step earlier after a bisection
+/// towards the step end (the engine's exact-root case; this model's
+/// `event[i]` with τ̲ = h hits it at every step).
+#[test]
+fn perez_salesa_clock_guard_on_a_timer_instant_fires_there() {
+    use hybsim::engine::{HybridSystem, simulate_arc};
+    let src = hybsim::source::SourceFile::new(
+        "clock.hyb",
+        "model clock\nstate k = 0, c = 0, m = 0\nflow { c' = 1 }\nevery 1 { k+ = k + 1 }\n\
+         jump fire when c >= 1 && k >= 0 { c+ = 0; m+ = m + 1 }\n\
+         sim { T = 3.5; J = 100; solver = euler_maruyama; h = 0.25 }\n",
+    );
+    let m = hybsim::lang::compile(&src, &[]).expect("compiles");
+    let (x0, mut rng) = m.start(1);
+    let arc = simulate_arc(&m, &x0, &m.settings(), &mut rng).expect("runs");
+    let names = m.rule_names();
+    let jumps: Vec<(f64, &str)> = arc
+        .jumps()
+        .iter()
+        .map(|j| (j.at.t, names[j.rule].as_str()))
+        .collect();
+    let want: Vec<(f64, &str)> = [1.0, 2.0, 3.0]
+        .iter()
+        .flat_map(|&t| [(t, "step"), (t, "fire")])
+        .collect();
+    assert_eq!(jumps, want);
+    assert_eq!(m.state_dim(), 4, "k, c, m and the timer of `every`");
+}
