@@ -14,7 +14,6 @@ use hybsim::engine::{HybridSystem, SimRng, SimSettings, Solver, simulate_arc};
 use hybsim::lang::{self, CompiledModel};
 use hybsim::source::SourceFile;
 use nalgebra::DMatrix;
-use serde_json::Value;
 
 fn load(name: &str, overrides: &[&str]) -> CompiledModel {
     let path = format!("{}/models/{name}", env!("CARGO_MANIFEST_DIR"));
@@ -23,26 +22,11 @@ fn load(name: &str, overrides: &[&str]) -> CompiledModel {
     lang::compile(&src, &ov).expect("the model compiles")
 }
 
-fn matrix(v: &Value) -> DMatrix<f64> {
-    let rows = v.as_array().unwrap();
-    match rows[0].as_array() {
-        Some(first) => {
-            DMatrix::from_fn(rows.len(), first.len(), |i, j| rows[i][j].as_f64().unwrap())
-        }
-        None => DMatrix::from_iterator(rows.len(), 1, rows.iter().map(|x| x.as_f64().unwrap())),
-    }
-}
-
 /// The Rust twin of models/sample_and_hold.hyb, from the model's own
 /// resolved parameters (A, B, K, Ts).
 fn hold_twin(m: &CompiledModel) -> SampleAndHold {
-    let p = m.parameters_json();
-    SampleAndHold::new(
-        matrix(&p["A"]),
-        matrix(&p["B"]),
-        matrix(&p["K"]),
-        p["Ts"].as_f64().unwrap(),
-    )
+    let p = |name| m.parameter(name).expect("a parameter of the model");
+    SampleAndHold::new(p("A"), p("B"), p("K"), p("Ts")[(0, 0)])
 }
 
 fn run(sys: &dyn HybridSystem, x0: &[f64], s: &SimSettings) -> (usize, Vec<f64>) {

@@ -19,30 +19,11 @@ use hybsim::lang::{self, CompiledModel, Override};
 use hybsim::sinks::plot::{Figure, Panel, Series};
 use hybsim::source::SourceFile;
 use nalgebra::DMatrix;
-use serde_json::Value;
 
+/// A parameter of the compiled model (after overrides and `design` blocks).
 fn param(m: &CompiledModel, name: &str) -> DMatrix<f64> {
-    let v = &m.parameters_json()[name];
-    let rows: Vec<Vec<f64>> = match v {
-        Value::Array(r) if r.iter().all(|x| x.is_array()) => r
-            .iter()
-            .map(|row| {
-                row.as_array()
-                    .into_iter()
-                    .flatten()
-                    .filter_map(|x| x.as_f64())
-                    .collect()
-            })
-            .collect(),
-        Value::Array(r) => r
-            .iter()
-            .filter_map(|x| x.as_f64())
-            .map(|x| vec![x])
-            .collect(),
-        Value::Number(x) => vec![vec![x.as_f64().unwrap_or(f64::NAN)]],
-        _ => vec![vec![f64::NAN]],
-    };
-    DMatrix::from_fn(rows.len(), rows[0].len(), |i, j| rows[i][j])
+    m.parameter(name)
+        .unwrap_or_else(|| panic!("the model has no parameter `{name}`"))
 }
 
 fn compile(src: &SourceFile, sets: &[String]) -> Result<CompiledModel, Box<dyn Error>> {

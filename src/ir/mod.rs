@@ -380,6 +380,25 @@ impl CompiledModel {
         Some(serde_json::Value::Object(blocks))
     }
 
+    /// The resolved value of parameter `name` (after overrides and `design`
+    /// blocks) as a matrix (a scalar is 1×1, a vector a column), or `None`
+    /// if the model has no such parameter.
+    ///
+    /// ```
+    /// use hybsim::{lang, source::SourceFile};
+    /// let src = SourceFile::new("m.hyb", "model m\nparam K = [1, 2; 3, 4]\nstate x = 0\n");
+    /// let model = lang::compile(&src, &[]).unwrap();
+    /// let k = model.parameter("K").unwrap();
+    /// assert_eq!((k.nrows(), k.ncols(), k[(1, 0)]), (2, 2, 3.0));
+    /// assert!(model.parameter("L").is_none());
+    /// ```
+    pub fn parameter(&self, name: &str) -> Option<nalgebra::DMatrix<f64>> {
+        self.params
+            .iter()
+            .find(|(n, _, _)| n == name)
+            .map(|(_, (rows, cols), vals)| nalgebra::DMatrix::from_row_slice(*rows, *cols, vals))
+    }
+
     /// Resolved parameters as JSON: `{name: number | [..] | [[..], ..]}`.
     pub fn parameters_json(&self) -> serde_json::Value {
         let mut map = serde_json::Map::new();

@@ -39,24 +39,10 @@ fn error(text: &str) -> (String, String, String) {
     )
 }
 
+/// A parameter of the compiled model (after overrides and `design` blocks).
 fn param(m: &CompiledModel, name: &str) -> DMatrix<f64> {
-    let v = &m.parameters_json()[name];
-    let rows: Vec<Vec<f64>> = match v {
-        serde_json::Value::Array(r) if r.iter().all(|x| x.is_array()) => r
-            .iter()
-            .map(|row| {
-                row.as_array()
-                    .unwrap()
-                    .iter()
-                    .map(|x| x.as_f64().unwrap())
-                    .collect()
-            })
-            .collect(),
-        serde_json::Value::Array(r) => r.iter().map(|x| vec![x.as_f64().unwrap()]).collect(),
-        serde_json::Value::Number(x) => vec![vec![x.as_f64().unwrap()]],
-        _ => panic!("no parameter {name}"),
-    };
-    DMatrix::from_fn(rows.len(), rows[0].len(), |i, j| rows[i][j])
+    m.parameter(name)
+        .unwrap_or_else(|| panic!("the model has no parameter `{name}`"))
 }
 
 const LYAP: &str = "model lyap_design

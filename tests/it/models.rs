@@ -8,7 +8,6 @@ use std::process::Command;
 use hybsim::engine::models::SampleAndHold;
 use hybsim::engine::{FlowStructure, HybridSystem, Solver, simulate_arc};
 use nalgebra::{DMatrix, DVector};
-use serde_json::Value;
 
 use super::lang::{load, run};
 
@@ -41,21 +40,6 @@ fn run_cli_csv(name: &str, args: &[&str]) -> (Vec<String>, Vec<Vec<String>>) {
         .lines()
         .map(|l| l.split(',').map(String::from).collect());
     (lines.next().unwrap(), lines.collect())
-}
-
-fn matrix(v: &Value) -> DMatrix<f64> {
-    match v {
-        Value::Number(x) => DMatrix::from_element(1, 1, x.as_f64().unwrap()),
-        Value::Array(rows) if rows.first().is_some_and(Value::is_array) => {
-            let r = rows.len();
-            let c = rows[0].as_array().unwrap().len();
-            DMatrix::from_fn(r, c, |i, j| rows[i][j].as_f64().unwrap())
-        }
-        Value::Array(col) => {
-            DMatrix::from_iterator(col.len(), 1, col.iter().map(|x| x.as_f64().unwrap()))
-        }
-        other => panic!("not a matrix: {other}"),
-    }
 }
 
 // ------------------------------------------------------------ thermostat --
@@ -167,8 +151,8 @@ fn ring_plant(blocks: usize, m: usize) -> (DMatrix<f64>, DMatrix<f64>) {
 fn sample_and_hold_matches_the_exact_discretisation() {
     let m = load("sample_and_hold.hyb", &[]);
     assert_eq!(m.state_dim(), 39 + 3 + 1, "plant, held input, timer");
-    let p = m.parameters_json();
-    let (a, b, k) = (matrix(&p["A"]), matrix(&p["B"]), matrix(&p["K"]));
+    let p = |name| m.parameter(name).expect("a parameter of the model");
+    let (a, b, k) = (p("A"), p("B"), p("K"));
     let (a_ref, b_ref) = ring_plant(13, 3);
     assert_eq!(a, a_ref, "A built in the model");
     assert_eq!(b, b_ref, "B built in the model");
@@ -180,7 +164,7 @@ fn sample_and_hold_matches_the_exact_discretisation() {
         .map(|l| l.re)
         .fold(f64::MIN, f64::max);
     assert!(max_re > 3.9, "unstable plant, largest eigenvalue {max_re}");
-    let acl = matrix(&p["Ad"]) - matrix(&p["Bd"]) * &k;
+    let acl = p("Ad") - p("Bd") * &k;
     let rho = acl
         .complex_eigenvalues()
         .iter()

@@ -8,7 +8,6 @@ use hybsim::design::control::{StateSpace, dlqr, h2_norm, hinf_norm};
 use hybsim::engine::HybridSystem;
 use hybsim::lang::CompiledModel;
 use nalgebra::DMatrix;
-use serde_json::Value;
 
 use crate::lang::{load, run};
 
@@ -144,25 +143,10 @@ fn appendix_f_inputs_reconstructed_is_stable() {
     }
 }
 
-/// A matrix parameter of a compiled model (`parameters_json`).
+/// A parameter of the compiled model (after overrides and `design` blocks).
 fn param_matrix(m: &CompiledModel, name: &str) -> DMatrix<f64> {
-    let v = &m.parameters_json()[name];
-    let rows: Vec<Vec<f64>> = match v {
-        Value::Array(r) if r.iter().all(|x| x.is_array()) => r
-            .iter()
-            .map(|row| {
-                row.as_array()
-                    .unwrap()
-                    .iter()
-                    .map(|x| x.as_f64().unwrap())
-                    .collect()
-            })
-            .collect(),
-        Value::Array(r) => r.iter().map(|x| vec![x.as_f64().unwrap()]).collect(),
-        Value::Number(x) => vec![vec![x.as_f64().unwrap()]],
-        _ => panic!("no parameter {name}"),
-    };
-    DMatrix::from_fn(rows.len(), rows[0].len(), |i, j| rows[i][j])
+    m.parameter(name)
+        .unwrap_or_else(|| panic!("the model has no parameter `{name}`"))
 }
 
 /// The paper's printed thresholds (Sec. VII, M = 3, Cor. V.2, J_max = 0.38).
