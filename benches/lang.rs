@@ -13,7 +13,6 @@ use hybsim::engine::models::{BouncingBall, SampleAndHold};
 use hybsim::engine::{HybridSystem, SimRng, SimSettings, Solver, simulate_arc};
 use hybsim::lang::{self, CompiledModel};
 use hybsim::source::SourceFile;
-use nalgebra::DMatrix;
 
 fn load(name: &str, overrides: &[&str]) -> CompiledModel {
     let path = format!("{}/models/{name}", env!("CARGO_MANIFEST_DIR"));
