@@ -26,7 +26,7 @@ impl HybridTime {
 
 impl std::fmt::Display for HybridTime {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        write!(f, "(t = {}, j = {})", self.t, self.j)
+        write!(f, "(t = {}, j = {})", crate::num::Num(self.t), self.j)
     }
 }
 

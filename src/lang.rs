@@ -65,6 +65,59 @@ pub fn compile(src: &SourceFile, overrides: &[Override]) -> Result<CompiledModel
     Ok(CompiledModel::new(checked, src.clone()))
 }
 
+/// Compiles `src` as `hybsim run` starts it with run seed `seed` (`None`:
+/// the model's `sim { seed }`): the random parameters
+/// ([`CompiledModel::random_params`]) are drawn from
+/// [`props::input_stream(seed)`](crate::props::input_stream) in declaration
+/// order and pinned (derived parameters recompute, as for `--set`), then
+/// [`CompiledModel::start`]`(seed)` draws the random initial values from
+/// the same stream. A `hybsim test` case with seed `seed` draws its inputs
+/// in this order, so `hybsim run --seed S` reproduces it. Returns the model
+/// and the seed.
+///
+/// ```
+/// use hybsim::lang::{self, Override};
+/// use hybsim::source::SourceFile;
+///
+/// let src = SourceFile::new("m.hyb", "model m
+/// param g ~ uniform(9, 10)
+/// param half = g / 2
+/// state h = 1
+/// flow { h' = -half }
+/// ");
+/// let (m, seed) = lang::compile_run(&src, &[], Some(7)).unwrap();
+/// let g = m.parameters_json()["g"].as_f64().unwrap();
+/// assert!(seed == 7 && (9.0..=10.0).contains(&g));
+/// assert_eq!(m.parameters_json()["half"].as_f64(), Some(g / 2.0));
+/// // Uncompiled draws give the centre.
+/// assert_eq!(lang::compile(&src, &[]).unwrap().parameters_json()["g"].as_f64(), Some(9.5));
+/// ```
+pub fn compile_run(
+    src: &SourceFile,
+    overrides: &[Override],
+    seed: Option<u64>,
+) -> Result<(CompiledModel, u64), Vec<Diagnostic>> {
+    let model = compile(src, overrides)?;
+    let seed = seed.unwrap_or(model.seed());
+    let params = model.random_params().to_vec();
+    if params.is_empty() {
+        return Ok((model, seed));
+    }
+    let mut rng = crate::props::input_stream(seed);
+    let mut pinned: Vec<Override> = overrides
+        .iter()
+        .filter(|o| !params.iter().any(|p| p.name == o.name))
+        .cloned()
+        .collect();
+    for p in &params {
+        let v = crate::num::Num(p.dist.sample(&mut rng));
+        pinned.push(format!("{}={v}", p.name).parse().map_err(|d| vec![d])?);
+    }
+    let mut model = compile(src, &pinned)?;
+    model.set_param_draws(params.iter().map(|p| p.dist).collect());
+    Ok((model, seed))
+}
+
 /// Runs only the checks (`hybsim check`): the diagnostics, empty if the
 /// model is valid.
 pub fn check_only(src: &SourceFile, overrides: &[Override]) -> Vec<Diagnostic> {
@@ -80,14 +133,15 @@ pub fn check_only(src: &SourceFile, overrides: &[Override]) -> Vec<Diagnostic> {
     }
 }
 
-/// Runs the checks and the `design` blocks (`hybsim design`): the design
-/// reports in source order, or every diagnostic.
+/// Runs the checks and the `design` blocks (`hybsim design`), including
+/// those without results (checks, which [`compile`] does not solve): the
+/// design reports in source order, or every diagnostic.
 pub fn design_only(
     src: &SourceFile,
     overrides: &[Override],
 ) -> Result<Vec<DesignReport>, Vec<Diagnostic>> {
     let model = syntax::parse_model(src.text()).map_err(|e| vec![e.to_diagnostic()])?;
-    check::check(&model, overrides)
+    check::check_with_designs(&model, overrides)
         .map(|m| m.designs)
         .map_err(|errs| errs.iter().map(|e| e.to_diagnostic()).collect())
 }

@@ -18,6 +18,7 @@ pub mod experiments;
 pub mod ir;
 pub mod lang;
 pub mod layout;
+pub mod num;
 pub mod props;
 pub mod sinks;
 pub mod source;

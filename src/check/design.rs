@@ -177,6 +177,14 @@ pub struct DesignReport {
     pub solve: Option<SolveSummary>,
     /// The results (parameters declared by the block): name, shape, row-major values.
     pub results: Vec<(String, Dims, Vec<f64>)>,
+    /// A `check` block (no results) that has no solution: the outcome
+    /// (`infeasible`, `unbounded`, `not solved`) and the solver's status.
+    /// This is a result, not an error: nothing depends on the block, so the
+    /// model still compiles and runs. (A block with results and no
+    /// solution is error E0705.)
+    pub unsolved: Option<(String, SolverStatus)>,
+    /// A `check` block (solved by `hybsim design` only).
+    pub check: bool,
 }
 
 /// Solver figures of a solved design.
@@ -207,9 +215,23 @@ pub struct SolveSummary {
 }
 
 impl DesignReport {
-    /// One line: `design NAME: solved, objective …, worst margin …, … s`.
+    /// A `check` block that was solved and has no solution.
+    pub fn check_failed(&self) -> bool {
+        self.unsolved.is_some()
+    }
+
+    /// One line: `design NAME: solved, objective …, worst margin …, … s`
+    /// (`check NAME: feasible (solved), …` or `check NAME: infeasible
+    /// (solver status …)` for a `check` block).
     pub fn summary_line(&self) -> String {
+        if let Some((outcome, status)) = &self.unsolved {
+            return format!("check {}: {outcome} (solver status {status:?})", self.name);
+        }
         match &self.solve {
+            None if self.check => format!(
+                "check {}: not solved here (`hybsim design` solves it)",
+                self.name
+            ),
             None => format!(
                 "design {}: not solved (every result given with --set)",
                 self.name
@@ -224,8 +246,13 @@ impl DesignReport {
                 } else {
                     ", feasibility".to_string()
                 };
+                let (kind, status) = if self.check {
+                    ("check", format!("feasible ({status})"))
+                } else {
+                    ("design", status.to_string())
+                };
                 format!(
-                    "design {}: {status}{objective}, worst margin {:.1e} ({}), {} variables, {} constraints, {} iterations, {:.3} s",
+                    "{kind} {}: {status}{objective}, worst margin {:.1e} ({}), {} variables, {} constraints, {} iterations, {:.3} s",
                     self.name,
                     s.worst_margin,
                     s.worst_constraint,
@@ -250,7 +277,20 @@ impl DesignReport {
             };
             results.insert(name.clone(), v);
         }
+        if let Some((outcome, status)) = &self.unsolved {
+            return serde_json::json!({
+                "name": self.name,
+                "status": outcome,
+                "solver_status": format!("{status:?}"),
+                "results": results,
+            });
+        }
         match &self.solve {
+            None if self.check => serde_json::json!({
+                "name": self.name,
+                "status": "not solved (a check; see `hybsim design`)",
+                "results": results,
+            }),
             None => serde_json::json!({
                 "name": self.name,
                 "status": "not solved (results set)",
@@ -277,6 +317,8 @@ impl DesignReport {
 pub(crate) struct Solved {
     pub values: Vec<SolvedVar>,
     pub summary: Option<SolveSummary>,
+    /// See [`DesignReport::unsolved`].
+    pub unsolved: Option<(String, SolverStatus)>,
 }
 
 /// The value of one decision variable (or family member) at the solution.
@@ -348,6 +390,7 @@ impl Checker {
             return Some(Solved {
                 values: Vec::new(),
                 summary: None,
+                unsolved: None,
             });
         }
         let block = cx.block.clone();
@@ -420,12 +463,21 @@ impl Checker {
                         variables: info.variables,
                         constraints: design.checks.len(),
                     }),
+                    unsolved: None,
                 });
             }
             Outcome::Infeasible(i) => ("infeasible", i),
             Outcome::Unbounded(i) => ("unbounded", i),
             Outcome::Failed(i) => ("not solved", i),
         };
+        // A `check` block's verdict is reported, not an error.
+        if d.check {
+            return Some(Solved {
+                values: Vec::new(),
+                summary: None,
+                unsolved: Some((outcome.to_string(), info.status)),
+            });
+        }
         self.err(CheckError::Design(DesignError::NoDesign {
             block,
             outcome,

@@ -1197,6 +1197,7 @@ impl Checker {
                 })
             }
             "dare" | "care" | "dlqr" | "lqr" | "c2d" => self.control(name, args, span),
+            "post" => self.post_call(args, span, ctx),
             "wiener" => {
                 self.err(CheckError::Expected {
                     expected: "`wiener(m)` only in `noise w ~ wiener(m)`".into(),

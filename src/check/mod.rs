@@ -88,6 +88,9 @@ pub(crate) struct Checker {
     pub(crate) set_scopes: Vec<(String, Vec<i64>)>,
     pub(crate) fields: Vec<StateField>,
     pub(crate) block_spans: Vec<Span>,
+    /// `Some(n)` (the state dimension) while checking an `at jumps`
+    /// predicate, where `post(…)` is allowed.
+    pub(crate) post_frame: Option<usize>,
 }
 
 /// Checks a parsed model with overrides; on success returns the checked
@@ -96,5 +99,15 @@ pub fn check(
     model: &crate::syntax::ast::Model,
     overrides: &[Override],
 ) -> Result<CheckedModel, Vec<CheckError>> {
-    model::check_model(model, overrides)
+    model::check_model(model, overrides, false)
+}
+
+/// As [`check`], and also solves the `design` blocks without results
+/// (checks such as a certificate), which [`check`] leaves unsolved since
+/// nothing in the model depends on them (`hybsim design`).
+pub fn check_with_designs(
+    model: &crate::syntax::ast::Model,
+    overrides: &[Override],
+) -> Result<CheckedModel, Vec<CheckError>> {
+    model::check_model(model, overrides, true)
 }

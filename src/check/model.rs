@@ -110,6 +110,10 @@ pub struct CheckedModel {
     /// The `property` declarations (nodes in the property frame, see
     /// [`super::property`]).
     pub properties: Vec<super::property::CheckedProperty>,
+    /// The random parameters (`param g ~ uniform(a, b)`, or `--set
+    /// g=uniform(a, b)`) not pinned by an override, in declaration order;
+    /// each is declared with its distribution's centre.
+    pub random_params: Vec<crate::props::Input>,
 }
 
 const FLOW_CTX: Ctx = Ctx {
@@ -171,11 +175,14 @@ struct ModelChecker<'o> {
     params: Vec<(String, Dims, Vec<f64>)>,
     anonymous_every: usize,
     designs: Vec<DesignReport>,
+    random_params: Vec<crate::props::Input>,
+    solve_checks: bool,
 }
 
 pub(crate) fn check_model(
     model: &Model,
     overrides: &[Override],
+    solve_checks: bool,
 ) -> Result<CheckedModel, Vec<CheckError>> {
     let mut m = ModelChecker {
         c: Checker {
@@ -186,6 +193,7 @@ pub(crate) fn check_model(
             set_scopes: Vec::new(),
             fields: Vec::new(),
             block_spans: Vec::new(),
+            post_frame: None,
         },
         overrides: overrides.iter().map(|o| (o.name.as_str(), o)).collect(),
         used: Vec::new(),
@@ -200,6 +208,8 @@ pub(crate) fn check_model(
         params: Vec::new(),
         anonymous_every: 0,
         designs: Vec::new(),
+        random_params: Vec::new(),
+        solve_checks,
     };
     for it in &model.items {
         m.pass1(it);
@@ -249,7 +259,15 @@ pub(crate) fn check_model(
         block_spans: m.c.block_spans,
         designs: m.designs,
         properties,
+        random_params: m.random_params,
     })
+}
+
+/// `uniform(a, b)` or `normal(m, s)` (two arguments): a random
+/// parameter's draw.
+fn is_draw(e: &Expr) -> bool {
+    matches!(&e.kind, ExprKind::Call(f, args)
+        if (f.name == "uniform" || f.name == "normal") && args.len() == 2)
 }
 
 fn label(key: &[i64]) -> String {
@@ -437,6 +455,7 @@ impl ModelChecker<'_> {
                 }
             }
             Item::Graph(d) => self.param(d, true),
+            Item::RandomParam(d) => self.random_param(d),
             Item::ParamTuple(targets, value) => self.param_tuple(targets, value),
             Item::State(defs) => {
                 for sd in defs {
@@ -476,6 +495,7 @@ impl ModelChecker<'_> {
                 }
             }),
             Item::Param(_)
+            | Item::RandomParam(_)
             | Item::ParamTuple(..)
             | Item::Graph(_)
             | Item::State(_)
@@ -523,6 +543,16 @@ impl ModelChecker<'_> {
 
     fn param(&mut self, d: &Definition, graph: bool) {
         let name = d.target.name.name.clone();
+        if !graph
+            && d.target.indices.is_empty()
+            && let Some(o) = self.overrides.get(name.as_str()).copied()
+            && is_draw(&o.expr)
+        {
+            // `--set g=uniform(a, b)`: a random parameter.
+            self.used.push(name);
+            self.declare_random(&d.target, &o.expr);
+            return;
+        }
         let v = if d.target.indices.is_empty() {
             self.value_with_override(&name, &d.value, &CONST_CTX)
         } else {
@@ -561,6 +591,84 @@ impl ModelChecker<'_> {
         }
     }
 
+    /// `param g ~ DRAW`: random unless `--set` pins it (or replaces the
+    /// draw by another one).
+    fn random_param(&mut self, d: &Definition) {
+        if !d.target.indices.is_empty() {
+            self.c.err(CheckError::Unsupported {
+                what: "families of random parameters (declare them one by one)".into(),
+                span: d.target.span,
+            });
+            return;
+        }
+        if self.overrides.contains_key(d.target.name.name.as_str()) {
+            // A pinned value (or another draw): as any overridden parameter.
+            self.param(d, false);
+        } else {
+            self.declare_random(&d.target, &d.value);
+        }
+    }
+
+    /// Declares the random parameter `target ~ draw` with the draw's
+    /// centre as its value, and records it in `random_params`.
+    fn declare_random(&mut self, target: &Target, draw: &Expr) {
+        let name = target.name.name.clone();
+        let span = target.name.span;
+        let dist = self.draw(draw);
+        let nominal = dist.map_or(0.0, |d| d.centre());
+        let val = Val::scalar(self.c.dag.konst(nominal));
+        if self.declare(target, |_| Sym::Param { val, span }).is_some() {
+            self.params.push((name.clone(), (1, 1), vec![nominal]));
+            if let Some(dist) = dist {
+                self.random_params
+                    .push(crate::props::Input::new(name, dist));
+            }
+        }
+    }
+
+    /// The distribution of a random parameter: `uniform(a, b)` or
+    /// `normal(m, s)` with constant scalar arguments.
+    fn draw(&mut self, e: &Expr) -> Option<crate::props::Dist> {
+        use crate::props::Dist;
+        let ExprKind::Call(f, args) = &e.kind else {
+            self.c.err(CheckError::Expected {
+                expected: "a draw `uniform(lo, hi)` or `normal(mean, std)`".into(),
+                found: "another expression".into(),
+                span: e.span,
+            });
+            return None;
+        };
+        let (a, b) = match args.as_slice() {
+            [a, b] if is_draw(e) => (
+                self.c.const_scalar(a, "a random parameter's distribution"),
+                self.c.const_scalar(b, "a random parameter's distribution"),
+            ),
+            _ => {
+                self.c.err(CheckError::Expected {
+                    expected: "a draw `uniform(lo, hi)` or `normal(mean, std)`".into(),
+                    found: format!("`{}` with {} argument(s)", f.name, args.len()),
+                    span: e.span,
+                });
+                return None;
+            }
+        };
+        let (a, b) = (a?, b?);
+        let dist = if f.name == "uniform" {
+            Dist::Uniform { lo: a, hi: b }
+        } else {
+            Dist::Normal { mean: a, std: b }
+        };
+        if let Err(reason) = dist.validate() {
+            self.c.err(CheckError::Expected {
+                expected: "a valid distribution".into(),
+                found: reason,
+                span: e.span,
+            });
+            return None;
+        }
+        Some(dist)
+    }
+
     /// A `design` block: solved (unless `--set` gives every result), then its
     /// results declared as parameters with the variables bound to their values.
     fn design(&mut self, d: &DesignBlock) {
@@ -579,7 +687,16 @@ impl ModelChecker<'_> {
             && targets
                 .iter()
                 .all(|t| self.overrides.contains_key(t.name.name.as_str()));
-        let Some(solved) = self.c.design_block(d, !all_set) else {
+        // A `check` block is solved only when asked for (`hybsim design`):
+        // nothing in the model depends on it.
+        if d.check && !targets.is_empty() {
+            self.c.err(CheckError::Unsupported {
+                what: "results (`param`) in a `check` block (use `design`)".into(),
+                span: targets[0].span,
+            });
+        }
+        let solve = if d.check { self.solve_checks } else { !all_set };
+        let Some(solved) = self.c.design_block(d, solve) else {
             // Declare the results anyway (as 0) so that later uses do not cascade.
             self.design_results(&d.stmts, false);
             return;
@@ -595,6 +712,8 @@ impl ModelChecker<'_> {
             span: d.name.span,
             solve: solved.summary,
             results: self.params[first..].to_vec(),
+            unsolved: solved.unsolved,
+            check: d.check,
         });
     }
 

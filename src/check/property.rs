@@ -14,7 +14,7 @@ use super::error::CheckError;
 use super::expr::{Ctx, Val, dims_words, suggest};
 use super::{Checker, Sym};
 use crate::source::Span;
-use crate::syntax::ast::{Expr, ExprKind, IndexArg, Item, PropertyBody, PropertyDecl, Target};
+use crate::syntax::ast::{Expr, Item, PropertyBody, PropertyDecl, Target};
 
 /// A checked property.
 #[derive(Debug, Clone)]
@@ -307,101 +307,47 @@ fn scalar(c: &mut Checker, e: &Expr, dim: usize) -> Option<NodeId> {
     Some(v.e[0])
 }
 
-/// Lowers `e`, first replacing each `post(a)` (allowed if `post`) by a
-/// hidden name bound to `a` evaluated on the post-jump state.
+/// Lowers `e`; `post(…)` is allowed in it if `post` (see
+/// [`Checker::post_call`]).
 fn lower(c: &mut Checker, e: &Expr, dim: usize, post: bool) -> Option<Val> {
-    let mut e = e.clone();
-    let mut hidden = Vec::new();
-    let ok = replace_post(c, &mut e, dim, post, &mut hidden);
-    let v = if ok { c.expr(&e, &PROP_CTX) } else { None };
-    for name in hidden {
-        c.syms.remove(&name);
-    }
+    c.post_frame = post.then_some(dim);
+    let v = c.expr(e, &PROP_CTX);
+    c.post_frame = None;
     v
 }
 
-fn replace_post(
-    c: &mut Checker,
-    e: &mut Expr,
-    dim: usize,
-    allowed: bool,
-    hidden: &mut Vec<String>,
-) -> bool {
-    let span = e.span;
-    match &mut e.kind {
-        ExprKind::Call(f, args) if f.name == "post" => {
-            if !allowed {
-                c.err(CheckError::Expected {
-                    expected: "`post(…)` only in `at jumps` properties (and not nested)".into(),
-                    found: "`post`".into(),
-                    span,
-                });
-                return false;
-            }
-            if args.len() != 1 {
-                c.err(CheckError::Arity {
-                    func: "post".into(),
-                    expected: "1 argument".into(),
-                    found: args.len(),
-                    span,
-                });
-                return false;
-            }
-            if !replace_post(c, &mut args[0], dim, false, hidden) {
-                return false;
-            }
-            let Some(v) = c.expr(&args[0], &PROP_CTX) else {
-                return false;
-            };
-            let mut memo = HashMap::new();
-            let e2: Vec<NodeId> =
-                v.e.iter()
-                    .map(|&n| to_post(&mut c.dag, n, dim, &mut memo))
-                    .collect();
-            let name = format!("post#{}", hidden.len());
-            c.syms.insert(
-                name.clone(),
-                Sym::Output {
-                    val: Val { e: e2, ..v },
-                    span,
-                },
-            );
-            hidden.push(name.clone());
-            e.kind = ExprKind::Name(name);
-            true
+impl Checker {
+    /// `post(a)` in an `at jumps` property: `a` evaluated on the post-jump
+    /// state. It is elaborated where it stands, so it may use loop indices
+    /// (`sum(k in 1..N: post(x[k]))`); nested `post` is an error.
+    pub(crate) fn post_call(&mut self, args: &[Expr], span: Span, ctx: &Ctx) -> Option<Val> {
+        let Some(dim) = self.post_frame else {
+            self.err(CheckError::Expected {
+                expected: "`post(…)` only in `at jumps` properties (and not nested)".into(),
+                found: "`post`".into(),
+                span,
+            });
+            return None;
+        };
+        if args.len() != 1 {
+            self.err(CheckError::Arity {
+                func: "post".into(),
+                expected: "1 argument".into(),
+                found: args.len(),
+                span,
+            });
+            return None;
         }
-        ExprKind::Unary(_, a) => replace_post(c, a, dim, allowed, hidden),
-        ExprKind::Binary(_, a, b) => {
-            replace_post(c, a, dim, allowed, hidden) & replace_post(c, b, dim, allowed, hidden)
-        }
-        ExprKind::If(a, b, d) => {
-            replace_post(c, a, dim, allowed, hidden)
-                & replace_post(c, b, dim, allowed, hidden)
-                & replace_post(c, d, dim, allowed, hidden)
-        }
-        ExprKind::Call(_, args) => args
-            .iter_mut()
-            .fold(true, |ok, a| replace_post(c, a, dim, allowed, hidden) & ok),
-        ExprKind::Matrix(rows) => rows
-            .iter_mut()
-            .flatten()
-            .fold(true, |ok, a| replace_post(c, a, dim, allowed, hidden) & ok),
-        ExprKind::Index(a, args) => {
-            let mut ok = replace_post(c, a, dim, allowed, hidden);
-            for arg in args {
-                ok &= match arg {
-                    IndexArg::One(x) => replace_post(c, x, dim, allowed, hidden),
-                    IndexArg::Slice(x, y) => {
-                        replace_post(c, x, dim, allowed, hidden)
-                            & replace_post(c, y, dim, allowed, hidden)
-                    }
-                    IndexArg::All(_) => true,
-                };
-            }
-            ok
-        }
-        // `post` inside a `sum` body stays a call (an unknown function).
-        ExprKind::Num(_) | ExprKind::Bool(_) | ExprKind::Name(_) | ExprKind::Sum(..) => true,
+        self.post_frame = None;
+        let v = self.expr(&args[0], ctx);
+        self.post_frame = Some(dim);
+        let v = v?;
+        let mut memo = HashMap::new();
+        let e =
+            v.e.iter()
+                .map(|&n| to_post(&mut self.dag, n, dim, &mut memo))
+                .collect();
+        Some(Val { e, ..v })
     }
 }
 

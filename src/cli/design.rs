@@ -8,7 +8,7 @@ use clap::Args;
 use hybsim::diagnostics::render;
 use hybsim::lang::{self, DesignReport};
 
-use super::{EXIT_MODEL_ERROR, EXIT_OK};
+use super::{EXIT_FAILED, EXIT_MODEL_ERROR, EXIT_OK};
 
 /// Arguments of `hybsim design`.
 #[derive(Debug, Args)]
@@ -72,11 +72,18 @@ pub fn execute(args: DesignArgs) -> anyhow::Result<u8> {
             .map(|r| (r.name.clone(), r.to_json()))
             .collect();
         println!("{}", serde_json::to_string_pretty(&blocks)?);
+        if reports.iter().any(|r| r.check_failed()) {
+            return Ok(EXIT_FAILED);
+        }
         return Ok(EXIT_OK);
     }
     for r in &reports {
         println!("{}", r.summary_line());
         print!("{}", format_results(r));
+    }
+    // A `check` without solution is a result (exit 1), not a model error.
+    if reports.iter().any(|r| r.check_failed()) {
+        return Ok(EXIT_FAILED);
     }
     Ok(EXIT_OK)
 }

@@ -430,8 +430,9 @@ pub fn execute(args: RunArgs) -> anyhow::Result<u8> {
     let Some((src, overrides)) = super::load(&args.model, &args.set)? else {
         return Ok(EXIT_MODEL_ERROR);
     };
-    let model = match lang::compile(&src, &overrides) {
-        Ok(model) => model,
+    // Random parameters are drawn from the run's seed.
+    let (model, seed) = match lang::compile_run(&src, &overrides, args.seed) {
+        Ok(compiled) => compiled,
         Err(diags) => {
             eprint!("{}", render(&diags, &src, stderr_is_terminal()));
             return Ok(EXIT_MODEL_ERROR);
@@ -444,7 +445,6 @@ pub fn execute(args: RunArgs) -> anyhow::Result<u8> {
             return Ok(EXIT_MODEL_ERROR);
         }
     };
-    let seed = args.seed.unwrap_or(model.seed());
     let info = RunInfo {
         model_name: model.name().to_string(),
         model_path: args.model.display().to_string(),

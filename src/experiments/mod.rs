@@ -10,11 +10,14 @@
 //! * [`variance_trigger`]: `models/variance_triggering.hyb` (Trimpe and
 //!   D'Andrea) for given parameters, and the Fig. 4 δ sweep against the
 //!   library's Algorithm 1.
+//! * [`intermittent`]: Fig. 2 of Phillips–Erwin–Sanfelice from
+//!   `models/intermittent_estimation.hyb`.
 //!
 //! Used by the reproduction tests and the `examples/` figure programs, so
 //! both compute the same data in the same way.
 
 pub mod consensus_estimation;
+pub mod intermittent;
 pub mod variance_trigger;
 
 use thiserror::Error;

@@ -4,14 +4,15 @@ use crate::check::CheckedModel;
 use crate::check::dag::{Dist as Draw, Node};
 use crate::props::{Dist, Input};
 
-/// The scalar states whose initial value is a single draw
+/// The random parameters, then the scalar states whose initial value is a single draw
 /// `uniform(lo, hi)` or `normal(mean, std)` with constant arguments, in
 /// declaration order. These are what `hybsim test` samples and what
 /// `--set name=value` pins. Family members (`x[2]`), vector states and
 /// other random expressions (`2 * uniform(0, 1)`) keep their draw: they
 /// cannot be pinned by name.
 pub(crate) fn random_inputs(m: &CheckedModel) -> Vec<Input> {
-    m.fields
+    let states = m
+        .fields
         .iter()
         .filter(|f| !f.generated && f.rows * f.cols == 1 && !f.name.contains('['))
         .filter_map(|f| {
@@ -26,6 +27,6 @@ pub(crate) fn random_inputs(m: &CheckedModel) -> Vec<Input> {
             };
             dist.validate().ok()?;
             Some(Input::new(f.name.clone(), dist))
-        })
-        .collect()
+        });
+    m.random_params.iter().cloned().chain(states).collect()
 }

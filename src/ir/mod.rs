@@ -89,6 +89,11 @@ pub struct CompiledModel {
     seed: u64,
     params: Vec<(String, (usize, usize), Vec<f64>)>,
     inputs: Vec<crate::props::Input>,
+    /// How many of `inputs` (the first ones) are random parameters.
+    param_inputs: usize,
+    /// Draws of the initial-value stream that belong to random parameters
+    /// (skipped by `start`, see [`lang::compile_run`](crate::lang::compile_run)).
+    param_draws: Vec<crate::props::Dist>,
     designs: Vec<crate::check::DesignReport>,
     properties: Vec<(crate::props::Property, Span)>,
 }
@@ -211,6 +216,8 @@ impl CompiledModel {
         };
         let names = state_layout.flat_names(m.dim);
         let inputs = inputs::random_inputs(&m);
+        let param_inputs = m.random_params.len();
+        let param_draws = m.random_params.iter().map(|i| i.dist).collect();
         let properties = property::compile(&m.dag, &m.properties, m.dim, &source);
         CompiledModel {
             name: m.name,
@@ -236,6 +243,8 @@ impl CompiledModel {
             seed: m.seed,
             params: m.params,
             inputs,
+            param_inputs,
+            param_draws,
             designs: m.designs,
             properties,
         }
@@ -301,11 +310,26 @@ impl CompiledModel {
         self.flow.len()
     }
 
-    /// The scalar states whose initial value is a draw `uniform(lo, hi)` or
-    /// `normal(mean, std)` (constant arguments), in declaration order: the
-    /// inputs `hybsim test` samples and `--set name=value` pins.
+    /// The inputs `hybsim test` samples and `--set name=value` pins: the
+    /// random parameters ([`random_params`](Self::random_params)), then the
+    /// scalar states whose initial value is a draw `uniform(lo, hi)` or
+    /// `normal(mean, std)` (constant arguments), each in declaration order.
     pub fn random_inputs(&self) -> &[crate::props::Input] {
         &self.inputs
+    }
+
+    /// The random parameters (`param g ~ uniform(a, b)` or `--set
+    /// g=uniform(a, b)`, not pinned), in declaration order. This model
+    /// gives each its distribution's centre;
+    /// [`lang::compile_run`](crate::lang::compile_run) draws them.
+    pub fn random_params(&self) -> &[crate::props::Input] {
+        &self.inputs[..self.param_inputs]
+    }
+
+    /// Marks the random parameters of the model this one was compiled from
+    /// as drawn: [`start`](Self::start) skips their draws.
+    pub(crate) fn set_param_draws(&mut self, draws: Vec<crate::props::Dist>) {
+        self.param_draws = draws;
     }
 
     /// The model's `property` declarations, in order, ready for
@@ -325,12 +349,18 @@ impl CompiledModel {
 
     /// How every run of the model starts (`hybsim run`, `hybsim test`):
     /// the initial state, its random values drawn from
-    /// [`props::input_stream(seed)`](crate::props::input_stream), and the
+    /// [`props::input_stream(seed)`](crate::props::input_stream) (after
+    /// one draw per random parameter: parameters come first, as in a
+    /// `hybsim test` case), and the
     /// run's own generator `SimRng::seed_from(seed)` for everything drawn
     /// later (resets, noise, random priority). The two streams are separate,
     /// so pinning an initial value with `--set` changes no later draw.
     pub fn start(&self, seed: u64) -> (Vec<f64>, SimRng) {
-        let x0 = self.initial_state(&mut crate::props::input_stream(seed));
+        let mut inputs = crate::props::input_stream(seed);
+        for d in &self.param_draws {
+            d.sample(&mut inputs);
+        }
+        let x0 = self.initial_state(&mut inputs);
         (x0, SimRng::seed_from(seed))
     }
 

@@ -118,11 +118,13 @@ pub(crate) fn compile(
                     })
                 }
             };
+            // The body's source text, comments dropped, on one line.
             let text = source
                 .text()
                 .get(p.body_span.start..p.body_span.end)
                 .unwrap_or_default()
-                .split_whitespace()
+                .lines()
+                .flat_map(|l| l.split('#').next().unwrap_or_default().split_whitespace())
                 .collect::<Vec<_>>()
                 .join(" ");
             (prop.with_text(text), p.span)

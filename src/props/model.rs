@@ -1,5 +1,7 @@
 //! `.hyb` models as property-test subjects.
 
+use super::monitor::{PropertySink, Verdict};
+use super::property::Property;
 use super::runner::{Case, Input, Subject};
 use crate::arc::{ArcSink, Termination};
 use crate::diagnostics::Diagnostic;
@@ -99,7 +101,7 @@ impl ModelSubject {
             .cloned()
             .collect();
         for (input, v) in self.inputs.iter().zip(&case.values) {
-            all.push(format!("{}={v}", input.name).parse()?);
+            all.push(format!("{}={}", input.name, super::report::fmt_value(*v)).parse()?);
         }
         Ok(all)
     }
@@ -139,8 +141,42 @@ impl Subject for ModelSubject {
             pinned = self.compile_case(case)?;
             &pinned
         };
-        let settings = case.apply(&model.settings());
-        let (x0, mut rng) = model.start(case.seed);
-        Ok(simulate(model, &x0, &settings, &mut rng, sink)?)
+        run_model(model, case, sink)
     }
+
+    /// As the default, but the model's own properties among `props` are
+    /// taken from the case's compilation: parameters (random ones included)
+    /// are folded into them.
+    fn run_checked(&self, case: &Case, props: &[Property]) -> Result<Verdict, ModelRunError> {
+        if self.model.random_params().is_empty() {
+            let mut sink = PropertySink::new(props);
+            self.run(case, &mut sink)?;
+            return Ok(sink.verdict());
+        }
+        let model = self.compile_case(case)?;
+        let own = model.properties();
+        let props: Vec<Property> = props
+            .iter()
+            .map(|p| {
+                own.iter()
+                    .find(|q| q.name() == p.name())
+                    .unwrap_or(p)
+                    .clone()
+            })
+            .collect();
+        let mut sink = PropertySink::new(&props);
+        run_model(&model, case, &mut sink)?;
+        Ok(sink.verdict())
+    }
+}
+
+/// Simulates `model` for `case` as `hybsim run` does.
+fn run_model(
+    model: &CompiledModel,
+    case: &Case,
+    sink: &mut dyn ArcSink,
+) -> Result<Termination, ModelRunError> {
+    let settings = case.apply(&model.settings());
+    let (x0, mut rng) = model.start(case.seed);
+    Ok(simulate(model, &x0, &settings, &mut rng, sink)?)
 }

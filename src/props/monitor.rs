@@ -6,6 +6,7 @@ use std::ops::ControlFlow;
 
 use super::property::{Kind, Monotonicity, Property, Scope};
 use crate::arc::{ArcSink, HybridArc, HybridTime, SampleKind, Termination, TerminationCause};
+use crate::num::Num;
 
 /// What exactly went wrong where a property failed.
 #[derive(Debug, Clone, PartialEq)]
@@ -82,10 +83,11 @@ impl fmt::Display for Violation {
                 if *ended_early {
                     write!(
                         f,
-                        ": the solution ended before t = {within} without satisfying it"
+                        ": the solution ended before t = {} without satisfying it",
+                        Num(*within)
                     )
                 } else {
-                    write!(f, ": not satisfied at any t ≤ {within}")
+                    write!(f, ": not satisfied at any t ≤ {}", Num(*within))
                 }
             }
             ViolationDetail::Monotone {
@@ -106,11 +108,14 @@ impl fmt::Display for Violation {
                 };
                 write!(
                     f,
-                    ": V {what} {place} from {from} at {from_at} to {to} (tolerance {tol})"
+                    ": V {what} {place} from {} at {from_at} to {} (tolerance {})",
+                    Num(*from),
+                    Num(*to),
+                    Num(*tol)
                 )
             }
             ViolationDetail::Bound { value, bound } => {
-                write!(f, ": |x|_A = {value} > bound {bound}")
+                write!(f, ": |x|_A = {} > bound {}", Num(*value), Num(*bound))
             }
         }
     }

@@ -5,6 +5,7 @@ use std::fmt::Write as _;
 
 use super::monitor::{Violation, ViolationDetail};
 use super::runner::{Case, Counterexample, Input};
+use crate::num::Num;
 
 /// The `hybsim run` flags that reproduce `case` exactly: `--seed`, one
 /// `--set name=value` per input (values printed in Rust's shortest
@@ -27,17 +28,17 @@ pub fn replay_args(case: &Case, inputs: &[Input]) -> Vec<String> {
     args
 }
 
-/// A value as `--set` reads it back exactly (`{}` is shortest round-trip).
-fn fmt_value(v: f64) -> String {
-    format!("{v}")
+/// A value as `--set` reads it back exactly ([`Num`] is lossless).
+pub(crate) fn fmt_value(v: f64) -> String {
+    Num(v).to_string()
 }
 
 fn named(names: &[String], x: &[f64]) -> String {
     x.iter()
         .enumerate()
         .map(|(k, v)| match names.get(k) {
-            Some(n) => format!("{n} = {v}"),
-            None => format!("x[{k}] = {v}"),
+            Some(n) => format!("{n} = {}", Num(*v)),
+            None => format!("x[{k}] = {}", Num(*v)),
         })
         .collect::<Vec<_>>()
         .join(", ")
@@ -83,12 +84,15 @@ impl Counterexample {
         {
             let _ = writeln!(
                 s,
-                "  input {} = {v}  (~ {}; sampled {v0})",
-                input.name, input.dist
+                "  input {} = {}  (~ {}; sampled {})",
+                input.name,
+                Num(*v),
+                input.dist,
+                Num(*v0)
             );
         }
         if let Some(t) = self.case.horizon_t {
-            let _ = writeln!(s, "  horizon T = {t}");
+            let _ = writeln!(s, "  horizon T = {}", Num(t));
         }
         if let Some(j) = self.case.horizon_j {
             let _ = writeln!(s, "  horizon J = {j}");

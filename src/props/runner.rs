@@ -9,6 +9,7 @@ use super::monitor::{PropertySink, Verdict, Violation};
 use super::property::Property;
 use crate::arc::{ArcSink, Termination};
 use crate::engine::{HybridSystem, SimError, SimRng, SimSettings, simulate};
+use crate::num::Num;
 
 /// A distribution of one sampled input (an initial value or a parameter).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -48,6 +49,15 @@ impl Dist {
         match *self {
             Dist::Fixed(v) => v,
             Dist::Uniform { lo, hi } if lo <= 0.0 && 0.0 <= hi => 0.0,
+            _ => self.centre(),
+        }
+    }
+
+    /// The centre of the distribution: the midpoint of a uniform range,
+    /// the mean of a normal distribution, the value itself if fixed.
+    pub fn centre(&self) -> f64 {
+        match *self {
+            Dist::Fixed(v) => v,
             Dist::Uniform { lo, hi } => lo + 0.5 * (hi - lo),
             Dist::Normal { mean, .. } => mean,
         }
@@ -75,9 +85,9 @@ impl Dist {
 impl std::fmt::Display for Dist {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match self {
-            Dist::Fixed(v) => write!(f, "{v}"),
-            Dist::Uniform { lo, hi } => write!(f, "uniform({lo}, {hi})"),
-            Dist::Normal { mean, std } => write!(f, "normal({mean}, {std})"),
+            Dist::Fixed(v) => write!(f, "{}", Num(*v)),
+            Dist::Uniform { lo, hi } => write!(f, "uniform({}, {})", Num(*lo), Num(*hi)),
+            Dist::Normal { mean, std } => write!(f, "normal({}, {})", Num(*mean), Num(*std)),
         }
     }
 }
@@ -151,6 +161,20 @@ pub trait Subject: Sync {
     /// # Errors
     /// If the case cannot be simulated.
     fn run(&self, case: &Case, sink: &mut dyn ArcSink) -> Result<Termination, Self::Error>;
+
+    /// Runs one case and checks `props` on it, stopping at the first
+    /// violation. The default feeds [`run`](Self::run) into a
+    /// [`PropertySink`]; a subject whose properties depend on the case (a
+    /// `.hyb` model with random parameters folded into its properties)
+    /// overrides it.
+    ///
+    /// # Errors
+    /// If the case cannot be simulated.
+    fn run_checked(&self, case: &Case, props: &[Property]) -> Result<Verdict, Self::Error> {
+        let mut sink = PropertySink::new(props);
+        self.run(case, &mut sink)?;
+        Ok(sink.verdict())
+    }
 }
 
 /// A Rust [`HybridSystem`] whose initial state is sampled component by
@@ -268,9 +292,7 @@ pub fn run_case<S: Subject + ?Sized>(
     props: &[Property],
     case: &Case,
 ) -> Result<Verdict, S::Error> {
-    let mut sink = PropertySink::new(props);
-    subject.run(case, &mut sink)?;
-    Ok(sink.verdict())
+    subject.run_checked(case, props)
 }
 
 /// How many cases to run, from which master seed, and how hard to shrink.

@@ -26,6 +26,9 @@ pub struct Model {
 pub enum Item {
     /// `param a = 1, b = [1; 2]`.
     Param(Vec<Definition>),
+    /// `param g ~ uniform(a, b)`: a random parameter (the value is the
+    /// draw), sampled per run and per `hybsim test` case.
+    RandomParam(Definition),
     /// `param (Ad, Bd) = c2d(A, B, Ts)`: several results of a control function.
     ParamTuple(Vec<Target>, Expr),
     /// `graph G = adjacency`: a square constant matrix used for neighbour sets.

@@ -27,6 +27,8 @@ pub struct DesignBlock {
     pub stmts: Vec<DesignStmt>,
     /// The whole block.
     pub span: Span,
+    /// `check NAME { … }`: a check (no results; its verdict is reported).
+    pub check: bool,
 }
 
 /// The shape of a decision variable as declared.
@@ -152,10 +154,21 @@ type Res<T> = Result<T, SyntaxError>;
 /// Converts a `design_block` pair.
 pub(super) fn design_block(p: Pair<'_, Rule>) -> Res<DesignBlock> {
     let span: Span = p.as_span().into();
-    let mut inner = p.into_inner();
-    let name = ident(first(&mut inner, span)?);
+    let mut inner = p.into_inner().peekable();
+    let check = inner.next_if(|q| q.as_rule() == Rule::w_check).is_some();
+    let mut inner = inner.collect::<Vec<_>>().into_iter();
+    let name = ident(inner.next().ok_or_else(|| super::SyntaxError::Unexpected {
+        span,
+        found: "an incomplete design block".into(),
+        expected: "a name".into(),
+    })?);
     let stmts = inner.map(stmt).collect::<Res<_>>()?;
-    Ok(DesignBlock { name, stmts, span })
+    Ok(DesignBlock {
+        name,
+        stmts,
+        span,
+        check,
+    })
 }
 
 fn stmt(p: Pair<'_, Rule>) -> Res<DesignStmt> {

@@ -153,6 +153,8 @@ fn describe(rule: Rule) -> Option<&'static str> {
         | Rule::output_decl
         | Rule::sim_block
         | Rule::for_item
+        | Rule::param_draw
+        | Rule::w_check
         | Rule::design_block => "a declaration (param, state, flow, jump, every, output, sim, ...)",
         Rule::flow_eq | Rule::flow_for => "an equation `x' = ...`",
         Rule::reset_eq | Rule::reset_for => "a reset `x+ = ...`",

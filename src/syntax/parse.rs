@@ -145,6 +145,11 @@ fn item(p: Pair<'_, Rule>) -> Res<Item> {
             Item::ParamTuple(targets, expr(value)?)
         }
         Rule::graph_decl => Item::Graph(definition(first(&mut inner, span)?)?),
+        Rule::param_draw => {
+            let target = target(first(&mut inner, span)?)?;
+            let value = expr(first(&mut inner, span)?)?;
+            Item::RandomParam(Definition { target, value })
+        }
         Rule::state_decl => Item::State(
             inner
                 .map(|sd| {

@@ -14,7 +14,11 @@ pub(super) fn property_decl(inner: Pairs<'_, Rule>, span: Span) -> Res<PropertyD
     let mut parts = inner.filter(|p| !is_word(p.as_rule()));
     let name = ident(parts.next().ok_or_else(|| incomplete(span))?);
     let body = parts.next().ok_or_else(|| incomplete(span))?;
-    let body_span: Span = body.as_span().into();
+    // pest's implicit trivia can leave comments after the last token inside
+    // the span: cut them off, so that reports show exactly the body.
+    let body_start = body.as_span().start();
+    let body_span = Span::new(body_start, body_start + significant_len(body.as_str()));
+    let span = Span::new(span.start, body_span.end);
     let rule = body.as_rule();
     let kids: Vec<Pair<'_, Rule>> = body.into_inner().collect();
     let decreasing = kids.iter().any(|p| p.as_rule() == Rule::w_decreasing);
@@ -82,6 +86,21 @@ pub(super) fn property_decl(inner: Pairs<'_, Rule>, span: Span) -> Res<PropertyD
     })
 }
 
+/// Length of `text` up to its last character that is neither whitespace
+/// nor part of a `#` comment.
+fn significant_len(text: &str) -> usize {
+    let mut end = 0;
+    let mut line_start = 0;
+    for line in text.split_inclusive('\n') {
+        let code = line.split('#').next().unwrap_or_default().trim_end();
+        if !code.is_empty() {
+            end = line_start + code.len();
+        }
+        line_start += line.len();
+    }
+    end
+}
+
 fn is_word(r: Rule) -> bool {
     matches!(
         r,
@@ -108,6 +127,14 @@ fn tol(p: Pair<'_, Rule>) -> Res<Expr> {
     let span: Span = p.as_span().into();
     let mut it = p.into_inner().filter(|q| !is_word(q.as_rule()));
     expr(it.next().ok_or_else(|| incomplete(span))?)
+}
+
+#[cfg(test)]
+#[test]
+fn trailing_comments_are_not_significant() {
+    assert_eq!(significant_len("always h >= 0 # ok\n  # more\n"), 13);
+    assert_eq!(significant_len("always h >= 0\n  && v <= 1  # c\n"), 25);
+    assert_eq!(significant_len("always x"), 8);
 }
 
 fn incomplete(span: Span) -> super::SyntaxError {

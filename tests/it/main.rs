@@ -2,6 +2,7 @@
 
 mod cli;
 mod design;
+mod design_check;
 mod diagnostics;
 mod engine;
 mod features;
@@ -16,7 +17,9 @@ mod perez_salesa;
 mod props;
 mod props_cli;
 mod props_model;
+mod props_params;
 mod sinks;
 mod util;
+mod variance_props;
 mod variance_trigger;
 mod wu_ugrinovskii_allgower;

@@ -1,0 +1,78 @@
+//! Compact, lossless formatting of numbers for reports and messages.
+
+use std::fmt;
+
+/// Displays an `f64` compactly without losing precision: the shortest
+/// decimal that reads back as the same number, in positional form for
+/// magnitudes in `[1e-4, 1e15)` (and zero), in scientific form otherwise
+/// (`1e-9`, `2.5e20` instead of `0.000000001`, `250000000000000000000`).
+/// Non-finite values print as `NaN`, `inf`, `-inf`.
+///
+/// ```
+/// use hybsim::num::Num;
+/// assert_eq!(Num(1e-9).to_string(), "1e-9");
+/// assert_eq!(Num(0.25).to_string(), "0.25");
+/// assert_eq!(Num(-3.0).to_string(), "-3");
+/// assert_eq!(Num(1.5e300).to_string(), "1.5e300");
+/// assert_eq!(Num(1.0000000000000002).to_string(), "1.0000000000000002");
+/// ```
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Num(pub f64);
+
+impl fmt::Display for Num {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let x = self.0;
+        let a = x.abs();
+        if !x.is_finite() || a == 0.0 || (1e-4..1e15).contains(&a) {
+            // `{}` is the shortest round-trip form; `-0` prints as `-0`.
+            write!(f, "{x}")
+        } else {
+            write!(f, "{x:e}")
+        }
+    }
+}
+
+/// `x` formatted by [`Num`].
+pub fn fmt_num(x: f64) -> String {
+    Num(x).to_string()
+}
+
+/// `xs` formatted by [`Num`], separated by `", "`.
+pub fn fmt_nums(xs: &[f64]) -> String {
+    xs.iter()
+        .map(|&x| fmt_num(x))
+        .collect::<Vec<_>>()
+        .join(", ")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn compact_and_lossless() {
+        for x in [
+            0.0,
+            1e-4,
+            9.99e-5,
+            1e15,
+            1e14,
+            123.456,
+            -7e-12,
+            1.0 / 3.0,
+            f64::MAX,
+            f64::MIN_POSITIVE,
+            5e-324,
+        ] {
+            let s = fmt_num(x);
+            assert_eq!(s.parse::<f64>(), Ok(x), "{s}");
+            assert!(s.len() <= 24, "{s}");
+        }
+        assert_eq!(fmt_num(9.99e-5), "9.99e-5");
+        assert_eq!(fmt_num(1e15), "1e15");
+        assert_eq!(fmt_num(1e14), "100000000000000");
+        assert_eq!(fmt_num(f64::NAN), "NaN");
+        assert_eq!(fmt_num(f64::NEG_INFINITY), "-inf");
+        assert_eq!(fmt_nums(&[1.0, 2e-7]), "1, 2e-7");
+    }
+}
