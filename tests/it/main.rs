@@ -7,6 +7,7 @@ mod diagnostics;
 mod engine;
 mod features;
 mod intermittent_certificate;
+mod intermittent_check;
 mod intermittent_estimation;
 mod intermittent_model;
 mod intermittent_reproduction;
