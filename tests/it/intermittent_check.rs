@@ -104,7 +104,8 @@ fn m_is_affine_in_the_vertex_weights_so_all_corners_are_needed() {
 }
 
 #[test]
-fn the_check_block_agrees_with_the_library_and_run_does_not_need_it() {
+#[ignore = "three Prop. 3.5 solves over 8 vertices of 36x36 LMIs (minutes); run with --ignored"]
+fn the_check_block_agrees_with_the_library() {
     // The model's `check prop_3_5` solved as `hybsim design` solves it
     // (lang::design_only) and the library's Prop. 3.5 over all 8 vertices,
     // same sigma and eps: the same verdict.
@@ -134,6 +135,10 @@ fn the_check_block_agrees_with_the_library_and_run_does_not_need_it() {
         lib.margin
     );
     assert_eq!(lib.certified(), hyb_feasible, "{}", check.summary_line());
+}
+
+#[test]
+fn hybsim_run_does_not_need_the_check() {
     // `hybsim run` does not solve the check and still works.
     let dir = tempfile::tempdir().unwrap();
     let m = shipped();
