@@ -421,3 +421,91 @@ impl Prop1Bound {
         })
     }
 }
+
+/// One point of the Fig. 6 trade-off: averages over the seeds of one δ.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TradeoffPoint {
+    /// The threshold δ (all nodes).
+    pub delta: f64,
+    /// Runs that finished (seeds whose simulation failed are not averaged).
+    pub runs: usize,
+    /// Seeds whose simulation failed (e.g. the filter diverged).
+    pub failed: usize,
+    /// `𝓔`: mean of `𝓔_s` over the runs.
+    pub error: f64,
+    /// `𝓕`: mean of the normalised `𝓕_s` over the runs (1 = every step).
+    pub frequency: f64,
+}
+
+impl ConsensusModel {
+    /// The Fig. 6 sweep: for each δ, runs seeds `1..=seeds` (with the extra
+    /// overrides `sets`, e.g. `["T=2"]`) in parallel and averages `𝓔_s`
+    /// and the normalised `𝓕_s`.
+    ///
+    /// # Errors
+    /// The model does not compile for some δ.
+    pub fn tradeoff<S: AsRef<str> + Sync>(
+        &self,
+        deltas: &[f64],
+        seeds: u64,
+        sets: &[S],
+    ) -> Result<Vec<TradeoffPoint>, ExperimentError> {
+        use rayon::prelude::*;
+        deltas
+            .iter()
+            .map(|&delta| {
+                let mut all: Vec<String> = sets.iter().map(|s| s.as_ref().to_string()).collect();
+                all.push(format!("delta={delta}"));
+                let model = self.compile(&all)?;
+                let runs: Vec<Option<RunMetrics>> = (1..=seeds)
+                    .into_par_iter()
+                    .map(|seed| self.run_compiled(&model, seed, 1.0).ok())
+                    .collect();
+                let ok: Vec<&RunMetrics> = runs.iter().flatten().collect();
+                let n = ok.len().max(1) as f64;
+                Ok(TradeoffPoint {
+                    delta,
+                    runs: ok.len(),
+                    failed: runs.len() - ok.len(),
+                    error: ok.iter().map(|m| m.error).sum::<f64>() / n,
+                    frequency: ok.iter().map(|m| m.frequency_normalised).sum::<f64>() / n,
+                })
+            })
+            .collect()
+    }
+}
+
+/// The sweep as CSV: `delta,runs,failed,error,frequency`.
+pub fn tradeoff_csv(points: &[TradeoffPoint]) -> String {
+    let mut s = String::from("delta,runs,failed,error,frequency\n");
+    for p in points {
+        s.push_str(&format!(
+            "{},{},{},{},{}\n",
+            p.delta, p.runs, p.failed, p.error, p.frequency
+        ));
+    }
+    s
+}
+
+/// Fig. 6 as a figure: `𝓔` against the normalised `𝓕`, and both against δ.
+pub fn tradeoff_figure(points: &[TradeoffPoint]) -> crate::sinks::plot::Figure {
+    use crate::sinks::plot::{Figure, Panel, Series};
+    let ok = points.iter().filter(|p| p.runs > 0);
+    let ef: Vec<(f64, f64)> = ok.clone().map(|p| (p.frequency, p.error)).collect();
+    let ed: Vec<(f64, f64)> = ok.clone().map(|p| (p.delta, p.error)).collect();
+    let fd: Vec<(f64, f64)> = ok.map(|p| (p.delta, p.frequency)).collect();
+    Figure::new()
+        .panel(
+            Panel::new("Fig. 6: estimation error against communication frequency")
+                .x_label("normalised frequency 𝓕 (1 = an event every step)")
+                .y_label("error 𝓔")
+                .series(Series::line("𝓔(𝓕)", ef).markers(true)),
+        )
+        .panel(
+            Panel::new("error and frequency against the threshold δ")
+                .x_label("δ")
+                .y_label("𝓔, 𝓕")
+                .series(Series::line("𝓔", ed).markers(true))
+                .series(Series::line("𝓕", fd).markers(true)),
+        )
+}
