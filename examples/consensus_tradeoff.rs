@@ -23,7 +23,7 @@ fn main() -> Result<(), Box<dyn Error>> {
     let out = PathBuf::from(args.next().unwrap_or_else(|| "consensus-out".into()));
     let seeds: u64 = args.next().map_or(Ok(20), |s| s.parse())?;
     let step: f64 = args.next().map_or(Ok(10.0), |s| s.parse())?;
-    if !(step > 0.0) {
+    if step.is_nan() || step <= 0.0 {
         return Err("DELTA_STEP must be positive".into());
     }
     std::fs::create_dir_all(&out)?;

@@ -365,25 +365,14 @@ impl Prop1Bound {
         let k2 = scalar_parameter(model, "k2")?;
         let delta = scalar_parameter(model, "delta")?;
         let tf = scalar_parameter(model, "Tf")?;
-        let params = model.parameters_json();
-        let g = params["G"]
-            .as_array()
-            .map(|rows| {
-                rows.iter()
-                    .map(|r| {
-                        r.as_array()
-                            .map(|r| r.iter().filter_map(|v| v.as_f64()).collect::<Vec<f64>>())
-                            .unwrap_or_default()
-                    })
-                    .collect::<Vec<_>>()
-            })
-            .filter(|rows| !rows.is_empty() && rows.iter().all(|r| r.len() == rows.len()))
+        let a = model
+            .parameter("G")
+            .filter(|g| g.is_square() && g.nrows() > 0)
             .ok_or_else(|| ExperimentError::MissingParameter {
                 model: model.name().to_string(),
                 name: "G".into(),
             })?;
-        let n = g.len();
-        let a = DMatrix::from_fn(n, n, |i, j| g[i][j]);
+        let n = a.nrows();
         let nf = n as f64;
         let degrees = DMatrix::from_fn(n, n, |i, j| if i == j { a.row(i).sum() } else { 0.0 });
         let lap = &degrees - &a;
