@@ -89,6 +89,7 @@ pub(crate) const BUILTINS: &[&str] = &[
     "bernoulli",
     "dare",
     "care",
+    "are",
     "dlqr",
     "lqr",
     "c2d",
@@ -1196,7 +1197,7 @@ impl Checker {
                     boolean: dist == Dist::Bernoulli,
                 })
             }
-            "dare" | "care" | "dlqr" | "lqr" | "c2d" => self.control(name, args, span),
+            "dare" | "care" | "are" | "dlqr" | "lqr" | "c2d" => self.control(name, args, span),
             "post" => self.post_call(args, span, ctx),
             "wiener" => {
                 self.err(CheckError::Expected {
@@ -1259,7 +1260,7 @@ impl Checker {
 
 impl Checker {
     /// Control-design functions on constant matrices (`design::control`),
-    /// all results: `dare`/`care` → (P), `dlqr`/`lqr` → (K, P),
+    /// all results: `dare`/`care` → (P), `are` → (X), `dlqr`/`lqr` → (K, P),
     /// `c2d` → (Ad, Bd).
     pub(crate) fn control_multi(
         &mut self,
@@ -1268,7 +1269,7 @@ impl Checker {
         span: Span,
     ) -> Option<Vec<Val>> {
         use crate::design::control;
-        let want = if name == "c2d" { 3 } else { 4 };
+        let want = if matches!(name, "c2d" | "are") { 3 } else { 4 };
         if args.len() != want {
             self.err(CheckError::Arity {
                 func: name.to_string(),
@@ -1292,6 +1293,7 @@ impl Checker {
         let result = match name {
             "dare" => control::dare(&mats[0], &mats[1], &mats[2], &mats[3]).map(|p| vec![p]),
             "care" => control::care(&mats[0], &mats[1], &mats[2], &mats[3]).map(|p| vec![p]),
+            "are" => control::are(&mats[0], &mats[1], &mats[2]).map(|x| vec![x]),
             "dlqr" => control::dlqr(&mats[0], &mats[1], &mats[2], &mats[3]).map(|l| vec![l.k, l.p]),
             "lqr" => control::lqr(&mats[0], &mats[1], &mats[2], &mats[3]).map(|l| vec![l.k, l.p]),
             _ => {

@@ -12,6 +12,8 @@
 //! | [`lyap`]`(A, Q)` | A X + X Aᵀ + Q = 0 | MATLAB `lyap(A, Q)` |
 //! | [`dlyap`]`(A, Q)` | A X Aᵀ − X + Q = 0 | MATLAB `dlyap(A, Q)` |
 //! | [`care`]`(A, B, Q, R)` | Aᵀ P + P A − P B R⁻¹ Bᵀ P + Q = 0, A − B R⁻¹ Bᵀ P Hurwitz | `scipy.linalg.solve_continuous_are` |
+//! | [`are`]`(A, G, Q)` | Aᵀ X + X A − X G X + Q = 0, G = Gᵀ of any sign, A − G X Hurwitz | — |
+//! | [`detectable`]`(A, C)` | every mode in the kernel of the observability matrix is stable | MATLAB `obsv` + `eig` |
 //! | [`dare`]`(A, B, Q, R)` | Aᵀ P A − P − Aᵀ P B (R + Bᵀ P B)⁻¹ Bᵀ P A + Q = 0, A − B K Schur stable | `scipy.linalg.solve_discrete_are` |
 //! | [`lqr`]`(A, B, Q, R)` | u = −K x minimizing ∫ xᵀQx + uᵀRu dt; K = R⁻¹ Bᵀ P | MATLAB `lqr` |
 //! | [`dlqr`]`(A, B, Q, R)` | u = −K x minimizing Σ xᵀQx + uᵀRu; K = (R + Bᵀ P B)⁻¹ Bᵀ P A | MATLAB `dlqr` |
@@ -40,12 +42,14 @@
 mod lyapunov;
 mod norms;
 mod riccati;
+mod structure;
 #[cfg(test)]
 pub(crate) mod tests;
 
 pub use lyapunov::{dlyap, lyap};
 pub use norms::{HinfNorm, Sampling, StateSpace, h2_norm, hinf_norm};
-pub use riccati::{Lqr, care, care_residual, dare, dare_residual, dlqr, lqr};
+pub use riccati::{Lqr, are, are_residual, care, care_residual, dare, dare_residual, dlqr, lqr};
+pub use structure::{detectable, unobservable_modes};
 
 use nalgebra::DMatrix;
 use thiserror::Error;

@@ -186,17 +186,114 @@ pub fn care(
     r: &DMatrix<f64>,
 ) -> Result<DMatrix<f64>, ControlError> {
     let (n, rinv_bt) = check_riccati_data(a, b, q, r)?;
-    let not_stab = ControlError::NotStabilizable {
-        method: "care (sign function)",
-    };
     if n == 0 {
         return Ok(DMatrix::zeros(0, 0));
     }
     let g = symmetrize(&(b * &rinv_bt));
+    let p0 = hamiltonian_sign_solution(a, &g, q, "care (sign function)")?;
+    let p = refine(
+        p0,
+        |p| {
+            let k = &rinv_bt * p;
+            let acl = a - b * &k;
+            if spectral_abscissa(&acl)? >= 0.0 {
+                return Err(ControlError::NotStabilizable {
+                    method: "care (Kleinman step)",
+                });
+            }
+            let qk = q + k.transpose() * r * &k;
+            Ok(symmetrize(&lyap(&acl.transpose(), &qk)?))
+        },
+        |p| care_residual(a, b, q, r, p),
+    )?;
+    if spectral_abscissa(&(a - b * (&rinv_bt * &p)))? >= 0.0 {
+        return Err(ControlError::NotStabilizable { method: "care" });
+    }
+    Ok(p)
+}
+
+/// Residual of the general continuous Riccati equation, ‖Aᵀ X + X A − X G X + Q‖_F.
+pub fn are_residual(
+    a: &DMatrix<f64>,
+    g: &DMatrix<f64>,
+    q: &DMatrix<f64>,
+    x: &DMatrix<f64>,
+) -> Result<f64, ControlError> {
+    let n = check_are_data(a, g, q)?;
+    check_shape("X", x, n, n)?;
+    Ok((a.transpose() * x + x * a - x * g * x + q).norm())
+}
+
+fn check_are_data(
+    a: &DMatrix<f64>,
+    g: &DMatrix<f64>,
+    q: &DMatrix<f64>,
+) -> Result<usize, ControlError> {
+    let n = check_square("A", a)?;
+    check_shape("G", g, n, n)?;
+    check_symmetric("G", g)?;
+    check_shape("Q", q, n, n)?;
+    check_symmetric("Q", q)?;
+    Ok(n)
+}
+
+/// Stabilizing solution X of the continuous algebraic Riccati equation with
+/// any symmetric quadratic term, Aᵀ X + X A − X G X + Q = 0 (A n×n, G = Gᵀ and
+/// Q = Qᵀ n×n, G possibly indefinite), such that A − G X is Hurwitz.
+///
+/// This covers the H∞ (game) Riccati equations such as
+/// Aᵀ X + X A + R − X (B Bᵀ/λ² − B̃ B̃ᵀ/μ²) X = 0, where [`care`] (G = B R⁻¹ Bᵀ ⪰ 0)
+/// does not apply. Method: the stable invariant subspace of the Hamiltonian
+/// [A, −G; −Q, −Aᵀ] by its matrix sign function, then Newton refinement
+/// ((A − G Xₖ)ᵀ Xₖ₊₁ + Xₖ₊₁ (A − G Xₖ) + Xₖ G Xₖ + Q = 0). Fails with
+/// [`ControlError::NotStabilizable`] when the Hamiltonian has eigenvalues on
+/// the imaginary axis or no stabilizing solution exists.
+pub fn are(
+    a: &DMatrix<f64>,
+    g: &DMatrix<f64>,
+    q: &DMatrix<f64>,
+) -> Result<DMatrix<f64>, ControlError> {
+    let n = check_are_data(a, g, q)?;
+    if n == 0 {
+        return Ok(DMatrix::zeros(0, 0));
+    }
+    let g = symmetrize(g);
+    let x0 = hamiltonian_sign_solution(a, &g, q, "are (sign function)")?;
+    let x = refine(
+        x0,
+        |x| {
+            let acl = a - &g * x;
+            if spectral_abscissa(&acl)? >= 0.0 {
+                return Err(ControlError::NotStabilizable {
+                    method: "are (Newton step)",
+                });
+            }
+            let qk = q + x * &g * x;
+            Ok(symmetrize(&lyap(&acl.transpose(), &qk)?))
+        },
+        |x| are_residual(a, &g, q, x),
+    )?;
+    if spectral_abscissa(&(a - &g * &x))? >= 0.0 {
+        return Err(ControlError::NotStabilizable { method: "are" });
+    }
+    Ok(x)
+}
+
+/// The solution of Aᵀ X + X A − X G X + Q = 0 spanned by the stable invariant
+/// subspace of the Hamiltonian [A, −G; −Q, −Aᵀ], from its matrix sign function
+/// (scaled Newton iteration). n ≥ 1.
+fn hamiltonian_sign_solution(
+    a: &DMatrix<f64>,
+    g: &DMatrix<f64>,
+    q: &DMatrix<f64>,
+    method: &'static str,
+) -> Result<DMatrix<f64>, ControlError> {
+    let n = a.nrows();
+    let not_stab = ControlError::NotStabilizable { method };
     let nn = 2 * n;
     let mut z = DMatrix::<f64>::zeros(nn, nn);
     z.view_mut((0, 0), (n, n)).copy_from(a);
-    z.view_mut((0, n), (n, n)).copy_from(&(-&g));
+    z.view_mut((0, n), (n, n)).copy_from(&(-g));
     z.view_mut((n, 0), (n, n)).copy_from(&(-symmetrize(q)));
     z.view_mut((n, n), (n, n)).copy_from(&(-a.transpose()));
     let mut converged = false;
@@ -230,7 +327,7 @@ pub fn care(
     }
     if !converged {
         return Err(ControlError::NoConvergence {
-            method: "care (sign function)",
+            method,
             iterations: SIGN_MAX_ITER,
         });
     }
@@ -249,26 +346,10 @@ pub fn care(
         .svd(true, true)
         .solve(&rhs, 1e-14)
         .map_err(|_| not_stab.clone())?;
-    let p0 = symmetrize(&p0);
-    let p = refine(
-        p0,
-        |p| {
-            let k = &rinv_bt * p;
-            let acl = a - b * &k;
-            if spectral_abscissa(&acl)? >= 0.0 {
-                return Err(ControlError::NotStabilizable {
-                    method: "care (Kleinman step)",
-                });
-            }
-            let qk = q + k.transpose() * r * &k;
-            Ok(symmetrize(&lyap(&acl.transpose(), &qk)?))
-        },
-        |p| care_residual(a, b, q, r, p),
-    )?;
-    if spectral_abscissa(&(a - b * (&rinv_bt * &p)))? >= 0.0 {
-        return Err(ControlError::NotStabilizable { method: "care" });
+    if !p0.iter().all(|v| v.is_finite()) {
+        return Err(not_stab);
     }
-    Ok(p)
+    Ok(symmetrize(&p0))
 }
 
 /// Continuous-time LQR: the gain K = R⁻¹ Bᵀ P of u = −K x minimizing ∫ xᵀ Q x + uᵀ R u dt

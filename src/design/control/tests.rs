@@ -339,3 +339,64 @@ fn norms_of_unstable_systems_are_errors() {
     assert!(matches!(hinf_norm(&g), Err(ControlError::Unstable { .. })));
     assert!(matches!(h2_norm(&g), Err(ControlError::Unstable { .. })));
 }
+
+#[test]
+fn are_with_indefinite_quadratic_term() {
+    use super::{are, are_residual, care};
+    // Scalar closed form: 2 a x − g x² + q = 0, stabilizing root x = (a + √(a² + g q))/g,
+    // a − g x = −√(a² + g q) < 0; here g < 0 (more disturbance than control).
+    let (a, g, q) = (-1.0, -0.5, 1.0);
+    let x = are(&dmatrix![a], &dmatrix![g], &dmatrix![q]).unwrap()[(0, 0)];
+    let want = (a + (a * a + g * q).sqrt()) / g;
+    assert!((x - want).abs() < 1e-12, "{x} vs {want}");
+    // With G = B R⁻¹ Bᵀ it is care.
+    let (a, b) = plant4();
+    let q = DMatrix::<f64>::identity(4, 4);
+    let r = dmatrix![2.0, 0.0; 0.0, 1.0];
+    let g = &b * r.clone().try_inverse().unwrap() * b.transpose();
+    let x = are(&a, &g, &q).unwrap();
+    assert!((&x - care(&a, &b, &q, &r).unwrap()).norm() < 1e-9 * x.norm());
+    // An H∞-type G = B Bᵀ/λ² − Bw Bwᵀ/μ²: residual, stabilizing.
+    let bw = dmatrix![0.0; 0.5; 0.0; 0.2];
+    let g = &b * b.transpose() / 0.25 - &bw * bw.transpose() / 1.44;
+    let x = are(&a, &g, &q).unwrap();
+    assert!(are_residual(&a, &g, &q, &x).unwrap() < 1e-9 * (1.0 + x.norm()));
+    let acl = &a - &g * &x;
+    assert!(acl.complex_eigenvalues().iter().all(|l| l.re < 0.0));
+    // No stabilizing solution: an unstable mode that G cannot reach.
+    let e = are(
+        &dmatrix![1.0, 0.0; 0.0, -1.0],
+        &dmatrix![0.0, 0.0; 0.0, 1.0],
+        &DMatrix::identity(2, 2),
+    );
+    assert!(
+        matches!(e, Err(ControlError::NotStabilizable { .. })),
+        "{e:?}"
+    );
+}
+
+#[test]
+fn detectability_from_the_unobservable_modes() {
+    use super::{detectable, unobservable_modes};
+    // Two integrators seen only through their difference: the common mode (0) is unobservable.
+    let a = DMatrix::<f64>::zeros(2, 2);
+    let c = dmatrix![1.0, -1.0];
+    let modes = unobservable_modes(&a, &c).unwrap();
+    assert_eq!(modes.len(), 1);
+    assert!(modes[0].norm() < 1e-12);
+    assert!(!detectable(&a, &c).unwrap());
+    // Different dynamics make the common mode observable; a stable unobservable mode is fine.
+    let a = dmatrix![0.0, 0.0; 0.0, -1.0];
+    assert!(detectable(&a, &c).unwrap());
+    let a = dmatrix![0.0, 0.0, 0.0; 0.0, -1.0, 0.0; 0.0, 0.0, -2.0];
+    let c = dmatrix![1.0, 0.0, 0.0];
+    assert!(detectable(&a, &c).unwrap());
+    assert_eq!(unobservable_modes(&a, &c).unwrap().len(), 2);
+    assert!(!detectable(&a.scale(-1.0), &c).unwrap());
+    // A double integrator and a (0.1, 0) system seen through the difference of
+    // positions: the shared eigenvalue 0 is unobservable (computed as ≈ −1e-16).
+    let a =
+        dmatrix![0.0, 1.0, 0.0, 0.0; 0.0, 0.0, 0.0, 0.0; 0.0, 0.0, 0.1, 1.0; 0.0, 0.0, 0.0, 0.0];
+    let c = dmatrix![-1.0, 0.0, 1.0, 0.0];
+    assert!(!detectable(&a, &c).unwrap());
+}
