@@ -2,32 +2,14 @@
 //! files; the library tests cover the rest).
 
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
 
 use serde_json::Value;
 
 use crate::util::temp_files;
-
-const BIN: &str = env!("CARGO_BIN_EXE_hybsim");
+use crate::util::{code, hybsim, stderr};
 
 fn ball_model() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("models/bouncing_ball.hyb")
-}
-
-fn hybsim(dir: &Path, args: &[&str]) -> Output {
-    Command::new(BIN)
-        .args(args)
-        .current_dir(dir)
-        .output()
-        .expect("the binary runs")
-}
-
-fn code(out: &Output) -> i32 {
-    out.status.code().expect("exited normally")
-}
-
-fn stderr(out: &Output) -> String {
-    String::from_utf8_lossy(&out.stderr).into_owned()
 }
 
 fn write(dir: &Path, name: &str, text: &str) -> PathBuf {

@@ -2,9 +2,7 @@
 //! is reported — solved by `hybsim design` (exit 1 when there is no
 //! solution), left unsolved by `hybsim run`, which still works.
 
-use std::process::{Command, Output};
-
-const BIN: &str = env!("CARGO_BIN_EXE_hybsim");
+use crate::util::hybsim;
 
 const MODEL: &str = "model checks
 param A = [-1, 2; 0, -3]
@@ -23,14 +21,6 @@ state x = [1; 1]
 flow { x' = A * x }
 sim { T = 1 }
 ";
-
-fn hybsim(dir: &std::path::Path, args: &[&str]) -> Output {
-    Command::new(BIN)
-        .args(args)
-        .current_dir(dir)
-        .output()
-        .expect("the binary runs")
-}
 
 #[test]
 fn checks_are_reported_by_design_and_skipped_by_run() {

@@ -1,32 +1,8 @@
 //! `hybsim test` as a process: exit codes, the printed counterexample, and
 //! the printed replay command run for real, its CSV read back.
 
-use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
-
-const BIN: &str = env!("CARGO_BIN_EXE_hybsim");
-
-fn model(name: &str) -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("tests/models")
-        .join(name)
-}
-
-fn hybsim(dir: &Path, args: &[&str]) -> Output {
-    Command::new(BIN)
-        .args(args)
-        .current_dir(dir)
-        .output()
-        .expect("the binary runs")
-}
-
-fn stdout(out: &Output) -> String {
-    String::from_utf8_lossy(&out.stdout).into_owned()
-}
-
-fn code(out: &Output) -> i32 {
-    out.status.code().expect("exited normally")
-}
+use crate::util::{code, hybsim, stdout, test_model};
+use std::path::Path;
 
 /// The words of the printed `replay: hybsim run …` line (no quoting needed
 /// for these models).
@@ -74,7 +50,7 @@ fn value_after(text: &str, key: &str) -> f64 {
 #[test]
 fn properties_that_hold_pass_with_exit_0() {
     let dir = tempfile::tempdir().unwrap();
-    let m = model("ball_props.hyb");
+    let m = test_model("ball_props.hyb");
     let mut args = vec!["test", m.to_str().unwrap(), "--cases", "200", "--seed", "4"];
     for p in [
         "ground",
@@ -109,7 +85,7 @@ fn properties_that_hold_pass_with_exit_0() {
 #[test]
 fn the_ball_above_1_5_is_refuted_shrunk_and_replayed_exactly() {
     let dir = tempfile::tempdir().unwrap();
-    let m = model("ball_props.hyb");
+    let m = test_model("ball_props.hyb");
     let out = hybsim(
         dir.path(),
         &[
@@ -203,7 +179,7 @@ fn refute_decrease_and_replay(dir: &Path, args: &[&str], prop: &str, v_col: &str
 #[test]
 fn a_wrong_lyapunov_candidate_is_refuted_and_the_replay_shows_the_increase() {
     let dir = tempfile::tempdir().unwrap();
-    let m = model("sample_hold.hyb");
+    let m = test_model("sample_hold.hyb");
     let args = ["test", m.to_str().unwrap(), "--cases", "50", "--seed", "1"];
     refute_decrease_and_replay(dir.path(), &args, "lyapunov", "V");
 }
@@ -251,7 +227,7 @@ fn model_errors_and_unknown_properties_exit_2() {
         err.contains("unknown name `hh`") && err.contains("bad.hyb:4:20"),
         "{err}"
     );
-    let m = model("ball_props.hyb");
+    let m = test_model("ball_props.hyb");
     let out = hybsim(
         dir.path(),
         &["test", m.to_str().unwrap(), "--property", "nope"],

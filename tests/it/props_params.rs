@@ -3,32 +3,8 @@
 //! texts without trailing comments, and compact numbers in reports — all
 //! through the binary.
 
-use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
-
-const BIN: &str = env!("CARGO_BIN_EXE_hybsim");
-
-fn model(name: &str) -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("tests/models")
-        .join(name)
-}
-
-fn hybsim(dir: &Path, args: &[&str]) -> Output {
-    Command::new(BIN)
-        .args(args)
-        .current_dir(dir)
-        .output()
-        .expect("the binary runs")
-}
-
-fn stdout(out: &Output) -> String {
-    String::from_utf8_lossy(&out.stdout).into_owned()
-}
-
-fn code(out: &Output) -> i32 {
-    out.status.code().expect("exited normally")
-}
+use crate::util::{code, hybsim, stdout, test_model};
+use std::path::Path;
 
 /// The number printed right after `key` in `text`.
 fn value_after(text: &str, key: &str) -> f64 {
@@ -78,7 +54,7 @@ fn run_row(dir: &Path, m: &Path, args: &[&str], csv: &str) -> Vec<(String, Strin
 #[test]
 fn a_random_parameter_is_sampled_shrunk_toward_its_centre_and_replayed() {
     let dir = tempfile::tempdir().unwrap();
-    let m = model("random_param.hyb");
+    let m = test_model("random_param.hyb");
     let out = hybsim(
         dir.path(),
         &[
@@ -153,7 +129,7 @@ fn a_random_parameter_is_sampled_shrunk_toward_its_centre_and_replayed() {
 #[test]
 fn set_pins_a_random_parameter_or_makes_a_fixed_one_random() {
     let dir = tempfile::tempdir().unwrap();
-    let m = model("random_param.hyb");
+    let m = test_model("random_param.hyb");
     let row = run_row(dir.path(), &m, &["--set", "g=9"], "pinned.csv");
     assert_eq!(column(&row, "g_out"), 9.0);
     assert_eq!(column(&row, "half_out"), 4.5);
@@ -190,7 +166,7 @@ fn set_pins_a_random_parameter_or_makes_a_fixed_one_random() {
 fn post_inside_sum_reads_the_post_jump_state() {
     // `counts`: at every jump, sum over i of post(c[i]) - c[i] is 1 + 2.
     let dir = tempfile::tempdir().unwrap();
-    let m = model("random_param.hyb");
+    let m = test_model("random_param.hyb");
     let out = hybsim(
         dir.path(),
         &[
@@ -245,7 +221,7 @@ fn post_inside_sum_reads_the_post_jump_state() {
 #[test]
 fn violation_messages_print_numbers_compactly() {
     let dir = tempfile::tempdir().unwrap();
-    let m = model("random_param.hyb");
+    let m = test_model("random_param.hyb");
     let out = hybsim(
         dir.path(),
         &[

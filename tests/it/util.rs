@@ -1,6 +1,9 @@
 //! Helpers shared by the integration tests.
 
+use std::ffi::OsStr;
 use std::ops::ControlFlow;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
 
 use hybsim::arc::{ArcSink, HybridTime, SampleKind, Termination};
 use hybsim::engine::models::BouncingBall;
@@ -165,4 +168,38 @@ pub fn temp_files(dir: &std::path::Path) -> Vec<String> {
         })
         .filter(|n| n.ends_with(".tmp"))
         .collect()
+}
+
+/// The `hybsim` binary built for these tests.
+pub const BIN: &str = env!("CARGO_BIN_EXE_hybsim");
+
+/// Runs the `hybsim` binary with `args` in `dir` and waits for it.
+pub fn hybsim<S: AsRef<OsStr>>(dir: &Path, args: &[S]) -> Output {
+    Command::new(BIN)
+        .args(args)
+        .current_dir(dir)
+        .output()
+        .expect("the binary runs")
+}
+
+/// A run's standard output as text.
+pub fn stdout(out: &Output) -> String {
+    String::from_utf8_lossy(&out.stdout).into_owned()
+}
+
+/// A run's standard error as text.
+pub fn stderr(out: &Output) -> String {
+    String::from_utf8_lossy(&out.stderr).into_owned()
+}
+
+/// A run's exit code (the run must have exited, not been killed).
+pub fn code(out: &Output) -> i32 {
+    out.status.code().expect("exited normally")
+}
+
+/// A model file under `tests/models`.
+pub fn test_model(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/models")
+        .join(name)
 }

@@ -4,25 +4,11 @@
 //! ≥ δ, and convergence to p̄ for δ = 0 — checked by `hybsim test` on random
 //! (a, c, q, r, δ, p0), and a wrong bound refuted and replayed.
 
+use crate::util::{hybsim, stdout};
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
-
-const BIN: &str = env!("CARGO_BIN_EXE_hybsim");
 
 fn shipped() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("models/variance_triggering.hyb")
-}
-
-fn hybsim(dir: &Path, args: &[String]) -> Output {
-    Command::new(BIN)
-        .args(args)
-        .current_dir(dir)
-        .output()
-        .expect("the binary runs")
-}
-
-fn stdout(out: &Output) -> String {
-    String::from_utf8_lossy(&out.stdout).into_owned()
 }
 
 /// Ranges satisfying the paper's assumptions (|a| > 1, c ≠ 0, q, r > 0,
