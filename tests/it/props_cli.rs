@@ -1,7 +1,7 @@
 //! `hybsim test` as a process: exit codes, the printed counterexample, and
 //! the printed replay command run for real, its CSV read back.
 
-use crate::util::{code, hybsim, stdout, test_model};
+use crate::util::{code, hybsim, stdout, test_model, test_property};
 use std::path::Path;
 
 /// The words of the printed `replay: hybsim run …` line (no quoting needed
@@ -86,17 +86,7 @@ fn properties_that_hold_pass_with_exit_0() {
 fn the_ball_above_1_5_is_refuted_shrunk_and_replayed_exactly() {
     let dir = tempfile::tempdir().unwrap();
     let m = test_model("ball_props.hyb");
-    let out = hybsim(
-        dir.path(),
-        &[
-            "test",
-            m.to_str().unwrap(),
-            "--cases",
-            "100",
-            "--property",
-            "below",
-        ],
-    );
+    let out = test_property(dir.path(), &m, "100", "below");
     let text = stdout(&out);
     assert_eq!(code(&out), 1, "{text}");
     assert!(text.contains("`below` fails at (t = 0, j = 0)"), "{text}");

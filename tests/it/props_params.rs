@@ -3,7 +3,7 @@
 //! texts without trailing comments, and compact numbers in reports — all
 //! through the binary.
 
-use crate::util::{code, hybsim, stdout, test_model};
+use crate::util::{code, hybsim, stdout, test_model, test_property};
 use std::path::Path;
 
 /// The number printed right after `key` in `text`.
@@ -55,17 +55,7 @@ fn run_row(dir: &Path, m: &Path, args: &[&str], csv: &str) -> Vec<(String, Strin
 fn a_random_parameter_is_sampled_shrunk_toward_its_centre_and_replayed() {
     let dir = tempfile::tempdir().unwrap();
     let m = test_model("random_param.hyb");
-    let out = hybsim(
-        dir.path(),
-        &[
-            "test",
-            m.to_str().unwrap(),
-            "--cases",
-            "60",
-            "--property",
-            "slow",
-        ],
-    );
+    let out = test_property(dir.path(), &m, "60", "slow");
     let text = stdout(&out);
     assert_eq!(code(&out), 1, "{text}");
     assert!(
@@ -167,17 +157,7 @@ fn post_inside_sum_reads_the_post_jump_state() {
     // `counts`: at every jump, sum over i of post(c[i]) - c[i] is 1 + 2.
     let dir = tempfile::tempdir().unwrap();
     let m = test_model("random_param.hyb");
-    let out = hybsim(
-        dir.path(),
-        &[
-            "test",
-            m.to_str().unwrap(),
-            "--cases",
-            "30",
-            "--property",
-            "counts",
-        ],
-    );
+    let out = test_property(dir.path(), &m, "30", "counts");
     let text = stdout(&out);
     assert_eq!(code(&out), 0, "{text}");
     assert!(
@@ -190,17 +170,7 @@ fn post_inside_sum_reads_the_post_jump_state() {
     let src = std::fs::read_to_string(&m).unwrap().replace("== 3", "== 4");
     let wrong = dir.path().join("wrong.hyb");
     std::fs::write(&wrong, src).unwrap();
-    let out = hybsim(
-        dir.path(),
-        &[
-            "test",
-            wrong.to_str().unwrap(),
-            "--cases",
-            "5",
-            "--property",
-            "counts",
-        ],
-    );
+    let out = test_property(dir.path(), &wrong, "5", "counts");
     let text = stdout(&out);
     assert_eq!(code(&out), 1, "{text}");
     assert!(text.contains("`counts` fails at (t = "), "{text}");
@@ -222,17 +192,7 @@ fn post_inside_sum_reads_the_post_jump_state() {
 fn violation_messages_print_numbers_compactly() {
     let dir = tempfile::tempdir().unwrap();
     let m = test_model("random_param.hyb");
-    let out = hybsim(
-        dir.path(),
-        &[
-            "test",
-            m.to_str().unwrap(),
-            "--cases",
-            "5",
-            "--property",
-            "tiny",
-        ],
-    );
+    let out = test_property(dir.path(), &m, "5", "tiny");
     let text = stdout(&out);
     assert_eq!(code(&out), 1, "{text}");
     // V = 1e-12 t at the first output sample t = 0.1: 1e-13, not 0.0000000000001.

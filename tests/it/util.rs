@@ -197,6 +197,15 @@ pub fn code(out: &Output) -> i32 {
     out.status.code().expect("exited normally")
 }
 
+/// `hybsim test MODEL --cases CASES --property PROPERTY` in `dir`.
+pub fn test_property(dir: &Path, model: &Path, cases: &str, property: &str) -> Output {
+    let model = model.to_str().expect("a UTF-8 path");
+    hybsim(
+        dir,
+        &["test", model, "--cases", cases, "--property", property],
+    )
+}
+
 /// A model file under `tests/models`.
 pub fn test_model(name: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR"))
