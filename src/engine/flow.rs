@@ -127,6 +127,12 @@ pub(crate) struct Affine {
     next_slot: usize,
     /// Longest step between guard checks: 1/‖A‖∞.
     watch_step: f64,
+    /// Rows of `[A, b]` with a nonzero entry, if at most half of them: the
+    /// other components are constant along the flow (zero rows of the
+    /// generator are unit rows of its exponential), so the propagators keep
+    /// only these rows (k × (n+1)) and a step updates only these components.
+    /// `None`: dense propagators ((n+1) × (n+1)).
+    active: Option<Vec<usize>>,
 }
 
 const AFFINE_CACHE: usize = 8;
@@ -164,22 +170,27 @@ impl Affine {
         } else {
             f64::INFINITY
         };
+        let active: Vec<usize> = (0..n)
+            .filter(|&r| gen_.row(r).iter().any(|&v| v != 0.0))
+            .collect();
         Ok(Self {
             n,
             gen_,
             cache: Vec::with_capacity(AFFINE_CACHE),
             next_slot: 0,
             watch_step,
+            active: (2 * active.len() <= n).then_some(active),
         })
     }
 
-    fn propagator(&mut self, h: f64) -> &DMatrix<f64> {
+    /// Cache slot of the propagator for a step `h` (computed on a miss).
+    fn propagator(&mut self, h: f64) -> usize {
         let key = h.to_bits();
         if let Some(i) = self.cache.iter().position(|(k, _)| *k == key) {
-            return &self.cache[i].1;
+            return i;
         }
-        let p = (&self.gen_ * h).exp();
-        let slot = if self.cache.len() < AFFINE_CACHE {
+        let p = self.exp_step(h);
+        if self.cache.len() < AFFINE_CACHE {
             self.cache.push((key, p));
             self.cache.len() - 1
         } else {
@@ -187,12 +198,60 @@ impl Affine {
             self.cache[slot] = (key, p);
             self.next_slot = (slot + 1) % AFFINE_CACHE;
             slot
-        };
-        &self.cache[slot].1
+        }
     }
 
-    /// `out = Φ x + γ` with `p = [[Φ, γ], [0, 1]]`.
-    fn apply(n: usize, p: &DMatrix<f64>, x: &[f64], out: &mut [f64]) {
+    /// The propagator of a step `h`: `exp(h [[A, b], [0, 0]])`, or its
+    /// active rows. With R the active rows and G_R their rows of the
+    /// generator, `exp(hG)_R = I_R + φ₁(h G_RR) h G_R` (φ₁(X) = Σ X^k/(k+1)!,
+    /// the top-right block of `exp([[X, I], [0, 0]])`): a 2k × 2k exponential
+    /// instead of an (n+1) × (n+1) one.
+    fn exp_step(&self, h: f64) -> DMatrix<f64> {
+        let Some(rows) = &self.active else {
+            return (&self.gen_ * h).exp();
+        };
+        let (n, k) = (self.n, rows.len());
+        let mut p = DMatrix::zeros(k, n + 1);
+        if k == 0 {
+            return p;
+        }
+        let mut aug = DMatrix::zeros(2 * k, 2 * k);
+        for (a, &r) in rows.iter().enumerate() {
+            for (b, &c) in rows.iter().enumerate() {
+                aug[(a, b)] = h * self.gen_[(r, c)];
+            }
+            aug[(a, k + a)] = 1.0;
+        }
+        let phi = aug.exp().view((0, k), (k, k)).into_owned();
+        let g_r = DMatrix::from_fn(k, n + 1, |a, c| h * self.gen_[(rows[a], c)]);
+        p.gemm(1.0, &phi, &g_r, 0.0);
+        for (a, &r) in rows.iter().enumerate() {
+            p[(a, r)] += 1.0;
+        }
+        p
+    }
+
+    /// `out` = the flow from `x` after a step `h`.
+    fn advance(&mut self, h: f64, x: &[f64], out: &mut [f64]) {
+        let slot = self.propagator(h);
+        self.apply(&self.cache[slot].1, x, out);
+    }
+
+    /// `out = Φ x + γ` with `p = [[Φ, γ], [0, 1]]` (dense), or with `p` the
+    /// active rows of `[Φ, γ]`; the other components are copied from `x`.
+    fn apply(&self, p: &DMatrix<f64>, x: &[f64], out: &mut [f64]) {
+        let n = self.n;
+        if let Some(rows) = &self.active {
+            out.copy_from_slice(x);
+            for (a, &r) in rows.iter().enumerate() {
+                let mut acc = p[(a, n)];
+                for (c, &xc) in x.iter().enumerate() {
+                    acc += p[(a, c)] * xc;
+                }
+                out[r] = acc;
+            }
+            return;
+        }
         out.copy_from_slice(&p.as_slice()[n * (n + 1)..n * (n + 1) + n]);
         let mut y = DVectorViewMut::from_slice(out, n);
         y.gemv(
@@ -206,8 +265,7 @@ impl Affine {
 
 /// The exact solution of an affine flow on one step.
 struct AffinePath<'a> {
-    n: usize,
-    gen_: &'a DMatrix<f64>,
+    aff: &'a Affine,
     s0: f64,
     s1: f64,
     y0: &'a [f64],
@@ -221,8 +279,8 @@ impl StepPath for AffinePath<'_> {
         } else if s == self.s0 {
             out.copy_from_slice(self.y0);
         } else {
-            let p = (self.gen_ * (s - self.s0)).exp();
-            Affine::apply(self.n, &p, self.y0, out);
+            let p = self.aff.exp_step(s - self.s0);
+            self.aff.apply(&p, self.y0, out);
         }
     }
 }
@@ -498,7 +556,6 @@ impl Flows {
         let Method::Affine(aff) = &mut self.method else {
             unreachable!("affine method")
         };
-        let n = aff.n;
         let watch = !self.watcher.is_empty();
         let hw = if watch {
             self.max_step.min(aff.watch_step)
@@ -517,14 +574,12 @@ impl Flows {
             if last {
                 s1 = d_end;
             }
-            let p = aff.propagator(s1 - s);
-            Affine::apply(n, p, &self.y_prev, &mut self.f_cur);
+            aff.advance(s1 - s, &self.y_prev, &mut self.f_cur);
             if let Some(e) = check_finite(sys, HybridTime::new(t0 + s1, j), &self.f_cur) {
                 return Err(e);
             }
             let mut path = AffinePath {
-                n,
-                gen_: &aff.gen_,
+                aff,
                 s0: s,
                 s1,
                 y0: &self.y_prev,
@@ -739,5 +794,66 @@ impl<S: HybridSystem + ?Sized> System<f64, DVector<f64>> for &mut Stepper<'_, '_
 
     fn solout(&mut self, s: f64, y: &DVector<f64>, dy: &DVector<f64>) -> bool {
         self.on_step(s, y.as_slice(), dy.as_slice())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::Affine;
+    use nalgebra::DMatrix;
+
+    /// Sparse propagators (active rows only) equal the rows of the dense
+    /// exponential, and a step leaves the inactive components unchanged.
+    #[test]
+    fn affine_active_rows_match_the_dense_exponential() {
+        let n = 7;
+        let mut a = vec![0.0; n * n];
+        let mut b = vec![0.0; n];
+        // Rows 1 and 4 flow, coupled to each other and to constant components.
+        for (c, v) in [(1, -0.7), (4, 2.0), (0, 0.3), (6, -1.1)] {
+            a[n + c] = v;
+        }
+        for (c, v) in [(1, -1.5), (4, -0.2), (2, 0.9)] {
+            a[4 * n + c] = v;
+        }
+        b[1] = 0.25;
+        b[4] = -3.0;
+        let aff = Affine::new(n, &a, &b).unwrap();
+        assert_eq!(aff.active.as_deref(), Some(&[1, 4][..]));
+        let x = [0.5, -1.0, 2.0, 0.1, 3.0, -0.4, 1.7];
+        for h in [1e-3, 0.02, 0.7, 3.0] {
+            let dense = (&aff.gen_ * h).exp();
+            let rows = aff.exp_step(h);
+            for (k, &r) in [1usize, 4].iter().enumerate() {
+                for c in 0..=n {
+                    let (d, s) = (dense[(r, c)], rows[(k, c)]);
+                    assert!(
+                        (d - s).abs() <= 1e-13 * (1.0 + d.abs()),
+                        "h {h} ({r},{c}): {d} vs {s}"
+                    );
+                }
+            }
+            let mut out = [0.0; 7];
+            aff.apply(&rows, &x, &mut out);
+            for (i, o) in out.iter().enumerate() {
+                let want: f64 = dense[(i, n)] + (0..n).map(|c| dense[(i, c)] * x[c]).sum::<f64>();
+                if i == 1 || i == 4 {
+                    assert!(
+                        (o - want).abs() <= 1e-12 * (1.0 + want.abs()),
+                        "h {h} x[{i}]"
+                    );
+                } else {
+                    assert_eq!(*o, x[i], "inactive component {i} is constant");
+                }
+            }
+        }
+        // More than half of the rows active: dense propagators.
+        let dense = Affine::new(2, &[0.0, 1.0, -1.0, 0.0], &[0.0, 0.0]).unwrap();
+        assert!(dense.active.is_none());
+        // A zero flow: nothing to propagate.
+        let zero = Affine::new(3, &[0.0; 9], &[0.0; 3]).unwrap();
+        let mut out = [0.0; 3];
+        zero.apply(&zero.exp_step(0.5), &[1.0, 2.0, 3.0], &mut out);
+        assert_eq!(out, [1.0, 2.0, 3.0]);
     }
 }

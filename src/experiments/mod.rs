@@ -12,19 +12,22 @@
 //!   library's Algorithm 1.
 //! * [`intermittent`]: Fig. 2 of Phillips–Erwin–Sanfelice from
 //!   `models/intermittent_estimation.hyb`.
+//! * [`platoon`]: `models/platoon.hyb` (Muehlebach and Trimpe) compiled once,
+//!   many seeds, streaming steady-state statistics (Fig. 5 left, Fig. 6).
 //!
 //! Used by the reproduction tests and the `examples/` figure programs, so
 //! both compute the same data in the same way.
 
 pub mod consensus_estimation;
 pub mod intermittent;
+pub mod platoon;
 pub mod variance_trigger;
 
 use thiserror::Error;
 
-use crate::arc::HybridArc;
+use crate::arc::{ArcSink, HybridArc, Termination};
 use crate::diagnostics::Diagnostic;
-use crate::engine::{HybridSystem, SimError, simulate_arc};
+use crate::engine::{HybridSystem, SimError, simulate as engine_simulate, simulate_arc};
 use crate::lang::{self, CompiledModel, Override};
 use crate::source::SourceFile;
 
@@ -72,6 +75,30 @@ pub enum ExperimentError {
         /// The name looked up.
         name: String,
     },
+    /// A model file could not be read.
+    #[error("cannot read `{path}`: {message}")]
+    Io {
+        /// The file.
+        path: String,
+        /// The operating system's message.
+        message: String,
+    },
+    /// A run ended before its time horizon (e.g. at the jump horizon J).
+    #[error("run of `{model}` stopped at t = {at} before the horizon T: {cause}")]
+    Stopped {
+        /// The model's name.
+        model: String,
+        /// Ordinary time at the end.
+        at: f64,
+        /// Why it ended (the termination, as text).
+        cause: String,
+    },
+    /// An experiment setting is out of range.
+    #[error("invalid experiment setting: {message}")]
+    InvalidSetting {
+        /// What is wrong.
+        message: String,
+    },
 }
 
 /// Parses `name=value` overrides (values are `.hyb` expressions; format
@@ -112,6 +139,22 @@ pub fn simulate(model: &CompiledModel) -> Result<HybridArc, ExperimentError> {
 pub fn simulate_seeded(model: &CompiledModel, seed: u64) -> Result<HybridArc, ExperimentError> {
     let (x0, mut rng) = model.start(seed);
     simulate_arc(model, &x0, &model.settings(), &mut rng).map_err(|error| {
+        ExperimentError::Simulation {
+            model: model.name().to_string(),
+            error,
+        }
+    })
+}
+
+/// As [`simulate_seeded`], streaming into `sink` instead of keeping the
+/// arc (for long runs whose statistics are computed on the fly).
+pub fn simulate_seeded_into(
+    model: &CompiledModel,
+    seed: u64,
+    sink: &mut dyn ArcSink,
+) -> Result<Termination, ExperimentError> {
+    let (x0, mut rng) = model.start(seed);
+    engine_simulate(model, &x0, &model.settings(), &mut rng, sink).map_err(|error| {
         ExperimentError::Simulation {
             model: model.name().to_string(),
             error,

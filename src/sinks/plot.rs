@@ -651,3 +651,154 @@ impl ArcSink for PlotSink<'_> {
         ControlFlow::Continue(())
     }
 }
+
+/// One bar of a [`BarChart`]: a category, its value and an optional error
+/// half-width (drawn as `value ± error`; 0 draws no error bar).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Bar {
+    /// Category label under the bar.
+    pub label: String,
+    /// Height of the bar.
+    pub value: f64,
+    /// Half-width of the error bar (e.g. a standard deviation).
+    pub error: f64,
+}
+
+/// A bar chart with error bars, e.g. a statistic per agent with its spread
+/// over seeds:
+///
+/// ```
+/// use hybsim::sinks::plot::{Bar, BarChart};
+/// let bars = (1..=5).map(|i| Bar { label: i.to_string(), value: 1.0 / i as f64, error: 0.05 }).collect();
+/// let svg = BarChart::new("rate per agent", bars).y_label("rate").to_svg_string().unwrap();
+/// assert!(svg.starts_with("<svg"));
+/// ```
+#[derive(Debug, Clone, PartialEq)]
+pub struct BarChart {
+    /// Caption above the axes.
+    pub title: String,
+    /// x-axis label.
+    pub x_label: String,
+    /// y-axis label.
+    pub y_label: String,
+    /// The bars, left to right.
+    pub bars: Vec<Bar>,
+    /// Width and height in pixels. Default 900 × 400.
+    pub size: (u32, u32),
+}
+
+impl BarChart {
+    /// A chart of `bars` with a caption.
+    pub fn new(title: impl Into<String>, bars: Vec<Bar>) -> Self {
+        Self {
+            title: title.into(),
+            x_label: String::new(),
+            y_label: String::new(),
+            bars,
+            size: (900, 400),
+        }
+    }
+
+    /// Sets the x label.
+    pub fn x_label(self, x_label: impl Into<String>) -> Self {
+        Self {
+            x_label: x_label.into(),
+            ..self
+        }
+    }
+
+    /// Sets the y label.
+    pub fn y_label(self, y_label: impl Into<String>) -> Self {
+        Self {
+            y_label: y_label.into(),
+            ..self
+        }
+    }
+
+    /// Renders the chart as an SVG document. Bars with a non-finite value
+    /// are left out (their label stays).
+    pub fn to_svg_string(&self) -> Result<String, PlotError> {
+        let err = |e: &dyn std::fmt::Display| PlotError(e.to_string());
+        let finite = |b: &&Bar| b.value.is_finite();
+        let top = self
+            .bars
+            .iter()
+            .filter(finite)
+            .map(|b| b.value + b.error.max(0.0))
+            .fold(0.0_f64, f64::max);
+        let bottom = self
+            .bars
+            .iter()
+            .filter(finite)
+            .map(|b| b.value.min(b.value - b.error.max(0.0)))
+            .fold(0.0_f64, f64::min);
+        let (lo, hi) = bounds([bottom, top].into_iter(), false);
+        // Bars at x = 1, 2, …, n; the y axis starts at 0 unless values are negative.
+        let lo = if bottom >= 0.0 { 0.0 } else { lo };
+        let n = self.bars.len();
+        let mut svg = String::new();
+        {
+            let root = SVGBackend::with_string(&mut svg, self.size).into_drawing_area();
+            root.fill(&WHITE).map_err(|e| err(&e))?;
+            let labels: Vec<String> = self.bars.iter().map(|b| b.label.clone()).collect();
+            let label_of = move |x: &f64| {
+                let k = x.round();
+                if (x - k).abs() < 1e-6 && k >= 1.0 && k as usize <= labels.len() {
+                    labels[k as usize - 1].clone()
+                } else {
+                    String::new()
+                }
+            };
+            let mut chart = ChartBuilder::on(&root)
+                .caption(&self.title, ("sans-serif", 16))
+                .margin(10)
+                .x_label_area_size(36)
+                .y_label_area_size(70)
+                .build_cartesian_2d(0.4..n as f64 + 0.6, lo..hi)
+                .map_err(|e| err(&e))?;
+            chart
+                .configure_mesh()
+                .x_desc(self.x_label.as_str())
+                .y_desc(self.y_label.as_str())
+                .x_labels(n + 1)
+                .x_label_formatter(&label_of)
+                .disable_x_mesh()
+                .light_line_style(RGBColor(235, 235, 235))
+                .draw()
+                .map_err(|e| err(&e))?;
+            let color = COLORS[0];
+            let bars = self.bars.iter().enumerate().filter(|(_, b)| finite(b));
+            chart
+                .draw_series(bars.clone().map(|(i, b)| {
+                    let x = (i + 1) as f64;
+                    Rectangle::new([(x - 0.35, 0.0), (x + 0.35, b.value)], color.filled())
+                }))
+                .map_err(|e| err(&e))?;
+            let whisker = BLACK.stroke_width(1);
+            for (i, b) in bars.filter(|(_, b)| b.error > 0.0 && b.error.is_finite()) {
+                let x = (i + 1) as f64;
+                let (y0, y1) = (b.value - b.error, b.value + b.error);
+                let paths = [
+                    vec![(x, y0), (x, y1)],
+                    vec![(x - 0.12, y0), (x + 0.12, y0)],
+                    vec![(x - 0.12, y1), (x + 0.12, y1)],
+                ];
+                chart
+                    .draw_series(paths.into_iter().map(|p| PathElement::new(p, whisker)))
+                    .map_err(|e| err(&e))?;
+            }
+            root.present().map_err(|e| err(&e))?;
+        }
+        Ok(svg)
+    }
+
+    /// Renders the chart to `path` (through a temporary file).
+    pub fn save(&self, path: impl AsRef<Path>) -> Result<(), SinkError> {
+        let path = path.as_ref();
+        let svg = self.to_svg_string().map_err(|e| SinkError::Plot {
+            path: path.to_path_buf(),
+            message: e.0,
+        })?;
+        atomic_file::write(path, svg.as_bytes()).map_err(|e| SinkError::io(path, e))
+    }
+}
