@@ -28,7 +28,7 @@ fn main() -> Result<(), Box<dyn Error>> {
     let seeds: u64 = args.get(2).map_or(Ok(20), |s| s.parse())?;
     let t: f64 = args.get(3).map_or(Ok(1000.0), |s| s.parse())?;
     let window = Window::default();
-    if !(t > window.t_ss) {
+    if t.is_nan() || t <= window.t_ss {
         return Err(format!(
             "T = {t} must exceed the steady-state start {} s",
             window.t_ss

@@ -800,7 +800,6 @@ impl<S: HybridSystem + ?Sized> System<f64, DVector<f64>> for &mut Stepper<'_, '_
 #[cfg(test)]
 mod tests {
     use super::Affine;
-    use nalgebra::DMatrix;
 
     /// Sparse propagators (active rows only) equal the rows of the dense
     /// exponential, and a step leaves the inactive components unchanged.

@@ -487,7 +487,7 @@ fn quantile_of(t: &Tail, q: f64) -> Result<f64, ExperimentError> {
 }
 
 fn check_window(w: &Window) -> Result<(), ExperimentError> {
-    if !(w.quantile > 0.0 && w.quantile < 1.0) || !w.t_ss.is_finite() {
+    if !(w.quantile > 0.0 && w.quantile < 1.0 && w.t_ss.is_finite()) {
         return Err(ExperimentError::InvalidSetting {
             message: format!(
                 "window: t_ss = {} must be finite and the quantile {} in (0, 1)",
