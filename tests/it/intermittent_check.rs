@@ -104,7 +104,6 @@ fn m_is_affine_in_the_vertex_weights_so_all_corners_are_needed() {
 }
 
 #[test]
-#[ignore = "three Prop. 3.5 solves over 8 vertices of 36x36 LMIs (minutes); run with --ignored"]
 fn the_check_block_agrees_with_the_library() {
     // The model's `check prop_3_5` solved as `hybsim design` solves it
     // (lang::design_only) and the library's Prop. 3.5 over all 8 vertices,

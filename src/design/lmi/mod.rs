@@ -1,4 +1,5 @@
-//! Linear matrix inequality problems solved with clarabel's positive semidefinite cone.
+//! Linear matrix inequality problems solved with clarabel's positive semidefinite cone or, for
+//! large problems, hybsim's Schur-complement interior-point method ([`Backend`]).
 //!
 //! A [`Problem`] holds decision variables created by name and shape at run time
 //! ([`Problem::add_variable`]), constraints on affine matrix expressions ([`Expr`]) and a linear
@@ -52,6 +53,7 @@
 //! and solved again (see [`Rescale`]).
 
 mod expr;
+mod ipm;
 mod solve;
 #[cfg(test)]
 mod tests;
@@ -136,6 +138,29 @@ pub enum Rescale {
     Always,
 }
 
+/// Which interior-point method solves the assembled conic program.
+///
+/// clarabel factors a KKT system whose PSD blocks are dense in the svec dimension d(d+1)/2 and
+/// fill in across blocks through shared variables: fast and robust for small problems, but its
+/// memory and time grow like the cube of the total svec size. [`Backend::Schur`] is hybsim's
+/// own primal–dual method on the Schur complement of the decision variables (as SDPT3, SDPA and
+/// CSDP work): memory O(m² + Σ d²) for m scalar variables, so the 20-vehicle platoon (2 380
+/// variables, 21 blocks of 78×78) takes megabytes instead of tens of gigabytes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Backend {
+    /// clarabel when the PSD blocks have at most [`AUTO_SCHUR_ROWS`] svec rows in total,
+    /// [`Backend::Schur`] above (default).
+    Auto,
+    /// clarabel's direct method.
+    Clarabel,
+    /// hybsim's Schur-complement interior-point method.
+    Schur,
+}
+
+/// The total svec size of the PSD blocks above which [`Backend::Auto`] uses
+/// [`Backend::Schur`]: below it clarabel solves in well under a second.
+pub const AUTO_SCHUR_ROWS: usize = 1000;
+
 /// Solver settings. Each field has a default; validated by [`Problem::solve`].
 #[derive(Debug, Clone, PartialEq)]
 pub struct Settings {
@@ -144,14 +169,16 @@ pub struct Settings {
     /// Relative tolerance of the a-posteriori check: a non-strict constraint holds if
     /// λ_min ≥ −check_tol·(1 + ‖F‖₂). Default 1e-6.
     pub check_tol: f64,
-    /// Interior-point tolerances passed to clarabel (gap and feasibility). Default 1e-9.
+    /// Interior-point tolerances (relative gap and feasibility). Default 1e-9.
     pub solver_tol: f64,
     /// Iteration limit of the interior-point method. Default 200.
     pub max_iter: u32,
     /// Rescaling policy. Default [`Rescale::IfNeeded`].
     pub rescale: Rescale,
-    /// Print clarabel's iteration log. Default false.
+    /// Print the solver's iteration log. Default false.
     pub verbose: bool,
+    /// Which interior-point method to use. Default [`Backend::Auto`].
+    pub backend: Backend,
 }
 
 impl Default for Settings {
@@ -163,6 +190,7 @@ impl Default for Settings {
             max_iter: 200,
             rescale: Rescale::IfNeeded,
             verbose: false,
+            backend: Backend::Auto,
         }
     }
 }
@@ -257,7 +285,7 @@ pub enum LmiError {
     },
 }
 
-/// The interior-point method's termination (mirrors clarabel's status).
+/// The interior-point method's termination (clarabel's statuses; the Schur backend uses the same).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum SolverStatus {
     /// Solved to full accuracy.
@@ -308,17 +336,19 @@ pub struct SolveInfo {
     pub total_time: f64,
     /// Interior-point iterations (all passes).
     pub iterations: u32,
-    /// Primal residual reported by clarabel (scaled problem).
+    /// Primal residual reported by the solver (scaled problem).
     pub primal_residual: f64,
-    /// Dual residual reported by clarabel (scaled problem).
+    /// Dual residual reported by the solver (scaled problem).
     pub dual_residual: f64,
+    /// The interior-point method that ran ([`Backend::Clarabel`] or [`Backend::Schur`]).
+    pub backend: Backend,
     /// Number of solves (2 when rescaled).
     pub passes: u32,
     /// Number of scalar decision variables.
     pub variables: usize,
     /// Number of rows of the conic constraint (svec entries and scalar rows).
     pub cone_rows: usize,
-    /// Nonzeros of clarabel's constraint matrix.
+    /// Nonzeros of the conic constraint matrix.
     pub nonzeros: usize,
 }
 

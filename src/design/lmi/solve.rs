@@ -1,4 +1,5 @@
-//! Assembly of the conic program for clarabel, scaling, solve, and the a-posteriori check.
+//! Assembly of the conic program, scaling, solve (clarabel or [`super::ipm`]), and the
+//! a-posteriori check.
 
 use std::collections::HashMap;
 use std::time::Instant;
@@ -9,8 +10,10 @@ use clarabel::solver::{
 };
 use nalgebra::DMatrix;
 
+use super::ipm::{self, IpmOptions};
 use super::{
-    ConstraintCheck, Design, LmiError, Outcome, Problem, Relation, Rescale, SolveInfo, SolverStatus,
+    AUTO_SCHUR_ROWS, Backend, ConstraintCheck, Design, LmiError, Outcome, Problem, Relation,
+    Rescale, SolveInfo, SolverStatus,
 };
 
 /// svec of a symmetric matrix in clarabel's convention (see the module docs): upper triangle
@@ -60,8 +63,28 @@ struct Scaling {
     vars: Vec<f64>,
 }
 
+/// The conic program handed to a solver: minimize qᵀx subject to
+/// b − A x ∈ {0}^{zero_rows} × S₊^{blocks[0]} × S₊^{blocks[1]} × … (each block in svec
+/// coordinates, see the module docs; a block of size 1 is a nonnegative scalar).
+pub(crate) struct Conic {
+    pub n: usize,
+    pub zero_rows: usize,
+    pub blocks: Vec<usize>,
+    pub a: CscMatrix<f64>,
+    pub b: Vec<f64>,
+    pub q: Vec<f64>,
+}
+
+impl Conic {
+    /// Total svec rows of the PSD blocks.
+    fn psd_rows(&self) -> usize {
+        self.blocks.iter().map(|d| d * (d + 1) / 2).sum()
+    }
+}
+
 struct Pass {
     status: SolverStatus,
+    backend: Backend,
     x: Vec<f64>,
     solve_time: f64,
     iterations: u32,
@@ -175,14 +198,15 @@ impl Problem {
         Scaling { blocks, vars }
     }
 
-    fn run_pass(&self, scaling: &Scaling) -> Result<Pass, LmiError> {
+    /// The conic program of this problem under a scaling.
+    fn assemble(&self, scaling: &Scaling) -> Conic {
         let n = self.n_scalars;
         let margin = self.settings.strict_margin;
         let mut rows_i = Vec::new();
         let mut cols_j = Vec::new();
         let mut vals = Vec::new();
         let mut b = Vec::new();
-        let mut cones = Vec::new();
+        let mut blocks = Vec::new();
         let mut zero_rows = 0usize;
         // Equalities first (one zero cone), then one PSD cone per block.
         for (c, d) in self.constraints.iter().zip(&scaling.blocks) {
@@ -202,9 +226,6 @@ impl Problem {
                 vals.push(-w * t.coef * scaling.vars[t.var]);
             }
             zero_rows += r * cc;
-        }
-        if zero_rows > 0 {
-            cones.push(SupportedConeT::ZeroConeT(zero_rows));
         }
         let mut row0 = zero_rows;
         for (c, d) in self.constraints.iter().zip(&scaling.blocks) {
@@ -239,14 +260,9 @@ impl Problem {
                 }
             }
             row0 += m * (m + 1) / 2;
-            cones.push(if m == 1 {
-                SupportedConeT::NonnegativeConeT(1)
-            } else {
-                SupportedConeT::PSDTriangleConeT(m)
-            });
+            blocks.push(m);
         }
         let a = csc_from_triplets(row0, n, rows_i, cols_j, vals);
-        let nonzeros = a.nzval.len();
         let mut q = vec![0.0; n];
         if let Some((obj, sign)) = &self.objective {
             for t in &obj.terms {
@@ -256,6 +272,68 @@ impl Problem {
         let qscale = q.iter().fold(0.0f64, |m, v| m.max(v.abs()));
         if qscale > 0.0 {
             q.iter_mut().for_each(|v| *v /= qscale);
+        }
+        Conic {
+            n,
+            zero_rows,
+            blocks,
+            a,
+            b,
+            q,
+        }
+    }
+
+    fn run_pass(&self, scaling: &Scaling) -> Result<Pass, LmiError> {
+        let conic = self.assemble(scaling);
+        let backend = match self.settings.backend {
+            Backend::Auto if conic.psd_rows() > AUTO_SCHUR_ROWS => Backend::Schur,
+            Backend::Auto => Backend::Clarabel,
+            b => b,
+        };
+        let mut pass = match backend {
+            Backend::Schur => {
+                let r = ipm::solve(
+                    &conic,
+                    &IpmOptions {
+                        tol: self.settings.solver_tol,
+                        max_iter: self.settings.max_iter,
+                        verbose: self.settings.verbose,
+                    },
+                );
+                Pass {
+                    status: r.status,
+                    backend,
+                    x: r.x,
+                    solve_time: r.solve_time,
+                    iterations: r.iterations,
+                    r_prim: r.r_prim,
+                    r_dual: r.r_dual,
+                    cone_rows: 0,
+                    nonzeros: 0,
+                }
+            }
+            _ => self.run_clarabel(&conic)?,
+        };
+        pass.cone_rows = conic.zero_rows + conic.psd_rows();
+        pass.nonzeros = conic.a.nzval.len();
+        for (v, s) in pass.x.iter_mut().zip(&scaling.vars) {
+            *v *= s;
+        }
+        Ok(pass)
+    }
+
+    fn run_clarabel(&self, conic: &Conic) -> Result<Pass, LmiError> {
+        let n = conic.n;
+        let mut cones = Vec::new();
+        if conic.zero_rows > 0 {
+            cones.push(SupportedConeT::ZeroConeT(conic.zero_rows));
+        }
+        for &m in &conic.blocks {
+            cones.push(if m == 1 {
+                SupportedConeT::NonnegativeConeT(1)
+            } else {
+                SupportedConeT::PSDTriangleConeT(m)
+            });
         }
         let p = CscMatrix::zeros((n, n));
         let tol = self.settings.solver_tol;
@@ -267,25 +345,20 @@ impl Problem {
             .tol_feas(tol)
             .build()
             .map_err(|e| LmiError::Solver(e.to_string()))?;
-        let mut solver = DefaultSolver::new(&p, &q, &a, &b, &cones, settings)
+        let mut solver = DefaultSolver::new(&p, &conic.q, &conic.a, &conic.b, &cones, settings)
             .map_err(|e| LmiError::Solver(e.to_string()))?;
         solver.solve();
         let sol = &solver.solution;
-        let x = sol
-            .x
-            .iter()
-            .zip(&scaling.vars)
-            .map(|(y, s)| y * s)
-            .collect();
         Ok(Pass {
             status: map_status(sol.status),
-            x,
+            backend: Backend::Clarabel,
+            x: sol.x.clone(),
             solve_time: sol.solve_time,
             iterations: sol.iterations,
             r_prim: sol.r_prim,
             r_dual: sol.r_dual,
-            cone_rows: row0,
-            nonzeros,
+            cone_rows: 0,
+            nonzeros: 0,
         })
     }
 
@@ -324,7 +397,7 @@ impl Problem {
             .collect()
     }
 
-    /// Assembles, solves with clarabel, checks every constraint at the returned point, and (per
+    /// Assembles, solves (with the [`Backend`] of the settings), checks every constraint at the returned point, and (per
     /// [`super::Settings::rescale`]) rescales from that point and solves again.
     pub fn solve(&self) -> Result<Outcome, LmiError> {
         let start = Instant::now();
@@ -376,6 +449,7 @@ impl Problem {
             iterations,
             primal_residual: pass.r_prim,
             dual_residual: pass.r_dual,
+            backend: pass.backend,
             passes,
             variables: self.n_scalars,
             cone_rows: pass.cone_rows,

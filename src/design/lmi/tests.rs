@@ -3,6 +3,14 @@ use nalgebra::{DMatrix, dmatrix};
 use super::*;
 use crate::design::control::{StateSpace, dlyap, hinf_norm, lyap, tests::sweep_peak};
 
+/// Both interior-point methods: every solver-level test below runs on each.
+const BACKENDS: [Backend; 2] = [Backend::Clarabel, Backend::Schur];
+
+fn with_backend(mut p: Problem, b: Backend) -> Problem {
+    p.settings_mut().backend = b;
+    p
+}
+
 fn solved(p: &Problem) -> Design {
     match p.solve().unwrap() {
         Outcome::Solved(d) => d,
@@ -75,6 +83,12 @@ fn lyapunov_lhs(p: &Expr, a: &DMatrix<f64>, q: &DMatrix<f64>) -> Expr {
 /// min tr(P) s.t. AᵀP + PA + Q ⪯ 0 is attained at the Lyapunov solution AᵀP + PA + Q = 0.
 #[test]
 fn lyapunov_lmi_matches_lyap() {
+    for backend in BACKENDS {
+        lyapunov_lmi_matches_lyap_with(backend);
+    }
+}
+
+fn lyapunov_lmi_matches_lyap_with(backend: Backend) {
     let a = dmatrix![-1.0, 2.0, 0.0; -0.5, -1.5, 1.0; 0.2, 0.0, -2.0];
     let q = dmatrix![2.0, 0.5, 0.0; 0.5, 1.0, 0.0; 0.0, 0.0, 1.0];
     let mut prob = Problem::new();
@@ -82,7 +96,8 @@ fn lyapunov_lmi_matches_lyap() {
     prob.constrain("lyap", &lyapunov_lhs(&p, &a, &q), Relation::NegSemiDef)
         .unwrap();
     prob.minimize(&p.trace().unwrap()).unwrap();
-    let d = solved(&prob);
+    let d = solved(&with_backend(prob, backend));
+    assert_eq!(d.info.backend, backend);
     let exact = lyap(&a.transpose(), &q).unwrap();
     let got = d.value("P").unwrap();
     assert!(
@@ -95,6 +110,12 @@ fn lyapunov_lmi_matches_lyap() {
 
 #[test]
 fn infeasible_lmi_is_reported_infeasible() {
+    for backend in BACKENDS {
+        infeasible_and_unbounded_with(backend);
+    }
+}
+
+fn infeasible_and_unbounded_with(backend: Backend) {
     // P ⪰ I and AᵀP + PA ⪯ 0 with an unstable A.
     let a = dmatrix![0.5, 1.0; 0.0, -1.0];
     let mut prob = Problem::new();
@@ -107,13 +128,23 @@ fn infeasible_lmi_is_reported_infeasible() {
         Relation::NegSemiDef,
     )
     .unwrap();
-    assert!(matches!(prob.solve().unwrap(), Outcome::Infeasible(_)));
+    let prob = with_backend(prob, backend);
+    assert!(
+        matches!(prob.solve().unwrap(), Outcome::Infeasible(_)),
+        "{backend:?}: {:?}",
+        prob.solve()
+    );
     // Unbounded: maximize a free scalar.
     let mut prob = Problem::new();
     let t = prob.add_variable("t", VarKind::Scalar).unwrap();
     prob.constrain("t >= 0", &t, Relation::PosSemiDef).unwrap();
     prob.maximize(&t).unwrap();
-    assert!(matches!(prob.solve().unwrap(), Outcome::Unbounded(_)));
+    let prob = with_backend(prob, backend);
+    assert!(
+        matches!(prob.solve().unwrap(), Outcome::Unbounded(_)),
+        "{backend:?}: {:?}",
+        prob.solve()
+    );
 }
 
 #[test]
@@ -171,7 +202,13 @@ fn expression_algebra_evaluates_consistently() {
 
 /// Bounded-real lemma: ‖G‖∞ < γ iff ∃P ≻ 0 with
 /// [[AᵀP + PA, PB, Cᵀ], [BᵀP, −γI, Dᵀ], [C, D, −γI]] ≺ 0; minimize γ.
-fn brl_hinf(a: &DMatrix<f64>, b: &DMatrix<f64>, c: &DMatrix<f64>, d: &DMatrix<f64>) -> f64 {
+fn brl_hinf(
+    a: &DMatrix<f64>,
+    b: &DMatrix<f64>,
+    c: &DMatrix<f64>,
+    d: &DMatrix<f64>,
+    backend: Backend,
+) -> f64 {
     let (n, m, p) = (a.nrows(), b.ncols(), c.nrows());
     let mut prob = Problem::new();
     let pv = prob.add_variable("P", VarKind::Symmetric(n)).unwrap();
@@ -203,7 +240,7 @@ fn brl_hinf(a: &DMatrix<f64>, b: &DMatrix<f64>, c: &DMatrix<f64>, d: &DMatrix<f6
     prob.constrain("brl", &lmi, Relation::NegSemiDef).unwrap();
     prob.constrain("P > 0", &pv, Relation::PosSemiDef).unwrap();
     prob.minimize(&g).unwrap();
-    solved(&prob).objective
+    solved(&with_backend(prob, backend)).objective
 }
 
 #[test]
@@ -227,15 +264,17 @@ fn bounded_real_lemma_matches_sweep_and_hinf_norm() {
         let g = StateSpace::continuous(a.clone(), b.clone(), c.clone(), d.clone()).unwrap();
         let sweep = sweep_peak(&g, 1e-3, 1e3);
         let exact = hinf_norm(&g).unwrap().value;
-        let lmi = brl_hinf(&a, &b, &c, &d);
-        assert!(
-            (lmi - sweep).abs() <= 1e-4 * sweep,
-            "BRL {lmi} vs sweep {sweep}"
-        );
-        assert!(
-            (lmi - exact).abs() <= 1e-4 * exact,
-            "BRL {lmi} vs hinf_norm {exact}"
-        );
+        for backend in BACKENDS {
+            let lmi = brl_hinf(&a, &b, &c, &d, backend);
+            assert!(
+                (lmi - sweep).abs() <= 1e-4 * sweep,
+                "{backend:?}: BRL {lmi} vs sweep {sweep}"
+            );
+            assert!(
+                (lmi - exact).abs() <= 1e-4 * exact,
+                "{backend:?}: BRL {lmi} vs hinf_norm {exact}"
+            );
+        }
     }
 }
 
@@ -244,6 +283,12 @@ fn bounded_real_lemma_matches_sweep_and_hinf_norm() {
 /// P* = dlyap(Aᵀ, I).
 #[test]
 fn badly_scaled_h2_problem_is_accurate() {
+    for backend in BACKENDS {
+        badly_scaled_h2_with(backend);
+    }
+}
+
+fn badly_scaled_h2_with(backend: Backend) {
     let a = dmatrix![0.998, 0.005, 0.0; 0.0, 0.997, 0.002; 0.0, 0.0, 0.995];
     let b = dmatrix![0.03, 0.0; 0.0, 0.05; 0.02, 0.03]; // covariances B Bᵀ ≈ 1e-3
     let pstar = dlyap(&a.transpose(), &DMatrix::identity(3, 3)).unwrap();
@@ -270,11 +315,11 @@ fn badly_scaled_h2_problem_is_accurate() {
     prob.constrain("lyap", &lyap_lhs, Relation::NegSemiDef)
         .unwrap();
     prob.minimize(&x.trace().unwrap()).unwrap();
-    let d = solved(&prob);
+    let d = solved(&with_backend(prob, backend));
     let exact = (b.transpose() * &pstar * &b).trace();
     assert!(
         (d.objective - exact).abs() <= 1e-5 * exact,
-        "{} vs {exact}",
+        "{backend:?}: {} vs {exact}",
         d.objective
     );
 }
@@ -330,4 +375,102 @@ fn muehlebach_trimpe_appendix_f_identity_certifies_cor_v2() {
         "{worst} vs {expected_margin}"
     );
     assert!((expected_margin - 0.4).abs() < 1e-12); // A + BF = diag(0.6, 0)
+}
+
+/// A larger multi-block problem with an equality row, solved by both backends: discrete H2
+/// design min tr X s.t. [[P, P B], [Bᵀ P, X]] ⪰ 0, AᵀPA − P + I ⪯ 0, P₀₁ = P₁₀ = 0 (a
+/// structural constraint), plus a scalar bound tr P ≤ t. The two solutions must agree.
+#[test]
+fn backends_agree_on_a_multi_block_problem_with_equalities() {
+    let n = 9;
+    let k = 3;
+    // A deterministic, stable, coupled A and a full B.
+    let a = DMatrix::from_fn(n, n, |i, j| {
+        if i == j {
+            0.9 - 0.03 * i as f64
+        } else if j == i + 1 {
+            0.2
+        } else if i == j + 2 {
+            -0.05
+        } else {
+            0.0
+        }
+    });
+    let b = DMatrix::from_fn(n, k, |i, j| ((i + 2 * j) % 5) as f64 * 0.1 - 0.15);
+    let build = |backend: Backend| {
+        let mut prob = Problem::new();
+        let p = prob.add_variable("P", VarKind::Symmetric(n)).unwrap();
+        let x = prob.add_variable("X", VarKind::Symmetric(k)).unwrap();
+        let t = prob.add_variable("t", VarKind::Scalar).unwrap();
+        let pb = p.right_mul(&b).unwrap();
+        let h2 = Expr::blocks(&[
+            vec![Some(p.clone()), Some(pb.clone())],
+            vec![Some(pb.transpose()), Some(x.clone())],
+        ])
+        .unwrap();
+        prob.constrain("h2", &h2, Relation::PosSemiDef).unwrap();
+        let lyap_lhs = p
+            .left_mul(&a.transpose())
+            .unwrap()
+            .right_mul(&a)
+            .unwrap()
+            .sub(&p)
+            .unwrap()
+            .add(&Expr::identity(n))
+            .unwrap();
+        prob.constrain("lyap", &lyap_lhs, Relation::NegSemiDef)
+            .unwrap();
+        prob.constrain("p01", &p.entry(0, 1).unwrap(), Relation::Zero)
+            .unwrap();
+        prob.constrain_between("trace", &t, &p.trace().unwrap(), Relation::PosSemiDef)
+            .unwrap();
+        prob.minimize(&x.trace().unwrap().add(&t.scale(1e-3)).unwrap())
+            .unwrap();
+        solved(&with_backend(prob, backend))
+    };
+    let c = build(Backend::Clarabel);
+    let s = build(Backend::Schur);
+    assert_eq!(s.info.backend, Backend::Schur);
+    let rel = (c.objective - s.objective).abs() / c.objective.abs();
+    assert!(rel < 1e-6, "objective {} vs {}", c.objective, s.objective);
+    let (pc, ps) = (c.value("P").unwrap(), s.value("P").unwrap());
+    assert!(ps[(0, 1)].abs() <= 1e-7 * ps.amax(), "P01 = {}", ps[(0, 1)]);
+    assert!(
+        (pc - ps).amax() <= 1e-4 * pc.amax(),
+        "P differs by {}",
+        (pc - ps).amax()
+    );
+}
+
+/// `Backend::Auto` keeps clarabel for small problems and switches above AUTO_SCHUR_ROWS.
+#[test]
+fn auto_backend_switches_on_problem_size() {
+    let solve = |n: usize| {
+        let mut prob = Problem::new();
+        let p = prob.add_variable("P", VarKind::Symmetric(n)).unwrap();
+        let a = DMatrix::from_fn(n, n, |i, j| {
+            if i == j {
+                -1.0
+            } else if j == i + 1 {
+                0.5
+            } else {
+                0.0
+            }
+        });
+        prob.constrain(
+            "lyap",
+            &lyapunov_lhs(&p, &a, &DMatrix::identity(n, n)),
+            Relation::NegSemiDef,
+        )
+        .unwrap();
+        prob.minimize(&p.trace().unwrap()).unwrap();
+        let d = solved(&prob);
+        let exact = lyap(&a.transpose(), &DMatrix::identity(n, n)).unwrap();
+        assert!((d.value("P").unwrap() - &exact).amax() <= 1e-6 * exact.amax());
+        d.info.backend
+    };
+    assert_eq!(solve(4), Backend::Clarabel);
+    // 50·51/2 = 1275 svec rows > AUTO_SCHUR_ROWS.
+    const { assert!(50 * 51 / 2 > AUTO_SCHUR_ROWS) };
+    assert_eq!(solve(50), Backend::Schur);
 }
