@@ -14,7 +14,7 @@ use std::error::Error;
 use std::fmt::Write as _;
 
 use hybsim::design::control::{StateSpace, dare, h2_norm};
-use hybsim::engine::{HybridSystem, SimRng, simulate_arc};
+use hybsim::experiments::platoon::{Platoon, Window};
 use hybsim::lang::{self, CompiledModel, Override};
 use hybsim::sinks::plot::{Figure, Panel, Series};
 use hybsim::source::SourceFile;
@@ -35,48 +35,20 @@ fn compile(src: &SourceFile, sets: &[String]) -> Result<CompiledModel, Box<dyn E
     lang::compile(src, &ov).map_err(|d| hybsim::diagnostics::render(&d, src, false).into())
 }
 
-/// Mean transmit rate (all agents) and ‖e_i‖_P (RMS over agents and steps), t ≥ 100 s.
+/// Mean transmit rate (all agents) and ‖e_i‖_P (RMS over agents and steps), t ≥ 100 s, seeds
+/// 1..=`seeds` × 400 s, through `experiments::platoon` (one compilation per Δ).
 fn simulate(src: &SourceFile, delta: &[f64], seeds: u64) -> Result<(f64, f64), Box<dyn Error>> {
-    let (mut sent, mut err2, mut steps) = (0.0, 0.0, 0.0);
-    for seed in 1..=seeds {
-        let d = delta
-            .iter()
-            .map(|v| v.to_string())
-            .collect::<Vec<_>>()
-            .join("; ");
-        let m = compile(
-            src,
-            &[
-                format!("Delta=[{d}]"),
-                format!("seed={seed}"),
-                "T=400".into(),
-            ],
-        )?;
-        let names = m.state_layout().flat_names(m.state_dim());
-        let ix = |s: &str| {
-            names
-                .iter()
-                .position(|n| n == s)
-                .ok_or(format!("no state {s}"))
-        };
-        let n = param(&m, "n")[(0, 0)] as usize;
-        let agents = delta.len();
-        let mut rng = SimRng::seed_from(m.seed());
-        let x0 = m.initial_state(&mut rng);
-        let arc = simulate_arc(&m, &x0, &m.settings(), &mut rng)?;
-        for j in arc.jumps().iter().filter(|j| j.at.t >= 100.0) {
-            let x = &j.post;
-            steps += 1.0;
-            for a in 1..=agents {
-                sent += x[ix(&format!("tx[{a}]"))?];
-                for r in 1..=n {
-                    let e = x[ix(&format!("x[{r}]"))?] - x[ix(&format!("XH[{r},{a}]"))?];
-                    err2 += e * e / agents as f64;
-                }
-            }
-        }
-    }
-    Ok((sent / steps / delta.len() as f64, (err2 / steps).sqrt()))
+    let d = delta
+        .iter()
+        .map(|v| v.to_string())
+        .collect::<Vec<_>>()
+        .join("; ");
+    let p = Platoon::compile(src, &[format!("Delta=[{d}]"), "T=400".into()])?;
+    let e = p.ensemble(1..=seeds, &Window::default())?;
+    let agents = e.rate_mean.len() as f64;
+    let rate = e.rate_mean.iter().sum::<f64>() / agents;
+    let power = (e.error_power.iter().map(|v| v * v).sum::<f64>() / agents).sqrt();
+    Ok((rate, power))
 }
 
 fn main() -> Result<(), Box<dyn Error>> {
