@@ -9,7 +9,10 @@
 //! J_max: the paper gives no value for M = 20 ("the design procedure is repeated"); the
 //! procedure for M = 3 chose J_max "roughly 35 times" the full-communication power c*, so
 //! the default is `Jmax=35*cstar` (c* from step 1 of this design). Extra `NAME=VALUE`
-//! arguments are model overrides, e.g. `Jmax=0.38` for the M = 3 value.
+//! arguments are model overrides, e.g. `Jmax=0.38` for the M = 3 value; an extra argument
+//! `ref=FILE.json` takes L, c* and Δ from a synthesis done elsewhere instead of the model's
+//! design blocks (`ref=tests/data/platoon_m20_cor_v3.json`: M = 20, Cor. V.3, J_max = 35 c*,
+//! solved with CSDP).
 //!
 //! Writes `OUT_DIR/fig6.csv` (vehicle, rate mean, rate std, max |d| of the distance the
 //! vehicle measures, ‖e_i‖ power) and `OUT_DIR/fig6.svg`; prints the table and timings.
@@ -18,7 +21,7 @@ use std::error::Error;
 use std::fmt::Write as _;
 use std::time::Instant;
 
-use hybsim::experiments::platoon::{Platoon, Window};
+use hybsim::experiments::platoon::{Platoon, Window, synthesis_overrides};
 use hybsim::sinks::plot::{Bar, BarChart};
 
 fn main() -> Result<(), Box<dyn Error>> {
@@ -43,7 +46,12 @@ fn main() -> Result<(), Box<dyn Error>> {
         format!("T={t}"),
         format!("J={}", (t / 0.02).ceil() as u64 + 10),
     ];
-    sets.extend(args.iter().skip(4).cloned());
+    for a in args.iter().skip(4) {
+        match a.strip_prefix("ref=") {
+            Some(file) => sets.extend(synthesis_overrides(file)?),
+            None => sets.push(a.clone()),
+        }
+    }
     let path = format!("{}/models/platoon.hyb", env!("CARGO_MANIFEST_DIR"));
     let start = Instant::now();
     let platoon = Platoon::read(&path, &sets)?;

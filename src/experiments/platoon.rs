@@ -474,6 +474,54 @@ impl Platoon {
     }
 }
 
+/// `--set` overrides `L=[..]`, `cstar=..`, `Delta=[..]` from a JSON file of a synthesis done
+/// elsewhere (keys `L`: rows of numbers, `cstar`: number, `Delta`: numbers), e.g.
+/// `tests/data/platoon_m20_cor_v3.json` (M = 20, Cor. V.3, CSDP). With all three set, the model's
+/// `design` blocks are not solved. Numbers are written with `{:?}` (exact round trip).
+///
+/// # Errors
+/// The file cannot be read ([`ExperimentError::Io`]) or lacks a key
+/// ([`ExperimentError::InvalidSetting`]).
+pub fn synthesis_overrides(path: impl AsRef<Path>) -> Result<Vec<String>, ExperimentError> {
+    let path = path.as_ref();
+    let bad = |what: &str| ExperimentError::InvalidSetting {
+        message: format!("{}: {what}", path.display()),
+    };
+    let text = std::fs::read_to_string(path).map_err(|e| ExperimentError::Io {
+        path: path.display().to_string(),
+        message: e.to_string(),
+    })?;
+    let v: serde_json::Value =
+        serde_json::from_str(&text).map_err(|e| bad(&format!("not JSON ({e})")))?;
+    let nums = |v: &serde_json::Value, key: &str| -> Result<String, ExperimentError> {
+        v.as_array()
+            .and_then(|a| {
+                a.iter()
+                    .map(|x| x.as_f64().map(|x| format!("{x:?}")))
+                    .collect::<Option<Vec<_>>>()
+            })
+            .map(|xs| xs.join(", "))
+            .ok_or_else(|| bad(&format!("`{key}` must be an array of numbers")))
+    };
+    let rows = v["L"]
+        .as_array()
+        .ok_or_else(|| bad("`L` must be an array of rows"))?
+        .iter()
+        .map(|r| nums(r, "L"))
+        .collect::<Result<Vec<_>, _>>()?;
+    let cstar = v["cstar"]
+        .as_f64()
+        .ok_or_else(|| bad("`cstar` must be a number"))?;
+    Ok(vec![
+        format!("L=[{}]", rows.join("; ")),
+        format!("cstar={cstar:?}"),
+        format!(
+            "Delta=[{}]",
+            nums(&v["Delta"], "Delta")?.replace(", ", "; ")
+        ),
+    ])
+}
+
 /// The quantile of a pooled tail; kept tails always hold it (the runs keep
 /// as many values as the pooled rank needs), so `None` means no steady-state
 /// step was recorded.

@@ -717,36 +717,58 @@ fn platoon_runner_statistics_equal_those_of_the_recorded_arc() {
     }
 }
 
-/// Fig. 6: M = 20 with Cor. V.3. The paper leaves J_max open for M = 20 ("the design procedure
-/// is repeated"); for M = 3 it chose J_max "roughly 35 times" c*, so J_max = 35 c* here.
-/// Reduced from the paper's 20 seeds × 1000 s to 4 seeds × 400 s (steady state t ≥ 100 s:
-/// 4 × 15 000 steps per vehicle) to keep the suite CI-sized.
-#[test]
-#[ignore = "needs the M = 20 Cor. V.3 design (step 1 with 21 LMI blocks of size 78), not solvable with the clarabel backend; enable with the Schur-complement backend"]
-fn platoon_m20_corollary_v3_fig6_leading_vehicles_communicate_more() {
-    let m = load(
-        "platoon.hyb",
-        &["M=20", "corollary=3", "Jmax=35*cstar", "T=400"],
+/// The M = 20 Cor. V.3 reference synthesis (tests/data/platoon_m20_cor_v3.json): step 1 by CSDP
+/// (c* = 0.189124), step 2 for J_max = 35 c* by CSDP in balanced coordinates (H∞ checked by a
+/// frequency sweep). Returns (c*, J_max, `--set` overrides for L, cstar and Delta).
+fn m20_reference() -> (f64, f64, Vec<String>) {
+    let path = format!(
+        "{}/tests/data/platoon_m20_cor_v3.json",
+        env!("CARGO_MANIFEST_DIR")
     );
-    for r in m.design_reports() {
-        println!("{}", r.summary_line());
-    }
-    let cstar = param_matrix(&m, "cstar")[(0, 0)];
+    let v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
+    assert!(
+        (v["hinf_gamma1"].as_f64().unwrap() - 1.0).abs() < 1e-4,
+        "step 2 reference is feasible"
+    );
+    let sets = hybsim::experiments::platoon::synthesis_overrides(&path).unwrap();
+    (
+        v["cstar"].as_f64().unwrap(),
+        v["jmax"].as_f64().unwrap(),
+        sets,
+    )
+}
+
+/// Fig. 6 closed loop at M = 20 (Cor. V.3, J_max = 35 c*), reduced from the paper's 20 seeds ×
+/// 1000 s to 4 seeds × 1000 s (t ≥ 100 s) to stay CI-sized (~13 s per run on one core; a 400-s
+/// horizon is too short: the observer's slowest mode has a time constant of ~56 s).
+/// Checked: the design guarantee ‖e_i‖_P ≤ J_max, and the paper's "communication rates are higher
+/// for the leading vehicles" as a robust statistic: the mean rate of vehicles 1–5 exceeds that of
+/// vehicles 16–20 in every seed, and on average by more than three standard errors of the
+/// per-seed difference. NOT reproduced (printed, recorded in the report): "the distance error
+/// remains below 0.2 m" — with our synthesis c* = 0.189 is a conservative bound (the true
+/// full-communication H₂ norm is 0.033), J_max = 35 c* = 6.6 gives Δ₂…Δ₂₀ ≈ 0.7–1.35 ≫ the noise
+/// amplitude 0.1, and |d| reaches ~2.3 m (‖e_i‖_P ≈ 4.3).
+fn m20_fig6_checks(m: CompiledModel, jmax: f64) {
     let delta: Vec<f64> = param_matrix(&m, "Delta").iter().copied().collect();
-    println!("c* = {cstar:.6}, Δ = {delta:.4?}");
+    println!("Δ = {delta:.4?}");
     let p = Platoon::new(m).unwrap();
     let e = p.ensemble(1..=4, &Window::default()).unwrap();
+    let pct = |v: &[f64]| v.iter().map(|r| 100.0 * r).collect::<Vec<_>>();
     println!(
-        "rates (%): {:.3?}\n± {:.3?}\nmax |d| {:.4?}",
-        e.rate_mean.iter().map(|r| 100.0 * r).collect::<Vec<_>>(),
-        e.rate_std.iter().map(|r| 100.0 * r).collect::<Vec<_>>(),
-        e.distance_max
+        "rates (%): {:.3?}\n± {:.3?}\nmax |d| {:.3?} (all {:.3}, 99.9 % {:.3})\n‖e_i‖ {:.4?}",
+        pct(&e.rate_mean),
+        pct(&e.rate_std),
+        e.distance_max,
+        e.distance_max_all(),
+        e.distance_quantile_all,
+        e.error_power
     );
-    // Paper: "in steady state, the distance error remains below 0.2 m for all 20 vehicles".
-    assert!(e.distance_max_all() < 0.2, "max |d| {:?}", e.distance_max);
-    // "The communication rates are found to be higher for the leading vehicles": the mean rate
-    // of vehicles 1–5 exceeds that of vehicles 16–20 in every seed and on average by more than
-    // three standard errors of the per-seed difference.
+    assert!(
+        e.error_power.iter().all(|p| *p <= jmax),
+        "‖e_i‖ {:?} vs J_max {jmax}",
+        e.error_power
+    );
     let diffs: Vec<f64> = e
         .runs
         .iter()
@@ -756,10 +778,54 @@ fn platoon_m20_corollary_v3_fig6_leading_vehicles_communicate_more() {
     let mean = diffs.iter().sum::<f64>() / s;
     let sd = (diffs.iter().map(|d| (d - mean).powi(2)).sum::<f64>() / (s - 1.0)).sqrt();
     println!(
-        "leading 1–5 {:.3} %, trailing 16–20 {:.3} %; per-seed differences {diffs:.5?}",
+        "vehicles 1–5: {:.3} %, 16–20: {:.3} %; per-seed differences {diffs:.5?}",
         100.0 * e.mean_rate_of(1..=5),
         100.0 * e.mean_rate_of(16..=20)
     );
     assert!(diffs.iter().all(|d| *d > 0.0), "differences {diffs:?}");
     assert!(mean > 3.0 * sd / s.sqrt(), "mean {mean}, sd {sd}");
+}
+
+#[test]
+fn platoon_m20_fig6_with_the_reference_synthesis() {
+    let (_, jmax, sets) = m20_reference();
+    let mut all: Vec<&str> = vec!["M=20", "corollary=3"];
+    all.extend(sets.iter().map(String::as_str));
+    let m = load("platoon.hyb", &all);
+    // Every design result is given: neither block is solved.
+    assert!(m.design_reports().iter().all(|r| r.solve.is_none()));
+    m20_fig6_checks(m, jmax);
+}
+
+/// The same with the model's own `design` blocks: step 1 must reach the reference c* (CSDP,
+/// bracket [0.1891233, 0.1891238], /work/notes/m20/REPORT.md) and step 2 its Δ.
+#[test]
+#[ignore = "needs the M = 20 Cor. V.3 design (step 1: 2380 variables, 21 LMI blocks of size 78; step 2: one block of size 137): out of memory with the clarabel backend; enable with the Schur-complement backend"]
+fn platoon_m20_corollary_v3_design_and_fig6() {
+    let (cstar_ref, _, sets) = m20_reference();
+    let m = load("platoon.hyb", &["M=20", "corollary=3", "Jmax=35*cstar"]);
+    for r in m.design_reports() {
+        println!("{}", r.summary_line());
+    }
+    let cstar = param_matrix(&m, "cstar")[(0, 0)];
+    let jmax = param_matrix(&m, "Jmax")[(0, 0)];
+    println!("c* = {cstar:.7} (reference {cstar_ref:.7}), J_max = {jmax:.5}");
+    assert!(
+        (cstar / cstar_ref - 1.0).abs() < 1e-3,
+        "c* {cstar} vs {cstar_ref}"
+    );
+    let delta: Vec<f64> = param_matrix(&m, "Delta").iter().copied().collect();
+    let ref_delta: Vec<f64> = sets[2]
+        .trim_start_matches("Delta=[")
+        .trim_end_matches(']')
+        .split("; ")
+        .map(|x| x.parse().unwrap())
+        .collect();
+    for (d, r) in delta.iter().zip(&ref_delta) {
+        assert!(
+            (d / r - 1.0).abs() < 1e-2,
+            "Δ {delta:?} vs reference {ref_delta:?}"
+        );
+    }
+    m20_fig6_checks(m, jmax);
 }
