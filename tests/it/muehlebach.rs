@@ -800,7 +800,7 @@ fn platoon_m20_fig6_with_the_reference_synthesis() {
 /// The same with the model's own `design` blocks: step 1 must reach the reference c* (CSDP,
 /// bracket [0.1891233, 0.1891238], /work/notes/m20/REPORT.md) and step 2 its Δ.
 #[test]
-#[ignore = "needs the M = 20 Cor. V.3 design (step 1: 2380 variables, 21 LMI blocks of size 78; step 2: one block of size 137): out of memory with the clarabel backend; enable with the Schur-complement backend"]
+#[ignore = "the M = 20 Cor. V.3 design (Schur backend: step 1 2380 variables, 21 LMI blocks of size 78; step 2 one block of size 137) takes ~10 min under load: run with --ignored"]
 fn platoon_m20_corollary_v3_design_and_fig6() {
     let (cstar_ref, _, sets) = m20_reference();
     let m = load("platoon.hyb", &["M=20", "corollary=3", "Jmax=35*cstar"]);
