@@ -112,43 +112,66 @@ impl Block {
         }
     }
 
-    /// Adds this block's part of the Schur matrix, M_ij += ⟨A_ki, S⁻¹ A_kj Z⟩, into `m`
-    /// (both triangles).
+    /// Adds this block's part of the Schur matrix, M_ij += ⟨A_ki, S⁻¹ A_kj Z⟩, into the lower
+    /// triangle of `m`.
     fn add_schur(&self, sinv: &DMatrix<f64>, z: &DMatrix<f64>, m: &mut DMatrix<f64>) {
         let d = self.d;
+        let n = m.nrows();
+        let nv = self.vars.len();
         let mut w = DMatrix::<f64>::zeros(d, d);
-        for (lj, rows) in self.rows.iter().enumerate() {
-            // W = Z A_kj, nonzero only in the columns `rows` (column-major friendly).
-            for &r in rows {
-                w.column_mut(r).fill(0.0);
-            }
-            for &(r, c, v) in &self.coefs[lj] {
-                w.column_mut(c).axpy(v, &z.column(r), 1.0);
-                if r != c {
-                    w.column_mut(r).axpy(v, &z.column(c), 1.0);
+        // (G + Gᵀ) of SCHUR_BATCH variables side by side: row p (a column-major position in
+        // d×d) holds the batch contiguously, so ⟨A_ki, ·⟩ over the batch is a vectorizable
+        // axpy per coefficient of A_ki instead of a gather per (i, j) pair.
+        let mut gs = vec![0.0; d * d * SCHUR_BATCH];
+        for first in (0..nv).step_by(SCHUR_BATCH) {
+            let width = SCHUR_BATCH.min(nv - first);
+            for jb in 0..width {
+                let lj = first + jb;
+                let rows = &self.rows[lj];
+                // W = Z A_kj, nonzero only in the columns `rows` (column-major friendly).
+                for &r in rows {
+                    w.column_mut(r).fill(0.0);
+                }
+                for &(r, c, v) in &self.coefs[lj] {
+                    w.column_mut(c).axpy(v, &z.column(r), 1.0);
+                    if r != c {
+                        w.column_mut(r).axpy(v, &z.column(c), 1.0);
+                    }
+                }
+                // G = W S⁻¹ = W[:, rows] S⁻¹[rows, :] = (S⁻¹ A_kj Z)ᵀ; ⟨A_ki, ·⟩ is the same
+                // for both, and equals ⟨A_ki, G + Gᵀ⟩/2 (the halved diagonal is in flat_val).
+                let g = if rows.len() == d {
+                    &w * sinv
+                } else {
+                    w.select_columns(rows.iter()) * sinv.select_rows(rows.iter())
+                };
+                for c in 0..d {
+                    for r in 0..d {
+                        gs[(r + c * d) * SCHUR_BATCH + jb] = g[(r, c)] + g[(c, r)];
+                    }
                 }
             }
-            // G = W S⁻¹ = W[:, rows] S⁻¹[rows, :] = (S⁻¹ A_kj Z)ᵀ; ⟨A_ki, ·⟩ is the same for both.
-            let g = if rows.len() == d {
-                &w * sinv
-            } else {
-                w.select_columns(rows.iter()) * sinv.select_rows(rows.iter())
-            };
-            // ⟨A_ki, G⟩ = ⟨A_ki, G + Gᵀ⟩/2 for symmetric A_ki: one lookup per coefficient.
-            let gs = &g + g.transpose();
-            let gs = gs.as_slice();
-            let gj = self.vars[lj];
-            for li in 0..=lj {
+            // M[i, batch] for every i up to the batch's last variable (M is symmetric).
+            for li in 0..first + width {
+                let mut acc = [0.0f64; SCHUR_BATCH];
                 let range = self.starts[li]..self.starts[li + 1];
-                let v: f64 = self.flat_pos[range.clone()]
+                for (&p, &a) in self.flat_pos[range.clone()]
                     .iter()
                     .zip(&self.flat_val[range])
-                    .map(|(&p, &a)| a * gs[p])
-                    .sum();
-                let gi = self.vars[li];
-                m[(gi, gj)] += v;
-                if gi != gj {
-                    m[(gj, gi)] += v;
+                {
+                    let row = &gs[p * SCHUR_BATCH..(p + 1) * SCHUR_BATCH];
+                    for (acc, g) in acc.iter_mut().zip(row) {
+                        *acc += a * g;
+                    }
+                }
+                // Lower triangle only (vars are increasing, so gi ≤ gj): column gi, rows gj,
+                // contiguous in memory; the Cholesky reads no more.
+                let col = &mut m.as_mut_slice()[self.vars[li] * n..];
+                for (jb, &v) in acc.iter().enumerate().take(width) {
+                    let lj = first + jb;
+                    if li <= lj {
+                        col[self.vars[lj]] += v;
+                    }
                 }
             }
         }
@@ -164,6 +187,9 @@ impl Block {
             + self.vars.len() * nnz
     }
 }
+
+/// Variables per batch of the Schur-matrix inner products ([`Block::add_schur`]).
+const SCHUR_BATCH: usize = 32;
 
 /// Reduced-accuracy thresholds (clarabel's defaults): a run that stops early with its best
 /// iterate within these is [`SolverStatus::AlmostSolved`].
