@@ -65,11 +65,11 @@ struct Block {
     coefs: Vec<Vec<(usize, usize, f64)>>,
     /// Per local variable: the rows its coefficient touches (sorted, distinct).
     rows: Vec<Vec<usize>>,
-    /// All coefficients flattened for ⟨A_ki, G⟩ = Σ flat_val·(G + Gᵀ)[flat_pos]: column-major
-    /// positions, values (halved on the diagonal), and each variable's range `starts[li]..starts[li + 1]`.
-    flat_pos: Vec<usize>,
-    flat_val: Vec<f64>,
-    starts: Vec<usize>,
+    /// All coefficients by position for ⟨A_ki, G⟩ = Σ a·(G + Gᵀ)[p]: for each column-major
+    /// position p of a d×d matrix, `by_pos[pos_start[p]..pos_start[p + 1]]` lists (local
+    /// variable, value halved on the diagonal), variables increasing.
+    by_pos: Vec<(usize, f64)>,
+    pos_start: Vec<usize>,
 }
 
 impl Block {
@@ -123,6 +123,7 @@ impl Block {
         // d×d) holds the batch contiguously, so ⟨A_ki, ·⟩ over the batch is a vectorizable
         // axpy per coefficient of A_ki instead of a gather per (i, j) pair.
         let mut gs = vec![0.0; d * d * SCHUR_BATCH];
+        let mut acc = vec![0.0; nv * SCHUR_BATCH];
         for first in (0..nv).step_by(SCHUR_BATCH) {
             let width = SCHUR_BATCH.min(nv - first);
             for jb in 0..width {
@@ -151,23 +152,29 @@ impl Block {
                     }
                 }
             }
-            // M[i, batch] for every i up to the batch's last variable (M is symmetric).
-            for li in 0..first + width {
-                let mut acc = [0.0f64; SCHUR_BATCH];
-                let range = self.starts[li]..self.starts[li + 1];
-                for (&p, &a) in self.flat_pos[range.clone()]
-                    .iter()
-                    .zip(&self.flat_val[range])
-                {
-                    let row = &gs[p * SCHUR_BATCH..(p + 1) * SCHUR_BATCH];
-                    for (acc, g) in acc.iter_mut().zip(row) {
-                        *acc += a * g;
+            // M[i, batch] for every i up to the batch's last variable (M is symmetric), streaming
+            // through the positions p once: each row of `gs` is read once and scattered into the
+            // accumulators of the variables with a coefficient at p.
+            let limit = first + width;
+            acc[..limit * SCHUR_BATCH].fill(0.0);
+            for p in 0..d * d {
+                let row = &gs[p * SCHUR_BATCH..(p + 1) * SCHUR_BATCH];
+                for &(li, a) in &self.by_pos[self.pos_start[p]..self.pos_start[p + 1]] {
+                    if li >= limit {
+                        break;
+                    }
+                    let dst = &mut acc[li * SCHUR_BATCH..(li + 1) * SCHUR_BATCH];
+                    for (x, g) in dst.iter_mut().zip(row) {
+                        *x += a * g;
                     }
                 }
-                // Lower triangle only (vars are increasing, so gi ≤ gj): column gi, rows gj,
-                // contiguous in memory; the Cholesky reads no more.
+            }
+            // Lower triangle only (vars are increasing, so gi ≤ gj): column gi, rows gj,
+            // contiguous in memory; the Cholesky reads no more.
+            for li in 0..limit {
                 let col = &mut m.as_mut_slice()[self.vars[li] * n..];
-                for (jb, &v) in acc.iter().enumerate().take(width) {
+                let row = &acc[li * SCHUR_BATCH..(li + 1) * SCHUR_BATCH];
+                for (jb, &v) in row.iter().enumerate().take(width) {
                     let lj = first + jb;
                     if li <= lj {
                         col[self.vars[lj]] += v;
@@ -177,14 +184,14 @@ impl Block {
         }
     }
 
-    /// Rough flop count of [`Block::add_schur`], for balancing the parallel work.
+    /// Rough flop count of [`Block::add_schur`], for balancing the parallel work: the products
+    /// G = W S⁻¹ plus the inner products (about half of the variables per coefficient).
     fn schur_cost(&self) -> usize {
-        let nnz: usize = self.coefs.iter().map(Vec::len).sum();
         self.rows
             .iter()
             .map(|r| 2 * self.d * self.d * r.len())
             .sum::<usize>()
-            + self.vars.len() * nnz
+            + self.vars.len() * self.by_pos.len() / 2
     }
 }
 
@@ -307,9 +314,8 @@ fn split(conic: &Conic) -> (Vec<Block>, DMatrix<f64>) {
                 vars: Vec::new(),
                 coefs: Vec::new(),
                 rows: Vec::new(),
-                flat_pos: Vec::new(),
-                flat_val: Vec::new(),
-                starts: Vec::new(),
+                by_pos: Vec::new(),
+                pos_start: Vec::new(),
             }
         })
         .collect();
@@ -341,14 +347,26 @@ fn split(conic: &Conic) -> (Vec<Block>, DMatrix<f64>) {
         }
     }
     for blk in &mut blocks {
-        blk.starts.push(0);
+        let dd = blk.d * blk.d;
+        let mut count = vec![0usize; dd + 1];
         for cs in &blk.coefs {
-            for &(r, c, v) in cs {
-                blk.flat_pos.push(r + c * blk.d);
-                blk.flat_val.push(if r == c { 0.5 * v } else { v });
+            for &(r, c, _) in cs {
+                count[r + c * blk.d + 1] += 1;
             }
-            blk.starts.push(blk.flat_pos.len());
         }
+        for p in 0..dd {
+            count[p + 1] += count[p];
+        }
+        let mut fill = count.clone();
+        blk.by_pos = vec![(0, 0.0); count[dd]];
+        for (li, cs) in blk.coefs.iter().enumerate() {
+            for &(r, c, v) in cs {
+                let p = r + c * blk.d;
+                blk.by_pos[fill[p]] = (li, if r == c { 0.5 * v } else { v });
+                fill[p] += 1;
+            }
+        }
+        blk.pos_start = count;
         blk.rows = blk
             .coefs
             .iter()
@@ -583,7 +601,8 @@ pub(crate) fn solve(conic: &Conic, opts: &IpmOptions) -> IpmResult {
         let rel_compl = compl / (1.0 + pobj.abs() + dobj.abs());
         if opts.verbose {
             eprintln!(
-                "ipm {it:3}  pobj {pobj:+.8e}  dobj {dobj:+.8e}  pinf {r_prim:.2e}  dinf {r_dual:.2e}  gap {gap:.2e}  mu {mu:.2e}"
+                "ipm {it:3} {:7.2}s pobj {pobj:+.8e}  dobj {dobj:+.8e}  pinf {r_prim:.2e}  dinf {r_dual:.2e}  gap {gap:.2e}  mu {mu:.2e}",
+                start.elapsed().as_secs_f64()
             );
         }
         if !(pobj.is_finite() && dobj.is_finite() && mu.is_finite()) {
