@@ -8,7 +8,7 @@
 //! ```
 //!
 //! H of Cor. V.3 is eliminated exactly: (26) only gets easier as H decreases and (25) bounds H
-//! below by S₀ = [[P, P(A+BF)], [*, P]], so H = S₀ is optimal (see /work/notes/muehlebach-design.md).
+//! below by S₀ = [[P, P(A+BF)], [*, P]], so H = S₀ is optimal.
 
 use std::time::Instant;
 

@@ -481,7 +481,7 @@ fn platoon_two_step_synthesis_reproduces_model_design() {
     }
 }
 
-/// Reference synthesis (scipy/cvxpy + Clarabel, scaled, /work/notes/mt: ref_M3_V2.json):
+/// Reference synthesis (scipy/cvxpy + Clarabel, scaled; computed outside this repository):
 /// M = 3, Cor. V.2, J_max = 0.38.
 const REF_CSTAR: f64 = 0.01020482;
 const REF_DELTA: [f64; 3] = [0.123265016, 0.105805407, 0.121960215];
@@ -645,7 +645,7 @@ fn muehlebach_trimpe_reproduction_table() {
     )
     .row(
         Row::new("M = 20, Cor. V.3: 1973 variables", "1973", "2380 (P, U, X)", Status::NotReproduced)
-            .note("no natural parametrization gives 1973 (/work/notes/m20/REPORT.md); solved by the model's design block (Schur-complement backend, 315 s under load) and by CSDP: c* = 0.18912"),
+            .note("no natural parametrization gives 1973 (P, U, X: 2380; X of size n + p: 3330; with H: 5461; no sum of natural block sizes gives it); solved by the model's design block (Schur-complement backend, 315 s under load) and by CSDP: c* = 0.18912"),
     )
     .row(
         Row::new(
@@ -844,8 +844,9 @@ fn platoon_m20_fig6_with_the_reference_synthesis() {
     m20_fig6_checks(e, *jmax);
 }
 
-/// The same with the model's own `design` blocks: step 1 must reach the reference c* (CSDP,
-/// bracket [0.1891233, 0.1891238], /work/notes/m20/REPORT.md) and step 2 its Δ.
+/// The same with the model's own `design` blocks: step 1 must reach the reference c* (CSDP
+/// 6.2 on an SDPA export of the same problem, relative gap 2.6e-6: c* in [0.1891233, 0.1891238])
+/// and step 2 its Δ.
 #[test]
 #[ignore = "the M = 20 Cor. V.3 design (Schur backend: step 1 2380 variables, 21 LMI blocks of size 78; step 2 one block of size 137) takes ~6 min under load: run with --ignored"]
 fn platoon_m20_corollary_v3_design_and_fig6() {

@@ -19,7 +19,7 @@
 //! sparse A_ki (only the rows a coefficient touches enter the dense products) in parallel over
 //! blocks. Equality rows are kept as a saddle point solved through the Schur complement
 //! A₀ M⁻¹ A₀ᵀ. Infeasibility and unboundedness are detected from the iterates' certificates
-//! (‖A_ᵀz‖ ≪ −bᵀz, resp. a diverging qᵀx with bounded residuals).
+//! (‖Aᵀz‖ ≪ −bᵀz, resp. a diverging qᵀx with bounded residuals).
 
 use std::time::Instant;
 
@@ -233,7 +233,7 @@ fn schur_apply(
     DVector::from_vec(out)
 }
 
-/// Largest α ≤ 1/0 s.t. X + α ΔX ⪰ 0 (∞ if ΔX does not decrease λ_min), given chol(X) = L Lᵀ.
+/// The largest α ≥ 0 with X + α ΔX ⪰ 0 (∞ if ΔX does not decrease λ_min), given chol(X) = L Lᵀ.
 fn max_step(l: &DMatrix<f64>, dx: &DMatrix<f64>) -> f64 {
     if l.nrows() == 1 {
         let ratio = dx[(0, 0)] / (l[(0, 0)] * l[(0, 0)]);
@@ -264,10 +264,6 @@ fn max_step(l: &DMatrix<f64>, dx: &DMatrix<f64>) -> f64 {
 
 fn sym(a: &DMatrix<f64>) -> DMatrix<f64> {
     (a + a.transpose()) * 0.5
-}
-
-fn dot(a: &DMatrix<f64>, b: &DMatrix<f64>) -> f64 {
-    a.dot(b)
 }
 
 /// svec row t of a block → (row, col) of the upper triangle (column by column).
@@ -590,9 +586,9 @@ pub(crate) fn solve(conic: &Conic, opts: &IpmOptions) -> IpmResult {
             + blocks
                 .iter()
                 .zip(&z)
-                .map(|(b, zk)| dot(&b.c, zk))
+                .map(|(b, zk)| b.c.dot(zk))
                 .sum::<f64>());
-        let compl: f64 = s.iter().zip(&z).map(|(s, z)| dot(s, z)).sum();
+        let compl: f64 = s.iter().zip(&z).map(|(s, z)| s.dot(z)).sum();
         let mu = compl / nu;
         let pres = (rp.iter().map(|r| r.norm_squared()).sum::<f64>() + re.norm_squared()).sqrt();
         r_prim = pres / (1.0 + bnorm);
@@ -749,7 +745,7 @@ pub(crate) fn solve(conic: &Conic, opts: &IpmOptions) -> IpmResult {
         let (ap_a, ad_a) = steps(&ds_a, &dz_a);
         let (ap_a, ad_a) = (ap_a.min(1.0), ad_a.min(1.0));
         let mu_aff: f64 = (0..blocks.len())
-            .map(|k| dot(&(&s[k] + &ds_a[k] * ap_a), &(&z[k] + &dz_a[k] * ad_a)))
+            .map(|k| (&s[k] + &ds_a[k] * ap_a).dot(&(&z[k] + &dz_a[k] * ad_a)))
             .sum::<f64>()
             / nu;
         let expon = if ap_a.min(ad_a) > 0.5 { 3.0 } else { 2.0 };
