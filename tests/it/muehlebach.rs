@@ -848,7 +848,6 @@ fn platoon_m20_fig6_with_the_reference_synthesis() {
 /// 6.2 on an SDPA export of the same problem, relative gap 2.6e-6: c* in [0.1891233, 0.1891238])
 /// and step 2 its Δ.
 #[test]
-#[ignore = "the M = 20 Cor. V.3 design (Schur backend: step 1 2380 variables, 21 LMI blocks of size 78; step 2 one block of size 137) takes ~6 min under load: run with --ignored"]
 fn platoon_m20_corollary_v3_design_and_fig6() {
     let (cstar_ref, _, sets) = m20_reference();
     let m = load("platoon.hyb", &["M=20", "corollary=3", "Jmax=35*cstar"]);

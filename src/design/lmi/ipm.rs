@@ -46,7 +46,13 @@ pub(crate) struct IpmOptions {
     pub tol: f64,
     pub max_iter: u32,
     pub verbose: bool,
+    /// The point only sets the scaling of a second solve: stop once it is primal feasible
+    /// with a relative gap below [`SCALING_GAP`] (reported as [`SolverStatus::AlmostSolved`]).
+    pub scaling_only: bool,
 }
+
+/// Relative gap at which a scaling-only solve stops (its magnitudes are then settled).
+const SCALING_GAP: f64 = 5e-2;
 
 /// Relative accuracy of an infeasibility or unboundedness certificate: ‖Aᵀz‖ ≤ ε·(−bᵀz), resp.
 /// ‖b − (Ax + s)‖ ≤ ε·(−qᵀx). Looser than the optimality tolerance because a diverging iterate
@@ -623,6 +629,14 @@ pub(crate) fn solve(conic: &Conic, opts: &IpmOptions) -> IpmResult {
         }
         if r_prim <= tol && r_dual <= tol && gap.max(rel_compl) <= tol {
             status = SolverStatus::Solved;
+            break;
+        }
+        if opts.scaling_only
+            && r_prim <= 1e-6
+            && r_dual <= 1e-6
+            && gap.max(rel_compl) <= SCALING_GAP
+        {
+            status = SolverStatus::AlmostSolved;
             break;
         }
         // Certificates. Constraints infeasible: Z ⪰ 0 with ‖A₀ᵀw + ΣA_kᵀZ_k‖ ≪ −b₀ᵀw − Σ⟨C_k, Z_k⟩.

@@ -283,7 +283,9 @@ impl Problem {
         }
     }
 
-    fn run_pass(&self, scaling: &Scaling) -> Result<Pass, LmiError> {
+    /// One solve. `scaling_only`: the point only serves to rescale a second solve, so the
+    /// Schur backend may stop once it is primal feasible with a rough gap.
+    fn run_pass(&self, scaling: &Scaling, scaling_only: bool) -> Result<Pass, LmiError> {
         let conic = self.assemble(scaling);
         let backend = match self.settings.backend {
             Backend::Auto if conic.psd_rows() > AUTO_SCHUR_ROWS => Backend::Schur,
@@ -298,6 +300,7 @@ impl Problem {
                         tol: self.settings.solver_tol,
                         max_iter: self.settings.max_iter,
                         verbose: self.settings.verbose,
+                        scaling_only,
                     },
                 );
                 Pass {
@@ -403,7 +406,9 @@ impl Problem {
         let start = Instant::now();
         self.validate_settings()?;
         let data = self.data_scaling();
-        let mut pass = self.run_pass(&data)?;
+        // With `Rescale::Always` the first point only sets the scaling of the second solve.
+        let first_scales = self.settings.rescale == Rescale::Always;
+        let mut pass = self.run_pass(&data, first_scales)?;
         let mut passes = 1;
         let mut solve_time = pass.solve_time;
         let mut iterations = pass.iterations;
@@ -431,13 +436,14 @@ impl Problem {
         };
         if needs {
             let scaling = self.solution_scaling(&pass.x, &data);
-            let second = self.run_pass(&scaling)?;
+            let second = self.run_pass(&scaling, false)?;
             passes += 1;
             solve_time += second.solve_time;
             iterations += second.iterations;
             let second_checks = self.check(&second.x);
-            // Keep the second pass unless it is worse (not solved while the first was).
-            if solved(second.status) || !solved(pass.status) {
+            // Keep the second pass unless it is worse (not solved while the first was, and the
+            // first was meant as a design, not only as a scaling).
+            if solved(second.status) || !solved(pass.status) || first_scales {
                 pass = second;
                 checks = second_checks;
             }
