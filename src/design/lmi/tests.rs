@@ -278,6 +278,34 @@ fn bounded_real_lemma_matches_sweep_and_hinf_norm() {
     }
 }
 
+/// The discrete H2 LMIs [[P, P B], [Bᵀ P, X]] ⪰ 0 and AᵀPA − P + I ⪯ 0 (no objective yet);
+/// returns the problem and the expressions of P and X.
+fn discrete_h2_problem(a: &DMatrix<f64>, b: &DMatrix<f64>) -> (Problem, Expr, Expr) {
+    let (n, k) = b.shape();
+    let mut prob = Problem::new();
+    let p = prob.add_variable("P", VarKind::Symmetric(n)).unwrap();
+    let x = prob.add_variable("X", VarKind::Symmetric(k)).unwrap();
+    let pb = p.right_mul(b).unwrap();
+    let h2 = Expr::blocks(&[
+        vec![Some(p.clone()), Some(pb.clone())],
+        vec![Some(pb.transpose()), Some(x.clone())],
+    ])
+    .unwrap();
+    prob.constrain("h2", &h2, Relation::PosSemiDef).unwrap();
+    let lyap_lhs = p
+        .left_mul(&a.transpose())
+        .unwrap()
+        .right_mul(a)
+        .unwrap()
+        .sub(&p)
+        .unwrap()
+        .add(&Expr::identity(n))
+        .unwrap();
+    prob.constrain("lyap", &lyap_lhs, Relation::NegSemiDef)
+        .unwrap();
+    (prob, p, x)
+}
+
 /// Badly scaled H2-type problem: P ≈ 1e3 (slow discrete dynamics) against noise of 1e-3.
 /// min tr(X) s.t. [[P, PB], [BᵀP, X]] ⪰ 0, AᵀPA − P + I ⪯ 0 has tr(X) = tr(BᵀP*B) with
 /// P* = dlyap(Aᵀ, I).
@@ -293,27 +321,7 @@ fn badly_scaled_h2_with(backend: Backend) {
     let b = dmatrix![0.03, 0.0; 0.0, 0.05; 0.02, 0.03]; // covariances B Bᵀ ≈ 1e-3
     let pstar = dlyap(&a.transpose(), &DMatrix::identity(3, 3)).unwrap();
     assert!(pstar.amax() > 1e2 && pstar.amax() < 1e4, "{}", pstar.amax());
-    let mut prob = Problem::new();
-    let p = prob.add_variable("P", VarKind::Symmetric(3)).unwrap();
-    let x = prob.add_variable("X", VarKind::Symmetric(2)).unwrap();
-    let pb = p.right_mul(&b).unwrap();
-    let h2 = Expr::blocks(&[
-        vec![Some(p.clone()), Some(pb.clone())],
-        vec![Some(pb.transpose()), Some(x.clone())],
-    ])
-    .unwrap();
-    prob.constrain("h2", &h2, Relation::PosSemiDef).unwrap();
-    let lyap_lhs = p
-        .left_mul(&a.transpose())
-        .unwrap()
-        .right_mul(&a)
-        .unwrap()
-        .sub(&p)
-        .unwrap()
-        .add(&Expr::identity(3))
-        .unwrap();
-    prob.constrain("lyap", &lyap_lhs, Relation::NegSemiDef)
-        .unwrap();
+    let (mut prob, _, x) = discrete_h2_problem(&a, &b);
     prob.minimize(&x.trace().unwrap()).unwrap();
     let d = solved(&with_backend(prob, backend));
     let exact = (b.transpose() * &pstar * &b).trace();
@@ -398,28 +406,8 @@ fn backends_agree_on_a_multi_block_problem_with_equalities() {
     });
     let b = DMatrix::from_fn(n, k, |i, j| ((i + 2 * j) % 5) as f64 * 0.1 - 0.15);
     let build = |backend: Backend| {
-        let mut prob = Problem::new();
-        let p = prob.add_variable("P", VarKind::Symmetric(n)).unwrap();
-        let x = prob.add_variable("X", VarKind::Symmetric(k)).unwrap();
+        let (mut prob, p, x) = discrete_h2_problem(&a, &b);
         let t = prob.add_variable("t", VarKind::Scalar).unwrap();
-        let pb = p.right_mul(&b).unwrap();
-        let h2 = Expr::blocks(&[
-            vec![Some(p.clone()), Some(pb.clone())],
-            vec![Some(pb.transpose()), Some(x.clone())],
-        ])
-        .unwrap();
-        prob.constrain("h2", &h2, Relation::PosSemiDef).unwrap();
-        let lyap_lhs = p
-            .left_mul(&a.transpose())
-            .unwrap()
-            .right_mul(&a)
-            .unwrap()
-            .sub(&p)
-            .unwrap()
-            .add(&Expr::identity(n))
-            .unwrap();
-        prob.constrain("lyap", &lyap_lhs, Relation::NegSemiDef)
-            .unwrap();
         prob.constrain("p01", &p.entry(0, 1).unwrap(), Relation::Zero)
             .unwrap();
         prob.constrain_between("trace", &t, &p.trace().unwrap(), Relation::PosSemiDef)
