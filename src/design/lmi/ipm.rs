@@ -27,7 +27,7 @@ use nalgebra::{DMatrix, DVector};
 use rayon::prelude::*;
 
 use super::SolverStatus;
-use super::solve::Conic;
+use super::solve::{Conic, smat};
 
 /// What the interior-point method returns (in the units of the conic program it was given).
 pub(crate) struct IpmResult {
@@ -299,17 +299,8 @@ fn split(conic: &Conic) -> (Vec<Block>, DMatrix<f64>) {
         .iter()
         .zip(&offsets)
         .map(|(&d, &o)| {
-            let mut c = DMatrix::zeros(d, d);
-            for t in 0..d * (d + 1) / 2 {
-                let (r, cc) = svec_pos(t);
-                let v = conic.b[o + t];
-                if r == cc {
-                    c[(r, r)] = v;
-                } else {
-                    c[(r, cc)] = v * std::f64::consts::FRAC_1_SQRT_2;
-                    c[(cc, r)] = c[(r, cc)];
-                }
-            }
+            // C_k = smat(b_k): the svec rows always have a triangular length.
+            let c = smat(&conic.b[o..o + d * (d + 1) / 2]).unwrap_or_else(|| DMatrix::zeros(d, d));
             Block {
                 d,
                 c,
