@@ -80,6 +80,8 @@ pub enum DesignError {
         status: SolverStatus,
         /// The block's name.
         span: Span,
+        /// What was not evaluated because of this failure (see [`DesignError::unavailable_mut`]).
+        unavailable: Vec<String>,
     },
     /// The solver reported a solution at which a constraint does not hold.
     #[error(
@@ -94,6 +96,8 @@ pub enum DesignError {
         constraint: String,
         /// The block's name.
         span: Span,
+        /// What was not evaluated because of this failure.
+        unavailable: Vec<String>,
     },
     /// The solver rejected the problem.
     #[error("design `{block}`: {message}")]
@@ -104,6 +108,8 @@ pub enum DesignError {
         message: String,
         /// The block's name.
         span: Span,
+        /// What was not evaluated because of this failure.
+        unavailable: Vec<String>,
     },
 }
 
@@ -119,6 +125,27 @@ impl DesignError {
             | NoDesign { span, .. }
             | Unverified { span, .. }
             | Solver { span, .. } => *span,
+        }
+    }
+
+    /// For the failure of a whole block (no solution, result rejected,
+    /// solver error): the block's name and the list of what was not
+    /// evaluated because of it (parameters computed from its results,
+    /// later blocks that use them), shown as one note instead of an error
+    /// for each.
+    pub fn unavailable_mut(&mut self) -> Option<(&str, &mut Vec<String>)> {
+        use DesignError::*;
+        match self {
+            NoDesign {
+                block, unavailable, ..
+            }
+            | Unverified {
+                block, unavailable, ..
+            }
+            | Solver {
+                block, unavailable, ..
+            } => Some((block.as_str(), unavailable)),
+            _ => None,
         }
     }
 
@@ -139,7 +166,23 @@ impl DesignError {
     /// The error as a diagnostic.
     pub fn to_diagnostic(&self) -> Diagnostic {
         use DesignError::*;
-        let d = Diagnostic::error(self.code(), self.to_string());
+        let mut d = Diagnostic::error(self.code(), self.to_string());
+        if let NoDesign {
+            block, unavailable, ..
+        }
+        | Unverified {
+            block, unavailable, ..
+        }
+        | Solver {
+            block, unavailable, ..
+        } = self
+            && !unavailable.is_empty()
+        {
+            d = d.note(format!(
+                "not evaluated because design `{block}` failed: {}",
+                unavailable.join(", ")
+            ));
+        }
         match self {
             NonAffine { span, .. } => d
                 .primary(*span, "not affine")
@@ -367,7 +410,8 @@ struct Cx {
 
 impl Checker {
     /// Elaborates the block and (if `solve`) solves it. `None` if an error was
-    /// recorded (elaboration or solve).
+    /// recorded (elaboration or solve), or if the block uses the results of
+    /// a failed block ([`Checker::poison_hit`] is then set).
     pub(crate) fn design_block(&mut self, d: &DesignBlock, solve: bool) -> Option<Solved> {
         let before = self.errors.len();
         let mut cx = Cx {
@@ -380,10 +424,13 @@ impl Checker {
             count: 0,
             failed: false,
         };
+        self.poison_hit = None;
         for s in &d.stmts {
             self.d_stmt(&mut cx, s, true);
         }
-        if cx.failed || self.errors.len() > before {
+        // A block using the results of a failed block fails quietly
+        // (`poison_hit` names the failed block).
+        if cx.failed || self.errors.len() > before || self.poison_hit.is_some() {
             return None;
         }
         if !solve {
@@ -403,6 +450,7 @@ impl Checker {
                     status,
                     constraint: worst.label,
                     span,
+                    unavailable: Vec::new(),
                 }));
                 return None;
             }
@@ -411,6 +459,7 @@ impl Checker {
                     block,
                     message: e.to_string(),
                     span,
+                    unavailable: Vec::new(),
                 }));
                 return None;
             }
@@ -483,6 +532,7 @@ impl Checker {
             outcome,
             status: info.status,
             span,
+            unavailable: Vec::new(),
         }));
         None
     }

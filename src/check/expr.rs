@@ -387,6 +387,9 @@ impl Checker {
         if let Some(i) = self.scope_lookup(name) {
             return Some(Val::scalar(self.dag.konst(i as f64)));
         }
+        if self.is_poisoned(name) {
+            return None;
+        }
         match self.syms.get(name) {
             Some(Sym::Param { val, .. }) | Some(Sym::Output { val, .. }) => Some(val.clone()),
             Some(Sym::State { field, .. }) => Some(self.field_val(*field)),
@@ -422,6 +425,18 @@ impl Checker {
         }
     }
 
+    /// True if `name` is unavailable after a failed `design` block; records
+    /// the block in [`Checker::poison_hit`] (the caller reports nothing).
+    pub(crate) fn is_poisoned(&mut self, name: &str) -> bool {
+        match self.poisoned.get(name) {
+            Some(block) => {
+                self.poison_hit = Some(block.clone());
+                true
+            }
+            None => false,
+        }
+    }
+
     /// The value of state field `field`.
     pub(crate) fn field_val(&mut self, field: usize) -> Val {
         let f = &self.fields[field];
@@ -437,6 +452,9 @@ impl Checker {
 
     /// Elaborates `name[args]` where `name` is a family.
     fn family_member(&mut self, name: &str, span: Span, args: &[IndexArg]) -> Option<Val> {
+        if self.is_poisoned(name) {
+            return None;
+        }
         let key = self.family_key(args)?;
         let label = key
             .iter()

@@ -91,6 +91,13 @@ pub(crate) struct Checker {
     /// `Some(n)` (the state dimension) while checking an `at jumps`
     /// predicate, where `post(…)` is allowed.
     pub(crate) post_frame: Option<usize>,
+    /// Names whose value is unavailable because a `design` block failed:
+    /// name → that block. Uses of them record [`Checker::poison_hit`]
+    /// instead of an error, so one failed design gives one error, not a
+    /// cascade in everything computed from its results.
+    pub(crate) poisoned: HashMap<String, String>,
+    /// Set (to the failed block) when an expression used a poisoned name.
+    pub(crate) poison_hit: Option<String>,
 }
 
 /// Checks a parsed model with overrides; on success returns the checked

@@ -177,6 +177,9 @@ struct ModelChecker<'o> {
     designs: Vec<DesignReport>,
     random_params: Vec<crate::props::Input>,
     solve_checks: bool,
+    /// What was not evaluated because a design block failed: (that block,
+    /// what), reported as a note on the block's error.
+    unavailable: Vec<(String, String)>,
 }
 
 pub(crate) fn check_model(
@@ -194,6 +197,8 @@ pub(crate) fn check_model(
             fields: Vec::new(),
             block_spans: Vec::new(),
             post_frame: None,
+            poisoned: HashMap::new(),
+            poison_hit: None,
         },
         overrides: overrides.iter().map(|o| (o.name.as_str(), o)).collect(),
         used: Vec::new(),
@@ -210,6 +215,7 @@ pub(crate) fn check_model(
         designs: Vec::new(),
         random_params: Vec::new(),
         solve_checks,
+        unavailable: Vec::new(),
     };
     for it in &model.items {
         m.pass1(it);
@@ -234,6 +240,19 @@ pub(crate) fn check_model(
         }
     }
     if !m.c.errors.is_empty() {
+        for e in &mut m.c.errors {
+            if let CheckError::Design(d) = e
+                && let Some((block, list)) = d.unavailable_mut()
+            {
+                let block = block.to_string();
+                list.extend(
+                    m.unavailable
+                        .iter()
+                        .filter(|(b, _)| *b == block)
+                        .map(|(_, what)| what.clone()),
+                );
+            }
+        }
         return Err(m.c.errors);
     }
     let dim = m.c.fields.iter().map(|f| f.rows * f.cols).sum();
@@ -553,11 +572,17 @@ impl ModelChecker<'_> {
             self.declare_random(&d.target, &o.expr);
             return;
         }
+        self.c.poison_hit = None;
         let v = if d.target.indices.is_empty() {
             self.value_with_override(&name, &d.value, &CONST_CTX)
         } else {
             self.c.expr(&d.value, &CONST_CTX)
         };
+        if let Some(block) = self.c.poison_hit.take() {
+            // Computed from the results of a failed design: unavailable too.
+            self.poison(&d.target, &block);
+            return;
+        }
         let Some(v) = v else {
             // Declare anyway (as 0) so that later uses do not cascade.
             let z = self.c.dag.konst(0.0);
@@ -697,13 +722,24 @@ impl ModelChecker<'_> {
         }
         let solve = if d.check { self.solve_checks } else { !all_set };
         let Some(solved) = self.c.design_block(d, solve) else {
-            // Declare the results anyway (as 0) so that later uses do not cascade.
-            self.design_results(&d.stmts, false);
+            // The results are unavailable: uses of them report nothing
+            // (one failed design, one error). A block that failed because
+            // it uses another failed block's results passes that block on.
+            let failed = match self.c.poison_hit.take() {
+                Some(block) => {
+                    let kind = if d.check { "check" } else { "design" };
+                    let what = format!("{kind} `{}`", d.name.name);
+                    self.unavailable.push((block.clone(), what));
+                    block
+                }
+                None => d.name.name.clone(),
+            };
+            self.design_results(&d.stmts, Some(&failed));
             return;
         };
         self.c.bind_design_values(&solved.values);
         let first = self.params.len();
-        self.design_results(&d.stmts, true);
+        self.design_results(&d.stmts, None);
         for v in &solved.values {
             self.c.syms.remove(&v.name);
         }
@@ -718,34 +754,35 @@ impl ModelChecker<'_> {
     }
 
     /// Declares the results (`param` lines) of a design block, also those in
-    /// its `for` loops and `if`s: evaluated (`solved`) or as 0 after a
-    /// failed design, so that later uses do not cascade.
-    fn design_results(&mut self, stmts: &[DesignStmt], solved: bool) {
+    /// its `for` loops and `if`s: evaluated, or (`failed`: the failed block)
+    /// as unavailable, so that later uses do not cascade.
+    fn design_results(&mut self, stmts: &[DesignStmt], failed: Option<&str>) {
+        let solved = failed.is_none();
         for s in stmts {
             match s {
                 DesignStmt::Param(defs) if solved => defs.iter().for_each(|p| self.param(p, false)),
                 DesignStmt::ParamTuple(t, v) if solved => self.param_tuple(t, v),
                 DesignStmt::Param(defs) => {
                     for d in defs {
-                        self.declare_zero(&d.target);
+                        self.poison(&d.target, failed.unwrap_or_default());
                     }
                 }
                 DesignStmt::ParamTuple(t, _) => {
                     for t in t {
-                        self.declare_zero(t);
+                        self.poison(t, failed.unwrap_or_default());
                     }
                 }
                 DesignStmt::For(b, body)
                     if !matches!(b.set, crate::syntax::ast::IndexSet::Subsets(_))
                         && has_results(body, true) =>
                 {
-                    self.c_for(b, &mut |this| this.design_results(body, solved));
+                    self.c_for(b, &mut |this| this.design_results(body, failed));
                 }
                 DesignStmt::If(c, body) if has_results(body, true) => {
                     if let Some(x) = self.c.const_scalar(c, "the condition of `if` in a design")
                         && x != 0.0
                     {
-                        self.design_results(body, solved);
+                        self.design_results(body, failed);
                     }
                 }
                 _ => {}
@@ -753,17 +790,27 @@ impl ModelChecker<'_> {
         }
     }
 
-    /// Declares `t` as the parameter 0.
-    fn declare_zero(&mut self, t: &Target) {
+    /// Declares `t` as a parameter whose value is unavailable because
+    /// design `block` failed: uses of it report nothing (see
+    /// [`Checker::poisoned`]); it is listed in the block's error.
+    fn poison(&mut self, t: &Target, block: &str) {
         let z = self.c.dag.konst(0.0);
         let span = t.name.span;
-        self.declare(t, |_| Sym::Param {
+        let shown = self.declare(t, |_| Sym::Param {
             val: Val::scalar(z),
             span,
         });
+        self.c
+            .poisoned
+            .insert(t.name.name.clone(), block.to_string());
+        let what = format!("`{}`", shown.unwrap_or_else(|| t.name.name.clone()));
+        if !self.unavailable.iter().any(|(_, w)| *w == what) {
+            self.unavailable.push((block.to_string(), what));
+        }
     }
 
     fn param_tuple(&mut self, targets: &[Target], value: &Expr) {
+        self.c.poison_hit = None;
         let vals = match &value.kind {
             ExprKind::Call(f, args)
                 if matches!(f.name.as_str(), "c2d" | "dlqr" | "lqr" | "dare" | "care") =>
@@ -779,6 +826,12 @@ impl ModelChecker<'_> {
                 None
             }
         };
+        if let Some(block) = self.c.poison_hit.take() {
+            for t in targets {
+                self.poison(t, &block);
+            }
+            return;
+        }
         let Some(vals) = vals else { return };
         if vals.len() != targets.len() {
             self.c.err(CheckError::Arity {
@@ -808,11 +861,18 @@ impl ModelChecker<'_> {
             });
             return;
         };
+        self.c.poison_hit = None;
         let v = if sd.target.indices.is_empty() {
             self.value_with_override(&name, init_expr, &INIT_CTX)
         } else {
             self.c.expr(init_expr, &INIT_CTX)
         };
+        if let Some(block) = self.c.poison_hit.take() {
+            // Its shape is unknown: uses and equations of it report nothing.
+            self.c.poisoned.insert(name.clone(), block.clone());
+            self.unavailable.push((block, format!("state `{name}`")));
+            return;
+        }
         let Some(v) = v else { return };
         if v.rows * v.cols == 0 {
             self.c.err(CheckError::Expected {
@@ -974,6 +1034,7 @@ impl ModelChecker<'_> {
                 }
                 return None;
             }
+            None if self.c.is_poisoned(name) => return None,
             None => {
                 if !quiet {
                     let suggestion =

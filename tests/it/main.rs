@@ -3,6 +3,7 @@
 mod cli;
 mod design;
 mod design_check;
+mod design_failure;
 mod diagnostics;
 mod engine;
 mod features;
