@@ -3,6 +3,7 @@
 use nalgebra::DMatrix;
 
 use super::LmiError;
+use super::factor::{self, Factors};
 
 /// One coefficient: entry (row, col) of the expression depends on scalar variable `var` with
 /// weight `coef`.
@@ -25,6 +26,9 @@ pub(crate) struct Term {
 pub struct Expr {
     pub(crate) constant: DMatrix<f64>,
     pub(crate) terms: Vec<Term>,
+    /// The same variable part as `terms`, as a short sum Σ L X Rᵀ over matrix variables
+    /// (see [`factor`]); `None` once an operation has lost that form.
+    pub(crate) factors: Factors,
 }
 
 fn shape_err(op: &'static str, left: (usize, usize), right: (usize, usize)) -> LmiError {
@@ -37,6 +41,7 @@ impl Expr {
         Expr {
             constant: m,
             terms: Vec::new(),
+            factors: Some(Vec::new()),
         }
     }
 
@@ -55,10 +60,11 @@ impl Expr {
         Self::constant(DMatrix::identity(n, n))
     }
 
-    pub(crate) fn from_terms(rows: usize, cols: usize, terms: Vec<Term>) -> Self {
+    pub(crate) fn from_terms(rows: usize, cols: usize, terms: Vec<Term>, factors: Factors) -> Self {
         Expr {
             constant: DMatrix::zeros(rows, cols),
             terms,
+            factors,
         }
     }
 
@@ -109,6 +115,7 @@ impl Expr {
         Ok(Expr {
             constant: &self.constant + &other.constant,
             terms,
+            factors: factor::sum(&self.factors, &other.factors),
         }
         .canonical())
     }
@@ -131,6 +138,7 @@ impl Expr {
         if alpha == 0.0 {
             e.terms.clear();
         }
+        e.factors = factor::scale(&self.factors, alpha);
         e
     }
 
@@ -152,6 +160,7 @@ impl Expr {
                     ..*t
                 })
                 .collect(),
+            factors: factor::transpose(&self.factors),
         }
         .canonical()
     }
@@ -179,6 +188,7 @@ impl Expr {
         Ok(Expr {
             constant: l * &self.constant,
             terms,
+            factors: factor::left_mul(&self.factors, l),
         }
         .canonical())
     }
@@ -206,6 +216,7 @@ impl Expr {
         Ok(Expr {
             constant: &self.constant * rm,
             terms,
+            factors: factor::right_mul(&self.factors, rm),
         }
         .canonical())
     }
@@ -265,6 +276,7 @@ impl Expr {
                     ..*t
                 })
                 .collect(),
+            factors: factor::block(&self.factors, row0, col0, rows, cols),
         })
     }
 
@@ -291,6 +303,7 @@ impl Expr {
                     ..*t
                 })
                 .collect(),
+            factors: None,
         }
         .canonical())
     }
@@ -312,6 +325,7 @@ impl Expr {
                     coef: c[(t.row, t.col)] * t.coef,
                 })
                 .collect(),
+            factors: None,
         }
         .canonical())
     }
@@ -372,6 +386,7 @@ impl Expr {
         let total_c: usize = widths.iter().sum();
         let mut constant = DMatrix::zeros(total_r, total_c);
         let mut terms = Vec::new();
+        let mut factors = Some(Vec::new());
         let mut r0 = 0;
         for (i, row) in rows.iter().enumerate() {
             let mut c0 = 0;
@@ -385,12 +400,23 @@ impl Expr {
                         col: t.col + c0,
                         ..*t
                     }));
+                    let placed = factor::embed(&b.factors, r0, c0, total_r, total_c);
+                    factors = factors.zip(placed).map(|(mut a, p)| {
+                        a.extend(p);
+                        a
+                    });
                 }
                 c0 += widths[j];
             }
             r0 += heights[i];
         }
-        Ok(Expr { constant, terms }.canonical())
+        let factors = factors.and_then(factor::tidy);
+        Ok(Expr {
+            constant,
+            terms,
+            factors,
+        }
+        .canonical())
     }
 
     /// Kronecker product K ⊗ self with a constant K.
@@ -413,6 +439,7 @@ impl Expr {
         Expr {
             constant: k.kronecker(&self.constant),
             terms,
+            factors: factor::kron_left(&self.factors, k),
         }
         .canonical()
     }
@@ -439,6 +466,7 @@ impl Expr {
         Expr {
             constant: self.constant.kronecker(k),
             terms,
+            factors: factor::kron_right(&self.factors, k),
         }
         .canonical()
     }

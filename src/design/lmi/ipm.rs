@@ -27,6 +27,7 @@ use nalgebra::{DMatrix, DVector};
 use rayon::prelude::*;
 
 use super::SolverStatus;
+use super::kron::{self, KronVar};
 use super::solve::{Conic, smat};
 
 /// What the interior-point method returns (in the units of the conic program it was given).
@@ -76,6 +77,10 @@ struct Block {
     /// variable, value halved on the diagonal), variables increasing.
     by_pos: Vec<(usize, f64)>,
     pos_start: Vec<usize>,
+    /// The matrix variables whose Schur entries come from the Kronecker formula ([`kron`]).
+    kron: Vec<KronVar>,
+    /// Per local variable: whether it belongs to one of `kron`.
+    structured: Vec<bool>,
 }
 
 impl Block {
@@ -121,19 +126,39 @@ impl Block {
     /// Adds this block's part of the Schur matrix, M_ij += ⟨A_ki, S⁻¹ A_kj Z⟩, into the lower
     /// triangle of `m`.
     fn add_schur(&self, sinv: &DMatrix<f64>, z: &DMatrix<f64>, m: &mut DMatrix<f64>) {
+        let zl: Vec<Vec<DMatrix<f64>>> = self
+            .kron
+            .iter()
+            .map(|v| kron::left_products(v, z))
+            .collect();
+        let sl: Vec<Vec<DMatrix<f64>>> = self
+            .kron
+            .iter()
+            .map(|v| kron::left_products(v, sinv))
+            .collect();
+        // The variables are in increasing order: the earlier one of a pair gives the columns.
+        for (a, va) in self.kron.iter().enumerate() {
+            for (b, vb) in self.kron.iter().enumerate().skip(a) {
+                kron::add_pair(va, vb, a == b, &zl[a], &sl[b], m);
+            }
+        }
         let d = self.d;
         let n = m.nrows();
         let nv = self.vars.len();
+        let sparse: Vec<usize> = (0..nv).filter(|&li| !self.structured[li]).collect();
+        if sparse.is_empty() {
+            return;
+        }
+        let mixed = !self.kron.is_empty();
         let mut w = DMatrix::<f64>::zeros(d, d);
         // (G + Gᵀ) of SCHUR_BATCH variables side by side: row p (a column-major position in
         // d×d) holds the batch contiguously, so ⟨A_ki, ·⟩ over the batch is a vectorizable
         // axpy per coefficient of A_ki instead of a gather per (i, j) pair.
         let mut gs = vec![0.0; d * d * SCHUR_BATCH];
         let mut acc = vec![0.0; nv * SCHUR_BATCH];
-        for first in (0..nv).step_by(SCHUR_BATCH) {
-            let width = SCHUR_BATCH.min(nv - first);
-            for jb in 0..width {
-                let lj = first + jb;
+        for batch in sparse.chunks(SCHUR_BATCH) {
+            let width = batch.len();
+            for (jb, &lj) in batch.iter().enumerate() {
                 let rows = &self.rows[lj];
                 // W = Z A_kj, nonzero only in the columns `rows` (column-major friendly).
                 for &r in rows {
@@ -158,10 +183,11 @@ impl Block {
                     }
                 }
             }
-            // M[i, batch] for every i up to the batch's last variable (M is symmetric), streaming
+            // M[i, batch] for every i up to the batch's last variable (M is symmetric; with
+            // structured variables, which only meet the others here, every i), streaming
             // through the positions p once: each row of `gs` is read once and scattered into the
             // accumulators of the variables with a coefficient at p.
-            let limit = first + width;
+            let limit = if mixed { nv } else { batch[width - 1] + 1 };
             acc[..limit * SCHUR_BATCH].fill(0.0);
             for p in 0..d * d {
                 let row = &gs[p * SCHUR_BATCH..(p + 1) * SCHUR_BATCH];
@@ -175,15 +201,16 @@ impl Block {
                     }
                 }
             }
-            // Lower triangle only (vars are increasing, so gi ≤ gj): column gi, rows gj,
-            // contiguous in memory; the Cholesky reads no more.
+            // Lower triangle only: column min(gi, gj), row max(gi, gj); the Cholesky reads no
+            // more. Pairs of unstructured variables once (li ≤ lj), with structured ones always.
+            let ms = m.as_mut_slice();
             for li in 0..limit {
-                let col = &mut m.as_mut_slice()[self.vars[li] * n..];
+                let gi = self.vars[li];
                 let row = &acc[li * SCHUR_BATCH..(li + 1) * SCHUR_BATCH];
-                for (jb, &v) in row.iter().enumerate().take(width) {
-                    let lj = first + jb;
-                    if li <= lj {
-                        col[self.vars[lj]] += v;
+                for (&v, &lj) in row.iter().zip(batch) {
+                    if self.structured[li] || li <= lj {
+                        let gj = self.vars[lj];
+                        ms[gi.min(gj) * n + gi.max(gj)] += v;
                     }
                 }
             }
@@ -193,11 +220,21 @@ impl Block {
     /// Rough flop count of [`Block::add_schur`], for balancing the parallel work: the products
     /// G = W S⁻¹ plus the inner products (about half of the variables per coefficient).
     fn schur_cost(&self) -> usize {
-        self.rows
+        let sparse = self.structured.iter().filter(|s| !**s).count();
+        let mut cost = self
+            .rows
             .iter()
-            .map(|r| 2 * self.d * self.d * r.len())
+            .zip(&self.structured)
+            .filter(|(_, s)| !**s)
+            .map(|(r, _)| 2 * self.d * self.d * r.len())
             .sum::<usize>()
-            + self.vars.len() * self.by_pos.len() / 2
+            + sparse * self.by_pos.len() / 2;
+        for (a, va) in self.kron.iter().enumerate() {
+            for vb in &self.kron[..=a] {
+                cost += va.pair_cost(vb);
+            }
+        }
+        cost
     }
 }
 
@@ -309,6 +346,8 @@ fn split(conic: &Conic) -> (Vec<Block>, DMatrix<f64>) {
                 rows: Vec::new(),
                 by_pos: Vec::new(),
                 pos_start: Vec::new(),
+                kron: Vec::new(),
+                structured: Vec::new(),
             }
         })
         .collect();
@@ -339,7 +378,16 @@ fn split(conic: &Conic) -> (Vec<Block>, DMatrix<f64>) {
             }
         }
     }
-    for blk in &mut blocks {
+    for (blk, terms) in blocks.iter_mut().zip(&conic.structure) {
+        blk.kron = terms
+            .as_deref()
+            .map(KronVar::from_terms)
+            .unwrap_or_default();
+        blk.structured = blk
+            .vars
+            .iter()
+            .map(|g| blk.kron.iter().any(|v| v.range.contains(g)))
+            .collect();
         let dd = blk.d * blk.d;
         let mut count = vec![0usize; dd + 1];
         for cs in &blk.coefs {
@@ -553,6 +601,9 @@ pub(crate) fn solve(conic: &Conic, opts: &IpmOptions) -> IpmResult {
         groups
     };
 
+    // One Schur matrix per group, kept across iterations (they are large; fresh allocations
+    // would page-fault every iteration).
+    let mut schur_parts: Vec<DMatrix<f64>> = groups.iter().map(|_| DMatrix::zeros(n, n)).collect();
     let tol = opts.tol;
     let mut status = SolverStatus::MaxIterations;
     let mut iterations = 0;
@@ -672,17 +723,20 @@ pub(crate) fn solve(conic: &Conic, opts: &IpmOptions) -> IpmResult {
             status = SolverStatus::NumericalError;
             break;
         }
-        let schur = groups
-            .par_iter()
-            .map(|group| {
-                let mut m = DMatrix::<f64>::zeros(n, n);
+        schur_parts
+            .par_iter_mut()
+            .zip(&groups)
+            .for_each(|(m, group)| {
+                m.fill(0.0);
                 for &k in group {
-                    blocks[k].add_schur(&sinv[k], &z[k], &mut m);
+                    blocks[k].add_schur(&sinv[k], &z[k], m);
                 }
-                m
-            })
-            .reduce(|| DMatrix::zeros(n, n), |a, b| a + b);
-        let Some(newton) = Newton::factor(schur, &a0) else {
+            });
+        let (schur, rest) = schur_parts.split_at_mut(1);
+        for part in rest.iter() {
+            schur[0] += part;
+        }
+        let Some(newton) = Newton::factor(schur[0].clone(), &a0) else {
             status = SolverStatus::NumericalError;
             break;
         };
@@ -816,7 +870,104 @@ pub(crate) fn solve(conic: &Conic, opts: &IpmOptions) -> IpmResult {
 
 #[cfg(test)]
 mod tests {
-    use super::svec_pos;
+    use nalgebra::DMatrix;
+
+    use super::{Block, split, svec_pos};
+    use crate::design::lmi::{Expr, Problem, Relation, VarKind};
+
+    fn pseudo(r: usize, c: usize, seed: f64) -> DMatrix<f64> {
+        DMatrix::from_fn(r, c, |i, j| ((i * 7 + j * 3) as f64 * 0.37 + seed).sin())
+    }
+
+    fn spd(d: usize, seed: f64) -> DMatrix<f64> {
+        let b = pseudo(d, d, seed);
+        &b * b.transpose() + DMatrix::identity(d, d)
+    }
+
+    /// The Schur matrix of every block, once from the Kronecker structure and once from the
+    /// sparse coefficients alone, at arbitrary positive definite S⁻¹ and Z.
+    fn both_ways(p: &Problem) -> Vec<(DMatrix<f64>, DMatrix<f64>, usize)> {
+        let conic = p.assemble(&p.data_scaling());
+        let (blocks, _) = split(&conic);
+        blocks
+            .iter()
+            .enumerate()
+            .map(|(k, b)| {
+                let (sinv, z) = (spd(b.d, k as f64), spd(b.d, 10.0 + k as f64));
+                let n = conic.n;
+                let mut structured = DMatrix::zeros(n, n);
+                b.add_schur(&sinv, &z, &mut structured);
+                let plain = Block {
+                    kron: Vec::new(),
+                    structured: vec![false; b.vars.len()],
+                    c: b.c.clone(),
+                    vars: b.vars.clone(),
+                    coefs: b.coefs.clone(),
+                    rows: b.rows.clone(),
+                    by_pos: b.by_pos.clone(),
+                    pos_start: b.pos_start.clone(),
+                    ..*b
+                };
+                let mut sparse = DMatrix::zeros(n, n);
+                plain.add_schur(&sinv, &z, &mut sparse);
+                (structured, sparse, b.kron.len())
+            })
+            .collect()
+    }
+
+    #[test]
+    fn kronecker_and_sparse_schur_formulas_agree() {
+        let mut p = Problem::new();
+        let pv = p.add_variable("P", VarKind::Symmetric(4)).unwrap();
+        let u = p.add_variable("U", VarKind::Full(4, 2)).unwrap();
+        let x = p.add_variable("X", VarKind::Symmetric(3)).unwrap();
+        let t = p.add_variable("t", VarKind::Scalar).unwrap();
+        let (a, c, w) = (pseudo(4, 4, 1.0), pseudo(2, 4, 2.0), pseudo(2, 3, 3.0));
+        let k = |e: &Expr, m: &DMatrix<f64>| e.right_mul(m).unwrap();
+        // [P, (P − U C) A; *, P]
+        let off = k(&pv.sub(&u.right_mul(&c).unwrap()).unwrap(), &a);
+        let b1 = Expr::blocks(&[
+            vec![Some(pv.clone()), Some(off.clone())],
+            vec![Some(off.transpose()), Some(pv.clone())],
+        ])
+        .unwrap();
+        p.constrain("b1", &b1, Relation::PosSemiDef).unwrap();
+        // [X, (U W)ᵀ; U W, P] with a transposed full variable, plus t·I (sparse) mixed in.
+        let uw = u.right_mul(&w).unwrap();
+        let b2 = Expr::blocks(&[
+            vec![Some(x.clone()), Some(uw.transpose())],
+            vec![Some(uw), Some(pv.clone())],
+        ])
+        .unwrap()
+        .add(&t.mul(&Expr::identity(7)).unwrap())
+        .unwrap();
+        p.constrain("b2", &b2, Relation::PosDef).unwrap();
+        // I ⊗ P − Aᵀ P A ⪰ 0 written with Kronecker products, as ≺.
+        let lyap = pv
+            .kron_left(&DMatrix::identity(2, 2))
+            .sub(
+                &pv.left_mul(&a.transpose())
+                    .unwrap()
+                    .right_mul(&a)
+                    .unwrap()
+                    .kron_right(&DMatrix::from_element(2, 2, 0.5)),
+            )
+            .unwrap();
+        p.constrain("b3", &lyap.neg(), Relation::NegDef).unwrap();
+        let results = both_ways(&p);
+        assert!(
+            results.iter().all(|r| r.2 > 0),
+            "structure kept in every block"
+        );
+        for (k, (structured, sparse, _)) in results.iter().enumerate() {
+            let scale = sparse.amax();
+            let diff = (structured - sparse).amax();
+            assert!(
+                diff <= 1e-12 * scale,
+                "block {k}: {diff:e} against {scale:e}"
+            );
+        }
+    }
 
     #[test]
     fn svec_positions_follow_the_upper_triangle_column_by_column() {

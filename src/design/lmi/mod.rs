@@ -53,7 +53,9 @@
 //! and solved again (see [`Rescale`]).
 
 mod expr;
+mod factor;
 mod ipm;
+mod kron;
 mod solve;
 #[cfg(test)]
 mod tests;
@@ -512,7 +514,9 @@ impl Problem {
                 }
             }
         }
-        Expr::from_terms(r, c, terms).canonical()
+        let symmetric = !matches!(v.kind, VarKind::Full(..));
+        let whole = factor::Factor::whole(i, r, c, symmetric);
+        Expr::from_terms(r, c, terms, Some(vec![whole])).canonical()
     }
 
     /// Adds the constraint `expr relation` (e.g. F ⪰ 0). Semidefinite relations need a square,
@@ -558,12 +562,69 @@ impl Problem {
         } else {
             oriented.sym()?
         };
+        let mut oriented = oriented;
+        oriented.factors = if relation == Relation::Zero {
+            None
+        } else {
+            self.verified_structure(&oriented)
+        };
         self.constraints.push(Constraint {
             label: label.into(),
             relation,
             expr: oriented,
         });
         Ok(())
+    }
+
+    /// The Kronecker structure of a constraint's expression in its fewest terms, if it is known,
+    /// fits this problem's variables and reproduces the sparse terms at a generic point (a
+    /// safeguard: the sparse terms are the definition, the structure only a faster route).
+    fn verified_structure(&self, expr: &Expr) -> Option<Vec<factor::Factor>> {
+        let fs = expr.factors.clone()?;
+        for f in &fs {
+            let v = self.vars.get(f.var)?;
+            let (r, c) = v.kind.shape();
+            let (pre, post) = if f.transposed { (c, r) } else { (r, c) };
+            if f.l.ncols() != pre || f.r.ncols() != post || f.l.nrows() != expr.shape().0 {
+                return None;
+            }
+        }
+        let fs = factor::compress(fs);
+        // A point with no special structure (Weyl sequence in [-1, 1]).
+        let x: Vec<f64> = (0..self.n_scalars)
+            .map(|s| ((s as f64 * 0.618_033_988_749_895 + 0.1).fract()) * 2.0 - 1.0)
+            .collect();
+        let sparse = expr.eval(&x) - &expr.constant;
+        let mut structured = DMatrix::zeros(sparse.nrows(), sparse.ncols());
+        for f in &fs {
+            let xv = self.var_value(f.var, &x);
+            let xv = if f.transposed { xv.transpose() } else { xv };
+            structured += &f.l * xv * f.r.transpose();
+        }
+        let scale = sparse.amax().max(structured.amax()).max(f64::MIN_POSITIVE);
+        ((sparse - structured).amax() <= 1e-9 * scale).then_some(fs)
+    }
+
+    /// The matrix value of variable `i` at the scalar values `x`.
+    pub(crate) fn var_value(&self, i: usize, x: &[f64]) -> DMatrix<f64> {
+        let v = &self.vars[i];
+        let (r, c) = v.kind.shape();
+        let mut m = DMatrix::zeros(r, c);
+        let mut k = v.offset;
+        match v.kind {
+            VarKind::Scalar => m[(0, 0)] = x[k],
+            VarKind::Symmetric(n) => {
+                for col in 0..n {
+                    for row in 0..=col {
+                        m[(row, col)] = x[k];
+                        m[(col, row)] = x[k];
+                        k += 1;
+                    }
+                }
+            }
+            VarKind::Full(..) => m.copy_from_slice(&x[k..k + r * c]),
+        }
+        m
     }
 
     /// Convenience: `lhs ⪰ rhs` etc. as `constrain(lhs − rhs, relation)`.

@@ -11,6 +11,7 @@ use clarabel::solver::{
 use nalgebra::DMatrix;
 
 use super::ipm::{self, IpmOptions};
+use super::kron::BlockTerm;
 use super::{
     AUTO_SCHUR_ROWS, Backend, ConstraintCheck, Design, LmiError, Outcome, Problem, Relation,
     Rescale, SolveInfo, SolverStatus,
@@ -57,7 +58,7 @@ pub fn smat(v: &[f64]) -> Option<DMatrix<f64>> {
 }
 
 /// Scaling of one solve: per-constraint congruence diagonals and per-scalar variable scales.
-struct Scaling {
+pub(super) struct Scaling {
     /// For PSD constraints: D (length n); for `= 0` constraints: one factor (length 1).
     blocks: Vec<Vec<f64>>,
     vars: Vec<f64>,
@@ -73,6 +74,9 @@ pub(crate) struct Conic {
     pub a: CscMatrix<f64>,
     pub b: Vec<f64>,
     pub q: Vec<f64>,
+    /// Per PSD block: its variable part A_k(x) = smat(−A_k x) as Kronecker terms in the
+    /// (scaled) matrix variables, when the constraint's structure is known.
+    pub structure: Vec<Option<Vec<BlockTerm>>>,
 }
 
 impl Conic {
@@ -139,7 +143,7 @@ impl Problem {
     }
 
     /// Data-based scaling: D_i = 1/√(largest magnitude in row i of the block's data).
-    fn data_scaling(&self) -> Scaling {
+    pub(super) fn data_scaling(&self) -> Scaling {
         let blocks = self
             .constraints
             .iter()
@@ -199,7 +203,7 @@ impl Problem {
     }
 
     /// The conic program of this problem under a scaling.
-    fn assemble(&self, scaling: &Scaling) -> Conic {
+    pub(super) fn assemble(&self, scaling: &Scaling) -> Conic {
         let n = self.n_scalars;
         let margin = self.settings.strict_margin;
         let mut rows_i = Vec::new();
@@ -228,10 +232,34 @@ impl Problem {
             zero_rows += r * cc;
         }
         let mut row0 = zero_rows;
+        let mut structure = Vec::new();
         for (c, d) in self.constraints.iter().zip(&scaling.blocks) {
             if c.relation == Relation::Zero {
                 continue;
             }
+            // −D L X (s D R)ᵀ: the congruence, the variable's scale and the conic sign.
+            structure.push(c.expr.factors.as_ref().map(|fs| {
+                let dm = nalgebra::DVector::from_column_slice(d);
+                fs.iter()
+                    .map(|f| {
+                        let v = &self.vars[f.var];
+                        let s = scaling.vars[v.offset];
+                        let mut l = f.l.clone();
+                        let mut r = f.r.clone();
+                        for (i, di) in dm.iter().enumerate() {
+                            l.row_mut(i).scale_mut(-di);
+                            r.row_mut(i).scale_mut(s * di);
+                        }
+                        BlockTerm {
+                            offset: v.offset,
+                            kind: v.kind,
+                            transposed: f.transposed,
+                            l,
+                            r,
+                        }
+                    })
+                    .collect()
+            }));
             let m = c.expr.shape().0;
             let eps = if matches!(c.relation, Relation::PosDef | Relation::NegDef) {
                 margin
@@ -280,6 +308,7 @@ impl Problem {
             a,
             b,
             q,
+            structure,
         }
     }
 
@@ -480,7 +509,8 @@ impl Problem {
                 let values = self
                     .vars
                     .iter()
-                    .map(|v| (v.name.clone(), self.var_value(&v.name, &pass.x)))
+                    .enumerate()
+                    .map(|(i, v)| (v.name.clone(), self.var_value(i, &pass.x)))
                     .collect::<HashMap<_, _>>();
                 Ok(Outcome::Solved(Design {
                     objective,
@@ -498,11 +528,6 @@ impl Problem {
             }
             _ => Ok(Outcome::Failed(info)),
         }
-    }
-
-    fn var_value(&self, name: &str, x: &[f64]) -> DMatrix<f64> {
-        self.var(name)
-            .map_or_else(|| DMatrix::zeros(0, 0), |e| e.eval(x))
     }
 }
 
