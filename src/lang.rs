@@ -26,7 +26,7 @@ use crate::diagnostics::Diagnostic;
 use crate::source::SourceFile;
 use crate::syntax;
 
-pub use crate::check::{DesignReport, Override, SolveSummary};
+pub use crate::check::{Backend, CheckOptions, DesignReport, Override, SolveSummary};
 pub use crate::ir::CompiledModel;
 
 impl FromStr for Override {
@@ -55,8 +55,34 @@ impl FromStr for Override {
 /// returns every diagnostic found (render them with
 /// [`crate::diagnostics::render`]).
 pub fn compile(src: &SourceFile, overrides: &[Override]) -> Result<CompiledModel, Vec<Diagnostic>> {
+    compile_with(src, overrides, &CheckOptions::default())
+}
+
+/// As [`compile`] with checker options (e.g. the interior-point method of
+/// the `design` blocks: `hybsim run --sdp schur`).
+///
+/// ```
+/// use hybsim::lang::{self, Backend, CheckOptions};
+/// use hybsim::source::SourceFile;
+///
+/// let src = SourceFile::new("m.hyb", "model m
+/// design d { scalar g
+///     minimize g
+///     g >= 2 }
+/// ");
+/// let options = CheckOptions { backend: Backend::Schur, ..CheckOptions::default() };
+/// let m = lang::compile_with(&src, &[], &options).unwrap();
+/// let s = m.design_reports()[0].solve.clone().unwrap();
+/// assert_eq!(s.backend, Backend::Schur);
+/// assert!((s.objective - 2.0).abs() < 1e-6);
+/// ```
+pub fn compile_with(
+    src: &SourceFile,
+    overrides: &[Override],
+    options: &CheckOptions,
+) -> Result<CompiledModel, Vec<Diagnostic>> {
     let model = syntax::parse_model(src.text()).map_err(|e| vec![e.to_diagnostic()])?;
-    let checked = check::check(&model, overrides)
+    let checked = check::check_with(&model, overrides, options)
         .map_err(|errs| errs.iter().map(|e| e.to_diagnostic()).collect::<Vec<_>>())?;
     let errs = crate::ir::structural_errors(&checked);
     if !errs.is_empty() {
@@ -97,7 +123,17 @@ pub fn compile_run(
     overrides: &[Override],
     seed: Option<u64>,
 ) -> Result<(CompiledModel, u64), Vec<Diagnostic>> {
-    let model = compile(src, overrides)?;
+    compile_run_with(src, overrides, seed, &CheckOptions::default())
+}
+
+/// As [`compile_run`] with checker options (`hybsim run --sdp`).
+pub fn compile_run_with(
+    src: &SourceFile,
+    overrides: &[Override],
+    seed: Option<u64>,
+    options: &CheckOptions,
+) -> Result<(CompiledModel, u64), Vec<Diagnostic>> {
+    let model = compile_with(src, overrides, options)?;
     let seed = seed.unwrap_or(model.seed());
     let params = model.random_params().to_vec();
     if params.is_empty() {
@@ -113,7 +149,7 @@ pub fn compile_run(
         let v = crate::num::Num(p.dist.sample(&mut rng));
         pinned.push(format!("{}={v}", p.name).parse().map_err(|d| vec![d])?);
     }
-    let mut model = compile(src, &pinned)?;
+    let mut model = compile_with(src, &pinned, options)?;
     model.set_param_draws(params.iter().map(|p| p.dist).collect());
     Ok((model, seed))
 }
@@ -140,8 +176,22 @@ pub fn design_only(
     src: &SourceFile,
     overrides: &[Override],
 ) -> Result<Vec<DesignReport>, Vec<Diagnostic>> {
+    design_only_with(src, overrides, &CheckOptions::default())
+}
+
+/// As [`design_only`] with checker options (`hybsim design --sdp`); the
+/// `check` blocks are solved whatever `options.solve_checks` says.
+pub fn design_only_with(
+    src: &SourceFile,
+    overrides: &[Override],
+    options: &CheckOptions,
+) -> Result<Vec<DesignReport>, Vec<Diagnostic>> {
     let model = syntax::parse_model(src.text()).map_err(|e| vec![e.to_diagnostic()])?;
-    check::check_with_designs(&model, overrides)
+    let options = CheckOptions {
+        solve_checks: true,
+        ..*options
+    };
+    check::check_with(&model, overrides, &options)
         .map(|m| m.designs)
         .map_err(|errs| errs.iter().map(|e| e.to_diagnostic()).collect())
 }

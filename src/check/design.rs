@@ -21,7 +21,7 @@ use super::error::{CheckError, Dims};
 use super::expr::{CONST_CTX, Val};
 use super::{Checker, Sym};
 use crate::design::lmi::{
-    Expr as LExpr, LmiError, Outcome, Problem, Relation, Rescale, Settings, SolverStatus, VarKind,
+    Backend, Expr as LExpr, LmiError, Outcome, Problem, Relation, Rescale, Settings, SolverStatus, VarKind,
 };
 use crate::diagnostics::Diagnostic;
 use crate::source::Span;
@@ -249,6 +249,9 @@ pub struct SolveSummary {
     pub total_time: f64,
     /// Interior-point iterations.
     pub iterations: u32,
+    /// The interior-point method that ran ([`Backend::Clarabel`] or
+    /// [`Backend::Schur`]; `hybsim design|run --sdp` chooses).
+    pub backend: Backend,
     /// Solves (2 when rescaled).
     pub passes: u32,
     /// Scalar decision variables.
@@ -295,13 +298,14 @@ impl DesignReport {
                     ("design", status.to_string())
                 };
                 format!(
-                    "{kind} {}: {status}{objective}, worst margin {:.1e} ({}), {} variables, {} constraints, {} iterations, {:.3} s",
+                    "{kind} {}: {status}{objective}, worst margin {:.1e} ({}), {} variables, {} constraints, {} iterations ({}), {:.3} s",
                     self.name,
                     s.worst_margin,
                     s.worst_constraint,
                     s.variables,
                     s.constraints,
                     s.iterations,
+                    backend_name(s.backend),
                     s.total_time
                 )
             }
@@ -346,6 +350,7 @@ impl DesignReport {
                 "worst_margin": s.worst_margin,
                 "worst_constraint": s.worst_constraint,
                 "iterations": s.iterations,
+                "backend": backend_name(s.backend),
                 "passes": s.passes,
                 "variables": s.variables,
                 "constraints": s.constraints,
@@ -418,7 +423,7 @@ impl Checker {
             block: d.name.name.clone(),
             vars: HashMap::new(),
             families: HashMap::new(),
-            problem: Problem::new().with_settings(design_settings()),
+            problem: Problem::new().with_settings(design_settings(self.backend)),
             objective: None,
             depth: self.scopes.len(),
             count: 0,
@@ -508,6 +513,7 @@ impl Checker {
                         solve_time: info.solve_time,
                         total_time: info.total_time,
                         iterations: info.iterations,
+                        backend: info.backend,
                         passes: info.passes,
                         variables: info.variables,
                         constraints: design.checks.len(),
@@ -1417,10 +1423,21 @@ impl Checker {
 /// point that is feasible yet several percent from optimal when the data are
 /// badly scaled (the platoon's covariances of 1e-3 against P of 1e3); the
 /// second pass, scaled by the first point, is accurate.
-fn design_settings() -> Settings {
+fn design_settings(backend: Backend) -> Settings {
     Settings {
         rescale: Rescale::Always,
+        backend,
         ..Settings::default()
+    }
+}
+
+/// The name of an interior-point method as the command line spells it
+/// (`hybsim design --sdp clarabel`).
+fn backend_name(b: Backend) -> &'static str {
+    match b {
+        Backend::Auto => "auto",
+        Backend::Clarabel => "clarabel",
+        Backend::Schur => "schur",
     }
 }
 

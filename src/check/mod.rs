@@ -19,6 +19,7 @@ mod tests;
 
 use std::collections::{BTreeMap, HashMap};
 
+pub use crate::design::lmi::Backend;
 pub use design::{DesignError, DesignReport, SolveSummary};
 pub use error::{CheckError, Dims};
 pub use expr::Val;
@@ -98,6 +99,8 @@ pub(crate) struct Checker {
     pub(crate) poisoned: HashMap<String, String>,
     /// Set (to the failed block) when an expression used a poisoned name.
     pub(crate) poison_hit: Option<String>,
+    /// The interior-point method of the design blocks.
+    pub(crate) backend: Backend,
 }
 
 /// Checks a parsed model with overrides; on success returns the checked
@@ -106,7 +109,7 @@ pub fn check(
     model: &crate::syntax::ast::Model,
     overrides: &[Override],
 ) -> Result<CheckedModel, Vec<CheckError>> {
-    model::check_model(model, overrides, false)
+    check_with(model, overrides, &CheckOptions::default())
 }
 
 /// As [`check`], and also solves the `design` blocks without results
@@ -116,5 +119,38 @@ pub fn check_with_designs(
     model: &crate::syntax::ast::Model,
     overrides: &[Override],
 ) -> Result<CheckedModel, Vec<CheckError>> {
-    model::check_model(model, overrides, true)
+    let options = CheckOptions {
+        solve_checks: true,
+        ..CheckOptions::default()
+    };
+    check_with(model, overrides, &options)
+}
+
+/// How the checker treats `design` blocks; not part of the model (the
+/// command line sets them).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct CheckOptions {
+    /// The interior-point method that solves the design blocks
+    /// (`hybsim design|run --sdp`). Default [`Backend::Auto`].
+    pub backend: Backend,
+    /// Also solve the `check` blocks (see [`check_with_designs`]).
+    pub solve_checks: bool,
+}
+
+impl Default for CheckOptions {
+    fn default() -> Self {
+        Self {
+            backend: Backend::Auto,
+            solve_checks: false,
+        }
+    }
+}
+
+/// As [`check`] with `options`.
+pub fn check_with(
+    model: &crate::syntax::ast::Model,
+    overrides: &[Override],
+    options: &CheckOptions,
+) -> Result<CheckedModel, Vec<CheckError>> {
+    model::check_model(model, overrides, options)
 }

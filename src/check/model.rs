@@ -185,7 +185,7 @@ struct ModelChecker<'o> {
 pub(crate) fn check_model(
     model: &Model,
     overrides: &[Override],
-    solve_checks: bool,
+    options: &super::CheckOptions,
 ) -> Result<CheckedModel, Vec<CheckError>> {
     let mut m = ModelChecker {
         c: Checker {
@@ -199,6 +199,7 @@ pub(crate) fn check_model(
             post_frame: None,
             poisoned: HashMap::new(),
             poison_hit: None,
+            backend: options.backend,
         },
         overrides: overrides.iter().map(|o| (o.name.as_str(), o)).collect(),
         used: Vec::new(),
@@ -214,7 +215,7 @@ pub(crate) fn check_model(
         anonymous_every: 0,
         designs: Vec::new(),
         random_params: Vec::new(),
-        solve_checks,
+        solve_checks: options.solve_checks,
         unavailable: Vec::new(),
     };
     for it in &model.items {

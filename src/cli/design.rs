@@ -8,7 +8,7 @@ use clap::Args;
 use hybsim::diagnostics::render;
 use hybsim::lang::{self, DesignReport};
 
-use super::{EXIT_FAILED, EXIT_MODEL_ERROR, EXIT_OK};
+use super::{EXIT_FAILED, EXIT_MODEL_ERROR, EXIT_OK, SdpKind};
 
 /// Arguments of `hybsim design`.
 #[derive(Debug, Args)]
@@ -23,6 +23,9 @@ pub struct DesignArgs {
     /// Print the results as JSON (the `hybsim.design` metadata of a run).
     #[arg(long)]
     pub json: bool,
+    /// Interior-point method of the design blocks.
+    #[arg(long, value_enum, default_value_t = SdpKind::Auto)]
+    pub sdp: SdpKind,
 }
 
 /// The results of a block, one line per parameter (matrices row by row).
@@ -55,7 +58,7 @@ pub fn execute(args: DesignArgs) -> anyhow::Result<u8> {
     let Some((src, overrides)) = super::load(&args.model, &args.set)? else {
         return Ok(EXIT_MODEL_ERROR);
     };
-    let reports = match lang::design_only(&src, &overrides) {
+    let reports = match lang::design_only_with(&src, &overrides, &args.sdp.options()) {
         Ok(r) => r,
         Err(diags) => {
             eprint!("{}", render(&diags, &src, std::io::stderr().is_terminal()));

@@ -13,7 +13,7 @@ use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
 use hybsim::diagnostics::render;
-use hybsim::lang::Override;
+use hybsim::lang::{Backend, CheckOptions, Override};
 use hybsim::source::SourceFile;
 
 /// Exit code: the command did what was asked (a run reached its end, a
@@ -100,6 +100,35 @@ where
         Err(e) => {
             eprintln!("error: {e:#}");
             ExitCode::from(EXIT_FAILED)
+        }
+    }
+}
+
+/// Interior-point methods for `design` blocks on the command line
+/// (`--sdp`; `--solver` of `hybsim run` is the flow integrator).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, clap::ValueEnum)]
+pub enum SdpKind {
+    /// clarabel for small problems, the Schur-complement method above 1000
+    /// svec rows of matrix blocks.
+    #[default]
+    Auto,
+    /// clarabel's direct (KKT) method.
+    Clarabel,
+    /// hybsim's Schur-complement method (large problems).
+    Schur,
+}
+
+impl SdpKind {
+    /// The checker options that solve the design blocks with this method.
+    fn options(self) -> CheckOptions {
+        let backend = match self {
+            SdpKind::Auto => Backend::Auto,
+            SdpKind::Clarabel => Backend::Clarabel,
+            SdpKind::Schur => Backend::Schur,
+        };
+        CheckOptions {
+            backend,
+            ..CheckOptions::default()
         }
     }
 }

@@ -20,7 +20,7 @@ use hybsim::sinks::{
 use serde_json::{Value, json};
 
 use super::progress::{Progress, interrupt_flag};
-use super::{EXIT_FAILED, EXIT_INTERRUPTED, EXIT_MODEL_ERROR, EXIT_OK};
+use super::{EXIT_FAILED, EXIT_INTERRUPTED, EXIT_MODEL_ERROR, EXIT_OK, SdpKind};
 
 /// Arguments of `hybsim run`.
 #[derive(Debug, Args)]
@@ -62,6 +62,9 @@ pub struct RunArgs {
     /// What to do when the state is in both C and D.
     #[arg(long, value_enum)]
     pub priority: Option<PriorityKind>,
+    /// Interior-point method of the model's design blocks.
+    #[arg(long, value_enum, default_value_t = SdpKind::Auto)]
+    pub sdp: SdpKind,
     /// Seed of the run's random generator (overrides the model's).
     #[arg(long, value_name = "N")]
     pub seed: Option<u64>,
@@ -431,7 +434,7 @@ pub fn execute(args: RunArgs) -> anyhow::Result<u8> {
         return Ok(EXIT_MODEL_ERROR);
     };
     // Random parameters are drawn from the run's seed.
-    let (model, seed) = match lang::compile_run(&src, &overrides, args.seed) {
+    let (model, seed) = match lang::compile_run_with(&src, &overrides, args.seed, &args.sdp.options()) {
         Ok(compiled) => compiled,
         Err(diags) => {
             eprint!("{}", render(&diags, &src, stderr_is_terminal()));

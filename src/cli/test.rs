@@ -11,7 +11,7 @@ use hybsim::props::{
     ModelRunError, ModelSubject, Outcome, Property, Subject, TestConfig, replay_args, run_tests,
 };
 
-use super::{EXIT_FAILED, EXIT_MODEL_ERROR, EXIT_OK};
+use super::{EXIT_FAILED, EXIT_MODEL_ERROR, EXIT_OK, SdpKind};
 
 /// Arguments of `hybsim test`.
 #[derive(Debug, Args)]
@@ -32,6 +32,9 @@ pub struct TestArgs {
     /// (a pinned initial value is no longer sampled).
     #[arg(long = "set", value_name = "NAME=VALUE")]
     pub set: Vec<String>,
+    /// Interior-point method of the model's design blocks (solved per case).
+    #[arg(long, value_enum, default_value_t = SdpKind::Auto)]
+    pub sdp: SdpKind,
     /// Most runs spent shrinking a counterexample (0: no shrinking).
     #[arg(long, value_name = "N", default_value_t = 400)]
     pub max_shrink: usize,
@@ -56,7 +59,7 @@ pub fn execute(args: TestArgs) -> anyhow::Result<u8> {
         return Ok(EXIT_MODEL_ERROR);
     };
     let color = std::io::IsTerminal::is_terminal(&std::io::stderr());
-    let subject = match ModelSubject::new(src.clone(), overrides) {
+    let subject = match ModelSubject::with_options(src.clone(), overrides, args.sdp.options()) {
         Ok(s) => s,
         Err(diags) => {
             eprint!("{}", render(&diags, &src, color));
@@ -148,6 +151,10 @@ pub fn execute(args: TestArgs) -> anyhow::Result<u8> {
                 }
             }
             cmd.extend(replay_args(&cx.case, inputs));
+            if args.sdp != SdpKind::Auto {
+                let sdp = clap::ValueEnum::to_possible_value(&args.sdp).expect("not skipped");
+                cmd.extend(["--sdp".to_string(), sdp.get_name().to_string()]);
+            }
             cmd.extend(["-o".to_string(), "replay.mcap".to_string()]);
             let cmd: Vec<String> = cmd.iter().map(|a| shell_word(a)).collect();
             println!("replay: {}", cmd.join(" "));

@@ -6,7 +6,7 @@ use super::runner::{Case, Input, Subject};
 use crate::arc::{ArcSink, Termination};
 use crate::diagnostics::Diagnostic;
 use crate::engine::{HybridSystem, SimError, SimSettings, simulate};
-use crate::lang::{self, CompiledModel, Override};
+use crate::lang::{self, CheckOptions, CompiledModel, Override};
 use crate::source::SourceFile;
 
 /// Why a case of a [`ModelSubject`] could not run.
@@ -54,6 +54,7 @@ pub struct ModelSubject {
     model: CompiledModel,
     inputs: Vec<Input>,
     settings: SimSettings,
+    options: CheckOptions,
 }
 
 impl ModelSubject {
@@ -63,7 +64,20 @@ impl ModelSubject {
     /// # Errors
     /// Every diagnostic if the model does not compile.
     pub fn new(source: SourceFile, overrides: Vec<Override>) -> Result<Self, Vec<Diagnostic>> {
-        let model = lang::compile(&source, &overrides)?;
+        Self::with_options(source, overrides, CheckOptions::default())
+    }
+
+    /// As [`ModelSubject::new`], every case compiled with checker `options`
+    /// (`hybsim test --sdp`).
+    ///
+    /// # Errors
+    /// Every diagnostic if the model does not compile.
+    pub fn with_options(
+        source: SourceFile,
+        overrides: Vec<Override>,
+        options: CheckOptions,
+    ) -> Result<Self, Vec<Diagnostic>> {
+        let model = lang::compile_with(&source, &overrides, &options)?;
         let inputs = model.random_inputs().to_vec();
         let settings = model.settings();
         Ok(Self {
@@ -72,6 +86,7 @@ impl ModelSubject {
             model,
             inputs,
             settings,
+            options,
         })
     }
 
@@ -114,7 +129,7 @@ impl ModelSubject {
         let overrides = self
             .case_overrides(case)
             .map_err(|d| ModelRunError::Compile(vec![d]))?;
-        lang::compile(&self.source, &overrides).map_err(ModelRunError::Compile)
+        lang::compile_with(&self.source, &overrides, &self.options).map_err(ModelRunError::Compile)
     }
 }
 

@@ -2,6 +2,7 @@
 
 mod cli;
 mod design;
+mod design_backend;
 mod design_check;
 mod design_failure;
 mod diagnostics;
