@@ -21,7 +21,8 @@ use super::error::{CheckError, Dims};
 use super::expr::{CONST_CTX, Val};
 use super::{Checker, Sym};
 use crate::design::lmi::{
-    Backend, Expr as LExpr, LmiError, Outcome, Problem, Relation, Rescale, Settings, SolverStatus, VarKind,
+    Backend, Expr as LExpr, LmiError, Outcome, Problem, Relation, Rescale, Settings, SolverStatus,
+    VarKind,
 };
 use crate::diagnostics::Diagnostic;
 use crate::source::Span;

@@ -434,13 +434,14 @@ pub fn execute(args: RunArgs) -> anyhow::Result<u8> {
         return Ok(EXIT_MODEL_ERROR);
     };
     // Random parameters are drawn from the run's seed.
-    let (model, seed) = match lang::compile_run_with(&src, &overrides, args.seed, &args.sdp.options()) {
-        Ok(compiled) => compiled,
-        Err(diags) => {
-            eprint!("{}", render(&diags, &src, stderr_is_terminal()));
-            return Ok(EXIT_MODEL_ERROR);
-        }
-    };
+    let (model, seed) =
+        match lang::compile_run_with(&src, &overrides, args.seed, &args.sdp.options()) {
+            Ok(compiled) => compiled,
+            Err(diags) => {
+                eprint!("{}", render(&diags, &src, stderr_is_terminal()));
+                return Ok(EXIT_MODEL_ERROR);
+            }
+        };
     let settings = match settings_from_flags(model.settings(), &args) {
         Ok(s) => s,
         Err(message) => {

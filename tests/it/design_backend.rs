@@ -47,7 +47,11 @@ fn every_backend_gives_the_same_design_and_the_report_names_it() {
     let (obj_a, ran_a, _) = solve(Backend::Auto);
     assert_eq!(ran_c, Backend::Clarabel);
     assert_eq!(ran_s, Backend::Schur);
-    assert_eq!(ran_a, Backend::Clarabel, "auto: clarabel for a small problem");
+    assert_eq!(
+        ran_a,
+        Backend::Clarabel,
+        "auto: clarabel for a small problem"
+    );
     assert!((obj_c - obj_s).abs() < 1e-6, "{obj_c} vs {obj_s}");
     assert!((obj_c - obj_a).abs() < 1e-9, "{obj_c} vs {obj_a}");
     assert!((&p_c - &p_s).amax() < 1e-5, "{p_c} vs {p_s}");
@@ -83,7 +87,11 @@ fn design_and_run_take_sdp() {
         &["run", "decay.hyb", "--sdp", "schur", "--no-mcap", "-q"],
     );
     assert_eq!(code(&out), 0, "{}", stderr(&out));
-    assert!(stderr(&out).contains("iterations (schur)"), "{}", stderr(&out));
+    assert!(
+        stderr(&out).contains("iterations (schur)"),
+        "{}",
+        stderr(&out)
+    );
     // Default: auto, which takes clarabel for this size.
     let out = hybsim(dir.path(), &["design", "decay.hyb"]);
     assert!(String::from_utf8_lossy(&out.stdout).contains("iterations (clarabel)"));
