@@ -954,6 +954,21 @@ mod tests {
             )
             .unwrap();
         p.constrain("b3", &lyap.neg(), Relation::NegDef).unwrap();
+        // Parts of variables: one column of U, the leading 2×2 of P (partial active sets).
+        let u1 = u
+            .block(0, 1, 4, 1)
+            .unwrap()
+            .right_mul(&pseudo(1, 4, 4.0))
+            .unwrap();
+        let p2 = pv.block(0, 0, 2, 2).unwrap();
+        let b4 = Expr::blocks(&[
+            vec![Some(pv.sub(&u1).unwrap()), Some(Expr::zeros(4, 2))],
+            vec![None, Some(p2.add(&x.block(1, 1, 2, 2).unwrap()).unwrap())],
+        ])
+        .unwrap()
+        .sym()
+        .unwrap();
+        p.constrain("b4", &b4, Relation::PosSemiDef).unwrap();
         let results = both_ways(&p);
         assert!(
             results.iter().all(|r| r.2 > 0),

@@ -55,6 +55,18 @@ pub(super) struct KronVar {
     pub range: Range<usize>,
     terms: Vec<Term>,
     scalars: Vec<Scalar>,
+    symmetric: bool,
+    /// The scalars column by column of X: `scalars[start..start + len]` are the entries
+    /// (c, d) with c = 0, 1, … in column d (active-local), so a column of the Schur matrix is
+    /// filled by contiguous vector operations.
+    runs: Vec<Run>,
+}
+
+/// One column d of the variable in [`KronVar::scalars`].
+struct Run {
+    start: usize,
+    len: usize,
+    d: usize,
 }
 
 /// Positions of the nonzero columns of `m` (as indices of the variable), merged into `set`.
@@ -159,10 +171,24 @@ impl KronVar {
                 }
             }
         }
+        let mut runs: Vec<Run> = Vec::new();
+        for (k, sc) in scalars.iter().enumerate() {
+            let d = sc.comps[0].1;
+            match runs.last_mut() {
+                Some(r) if r.d == d => r.len += 1,
+                _ => runs.push(Run {
+                    start: k,
+                    len: 1,
+                    d,
+                }),
+            }
+        }
         Some(KronVar {
             range: offset..offset + kind.count(),
             terms: restricted,
             scalars,
+            symmetric,
+            runs,
         })
     }
 
@@ -176,24 +202,6 @@ impl KronVar {
 #[inline]
 fn pre_post(comp: (usize, usize), transposed: bool) -> (usize, usize) {
     if transposed { (comp.1, comp.0) } else { comp }
-}
-
-/// Per scalar of `v` and per transposition τ of a term: the (pre, post) indices of its two
-/// basis entries, a missing second entry pointing at the zero appended to the gathered
-/// vectors (index `dims`), so the inner loop of [`add_pair`] has no branch.
-fn gather_indices(v: &KronVar, transposed: bool, dims: (usize, usize)) -> Vec<[u32; 4]> {
-    v.scalars
-        .iter()
-        .map(|s| {
-            let (p0, q0) = pre_post(s.comps[0], transposed);
-            let (p1, q1) = if s.ncomp == 2 {
-                pre_post(s.comps[1], transposed)
-            } else {
-                dims
-            };
-            [p0 as u32, q0 as u32, p1 as u32, q1 as u32]
-        })
-        .collect()
 }
 
 /// Adds ⟨A_i, S⁻¹ A_j Z⟩ for the scalars i of `x` and j of `y` into the lower triangle of `m`
@@ -211,15 +219,14 @@ pub(super) fn add_pair(
     debug_assert!(x.range.start <= y.range.start);
     // Φᵀ = (S⁻¹L_u)ᵀ R_t: column b is Φ[b, ·]; Ψ = R_uᵀ Z L_t: column a is Ψ[·, a].
     let mut pairs = Vec::with_capacity(x.terms.len() * y.terms.len());
-    let mut idx: [Option<Vec<[u32; 4]>>; 2] = [None, None];
     for (tx, zl_t) in x.terms.iter().zip(zl) {
         for (ty, sl_u) in y.terms.iter().zip(sl) {
-            let phi_t = sl_u.tr_mul(&tx.r);
-            let psi = ty.r.tr_mul(zl_t);
-            let dims = (phi_t.nrows(), psi.nrows());
-            idx[ty.transposed as usize]
-                .get_or_insert_with(|| gather_indices(y, ty.transposed, dims));
-            pairs.push((phi_t, psi, tx.transposed, ty.transposed));
+            pairs.push((
+                sl_u.tr_mul(&tx.r),
+                ty.r.tr_mul(zl_t),
+                tx.transposed,
+                ty.transposed,
+            ));
         }
     }
     let n = m.nrows();
@@ -227,27 +234,48 @@ pub(super) fn add_pair(
     // One column of M at a time, summed over the term pairs in a short buffer first: M itself
     // is too large to be swept once per pair.
     let mut col = vec![0.0; y.scalars.len()];
-    let mut phi = Vec::new();
-    let mut psi = Vec::new();
     for (i, si) in x.scalars.iter().enumerate() {
         let first = if same { i } else { 0 };
         let col = &mut col[first..];
         col.fill(0.0);
         for (phi_t, psi_m, tx, ty) in &pairs {
-            let Some(idx) = idx[*ty as usize].as_deref() else {
-                continue;
-            };
             for &ci in &si.comps[..si.ncomp] {
                 let (pre_i, post_i) = pre_post(ci, *tx);
-                phi.clear();
-                phi.extend_from_slice(phi_t.column(post_i).as_slice());
-                phi.push(0.0);
-                psi.clear();
-                psi.extend_from_slice(psi_m.column(pre_i).as_slice());
-                psi.push(0.0);
-                for (c, ix) in col.iter_mut().zip(&idx[first..]) {
-                    let [p0, q0, p1, q1] = ix.map(|v| v as usize);
-                    *c += phi[p0] * psi[q0] + phi[p1] * psi[q1];
+                // φ[c] = Φ[post_i, c] over the pre-indices of Y, ψ[d] = Ψ[d, pre_i] over its
+                // post-indices; entry (c, d) of Y contributes φ[pre] ψ[post].
+                let phi = phi_t.column(post_i);
+                let psi = psi_m.column(pre_i);
+                let (phi, psi) = (phi.as_slice(), psi.as_slice());
+                for run in &y.runs {
+                    if run.start + run.len <= first {
+                        continue;
+                    }
+                    let c0 = first.saturating_sub(run.start);
+                    let seg = &mut col[run.start + c0 - first..run.start + run.len - first];
+                    let d = run.d;
+                    let range = c0..run.len;
+                    if y.symmetric {
+                        // (c, d) and (d, c): φ[c] ψ[d] + φ[d] ψ[c], once on the diagonal.
+                        let (a, b) = (psi[d], phi[d]);
+                        for ((v, f), p) in seg.iter_mut().zip(&phi[range.clone()]).zip(&psi[range])
+                        {
+                            *v += a * f + b * p;
+                        }
+                        // A symmetric run ends on the diagonal (len = d + 1).
+                        if let Some(v) = seg.last_mut() {
+                            *v -= phi[d] * psi[d];
+                        }
+                    } else if !*ty {
+                        let a = psi[d];
+                        for (v, f) in seg.iter_mut().zip(&phi[range]) {
+                            *v += a * f;
+                        }
+                    } else {
+                        let b = phi[d];
+                        for (v, p) in seg.iter_mut().zip(&psi[range]) {
+                            *v += b * p;
+                        }
+                    }
                 }
             }
         }
