@@ -52,21 +52,36 @@ pub enum SimError {
         name: String,
         /// The value (NaN or ±∞).
         value: f64,
+        /// The jump rule whose jump map produced it; `None` for the flow
+        /// (or the initial state at (0, 0)).
+        rule: Option<usize>,
     },
     /// The adaptive integrator could not meet its tolerance with a step
     /// above the rounding level.
-    #[error("the step size collapsed at {at} (last accepted step {h:e})")]
+    #[error(
+        "the step size collapsed at {at} (last accepted step {h:e}); fastest-changing state: `{name}`"
+    )]
     StepSizeCollapse {
         /// Hybrid time where the integrator stopped.
         at: HybridTime,
         /// The last accepted step size (0 if none was accepted).
         h: f64,
+        /// The state component changing fastest relative to the tolerances
+        /// (|ẋᵢ| / (atol + rtol·|xᵢ|)) at the last accepted state: the
+        /// likeliest culprit.
+        component: usize,
+        /// Its name from `state_names()`.
+        name: String,
     },
     /// The adaptive integrator detected stiffness.
-    #[error("the flow became stiff at {at}")]
+    #[error("the flow became stiff at {at}; fastest-changing state: `{name}`")]
     Stiff {
         /// Hybrid time where the integrator stopped.
         at: HybridTime,
+        /// As for [`SimError::StepSizeCollapse`].
+        component: usize,
+        /// Its name from `state_names()`.
+        name: String,
     },
 }
 

@@ -311,10 +311,13 @@ pub(crate) struct SegmentEnd {
     pub why: EndWhy,
 }
 
+/// The first non-finite component of `x` as an error; `rule`: the jump
+/// rule whose map produced `x` (`None`: the flow or the initial state).
 pub(crate) fn check_finite<S: HybridSystem + ?Sized>(
     sys: &S,
     at: HybridTime,
     x: &[f64],
+    rule: Option<usize>,
 ) -> Option<SimError> {
     let i = x.iter().position(|v| !v.is_finite())?;
     Some(SimError::NonFinite {
@@ -322,7 +325,38 @@ pub(crate) fn check_finite<S: HybridSystem + ?Sized>(
         component: i,
         name: sys.state_names().get(i).cloned().unwrap_or_default(),
         value: x[i],
+        rule,
     })
+}
+
+/// (rtol, atol) of an adaptive solver; (0, 1) (plain |ẋᵢ|) for the others.
+fn tolerances(solver: Solver) -> (f64, f64) {
+    match solver {
+        Solver::Dopri5 { rtol, atol } | Solver::Dop853 { rtol, atol } => (rtol, atol),
+        _ => (0.0, 1.0),
+    }
+}
+
+/// The component of the flow at (`t`, `x`) that changes fastest relative
+/// to the tolerances, |ẋᵢ| / (atol + rtol·|xᵢ|) (a non-finite derivative
+/// counts as infinite), with its name: what an integrator that gave up
+/// most likely struggled with.
+fn fastest_component<S: HybridSystem + ?Sized>(
+    sys: &S,
+    t: f64,
+    x: &[f64],
+    (rtol, atol): (f64, f64),
+) -> (usize, String) {
+    let mut dx = vec![0.0; x.len()];
+    sys.flow_map(t, x, &mut dx);
+    let rate = |i: usize| {
+        let r = dx[i].abs() / (atol + rtol * x[i].abs());
+        if r.is_nan() { f64::INFINITY } else { r }
+    };
+    let k = (0..x.len())
+        .max_by(|&a, &b| rate(a).total_cmp(&rate(b)))
+        .unwrap_or(0);
+    (k, sys.state_names().get(k).cloned().unwrap_or_default())
 }
 
 impl Flows {
@@ -534,14 +568,24 @@ impl Flows {
                 })
             }
             (None, Err(IntegrationError::StepSizeUnderflow { x })) => {
+                let (component, name) =
+                    fastest_component(sys, t0 + s_prev, &self.y_prev, tolerances(solver));
                 Err(SimError::StepSizeCollapse {
                     at: HybridTime::new(t0 + x, j),
                     h: self.last_h,
+                    component,
+                    name,
                 })
             }
-            (None, Err(IntegrationError::StiffnessDetected { x })) => Err(SimError::Stiff {
-                at: HybridTime::new(t0 + x, j),
-            }),
+            (None, Err(IntegrationError::StiffnessDetected { x })) => {
+                let (component, name) =
+                    fastest_component(sys, t0 + s_prev, &self.y_prev, tolerances(solver));
+                Err(SimError::Stiff {
+                    at: HybridTime::new(t0 + x, j),
+                    component,
+                    name,
+                })
+            }
         }
     }
 
@@ -575,7 +619,7 @@ impl Flows {
                 s1 = d_end;
             }
             aff.advance(s1 - s, &self.y_prev, &mut self.f_cur);
-            if let Some(e) = check_finite(sys, HybridTime::new(t0 + s1, j), &self.f_cur) {
+            if let Some(e) = check_finite(sys, HybridTime::new(t0 + s1, j), &self.f_cur, None) {
                 return Err(e);
             }
             let mut path = AffinePath {
@@ -641,7 +685,7 @@ impl Flows {
                         .sum::<f64>();
                 }
             }
-            if let Some(e) = check_finite(sys, HybridTime::new(t0 + s1, j), &y1) {
+            if let Some(e) = check_finite(sys, HybridTime::new(t0 + s1, j), &y1, None) {
                 break Err(e);
             }
             let mut path = Linear {
@@ -741,7 +785,7 @@ impl<S: HybridSystem + ?Sized> Stepper<'_, '_, S> {
     /// After each accepted step ending at local time `s` with state `y`;
     /// returns `true` to stop the stepper.
     fn on_step(&mut self, s: f64, y: &[f64], dy: &[f64]) -> bool {
-        if let Some(e) = check_finite(self.sys, HybridTime::new(self.t0 + s, self.j), y) {
+        if let Some(e) = check_finite(self.sys, HybridTime::new(self.t0 + s, self.j), y, None) {
             return self.finish(Err(e));
         }
         let last = s >= self.last_from;

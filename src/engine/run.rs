@@ -128,7 +128,7 @@ fn check_system<S: HybridSystem + ?Sized>(sys: &S, x0: &[f64]) -> Result<(), Sim
             });
         }
     }
-    if let Some(e) = check_finite(sys, HybridTime::new(0.0, 0), x0) {
+    if let Some(e) = check_finite(sys, HybridTime::new(0.0, 0), x0, None) {
         return Err(e);
     }
     Ok(())
@@ -237,7 +237,7 @@ pub fn simulate<S: HybridSystem + ?Sized>(
             }
             x_plus.copy_from_slice(&x);
             sys.jump_map(rule, at, &x, rng, &mut x_plus);
-            if let Some(e) = check_finite(sys, post, &x_plus) {
+            if let Some(e) = check_finite(sys, post, &x_plus, Some(rule)) {
                 return Err(e);
             }
             let stop = out.sink.jump(at, rule, &x, &x_plus);

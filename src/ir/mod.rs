@@ -444,14 +444,70 @@ impl CompiledModel {
     }
 
     /// A diagnostic for a simulation error that points into the model: the
-    /// flow equation of a component that became non-finite, or the matrix
-    /// operation that failed, with the hybrid time.
+    /// flow equation of a component that became non-finite (or the jump
+    /// whose map made it so), the flow equation of the fastest-changing
+    /// component when the integrator gave up (step-size collapse,
+    /// stiffness), or the matrix operation that failed, with the hybrid
+    /// time.
     pub fn runtime_diagnostic(&self, err: &SimError) -> Diagnostic {
         let mut d = Diagnostic::error("E0601", err.to_string()).help(err.help());
         if let Some(origin) = program::take_fault()
             && let Some(&span) = self.block_spans.get(origin as usize)
         {
             d = d.primary(span, "this matrix was singular during the run");
+        }
+        if let SimError::NonFinite {
+            component,
+            at,
+            rule: Some(rule),
+            ..
+        } = err
+            && let Some(span) = self.rule_span(*rule)
+        {
+            // The jump map made it non-finite: point at the rule.
+            d.code = "E0602";
+            let name = self
+                .state_names()
+                .get(*component)
+                .cloned()
+                .unwrap_or_default();
+            let label = format!(
+                "this jump made `{name}` non-finite at (t, j) = ({}, {})",
+                at.t, at.j
+            );
+            return if d.labels.is_empty() {
+                d.primary(span, label)
+            } else {
+                d.secondary(span, label)
+            };
+        }
+        if let SimError::StepSizeCollapse {
+            component,
+            at,
+            name,
+            ..
+        }
+        | SimError::Stiff {
+            component,
+            at,
+            name,
+            ..
+        } = err
+        {
+            let label = format!(
+                "`{name}` changes fastest here at (t, j) = ({}, {})",
+                at.t, at.j
+            );
+            let span = self
+                .flow_span(*component)
+                .or_else(|| self.field_of(*component).map(|f| f.span));
+            if let Some(span) = span {
+                return if d.labels.is_empty() {
+                    d.primary(span, label)
+                } else {
+                    d.secondary(span, label)
+                };
+            }
         }
         if let SimError::NonFinite { component, at, .. } = err {
             d.code = "E0602";
@@ -462,15 +518,18 @@ impl CompiledModel {
                 } else {
                     d.secondary(span, label)
                 };
-            } else if let Some(f) = self
-                .fields
-                .iter()
-                .find(|f| *component >= f.offset && *component < f.offset + f.rows * f.cols)
-            {
+            } else if let Some(f) = self.field_of(*component) {
                 d = d.primary(f.span, "this state became non-finite");
             }
         }
         d
+    }
+
+    /// The state field holding component `k`.
+    fn field_of(&self, k: usize) -> Option<&StateField> {
+        self.fields
+            .iter()
+            .find(|f| k >= f.offset && k < f.offset + f.rows * f.cols)
     }
 
     #[inline]

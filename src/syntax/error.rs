@@ -27,6 +27,15 @@ pub enum SyntaxError {
         /// The limit.
         limit: usize,
     },
+    /// `x = v` in a jump's reset block: a reset names the state after the
+    /// jump, `x+ = v`.
+    #[error("a reset assigns the state after the jump: write `{target}+ = ...`")]
+    ResetWithoutPlus {
+        /// The assigned state (`x`, `x[1]`).
+        span: Span,
+        /// Its text.
+        target: String,
+    },
     /// A number literal that does not fit in an f64.
     #[error("number `{text}` is out of range")]
     BadNumber {
@@ -43,6 +52,7 @@ impl SyntaxError {
         match self {
             SyntaxError::Unexpected { span, .. }
             | SyntaxError::TooDeep { span, .. }
+            | SyntaxError::ResetWithoutPlus { span, .. }
             | SyntaxError::BadNumber { span, .. } => *span,
         }
     }
@@ -62,6 +72,12 @@ impl SyntaxError {
             )
             .primary(*span, "too deep")
             .help("split the expression into named parameters or outputs"),
+            SyntaxError::ResetWithoutPlus { span, target } => {
+                Diagnostic::error("E0104", self.to_string())
+                    .primary(*span, format!("`{target}+` expected"))
+                    .note("in `jump` and `every` blocks, `x+` is the state after the jump and `x` the state before it")
+                    .help(format!("write `{target}+ = ...`"))
+            }
             SyntaxError::BadNumber { span, text } => {
                 Diagnostic::error("E0103", format!("number `{text}` is out of range"))
                     .primary(*span, "too large for a 64-bit float")
@@ -160,6 +176,7 @@ fn describe(rule: Rule) -> Option<&'static str> {
         Rule::reset_eq | Rule::reset_for => "a reset `x+ = ...`",
         Rule::when_clause | Rule::every_clause => "`when` or `every`",
         Rule::reset_block => "`{`",
+        Rule::reset_post => "`+`",
         Rule::sim_setting => "a setting `key = value`",
         Rule::index_list => "`[`",
         Rule::index_arg | Rule::slice | Rule::colon_all => "an index",

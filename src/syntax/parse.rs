@@ -324,7 +324,17 @@ fn reset_stmt(p: Pair<'_, Rule>) -> Res<ResetStmt> {
     match p.as_rule() {
         Rule::reset_eq => {
             let mut it = p.into_inner();
-            let target = target(first(&mut it, span)?)?;
+            let t = first(&mut it, span)?;
+            let text = t.as_str().trim_end().to_string();
+            let target = target(t)?;
+            let post = first(&mut it, span)?;
+            if post.as_rule() != Rule::reset_post {
+                let start = target.span.start;
+                return Err(SyntaxError::ResetWithoutPlus {
+                    span: Span::new(start, start + text.len()),
+                    target: text,
+                });
+            }
             let value = expr(first(&mut it, span)?)?;
             Ok(ResetStmt::Eq(Definition { target, value }))
         }

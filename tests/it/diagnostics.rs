@@ -80,9 +80,16 @@ const CASES: &[Case] = &[
     case(
         "reset written without +",
         "model m\nstate x = 0\njump r when x >= 1 { x = 0 }\n",
-        "E0101",
-        "3:24",
-        "unexpected `=`; expected `[`",
+        "E0104",
+        "3:22",
+        "a reset assigns the state after the jump: write `x+ = ...`",
+    ),
+    case(
+        "reset of a member written without +",
+        "model m\nstate x = [0; 0]\nevery 1 { x[2] = 1 }\n",
+        "E0104",
+        "3:11",
+        "a reset assigns the state after the jump: write `x[2]+ = ...`",
     ),
     case(
         "number out of range",

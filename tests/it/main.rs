@@ -21,6 +21,7 @@ mod props;
 mod props_cli;
 mod props_model;
 mod props_params;
+mod runtime_diagnostics;
 mod sinks;
 mod util;
 mod variance_props;
