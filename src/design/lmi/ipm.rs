@@ -21,6 +21,7 @@
 //! A₀ M⁻¹ A₀ᵀ. Infeasibility and unboundedness are detected from the iterates' certificates
 //! (‖Aᵀz‖ ≪ −bᵀz, resp. a diverging qᵀx with bounded residuals).
 
+use std::borrow::Cow;
 use std::time::Instant;
 
 use nalgebra::{DMatrix, DVector};
@@ -261,6 +262,28 @@ const STALL_ITERS: u32 = 8;
 /// Refinement steps of each Newton solve.
 const REFINE_STEPS: usize = 2;
 
+/// out += sign·Σ_k A_kᵀ(Y_k) for per-block matrices computed in parallel by `y`, added block by
+/// block in order (the same rounding as a sequential loop, whatever the thread schedule).
+fn adjoint_add<'a, F>(blocks: &[Block], out: &mut DVector<f64>, sign: f64, y: F)
+where
+    F: Fn(usize) -> Cow<'a, DMatrix<f64>> + Sync,
+{
+    let n = out.len();
+    let parts: Vec<Vec<f64>> = (0..blocks.len())
+        .into_par_iter()
+        .map(|k| {
+            let mut part = vec![0.0; n];
+            blocks[k].adjoint_into(&y(k), &mut part);
+            part
+        })
+        .collect();
+    for part in parts {
+        for (o, p) in out.iter_mut().zip(part) {
+            *o += sign * p;
+        }
+    }
+}
+
 /// Σ_k A_kᵀ(S_k⁻¹ A_k(v) Z_k): the Schur operator applied block by block (no rounding of M).
 fn schur_apply(
     blocks: &[Block],
@@ -268,12 +291,11 @@ fn schur_apply(
     z: &[DMatrix<f64>],
     v: &DVector<f64>,
 ) -> DVector<f64> {
-    let mut out = vec![0.0; v.len()];
-    for ((b, si), zk) in blocks.iter().zip(sinv).zip(z) {
-        let y = si * b.apply(v.as_slice()) * zk;
-        b.adjoint_into(&y, &mut out);
-    }
-    DVector::from_vec(out)
+    let mut out = DVector::zeros(v.len());
+    adjoint_add(blocks, &mut out, 1.0, |k| {
+        Cow::Owned(&sinv[k] * blocks[k].apply(v.as_slice()) * &z[k])
+    });
+    out
 }
 
 /// The largest α ≥ 0 with X + α ΔX ⪰ 0 (∞ if ΔX does not decrease λ_min), given chol(X) = L Lᵀ.
@@ -615,19 +637,15 @@ pub(crate) fn solve(conic: &Conic, opts: &IpmOptions) -> IpmResult {
     for it in 0..opts.max_iter {
         iterations = it;
         // Residuals and objectives.
-        let ax: Vec<DMatrix<f64>> = blocks.iter().map(|b| b.apply(x.as_slice())).collect();
         let rp: Vec<DMatrix<f64>> = blocks
-            .iter()
-            .zip(&ax)
+            .par_iter()
             .zip(&s)
-            .map(|((b, ax), s)| &b.c - ax - s)
+            .map(|(b, s)| &b.c - b.apply(x.as_slice()) - s)
             .collect();
         let re = &b0 - &a0 * &x;
-        let mut aty = vec![0.0; n];
-        for (b, zk) in blocks.iter().zip(&z) {
-            b.adjoint_into(zk, &mut aty);
-        }
-        let aty = DVector::from_vec(aty) + a0.transpose() * &w;
+        let mut aty = DVector::zeros(n);
+        adjoint_add(&blocks, &mut aty, 1.0, |k| Cow::Borrowed(&z[k]));
+        let aty = aty + a0.transpose() * &w;
         let rd = -(&q + &aty);
         let pobj = q.dot(&x);
         let dobj = -(b0.dot(&w)
@@ -702,26 +720,24 @@ pub(crate) fn solve(conic: &Conic, opts: &IpmOptions) -> IpmResult {
         }
 
         // Factorizations: S_k = L Lᵀ, S_k⁻¹; Z_k = L Lᵀ (for step lengths).
-        let mut ls = Vec::with_capacity(blocks.len());
-        let mut lz = Vec::with_capacity(blocks.len());
-        let mut sinv = Vec::with_capacity(blocks.len());
-        let mut ok = true;
-        for (sk, zk) in s.iter().zip(&z) {
-            match (sk.clone().cholesky(), zk.clone().cholesky()) {
-                (Some(cs), Some(cz)) => {
-                    sinv.push(sym(&cs.inverse()));
-                    ls.push(cs.l());
-                    lz.push(cz.l());
-                }
-                _ => {
-                    ok = false;
-                    break;
-                }
-            }
-        }
-        if !ok {
+        let factors: Option<Vec<_>> = s
+            .par_iter()
+            .zip(&z)
+            .map(|(sk, zk)| {
+                let cs = sk.clone().cholesky()?;
+                let cz = zk.clone().cholesky()?;
+                Some((sym(&cs.inverse()), cs.l(), cz.l()))
+            })
+            .collect();
+        let Some(factors) = factors else {
             status = SolverStatus::NumericalError;
             break;
+        };
+        let (mut ls, mut lz, mut sinv) = (Vec::new(), Vec::new(), Vec::new());
+        for (si, l_s, l_z) in factors {
+            sinv.push(si);
+            ls.push(l_s);
+            lz.push(l_z);
         }
         schur_parts
             .par_iter_mut()
@@ -741,23 +757,26 @@ pub(crate) fn solve(conic: &Conic, opts: &IpmOptions) -> IpmResult {
             break;
         };
 
+        // S⁻¹ R_p Z, shared by predictor and corrector.
+        let sinv_rp_z: Vec<DMatrix<f64>> = (0..blocks.len())
+            .into_par_iter()
+            .map(|k| &sinv[k] * &rp[k] * &z[k])
+            .collect();
         // Right-hand side for a target μ and a second-order term (ΔS ΔZ of the predictor).
         let direction = |target: f64, corr: Option<&[DMatrix<f64>]>| {
+            // T_k = μ S⁻¹ − Z − S⁻¹ R_p Z − S⁻¹ Corr   (its adjoint moves to the right side)
+            let comp: Vec<DMatrix<f64>> = (0..blocks.len())
+                .into_par_iter()
+                .map(|k| {
+                    let mut t = &sinv[k] * target - &z[k] - &sinv_rp_z[k];
+                    if let Some(c) = corr {
+                        t -= &sinv[k] * &c[k];
+                    }
+                    t
+                })
+                .collect();
             let mut rhs = rd.clone();
-            let mut comp = Vec::with_capacity(blocks.len());
-            for k in 0..blocks.len() {
-                // T_k = μ S⁻¹ − Z − S⁻¹ R_p Z − S⁻¹ Corr   (its adjoint moves to the right side)
-                let mut t = &sinv[k] * target - &z[k] - &sinv[k] * &rp[k] * &z[k];
-                if let Some(c) = corr {
-                    t -= &sinv[k] * &c[k];
-                }
-                let mut adj = vec![0.0; n];
-                blocks[k].adjoint_into(&t, &mut adj);
-                for (r, a) in rhs.iter_mut().zip(adj) {
-                    *r -= a;
-                }
-                comp.push(t);
-            }
+            adjoint_add(&blocks, &mut rhs, -1.0, |k| Cow::Borrowed(&comp[k]));
             let (mut dx, mut dw) = newton.solve(&a0, &rhs, &re);
             // Iterative refinement against the operator itself (M is ill-conditioned near the
             // solution; its rounding would otherwise come back as dual infeasibility).
@@ -774,30 +793,26 @@ pub(crate) fn solve(conic: &Conic, opts: &IpmOptions) -> IpmResult {
                 dx += cx;
                 dw += cw;
             }
-            let mut ds = Vec::with_capacity(blocks.len());
-            let mut dz = Vec::with_capacity(blocks.len());
-            for k in 0..blocks.len() {
-                let adx = blocks[k].apply(dx.as_slice());
-                // ΔS = R_p − A(Δx);  ΔZ = sym(T + S⁻¹ A(Δx) Z)
-                let dsk = &rp[k] - &adx;
-                let dzk = sym(&(&comp[k] + &sinv[k] * &adx * &z[k]));
-                ds.push(sym(&dsk));
-                dz.push(dzk);
-            }
+            // ΔS = R_p − A(Δx);  ΔZ = sym(T + S⁻¹ A(Δx) Z)
+            let (ds, dz): (Vec<DMatrix<f64>>, Vec<DMatrix<f64>>) = (0..blocks.len())
+                .into_par_iter()
+                .map(|k| {
+                    let adx = blocks[k].apply(dx.as_slice());
+                    let dzk = sym(&(&comp[k] + &sinv[k] * &adx * &z[k]));
+                    (sym(&(&rp[k] - &adx)), dzk)
+                })
+                .unzip();
             (dx, dw, ds, dz)
         };
         let steps = |ds: &[DMatrix<f64>], dz: &[DMatrix<f64>]| {
-            let ap = ls
-                .iter()
-                .zip(ds)
-                .map(|(l, d)| max_step(l, d))
-                .fold(f64::INFINITY, f64::min);
-            let ad = lz
-                .iter()
-                .zip(dz)
-                .map(|(l, d)| max_step(l, d))
-                .fold(f64::INFINITY, f64::min);
-            (ap, ad)
+            let (ap, ad): (Vec<f64>, Vec<f64>) = (0..blocks.len())
+                .into_par_iter()
+                .map(|k| (max_step(&ls[k], &ds[k]), max_step(&lz[k], &dz[k])))
+                .unzip();
+            (
+                ap.into_iter().fold(f64::INFINITY, f64::min),
+                ad.into_iter().fold(f64::INFINITY, f64::min),
+            )
         };
         // Predictor (affine scaling).
         let (_, _, ds_a, dz_a) = direction(0.0, None);
