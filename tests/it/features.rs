@@ -274,9 +274,16 @@ flow { x' = -x + trace(inv([1, 1; 1, x])) }
         ]
     );
     // With Dopri5 the step size collapses first; the matrix is still named.
+    // The equation of the fastest-changing state is the secondary label.
     let (code, at, labels) = run(singular);
     assert_eq!((code, at.as_str()), ("E0601", "3:24"));
-    assert_eq!(labels, ["this matrix was singular during the run"]);
+    assert_eq!(
+        labels,
+        [
+            "this matrix was singular during the run",
+            "`x` changes fastest here at (t, j) = (0, 0)"
+        ]
+    );
 }
 
 #[test]
