@@ -8,9 +8,10 @@
 //!
 //! (indices swapped for transposed terms). So one iteration needs only the small matrices
 //! Φ_tu = R_tᵀ S⁻¹ L_u and Ψ_ut = R_uᵀ Z L_t, a few dense products of size d × n, instead of
-//! one sparse d×d product per scalar variable; the entries are then sums of a few products
-//! gathered from Φ and Ψ. This is the formula SDPT3 and SDPA use for low-rank data, applied to
-//! whole matrix variables.
+//! one sparse d×d product per scalar variable. For a fixed i, the entries over the scalars j of
+//! one column d of Y are a row of Φ times Ψ[d, a] (plus the mirrored term for a symmetric Y), so
+//! a column of the Schur matrix is filled by contiguous vector updates. This is the formula
+//! SDPT3 and SDPA use for low-rank data, applied to whole matrix variables.
 
 use std::ops::Range;
 
