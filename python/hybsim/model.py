@@ -1,0 +1,378 @@
+"""Loading `.hyb` models and their three verbs: :meth:`Model.run`,
+:meth:`Model.design`, :meth:`Model.test`."""
+
+from __future__ import annotations
+
+import os
+import shlex
+from dataclasses import dataclass
+from typing import Any, Dict, List, Mapping, Optional, Sequence, Tuple, Union
+
+import numpy as np
+
+from . import _hybsim
+from .solution import Solution
+
+ModelError = _hybsim.ModelError
+SimulationError = _hybsim.SimulationError
+
+PathOrSource = Union[str, "os.PathLike[str]"]
+
+
+def _expression(value: Any) -> str:
+    """A Python value as a `.hyb` expression: numbers in their shortest
+    round-trip form, 1-D sequences as column vectors ``[a; b]``, 2-D as
+    matrices ``[a, b; c, d]``; a str is taken as written (any expression,
+    e.g. ``"uniform(0, 2)"``)."""
+    if isinstance(value, str):
+        return value
+    if isinstance(value, (bool, np.bool_)):
+        return "1" if value else "0"
+    if isinstance(value, (int, np.integer)):
+        return str(int(value))
+    if isinstance(value, (float, np.floating)):
+        return repr(float(value))
+    arr = np.asarray(value, dtype=np.float64)
+    if arr.ndim == 0:
+        return repr(float(arr))
+    if arr.ndim == 1:
+        return "[" + "; ".join(repr(float(v)) for v in arr) + "]"
+    if arr.ndim == 2:
+        return "[" + "; ".join(", ".join(repr(float(v)) for v in row) for row in arr) + "]"
+    raise ValueError(f"a {arr.ndim}-D array is not a .hyb value (scalars, vectors, matrices)")
+
+
+def load(
+    model: PathOrSource,
+    set: Optional[Mapping[str, Any]] = None,  # noqa: A002 - mirrors `hybsim run --set`
+    *,
+    name: Optional[str] = None,
+) -> "Model":
+    """Parses, checks and compiles a `.hyb` model.
+
+    Parameters
+    ----------
+    model
+        A path (``str`` or ``os.PathLike``) to a `.hyb` file, or the model's
+        source text (a ``str`` with a line break).
+    set
+        Overrides, as ``hybsim run --set``: ``{"lambda": 0.7, "K": [[1, 2]],
+        "h": "uniform(0, 2)"}`` (numbers, nested sequences or numpy arrays,
+        or expressions as str).
+    name
+        The file name diagnostics show for a model given as text (default
+        ``"<string>"``).
+
+    Raises
+    ------
+    ModelError
+        If the model does not parse, check or compile: ``str(err)`` is the
+        rendered ``file:line:col`` report, ``err.diagnostics`` a list of
+        dicts (``code``, ``message``, ``file``, ``line``, ``col``, ...).
+    FileNotFoundError
+        If ``model`` names no file.
+    """
+    pairs = [(str(k), _expression(v)) for k, v in (set or {}).items()]
+    if isinstance(model, os.PathLike) or (isinstance(model, str) and "\n" not in model):
+        path = os.fspath(model)
+        with open(path, encoding="utf-8") as f:
+            text = f.read()
+        native = _hybsim.compile(path, text, pairs, path)
+    elif isinstance(model, str):
+        native = _hybsim.compile(name or "<string>", model, pairs, None)
+    else:
+        raise TypeError(f"load() needs a path or the model text, not {type(model).__name__}")
+    return Model(native)
+
+
+def run(
+    model: PathOrSource,
+    set: Optional[Mapping[str, Any]] = None,  # noqa: A002
+    **kwargs: Any,
+) -> Solution:
+    """``load(model, set).run(**kwargs)``: one call from a file to arrays."""
+    return load(model, set).run(**kwargs)
+
+
+@dataclass(frozen=True)
+class Counterexample:
+    """A failing case of a property test, shrunk.
+
+    ``property`` failed at hybrid time ``(t, j)`` with state ``state``
+    (for jumps: the pre-jump point); ``inputs`` are the shrunk sampled
+    values (``sampled`` as first drawn), ``seed`` the case's seed, and
+    ``replay`` the ``hybsim run`` command that reproduces it bit for bit.
+    """
+
+    property: str
+    statement: str
+    t: float
+    j: int
+    state: np.ndarray
+    state_names: List[str]
+    message: str
+    case: int
+    seed: int
+    inputs: Dict[str, float]
+    sampled: Dict[str, float]
+    horizon_T: Optional[float]
+    horizon_J: Optional[int]
+    shrink_runs: int
+    description: str
+    replay_args: List[str]
+
+    @property
+    def replay(self) -> str:
+        """The replay command as one shell line."""
+        return shlex.join(self.replay_args)
+
+    @property
+    def set(self) -> Dict[str, float]:
+        """The inputs as ``load(..., set=...)`` overrides."""
+        return dict(self.inputs)
+
+    def run_kwargs(self) -> Dict[str, Any]:
+        """Keywords for :meth:`Model.run` that replay the case on a model
+        loaded with ``set=cx.set``: ``seed`` and any shrunk horizon."""
+        kw: Dict[str, Any] = {"seed": self.seed}
+        if self.horizon_T is not None:
+            kw["T"] = self.horizon_T
+        if self.horizon_J is not None:
+            kw["J"] = self.horizon_J
+        return kw
+
+
+@dataclass(frozen=True)
+class TestReport:
+    """The result of :meth:`Model.test`.
+
+    ``outcome`` is ``"passed"``, ``"failed"`` (``counterexample`` set) or
+    ``"error"`` (a case could not run; ``error`` holds its message and
+    replay command). ``bool(report)`` is True iff every case passed;
+    ``str(report)`` is the text ``hybsim test`` prints.
+    """
+
+    __test__ = False  # not a pytest test class
+
+    model: str
+    outcome: str
+    passed: bool
+    cases: int
+    cases_run: int
+    inconclusive: int
+    seed: int
+    properties: List[str]
+    inputs: List[tuple]
+    counterexample: Optional[Counterexample]
+    error: Optional[Dict[str, Any]]
+
+    def __bool__(self) -> bool:
+        return self.passed
+
+    def __str__(self) -> str:
+        sampled = ", ".join(f"{n} ~ {d}" for n, d in self.inputs) or "no named input"
+        lines = [
+            f"testing {len(self.properties)} propert{'y' if len(self.properties) == 1 else 'ies'} "
+            f"of {self.model} on {self.cases} cases (master seed {self.seed}); sampled: {sampled}"
+        ]
+        if self.outcome == "passed":
+            lines += [f"  ok  {p}" for p in self.properties]
+        elif self.counterexample is not None:
+            cx = self.counterexample
+            lines.append(f"FAILED  {cx.statement}")
+            lines.append(cx.description.rstrip("\n"))
+            lines.append(f"replay: {cx.replay}")
+        elif self.error is not None:
+            lines.append(self.error["message"].rstrip("\n"))
+            lines.append(f"replay: {shlex.join(self.error['replay'])}")
+        lines.append(
+            f"{self.outcome if self.outcome != 'failed' else 'counterexample'}: "
+            f"{self.cases_run} cases, {self.inconclusive} inconclusive"
+        )
+        return "\n".join(lines)
+
+
+class Model:
+    """A compiled `.hyb` model (from :func:`load`).
+
+    Attributes: ``name``, ``file``, ``path``, ``source``, ``overrides``,
+    ``state_names``, ``output_names``, ``rule_names``, ``property_names``,
+    ``seed``, ``parameters`` (resolved, design results included).
+    """
+
+    def __init__(self, native: "_hybsim.Model"):
+        self._native = native
+
+    @property
+    def name(self) -> str:
+        """The model's name (``model NAME``)."""
+        return self._native.name
+
+    @property
+    def file(self) -> str:
+        """The file name (or label) diagnostics show."""
+        return self._native.file
+
+    @property
+    def path(self) -> Optional[str]:
+        """The path the model was read from, or None for source text."""
+        return self._native.path
+
+    @property
+    def source(self) -> str:
+        """The model's source text."""
+        return self._native.source
+
+    @property
+    def overrides(self) -> List[Tuple[str, str]]:
+        """The overrides applied, as ``(name, expression)`` pairs."""
+        return self._native.overrides
+
+    @property
+    def state_names(self) -> List[str]:
+        """One name per scalar state component (``h``, ``x[2]``, ``P[1,2]``)."""
+        return self._native.state_names
+
+    @property
+    def output_names(self) -> List[str]:
+        """One name per scalar output component."""
+        return self._native.output_names
+
+    @property
+    def rule_names(self) -> List[str]:
+        """The jump rules' names, in declaration order."""
+        return self._native.rule_names
+
+    @property
+    def property_names(self) -> List[str]:
+        """The declared properties' names, in order."""
+        return self._native.property_names
+
+    @property
+    def seed(self) -> int:
+        """The seed of ``sim { seed }`` (default 0)."""
+        return self._native.seed
+
+    @property
+    def parameters(self) -> Dict[str, Any]:
+        """Resolved parameters (overrides and design results applied): a float, a 1-D array (vectors) or a 2-D array (matrices) each; random parameters hold their distribution's centre (a run draws them from its seed)."""
+        return self._native.parameters
+
+    def __repr__(self) -> str:
+        return repr(self._native)
+
+    def run(
+        self,
+        T: Optional[float] = None,
+        J: Optional[int] = None,
+        seed: Optional[int] = None,
+        **sim: Any,
+    ) -> Solution:
+        """Simulates the model and returns the solution as numpy arrays.
+
+        ``T``, ``J``: horizons (default: the model's ``sim`` block);
+        ``seed``: the run's seed (default: the model's; random parameters
+        and initial values are drawn from it exactly as ``hybsim run --seed``
+        does). Further keywords override the ``sim`` block as ``hybsim run``'s
+        flags do: ``dt_out``, ``solver`` (``"dopri5"``, ``"dop853"``,
+        ``"rk4"``, ``"euler_maruyama"``), ``rtol``, ``atol``, ``step``,
+        ``max_step``, ``priority`` (``"jumps"``, ``"flows"``, ``"random"``),
+        ``event_tol``, ``guard_checks``, ``zeno_max_rate``, ``zeno_window``,
+        ``max_total_jumps``, ``exact_affine``.
+
+        The run releases the GIL; Ctrl-C stops it with KeyboardInterrupt.
+
+        Raises
+        ------
+        SimulationError
+            If the run fails (non-finite state, integrator failure): the
+            message points at (t, j) and the model line; ``err.partial`` is
+            the solution up to there.
+        ValueError, TypeError
+            For invalid or unknown settings.
+        """
+        if T is not None:
+            sim["T"] = T
+        if J is not None:
+            sim["J"] = J
+        try:
+            data = self._native.run(seed, sim)
+        except SimulationError as e:
+            partial = getattr(e, "partial", None)
+            if isinstance(partial, dict):
+                e.partial = Solution(partial)
+            raise
+        return Solution(data)
+
+    def design(self) -> Dict[str, Dict[str, Any]]:
+        """Solves the model's ``design`` and ``check`` blocks (as ``hybsim
+        design``; the GIL is released).
+
+        Returns ``{block: report}``; each report has the fields of ``hybsim
+        design --json`` (``name``, ``status``, ``objective``, solver figures,
+        ...) with ``results`` as numpy values (a float for scalars, 1-D arrays
+        for vectors, 2-D for matrices), plus ``summary`` (the one-line
+        report), ``check`` and ``check_failed`` (a ``check`` block without
+        solution).
+        """
+        return self._native.design()
+
+    def test(
+        self,
+        cases: int = 100,
+        seed: Optional[int] = None,
+        properties: Optional[Sequence[str]] = None,
+        max_shrink: int = 400,
+    ) -> TestReport:
+        """Property test (as ``hybsim test``): samples ``cases`` cases of the
+        model's random inputs from master seed ``seed`` (default: the
+        model's), checks the ``property`` declarations named in
+        ``properties`` (default: all) on each, in parallel with the GIL
+        released, and shrinks the first failure (at most ``max_shrink``
+        runs).
+
+        Returns a :class:`TestReport`; ``report.counterexample`` has the
+        failing time, state, shrunk inputs and the replay command.
+        Raises ValueError if the model declares no property or a name is
+        unknown.
+        """
+        if isinstance(properties, str):
+            properties = [properties]
+        d = self._native.test(
+            cases, seed, list(properties) if properties is not None else None, max_shrink
+        )
+        cx = d["counterexample"]
+        counterexample = None
+        if cx is not None:
+            counterexample = Counterexample(
+                property=cx["property"],
+                statement=cx.get("statement", cx["property"]),
+                t=cx["t"],
+                j=cx["j"],
+                state=cx["state"],
+                state_names=list(cx["state_names"]),
+                message=cx["message"],
+                case=cx["case"],
+                seed=cx["seed"],
+                inputs=dict(cx["inputs"]),
+                sampled=dict(cx["sampled"]),
+                horizon_T=cx["horizon_T"],
+                horizon_J=cx["horizon_J"],
+                shrink_runs=cx["shrink_runs"],
+                description=cx["description"],
+                replay_args=list(cx["replay"]),
+            )
+        return TestReport(
+            model=d["model"],
+            outcome=d["outcome"],
+            passed=d["passed"],
+            cases=d["cases"],
+            cases_run=d["cases_run"],
+            inconclusive=d["inconclusive"],
+            seed=d["seed"],
+            properties=list(d["properties"]),
+            inputs=[tuple(i) for i in d["inputs"]],
+            counterexample=counterexample,
+            error=d["error"],
+        )
+

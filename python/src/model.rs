@@ -1,0 +1,489 @@
+//! `hybsim._hybsim.Model`: a compiled `.hyb` model and its three verbs,
+//! run, design and test, each with the GIL released.
+
+use hybsim::arc::Termination;
+use hybsim::diagnostics::Diagnostic;
+use hybsim::engine::{HybridSystem, SimError, simulate};
+use hybsim::lang::{self, CompiledModel, Override};
+use hybsim::props::{
+    ModelRunError, ModelSubject, Outcome, Property, TestConfig, replay_args, run_tests,
+};
+use hybsim::source::SourceFile;
+use numpy::PyArray1;
+use pyo3::exceptions::PyValueError;
+use pyo3::prelude::*;
+use pyo3::types::PyDict;
+
+use crate::convert::{columns, diagnostics_error, json, matrix};
+use crate::record::Recorder;
+use crate::{ModelError, SimulationError, settings};
+
+/// A compiled `.hyb` model (see `hybsim.load`).
+#[pyclass(frozen, module = "hybsim._hybsim")]
+pub struct Model {
+    source: SourceFile,
+    overrides: Vec<Override>,
+    model: CompiledModel,
+    /// The file it was read from, for replay commands.
+    path: Option<String>,
+}
+
+/// Parses, checks and compiles the model `text` named `name` (its file
+/// path, or a label) with the overrides `set` (pairs `(name, value)`, the
+/// value a `.hyb` expression). `path` is the file it came from, if any.
+/// Raises `ModelError` with every diagnostic.
+#[pyfunction]
+#[pyo3(signature = (name, text, set, path=None))]
+pub fn compile(
+    py: Python<'_>,
+    name: String,
+    text: String,
+    set: Vec<(String, String)>,
+    path: Option<String>,
+) -> PyResult<Model> {
+    let source = SourceFile::new(name, text);
+    let mut overrides = Vec::new();
+    let mut problems: Vec<Diagnostic> = Vec::new();
+    for (k, v) in &set {
+        match format!("{k}={v}").parse::<Override>() {
+            Ok(o) => overrides.push(o),
+            Err(d) => problems.push(d),
+        }
+    }
+    if !problems.is_empty() {
+        return Err(diagnostics_error::<ModelError>(py, &problems, &source));
+    }
+    let model = py
+        .detach(|| lang::compile(&source, &overrides))
+        .map_err(|diags| diagnostics_error::<ModelError>(py, &diags, &source))?;
+    Ok(Model {
+        source,
+        overrides,
+        model,
+        path,
+    })
+}
+
+impl Model {
+    /// The model a run with seed `seed` simulates, compiled anew when it
+    /// has random parameters (drawn from the seed, as `hybsim run` does),
+    /// and the seed.
+    fn for_run(&self, py: Python<'_>, seed: Option<u64>) -> PyResult<(Option<CompiledModel>, u64)> {
+        if self.model.random_params().is_empty() {
+            return Ok((None, seed.unwrap_or(self.model.seed())));
+        }
+        let (m, seed) = py
+            .detach(|| lang::compile_run(&self.source, &self.overrides, seed))
+            .map_err(|diags| diagnostics_error::<ModelError>(py, &diags, &self.source))?;
+        Ok((Some(m), seed))
+    }
+}
+
+/// A termination as a dict: `cause` (`horizon_t`, `horizon_j`,
+/// `zeno_suspected`, `cannot_flow_or_jump`, `stopped_by_sink`) and its
+/// fields, `t`, `j`, `message` and `help`.
+fn termination<'py>(py: Python<'py>, term: &Termination) -> PyResult<Bound<'py, PyAny>> {
+    let mut value =
+        serde_json::to_value(&term.cause).map_err(|e| PyValueError::new_err(e.to_string()))?;
+    if let Some(map) = value.as_object_mut() {
+        map.insert("t".into(), serde_json::json!(term.at.t));
+        map.insert("j".into(), serde_json::json!(term.at.j));
+        map.insert("message".into(), serde_json::json!(term.to_string()));
+        map.insert("help".into(), serde_json::json!(term.help()));
+    }
+    json(py, &value)
+}
+
+/// The recorded columns as the dict `hybsim.Solution` is built from.
+fn solution_dict<'py>(
+    py: Python<'py>,
+    model: &CompiledModel,
+    seed: u64,
+    rec: Recorder,
+    y: Vec<f64>,
+) -> PyResult<Bound<'py, PyDict>> {
+    let n = rec.len();
+    let dim = rec.dim;
+    let out = PyDict::new(py);
+    out.set_item("model", model.name())?;
+    out.set_item("seed", seed)?;
+    out.set_item("t", PyArray1::from_vec(py, rec.t))?;
+    out.set_item("j", PyArray1::from_vec(py, rec.j))?;
+    out.set_item("kind", PyArray1::from_vec(py, rec.kind))?;
+    out.set_item("x", columns(py, rec.x, n, dim)?)?;
+    out.set_item("y", columns(py, y, n, model.output_dim())?)?;
+    out.set_item("names", model.state_names())?;
+    out.set_item("output_names", model.output_names())?;
+    out.set_item("rule_names", model.rule_names())?;
+    let k = rec.jump_t.len();
+    let jumps = PyDict::new(py);
+    jumps.set_item("rule", PyArray1::from_vec(py, rec.jump_rule))?;
+    jumps.set_item("t", PyArray1::from_vec(py, rec.jump_t))?;
+    jumps.set_item("j", PyArray1::from_vec(py, rec.jump_j))?;
+    jumps.set_item("pre", columns(py, rec.jump_pre, k, dim)?)?;
+    jumps.set_item("post", columns(py, rec.jump_post, k, dim)?)?;
+    out.set_item("jumps", jumps)?;
+    match &rec.termination {
+        Some(term) => out.set_item("termination", termination(py, term)?)?,
+        None => out.set_item("termination", py.None())?,
+    }
+    out.set_item("parameters", json(py, &model.parameters_json())?)?;
+    Ok(out)
+}
+
+/// The `hybsim run` command that replays a counterexample case (as
+/// `hybsim test` prints it), as a list of arguments.
+fn replay_command(path: &str, subject: &ModelSubject, case: &hybsim::props::Case) -> Vec<String> {
+    let inputs = hybsim::props::Subject::inputs(subject);
+    let mut cmd = vec!["hybsim".to_string(), "run".to_string(), path.to_string()];
+    for o in subject.overrides() {
+        if !inputs.iter().any(|i| i.name == o.name) {
+            cmd.push("--set".into());
+            cmd.push(format!("{}={}", o.name, o.value));
+        }
+    }
+    cmd.extend(replay_args(case, inputs));
+    cmd.extend(["-o".to_string(), "replay.mcap".to_string()]);
+    cmd
+}
+
+#[pymethods]
+impl Model {
+    /// The model's name (`model NAME`).
+    #[getter]
+    fn name(&self) -> &str {
+        self.model.name()
+    }
+
+    /// The file name or label of the source.
+    #[getter]
+    fn file(&self) -> &str {
+        self.source.name()
+    }
+
+    /// The path the model was read from, or None.
+    #[getter]
+    fn path(&self) -> Option<&str> {
+        self.path.as_deref()
+    }
+
+    /// The model's source text.
+    #[getter]
+    fn source(&self) -> &str {
+        self.source.text()
+    }
+
+    /// The overrides applied, as `(name, value)` pairs.
+    #[getter]
+    fn overrides(&self) -> Vec<(String, String)> {
+        self.overrides
+            .iter()
+            .map(|o| (o.name.clone(), o.value.clone()))
+            .collect()
+    }
+
+    /// One name per scalar state component (`h`, `x[2]`, `P[1,2]`).
+    #[getter]
+    fn state_names(&self) -> Vec<String> {
+        self.model.state_names()
+    }
+
+    /// One name per scalar output component.
+    #[getter]
+    fn output_names(&self) -> Vec<String> {
+        self.model.output_names()
+    }
+
+    /// Names of the jump rules, in declaration order.
+    #[getter]
+    fn rule_names(&self) -> Vec<String> {
+        self.model.rule_names()
+    }
+
+    /// Names of the declared properties, in order.
+    #[getter]
+    fn property_names(&self) -> Vec<String> {
+        self.model
+            .properties()
+            .iter()
+            .map(|p| p.name().to_string())
+            .collect()
+    }
+
+    /// The seed of `sim { seed }` (default 0).
+    #[getter]
+    fn seed(&self) -> u64 {
+        self.model.seed()
+    }
+
+    /// Resolved parameters (after overrides and design blocks): name ->
+    /// float, 1-D array (vectors) or 2-D array (matrices).
+    #[getter]
+    fn parameters<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let out = PyDict::new(py);
+        for (name, _) in self
+            .model
+            .parameters_json()
+            .as_object()
+            .into_iter()
+            .flatten()
+        {
+            if let Some(m) = self.model.parameter(name) {
+                // nalgebra is column-major: transpose to get row-major values.
+                let values: Vec<f64> = m.transpose().iter().copied().collect();
+                out.set_item(name, matrix(py, (m.nrows(), m.ncols()), &values)?)?;
+            }
+        }
+        Ok(out)
+    }
+
+    /// Simulates the model (the GIL is released; Ctrl-C stops it with
+    /// KeyboardInterrupt). `seed`: the run's seed (default: the model's);
+    /// `sim`: settings over the model's `sim` block. Returns the columns
+    /// `hybsim.Solution` wraps.
+    #[pyo3(signature = (seed=None, sim=None))]
+    fn run<'py>(
+        &self,
+        py: Python<'py>,
+        seed: Option<u64>,
+        sim: Option<&Bound<'py, PyDict>>,
+    ) -> PyResult<Bound<'py, PyDict>> {
+        let (fresh, seed) = self.for_run(py, seed)?;
+        let model = fresh.as_ref().unwrap_or(&self.model);
+        let settings = settings::apply(model.settings(), &sim.cloned().unwrap_or(PyDict::new(py)))?;
+        let (result, mut rec, y, diagnostic) = py.detach(|| {
+            let (x0, mut rng) = model.start(seed);
+            let mut rec = Recorder::new(model.state_dim());
+            let result = simulate(model, &x0, &settings, &mut rng, &mut rec);
+            // The diagnostic reads where the fault happened: on this thread, now.
+            let diagnostic = result
+                .as_ref()
+                .err()
+                .map(|e: &SimError| model.runtime_diagnostic(e));
+            let m = model.output_dim();
+            let mut y = vec![0.0; rec.len() * m];
+            if m > 0 {
+                for (i, out) in y.chunks_exact_mut(m).enumerate() {
+                    let x = &rec.x[i * rec.dim..(i + 1) * rec.dim];
+                    model.outputs(rec.t[i], x, out);
+                }
+            }
+            (result, rec, y, diagnostic)
+        });
+        if let Some(e) = rec.interrupt.raised.take() {
+            return Err(e);
+        }
+        let solution = solution_dict(py, model, seed, rec, y)?;
+        match (result, diagnostic) {
+            (Err(_), Some(d)) => {
+                let err = diagnostics_error::<SimulationError>(py, &[d], &self.source);
+                err.value(py).setattr("partial", solution)?;
+                Err(err)
+            }
+            _ => Ok(solution),
+        }
+    }
+
+    /// Solves the `design` and `check` blocks (as `hybsim design`, GIL
+    /// released): `{block: {"name", "status", …, "results": {name: value},
+    /// "summary", "check", "check_failed"}}`, values as numpy (a float for
+    /// scalars), the other fields as `hybsim design --json` prints them.
+    fn design<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let reports = py
+            .detach(|| lang::design_only(&self.source, &self.overrides))
+            .map_err(|diags| diagnostics_error::<ModelError>(py, &diags, &self.source))?;
+        let out = PyDict::new(py);
+        for r in &reports {
+            let block = json(py, &r.to_json())?.cast_into::<PyDict>()?;
+            let results = PyDict::new(py);
+            for (name, dims, values) in &r.results {
+                results.set_item(name, matrix(py, *dims, values)?)?;
+            }
+            block.set_item("results", results)?;
+            block.set_item("summary", r.summary_line())?;
+            block.set_item("check", r.check)?;
+            block.set_item("check_failed", r.check_failed())?;
+            out.set_item(&r.name, block)?;
+        }
+        Ok(out)
+    }
+
+    /// Property test (as `hybsim test`, GIL released): `cases` sampled
+    /// cases from master seed `seed` (default: the model's), checking the
+    /// named `properties` (default: all); the first failure is shrunk in
+    /// at most `max_shrink` runs. Returns the report as a dict.
+    #[pyo3(signature = (cases=100, seed=None, properties=None, max_shrink=400))]
+    fn test<'py>(
+        &self,
+        py: Python<'py>,
+        cases: usize,
+        seed: Option<u64>,
+        properties: Option<Vec<String>>,
+        max_shrink: usize,
+    ) -> PyResult<Bound<'py, PyDict>> {
+        let subject = py
+            .detach(|| ModelSubject::new(self.source.clone(), self.overrides.clone()))
+            .map_err(|diags| diagnostics_error::<ModelError>(py, &diags, &self.source))?;
+        let model = subject.model();
+        let all = model.properties();
+        if all.is_empty() {
+            return Err(PyValueError::new_err(format!(
+                "model `{}` declares no property; add e.g. `property ground: always h >= -1e-9`",
+                model.name()
+            )));
+        }
+        let mut props: Vec<Property> = Vec::new();
+        for name in properties.unwrap_or_default() {
+            match all.iter().find(|p| p.name() == name) {
+                Some(p) => props.push(p.clone()),
+                None => {
+                    let names: Vec<&str> = all.iter().map(|p| p.name()).collect();
+                    return Err(PyValueError::new_err(format!(
+                        "no property `{name}` in model `{}`; it declares: {}",
+                        model.name(),
+                        names.join(", ")
+                    )));
+                }
+            }
+        }
+        if props.is_empty() {
+            props = all;
+        }
+        let config = TestConfig::default()
+            .cases(cases)
+            .seed(seed.unwrap_or(model.seed()))
+            .max_shrink_runs(max_shrink);
+        let report = py.detach(|| run_tests(&subject, &props, &config));
+        let inputs = hybsim::props::Subject::inputs(&subject);
+        let state_names = hybsim::props::Subject::state_names(&subject);
+
+        let out = PyDict::new(py);
+        out.set_item("model", model.name())?;
+        out.set_item("passed", report.passed())?;
+        out.set_item("cases", cases)?;
+        out.set_item("cases_run", report.cases_run)?;
+        out.set_item("inconclusive", report.inconclusive)?;
+        out.set_item("seed", config.seed)?;
+        out.set_item(
+            "properties",
+            props.iter().map(|p| p.to_string()).collect::<Vec<_>>(),
+        )?;
+        out.set_item(
+            "inputs",
+            inputs
+                .iter()
+                .map(|i| (i.name.clone(), i.dist.to_string()))
+                .collect::<Vec<_>>(),
+        )?;
+        out.set_item("counterexample", py.None())?;
+        out.set_item("error", py.None())?;
+        let path = self.path.as_deref().unwrap_or(self.source.name());
+        match &report.outcome {
+            Outcome::Passed => out.set_item("outcome", "passed")?,
+            Outcome::Failed(cx) => {
+                out.set_item("outcome", "failed")?;
+                let v = &cx.violation;
+                let c = PyDict::new(py);
+                c.set_item("property", &v.property)?;
+                if let Some(p) = props.iter().find(|p| p.name() == v.property) {
+                    c.set_item("statement", p.to_string())?;
+                }
+                c.set_item("t", v.at.t)?;
+                c.set_item("j", v.at.j)?;
+                c.set_item("state", PyArray1::from_slice(py, &v.state))?;
+                c.set_item("state_names", state_names.clone())?;
+                c.set_item("message", v.to_string())?;
+                c.set_item("case", cx.index)?;
+                c.set_item("seed", cx.case.seed)?;
+                let named = |values: &[f64]| -> PyResult<Bound<'py, PyDict>> {
+                    let d = PyDict::new(py);
+                    for (i, x) in inputs.iter().zip(values) {
+                        d.set_item(&i.name, *x)?;
+                    }
+                    Ok(d)
+                };
+                c.set_item("inputs", named(&cx.case.values)?)?;
+                c.set_item("sampled", named(&cx.original.values)?)?;
+                c.set_item("horizon_T", cx.case.horizon_t)?;
+                c.set_item("horizon_J", cx.case.horizon_j)?;
+                c.set_item("shrink_runs", cx.shrink_runs)?;
+                c.set_item("description", cx.describe(inputs, &state_names))?;
+                c.set_item("replay", replay_command(path, &subject, &cx.case))?;
+                out.set_item("counterexample", c)?;
+            }
+            Outcome::Error { index, case, error } => {
+                out.set_item("outcome", "error")?;
+                let diags = match error {
+                    ModelRunError::Compile(diags) => diags.clone(),
+                    ModelRunError::Sim(e) => vec![model.runtime_diagnostic(e)],
+                };
+                let e = PyDict::new(py);
+                e.set_item("case", *index)?;
+                e.set_item("seed", case.seed)?;
+                e.set_item(
+                    "inputs",
+                    inputs
+                        .iter()
+                        .zip(&case.values)
+                        .map(|(i, v)| (i.name.clone(), *v))
+                        .collect::<Vec<_>>(),
+                )?;
+                e.set_item(
+                    "message",
+                    hybsim::diagnostics::render(&diags, &self.source, false),
+                )?;
+                e.set_item("replay", replay_command(path, &subject, case))?;
+                out.set_item("error", e)?;
+            }
+        }
+        Ok(out)
+    }
+
+    /// Benchmark reference: the fastest of `repeats` runs of the Rust
+    /// `engine::simulate_arc` call on this model (seconds), with the
+    /// settings `Model.run(seed, **sim)` would use. Not part of the API.
+    #[pyo3(signature = (seed=None, sim=None, repeats=20))]
+    fn _simulate_arc_seconds(
+        &self,
+        py: Python<'_>,
+        seed: Option<u64>,
+        sim: Option<&Bound<'_, PyDict>>,
+        repeats: usize,
+    ) -> PyResult<f64> {
+        let (fresh, seed) = self.for_run(py, seed)?;
+        let model = fresh.as_ref().unwrap_or(&self.model);
+        let settings = settings::apply(model.settings(), &sim.cloned().unwrap_or(PyDict::new(py)))?;
+        py.detach(|| {
+            let mut best = f64::INFINITY;
+            for _ in 0..repeats.max(1) {
+                let start = std::time::Instant::now();
+                let (x0, mut rng) = model.start(seed);
+                let arc = hybsim::engine::simulate_arc(model, &x0, &settings, &mut rng);
+                std::hint::black_box(&arc);
+                best = best.min(start.elapsed().as_secs_f64());
+            }
+            Ok(best)
+        })
+    }
+
+    fn __repr__(&self) -> String {
+        let set: Vec<String> = self
+            .overrides
+            .iter()
+            .map(|o| format!("{}={}", o.name, o.value))
+            .collect();
+        format!(
+            "<hybsim.Model {} from {}{}; {} states, {} rules, seed {}>",
+            self.model.name(),
+            self.source.name(),
+            if set.is_empty() {
+                String::new()
+            } else {
+                format!(" with {}", set.join(", "))
+            },
+            self.model.state_dim(),
+            self.model.rule_names().len(),
+            self.model.seed()
+        )
+    }
+}

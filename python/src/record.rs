@@ -1,0 +1,130 @@
+//! The sink a Python run writes into: flat column buffers that become numpy
+//! arrays without a copy, and the Ctrl-C check.
+
+use std::ops::ControlFlow;
+use std::time::{Duration, Instant};
+
+use hybsim::arc::{ArcSink, HybridTime, SampleKind, Termination};
+use pyo3::prelude::*;
+
+/// Names of the sample kinds, indexed by the codes of [`kind_code`] (the
+/// CSV sink's words).
+pub const SAMPLE_KINDS: [&str; 5] = ["initial", "flow", "pre_jump", "post_jump", "final"];
+
+/// The code of a sample kind (index into [`SAMPLE_KINDS`]).
+pub fn kind_code(kind: SampleKind) -> u8 {
+    match kind {
+        SampleKind::Initial => 0,
+        SampleKind::Flow => 1,
+        SampleKind::PreJump => 2,
+        SampleKind::PostJump => 3,
+        SampleKind::Final => 4,
+    }
+}
+
+/// How often a detached run looks for a pending Ctrl-C: every this many
+/// samples it reads the clock, and at most every [`POLL_EVERY`] it takes the
+/// GIL to run Python's signal handlers.
+const POLL_SAMPLES: u32 = 256;
+const POLL_EVERY: Duration = Duration::from_millis(50);
+
+/// Polls Python's signal handlers from a thread that released the GIL.
+pub struct Interrupt {
+    countdown: u32,
+    last: Instant,
+    /// The exception a handler raised (KeyboardInterrupt), if any.
+    pub raised: Option<PyErr>,
+}
+
+impl Interrupt {
+    pub fn new() -> Self {
+        Self {
+            countdown: POLL_SAMPLES,
+            last: Instant::now(),
+            raised: None,
+        }
+    }
+
+    /// `Break` once a signal handler raised.
+    pub fn poll(&mut self) -> ControlFlow<()> {
+        self.countdown -= 1;
+        if self.countdown > 0 {
+            return ControlFlow::Continue(());
+        }
+        self.countdown = POLL_SAMPLES;
+        if self.last.elapsed() < POLL_EVERY {
+            return ControlFlow::Continue(());
+        }
+        self.last = Instant::now();
+        match Python::attach(|py| py.check_signals()) {
+            Ok(()) => ControlFlow::Continue(()),
+            Err(e) => {
+                self.raised = Some(e);
+                ControlFlow::Break(())
+            }
+        }
+    }
+}
+
+/// A solution as columns: what `Model.run` turns into numpy arrays.
+pub struct Recorder {
+    pub dim: usize,
+    pub t: Vec<f64>,
+    pub j: Vec<u64>,
+    pub kind: Vec<u8>,
+    pub x: Vec<f64>,
+    pub jump_rule: Vec<u64>,
+    pub jump_t: Vec<f64>,
+    pub jump_j: Vec<u64>,
+    pub jump_pre: Vec<f64>,
+    pub jump_post: Vec<f64>,
+    pub termination: Option<Termination>,
+    pub interrupt: Interrupt,
+}
+
+impl Recorder {
+    pub fn new(dim: usize) -> Self {
+        Self {
+            dim,
+            t: Vec::new(),
+            j: Vec::new(),
+            kind: Vec::new(),
+            x: Vec::new(),
+            jump_rule: Vec::new(),
+            jump_t: Vec::new(),
+            jump_j: Vec::new(),
+            jump_pre: Vec::new(),
+            jump_post: Vec::new(),
+            termination: None,
+            interrupt: Interrupt::new(),
+        }
+    }
+
+    /// Number of samples.
+    pub fn len(&self) -> usize {
+        self.t.len()
+    }
+}
+
+impl ArcSink for Recorder {
+    fn sample(&mut self, at: HybridTime, x: &[f64], kind: SampleKind) -> ControlFlow<()> {
+        self.t.push(at.t);
+        self.j.push(at.j);
+        self.kind.push(kind_code(kind));
+        self.x.extend_from_slice(x);
+        self.interrupt.poll()
+    }
+
+    fn jump(&mut self, at: HybridTime, rule: usize, pre: &[f64], post: &[f64]) -> ControlFlow<()> {
+        self.jump_rule.push(rule as u64);
+        self.jump_t.push(at.t);
+        self.jump_j.push(at.j);
+        self.jump_pre.extend_from_slice(pre);
+        self.jump_post.extend_from_slice(post);
+        ControlFlow::Continue(())
+    }
+
+    fn finish(&mut self, termination: &Termination) {
+        self.termination = Some(termination.clone());
+    }
+}

@@ -1,0 +1,156 @@
+//! `Model.run(**sim)`: simulation settings from Python keywords, over the
+//! model's `sim` block (the keywords of `hybsim run`'s flags).
+
+use hybsim::engine::{Priority, SimSettings, Solver};
+use pyo3::exceptions::{PyTypeError, PyValueError};
+use pyo3::prelude::*;
+use pyo3::types::PyDict;
+
+/// The keywords `Model.run` accepts besides `T`, `J` and `seed`.
+pub const KEYS: [&str; 15] = [
+    "T",
+    "J",
+    "dt_out",
+    "solver",
+    "rtol",
+    "atol",
+    "step",
+    "max_step",
+    "priority",
+    "event_tol",
+    "guard_checks",
+    "zeno_max_rate",
+    "zeno_window",
+    "max_total_jumps",
+    "exact_affine",
+];
+
+fn get<'py, T: FromPyObjectOwned<'py>>(sim: &Bound<'py, PyDict>, key: &str) -> PyResult<Option<T>> {
+    match sim.get_item(key)? {
+        None => Ok(None),
+        Some(v) if v.is_none() => Ok(None),
+        Some(v) => v.extract::<T>().map(Some).map_err(|e| {
+            let e: PyErr = e.into();
+            PyTypeError::new_err(format!("`{key}`: {}", e.value(sim.py())))
+        }),
+    }
+}
+
+/// `settings` with the keywords of `sim` applied, validated.
+pub fn apply(mut settings: SimSettings, sim: &Bound<'_, PyDict>) -> PyResult<SimSettings> {
+    for key in sim.keys() {
+        let key: String = key.extract()?;
+        if !KEYS.contains(&key.as_str()) {
+            return Err(PyTypeError::new_err(format!(
+                "run() got an unexpected keyword `{key}`; the simulation keywords are: {}",
+                KEYS.join(", ")
+            )));
+        }
+    }
+    if let Some(t) = get::<f64>(sim, "T")? {
+        settings = settings.horizon_t(t);
+    }
+    if let Some(j) = get::<u64>(sim, "J")? {
+        settings = settings.horizon_j(j);
+    }
+    if let Some(dt) = get::<f64>(sim, "dt_out")? {
+        settings = settings.dt_out(Some(dt));
+    }
+    if let Some(h) = get::<f64>(sim, "max_step")? {
+        settings = settings.max_step(h);
+    }
+    if let Some(tol) = get::<f64>(sim, "event_tol")? {
+        settings = settings.event_tol(tol);
+    }
+    if let Some(n) = get::<u32>(sim, "guard_checks")? {
+        settings = settings.guard_checks(n);
+    }
+    if let Some(r) = get::<f64>(sim, "zeno_max_rate")? {
+        settings = settings.zeno_max_rate(r);
+    }
+    if let Some(w) = get::<u32>(sim, "zeno_window")? {
+        settings = settings.zeno_window(w);
+    }
+    if let Some(n) = get::<u64>(sim, "max_total_jumps")? {
+        settings = settings.max_total_jumps(n);
+    }
+    if let Some(b) = get::<bool>(sim, "exact_affine")? {
+        settings = settings.exact_affine(b);
+    }
+    if let Some(p) = get::<String>(sim, "priority")? {
+        settings = settings.priority(match p.as_str() {
+            "jumps" => Priority::Jumps,
+            "flows" => Priority::Flows,
+            "random" => Priority::Random,
+            other => {
+                return Err(PyValueError::new_err(format!(
+                    "priority `{other}`: use \"jumps\", \"flows\" or \"random\""
+                )));
+            }
+        });
+    }
+    let solver = solver(
+        settings.solver,
+        get::<String>(sim, "solver")?,
+        get::<f64>(sim, "rtol")?,
+        get::<f64>(sim, "atol")?,
+        get::<f64>(sim, "step")?,
+    )?;
+    let settings = settings.solver(solver);
+    settings
+        .validate()
+        .map_err(|e| PyValueError::new_err(format!("{e}; {}", e.help())))?;
+    Ok(settings)
+}
+
+/// The solver after the keywords: a name keeps the model's tolerances or
+/// step where they apply; tolerances go with the adaptive solvers, `step`
+/// with the fixed-step ones.
+fn solver(
+    current: Solver,
+    name: Option<String>,
+    rtol: Option<f64>,
+    atol: Option<f64>,
+    step: Option<f64>,
+) -> PyResult<Solver> {
+    let (rtol0, atol0, h0) = match current {
+        Solver::Dopri5 { rtol, atol } | Solver::Dop853 { rtol, atol } => (rtol, atol, None),
+        Solver::Rk4 { h } | Solver::EulerMaruyama { h } => (1e-6, 1e-9, Some(h)),
+    };
+    let name = name.unwrap_or_else(|| {
+        match current {
+            Solver::Dopri5 { .. } => "dopri5",
+            Solver::Dop853 { .. } => "dop853",
+            Solver::Rk4 { .. } => "rk4",
+            Solver::EulerMaruyama { .. } => "euler_maruyama",
+        }
+        .to_string()
+    });
+    let adaptive = |make: fn(f64, f64) -> Solver| {
+        if step.is_some() {
+            return Err(PyValueError::new_err(
+                "`step` applies to the fixed-step solvers; use solver=\"rk4\" or `max_step`",
+            ));
+        }
+        Ok(make(rtol.unwrap_or(rtol0), atol.unwrap_or(atol0)))
+    };
+    let fixed = |make: fn(f64) -> Solver| {
+        if rtol.is_some() || atol.is_some() {
+            return Err(PyValueError::new_err(
+                "`rtol`/`atol` apply to the adaptive solvers \"dopri5\" and \"dop853\"",
+            ));
+        }
+        step.or(h0)
+            .map(make)
+            .ok_or_else(|| PyValueError::new_err("a fixed-step solver needs its step: add step=H"))
+    };
+    match name.replace('-', "_").as_str() {
+        "dopri5" => adaptive(|rtol, atol| Solver::Dopri5 { rtol, atol }),
+        "dop853" => adaptive(|rtol, atol| Solver::Dop853 { rtol, atol }),
+        "rk4" => fixed(|h| Solver::Rk4 { h }),
+        "euler_maruyama" => fixed(|h| Solver::EulerMaruyama { h }),
+        other => Err(PyValueError::new_err(format!(
+            "solver `{other}`: use \"dopri5\", \"dop853\", \"rk4\" or \"euler_maruyama\""
+        ))),
+    }
+}

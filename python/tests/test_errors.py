@@ -1,0 +1,91 @@
+"""Bad models and bad settings raise located, typed errors."""
+
+import re
+
+import pytest
+
+import hybsim
+
+GOOD = """model ball
+param g = 9.81
+state h = 1, v = 0
+flow { h' = v; v' = -g } in h >= 0
+jump impact when h <= 0 && v <= 0 { v+ = -0.8 * v }
+sim { T = 2 }
+"""
+
+
+def test_unknown_name_is_a_model_error_with_file_line_col(tmp_path):
+    path = tmp_path / "bad.hyb"
+    path.write_text(GOOD.replace("v' = -g", "v' = -gg"))
+    with pytest.raises(hybsim.ModelError) as info:
+        hybsim.load(path)
+    err = info.value
+    text = str(err)
+    # The rendered report: error[code], `┌─ file:line:col`, the line, a caret.
+    assert re.search(r"error\[E\d+\]", text), text
+    assert f"{path}:4:" in text, text
+    assert "v' = -gg" in text and "^" in text, text
+    d = err.diagnostics[0]
+    assert d["file"] == str(path)
+    assert d["line"] == 4
+    assert d["col"] == GOOD.splitlines()[3].index("-g") + 2  # 1-based, at `gg`
+    assert d["severity"] == "error" and d["code"].startswith("E")
+    assert "gg" in d["message"]
+
+
+def test_syntax_error_in_source_text_names_the_string():
+    with pytest.raises(hybsim.ModelError) as info:
+        hybsim.load(GOOD.replace("flow {", "flow {{"), name="inline.hyb")
+    assert "inline.hyb:4:" in str(info.value)
+    assert info.value.diagnostics[0]["line"] == 4
+
+
+def test_every_error_is_reported_at_once():
+    src = GOOD.replace("v' = -g", "v' = -gg").replace("-0.8 * v", "-0.8 * w")
+    with pytest.raises(hybsim.ModelError) as info:
+        hybsim.load(src)
+    lines = sorted(d["line"] for d in info.value.diagnostics)
+    assert lines == [4, 5]
+
+
+def test_bad_override_is_a_model_error():
+    with pytest.raises(hybsim.ModelError, match="override"):
+        hybsim.load(GOOD, set={"g": "1 +"})
+    with pytest.raises(hybsim.ModelError):
+        hybsim.load(GOOD, set={"nope": 1.0})
+
+
+def test_missing_file():
+    with pytest.raises(FileNotFoundError):
+        hybsim.load("no/such/model.hyb")
+
+
+def test_bad_settings():
+    m = hybsim.load(GOOD)
+    with pytest.raises(TypeError, match="unexpected keyword `dtout`"):
+        m.run(dtout=0.1)
+    with pytest.raises(ValueError, match="solver `rk5`"):
+        m.run(solver="rk5")
+    with pytest.raises(ValueError, match="horizon_t"):
+        m.run(T=-1.0)
+    with pytest.raises(ValueError, match="step"):
+        m.run(solver="rk4")
+    with pytest.raises(TypeError, match="`J`"):
+        m.run(J="many")
+
+
+def test_runtime_failure_points_at_the_flow_equation():
+    src = """model blowup
+state x = 1
+flow { x' = x^2 }
+sim { T = 2 }
+"""
+    with pytest.raises(hybsim.SimulationError) as info:
+        hybsim.load(src, name="blowup.hyb").run()
+    err = info.value
+    assert "blowup.hyb:3:" in str(err), str(err)
+    assert err.diagnostics[0]["line"] == 3
+    # The solution up to the failure.
+    assert isinstance(err.partial, hybsim.Solution)
+    assert len(err.partial) > 0 and err.partial.t[-1] < 1.0 + 1e-3
