@@ -45,7 +45,7 @@ class Model:
     @property
     def parameters(self) -> Dict[str, Any]: ...
     def run(self, seed: Optional[int] = None, sim: Optional[Dict[str, Any]] = None) -> Dict[str, Any]:
-        """Simulates; returns the columns (`t`, `j`, `kind`, `x`, `y`, `jumps`, ...)."""
+        """Simulates; returns the columns (`t`, `j`, `kind`, `x`, `jumps`, ...) and an OutputMap."""
     def design(self) -> Dict[str, Dict[str, Any]]:
         """Solves the design and check blocks."""
     def test(
@@ -56,6 +56,14 @@ class Model:
         max_shrink: int = 400,
     ) -> Dict[str, Any]:
         """Property test; returns the report as a dict."""
+
+class OutputMap:
+    """The outputs of the model a solution came from."""
+
+    @property
+    def names(self) -> List[str]: ...
+    def __call__(self, t: Any, x: Any) -> Any:
+        """Outputs at times t (n,) and states x (n, d): an (n, m) array."""
 
 def compile(name: str, text: str, set: List[Tuple[str, str]], path: Optional[str] = None) -> Model:
     """Parses, checks and compiles `text`; raises ModelError."""

@@ -148,10 +148,11 @@ class Solution:
         self.model: str = data["model"]
         self.seed: int = data["seed"]
         self.t: np.ndarray = data["t"]
-        self.j: np.ndarray = np.asarray(data["j"]).astype(np.int64, copy=False)
+        self.j: np.ndarray = data["j"]
         self.kind_code: np.ndarray = data["kind"]
         self.x: np.ndarray = data["x"]
-        self.y: np.ndarray = data["y"]
+        self._y: Optional[np.ndarray] = data.get("y")
+        self._output_map = data.get("outputs")
         self.names: List[str] = list(data["names"])
         self.output_names: List[str] = list(data["output_names"])
         self.rule_names: List[str] = list(data["rule_names"])
@@ -163,7 +164,7 @@ class Solution:
             self.jumps = Jumps(
                 jumps["rule"],
                 jumps["t"],
-                np.asarray(jumps["j"]).astype(np.int64, copy=False),
+                jumps["j"],
                 jumps["pre"],
                 jumps["post"],
                 self.rule_names,
@@ -178,6 +179,18 @@ class Solution:
             self._columns.setdefault(n, ("y", k))
 
     # -- access ---------------------------------------------------------------
+
+    @property
+    def y(self) -> np.ndarray:
+        """The outputs, ``(n, m)``, one column per ``output_names`` entry:
+        evaluated from ``t`` and ``x`` on first use (a run whose outputs are
+        never read does not pay for them), then kept."""
+        if self._y is None:
+            if self._output_map is None or not self.output_names:
+                self._y = np.empty((len(self.t), 0))
+            else:
+                self._y = self._output_map(self.t, self.x)
+        return self._y
 
     def __len__(self) -> int:
         return len(self.t)
@@ -272,7 +285,8 @@ class Solution:
                 "j": self.j[mask],
                 "kind": self.kind_code[mask],
                 "x": self.x[mask],
-                "y": self.y[mask],
+                "y": None if self._y is None else self._y[mask],
+                "outputs": self._output_map,
                 "names": self.names,
                 "output_names": self.output_names,
                 "rule_names": self.rule_names,
@@ -393,6 +407,7 @@ class Solution:
                 "kind": np.full(len(t_out), SAMPLE_KINDS.index("flow"), dtype=np.uint8),
                 "x": x,
                 "y": y,
+                "outputs": self._output_map,
                 "names": self.names,
                 "output_names": self.output_names,
                 "rule_names": self.rule_names,

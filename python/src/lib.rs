@@ -42,6 +42,7 @@ fn _hybsim(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("ModelError", py.get_type::<ModelError>())?;
     m.add("SimulationError", py.get_type::<SimulationError>())?;
     m.add_class::<model::Model>()?;
+    m.add_class::<model::OutputMap>()?;
     m.add_function(wrap_pyfunction!(model::compile, m)?)?;
     m.add("SAMPLE_KINDS", record::SAMPLE_KINDS.to_vec())?;
     Ok(())

@@ -1,6 +1,8 @@
 //! `hybsim._hybsim.Model`: a compiled `.hyb` model and its three verbs,
 //! run, design and test, each with the GIL released.
 
+use std::sync::Arc;
+
 use hybsim::arc::Termination;
 use hybsim::diagnostics::Diagnostic;
 use hybsim::engine::{HybridSystem, SimError, simulate};
@@ -9,7 +11,7 @@ use hybsim::props::{
     ModelRunError, ModelSubject, Outcome, Property, TestConfig, replay_args, run_tests,
 };
 use hybsim::source::SourceFile;
-use numpy::PyArray1;
+use numpy::{PyArray1, PyReadonlyArray1, PyReadonlyArray2};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
@@ -23,7 +25,7 @@ use crate::{ModelError, SimulationError, settings};
 pub struct Model {
     source: SourceFile,
     overrides: Vec<Override>,
-    model: CompiledModel,
+    model: Arc<CompiledModel>,
     /// The file it was read from, for replay commands.
     path: Option<String>,
 }
@@ -59,7 +61,7 @@ pub fn compile(
     Ok(Model {
         source,
         overrides,
-        model,
+        model: Arc::new(model),
         path,
     })
 }
@@ -68,14 +70,14 @@ impl Model {
     /// The model a run with seed `seed` simulates, compiled anew when it
     /// has random parameters (drawn from the seed, as `hybsim run` does),
     /// and the seed.
-    fn for_run(&self, py: Python<'_>, seed: Option<u64>) -> PyResult<(Option<CompiledModel>, u64)> {
+    fn for_run(&self, py: Python<'_>, seed: Option<u64>) -> PyResult<(Arc<CompiledModel>, u64)> {
         if self.model.random_params().is_empty() {
-            return Ok((None, seed.unwrap_or(self.model.seed())));
+            return Ok((self.model.clone(), seed.unwrap_or(self.model.seed())));
         }
         let (m, seed) = py
             .detach(|| lang::compile_run(&self.source, &self.overrides, seed))
             .map_err(|diags| diagnostics_error::<ModelError>(py, &diags, &self.source))?;
-        Ok((Some(m), seed))
+        Ok((Arc::new(m), seed))
     }
 }
 
@@ -97,10 +99,9 @@ fn termination<'py>(py: Python<'py>, term: &Termination) -> PyResult<Bound<'py, 
 /// The recorded columns as the dict `hybsim.Solution` is built from.
 fn solution_dict<'py>(
     py: Python<'py>,
-    model: &CompiledModel,
+    model: &Arc<CompiledModel>,
     seed: u64,
     rec: Recorder,
-    y: Vec<f64>,
 ) -> PyResult<Bound<'py, PyDict>> {
     let n = rec.len();
     let dim = rec.dim;
@@ -111,7 +112,7 @@ fn solution_dict<'py>(
     out.set_item("j", PyArray1::from_vec(py, rec.j))?;
     out.set_item("kind", PyArray1::from_vec(py, rec.kind))?;
     out.set_item("x", columns(py, rec.x, n, dim)?)?;
-    out.set_item("y", columns(py, y, n, model.output_dim())?)?;
+    out.set_item("outputs", OutputMap { model: model.clone() })?;
     out.set_item("names", model.state_names())?;
     out.set_item("output_names", model.output_names())?;
     out.set_item("rule_names", model.rule_names())?;
@@ -129,6 +130,59 @@ fn solution_dict<'py>(
     }
     out.set_item("parameters", json(py, &model.parameters_json())?)?;
     Ok(out)
+}
+
+/// The outputs of the model a solution came from: `outputs(t, x)` evaluates
+/// them at every row (GIL released). `Solution.y` calls it on first use, so
+/// runs whose outputs are not read do not pay for them.
+#[pyclass(frozen, module = "hybsim._hybsim")]
+pub struct OutputMap {
+    model: Arc<CompiledModel>,
+}
+
+#[pymethods]
+impl OutputMap {
+    /// One name per output component.
+    #[getter]
+    fn names(&self) -> Vec<String> {
+        self.model.output_names()
+    }
+
+    /// The outputs at times `t` (n,) and states `x` (n, d): an (n, m) array.
+    fn __call__<'py>(
+        &self,
+        py: Python<'py>,
+        t: PyReadonlyArray1<'py, f64>,
+        x: PyReadonlyArray2<'py, f64>,
+    ) -> PyResult<Bound<'py, PyAny>> {
+        let t = t.as_array();
+        let x = x.as_array();
+        let (n, d) = x.dim();
+        if t.len() != n || d != self.model.state_dim() {
+            return Err(PyValueError::new_err(format!(
+                "outputs need t of shape (n,) and x of shape (n, {}); got {} and {:?}",
+                self.model.state_dim(),
+                t.len(),
+                (n, d)
+            )));
+        }
+        let m = self.model.output_dim();
+        let model = &self.model;
+        let y = py.detach(|| {
+            let mut y = vec![0.0; n * m];
+            let mut row = vec![0.0; d];
+            if m > 0 {
+                for (i, out) in y.chunks_exact_mut(m).enumerate() {
+                    for (r, v) in row.iter_mut().zip(x.row(i)) {
+                        *r = *v;
+                    }
+                    model.outputs(t[i], &row, out);
+                }
+            }
+            y
+        });
+        columns(py, y, n, m)
+    }
 }
 
 /// The `hybsim run` command that replays a counterexample case (as
@@ -248,10 +302,10 @@ impl Model {
         seed: Option<u64>,
         sim: Option<&Bound<'py, PyDict>>,
     ) -> PyResult<Bound<'py, PyDict>> {
-        let (fresh, seed) = self.for_run(py, seed)?;
-        let model = fresh.as_ref().unwrap_or(&self.model);
+        let (shared, seed) = self.for_run(py, seed)?;
+        let model: &CompiledModel = &shared;
         let settings = settings::apply(model.settings(), &sim.cloned().unwrap_or(PyDict::new(py)))?;
-        let (result, mut rec, y, diagnostic) = py.detach(|| {
+        let (result, mut rec, diagnostic) = py.detach(|| {
             let (x0, mut rng) = model.start(seed);
             let mut rec = Recorder::new(model.state_dim());
             let result = simulate(model, &x0, &settings, &mut rng, &mut rec);
@@ -260,20 +314,12 @@ impl Model {
                 .as_ref()
                 .err()
                 .map(|e: &SimError| model.runtime_diagnostic(e));
-            let m = model.output_dim();
-            let mut y = vec![0.0; rec.len() * m];
-            if m > 0 {
-                for (i, out) in y.chunks_exact_mut(m).enumerate() {
-                    let x = &rec.x[i * rec.dim..(i + 1) * rec.dim];
-                    model.outputs(rec.t[i], x, out);
-                }
-            }
-            (result, rec, y, diagnostic)
+            (result, rec, diagnostic)
         });
         if let Some(e) = rec.interrupt.raised.take() {
             return Err(e);
         }
-        let solution = solution_dict(py, model, seed, rec, y)?;
+        let solution = solution_dict(py, &shared, seed, rec)?;
         match (result, diagnostic) {
             (Err(_), Some(d)) => {
                 let err = diagnostics_error::<SimulationError>(py, &[d], &self.source);
@@ -450,8 +496,8 @@ impl Model {
         sim: Option<&Bound<'_, PyDict>>,
         repeats: usize,
     ) -> PyResult<f64> {
-        let (fresh, seed) = self.for_run(py, seed)?;
-        let model = fresh.as_ref().unwrap_or(&self.model);
+        let (shared, seed) = self.for_run(py, seed)?;
+        let model: &CompiledModel = &shared;
         let settings = settings::apply(model.settings(), &sim.cloned().unwrap_or(PyDict::new(py)))?;
         py.detach(|| {
             let mut best = f64::INFINITY;

@@ -70,12 +70,12 @@ impl Interrupt {
 pub struct Recorder {
     pub dim: usize,
     pub t: Vec<f64>,
-    pub j: Vec<u64>,
+    pub j: Vec<i64>,
     pub kind: Vec<u8>,
     pub x: Vec<f64>,
-    pub jump_rule: Vec<u64>,
+    pub jump_rule: Vec<i64>,
     pub jump_t: Vec<f64>,
-    pub jump_j: Vec<u64>,
+    pub jump_j: Vec<i64>,
     pub jump_pre: Vec<f64>,
     pub jump_post: Vec<f64>,
     pub termination: Option<Termination>,
@@ -109,16 +109,17 @@ impl Recorder {
 impl ArcSink for Recorder {
     fn sample(&mut self, at: HybridTime, x: &[f64], kind: SampleKind) -> ControlFlow<()> {
         self.t.push(at.t);
-        self.j.push(at.j);
+        // numpy's default integer; j < 2^63 always.
+        self.j.push(at.j as i64);
         self.kind.push(kind_code(kind));
         self.x.extend_from_slice(x);
         self.interrupt.poll()
     }
 
     fn jump(&mut self, at: HybridTime, rule: usize, pre: &[f64], post: &[f64]) -> ControlFlow<()> {
-        self.jump_rule.push(rule as u64);
+        self.jump_rule.push(rule as i64);
         self.jump_t.push(at.t);
-        self.jump_j.push(at.j);
+        self.jump_j.push(at.j as i64);
         self.jump_pre.extend_from_slice(pre);
         self.jump_post.extend_from_slice(post);
         ControlFlow::Continue(())
