@@ -112,7 +112,12 @@ fn solution_dict<'py>(
     out.set_item("j", PyArray1::from_vec(py, rec.j))?;
     out.set_item("kind", PyArray1::from_vec(py, rec.kind))?;
     out.set_item("x", columns(py, rec.x, n, dim)?)?;
-    out.set_item("outputs", OutputMap { model: model.clone() })?;
+    out.set_item(
+        "outputs",
+        OutputMap {
+            model: model.clone(),
+        },
+    )?;
     out.set_item("names", model.state_names())?;
     out.set_item("output_names", model.output_names())?;
     out.set_item("rule_names", model.rule_names())?;
