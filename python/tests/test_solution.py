@@ -120,3 +120,15 @@ sim { T = 0.1 }
     assert sol.names == ["x[1]", "x[2]"]
     assert sol["x"].shape == (len(sol), 2)
     np.testing.assert_allclose(sol["x[2]"][-1], 3.0 * np.exp(-0.2), rtol=1e-6)
+
+
+def test_outputs_are_evaluated_on_first_use(sol):
+    fresh = hybsim.load(BALL).run()
+    assert fresh._y is None  # not computed by the run
+    part = fresh.restrict_t(0.5, 1.0)
+    assert part._y is None  # restricting keeps them lazy
+    e = 0.5 * part["v"] ** 2 + 9.81 * part["h"]
+    np.testing.assert_allclose(part["e"], e, rtol=1e-12)
+    np.testing.assert_array_equal(part.y[:, 0], fresh.y[(fresh.t >= 0.5) & (fresh.t <= 1.0), 0])
+    with pytest.raises(ValueError, match="outputs need"):
+        fresh._output_map(fresh.t[:3], fresh.x[:2])
