@@ -96,28 +96,93 @@ impl Layout {
 
     /// One flat name per component, in component order: `h`, `x[2]`,
     /// `P[1,2]`, `agent[3].xhat[1]`, `tau[3]` (1-based indices, as in the
-    /// models).
+    /// models); components the layout does not cover (hidden ones) have
+    /// empty names.
     pub fn flat_names(&self, dim: usize) -> Vec<String> {
         let mut names = vec![String::new(); dim];
-        let mut put = |prefix: &str, f: &Field| match f.shape {
-            Shape::Scalar => names[f.offset] = format!("{prefix}{}", f.name),
-            Shape::Vector(n) => {
-                for i in 0..n {
-                    names[f.offset + i] = format!("{prefix}{}[{}]", f.name, i + 1);
-                }
+        for (k, name) in self.components() {
+            if let Some(slot) = names.get_mut(k) {
+                *slot = name;
             }
-            Shape::Matrix { rows, cols } => {
-                for r in 0..rows {
-                    for c in 0..cols {
-                        names[f.offset + r * cols + c] =
-                            format!("{prefix}{}[{},{}]", f.name, r + 1, c + 1);
+        }
+        names
+    }
+}
+
+/// One named block of a flat vector as a model declares it: a plain field,
+/// or a member of a family (`x[2]`: family `x`, label `"2"`).
+#[derive(Debug, Clone, Copy)]
+pub struct Declared<'a> {
+    /// Name as shown (`h`, `x[2]`).
+    pub name: &'a str,
+    /// Its shape.
+    pub shape: Shape,
+    /// Index of its first component.
+    pub offset: usize,
+    /// Family name and member label, for a family member.
+    pub family: Option<(&'a str, &'a str)>,
+}
+
+impl Layout {
+    /// The layout of declared blocks: plain fields in order, and one
+    /// [`Entry::Family`] per family (at its first member's place) whose
+    /// members are unnamed values of their own shapes, so that sinks write
+    /// `x: [..]` and name the components `x[1]`, `x[2][1]`, ….
+    pub fn from_declared<'a>(items: impl IntoIterator<Item = Declared<'a>>) -> Self {
+        let mut entries: Vec<Entry> = Vec::new();
+        let mut families: std::collections::HashMap<&str, usize> = Default::default();
+        for d in items {
+            let Some((family, label)) = d.family else {
+                entries.push(Entry::Field(Field {
+                    name: d.name.to_string(),
+                    shape: d.shape,
+                    offset: d.offset,
+                }));
+                continue;
+            };
+            let member = vec![Field {
+                name: String::new(),
+                shape: d.shape,
+                offset: d.offset,
+            }];
+            match families.get(family) {
+                Some(&e) => {
+                    if let Entry::Family {
+                        labels, members, ..
+                    } = &mut entries[e]
+                    {
+                        labels.push(label.to_string());
+                        members.push(member);
                     }
                 }
+                None => {
+                    families.insert(family, entries.len());
+                    entries.push(Entry::Family {
+                        name: family.to_string(),
+                        labels: vec![label.to_string()],
+                        members: vec![member],
+                    });
+                }
             }
-        };
+        }
+        Self { entries }
+    }
+
+    /// The covered components in layout order, with their flat names.
+    pub fn components(&self) -> Vec<(usize, String)> {
+        let mut out = Vec::new();
+        self.for_each_field(|prefix, f| {
+            let names = field_names(prefix, f);
+            out.extend((f.offset..).zip(names));
+        });
+        out
+    }
+
+    /// Calls `visit(prefix, field)` for every field, families' members in order.
+    fn for_each_field(&self, mut visit: impl FnMut(&str, &Field)) {
         for e in &self.entries {
             match e {
-                Entry::Field(f) => put("", f),
+                Entry::Field(f) => visit("", f),
                 Entry::Family {
                     name,
                     labels,
@@ -125,13 +190,26 @@ impl Layout {
                 } => {
                     for (label, fields) in labels.iter().zip(members) {
                         for f in fields {
-                            put(&member_prefix(name, label, f), f);
+                            visit(&member_prefix(name, label, f), f);
                         }
                     }
                 }
             }
         }
-        names
+    }
+}
+
+/// Flat names of the components of `f` (`x[1]`, `P[1,2]`), prefixed.
+fn field_names(prefix: &str, f: &Field) -> Vec<String> {
+    match f.shape {
+        Shape::Scalar => vec![format!("{prefix}{}", f.name)],
+        Shape::Vector(n) => (1..=n)
+            .map(|i| format!("{prefix}{}[{i}]", f.name))
+            .collect(),
+        Shape::Matrix { rows, cols } => (1..=rows)
+            .flat_map(|r| (1..=cols).map(move |c| (r, c)))
+            .map(|(r, c)| format!("{prefix}{}[{r},{c}]", f.name))
+            .collect(),
     }
 }
 

@@ -70,6 +70,9 @@ pub struct OutputField {
     pub nodes: Vec<NodeId>,
     /// The definition.
     pub span: Span,
+    /// For a member of an output family (`e[2]`): the family's name and the
+    /// member's label (`"2"`, `"1,3"`).
+    pub family: Option<(String, String)>,
 }
 
 /// A model after checking: every expression lowered into one scalar graph.
@@ -1306,7 +1309,14 @@ impl ModelChecker<'_> {
         let span = d.target.name.span;
         let val = v.clone();
         if let Some(name) = self.declare(&d.target, |_| Sym::Output { val, span }) {
+            // `declare` names a member `e[label]`.
+            let family = (!d.target.indices.is_empty()).then(|| {
+                let base = &d.target.name.name;
+                let label = name[base.len() + 1..name.len() - 1].to_string();
+                (base.clone(), label)
+            });
             self.outputs.push(OutputField {
+                family,
                 name,
                 rows: v.rows,
                 cols: v.cols,

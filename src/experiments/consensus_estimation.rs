@@ -84,13 +84,11 @@ struct Outputs {
 }
 
 fn output_index(model: &CompiledModel, name: &str) -> Result<usize, ExperimentError> {
-    let mut off = 0;
     for entry in &model.output_layout().entries {
-        if let crate::layout::Entry::Field(f) = entry {
-            if f.name == name {
-                return Ok(off);
-            }
-            off += f.shape.len();
+        if let crate::layout::Entry::Field(f) = entry
+            && f.name == name
+        {
+            return Ok(f.offset);
         }
     }
     Err(ExperimentError::MissingName {
@@ -261,7 +259,7 @@ impl ConsensusModel {
                 k.parse::<usize>().ok().and_then(|k| k.checked_sub(1))
             })
             .collect();
-        let names = model.state_layout().flat_names(model.state_dim());
+        let names = model.state_names();
         let zh_states: Vec<usize> = (1..=n_nodes)
             .flat_map(|i| {
                 let prefix = format!("Zh[{i}][");

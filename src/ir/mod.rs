@@ -29,7 +29,7 @@ use crate::diagnostics::Diagnostic;
 use crate::engine::{
     FlowStructure, GuardKind, HybridSystem, JumpRule, SimError, SimRng, SimSettings,
 };
-use crate::layout::{Entry, Field, Layout, Shape};
+use crate::layout::{Declared, Layout, Shape};
 use crate::source::{SourceFile, Span};
 use program::{Frame, Program};
 
@@ -197,24 +197,9 @@ impl CompiledModel {
             nregs = nregs.max(a.nregs).max(b.nregs);
         }
         nregs = nregs.max(frame.fixed());
-        let state_layout = state_layout(&m.fields);
-        let mut off = 0;
-        let output_layout = Layout {
-            entries: m
-                .outputs
-                .iter()
-                .map(|o| {
-                    let f = Field {
-                        name: o.name.clone(),
-                        shape: shape(o.rows, o.cols),
-                        offset: off,
-                    };
-                    off += o.rows * o.cols;
-                    Entry::Field(f)
-                })
-                .collect(),
-        };
-        let names = state_layout.flat_names(m.dim);
+        let state_layout = state_layout(&m.fields, false);
+        let (output_layout, output_dim) = output_layout(&m.outputs);
+        let names = self::state_layout(&m.fields, true).flat_names(m.dim);
         let inputs = inputs::random_inputs(&m);
         let param_inputs = m.random_params.len();
         let param_draws = m.random_params.iter().map(|i| i.dist).collect();
@@ -227,7 +212,7 @@ impl CompiledModel {
             names,
             state_layout,
             output_layout,
-            output_dim: off,
+            output_dim,
             fields: m.fields,
             flow,
             diffusion,
@@ -548,50 +533,41 @@ impl CompiledModel {
     }
 }
 
-/// The state layout: plain fields, and one `Family` entry per state family
-/// (at its first member's place) whose members are all of one shape, so
-/// that sinks write `x: [..]` and name the components `x[1]`, `x[2]`, ….
-fn state_layout(fields: &[StateField]) -> Layout {
-    let field = |f: &StateField, name: String| Field {
-        name,
-        shape: shape(f.rows, f.cols),
-        offset: f.offset,
-    };
-    let uniform = |family: &str| {
-        let mut shapes = fields
+/// The layout of the state fields (`generated: false` leaves out the
+/// timers the language adds for `every` and `noise`, which the logs do not
+/// show): plain fields, and one `Family` entry per state family.
+fn state_layout(fields: &[StateField], generated: bool) -> Layout {
+    Layout::from_declared(
+        fields
             .iter()
-            .filter(|f| f.family.as_ref().is_some_and(|(n, _)| n == family))
-            .map(|f| (f.rows, f.cols));
-        let first = shapes.next();
-        shapes.all(|s| Some(s) == first)
-    };
-    let mut entries: Vec<Entry> = Vec::new();
-    let mut families: HashMap<&str, usize> = HashMap::new();
-    for f in fields {
-        match &f.family {
-            Some((family, label)) if uniform(family) => match families.get(family.as_str()) {
-                Some(&e) => {
-                    if let Entry::Family {
-                        labels, members, ..
-                    } = &mut entries[e]
-                    {
-                        labels.push(label.clone());
-                        members.push(vec![field(f, String::new())]);
-                    }
-                }
-                None => {
-                    families.insert(family, entries.len());
-                    entries.push(Entry::Family {
-                        name: family.clone(),
-                        labels: vec![label.clone()],
-                        members: vec![vec![field(f, String::new())]],
-                    });
-                }
-            },
-            _ => entries.push(Entry::Field(field(f, f.name.clone()))),
-        }
-    }
-    Layout { entries }
+            .filter(|f| generated || !f.generated)
+            .map(|f| Declared {
+                name: &f.name,
+                shape: shape(f.rows, f.cols),
+                offset: f.offset,
+                family: f.family.as_ref().map(|(n, l)| (n.as_str(), l.as_str())),
+            }),
+    )
+}
+
+/// The layout of the outputs (families grouped like state families) and
+/// their total dimension.
+fn output_layout(outputs: &[crate::check::OutputField]) -> (Layout, usize) {
+    let mut off = 0;
+    let declared: Vec<Declared> = outputs
+        .iter()
+        .map(|o| {
+            let d = Declared {
+                name: &o.name,
+                shape: shape(o.rows, o.cols),
+                offset: off,
+                family: o.family.as_ref().map(|(n, l)| (n.as_str(), l.as_str())),
+            };
+            off += o.rows * o.cols;
+            d
+        })
+        .collect();
+    (Layout::from_declared(declared), off)
 }
 
 /// Errors of a checked model that need the IR's analyses: flow equations

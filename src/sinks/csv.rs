@@ -38,6 +38,8 @@ pub struct CsvSink<'a> {
     decimator: Decimator,
     tally: Tally,
     y: Vec<f64>,
+    state_cols: Vec<usize>,
+    output_cols: Vec<usize>,
     cell: String,
     error: Option<SinkError>,
 }
@@ -58,9 +60,15 @@ impl<'a> CsvSink<'a> {
         let file = atomic_file::create(&path).map_err(|e| SinkError::io(&path, e))?;
         let mut writer = ::csv::Writer::from_writer(BufWriter::new(file));
         let mut header: Vec<String> = FIXED_COLUMNS.iter().map(|s| s.to_string()).collect();
-        header.extend(info.state_names());
+        let (state_cols, names): (Vec<usize>, Vec<String>) =
+            info.state_layout.components().into_iter().unzip();
+        header.extend(names);
+        let mut output_cols = Vec::new();
         if outputs.is_some() {
-            header.extend(info.output_names());
+            let (cols, names): (Vec<usize>, Vec<String>) =
+                info.output_layout.components().into_iter().unzip();
+            output_cols = cols;
+            header.extend(names);
         }
         writer
             .write_record(&header)
@@ -80,6 +88,8 @@ impl<'a> CsvSink<'a> {
                 }
             ],
             outputs,
+            state_cols,
+            output_cols,
             decimator: Decimator::new(decimation),
             tally: Tally::new(info.rule_names.len()),
             cell: String::new(),
@@ -109,8 +119,11 @@ impl<'a> CsvSink<'a> {
         put(&at.t)?;
         put(&at.j)?;
         put(&kind_name(kind))?;
-        for v in x.iter().chain(&self.y) {
-            put(v)?;
+        for &k in &self.state_cols {
+            put(&x[k])?;
+        }
+        for &k in &self.output_cols {
+            put(&self.y[k])?;
         }
         w.write_record(None::<&[u8]>)
     }

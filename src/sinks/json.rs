@@ -9,10 +9,16 @@
 //! | scalar `h` | `"h": 1.5` | `number` |
 //! | vector `x` | `"x": [1, 2]` | `array` of `number`, fixed length |
 //! | matrix `P` | `"P": {"rows": 2, "cols": 2, "data": [..]}` (row-major) | `object` |
-//! | family `agent` | `"agent": [{"xhat": ..}, ..]` | `array` of `object` |
+//! | family of records `agent` | `"agent": [{"xhat": ..}, ..]` | `array` of `object` |
+//! | family of scalars `z[i]` | `"z": [1, 2]` | `array` of `number` |
+//! | family of vectors `xhat[i]` | `"xhat": [{"data": [..]}, ..]` | `array` of `object` |
+//! | family of matrices or of mixed shapes `P[i]` | `"P": [{"rows": 2, "cols": 2, "data": [..]}, ..]` | `array` of `object` |
 //!
-//! Every record carries `t` (number) and `j` (integer). Schemas use no
-//! arrays of arrays, no `$ref` and no unions.
+//! State families and output families are written alike. Every record
+//! carries `t` (number) and `j` (integer). Schemas obey the rules of
+//! Foxglove's JSON Schema parser ([`super::foxglove`]): no arrays of
+//! arrays, no `$ref`, no unions, names that message paths reach without
+//! quoting (`/hybsim/state.xhat[1].data[0]`).
 
 use serde::ser::{SerializeMap, SerializeStruct};
 use serde::{Serialize, Serializer};
@@ -44,6 +50,46 @@ fn field_schema(shape: Shape) -> Value {
     }
 }
 
+/// How the members of a family are written.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum FamilyForm {
+    /// Unnamed scalars: an array of numbers.
+    Numbers,
+    /// Unnamed vectors: an array of `{data}` objects (`Some(n)` if all have
+    /// length n).
+    Vectors(Option<usize>),
+    /// Unnamed matrices, or unnamed values of mixed shapes: an array of
+    /// `{rows, cols, data}` objects.
+    Matrices,
+    /// Members with named fields: an array of objects.
+    Records,
+}
+
+fn family_form(members: &[Vec<Field>]) -> FamilyForm {
+    let mut shapes = Vec::with_capacity(members.len());
+    for m in members {
+        match m.as_slice() {
+            [f] if f.name.is_empty() => shapes.push(f.shape),
+            _ => return FamilyForm::Records,
+        }
+    }
+    if shapes.iter().all(|s| *s == Shape::Scalar) {
+        return FamilyForm::Numbers;
+    }
+    let lengths: Vec<usize> = shapes
+        .iter()
+        .filter_map(|s| match s {
+            Shape::Vector(n) => Some(*n),
+            _ => None,
+        })
+        .collect();
+    if lengths.len() == shapes.len() {
+        let same = lengths.windows(2).all(|w| w[0] == w[1]);
+        return FamilyForm::Vectors(if same { lengths.first().copied() } else { None });
+    }
+    FamilyForm::Matrices
+}
+
 fn fields_schema(fields: &[Field]) -> (serde_json::Map<String, Value>, Vec<String>) {
     let props = fields
         .iter()
@@ -68,12 +114,29 @@ fn layout_properties(layout: &Layout) -> (serde_json::Map<String, Value>, Vec<St
                 labels,
                 members,
             } => {
-                // All members have the same fields; an empty family has no items.
-                let first = members.first().map(Vec::as_slice).unwrap_or(&[]);
-                let items = match first {
-                    // A family of values: an array of them.
-                    [f] if f.name.is_empty() => field_schema(f.shape),
-                    _ => {
+                let items = match family_form(members) {
+                    FamilyForm::Numbers => json!({"type": "number"}),
+                    FamilyForm::Vectors(n) => {
+                        let mut data = json!({"type": "array", "items": {"type": "number"}});
+                        if let Some(n) = n {
+                            data["minItems"] = json!(n);
+                            data["maxItems"] = json!(n);
+                        }
+                        json!({"type": "object", "properties": {"data": data}, "required": ["data"]})
+                    }
+                    FamilyForm::Matrices => json!({
+                        "type": "object",
+                        "description": "row-major matrix",
+                        "properties": {
+                            "rows": {"type": "integer"},
+                            "cols": {"type": "integer"},
+                            "data": {"type": "array", "items": {"type": "number"}}
+                        },
+                        "required": ["rows", "cols", "data"]
+                    }),
+                    FamilyForm::Records => {
+                        // All members have the same fields.
+                        let first = members.first().map(Vec::as_slice).unwrap_or(&[]);
                         let (item_props, item_required) = fields_schema(first);
                         json!({"type": "object", "properties": item_props, "required": item_required})
                     }
@@ -287,23 +350,43 @@ impl Serialize for FieldValue<'_> {
     }
 }
 
+/// One member of a family written in `form`.
 struct Member<'a> {
+    form: FamilyForm,
     fields: &'a [Field],
     x: &'a [f64],
 }
 
 impl Serialize for Member<'_> {
     fn serialize<S: Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
-        if let [f] = self.fields
-            && f.name.is_empty()
-        {
-            return FieldValue { f, x: self.x }.serialize(s);
+        match (self.form, self.fields) {
+            (FamilyForm::Numbers, [f]) => FieldValue { f, x: self.x }.serialize(s),
+            (FamilyForm::Vectors(_), [f]) => {
+                let mut m = s.serialize_struct("Vector", 1)?;
+                m.serialize_field("data", &self.x[f.offset..f.offset + f.shape.len()])?;
+                m.end()
+            }
+            (FamilyForm::Matrices, [f]) => {
+                let (rows, cols) = match f.shape {
+                    Shape::Scalar => (1, 1),
+                    Shape::Vector(n) => (n, 1),
+                    Shape::Matrix { rows, cols } => (rows, cols),
+                };
+                Matrix {
+                    rows,
+                    cols,
+                    data: &self.x[f.offset..f.offset + f.shape.len()],
+                }
+                .serialize(s)
+            }
+            _ => {
+                let mut m = s.serialize_map(Some(self.fields.len()))?;
+                for f in self.fields {
+                    put_field(&mut m, f, self.x)?;
+                }
+                m.end()
+            }
         }
-        let mut m = s.serialize_map(Some(self.fields.len()))?;
-        for f in self.fields {
-            put_field(&mut m, f, self.x)?;
-        }
-        m.end()
     }
 }
 
@@ -314,11 +397,12 @@ struct Family<'a> {
 
 impl Serialize for Family<'_> {
     fn serialize<S: Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
-        s.collect_seq(
-            self.members
-                .iter()
-                .map(|fields| Member { fields, x: self.x }),
-        )
+        let form = family_form(self.members);
+        s.collect_seq(self.members.iter().map(|fields| Member {
+            form,
+            fields,
+            x: self.x,
+        }))
     }
 }
 

@@ -124,8 +124,6 @@ pub struct McapSink<'a> {
     y: Vec<f64>,
     buf: Vec<u8>,
     error: Option<SinkError>,
-    state_names: Vec<String>,
-    output_names: Vec<String>,
 }
 
 fn meta_entries<I, K>(entries: I) -> BTreeMap<String, String>
@@ -314,8 +312,6 @@ impl<'a> McapSink<'a> {
             y: vec![0.0; info.output_dim],
             buf: Vec::with_capacity(256),
             error: None,
-            state_names,
-            output_names,
         })
     }
 
@@ -384,7 +380,7 @@ impl<'a> McapSink<'a> {
         if let Some((k, value)) = first_non_finite(x) {
             return Err(SinkError::NonFinite {
                 what: "state",
-                name: self.state_names[k].clone(),
+                name: self.info.component_name("state", k),
                 value,
                 at,
             });
@@ -396,7 +392,7 @@ impl<'a> McapSink<'a> {
                 self.y = y;
                 return Err(SinkError::NonFinite {
                     what: "output",
-                    name: self.output_names[k].clone(),
+                    name: self.info.component_name("output", k),
                     value,
                     at,
                 });
@@ -445,7 +441,7 @@ impl<'a> McapSink<'a> {
             if let Some((k, value)) = first_non_finite(x) {
                 return Err(SinkError::NonFinite {
                     what: "state",
-                    name: self.state_names[k].clone(),
+                    name: self.info.component_name("state", k),
                     value,
                     at,
                 });

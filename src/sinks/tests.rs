@@ -42,11 +42,8 @@ fn layouts_are_checked_against_their_dimension() {
     check_layout(&layout, dim, "state").unwrap();
     let short = check_layout(&layout, dim - 1, "state").unwrap_err();
     assert!(short.to_string().contains("agent[2].s"), "{short}");
-    let long = check_layout(&layout, dim + 1, "state").unwrap_err();
-    assert!(
-        long.to_string().contains("component 13 is not covered"),
-        "{long}"
-    );
+    // Components a layout leaves out are not logged (hidden timers, `log` selections).
+    check_layout(&layout, dim + 1, "state").unwrap();
     let mut twice = layout.clone();
     twice
         .entries

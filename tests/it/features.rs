@@ -336,8 +336,8 @@ fn state_families_are_family_entries_of_the_layout() {
     assert_eq!(members[2][0].shape, Shape::Vector(2));
     assert_eq!(members[2][0].offset, 6, "x[1], z[1], x[2], z[2], x[3]");
     assert!(matches!(&entries[1], Entry::Family { name, .. } if name == "z"));
-    // Members of different shapes stay plain fields.
-    assert!(matches!(&entries[3], Entry::Field(f) if f.name == "odd[1]"));
+    // Members of different shapes are a family too (written as matrices).
+    assert!(matches!(&entries[3], Entry::Family { name, .. } if name == "odd"));
     assert_eq!(
         m.state_names(),
         [
@@ -363,5 +363,10 @@ fn state_families_are_family_entries_of_the_layout() {
     assert_eq!(z["type"], "array");
     assert_eq!(z["minItems"], 3);
     assert_eq!(z["items"]["type"], "number");
-    assert_eq!(schema["properties"]["x"]["items"]["maxItems"], 2);
+    let x = &schema["properties"]["x"]["items"];
+    assert_eq!(
+        x["type"], "object",
+        "a family of vectors is an array of objects"
+    );
+    assert_eq!(x["properties"]["data"]["maxItems"], 2);
 }

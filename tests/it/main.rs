@@ -16,6 +16,7 @@ mod intermittent_reproduction;
 mod lang;
 mod models;
 mod muehlebach;
+mod outputs;
 mod perez_salesa;
 mod props;
 mod props_cli;

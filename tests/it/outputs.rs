@@ -1,0 +1,179 @@
+//! Outputs of every shipped model through the real binary: MCAP schemas obey
+//! Foxglove's JSON Schema rules, every message decodes (in Rust and with the
+//! official Python `mcap` reader), the state topic shows no internal timers.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use hybsim::sinks::foxglove::check_schema;
+use serde_json::Value;
+
+use super::util::{assert_conforms, code, hybsim, stderr};
+
+/// Every `.hyb` file in `models/`, so that a new model is covered as soon as
+/// it is added.
+pub fn shipped_models() -> Vec<PathBuf> {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("models");
+    let mut models: Vec<PathBuf> = std::fs::read_dir(&dir)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.extension().is_some_and(|e| e == "hyb"))
+        .collect();
+    models.sort();
+    assert!(models.len() >= 10, "{models:?}");
+    models
+}
+
+/// Runs a short `hybsim run MODEL -o OUT ARGS` in `dir` (a few jumps of every
+/// model) and returns the MCAP bytes.
+pub fn short_run(dir: &Path, model: &Path, out: &str, args: &[&str]) -> Vec<u8> {
+    let mut all = vec![
+        "run",
+        model.to_str().unwrap(),
+        "-o",
+        out,
+        "--quiet",
+        "--T",
+        "2",
+        "--J",
+        "25",
+    ];
+    all.extend(args);
+    let o = hybsim(dir, &all);
+    assert_eq!(code(&o), 0, "{}: {}", model.display(), stderr(&o));
+    std::fs::read(dir.join(out)).unwrap()
+}
+
+/// The Python interpreter with the official `mcap` package: `.venv` made by
+/// `scripts/setup`, else `python3`. `None` only if there is no Python.
+fn python() -> Option<PathBuf> {
+    let venv = Path::new(env!("CARGO_MANIFEST_DIR")).join(".venv/bin/python");
+    if venv.exists() {
+        return Some(venv);
+    }
+    let found = Command::new("python3").arg("--version").output().is_ok();
+    found.then(|| PathBuf::from("python3"))
+}
+
+#[test]
+fn every_model_writes_foxglove_valid_mcap_that_python_decodes() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut files = Vec::new();
+    for model in shipped_models() {
+        let name = model.file_stem().unwrap().to_str().unwrap().to_string();
+        let out = format!("{name}.mcap");
+        let bytes = short_run(dir.path(), &model, &out, &[]);
+        let mut schemas: BTreeMap<String, Value> = BTreeMap::new();
+        let mut counts: BTreeMap<String, u64> = BTreeMap::new();
+        for m in mcap::MessageStream::new(&bytes).unwrap() {
+            let m = m.unwrap();
+            let schema = m
+                .channel
+                .schema
+                .as_ref()
+                .expect("every channel has a schema");
+            assert_eq!(schema.encoding, "jsonschema");
+            assert_eq!(m.channel.message_encoding, "json");
+            let s = schemas
+                .entry(m.channel.topic.clone())
+                .or_insert_with(|| serde_json::from_slice(&schema.data).unwrap());
+            if let Err(issues) = check_schema(s) {
+                let list: Vec<String> = issues.iter().map(|i| i.to_string()).collect();
+                panic!(
+                    "{name}: schema of {} breaks Foxglove's rules:\n{}",
+                    m.channel.topic,
+                    list.join("\n")
+                );
+            }
+            let body: Value = serde_json::from_slice(&m.data)
+                .unwrap_or_else(|e| panic!("{name}: {} message: {e}", m.channel.topic));
+            assert_conforms(&body, s, &format!("{name}{}", m.channel.topic));
+            *counts.entry(m.channel.topic.clone()).or_default() += 1;
+        }
+        assert!(counts["/hybsim/state"] >= 2, "{name}: {counts:?}");
+        // Timers of `every` and `noise` are internal: not logged.
+        let state = &schemas["/hybsim/state"]["properties"];
+        for key in state.as_object().unwrap().keys() {
+            assert!(!key.contains('.') && !key.contains('['), "{name}: {key}");
+        }
+        files.push(dir.path().join(out));
+    }
+
+    let Some(python) = python() else {
+        eprintln!(
+            "SKIPPED: python3 is not installed, so the MCAP files were not decoded with the \
+             official Python reader (install python3 and run scripts/setup)"
+        );
+        return;
+    };
+    let out = Command::new(&python)
+        .arg(Path::new(env!("CARGO_MANIFEST_DIR")).join("scripts/mcap_check.py"))
+        .args(&files)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "the Python `mcap` reader failed (run scripts/setup to install it into .venv): {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let lines = String::from_utf8(out.stdout).unwrap();
+    assert_eq!(lines.lines().count(), files.len(), "{lines}");
+    for line in lines.lines() {
+        let v: Value = serde_json::from_str(line).unwrap();
+        assert!(
+            v["messages"]["/hybsim/state"].as_u64().unwrap() >= 2,
+            "{line}"
+        );
+    }
+}
+
+#[test]
+fn families_of_vectors_and_outputs_are_arrays_of_objects() {
+    let dir = tempfile::tempdir().unwrap();
+    let src = "model fam
+        for i in 1..3 { state x[i] = [i; 0], z[i] = i }
+        for i in 1..2 { state odd[i] = zeros(i, 1) }
+        state k = 0
+        for i in 1..3 { output e[i] = x[i] * 2, s[i] = z[i] }
+        flow { for i in 1..3 { x[i]' = [0; 1]
+                               z[i]' = 1 } }
+        every 0.5 { k+ = k + 1 }
+        sim { T = 1 }
+    ";
+    std::fs::write(dir.path().join("fam.hyb"), src).unwrap();
+    let o = hybsim(dir.path(), &["run", "fam.hyb", "-o", "fam.mcap", "--quiet"]);
+    assert_eq!(code(&o), 0, "{}", stderr(&o));
+    let bytes = std::fs::read(dir.path().join("fam.mcap")).unwrap();
+    let mut seen = BTreeMap::new();
+    for m in mcap::MessageStream::new(&bytes).unwrap() {
+        let m = m.unwrap();
+        let schema: Value =
+            serde_json::from_slice(&m.channel.schema.as_ref().unwrap().data).unwrap();
+        check_schema(&schema).unwrap();
+        seen.insert(
+            m.channel.topic.clone(),
+            serde_json::from_slice::<Value>(&m.data).unwrap(),
+        );
+    }
+    // The last sample, at t = 1.
+    let state = &seen["/hybsim/state"];
+    assert_eq!(
+        state["x"][2]["data"],
+        serde_json::json!([3.0, 1.0]),
+        "{state}"
+    );
+    assert_eq!(state["z"][0], serde_json::json!(2.0), "{state}");
+    assert_eq!(state["odd"][1]["rows"], 2, "{state}");
+    assert!(
+        state.get("k").is_some() && state.as_object().unwrap().len() == 6,
+        "{state}"
+    );
+    let outputs = &seen["/hybsim/outputs"];
+    assert_eq!(
+        outputs["e"][0]["data"].as_array().unwrap().len(),
+        2,
+        "{outputs}"
+    );
+    assert!(outputs["s"][2].is_number(), "{outputs}");
+}
