@@ -168,6 +168,98 @@ impl Layout {
         Self { entries }
     }
 
+    /// The entry a model name refers to: a field or a family by its name
+    /// (`h`, `xhat`), or one member of a family (`xhat[2]`, `e[1,3]`, a
+    /// family restricted to that member). `None` if nothing has that name.
+    pub fn find(&self, name: &str) -> Option<Entry> {
+        let name = name.trim();
+        let (base, label) = match name.strip_suffix(']').and_then(|n| n.split_once('[')) {
+            Some((base, label)) => (base.trim(), Some(label.replace(' ', ""))),
+            None => (name, None),
+        };
+        self.entries.iter().find_map(|e| match (e, &label) {
+            (Entry::Field(f), None) if f.name == base => Some(e.clone()),
+            (Entry::Family { name: n, .. }, None) if n == base => Some(e.clone()),
+            (
+                Entry::Family {
+                    name: n,
+                    labels,
+                    members,
+                },
+                Some(label),
+            ) if n == base => {
+                let k = labels.iter().position(|l| l == label)?;
+                Some(Entry::Family {
+                    name: n.clone(),
+                    labels: vec![labels[k].clone()],
+                    members: vec![members[k].clone()],
+                })
+            }
+            _ => None,
+        })
+    }
+
+    /// The layout of the entries named in `names` (see [`find`](Self::find)),
+    /// in declaration order, members of one family merged into one entry;
+    /// and the names that refer to nothing.
+    pub fn select<S: AsRef<str>>(&self, names: &[S]) -> (Layout, Vec<String>) {
+        let mut unknown = Vec::new();
+        // Per entry of self: None (not selected), or the selected member labels
+        // (all of them for a whole entry).
+        let mut chosen: Vec<Option<Vec<String>>> = vec![None; self.entries.len()];
+        for name in names {
+            let name = name.as_ref();
+            let Some(found) = self.find(name) else {
+                unknown.push(name.to_string());
+                continue;
+            };
+            let k = self
+                .entries
+                .iter()
+                .position(|e| entry_name(e) == entry_name(&found))
+                .expect("found in self");
+            let labels = match &found {
+                Entry::Field(_) => Vec::new(),
+                Entry::Family { labels, .. } => labels.clone(),
+            };
+            let slot = chosen[k].get_or_insert_with(Vec::new);
+            for l in labels {
+                if !slot.contains(&l) {
+                    slot.push(l);
+                }
+            }
+        }
+        let entries = self
+            .entries
+            .iter()
+            .zip(chosen)
+            .filter_map(|(e, c)| {
+                let c = c?;
+                Some(match e {
+                    Entry::Field(_) => e.clone(),
+                    Entry::Family {
+                        name,
+                        labels,
+                        members,
+                    } => {
+                        let (labels, members) = labels
+                            .iter()
+                            .zip(members)
+                            .filter(|(l, _)| c.contains(l))
+                            .map(|(l, m)| (l.clone(), m.clone()))
+                            .unzip();
+                        Entry::Family {
+                            name: name.clone(),
+                            labels,
+                            members,
+                        }
+                    }
+                })
+            })
+            .collect();
+        (Layout { entries }, unknown)
+    }
+
     /// The covered components in layout order, with their flat names.
     pub fn components(&self) -> Vec<(usize, String)> {
         let mut out = Vec::new();
@@ -199,6 +291,14 @@ impl Layout {
     }
 }
 
+/// The name of a top-level entry.
+pub fn entry_name(e: &Entry) -> &str {
+    match e {
+        Entry::Field(f) => &f.name,
+        Entry::Family { name, .. } => name,
+    }
+}
+
 /// Flat names of the components of `f` (`x[1]`, `P[1,2]`), prefixed.
 fn field_names(prefix: &str, f: &Field) -> Vec<String> {
     match f.shape {
@@ -226,6 +326,61 @@ pub fn member_prefix(family: &str, label: &str, f: &Field) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn selections_by_entry_and_member_names() {
+        let field = |name: &str, shape, offset| Field {
+            name: name.into(),
+            shape,
+            offset,
+        };
+        let layout = Layout::from_declared([
+            Declared {
+                name: "h",
+                shape: Shape::Scalar,
+                offset: 0,
+                family: None,
+            },
+            Declared {
+                name: "x[1]",
+                shape: Shape::Vector(2),
+                offset: 1,
+                family: Some(("x", "1")),
+            },
+            Declared {
+                name: "x[2]",
+                shape: Shape::Vector(2),
+                offset: 3,
+                family: Some(("x", "2")),
+            },
+        ]);
+        let (sel, unknown) = layout.select(&["x[2]", "nope", "h", "x[ 2 ]"]);
+        assert_eq!(unknown, ["nope"]);
+        assert_eq!(entry_name(&sel.entries[0]), "h", "declaration order");
+        assert_eq!(
+            sel.entries[1],
+            Entry::Family {
+                name: "x".into(),
+                labels: vec!["2".into()],
+                members: vec![vec![field("", Shape::Vector(2), 3)]],
+            }
+        );
+        assert_eq!(
+            sel.components(),
+            [
+                (0, "h".to_string()),
+                (3, "x[2][1]".into()),
+                (4, "x[2][2]".into())
+            ]
+        );
+        assert!(layout.find("x[3]").is_none() && layout.find("h[1]").is_none());
+        assert_eq!(
+            layout.select(&["x"]).0,
+            Layout {
+                entries: layout.entries[1..].to_vec()
+            }
+        );
+    }
 
     #[test]
     fn families_of_values_are_named_like_the_model() {
