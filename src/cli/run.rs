@@ -471,6 +471,18 @@ pub fn execute(args: RunArgs) -> anyhow::Result<u8> {
         solver: settings_json(&settings),
         design: model.design_json(),
     };
+    // An unknown `--plot-vars` name is a usage error (exit 2), found before the run.
+    for name in &args.plot_vars {
+        if info.state_layout.find(name).is_none() && info.output_layout.find(name).is_none() {
+            let mut known = hybsim::sinks::entry_names(&info.state_layout);
+            known.extend(hybsim::sinks::entry_names(&info.output_layout));
+            eprintln!(
+                "error: `--plot-vars {name}`: neither a state nor an output of the model (known: {}; a family member is `name[i]`)",
+                known.join(", ")
+            );
+            return Ok(EXIT_MODEL_ERROR);
+        }
+    }
     for report in model.design_reports() {
         eprintln!("{}", report.summary_line());
     }

@@ -32,7 +32,7 @@ use plotters::prelude::*;
 use super::{Decimation, Decimator, OutputFn, RunInfo, SinkError, entry_names};
 use crate::arc::{ArcSink, HybridTime, SampleKind};
 use crate::atomic_file;
-use crate::layout::{Entry, Field, Layout, Shape};
+use crate::layout::{Entry, Field, Shape};
 
 /// Colours of successive series (a colour-blind-friendly palette).
 const COLORS: [RGBColor; 10] = [
@@ -464,13 +464,6 @@ fn entry_panels(entry: &Entry, source: Source) -> Vec<PanelSpec> {
     }
 }
 
-fn find_entry<'l>(layout: &'l Layout, name: &str) -> Option<&'l Entry> {
-    layout.entries.iter().find(|e| match e {
-        Entry::Field(f) => f.name == name,
-        Entry::Family { name: n, .. } => n == name,
-    })
-}
-
 /// Keeps the selected states and outputs of a run and draws them against t
 /// when [`finish`](Self::finish)ed.
 pub struct PlotSink<'a> {
@@ -517,13 +510,13 @@ impl<'a> PlotSink<'a> {
             }
         }
         for name in select {
-            if let Some(e) = find_entry(&info.state_layout, name) {
-                panels.extend(entry_panels(e, Source::State));
+            if let Some(e) = info.state_layout.find(name) {
+                panels.extend(entry_panels(&e, Source::State));
             } else if let (Some(e), true) = (
-                find_entry(&info.output_layout, name),
+                info.output_layout.find(name),
                 info.output_dim > 0 && outputs.is_some(),
             ) {
-                panels.extend(entry_panels(e, Source::Output));
+                panels.extend(entry_panels(&e, Source::Output));
             } else {
                 let mut known = entry_names(&info.state_layout);
                 known.extend(entry_names(&info.output_layout));
