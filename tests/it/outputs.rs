@@ -185,14 +185,37 @@ fn plot_vars_select_family_members_and_unknown_names_exit_2() {
     let model = model.to_str().unwrap();
     let o = hybsim(
         dir.path(),
-        &["run", model, "--no-mcap", "--quiet", "--T", "1", "--plot", "p.svg", "--plot-vars", "xhat[2],x"],
+        &[
+            "run",
+            model,
+            "--no-mcap",
+            "--quiet",
+            "--T",
+            "1",
+            "--plot",
+            "p.svg",
+            "--plot-vars",
+            "xhat[2],x",
+        ],
     );
     assert_eq!(code(&o), 0, "{}", stderr(&o));
     let svg = std::fs::read_to_string(dir.path().join("p.svg")).unwrap();
-    assert!(svg.contains("xhat[2][1]") && !svg.contains("xhat[1][1]"), "one member");
+    assert!(
+        svg.contains("xhat[2][1]") && !svg.contains("xhat[1][1]"),
+        "one member"
+    );
     let o = hybsim(
         dir.path(),
-        &["run", model, "--no-mcap", "--quiet", "--plot", "q.svg", "--plot-vars", "nope"],
+        &[
+            "run",
+            model,
+            "--no-mcap",
+            "--quiet",
+            "--plot",
+            "q.svg",
+            "--plot-vars",
+            "nope",
+        ],
     );
     assert_eq!(code(&o), 2, "{}", stderr(&o));
     assert!(stderr(&o).contains("`--plot-vars nope`"), "{}", stderr(&o));
