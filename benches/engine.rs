@@ -319,6 +319,8 @@ impl Agents {
         let rules = (0..3)
             .map(|k| JumpRule {
                 name: format!("transmit[{k}]"),
+                group: None,
+                writes: Vec::new(),
                 guard: GuardKind::Timer {
                     index: AGENT * k + 13,
                     threshold: 0.0,
@@ -379,16 +381,16 @@ impl HybridSystem for Agents {
             .map(|i| format!("agent[{}].x[{}]", i / AGENT, i % AGENT))
             .collect()
     }
-    fn flow_map(&self, _t: f64, x: &[f64], dx: &mut [f64]) {
+    fn flow_map(&self, _at: HybridTime, x: &[f64], dx: &mut [f64]) {
         self.flow(x, dx);
     }
     fn jump_rules(&self) -> &[JumpRule] {
         &self.rules
     }
-    fn jump_set(&self, rule: usize, _t: f64, x: &[f64]) -> bool {
+    fn jump_set(&self, rule: usize, _at: HybridTime, x: &[f64]) -> bool {
         x[AGENT * rule + 13] <= 0.0
     }
-    fn jump_guard(&self, rule: usize, _t: f64, x: &[f64]) -> f64 {
+    fn jump_guard(&self, rule: usize, _at: HybridTime, x: &[f64]) -> f64 {
         -x[AGENT * rule + 13]
     }
     fn jump_map(&self, rule: usize, _at: HybridTime, x: &[f64], rng: &mut SimRng, xp: &mut [f64]) {

@@ -5,6 +5,7 @@
 //! cargo run --release --example log_ball -- ball.mcap ball.csv ball.svg
 //! ```
 
+use hybsim::arc::HybridTime;
 use hybsim::engine::models::BouncingBall;
 use hybsim::engine::{SimRng, SimSettings, simulate};
 use hybsim::layout::Layout;
@@ -23,7 +24,8 @@ fn main() -> anyhow::Result<()> {
     info.parameters = serde_json::json!({"g": ball.g, "lambda": ball.lambda});
     info.output_layout = Layout::scalars(&["energy"]);
     info.output_dim = 1;
-    let energy = |_t: f64, x: &[f64], y: &mut [f64]| y[0] = ball.g * x[0] + 0.5 * x[1] * x[1];
+    let energy =
+        |_at: HybridTime, x: &[f64], y: &mut [f64]| y[0] = ball.g * x[0] + 0.5 * x[1] * x[1];
 
     let settings = SimSettings::default().horizon_j(20).dt_out(Some(0.01));
     let mut mcap_sink = McapSink::create(mcap, &info, Some(&energy), McapOptions::default())?;

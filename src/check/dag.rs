@@ -42,6 +42,10 @@ pub enum UnFn {
     Sign,
     /// ⌊a⌋
     Floor,
+    /// ⌈a⌉
+    Ceil,
+    /// a rounded to the nearest integer, halves away from zero
+    Round,
     /// logical not (1 if a == 0)
     Not,
 }
@@ -65,8 +69,12 @@ pub enum BinFn {
     Max,
     /// atan2(a, b)
     Atan2,
-    /// a mod b (floored)
+    /// a mod b (floored: the sign of b)
     Mod,
+    /// rem(a, b) = a − b·trunc(a/b) (truncated: the sign of a)
+    Rem,
+    /// √(a² + b²) without undue overflow or underflow
+    Hypot,
     /// a < b
     Lt,
     /// a ≤ b
@@ -205,6 +213,9 @@ pub enum Node {
     State(u32),
     /// Ordinary time t.
     Time,
+    /// The jump counter j (constant along a flow; the pre-jump value in a
+    /// jump map).
+    Jumps,
     /// Component k of the white-noise increment (flows only).
     Wiener(u32),
     /// f(a).
@@ -266,6 +277,8 @@ pub fn eval_un(f: UnFn, a: f64) -> f64 {
             }
         }
         UnFn::Floor => a.floor(),
+        UnFn::Ceil => a.ceil(),
+        UnFn::Round => a.round(),
         UnFn::Not => b2f(a == 0.0),
     }
 }
@@ -294,6 +307,8 @@ pub fn eval_bin(f: BinFn, a: f64, b: f64) -> f64 {
         BinFn::Max => a.max(b),
         BinFn::Atan2 => a.atan2(b),
         BinFn::Mod => a - b * (a / b).floor(),
+        BinFn::Rem => a - b * (a / b).trunc(),
+        BinFn::Hypot => a.hypot(b),
         BinFn::Lt => b2f(a < b),
         BinFn::Le => b2f(a <= b),
         BinFn::Gt => b2f(a > b),
@@ -376,6 +391,11 @@ impl Dag {
     /// Ordinary time.
     pub fn time(&mut self) -> NodeId {
         self.intern(Node::Time)
+    }
+
+    /// The jump counter j.
+    pub fn jumps(&mut self) -> NodeId {
+        self.intern(Node::Jumps)
     }
 
     /// White-noise component `k`.
@@ -518,7 +538,7 @@ impl Dag {
     /// Visits the direct inputs of `id`.
     pub fn inputs(&self, id: NodeId, mut f: impl FnMut(NodeId)) {
         match self.nodes[id as usize] {
-            Node::Const(_) | Node::State(_) | Node::Time | Node::Wiener(_) => {}
+            Node::Const(_) | Node::State(_) | Node::Time | Node::Jumps | Node::Wiener(_) => {}
             Node::Un(_, a) => f(a),
             Node::Bin(_, a, b) | Node::Rand(_, a, b, _) => {
                 f(a);

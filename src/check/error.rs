@@ -52,6 +52,15 @@ pub enum CheckError {
         /// The closest built-in function.
         suggestion: Option<String>,
     },
+    /// `x(1)`: a declared name (state, parameter, output, index) called
+    /// like a function, MATLAB's indexing.
+    #[error("`{name}` is not a function; hybsim indexes with brackets: `{name}[...]`")]
+    NotAFunction {
+        /// The name.
+        name: String,
+        /// The call.
+        span: Span,
+    },
     /// A `sim` key or override that does not exist.
     #[error("unknown setting `{name}`")]
     UnknownSetting {
@@ -169,6 +178,20 @@ pub enum CheckError {
         /// The first reset.
         first: Span,
     },
+    /// Two rules of one `together` group reset the same state component.
+    #[error("`{name}` is reset by rules `{first_rule}` and `{rule}` of one `together` group")]
+    GroupResetTwice {
+        /// The state (component).
+        name: String,
+        /// The second rule.
+        rule: String,
+        /// The first rule.
+        first_rule: String,
+        /// The second rule's reset.
+        span: Span,
+        /// The first rule's reset.
+        first: Span,
+    },
     /// A state component with two flow equations.
     #[error("`{name}` has two flow equations")]
     FlowTwice {
@@ -265,6 +288,7 @@ impl CheckError {
             UnknownName { span, .. }
             | Duplicate { span, .. }
             | UnknownFunction { span, .. }
+            | NotAFunction { span, .. }
             | UnknownSetting { span, .. }
             | ShapeMismatch { span, .. }
             | AssignShape { span, .. }
@@ -276,6 +300,7 @@ impl CheckError {
             | FamilyIndex { span, .. }
             | AssignToNonState { span, .. }
             | ResetTwice { span, .. }
+            | GroupResetTwice { span, .. }
             | FlowTwice { span, .. }
             | MissingInit { span, .. }
             | RandomNotAllowed { span, .. }
@@ -298,6 +323,7 @@ impl CheckError {
             Duplicate { .. } => "E0202",
             UnknownFunction { .. } => "E0203",
             UnknownSetting { .. } => "E0204",
+            NotAFunction { .. } => "E0205",
             ShapeMismatch { .. } => "E0301",
             AssignShape { .. } => "E0302",
             Arity { .. } => "E0303",
@@ -310,6 +336,7 @@ impl CheckError {
             FamilyIndex { .. } => "E0403",
             AssignToNonState { .. } => "E0501",
             ResetTwice { .. } => "E0502",
+            GroupResetTwice { .. } => "E0510",
             FlowTwice { .. } => "E0503",
             MissingInit { .. } => "E0504",
             RandomNotAllowed { .. } => "E0505",
@@ -345,6 +372,11 @@ impl CheckError {
                     None => d,
                 }
             }
+            NotAFunction { span, name } => d
+                .primary(*span, "indexed with parentheses")
+                .help(format!(
+                    "write `{name}[i]` (or `{name}[i, k]` for a matrix); indices start at 1"
+                )),
             Duplicate { span, first, .. } => d
                 .primary(*span, "declared again here")
                 .secondary(*first, "first declared here")
@@ -378,6 +410,17 @@ impl CheckError {
                 .primary(*span, "reset again here")
                 .secondary(*first, "first reset here")
                 .help("keep one reset per state in each rule"),
+            GroupResetTwice {
+                span,
+                first,
+                rule,
+                first_rule,
+                ..
+            } => d
+                .primary(*span, format!("reset by `{rule}` here"))
+                .secondary(*first, format!("reset by `{first_rule}` here"))
+                .note("the rules of a `together` group that are enabled at one instant fire as one jump, each reset computed from the pre-jump state; a component can come from one rule only")
+                .help("reset each state in one rule of the group, or move one of the rules out of `together`"),
             FlowTwice { span, first, .. } => d
                 .primary(*span, "second equation")
                 .secondary(*first, "first equation")

@@ -80,7 +80,13 @@ pub(crate) const BUILTINS: &[&str] = &[
     "tanh",
     "sign",
     "floor",
+    "ceil",
+    "round",
+    "frac",
     "mod",
+    "rem",
+    "hypot",
+    "clamp",
     "rows",
     "cols",
     "length",
@@ -343,6 +349,7 @@ impl Checker {
         let mut v: Vec<String> = self.syms.keys().cloned().collect();
         v.extend(self.scopes.iter().map(|(n, _)| n.clone()));
         v.push("t".into());
+        v.push("j".into());
         v.push("pi".into());
         v
     }
@@ -415,6 +422,7 @@ impl Checker {
             }
             None => match name {
                 "t" => Some(Val::scalar(self.dag.time())),
+                "j" => Some(Val::scalar(self.dag.jumps())),
                 "pi" => Some(Val::scalar(self.dag.konst(std::f64::consts::PI))),
                 "inf" => Some(Val::scalar(self.dag.konst(f64::INFINITY))),
                 _ => {
@@ -942,6 +950,8 @@ impl Checker {
             "tanh" => elementwise(UnFn::Tanh),
             "sign" => elementwise(UnFn::Sign),
             "floor" => elementwise(UnFn::Floor),
+            "ceil" => elementwise(UnFn::Ceil),
+            "round" => elementwise(UnFn::Round),
             _ => None,
         };
         if let Some(f) = un {
@@ -1163,12 +1173,40 @@ impl Checker {
                 let (a, b) = self.broadcast(a?, b?, name, span)?;
                 Some(self.zip(&a, &b, f))
             }
-            "atan2" | "mod" => {
+            "frac" => {
+                // frac(x) = x − ⌊x⌋ ∈ [0, 1): the floored `mod(x, 1)`.
+                arity(self, n == 1, "1 argument")?;
+                let v = self.expr(&args[0], ctx)?;
+                let one = self.dag.konst(1.0);
+                let e =
+                    v.e.iter()
+                        .map(|&x| self.dag.bin(BinFn::Mod, x, one))
+                        .collect();
+                Some(Val {
+                    e,
+                    boolean: false,
+                    ..v
+                })
+            }
+            "clamp" => {
+                // clamp(x, lo, hi) = min(max(x, lo), hi), elementwise with
+                // broadcasting; never fails, even for lo > hi (then hi).
+                arity(self, n == 3, "3 arguments")?;
+                let x = self.expr(&args[0], ctx);
+                let lo = self.expr(&args[1], ctx);
+                let hi = self.expr(&args[2], ctx);
+                let (x, lo) = self.broadcast(x?, lo?, name, span)?;
+                let low = self.zip(&x, &lo, BinFn::Max);
+                let (low, hi) = self.broadcast(low, hi?, name, span)?;
+                Some(self.zip(&low, &hi, BinFn::Min))
+            }
+            "atan2" | "mod" | "rem" | "hypot" => {
                 arity(self, n == 2, "2 arguments")?;
-                let f = if name == "mod" {
-                    BinFn::Mod
-                } else {
-                    BinFn::Atan2
+                let f = match name {
+                    "mod" => BinFn::Mod,
+                    "rem" => BinFn::Rem,
+                    "hypot" => BinFn::Hypot,
+                    _ => BinFn::Atan2,
                 };
                 let a = self.expr(&args[0], ctx);
                 let b = self.expr(&args[1], ctx);
@@ -1221,6 +1259,16 @@ impl Checker {
                 self.err(CheckError::Expected {
                     expected: "`wiener(m)` only in `noise w ~ wiener(m)`".into(),
                     found: "a call".into(),
+                    span,
+                });
+                None
+            }
+            _ if self.syms.contains_key(name)
+                || self.scope_lookup(name).is_some()
+                || matches!(name, "t" | "j" | "pi") =>
+            {
+                self.err(CheckError::NotAFunction {
+                    name: name.to_string(),
                     span,
                 });
                 None

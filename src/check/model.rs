@@ -53,6 +53,9 @@ pub struct CheckedRule {
     pub timer: Option<(usize, f64)>,
     /// Reset components and their new values (over pre-jump values).
     pub resets: Vec<(usize, NodeId)>,
+    /// The `together` block the rule belongs to (numbered in source
+    /// order, one per block instance), if any.
+    pub group: Option<usize>,
     /// The rule's head.
     pub span: Span,
 }
@@ -159,6 +162,9 @@ const SIM_KEYS: &[&str] = &[
     "max_step",
     "event_tol",
     "zeno_rate",
+    "zeno_max_rate",
+    "zeno_window",
+    "max_total_jumps",
     "horizon_t",
     "horizon_j",
 ];
@@ -177,6 +183,12 @@ struct ModelChecker<'o> {
     sim: Vec<(String, Expr, Span)>,
     params: Vec<(String, Dims, Vec<f64>)>,
     anonymous_every: usize,
+    /// The `together` block being checked, and the number of blocks seen.
+    group: Option<usize>,
+    groups: usize,
+    /// Per group: each reset component with its rule and reset, to report
+    /// two rules of one group that reset one component.
+    group_resets: Vec<HashMap<usize, (String, Span)>>,
     designs: Vec<DesignReport>,
     random_params: Vec<crate::props::Input>,
     solve_checks: bool,
@@ -216,6 +228,9 @@ pub(crate) fn check_model(
         sim: Vec::new(),
         params: Vec::new(),
         anonymous_every: 0,
+        group: None,
+        groups: 0,
+        group_resets: Vec::new(),
         designs: Vec::new(),
         random_params: Vec::new(),
         solve_checks: options.solve_checks,
@@ -492,7 +507,12 @@ impl ModelChecker<'_> {
                 }
             }),
             Item::Design(d) => self.design(d),
-            Item::Flow(_) | Item::Jump(_) | Item::Output(_) | Item::Sim(_) | Item::Property(_) => {}
+            Item::Flow(_)
+            | Item::Jump(_)
+            | Item::Output(_)
+            | Item::Sim(_)
+            | Item::Property(_)
+            | Item::Together(..) => {}
         }
     }
 
@@ -517,6 +537,15 @@ impl ModelChecker<'_> {
                     this.pass2(it);
                 }
             }),
+            Item::Together(items, _) => {
+                let outer = self.group.replace(self.groups);
+                self.groups += 1;
+                self.group_resets.push(HashMap::new());
+                for it in items {
+                    self.pass2(it);
+                }
+                self.group = outer;
+            }
             Item::Param(_)
             | Item::RandomParam(_)
             | Item::ParamTuple(..)
@@ -886,11 +915,9 @@ impl ModelChecker<'_> {
             });
             return;
         }
-        if self
-            .c
-            .dag
-            .any_reachable(&v.e, |n| matches!(n, Node::State(_) | Node::Time))
-        {
+        if self.c.dag.any_reachable(&v.e, |n| {
+            matches!(n, Node::State(_) | Node::Time | Node::Jumps)
+        }) {
             self.c.err(CheckError::NotConstant {
                 what: format!("the initial value of `{name}`"),
                 span: init_expr.span,
@@ -1238,13 +1265,48 @@ impl ModelChecker<'_> {
         for r in resets {
             self.reset(&name, r, &mut assigned, &mut out);
         }
+        if let Some(g) = self.group {
+            self.check_group_resets(g, &name, &out, &assigned);
+        }
         self.rules.push(CheckedRule {
             name,
             guard,
             timer,
             resets: out,
+            group: self.group,
             span,
         });
+    }
+
+    /// Two rules of one `together` group must reset disjoint components:
+    /// each component of the simultaneous jump comes from one rule.
+    fn check_group_resets(
+        &mut self,
+        g: usize,
+        rule: &str,
+        resets: &[(usize, NodeId)],
+        spans: &HashMap<usize, Span>,
+    ) {
+        for &(k, _) in resets {
+            let span = spans.get(&k).copied().unwrap_or_default();
+            match self.group_resets[g].get(&k) {
+                Some((first_rule, first)) => {
+                    let (first_rule, first) = (first_rule.clone(), *first);
+                    let name = self.component_name(k);
+                    self.c.err(CheckError::GroupResetTwice {
+                        name,
+                        rule: rule.to_string(),
+                        first_rule,
+                        span,
+                        first,
+                    });
+                    return;
+                }
+                None => {
+                    self.group_resets[g].insert(k, (rule.to_string(), span));
+                }
+            }
+        }
     }
 
     fn reset(
@@ -1357,6 +1419,7 @@ impl ModelChecker<'_> {
             let canon = match key.as_str() {
                 "horizon_t" => "T",
                 "horizon_j" => "J",
+                "zeno_max_rate" => "zeno_rate",
                 k => k,
             };
             if let Some(&first) = seen.get(canon) {
@@ -1428,6 +1491,14 @@ impl ModelChecker<'_> {
                         "max_step" if x > 0.0 => s.max_step = x,
                         "event_tol" if x >= 0.0 => s.event_tol = x,
                         "zeno_rate" if x > 0.0 => s.zeno_max_rate = x,
+                        "zeno_window" if x >= 2.0 && x.fract() == 0.0 && x <= u32::MAX as f64 => {
+                            s.zeno_window = x as u32
+                        }
+                        "max_total_jumps" if x >= 1.0 && x.fract() == 0.0 => {
+                            s.max_total_jumps = x.min(u64::MAX as f64) as u64
+                        }
+                        "zeno_window" => bad(self, format!("{x} is not an integer ≥ 2")),
+                        "max_total_jumps" => bad(self, format!("{x} is not an integer ≥ 1")),
                         "T" | "J" | "rtol" | "atol" | "h" | "dt_out" | "seed" | "max_step"
                         | "event_tol" | "zeno_rate" => bad(self, format!("{x} is out of range")),
                         _ => {

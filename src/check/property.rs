@@ -150,7 +150,7 @@ fn nested(c: &mut Checker, items: &[Item]) {
                 what: "properties inside `for` loops (declare them at model level)".into(),
                 span: p.name.span,
             }),
-            Item::For(_, inner) => nested(c, inner),
+            Item::For(_, inner) | Item::Together(inner, _) => nested(c, inner),
             _ => {}
         }
     }
@@ -359,7 +359,12 @@ fn to_post(dag: &mut Dag, n: NodeId, dim: usize, memo: &mut HashMap<NodeId, Node
     }
     let r = match dag.node(n) {
         Node::State(k) if (k as usize) < dim => dag.state(dim + 1 + k as usize),
-        Node::Const(_) | Node::State(_) | Node::Time | Node::Wiener(_) | Node::Rand(..) => n,
+        Node::Const(_)
+        | Node::State(_)
+        | Node::Time
+        | Node::Jumps
+        | Node::Wiener(_)
+        | Node::Rand(..) => n,
         Node::Un(f, a) => {
             let a = to_post(dag, a, dim, memo);
             dag.un(f, a)

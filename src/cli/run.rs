@@ -7,7 +7,7 @@ use std::time::{Duration, Instant};
 use clap::Args;
 use std::io::IsTerminal;
 
-use hybsim::arc::{ArcSink, Termination, TerminationCause};
+use hybsim::arc::{ArcSink, HybridTime, Termination, TerminationCause};
 use hybsim::diagnostics::render;
 use hybsim::engine::{HybridSystem, Priority, SimError, SimRng, SimSettings, Solver, simulate};
 use hybsim::lang;
@@ -62,6 +62,16 @@ pub struct RunArgs {
     /// What to do when the state is in both C and D.
     #[arg(long, value_enum)]
     pub priority: Option<PriorityKind>,
+    /// Zeno guard: most jumps per unit of t over the window (`inf`
+    /// disables it); applies only when J is unbounded.
+    #[arg(long, value_name = "RATE")]
+    pub zeno_rate: Option<f64>,
+    /// Zeno guard: number of jumps over which the rate is measured (≥ 2).
+    #[arg(long, value_name = "N")]
+    pub zeno_window: Option<u32>,
+    /// Zeno guard: jump budget of a run with unbounded J (≥ 1).
+    #[arg(long, value_name = "N")]
+    pub max_total_jumps: Option<u64>,
     /// Interior-point method of the model's design blocks.
     #[arg(long, value_enum, default_value_t = SdpKind::Auto)]
     pub sdp: SdpKind,
@@ -178,6 +188,15 @@ pub fn settings_from_flags(
     }
     if let Some(h) = args.max_step {
         settings = settings.max_step(h);
+    }
+    if let Some(r) = args.zeno_rate {
+        settings = settings.zeno_max_rate(r);
+    }
+    if let Some(w) = args.zeno_window {
+        settings = settings.zeno_window(w);
+    }
+    if let Some(n) = args.max_total_jumps {
+        settings = settings.max_total_jumps(n);
     }
     if let Some(p) = args.priority {
         settings = settings.priority(match p {
@@ -502,7 +521,7 @@ pub fn execute(args: RunArgs) -> anyhow::Result<u8> {
         decimation: Decimation::all().every(args.log_every).dt(args.log_dt),
         progress: !args.quiet,
     };
-    let output_fn = |t: f64, x: &[f64], y: &mut [f64]| model.outputs(t, x, y);
+    let output_fn = |at: HybridTime, x: &[f64], y: &mut [f64]| model.outputs(at, x, y);
     let (x0, mut rng) = model.start(seed);
     let (report, error) = simulate_to_files(
         &model,

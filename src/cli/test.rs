@@ -38,6 +38,41 @@ pub struct TestArgs {
     /// Most runs spent shrinking a counterexample (0: no shrinking).
     #[arg(long, value_name = "N", default_value_t = 400)]
     pub max_shrink: usize,
+    /// Zeno guard: most jumps per unit of t over the window (`inf`
+    /// disables it); applies only when J is unbounded. Same as
+    /// `--set zeno_rate=RATE`.
+    #[arg(long, value_name = "RATE")]
+    pub zeno_rate: Option<f64>,
+    /// Zeno guard: number of jumps over which the rate is measured (≥ 2).
+    #[arg(long, value_name = "N")]
+    pub zeno_window: Option<u32>,
+    /// Zeno guard: jump budget of a run with unbounded J (≥ 1).
+    #[arg(long, value_name = "N")]
+    pub max_total_jumps: Option<u64>,
+}
+
+impl TestArgs {
+    /// The `--set` overrides, with the Zeno flags as `sim` keys.
+    fn overrides(&self) -> Vec<String> {
+        let mut set = self.set.clone();
+        if let Some(r) = self.zeno_rate {
+            set.push(format!(
+                "zeno_rate={}",
+                if r.is_infinite() {
+                    "inf".to_string()
+                } else {
+                    format!("{r:e}")
+                }
+            ));
+        }
+        if let Some(w) = self.zeno_window {
+            set.push(format!("zeno_window={w}"));
+        }
+        if let Some(n) = self.max_total_jumps {
+            set.push(format!("max_total_jumps={n}"));
+        }
+        set
+    }
 }
 
 /// `arg` as one shell word (single-quoted unless plainly safe).
@@ -55,7 +90,7 @@ fn shell_word(arg: &str) -> String {
 
 /// `hybsim test`.
 pub fn execute(args: TestArgs) -> anyhow::Result<u8> {
-    let Some((src, overrides)) = super::load(&args.model, &args.set)? else {
+    let Some((src, overrides)) = super::load(&args.model, &args.overrides())? else {
         return Ok(EXIT_MODEL_ERROR);
     };
     let color = std::io::IsTerminal::is_terminal(&std::io::stderr());

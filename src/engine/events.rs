@@ -15,6 +15,7 @@
 use super::HybridSystem;
 use super::settings::{Priority, SimSettings};
 use super::system::GuardKind;
+use crate::arc::HybridTime;
 
 /// x(s) on one step `[s0, s1]`.
 pub(crate) trait StepPath {
@@ -103,6 +104,8 @@ pub(crate) struct Watcher {
     hits: Vec<bool>,
     checks: usize,
     event_tol: f64,
+    /// The jump count of the segment being watched (constant along it).
+    j: u64,
     buf_s: Vec<f64>,
     buf_a: Vec<f64>,
     buf_b: Vec<f64>,
@@ -125,7 +128,7 @@ impl Watcher {
                 }
             }
         }
-        if sys.flow_guard(0.0, x0).is_some() {
+        if sys.flow_guard(HybridTime::new(0.0, 0), x0).is_some() {
             watched.push(Watched::LeavesC);
         }
         let n = x0.len();
@@ -135,6 +138,7 @@ impl Watcher {
             watched,
             checks: settings.guard_checks as usize,
             event_tol: settings.event_tol,
+            j: 0,
             buf_s: vec![0.0; n],
             buf_a: vec![0.0; n],
             buf_b: vec![0.0; n],
@@ -155,10 +159,10 @@ impl Watcher {
         self.watched.is_empty()
     }
 
-    fn value<S: HybridSystem + ?Sized>(sys: &S, w: Watched, t: f64, x: &[f64]) -> f64 {
+    fn value<S: HybridSystem + ?Sized>(sys: &S, w: Watched, at: HybridTime, x: &[f64]) -> f64 {
         match w {
-            Watched::Rule(i) => sys.jump_guard(i, t, x),
-            Watched::LeavesC => -sys.flow_guard(t, x).unwrap_or(f64::INFINITY),
+            Watched::Rule(i) => sys.jump_guard(i, at, x),
+            Watched::LeavesC => -sys.flow_guard(at, x).unwrap_or(f64::INFINITY),
         }
     }
 
@@ -169,18 +173,19 @@ impl Watcher {
         }
     }
 
-    fn confirmed<S: HybridSystem + ?Sized>(sys: &S, w: Watched, t: f64, x: &[f64]) -> bool {
+    fn confirmed<S: HybridSystem + ?Sized>(sys: &S, w: Watched, at: HybridTime, x: &[f64]) -> bool {
         match w {
-            Watched::Rule(i) => sys.jump_set(i, t, x),
-            Watched::LeavesC => !sys.flow_set(t, x),
+            Watched::Rule(i) => sys.jump_set(i, at, x),
+            Watched::LeavesC => !sys.flow_set(at, x),
         }
     }
 
     /// Records the state at the start of a flow segment (local time 0,
-    /// global time `t0`).
-    pub fn start<S: HybridSystem + ?Sized>(&mut self, sys: &S, t0: f64, x: &[f64]) {
+    /// global hybrid time `at`).
+    pub fn start<S: HybridSystem + ?Sized>(&mut self, sys: &S, at: HybridTime, x: &[f64]) {
+        self.j = at.j;
         for (k, &w) in self.watched.iter().enumerate() {
-            self.triggered[k] = Self::is_triggered(w, Self::value(sys, w, t0, x));
+            self.triggered[k] = Self::is_triggered(w, Self::value(sys, w, at, x));
         }
     }
 
@@ -212,7 +217,10 @@ impl Watcher {
             }
             let mut any = false;
             for (i, &w) in self.watched.iter().enumerate() {
-                let trig = Self::is_triggered(w, Self::value(sys, w, t0 + s, &self.buf_s));
+                let trig = Self::is_triggered(
+                    w,
+                    Self::value(sys, w, HybridTime::new(t0 + s, self.j), &self.buf_s),
+                );
                 self.hits[i] = trig && !self.triggered[i];
                 any |= self.hits[i];
                 self.triggered[i] = trig;
@@ -230,8 +238,10 @@ impl Watcher {
                         // bracket (the earlier-declared function wins, so a
                         // rule wins over leaving C), cannot replace it.
                         let tb = t0 + sb;
-                        let at_post = Self::value(sys, w, tb, &self.buf_best_post);
-                        let at_pre = Self::value(sys, w, tb, &self.buf_best);
+                        let at_post =
+                            Self::value(sys, w, HybridTime::new(tb, self.j), &self.buf_best_post);
+                        let at_pre =
+                            Self::value(sys, w, HybridTime::new(tb, self.j), &self.buf_best);
                         if !Self::is_triggered(w, at_post) || !Self::is_triggered(w, at_pre) {
                             continue;
                         }
@@ -240,7 +250,7 @@ impl Watcher {
                     if best.is_some_and(|(sb, _)| sb <= a) {
                         continue;
                     }
-                    if Self::confirmed(sys, w, t0 + b, &self.buf_b) {
+                    if Self::confirmed(sys, w, HybridTime::new(t0 + b, self.j), &self.buf_b) {
                         let kind = match w {
                             Watched::Rule(r) => EventKind::Jump(r),
                             Watched::LeavesC => EventKind::LeftFlowSet,
@@ -274,8 +284,8 @@ impl Watcher {
     ) -> (f64, f64) {
         path.eval(a, &mut self.buf_a);
         path.eval(b, &mut self.buf_b);
-        let mut fa = Self::value(sys, w, t0 + a, &self.buf_a);
-        let mut fb = Self::value(sys, w, t0 + b, &self.buf_b);
+        let mut fa = Self::value(sys, w, HybridTime::new(t0 + a, self.j), &self.buf_a);
+        let mut fb = Self::value(sys, w, HybridTime::new(t0 + b, self.j), &self.buf_b);
         if fb == 0.0 && matches!(w, Watched::Rule(_)) {
             // b is an exact root (a clock reaching its threshold at a step
             // end, e.g. on a timer's instant): the crossing is at b. Secant
@@ -309,7 +319,7 @@ impl Watcher {
             }
             widths = [widths[1], width];
             path.eval(s, &mut self.buf_s);
-            let v = Self::value(sys, w, t0 + s, &self.buf_s);
+            let v = Self::value(sys, w, HybridTime::new(t0 + s, self.j), &self.buf_s);
             if Self::is_triggered(w, v) {
                 b = s;
                 fb = v;

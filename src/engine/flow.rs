@@ -343,12 +343,12 @@ fn tolerances(solver: Solver) -> (f64, f64) {
 /// most likely struggled with.
 fn fastest_component<S: HybridSystem + ?Sized>(
     sys: &S,
-    t: f64,
+    at: HybridTime,
     x: &[f64],
     (rtol, atol): (f64, f64),
 ) -> (usize, String) {
     let mut dx = vec![0.0; x.len()];
-    sys.flow_map(t, x, &mut dx);
+    sys.flow_map(at, x, &mut dx);
     let rate = |i: usize| {
         let r = dx[i].abs() / (atol + rtol * x[i].abs());
         if r.is_nan() { f64::INFINITY } else { r }
@@ -395,10 +395,15 @@ impl Flows {
         }
     }
 
-    /// Prepares a segment starting at global time `t0` from `x`; returns
-    /// f(t0, x) (zeros if no one needs it), whose timer components give the
-    /// timers' constant rates.
-    pub fn start<S: HybridSystem + ?Sized>(&mut self, sys: &S, t0: f64, x: &[f64]) -> &[f64] {
+    /// Prepares a segment starting at global hybrid time `at` from `x`;
+    /// returns f(x, t, j) (zeros if no one needs it), whose timer components
+    /// give the timers' constant rates.
+    pub fn start<S: HybridSystem + ?Sized>(
+        &mut self,
+        sys: &S,
+        at: HybridTime,
+        x: &[f64],
+    ) -> &[f64] {
         match &self.method {
             // Exact flows need no interpolant: only the timers' rates, one
             // row of [A, b] each.
@@ -415,10 +420,10 @@ impl Flows {
                             .sum::<f64>();
                 }
             }
-            _ if self.need_derivative => sys.flow_map(t0, x, &mut self.f_prev),
+            _ if self.need_derivative => sys.flow_map(at, x, &mut self.f_prev),
             _ => {}
         }
-        self.watcher.start(sys, t0, x);
+        self.watcher.start(sys, at, x);
         &self.f_prev
     }
 
@@ -568,8 +573,12 @@ impl Flows {
                 })
             }
             (None, Err(IntegrationError::StepSizeUnderflow { x })) => {
-                let (component, name) =
-                    fastest_component(sys, t0 + s_prev, &self.y_prev, tolerances(solver));
+                let (component, name) = fastest_component(
+                    sys,
+                    HybridTime::new(t0 + s_prev, j),
+                    &self.y_prev,
+                    tolerances(solver),
+                );
                 Err(SimError::StepSizeCollapse {
                     at: HybridTime::new(t0 + x, j),
                     h: self.last_h,
@@ -578,8 +587,12 @@ impl Flows {
                 })
             }
             (None, Err(IntegrationError::StiffnessDetected { x })) => {
-                let (component, name) =
-                    fastest_component(sys, t0 + s_prev, &self.y_prev, tolerances(solver));
+                let (component, name) = fastest_component(
+                    sys,
+                    HybridTime::new(t0 + s_prev, j),
+                    &self.y_prev,
+                    tolerances(solver),
+                );
                 Err(SimError::Stiff {
                     at: HybridTime::new(t0 + x, j),
                     component,
@@ -666,12 +679,12 @@ impl Flows {
             let remaining = d_end - s;
             let last = remaining <= h * (1.0 + 1e-9);
             let (s1, dt) = if last { (d_end, remaining) } else { (s + h, h) };
-            sys.flow_map(t0 + s, &self.y_prev, &mut y1);
+            sys.flow_map(HybridTime::new(t0 + s, j), &self.y_prev, &mut y1);
             for (yn, &yo) in y1.iter_mut().zip(self.y_prev.iter()) {
                 *yn = yo + dt * *yn;
             }
             if m > 0 {
-                sys.diffusion(t0 + s, &self.y_prev, &mut self.noise_g);
+                sys.diffusion(HybridTime::new(t0 + s, j), &self.y_prev, &mut self.noise_g);
                 let sq = dt.sqrt();
                 for w in self.noise_dw.iter_mut() {
                     *w = sq * rng.standard_normal();
@@ -793,7 +806,8 @@ impl<S: HybridSystem + ?Sized> Stepper<'_, '_, S> {
         let fl = &mut *self.fl;
         if fl.need_derivative {
             if self.f_is_start {
-                self.sys.flow_map(self.t0 + s1, y, &mut fl.f_cur);
+                self.sys
+                    .flow_map(HybridTime::new(self.t0 + s1, self.j), y, &mut fl.f_cur);
             } else {
                 fl.f_cur.copy_from_slice(dy);
             }
@@ -832,8 +846,11 @@ impl<S: HybridSystem + ?Sized> Stepper<'_, '_, S> {
 
 impl<S: HybridSystem + ?Sized> System<f64, DVector<f64>> for &mut Stepper<'_, '_, S> {
     fn system(&self, s: f64, y: &DVector<f64>, dy: &mut DVector<f64>) {
-        self.sys
-            .flow_map(self.t0 + s, y.as_slice(), dy.as_mut_slice());
+        self.sys.flow_map(
+            HybridTime::new(self.t0 + s, self.j),
+            y.as_slice(),
+            dy.as_mut_slice(),
+        );
     }
 
     fn solout(&mut self, s: f64, y: &DVector<f64>, dy: &DVector<f64>) -> bool {

@@ -12,11 +12,22 @@
 //!    particular no jump is taken at `t = T`.
 //! 2. **Which rule is enabled.** The enabled rule is the *first rule in
 //!    declaration order* whose jump set contains x (or whose event the last
-//!    flow just localized, see below). One jump is one rule: it increments j
-//!    by exactly one; the state is then re-examined at the same t, so if
-//!    several rules are enabled they fire one after another, each on the
-//!    state left by the previous one, in declaration order, as long as they
-//!    stay enabled.
+//!    flow just localized, see below). By default one jump is one rule: it
+//!    increments j by exactly one; the state is then re-examined at the same
+//!    t, so if several rules are enabled they fire one after another, each
+//!    on the state left by the previous one, in declaration order, as long as
+//!    they stay enabled. **Simultaneous jumps:** if the enabled rule has a
+//!    [`group`](JumpRule::group), every rule of that group whose jump set
+//!    holds at the pre-jump point (or at the post-crossing end of the event
+//!    just localized, i.e. at the same instant within the event tolerance;
+//!    grouped timers due within the tolerance land on their threshold with
+//!    it) fires in the same jump: each jump map is evaluated at the
+//!    pre-jump state and hybrid time, x⁺ takes component `k` from the rule
+//!    whose [`writes`](JumpRule::writes) contain `k` and keeps the others,
+//!    and j increments by one (HyEQ's `CompositeHybridSystem`). The sink
+//!    receives one [`jump`](crate::arc::ArcSink::jump) per firing rule, in
+//!    declaration order, all at the same (t, j) with the same pre- and
+//!    post-jump states.
 //! 3. **Flow or jump.** With x ∈ D only it jumps; with x ∈ C only it flows;
 //!    with x ∈ C ∩ D the [`Priority`] decides: [`Priority::Jumps`] (the
 //!    default, as HyEQ) jumps, [`Priority::Flows`] flows and jumps only when
@@ -25,13 +36,17 @@
 //! 4. **Neither.** If x is in neither set (or the previous flow ended
 //!    because it was leaving C and x is not in D), the solution is maximal
 //!    and ends with [`TerminationCause::CannotFlowOrJump`].
-//! 5. **Zeno guards.** Before each jump: if the last
-//!    [`zeno_window`](SimSettings::zeno_window) jumps happened faster than
-//!    [`zeno_max_rate`](SimSettings::zeno_max_rate) jumps per unit of t, or
-//!    `j` reached [`max_total_jumps`](SimSettings::max_total_jumps), the run
-//!    ends with [`TerminationCause::ZenoSuspected`] naming the rule. A pure
-//!    discrete-time system whose jumps all happen at one `t` therefore needs
-//!    `zeno_max_rate = ∞`.
+//! 5. **Zeno guards** (only when [`horizon_j`](SimSettings::horizon_j) is
+//!    unbounded: a finite J is the run's jump budget, and the run reaches
+//!    it). Before each jump, with `j` jumps made: if the last
+//!    [`zeno_window`](SimSettings::zeno_window) jumps and this one happen
+//!    within less than `zeno_window / zeno_max_rate` units of t (see
+//!    [`zeno_max_rate`](SimSettings::zeno_max_rate)), or `j` reached
+//!    [`max_total_jumps`](SimSettings::max_total_jumps), the run ends at
+//!    `(t, j)` with [`TerminationCause::ZenoSuspected`] naming the rule. A
+//!    pure discrete-time system whose jumps all happen at one `t` runs to a
+//!    finite J; with J unbounded it needs `zeno_max_rate = ∞` and stops
+//!    after `max_total_jumps`.
 //!
 //! A flow segment runs until the first of: the horizon T, the next *timer*
 //! event, or a localized *guard* event:
@@ -90,15 +105,15 @@
 //! impl HybridSystem for Ball {
 //!     fn state_dim(&self) -> usize { 2 }
 //!     fn state_names(&self) -> Vec<String> { vec!["h".into(), "v".into()] }
-//!     fn flow_map(&self, _t: f64, x: &[f64], dx: &mut [f64]) {
+//!     fn flow_map(&self, _at: HybridTime, x: &[f64], dx: &mut [f64]) {
 //!         dx[0] = x[1];
 //!         dx[1] = -self.g;
 //!     }
-//!     fn flow_set(&self, _t: f64, x: &[f64]) -> bool { x[0] >= 0.0 }
-//!     fn flow_guard(&self, _t: f64, x: &[f64]) -> Option<f64> { Some(x[0]) }
+//!     fn flow_set(&self, _at: HybridTime, x: &[f64]) -> bool { x[0] >= 0.0 }
+//!     fn flow_guard(&self, _at: HybridTime, x: &[f64]) -> Option<f64> { Some(x[0]) }
 //!     fn jump_rules(&self) -> &[JumpRule] { &self.rules }
-//!     fn jump_set(&self, _rule: usize, _t: f64, x: &[f64]) -> bool { x[0] <= 0.0 && x[1] <= 0.0 }
-//!     fn jump_guard(&self, _rule: usize, _t: f64, x: &[f64]) -> f64 { -x[0] }
+//!     fn jump_set(&self, _rule: usize, _at: HybridTime, x: &[f64]) -> bool { x[0] <= 0.0 && x[1] <= 0.0 }
+//!     fn jump_guard(&self, _rule: usize, _at: HybridTime, x: &[f64]) -> f64 { -x[0] }
 //!     fn jump_map(&self, _rule: usize, _at: HybridTime, x: &[f64], _rng: &mut SimRng, xp: &mut [f64]) {
 //!         xp[0] = x[0];
 //!         xp[1] = -self.lambda * x[1];
@@ -108,7 +123,7 @@
 //! let ball = Ball {
 //!     g: 9.81,
 //!     lambda: 0.8,
-//!     rules: vec![JumpRule { name: "impact".into(), guard: GuardKind::General }],
+//!     rules: vec![JumpRule::new("impact", GuardKind::General)],
 //! };
 //! let arc = simulate_arc(&ball, &[1.0, 0.0], &SimSettings::default(), &mut SimRng::seed_from(0))
 //!     .expect("valid settings and system");

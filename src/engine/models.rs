@@ -30,6 +30,8 @@ impl BouncingBall {
             affine: false,
             rules: vec![JumpRule {
                 name: "impact".into(),
+                group: None,
+                writes: Vec::new(),
                 guard: GuardKind::General,
             }],
         }
@@ -64,23 +66,23 @@ impl HybridSystem for BouncingBall {
     fn state_names(&self) -> Vec<String> {
         vec!["h".into(), "v".into()]
     }
-    fn flow_map(&self, _t: f64, x: &[f64], dx: &mut [f64]) {
+    fn flow_map(&self, _at: HybridTime, x: &[f64], dx: &mut [f64]) {
         dx[0] = x[1];
         dx[1] = -self.g;
     }
-    fn flow_set(&self, _t: f64, x: &[f64]) -> bool {
+    fn flow_set(&self, _at: HybridTime, x: &[f64]) -> bool {
         x[0] >= 0.0
     }
-    fn flow_guard(&self, _t: f64, x: &[f64]) -> Option<f64> {
+    fn flow_guard(&self, _at: HybridTime, x: &[f64]) -> Option<f64> {
         Some(x[0])
     }
     fn jump_rules(&self) -> &[JumpRule] {
         &self.rules
     }
-    fn jump_set(&self, _rule: usize, _t: f64, x: &[f64]) -> bool {
+    fn jump_set(&self, _rule: usize, _at: HybridTime, x: &[f64]) -> bool {
         x[0] <= 0.0 && x[1] <= 0.0
     }
-    fn jump_guard(&self, _rule: usize, _t: f64, x: &[f64]) -> f64 {
+    fn jump_guard(&self, _rule: usize, _at: HybridTime, x: &[f64]) -> f64 {
         -x[0]
     }
     fn jump_map(
@@ -124,6 +126,8 @@ impl RandomTimers {
         let rules = (0..n)
             .map(|i| JumpRule {
                 name: format!("reset[{i}]"),
+                group: None,
+                writes: Vec::new(),
                 guard: GuardKind::Timer {
                     index: i,
                     threshold: 0.0,
@@ -141,16 +145,16 @@ impl HybridSystem for RandomTimers {
     fn state_names(&self) -> Vec<String> {
         (0..self.rules.len()).map(|i| format!("tau[{i}]")).collect()
     }
-    fn flow_map(&self, _t: f64, _x: &[f64], dx: &mut [f64]) {
+    fn flow_map(&self, _at: HybridTime, _x: &[f64], dx: &mut [f64]) {
         dx.fill(-1.0);
     }
     fn jump_rules(&self) -> &[JumpRule] {
         &self.rules
     }
-    fn jump_set(&self, rule: usize, _t: f64, x: &[f64]) -> bool {
+    fn jump_set(&self, rule: usize, _at: HybridTime, x: &[f64]) -> bool {
         x[rule] <= 0.0
     }
-    fn jump_guard(&self, rule: usize, _t: f64, x: &[f64]) -> f64 {
+    fn jump_guard(&self, rule: usize, _at: HybridTime, x: &[f64]) -> f64 {
         -x[rule]
     }
     fn jump_map(&self, rule: usize, _at: HybridTime, x: &[f64], rng: &mut SimRng, xp: &mut [f64]) {
@@ -188,6 +192,8 @@ impl SampleAndHold {
         let index = a.nrows() + b.ncols();
         let rules = vec![JumpRule {
             name: "sample".into(),
+            group: None,
+            writes: Vec::new(),
             guard: GuardKind::Timer {
                 index,
                 threshold: ts,
@@ -281,16 +287,16 @@ impl HybridSystem for SampleAndHold {
         v.push("tau".into());
         v
     }
-    fn flow_map(&self, _t: f64, x: &[f64], dx: &mut [f64]) {
+    fn flow_map(&self, _at: HybridTime, x: &[f64], dx: &mut [f64]) {
         self.flow(x, dx);
     }
     fn jump_rules(&self) -> &[JumpRule] {
         &self.rules
     }
-    fn jump_set(&self, _rule: usize, _t: f64, x: &[f64]) -> bool {
+    fn jump_set(&self, _rule: usize, _at: HybridTime, x: &[f64]) -> bool {
         x[self.n() + self.m()] >= self.ts
     }
-    fn jump_guard(&self, _rule: usize, _t: f64, x: &[f64]) -> f64 {
+    fn jump_guard(&self, _rule: usize, _at: HybridTime, x: &[f64]) -> f64 {
         x[self.n() + self.m()] - self.ts
     }
     fn jump_map(
@@ -338,6 +344,8 @@ impl Default for OverlapDemo {
         Self {
             rules: vec![JumpRule {
                 name: "reset".into(),
+                group: None,
+                writes: Vec::new(),
                 guard: GuardKind::General,
             }],
         }
@@ -351,22 +359,22 @@ impl HybridSystem for OverlapDemo {
     fn state_names(&self) -> Vec<String> {
         vec!["x".into()]
     }
-    fn flow_map(&self, _t: f64, _x: &[f64], dx: &mut [f64]) {
+    fn flow_map(&self, _at: HybridTime, _x: &[f64], dx: &mut [f64]) {
         dx[0] = 1.0;
     }
-    fn flow_set(&self, _t: f64, x: &[f64]) -> bool {
+    fn flow_set(&self, _at: HybridTime, x: &[f64]) -> bool {
         (0.0..=2.0).contains(&x[0])
     }
-    fn flow_guard(&self, _t: f64, x: &[f64]) -> Option<f64> {
+    fn flow_guard(&self, _at: HybridTime, x: &[f64]) -> Option<f64> {
         Some(x[0].min(2.0 - x[0]))
     }
     fn jump_rules(&self) -> &[JumpRule] {
         &self.rules
     }
-    fn jump_set(&self, _rule: usize, _t: f64, x: &[f64]) -> bool {
+    fn jump_set(&self, _rule: usize, _at: HybridTime, x: &[f64]) -> bool {
         x[0] >= 1.0
     }
-    fn jump_guard(&self, _rule: usize, _t: f64, x: &[f64]) -> f64 {
+    fn jump_guard(&self, _rule: usize, _at: HybridTime, x: &[f64]) -> f64 {
         x[0] - 1.0
     }
     fn jump_map(

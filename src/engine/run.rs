@@ -37,12 +37,15 @@ impl TimeSum {
     }
 }
 
-/// The last `window` jump times, to estimate the jump rate.
+/// The Zeno guards: the times of the last `window` jumps made, to estimate
+/// the jump rate, and the jump budget. Both apply only when the horizon J
+/// is unbounded: a finite J is itself the budget, and the run reaches it.
 struct ZenoWatch {
     times: VecDeque<f64>,
     window: usize,
     max_rate: f64,
     max_total: u64,
+    active: bool,
 }
 
 impl ZenoWatch {
@@ -53,19 +56,22 @@ impl ZenoWatch {
             window,
             max_rate: s.zeno_max_rate,
             max_total: s.max_total_jumps,
+            active: s.horizon_j == u64::MAX,
         }
     }
 
-    /// Called before jump number `j + 1` at time `t`.
-    fn check(&mut self, t: f64, j: u64) -> Option<ZenoDetail> {
+    /// Called before jump number `j + 1` at time `t`, `j` jumps having been
+    /// made: Zeno is suspected if `j` reached the budget, or if the last
+    /// `window` jumps and this one all happen within less than
+    /// `window / max_rate` units of t.
+    fn check(&self, t: f64, j: u64) -> Option<ZenoDetail> {
+        if !self.active {
+            return None;
+        }
         if j >= self.max_total {
             return Some(ZenoDetail::TotalJumps {
                 limit: self.max_total,
             });
-        }
-        self.times.push_back(t);
-        if self.times.len() > self.window {
-            self.times.pop_front();
         }
         let first = *self.times.front()?;
         let within = t - first;
@@ -76,6 +82,17 @@ impl ZenoWatch {
             });
         }
         None
+    }
+
+    /// Records a jump made at time `t`.
+    fn jumped(&mut self, t: f64) {
+        if !self.active {
+            return;
+        }
+        self.times.push_back(t);
+        if self.times.len() > self.window {
+            self.times.pop_front();
+        }
     }
 }
 
@@ -115,7 +132,25 @@ fn check_system<S: HybridSystem + ?Sized>(sys: &S, x0: &[f64]) -> Result<(), Sim
             found: x0.len(),
         });
     }
-    for (i, rule) in sys.jump_rules().iter().enumerate() {
+    let rules = sys.jump_rules();
+    for (i, rule) in rules.iter().enumerate() {
+        if let Some(g) = rule.group {
+            let clash = rule.writes.iter().find(|&&k| {
+                k >= n
+                    || rules[..i]
+                        .iter()
+                        .any(|o| o.group == Some(g) && o.writes.contains(&k))
+            });
+            if let Some(&k) = clash {
+                return Err(SimError::InvalidSystem {
+                    what: format!(
+                        "rule {i} (`{}`) of group {g} writes component {k}, which is out of \
+                         range (n = {n}) or written by another rule of the group",
+                        rule.name
+                    ),
+                });
+            }
+        }
         if let GuardKind::Timer { index, threshold } = rule.guard
             && (index >= n || !threshold.is_finite())
         {
@@ -132,6 +167,35 @@ fn check_system<S: HybridSystem + ?Sized>(sys: &S, x0: &[f64]) -> Result<(), Sim
         return Err(e);
     }
     Ok(())
+}
+
+/// The members of each group of simultaneous rules, in declaration order.
+struct Groups {
+    /// (group label, members), sorted by label.
+    members: Vec<(usize, Vec<usize>)>,
+}
+
+impl Groups {
+    fn new(rules: &[super::JumpRule]) -> Self {
+        let mut members: Vec<(usize, Vec<usize>)> = Vec::new();
+        for (r, rule) in rules.iter().enumerate() {
+            if let Some(g) = rule.group {
+                match members.binary_search_by_key(&g, |(l, _)| *l) {
+                    Ok(i) => members[i].1.push(r),
+                    Err(i) => members.insert(i, (g, vec![r])),
+                }
+            }
+        }
+        Self { members }
+    }
+
+    /// The rules of `rule`'s group (including it), or `None` if it fires
+    /// alone.
+    fn members_of(&self, rules: &[super::JumpRule], rule: usize) -> Option<&[usize]> {
+        let g = rules[rule].group?;
+        let i = self.members.binary_search_by_key(&g, |(l, _)| *l).ok()?;
+        Some(&self.members[i].1)
+    }
 }
 
 /// Simulates `sys` from `x0` at hybrid time (0, 0), pushing the solution
@@ -168,16 +232,22 @@ pub fn simulate<S: HybridSystem + ?Sized>(
             })
             .collect()
     };
+    let groups = Groups::new(rules);
     let mut flows = Flows::new(sys, settings, method, x0);
     let mut out = Output::new(sink, settings.dt_out, n);
     let mut zeno = ZenoWatch::new(settings);
     let mut x = x0.to_vec();
     let mut x_plus = vec![0.0; n];
+    let mut x_rule = vec![0.0; n];
+    let mut firing: Vec<usize> = Vec::new();
     let mut time = TimeSum::default();
     let mut j: u64 = 0;
     // Rule localized by the last flow segment (its pre-crossing point may
     // sit a few ulp outside D); whether the last segment ended leaving C.
     let mut pending: Option<usize> = None;
+    // Whether `pending` comes from a localized event, whose post-crossing
+    // state (within the event tolerance) is in the flow's watcher.
+    let mut from_event = false;
     let mut cannot_flow = false;
     let mut at_horizon = false;
     let mut timer_d = vec![f64::INFINITY; timers.len()];
@@ -212,9 +282,10 @@ pub fn simulate<S: HybridSystem + ?Sized>(
         if j >= settings.horizon_j {
             return finish(&mut out, at, &x, TerminationCause::HorizonJ);
         }
-        let enabled = (0..rules.len()).find(|&r| pending == Some(r) || sys.jump_set(r, t, &x));
+        let enabled = (0..rules.len()).find(|&r| pending == Some(r) || sys.jump_set(r, at, &x));
         pending = None;
-        let can_flow = !std::mem::take(&mut cannot_flow) && sys.flow_set(t, &x);
+        let after_event = std::mem::take(&mut from_event);
+        let can_flow = !std::mem::take(&mut cannot_flow) && sys.flow_set(at, &x);
         let jump = enabled.is_some()
             && (!can_flow
                 || match settings.priority {
@@ -236,13 +307,51 @@ pub fn simulate<S: HybridSystem + ?Sized>(
                 return finish(&mut out, at, &x, TerminationCause::StoppedBySink);
             }
             x_plus.copy_from_slice(&x);
-            sys.jump_map(rule, at, &x, rng, &mut x_plus);
-            if let Some(e) = check_finite(sys, post, &x_plus, Some(rule)) {
-                return Err(e);
+            firing.clear();
+            match groups.members_of(rules, rule) {
+                // One simultaneous jump: every enabled rule of the group,
+                // each map on the pre-jump state, each writing its own
+                // components.
+                Some(members) => {
+                    // A member is enabled at the pre-jump point, or at the
+                    // other end of the event bracket (the same instant
+                    // within the event tolerance).
+                    let post_event = after_event.then(|| flows.event_post_state());
+                    firing.extend(members.iter().copied().filter(|&r| {
+                        r == rule
+                            || sys.jump_set(r, at, &x)
+                            || post_event.is_some_and(|p| sys.jump_set(r, at, p))
+                    }));
+                    for &r in &firing {
+                        x_rule.copy_from_slice(&x);
+                        sys.jump_map(r, at, &x, rng, &mut x_rule);
+                        if let Some(e) = check_finite(sys, post, &x_rule, Some(r)) {
+                            return Err(e);
+                        }
+                        for &k in &rules[r].writes {
+                            x_plus[k] = x_rule[k];
+                        }
+                    }
+                }
+                None => {
+                    firing.push(rule);
+                    sys.jump_map(rule, at, &x, rng, &mut x_plus);
+                    if let Some(e) = check_finite(sys, post, &x_plus, Some(rule)) {
+                        return Err(e);
+                    }
+                }
             }
-            let stop = out.sink.jump(at, rule, &x, &x_plus);
+            // One jump record per firing rule, all at (t, j) with the same
+            // pre- and post-jump states.
+            let mut stop = std::ops::ControlFlow::Continue(());
+            for &r in &firing {
+                if stop.is_continue() {
+                    stop = out.sink.jump(at, r, &x, &x_plus);
+                }
+            }
             std::mem::swap(&mut x, &mut x_plus);
             j += 1;
+            zeno.jumped(t);
             if stop.is_break() || out.sink.sample(post, &x, SampleKind::PostJump).is_break() {
                 return finish(&mut out, post, &x, TerminationCause::StoppedBySink);
             }
@@ -253,7 +362,7 @@ pub fn simulate<S: HybridSystem + ?Sized>(
         }
 
         // Flow until the next timer event, the horizon, or a localized event.
-        let f0 = flows.start(sys, t, &x);
+        let f0 = flows.start(sys, at, &x);
         let mut d_end = settings.horizon_t - t;
         let mut horizon_bound = true;
         for (k, &(_, index, threshold)) in timers.iter().enumerate() {
@@ -274,20 +383,29 @@ pub fn simulate<S: HybridSystem + ?Sized>(
         match end.why {
             EndWhy::Reached if horizon_bound => at_horizon = true,
             EndWhy::Reached => {
-                // The timers that fire now land exactly on their threshold.
-                for (k, &(_, index, threshold)) in timers.iter().enumerate() {
-                    if timer_d[k] == d_end {
+                // The timers that fire now land exactly on their threshold;
+                // so do those of grouped rules due within the event
+                // tolerance, which fire in the same simultaneous jump.
+                let tol = settings
+                    .event_tol
+                    .max(4.0 * f64::EPSILON * time.value().abs());
+                for (k, &(r, index, threshold)) in timers.iter().enumerate() {
+                    let grouped = rules[r].group.is_some() && timer_d[k] - d_end <= tol;
+                    if timer_d[k] == d_end || grouped {
                         x[index] = threshold;
                     }
                 }
             }
             EndWhy::Partial => {}
-            EndWhy::Event(EventKind::Jump(r)) => pending = Some(r),
+            EndWhy::Event(EventKind::Jump(r)) => {
+                pending = Some(r);
+                from_event = true;
+            }
             EndWhy::Event(EventKind::LeftFlowSet) => {
                 cannot_flow = true;
                 let post = flows.event_post_state();
-                let t_post = time.value();
-                pending = (0..rules.len()).find(|&r| sys.jump_set(r, t_post, post));
+                let at_post = HybridTime::new(time.value(), j);
+                pending = (0..rules.len()).find(|&r| sys.jump_set(r, at_post, post));
             }
             EndWhy::Stopped => {
                 let at = HybridTime::new(time.value(), j);
@@ -337,13 +455,21 @@ mod tests {
             .zeno_max_rate(10.0)
             .max_total_jumps(100);
         let mut z = ZenoWatch::new(&s);
-        // The last 3 jumps must span at least 3/10 of ordinary time.
-        assert_eq!(z.check(0.0, 0), None);
-        assert_eq!(z.check(0.1, 1), None);
-        assert_eq!(z.check(0.35, 2), None);
-        assert_eq!(z.check(0.5, 3), None);
+        // The last 3 jumps made and the next one must span at least 3/10
+        // of ordinary time.
+        let mut j = 0;
+        for t in [0.0, 0.1, 0.35, 0.5] {
+            assert_eq!(z.check(t, j), None, "at {t}");
+            z.jumped(t);
+            j += 1;
+        }
+        // Jumps at 0.1, 0.35, 0.5 made, the next at 0.6: within 0.5 < 0.3? no.
+        assert_eq!(z.check(0.6, j), None);
+        z.jumped(0.6);
+        j += 1;
+        // Jumps at 0.35, 0.5, 0.6 made, the next at 0.62: 0.27 < 0.3.
         assert!(
-            matches!(z.check(0.6, 4), Some(ZenoDetail::Rate { jumps: 3, within }) if (within - 0.25).abs() < 1e-15)
+            matches!(z.check(0.62, j), Some(ZenoDetail::Rate { jumps: 3, within }) if (within - 0.27).abs() < 1e-15)
         );
         assert_eq!(
             z.check(5.0, 100),
@@ -351,6 +477,15 @@ mod tests {
         );
         // An infinite rate disables the rate guard, even for simultaneous jumps.
         let mut z = ZenoWatch::new(&s.clone().zeno_max_rate(f64::INFINITY));
-        assert!((0..10).all(|j| z.check(1.0, j).is_none()));
+        for j in 0..10 {
+            assert!(z.check(1.0, j).is_none());
+            z.jumped(1.0);
+        }
+        // A finite horizon J switches both guards off: J is the budget.
+        let mut z = ZenoWatch::new(&s.clone().horizon_j(1000));
+        for j in 0..500 {
+            assert!(z.check(1.0, j).is_none());
+            z.jumped(1.0);
+        }
     }
 }

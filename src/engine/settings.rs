@@ -106,13 +106,17 @@ pub struct SimSettings {
     /// re-crosses inside one step. Default 3.
     pub guard_checks: u32,
     /// Zeno guard: the largest number of jumps per unit of ordinary time,
-    /// measured over the last `zeno_window` jumps. Default 1e6 jumps per unit
-    /// of t; `f64::INFINITY` disables it.
+    /// measured over the last `zeno_window` jumps and the next one. Default
+    /// 1e6 jumps per unit of t; `f64::INFINITY` disables it. Like
+    /// `max_total_jumps`, it applies only when [`horizon_j`](Self::horizon_j)
+    /// is unbounded: a run with a finite J always reaches J (or T).
     pub zeno_max_rate: f64,
     /// Zeno guard: number of consecutive jumps over which the rate is
     /// measured (≥ 2). Default 10.
     pub zeno_window: u32,
-    /// Zeno guard: the largest total number of jumps. Default 10⁹.
+    /// Zeno guard: the jump budget of a run with unbounded J, which ends
+    /// after this many jumps even with `zeno_max_rate = ∞` (≥ 1). Default
+    /// 10⁷ (a few minutes of jumps). With a finite J, J is the budget.
     pub max_total_jumps: u64,
     /// Advance flows declared [`FlowStructure::Affine`](super::FlowStructure::Affine)
     /// exactly by matrix exponentials instead of the solver. Default `true`.
@@ -132,7 +136,7 @@ impl Default for SimSettings {
             guard_checks: 3,
             zeno_max_rate: 1e6,
             zeno_window: 10,
-            max_total_jumps: 1_000_000_000,
+            max_total_jumps: 10_000_000,
             exact_affine: true,
         }
     }
@@ -239,6 +243,9 @@ impl SimSettings {
                 "zeno_window",
                 format!("must be ≥ 2, got {}", self.zeno_window),
             );
+        }
+        if self.max_total_jumps == 0 {
+            return bad("max_total_jumps", "must be ≥ 1, got 0");
         }
         Ok(())
     }

@@ -7,6 +7,10 @@
 //!     x⁺ ∈ G(x)     when  x ∈ D          (jump)
 //! ```
 //!
+//! Every method also receives the hybrid time `(t, j)` ([`HybridTime`]), as
+//! HyEQ's f(x, t, j), C(x, t, j), g(x, t, j), D(x, t, j): models that do not
+//! depend on time ignore it.
+//!
 //! maps to the methods of [`HybridSystem`]:
 //!
 //! | symbol | method |
@@ -36,6 +40,39 @@ pub struct JumpRule {
     pub name: String,
     /// How the engine may find this rule's events; see [`GuardKind`].
     pub guard: GuardKind,
+    /// The group of simultaneous rules this rule belongs to (`None`: fires
+    /// alone). When a rule of group `g` fires, every rule of `g` whose jump
+    /// set holds at the same pre-jump point fires with it as **one** jump
+    /// (j + 1): each jump map is evaluated at the pre-jump state, and the
+    /// post-jump state takes component `k` from the rule whose
+    /// [`writes`](Self::writes) contains `k` (the others keep their value),
+    /// as HyEQ's `CompositeHybridSystem`. Group numbers are arbitrary
+    /// labels.
+    pub group: Option<usize>,
+    /// The state components the jump map may change; required (and
+    /// disjoint between the rules of one group) for grouped rules, ignored
+    /// otherwise.
+    pub writes: Vec<usize>,
+}
+
+impl JumpRule {
+    /// A rule that fires alone (no group).
+    pub fn new(name: impl Into<String>, guard: GuardKind) -> Self {
+        Self {
+            name: name.into(),
+            guard,
+            group: None,
+            writes: Vec::new(),
+        }
+    }
+
+    /// The same rule in group `group`, writing components `writes`.
+    #[must_use]
+    pub fn together(mut self, group: usize, writes: Vec<usize>) -> Self {
+        self.group = Some(group);
+        self.writes = writes;
+        self
+    }
 }
 
 /// What the engine knows about the shape of a jump rule's guard.
@@ -84,32 +121,35 @@ pub trait HybridSystem {
     /// One name per state component, in order (e.g. `h`, `v`, `P[1,2]`).
     fn state_names(&self) -> Vec<String>;
 
-    /// The flow map: writes f(t, x) into `dx`.
-    fn flow_map(&self, t: f64, x: &[f64], dx: &mut [f64]);
+    /// The flow map: writes f(x, t, j) into `dx`. `at.j` is constant along
+    /// a flow; `at.t` advances with it.
+    fn flow_map(&self, at: HybridTime, x: &[f64], dx: &mut [f64]);
 
-    /// Membership in the flow set C. Default: C is the whole space.
-    fn flow_set(&self, _t: f64, _x: &[f64]) -> bool {
+    /// Membership in the flow set C at hybrid time `at`. Default: C is the
+    /// whole space.
+    fn flow_set(&self, _at: HybridTime, _x: &[f64]) -> bool {
         true
     }
 
     /// A continuous function ≥ 0 inside C whose zero crossing marks C's
     /// boundary, or `None` if C is the whole space.
-    fn flow_guard(&self, _t: f64, _x: &[f64]) -> Option<f64> {
+    fn flow_guard(&self, _at: HybridTime, _x: &[f64]) -> Option<f64> {
         None
     }
 
     /// The jump rules, in declaration order.
     fn jump_rules(&self) -> &[JumpRule];
 
-    /// Membership of x in the jump set D_i of rule `rule`.
-    fn jump_set(&self, rule: usize, t: f64, x: &[f64]) -> bool;
+    /// Membership of x in the jump set D_i of rule `rule` at hybrid time `at`.
+    fn jump_set(&self, rule: usize, at: HybridTime, x: &[f64]) -> bool;
 
     /// A continuous function that is ≥ 0 on D_i's side of its boundary and
     /// < 0 away from it; a zero crossing from below is a candidate event.
-    fn jump_guard(&self, rule: usize, t: f64, x: &[f64]) -> f64;
+    fn jump_guard(&self, rule: usize, at: HybridTime, x: &[f64]) -> f64;
 
-    /// The jump map G_i of rule `rule` at pre-jump state `x` and hybrid time
-    /// `at`: writes one element of G_i(x) into `x_plus`. Set-valued maps draw
+    /// The jump map G_i of rule `rule` at pre-jump state `x` and pre-jump
+    /// hybrid time `at` (HyEQ's g(x, t, j)): writes one element of G_i(x)
+    /// into `x_plus`. Set-valued maps draw
     /// from `rng`, so that a seed reproduces a run exactly.
     fn jump_map(
         &self,
@@ -132,9 +172,9 @@ pub trait HybridSystem {
         0
     }
 
-    /// Writes g(t, x) (row-major n×m) into `g`. Called only if
+    /// Writes g(x, t, j) (row-major n×m) into `g`. Called only if
     /// [`noise_dim`](Self::noise_dim) > 0.
-    fn diffusion(&self, _t: f64, _x: &[f64], _g: &mut [f64]) {}
+    fn diffusion(&self, _at: HybridTime, _x: &[f64], _g: &mut [f64]) {}
 }
 
 /// The run's seeded random source, passed to jump maps (and to the

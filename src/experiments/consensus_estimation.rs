@@ -123,8 +123,8 @@ struct MetricsSink<'a> {
 }
 
 impl MetricsSink<'_> {
-    fn eval(&mut self, t: f64, x: &[f64]) {
-        self.model.outputs(t, x, &mut self.out);
+    fn eval(&mut self, at: HybridTime, x: &[f64]) {
+        self.model.outputs(at, x, &mut self.out);
     }
 
     /// Trapezoid step of the error integral and the suprema, at a point
@@ -159,7 +159,7 @@ impl ArcSink for MetricsSink<'_> {
         if !needed {
             return ControlFlow::Continue(());
         }
-        self.eval(at.t, x);
+        self.eval(at, x);
         if kind == SampleKind::Initial {
             self.z_dis.0 = self.out[self.ix.zdis];
         }
@@ -392,7 +392,7 @@ impl Prop1Bound {
         let mut l_prime = 0.0_f64;
         for k in 0..=samples {
             let t = tf * k as f64 / samples.max(1) as f64;
-            model.outputs(t, &x, &mut out);
+            model.outputs(HybridTime::new(t, 0), &x, &mut out);
             l_prime = l_prime.max(out[lp]);
         }
         let sqrt_n = nf.sqrt();

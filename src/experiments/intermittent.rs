@@ -60,7 +60,7 @@ pub fn fig2(
             let enorm = arc
                 .samples()
                 .map(|s| {
-                    model.outputs(s.at.t, s.x, &mut y);
+                    model.outputs(s.at, s.x, &mut y);
                     (s.at.t, y[k])
                 })
                 .collect();

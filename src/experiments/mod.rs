@@ -201,7 +201,7 @@ impl StepTable {
             }
             last_j = Some(s.at.j);
             times.push(s.at.t);
-            model.outputs(s.at.t, s.x, &mut out);
+            model.outputs(s.at, s.x, &mut out);
             for (c, &v) in columns.iter_mut().zip(s.x.iter().chain(&out)) {
                 c.push(v);
             }

@@ -135,7 +135,7 @@ pub(crate) fn affine_in(dag: &Dag, roots: &[NodeId], vars: Vars) -> Vec<Option<L
                 Node::Select(c, a, b) => free[&c] && free[&a] && free[&b],
                 Node::BlockOut(b, _) => dag.block(b).inputs.iter().all(|i| free[i]),
                 Node::Rand(_, a, b, _) => free[&a] && free[&b],
-                Node::Const(_) | Node::State(_) | Node::Time => true,
+                Node::Const(_) | Node::State(_) | Node::Time | Node::Jumps => true,
             };
             free.insert(id, is_free);
             if is_free && !matches!(node, Node::Const(_)) {
@@ -206,7 +206,12 @@ pub(crate) fn substitute_wiener(
     }
     let r = match dag.node(root) {
         Node::Wiener(k) => dag.konst(value(k)),
-        Node::Const(_) | Node::State(_) | Node::Time | Node::Rand(..) | Node::BlockOut(..) => root,
+        Node::Const(_)
+        | Node::State(_)
+        | Node::Time
+        | Node::Jumps
+        | Node::Rand(..)
+        | Node::BlockOut(..) => root,
         Node::Un(f, a) => {
             let a = substitute_wiener(dag, a, value, memo);
             dag.un(f, a)

@@ -167,6 +167,8 @@ impl CompiledModel {
             rules.push(JumpRule {
                 name: r.name.clone(),
                 guard: kind,
+                group: r.group,
+                writes: r.resets.iter().map(|&(k, _)| k).collect(),
             });
             let values: Vec<_> = r.resets.iter().map(|&(_, n)| n).collect();
             rule_code.push(RuleCode {
@@ -355,7 +357,7 @@ impl CompiledModel {
         let mut x0 = vec![0.0; self.frame.n];
         let zero = vec![0.0; self.frame.n];
         with_regs(self.nregs, |regs| {
-            self.load(regs, 0.0, &zero);
+            self.load(regs, HybridTime::new(0.0, 0), &zero);
             self.init.run(regs, Some(rng));
             for (o, &r) in x0.iter_mut().zip(&self.init.outs) {
                 *o = regs[r as usize];
@@ -364,11 +366,11 @@ impl CompiledModel {
         x0
     }
 
-    /// Evaluates the outputs at (t, x) into `out` (length
-    /// [`output_dim`](Self::output_dim)).
-    pub fn outputs(&self, t: f64, x: &[f64], out: &mut [f64]) {
+    /// Evaluates the outputs at hybrid time `at` and state `x` into `out`
+    /// (length [`output_dim`](Self::output_dim)).
+    pub fn outputs(&self, at: HybridTime, x: &[f64], out: &mut [f64]) {
         with_regs(self.nregs, |regs| {
-            self.load(regs, t, x);
+            self.load(regs, at, x);
             self.outputs.run(regs, None);
             for (o, &r) in out.iter_mut().zip(&self.outputs.outs) {
                 *o = regs[r as usize];
@@ -518,15 +520,16 @@ impl CompiledModel {
     }
 
     #[inline]
-    fn load(&self, regs: &mut [f64], t: f64, x: &[f64]) {
+    fn load(&self, regs: &mut [f64], at: HybridTime, x: &[f64]) {
         regs[..self.frame.n].copy_from_slice(x);
-        regs[self.frame.n] = t;
+        regs[self.frame.time_reg()] = at.t;
+        regs[self.frame.jumps_reg()] = at.j as f64;
     }
 
     #[inline]
-    fn scalar(&self, p: &Program, t: f64, x: &[f64]) -> f64 {
+    fn scalar(&self, p: &Program, at: HybridTime, x: &[f64]) -> f64 {
         with_regs(self.nregs, |regs| {
-            self.load(regs, t, x);
+            self.load(regs, at, x);
             p.run(regs, None);
             regs[p.outs[0] as usize]
         })
@@ -636,9 +639,9 @@ impl HybridSystem for CompiledModel {
         self.names.clone()
     }
 
-    fn flow_map(&self, t: f64, x: &[f64], dx: &mut [f64]) {
+    fn flow_map(&self, at: HybridTime, x: &[f64], dx: &mut [f64]) {
         with_regs(self.nregs, |regs| {
-            self.load(regs, t, x);
+            self.load(regs, at, x);
             self.flow.run(regs, None);
             for (d, &r) in dx.iter_mut().zip(&self.flow.outs) {
                 *d = regs[r as usize];
@@ -646,29 +649,29 @@ impl HybridSystem for CompiledModel {
         });
     }
 
-    fn flow_set(&self, t: f64, x: &[f64]) -> bool {
+    fn flow_set(&self, at: HybridTime, x: &[f64]) -> bool {
         match &self.flow_set {
-            Some((set, _, _)) => self.scalar(set, t, x) != 0.0,
+            Some((set, _, _)) => self.scalar(set, at, x) != 0.0,
             None => true,
         }
     }
 
-    fn flow_guard(&self, t: f64, x: &[f64]) -> Option<f64> {
+    fn flow_guard(&self, at: HybridTime, x: &[f64]) -> Option<f64> {
         self.flow_set
             .as_ref()
-            .map(|(_, guard, _)| self.scalar(guard, t, x))
+            .map(|(_, guard, _)| self.scalar(guard, at, x))
     }
 
     fn jump_rules(&self) -> &[JumpRule] {
         &self.rules
     }
 
-    fn jump_set(&self, rule: usize, t: f64, x: &[f64]) -> bool {
-        self.scalar(&self.rule_code[rule].set, t, x) != 0.0
+    fn jump_set(&self, rule: usize, at: HybridTime, x: &[f64]) -> bool {
+        self.scalar(&self.rule_code[rule].set, at, x) != 0.0
     }
 
-    fn jump_guard(&self, rule: usize, t: f64, x: &[f64]) -> f64 {
-        self.scalar(&self.rule_code[rule].guard, t, x)
+    fn jump_guard(&self, rule: usize, at: HybridTime, x: &[f64]) -> f64 {
+        self.scalar(&self.rule_code[rule].guard, at, x)
     }
 
     fn jump_map(
@@ -681,7 +684,7 @@ impl HybridSystem for CompiledModel {
     ) {
         let code = &self.rule_code[rule];
         with_regs(self.nregs, |regs| {
-            self.load(regs, at.t, x);
+            self.load(regs, at, x);
             code.map.run(regs, Some(rng));
             x_plus.copy_from_slice(x);
             for (&k, &r) in code.targets.iter().zip(&code.map.outs) {
@@ -698,9 +701,9 @@ impl HybridSystem for CompiledModel {
         self.frame.m
     }
 
-    fn diffusion(&self, t: f64, x: &[f64], g: &mut [f64]) {
+    fn diffusion(&self, at: HybridTime, x: &[f64], g: &mut [f64]) {
         with_regs(self.nregs, |regs| {
-            self.load(regs, t, x);
+            self.load(regs, at, x);
             self.diffusion.run(regs, None);
             for (o, &r) in g.iter_mut().zip(&self.diffusion.outs) {
                 *o = regs[r as usize];

@@ -2,8 +2,8 @@
 //! instructions over a preallocated register file, evaluated without
 //! allocation or name lookups.
 //!
-//! Register file: `[x (n) | t | w (m) | temporaries]`. State, time and
-//! white-noise nodes live in their fixed registers; every other node
+//! Register file: `[x (n) | t | j | w (m) | temporaries]`. State, time,
+//! jump-counter and white-noise nodes live in their fixed registers; every other node
 //! reachable from a program's outputs gets one temporary. Constants are
 //! immediates of the instructions that use them where possible.
 //!
@@ -153,8 +153,12 @@ impl Frame {
     pub fn time_reg(&self) -> usize {
         self.n
     }
+    /// The register of the jump counter j.
+    pub fn jumps_reg(&self) -> usize {
+        self.n + 1
+    }
     pub fn fixed(&self) -> usize {
-        self.n + 1 + self.m
+        self.n + 2 + self.m
     }
 }
 
@@ -301,8 +305,12 @@ impl Program {
                     reg[id as usize] = frame.time_reg() as u32;
                     continue;
                 }
+                Node::Jumps => {
+                    reg[id as usize] = frame.jumps_reg() as u32;
+                    continue;
+                }
                 Node::Wiener(k) => {
-                    reg[id as usize] = (frame.n + 1) as u32 + k;
+                    reg[id as usize] = (frame.n + 2) as u32 + k;
                     continue;
                 }
                 _ => {}
@@ -412,7 +420,7 @@ impl Program {
                     reg[id as usize] = out + k;
                     continue;
                 }
-                Node::Const(_) | Node::State(_) | Node::Time | Node::Wiener(_) => {}
+                Node::Const(_) | Node::State(_) | Node::Time | Node::Jumps | Node::Wiener(_) => {}
             }
             reg[id as usize] = d;
         }

@@ -1,8 +1,11 @@
 //! A model's `property` declarations compiled into register programs and
 //! wrapped as [`props::Property`](crate::props::Property) values.
 //!
-//! Register file of a property program: `[x (n) | j | x⁺ (n) | t | temporaries]`
-//! (the property frame of [`crate::check::property`]); outside jumps `x⁺ = x`.
+//! Register file of a property program: `[x (n) | j | x⁺ (n) | t | j | temporaries]`
+//! (the property frame of [`crate::check::property`], then the time and
+//! jump-counter registers of [`Frame`]: `j` is loaded twice, as the
+//! property's own `j` and for model outputs that use `j`); outside jumps
+//! `x⁺ = x`.
 
 use std::sync::Arc;
 
@@ -38,6 +41,7 @@ impl Eval {
             regs[n] = at.j as f64;
             regs[n + 1..2 * n + 1].copy_from_slice(&post.unwrap_or(x)[..n]);
             regs[2 * n + 1] = at.t;
+            regs[2 * n + 2] = at.j as f64;
             self.prog.run(regs, None);
             regs[self.prog.outs[0] as usize]
         })

@@ -104,7 +104,7 @@ impl<'a> CsvSink<'a> {
         kind: SampleKind,
     ) -> Result<(), ::csv::Error> {
         if let Some(outputs) = self.outputs {
-            outputs(at.t, x, &mut self.y);
+            outputs(at, x, &mut self.y);
         }
         let w = self
             .writer

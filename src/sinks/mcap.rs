@@ -387,7 +387,7 @@ impl<'a> McapSink<'a> {
         }
         let mut y = std::mem::take(&mut self.y);
         if let (Some(outputs), Some(_)) = (self.outputs, self.channels.outputs) {
-            outputs(at.t, x, &mut y);
+            outputs(at, x, &mut y);
             if let Some((k, value)) = first_non_finite(&y) {
                 self.y = y;
                 return Err(SinkError::NonFinite {

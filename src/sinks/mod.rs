@@ -185,9 +185,9 @@ pub fn entry_names(layout: &Layout) -> Vec<&str> {
         .collect()
 }
 
-/// A model's output map y = h(t, x), evaluated by the sinks for each logged
+/// A model's output map y = h(x, t, j), evaluated by the sinks for each logged
 /// sample. Writes `y` (length = the output layout's dimension).
-pub type OutputFn<'a> = &'a (dyn Fn(f64, &[f64], &mut [f64]) + 'a);
+pub type OutputFn<'a> = &'a (dyn Fn(HybridTime, &[f64], &mut [f64]) + 'a);
 
 /// What the sinks know about a run: structure of the logged vectors and
 /// everything needed to reproduce the run from its log.

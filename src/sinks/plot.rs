@@ -624,7 +624,7 @@ impl ArcSink for PlotSink<'_> {
         if let Some(outputs) = self.outputs
             && self.columns.iter().any(|c| c.0 == Source::Output)
         {
-            outputs(at.t, x, &mut self.y);
+            outputs(at, x, &mut self.y);
         }
         if self.times.len() >= 2 * MAX_PLOT_SAMPLES {
             self.thin();

@@ -47,6 +47,10 @@ pub enum Item {
     Sim(Vec<Setting>),
     /// `for i in 1..N { items }`.
     For(Binder, Vec<Item>),
+    /// `together { rules }`: jump rules (`Jump` items, possibly inside `For`
+    /// items) whose enabled members fire as one jump. The span is the
+    /// `together` word.
+    Together(Vec<Item>, Span),
     /// `design name { ... }`: an LMI problem whose results become parameters.
     Design(DesignBlock),
     /// `property NAME: BODY`.

@@ -36,6 +36,16 @@ pub enum SyntaxError {
         /// Its text.
         target: String,
     },
+    /// A MATLAB spelling hybsim does not use (`&`, `|`, `~=`, `~x`).
+    #[error("`{found}` is MATLAB's spelling; hybsim writes `{write}`")]
+    MatlabOperator {
+        /// The operator.
+        span: Span,
+        /// What was written.
+        found: &'static str,
+        /// The hybsim spelling.
+        write: &'static str,
+    },
     /// A number literal that does not fit in an f64.
     #[error("number `{text}` is out of range")]
     BadNumber {
@@ -53,6 +63,7 @@ impl SyntaxError {
             SyntaxError::Unexpected { span, .. }
             | SyntaxError::TooDeep { span, .. }
             | SyntaxError::ResetWithoutPlus { span, .. }
+            | SyntaxError::MatlabOperator { span, .. }
             | SyntaxError::BadNumber { span, .. } => *span,
         }
     }
@@ -77,6 +88,14 @@ impl SyntaxError {
                     .primary(*span, format!("`{target}+` expected"))
                     .note("in `jump` and `every` blocks, `x+` is the state after the jump and `x` the state before it")
                     .help(format!("write `{target}+ = ...`"))
+            }
+            SyntaxError::MatlabOperator { span, found, write } => {
+                Diagnostic::error("E0105", self.to_string())
+                    .primary(*span, format!("write `{write}` here"))
+                    .help(format!(
+                        "hybsim's operators are C-like: `&&` and, `||` or, `!=` not equal, \
+                         `!x` not; replace `{found}` by `{write}`"
+                    ))
             }
             SyntaxError::BadNumber { span, text } => {
                 Diagnostic::error("E0103", format!("number `{text}` is out of range"))
@@ -104,12 +123,37 @@ impl SyntaxError {
             1 => expected[0].to_string(),
             n => format!("{} or {}", expected[..n - 1].join(", "), expected[n - 1]),
         };
+        if let Some((found, write)) = matlab_operator(text, pos) {
+            return SyntaxError::MatlabOperator {
+                span: Span::new(pos, pos + found.len()),
+                found,
+                write,
+            };
+        }
         let (found, len) = found_at(text, pos);
         SyntaxError::Unexpected {
             span: Span::new(pos, pos + len),
             found,
             expected,
         }
+    }
+}
+
+/// A MATLAB operator at `pos` where the parser stopped, with its hybsim
+/// spelling: `~=` → `!=`, `~` → `!`, `&` → `&&`, `|` → `||`. (`&&`, `||`
+/// and `!=` are never where a parse fails, so a single `&`, `|` or `~` is.)
+fn matlab_operator(text: &str, pos: usize) -> Option<(&'static str, &'static str)> {
+    let rest = text.get(pos..)?;
+    if rest.starts_with("~=") {
+        Some(("~=", "!="))
+    } else if rest.starts_with('~') {
+        Some(("~", "!"))
+    } else if rest.starts_with('&') && !rest.starts_with("&&") {
+        Some(("&", "&&"))
+    } else if rest.starts_with('|') && !rest.starts_with("||") {
+        Some(("|", "||"))
+    } else {
+        None
     }
 }
 
@@ -171,7 +215,10 @@ fn describe(rule: Rule) -> Option<&'static str> {
         | Rule::for_item
         | Rule::param_draw
         | Rule::w_check
+        | Rule::together_block
+        | Rule::w_together
         | Rule::design_block => "a declaration (param, state, flow, jump, every, output, sim, ...)",
+        Rule::together_for => "a rule (`jump`, `every`, `for`)",
         Rule::flow_eq | Rule::flow_for => "an equation `x' = ...`",
         Rule::reset_eq | Rule::reset_for => "a reset `x+ = ...`",
         Rule::when_clause | Rule::every_clause => "`when` or `every`",

@@ -230,10 +230,15 @@ fn item(p: Pair<'_, Rule>) -> Res<Item> {
                 .collect::<Res<_>>()?,
         ),
         Rule::property_decl => Item::Property(super::property::property_decl(inner, span)?),
-        Rule::for_item => {
+        Rule::for_item | Rule::together_for => {
             let b = binder(first(&mut inner, span)?)?;
             let items = inner.map(item).collect::<Res<_>>()?;
             Item::For(b, items)
+        }
+        Rule::together_block => {
+            let word = first(&mut inner, span)?.as_span().into();
+            let items = inner.map(item).collect::<Res<_>>()?;
+            Item::Together(items, word)
         }
         Rule::design_block => {
             let _ = inner;

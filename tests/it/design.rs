@@ -1,6 +1,7 @@
 //! `design` blocks (issue 5) through the real pipeline: parse → check →
 //! lower onto `design::lmi` → solve → results as parameters.
 
+use hybsim::arc::HybridTime;
 use hybsim::design::control::lyap;
 use hybsim::diagnostics::Diagnostic;
 use hybsim::lang::{self, CompiledModel, Override};
@@ -72,7 +73,7 @@ fn lyapunov_lmi_matches_the_lyapunov_equation() {
     // Results are parameters like any other: later params and outputs use them.
     assert!((param(&m, "twice") - &p * 2.0).amax() < 1e-15);
     let mut out = [0.0];
-    m.outputs(0.0, &[1.0, 0.0], &mut out);
+    m.outputs(HybridTime::new(0.0, 0), &[1.0, 0.0], &mut out);
     assert!((out[0] - p[(0, 0)]).abs() < 1e-15);
     // The report: solved, constraints verified.
     let reports = m.design_reports();

@@ -98,7 +98,42 @@ const CASES: &[Case] = &[
         "2:11",
         "number `1e999` is out of range",
     ),
+    case(
+        "MATLAB and",
+        "model m\nstate x = 0\njump r when x >= 1 & x <= 2 { x+ = 0 }\n",
+        "E0105",
+        "3:20",
+        "`&` is MATLAB's spelling; hybsim writes `&&`",
+    ),
+    case(
+        "MATLAB or",
+        "model m\nstate x = 0\njump r when x > 1 | x < 0 { x+ = 0 }\n",
+        "E0105",
+        "3:19",
+        "`|` is MATLAB's spelling; hybsim writes `||`",
+    ),
+    case(
+        "MATLAB not equal",
+        "model m\nstate x = 0\njump r when x ~= 1 { x+ = 0 }\n",
+        "E0105",
+        "3:15",
+        "`~=` is MATLAB's spelling; hybsim writes `!=`",
+    ),
+    case(
+        "MATLAB not",
+        "model m\nparam a = ~1\n",
+        "E0105",
+        "2:11",
+        "`~` is MATLAB's spelling; hybsim writes `!`",
+    ),
     // ---- names (E02xx) ----
+    case(
+        "MATLAB indexing",
+        "model m\nstate x = [0; 0]\nflow { x' = [x(1); 0] }\n",
+        "E0205",
+        "3:14",
+        "`x` is not a function; hybsim indexes with brackets: `x[...]`",
+    ),
     case(
         "unknown name with a suggestion",
         "model m\nparam gravity = 9.81\nstate h = 1, v = 0\nflow { h' = v; v' = -gravty }\n",
@@ -276,6 +311,13 @@ const CASES: &[Case] = &[
         "E0502",
         "3:41",
         "`x[1]` is reset twice in rule `r`",
+    ),
+    case(
+        "two rules of a together group reset one state",
+        "model m\nstate x = 0, y = 0\ntogether {\n  jump a when x >= 1 { x+ = 0; y+ = 1 }\n  jump b when y >= 1 { y+ = 0 }\n}\n",
+        "E0510",
+        "5:24",
+        "`y` is reset by rules `a` and `b` of one `together` group",
     ),
     case(
         "two flow equations",

@@ -332,6 +332,8 @@ mod semantics {
             Self {
                 rules: vec![JumpRule {
                     name: "band".into(),
+                    group: None,
+                    writes: Vec::new(),
                     guard: GuardKind::General,
                 }],
                 blow_up: false,
@@ -348,16 +350,16 @@ mod semantics {
         fn state_names(&self) -> Vec<String> {
             vec!["x".into()]
         }
-        fn flow_map(&self, _t: f64, x: &[f64], dx: &mut [f64]) {
+        fn flow_map(&self, _at: HybridTime, x: &[f64], dx: &mut [f64]) {
             dx[0] = if self.blow_up { x[0] * x[0] } else { 1.0 };
         }
         fn jump_rules(&self) -> &[JumpRule] {
             &self.rules
         }
-        fn jump_set(&self, _r: usize, _t: f64, x: &[f64]) -> bool {
+        fn jump_set(&self, _r: usize, _at: HybridTime, x: &[f64]) -> bool {
             (x[0] - 0.5).abs() <= 0.01
         }
-        fn jump_guard(&self, _r: usize, _t: f64, x: &[f64]) -> f64 {
+        fn jump_guard(&self, _r: usize, _at: HybridTime, x: &[f64]) -> f64 {
             0.01 - (x[0] - 0.5).abs()
         }
         fn jump_map(
@@ -373,7 +375,7 @@ mod semantics {
         fn noise_dim(&self) -> usize {
             usize::from(self.noise > 0.0)
         }
-        fn diffusion(&self, _t: f64, _x: &[f64], g: &mut [f64]) {
+        fn diffusion(&self, _at: HybridTime, _x: &[f64], g: &mut [f64]) {
             g[0] = self.noise;
         }
     }

@@ -2,6 +2,7 @@
 //! compute: families and graphs, `every`, held and white noise, matrix
 //! states, outputs, and the run-time diagnostics.
 
+use hybsim::arc::HybridTime;
 use hybsim::diagnostics::render;
 use hybsim::engine::{FlowStructure, HybridSystem, SimRng, simulate_arc};
 use hybsim::lang::{self, CompiledModel};
@@ -29,7 +30,7 @@ fn errors(text: &str) -> Vec<(String, String, String)> {
 
 fn outputs(m: &CompiledModel, x: &[f64]) -> Vec<f64> {
     let mut y = vec![0.0; m.output_dim()];
-    m.outputs(0.0, x, &mut y);
+    m.outputs(HybridTime::new(0.0, 0), x, &mut y);
     y
 }
 
@@ -145,11 +146,11 @@ fn white_noise_enters_linearly_with_state_dependent_coefficients() {
     );
     assert_eq!(m.noise_dim(), 2);
     let mut g = [0.0; 4];
-    m.diffusion(0.0, &[3.0, 4.0], &mut g);
+    m.diffusion(HybridTime::new(0.0, 0), &[3.0, 4.0], &mut g);
     // Row-major n × m: dx = f dt + G dW.
     assert_eq!(g, [0.5, 0.0, 3.0, 2.0]);
     let mut f = [0.0; 2];
-    m.flow_map(0.0, &[3.0, 4.0], &mut f);
+    m.flow_map(HybridTime::new(0.0, 0), &[3.0, 4.0], &mut f);
     assert_eq!(f, [-6.0, -4.0]);
     // Ornstein–Uhlenbeck: stationary variance s² / (2a) = 1/16.
     let (x0, mut rng) = m.start(m.seed());
@@ -214,7 +215,7 @@ fn matrix_states_follow_the_lyapunov_differential_equation() {
         }
     }
     let mut y = [0.0; 2];
-    m.outputs(end.at.t, end.x, &mut y);
+    m.outputs(end.at, end.x, &mut y);
     assert_eq!(y, [end.x[1], end.x[0] + end.x[3]]);
 }
 

@@ -38,6 +38,8 @@ impl Observer {
         let rules = (0..l.agents)
             .map(|k| JumpRule {
                 name: format!("send[{}]", k + 1),
+                group: None,
+                writes: Vec::new(),
                 guard: GuardKind::Timer {
                     index: l.tau(k),
                     threshold: 0.0,
@@ -106,7 +108,7 @@ impl HybridSystem for Observer {
         names.extend((0..l.agents).map(|i| format!("tau[{}]", i + 1)));
         names
     }
-    fn flow_map(&self, _t: f64, x: &[f64], dx: &mut [f64]) {
+    fn flow_map(&self, _at: HybridTime, x: &[f64], dx: &mut [f64]) {
         let n = x.len();
         for (r, d) in dx.iter_mut().enumerate() {
             let row = &self.f[r * n..(r + 1) * n];
@@ -116,10 +118,10 @@ impl HybridSystem for Observer {
     fn jump_rules(&self) -> &[JumpRule] {
         &self.rules
     }
-    fn jump_set(&self, rule: usize, _t: f64, x: &[f64]) -> bool {
+    fn jump_set(&self, rule: usize, _at: HybridTime, x: &[f64]) -> bool {
         x[self.net.layout().tau(rule)] <= 0.0
     }
-    fn jump_guard(&self, rule: usize, _t: f64, x: &[f64]) -> f64 {
+    fn jump_guard(&self, rule: usize, _at: HybridTime, x: &[f64]) -> f64 {
         -x[self.net.layout().tau(rule)]
     }
     fn jump_map(&self, rule: usize, _at: HybridTime, x: &[f64], rng: &mut SimRng, xp: &mut [f64]) {

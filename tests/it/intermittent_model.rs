@@ -3,7 +3,7 @@
 //! of `intermittent_estimation.rs` and against the paper's claims.
 
 use hybsim::analysis::intermittent_estimation::{EdgeGains, Network, Scenario};
-use hybsim::arc::HybridArc;
+use hybsim::arc::{HybridArc, HybridTime};
 use hybsim::diagnostics::render;
 use hybsim::engine::{SimRng, simulate_arc};
 use hybsim::lang::{self, CompiledModel, Override};
@@ -58,7 +58,7 @@ pub fn output_index(model: &CompiledModel, name: &str) -> usize {
 /// The model's outputs at state `z`.
 pub fn outputs(model: &CompiledModel, t: f64, z: &[f64]) -> Vec<f64> {
     let mut y = vec![0.0; model.output_dim()];
-    model.outputs(t, z, &mut y);
+    model.outputs(HybridTime::new(t, 0), z, &mut y);
     y
 }
 

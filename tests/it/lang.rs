@@ -1,7 +1,7 @@
 //! The `.hyb` front end through the real pipeline: parse → check → compile →
 //! simulate with the engine.
 
-use hybsim::arc::HybridArc;
+use hybsim::arc::{HybridArc, HybridTime};
 use hybsim::engine::{HybridSystem, simulate_arc};
 use hybsim::lang::{self, CompiledModel, Override};
 use hybsim::source::SourceFile;
@@ -53,7 +53,7 @@ fn bouncing_ball_impacts_match_the_closed_form() {
     }
     // Outputs: energy at the start.
     let mut out = [0.0];
-    m.outputs(0.0, &[1.0, 0.0], &mut out);
+    m.outputs(HybridTime::new(0.0, 0), &[1.0, 0.0], &mut out);
     assert!((out[0] - g).abs() < 1e-12);
 }
 

@@ -7,6 +7,7 @@ mod design_check;
 mod design_failure;
 mod diagnostics;
 mod engine;
+mod engine_lang;
 mod features;
 mod intermittent_certificate;
 mod intermittent_check;

@@ -29,7 +29,7 @@ fn ball_info() -> RunInfo {
     info
 }
 
-fn energy(_t: f64, x: &[f64], y: &mut [f64]) {
+fn energy(_at: HybridTime, x: &[f64], y: &mut [f64]) {
     y[0] = G * x[0] + 0.5 * x[1] * x[1];
 }
 
@@ -400,7 +400,7 @@ fn mcap_stops_the_run_before_writing_non_finite_values() {
     assert!(meta["hybsim.result"]["message"].contains("`h` is not finite"));
 
     // A non-finite output stops the run too.
-    let bad = |_: f64, _: &[f64], y: &mut [f64]| y[0] = f64::INFINITY;
+    let bad = |_: HybridTime, _: &[f64], y: &mut [f64]| y[0] = f64::INFINITY;
     let mut sink = McapSink::create(
         dir.path().join("inf.mcap"),
         &info,

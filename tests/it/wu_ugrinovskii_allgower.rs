@@ -81,7 +81,7 @@ fn series(model: &CompiledModel, arc: &HybridArc, name: &str) -> Vec<(f64, f64)>
     let mut y = vec![0.0; model.output_dim()];
     arc.samples()
         .map(|s| {
-            model.outputs(s.at.t, s.x, &mut y);
+            model.outputs(s.at, s.x, &mut y);
             (s.at.t, y[i])
         })
         .collect()
