@@ -213,3 +213,31 @@ fn failed_runs_exit_1_and_still_leave_a_complete_file() {
         "blow-up near t = 1, stopped at {t_end}"
     );
 }
+
+#[test]
+fn zeno_flags_of_run_and_test() {
+    // Issue 16: the Zeno knobs are flags; the summary counts the jumps made.
+    let dir = tempfile::tempdir().unwrap();
+    let model = write(
+        dir.path(),
+        "counter.hyb",
+        "model counter\nstate k = 0\njump step when k >= 0 { k+ = k + 1 }\n\
+         property grows: at jumps post(k) == k + 1\n",
+    );
+    let m = model.to_str().unwrap();
+    let out = hybsim(dir.path(), &["run", m, "--no-mcap", "--zeno-window", "4", "-q"]);
+    assert_eq!(code(&out), 0, "{}", stderr(&out));
+    let summary = String::from_utf8_lossy(&out.stdout);
+    assert!(summary.contains("after 4 jumps"), "{summary}");
+    let out = hybsim(
+        dir.path(),
+        &["run", m, "--no-mcap", "--zeno-rate", "inf", "--max-total-jumps", "30", "-q"],
+    );
+    let summary = String::from_utf8_lossy(&out.stdout);
+    assert!(summary.contains("30 jumps in total"), "{summary}");
+    let out = hybsim(
+        dir.path(),
+        &["test", m, "--cases", "2", "--zeno-window", "3"],
+    );
+    assert_eq!(code(&out), 0, "{}", stderr(&out));
+}
