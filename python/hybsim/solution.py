@@ -189,7 +189,7 @@ class Solution:
             if self._output_map is None or not self.output_names:
                 self._y = np.empty((len(self.t), 0))
             else:
-                self._y = self._output_map(self.t, self.x)
+                self._y = self._output_map(self.t, self.x, self.j)
         return self._y
 
     def __len__(self) -> int:

@@ -3,7 +3,7 @@
 
 use std::sync::Arc;
 
-use hybsim::arc::Termination;
+use hybsim::arc::{HybridTime, Termination};
 use hybsim::diagnostics::Diagnostic;
 use hybsim::engine::{HybridSystem, SimError, simulate};
 use hybsim::lang::{self, CompiledModel, Override};
@@ -137,7 +137,7 @@ fn solution_dict<'py>(
     Ok(out)
 }
 
-/// The outputs of the model a solution came from: `outputs(t, x)` evaluates
+/// The outputs of the model a solution came from: `outputs(t, x, j)` evaluates
 /// them at every row (GIL released). `Solution.y` calls it on first use, so
 /// runs whose outputs are not read do not pay for them.
 #[pyclass(frozen, module = "hybsim._hybsim")]
@@ -153,16 +153,26 @@ impl OutputMap {
         self.model.output_names()
     }
 
-    /// The outputs at times `t` (n,) and states `x` (n, d): an (n, m) array.
+    /// The outputs at times `t` (n,), states `x` (n, d) and jump counts
+    /// `j` (n,) (int64; default 0, for outputs that use `j`): an (n, m)
+    /// array.
+    #[pyo3(signature = (t, x, j = None))]
     fn __call__<'py>(
         &self,
         py: Python<'py>,
         t: PyReadonlyArray1<'py, f64>,
         x: PyReadonlyArray2<'py, f64>,
+        j: Option<PyReadonlyArray1<'py, i64>>,
     ) -> PyResult<Bound<'py, PyAny>> {
         let t = t.as_array();
         let x = x.as_array();
+        let j = j.as_ref().map(|j| j.as_array());
         let (n, d) = x.dim();
+        if j.as_ref().is_some_and(|j| j.len() != n) {
+            return Err(PyValueError::new_err(format!(
+                "outputs need j of shape ({n},) like t"
+            )));
+        }
         if t.len() != n || d != self.model.state_dim() {
             return Err(PyValueError::new_err(format!(
                 "outputs need t of shape (n,) and x of shape (n, {}); got {} and {:?}",
@@ -181,7 +191,8 @@ impl OutputMap {
                     for (r, v) in row.iter_mut().zip(x.row(i)) {
                         *r = *v;
                     }
-                    model.outputs(t[i], &row, out);
+                    let jumps = j.as_ref().map_or(0, |j| j[i].max(0) as u64);
+                    model.outputs(HybridTime::new(t[i], jumps), &row, out);
                 }
             }
             y

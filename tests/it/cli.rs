@@ -225,13 +225,25 @@ fn zeno_flags_of_run_and_test() {
          property grows: at jumps post(k) == k + 1\n",
     );
     let m = model.to_str().unwrap();
-    let out = hybsim(dir.path(), &["run", m, "--no-mcap", "--zeno-window", "4", "-q"]);
+    let out = hybsim(
+        dir.path(),
+        &["run", m, "--no-mcap", "--zeno-window", "4", "-q"],
+    );
     assert_eq!(code(&out), 0, "{}", stderr(&out));
     let summary = String::from_utf8_lossy(&out.stdout);
     assert!(summary.contains("after 4 jumps"), "{summary}");
     let out = hybsim(
         dir.path(),
-        &["run", m, "--no-mcap", "--zeno-rate", "inf", "--max-total-jumps", "30", "-q"],
+        &[
+            "run",
+            m,
+            "--no-mcap",
+            "--zeno-rate",
+            "inf",
+            "--max-total-jumps",
+            "30",
+            "-q",
+        ],
     );
     let summary = String::from_utf8_lossy(&out.stdout);
     assert!(summary.contains("30 jumps in total"), "{summary}");
