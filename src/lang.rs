@@ -44,7 +44,15 @@ impl FromStr for Override {
         let name = name.trim().to_string();
         let value = value.trim().to_string();
         let expr = syntax::parse_expr(&value).map_err(|e| {
-            Diagnostic::error("E0508", format!("in override `{name}={value}`: {e}"))
+            // Long values are shortened, and the column says where in the value.
+            let shown: String = value.chars().take(60).collect();
+            let message = if shown.len() < value.len() {
+                let col = value[..e.span().start.min(value.len())].chars().count() + 1;
+                format!("in override `{name}={shown}…`: {e} (column {col} of the value)")
+            } else {
+                format!("in override `{name}={value}`: {e}")
+            };
+            Diagnostic::error("E0508", message)
                 .help("the value must be an expression such as 2.5, -1e-3 or [1, 2; 3, 4]")
         })?;
         Ok(Override { name, value, expr })

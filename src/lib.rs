@@ -9,7 +9,7 @@ extern crate openblas_src;
 
 pub mod analysis;
 pub mod arc;
-mod atomic_file;
+pub mod atomic_file;
 pub mod check;
 pub mod design;
 pub mod diagnostics;

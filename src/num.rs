@@ -76,3 +76,15 @@ mod tests {
         assert_eq!(fmt_nums(&[1.0, 2e-7]), "1, 2e-7");
     }
 }
+
+/// A `rows × cols` matrix stored row-major in `vals` as JSON: a number
+/// (1×1), an array (a column), or an array of rows (also for zero columns:
+/// `rows` empty arrays).
+pub fn matrix_json(rows: usize, cols: usize, vals: &[f64]) -> serde_json::Value {
+    match (rows, cols) {
+        (1, 1) => serde_json::json!(vals[0]),
+        (_, 1) => serde_json::json!(vals),
+        (r, 0) => serde_json::json!(vec![Vec::<f64>::new(); r]),
+        (_, c) => serde_json::json!(vals.chunks(c).collect::<Vec<_>>()),
+    }
+}

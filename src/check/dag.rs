@@ -145,7 +145,16 @@ impl BlockKind {
 
     /// Applies the operation to `inputs`, writing the outputs; returns
     /// false if the result is undefined (singular matrix).
+    /// Non-finite or empty inputs never reach nalgebra (whose SVD and
+    /// decompositions panic on them): NaN in, NaN out.
     pub fn apply(self, inputs: &[f64], out: &mut [f64]) -> bool {
+        if out.is_empty() {
+            return true;
+        }
+        if inputs.iter().any(|v| !v.is_finite()) {
+            out.fill(f64::NAN);
+            return false;
+        }
         match self {
             BlockKind::Inv { n } => {
                 let n = n as usize;
@@ -184,6 +193,10 @@ impl BlockKind {
                 e.iter().all(|v| v.is_finite())
             }
             BlockKind::Norm2 { r, c } => {
+                if r == 0 || c == 0 {
+                    out[0] = 0.0;
+                    return true;
+                }
                 let a = DMatrix::from_row_slice(r as usize, c as usize, inputs);
                 let s = a.singular_values();
                 out[0] = s.iter().copied().fold(0.0, f64::max);

@@ -318,11 +318,7 @@ impl DesignReport {
     pub fn to_json(&self) -> serde_json::Value {
         let mut results = serde_json::Map::new();
         for (name, (rows, cols), vals) in &self.results {
-            let v = match (rows, cols) {
-                (1, 1) => serde_json::json!(vals[0]),
-                (_, 1) => serde_json::json!(vals),
-                (_, c) => serde_json::json!(vals.chunks(*c).collect::<Vec<_>>()),
-            };
+            let v = crate::num::matrix_json(*rows, *cols, vals);
             results.insert(name.clone(), v);
         }
         if let Some((outcome, status)) = &self.unsolved {

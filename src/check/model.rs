@@ -258,6 +258,22 @@ pub(crate) fn check_model(
             });
         }
     }
+    let simulates = m.designs.is_empty()
+        || model
+            .items
+            .iter()
+            .any(|it| matches!(it, Item::State(_) | Item::Flow(_) | Item::Jump(_)));
+    if m.c.errors.is_empty() && m.init.is_empty() && simulates {
+        // The engine needs at least one state component (`run` would
+        // reject the model); families sized 0 by a parameter end here too.
+        // A model of `design` blocks alone is for `hybsim design`.
+        m.c.err(CheckError::Expected {
+            expected: "at least one state component (`state x = ...`, or a family of size ≥ 1)"
+                .into(),
+            found: "a model without states".into(),
+            span: model.name.span,
+        });
+    }
     if !m.c.errors.is_empty() {
         for e in &mut m.c.errors {
             if let CheckError::Design(d) = e

@@ -41,6 +41,7 @@ pub fn format_results(report: &DesignReport) -> String {
         match (rows, cols) {
             (1, 1) => out.push_str(&format!("  {name} = {:.9e}\n", vals[0])),
             (_, 1) => out.push_str(&format!("  {name} = [{}]'\n", show(vals))),
+            (_, 0) => out.push_str(&format!("  {name} = []\n")),
             (_, c) => {
                 out.push_str(&format!("  {name} = [\n"));
                 for row in vals.chunks(*c) {

@@ -70,6 +70,32 @@ pub enum Command {
     Test(test::TestArgs),
 }
 
+/// Replaces the default panic message by a short report: what went wrong
+/// where, the command that led there (with the model file), and what to do.
+/// A panic during a run still completes the output files (see
+/// `run::simulate_to_files`).
+pub fn install_panic_hook() {
+    std::panic::set_hook(Box::new(|info| {
+        let message = run::panic_message(info.payload());
+        let location = info
+            .location()
+            .map(|l| format!(" ({}:{})", l.file(), l.line()))
+            .unwrap_or_default();
+        let command: Vec<String> = std::iter::once("hybsim".to_string())
+            .chain(
+                std::env::args_os()
+                    .skip(1)
+                    .map(|a| a.to_string_lossy().into_owned()),
+            )
+            .collect();
+        eprintln!(
+            "error: internal error in hybsim (a bug): {message}{location}\n  command: {}\n  \
+             please report it with this command and the model file",
+            command.join(" ")
+        );
+    }));
+}
+
 /// Parses `args` (including the program name), runs the subcommand, and
 /// returns the process exit code. Errors are printed to stderr.
 pub fn run<I, T>(args: I) -> ExitCode

@@ -12,8 +12,10 @@ use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 /// Ticks of the progress bar (its length).
 const TICKS: u64 = 1000;
 
-/// Installs a Ctrl-C handler that sets the returned flag (once per
-/// process; later calls return a flag that is never set).
+/// Installs a handler of Ctrl-C (SIGINT), SIGTERM and SIGHUP that sets the
+/// returned flag, so that the run stops at its next sample and every output
+/// file is completed (once per process; later calls return a flag that is
+/// never set).
 pub fn interrupt_flag() -> Arc<AtomicBool> {
     let flag = Arc::new(AtomicBool::new(false));
     let f = flag.clone();

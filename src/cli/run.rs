@@ -8,6 +8,7 @@ use clap::Args;
 use std::io::IsTerminal;
 
 use hybsim::arc::{ArcSink, HybridTime, Termination, TerminationCause};
+use hybsim::atomic_file;
 use hybsim::diagnostics::render;
 use hybsim::engine::{HybridSystem, Priority, SimError, SimRng, SimSettings, Solver, simulate};
 use hybsim::lang;
@@ -250,7 +251,7 @@ fn outcome_of(result: &Result<Termination, SimError>, interrupted: bool) -> RunO
     match result {
         Ok(term) if interrupted && term.cause == TerminationCause::StoppedBySink => RunOutcome {
             cause: "interrupted".into(),
-            message: format!("interrupted (Ctrl-C) at {}", term.at),
+            message: format!("interrupted (Ctrl-C, SIGTERM or SIGHUP) at {}", term.at),
             status: RunStatus::Ended,
         },
         Ok(term) => RunOutcome::from_termination(term),
@@ -306,6 +307,9 @@ pub fn simulate_to_files<S: HybridSystem + ?Sized>(
     output_fn: Option<OutputFn<'_>>,
     outputs: &Outputs,
 ) -> anyhow::Result<(Report, Option<SimError>)> {
+    // Installed before any output file exists, so that a signal from here
+    // on completes (or removes) every file.
+    let interrupted = interrupt_flag();
     let mut mcap = match &outputs.mcap {
         Some(path) => Some(McapSink::create(
             path,
@@ -334,7 +338,7 @@ pub fn simulate_to_files<S: HybridSystem + ?Sized>(
         settings.horizon_j,
         info.rule_names.len(),
         outputs.progress,
-        interrupt_flag(),
+        interrupted,
     );
 
     let start = Instant::now();
@@ -350,14 +354,31 @@ pub fn simulate_to_files<S: HybridSystem + ?Sized>(
             sinks.push(s);
         }
         let mut fan = Fanout::new(sinks);
-        simulate(sys, x0, settings, rng, &mut fan)
+        // A panic (a bug) still ends in completed files that record it; the
+        // panic hook has already printed the report.
+        std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+            simulate(sys, x0, settings, rng, &mut fan)
+        }))
     };
-    let error = result.as_ref().err().cloned();
+    let (result, panic) = match result {
+        Ok(result) => (Some(result), None),
+        Err(payload) => (None, Some(panic_message(&*payload))),
+    };
+    let error = result.as_ref().and_then(|r| r.as_ref().err().cloned());
     let wall = start.elapsed();
     progress.clear();
     let interrupted = progress.was_interrupted();
 
-    let mut outcome = outcome_of(&result, interrupted);
+    let mut outcome = match (&result, &panic) {
+        (Some(result), _) => outcome_of(result, interrupted),
+        (None, message) => RunOutcome::failed(
+            "internal_error",
+            format!(
+                "internal error (a bug in hybsim): {}",
+                message.as_deref().unwrap_or("panic")
+            ),
+        ),
+    };
     let mut written = Vec::new();
     let mut first_error: Option<anyhow::Error> = None;
     if let Some(sink) = mcap {
@@ -390,6 +411,17 @@ pub fn simulate_to_files<S: HybridSystem + ?Sized>(
     if let Some(e) = first_error {
         return Err(e.context("the run's output could not be written"));
     }
+    if let Some(message) = panic {
+        let files: Vec<String> = written.iter().map(|p| p.display().to_string()).collect();
+        anyhow::bail!(
+            "internal error (a bug in hybsim): {message}; the run up to that point is in {}",
+            if files.is_empty() {
+                "no file".to_string()
+            } else {
+                files.join(", ")
+            }
+        );
+    }
     let report = Report {
         outcome,
         tally: progress.tally,
@@ -398,6 +430,17 @@ pub fn simulate_to_files<S: HybridSystem + ?Sized>(
         interrupted,
     };
     Ok((report, error))
+}
+
+/// The text of a panic's payload.
+pub fn panic_message(payload: &(dyn std::any::Any + Send)) -> String {
+    if let Some(s) = payload.downcast_ref::<&str>() {
+        (*s).to_string()
+    } else if let Some(s) = payload.downcast_ref::<String>() {
+        s.clone()
+    } else {
+        "panic".to_string()
+    }
 }
 
 /// The one-line summary: final (t, j), jumps per rule, cause, wall time.
@@ -438,6 +481,20 @@ pub fn exit_code(report: &Report) -> u8 {
     }
 }
 
+/// Why the outputs of a run cannot be written as asked: an output path
+/// that is the model file or another output of the same run.
+pub fn output_path_clash(model: &Path, outputs: &Outputs) -> Option<String> {
+    let named: Vec<(&str, &Path)> = [
+        ("-o", outputs.mcap.as_deref()),
+        ("--csv", outputs.csv.as_deref()),
+        ("--plot", outputs.plot.as_deref()),
+    ]
+    .into_iter()
+    .filter_map(|(flag, path)| path.map(|p| (flag, p)))
+    .collect();
+    atomic_file::clash(&[("the model", model)], &named)
+}
+
 /// Default MCAP path: the model's file name with `.mcap`, in the current directory.
 pub fn default_mcap_path(model: &Path) -> PathBuf {
     let stem = model
@@ -475,7 +532,11 @@ pub fn execute(args: RunArgs) -> anyhow::Result<u8> {
         seed,
         // The program's own path would make files depend on where it is installed.
         argv: std::iter::once("hybsim".to_string())
-            .chain(std::env::args().skip(1))
+            .chain(
+                std::env::args_os()
+                    .skip(1)
+                    .map(|a| a.to_string_lossy().into_owned()),
+            )
             .collect(),
         overrides: overrides
             .iter()
@@ -521,6 +582,10 @@ pub fn execute(args: RunArgs) -> anyhow::Result<u8> {
         decimation: Decimation::all().every(args.log_every).dt(args.log_dt),
         progress: !args.quiet,
     };
+    if let Some(message) = output_path_clash(&args.model, &outputs) {
+        eprintln!("error: {message}");
+        return Ok(EXIT_MODEL_ERROR);
+    }
     let output_fn = |at: HybridTime, x: &[f64], y: &mut [f64]| model.outputs(at, x, y);
     let (x0, mut rng) = model.start(seed);
     let (report, error) = simulate_to_files(

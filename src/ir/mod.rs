@@ -420,11 +420,7 @@ impl CompiledModel {
     pub fn parameters_json(&self) -> serde_json::Value {
         let mut map = serde_json::Map::new();
         for (name, (rows, cols), vals) in &self.params {
-            let v = match (rows, cols) {
-                (1, 1) => serde_json::json!(vals[0]),
-                (_, 1) => serde_json::json!(vals),
-                (_, c) => serde_json::json!(vals.chunks(*c).collect::<Vec<_>>()),
-            };
+            let v = crate::num::matrix_json(*rows, *cols, vals);
             map.insert(name.clone(), v);
         }
         serde_json::Value::Object(map)

@@ -9,7 +9,7 @@ use std::io::BufWriter;
 use std::ops::ControlFlow;
 use std::path::{Path, PathBuf};
 
-use tempfile::NamedTempFile;
+use crate::atomic_file::OutputFile;
 
 use super::{Decimation, Decimator, OutputFn, RunInfo, SinkError, Tally};
 use crate::arc::{ArcSink, HybridTime, SampleKind};
@@ -33,7 +33,7 @@ pub fn kind_name(kind: SampleKind) -> &'static str {
 /// by [`finish`](Self::finish); dropped unfinished, it leaves no file.
 pub struct CsvSink<'a> {
     path: PathBuf,
-    writer: Option<::csv::Writer<BufWriter<NamedTempFile>>>,
+    writer: Option<::csv::Writer<BufWriter<OutputFile>>>,
     outputs: Option<OutputFn<'a>>,
     decimator: Decimator,
     tally: Tally,

@@ -30,11 +30,11 @@ use std::io::BufWriter;
 use std::ops::ControlFlow;
 use std::path::{Path, PathBuf};
 
+use crate::atomic_file::OutputFile;
 use mcap::records::{MessageHeader, Metadata};
 use mcap::{Attachment, Compression, WriteOptions, Writer};
 use serde::Serialize;
 use serde_json::{Value, json};
-use tempfile::NamedTempFile;
 
 use super::json::{
     JumpRecordJson, LogLevel, LogRecord, LogTimestamp, SampleRecord, Values, jump_schema,
@@ -112,7 +112,7 @@ struct Channels {
 /// [`finish`](Self::finish): only then does the file appear at its path.
 pub struct McapSink<'a> {
     path: PathBuf,
-    writer: Option<Writer<BufWriter<NamedTempFile>>>,
+    writer: Option<Writer<BufWriter<OutputFile>>>,
     info: &'a RunInfo,
     outputs: Option<OutputFn<'a>>,
     channels: Channels,
@@ -171,6 +171,7 @@ impl<'a> McapSink<'a> {
             });
         }
         let file = atomic_file::create(&path).map_err(|e| SinkError::io(&path, e))?;
+        let seekable = file.seekable();
         let mcap_err = |source| SinkError::Mcap {
             path: path.clone(),
             source,
@@ -179,6 +180,7 @@ impl<'a> McapSink<'a> {
             .compression(Some(Compression::Zstd))
             .compression_level(options.zstd_level)
             .compression_threads(1)
+            .disable_seeking(!seekable)
             .profile("")
             .library(format!("hybsim {}", env!("CARGO_PKG_VERSION")))
             .create(BufWriter::new(file))

@@ -27,6 +27,15 @@ pub enum SyntaxError {
         /// The limit.
         limit: usize,
     },
+    /// An expression tree deeper than [`super::MAX_EXPR_DEPTH`] operations
+    /// (a very long flat sum, product or chain of unary operators).
+    #[error("expression deeper than {limit} operations")]
+    TooLong {
+        /// The operator that exceeds the limit.
+        span: Span,
+        /// The limit.
+        limit: usize,
+    },
     /// `x = v` in a jump's reset block: a reset names the state after the
     /// jump, `x+ = v`.
     #[error("a reset assigns the state after the jump: write `{target}+ = ...`")]
@@ -62,6 +71,7 @@ impl SyntaxError {
         match self {
             SyntaxError::Unexpected { span, .. }
             | SyntaxError::TooDeep { span, .. }
+            | SyntaxError::TooLong { span, .. }
             | SyntaxError::ResetWithoutPlus { span, .. }
             | SyntaxError::MatlabOperator { span, .. }
             | SyntaxError::BadNumber { span, .. } => *span,
@@ -83,6 +93,13 @@ impl SyntaxError {
             )
             .primary(*span, "too deep")
             .help("split the expression into named parameters or outputs"),
+            SyntaxError::TooLong { span, limit } => Diagnostic::error(
+                "E0105",
+                format!("expression deeper than {limit} operations"),
+            )
+            .primary(*span, "the limit is reached here")
+            .note("a chain `a + b + c + …` (or of `*`, `&&`, prefix `-`/`!`, postfix `'`/`[i]`) nests one operation per operator")
+            .help("write long sums and products with `sum(k in 1..N: …)` or matrix products, or split the expression into named parameters or outputs"),
             SyntaxError::ResetWithoutPlus { span, target } => {
                 Diagnostic::error("E0104", self.to_string())
                     .primary(*span, format!("`{target}+` expected"))

@@ -10,4 +10,4 @@ mod property;
 mod tests;
 
 pub use error::SyntaxError;
-pub use parse::{MAX_NESTING, parse_expr, parse_model};
+pub use parse::{MAX_EXPR_DEPTH, MAX_NESTING, parse_expr, parse_model};

@@ -17,6 +17,14 @@ pub(crate) struct HybParser;
 /// can exhaust the stack.
 pub const MAX_NESTING: usize = 48;
 
+/// Deepest expression tree accepted: operations applied to the result of
+/// operations, counted along the longest path (`1 + 1 + … + 1` with N terms
+/// is N − 1 deep, as are N − 1 prefix `-`/`!`, postfix `'` or `[i]`).
+/// Deeper input is a [`SyntaxError::TooLong`], caught while the tree is
+/// built, so that neither building, checking nor dropping it can exhaust
+/// the stack. Long sums are written with `sum(k in 1..N: …)`.
+pub const MAX_EXPR_DEPTH: usize = 1000;
+
 pub(super) type Res<T> = Result<T, SyntaxError>;
 
 /// Parses a whole model.
@@ -396,19 +404,74 @@ fn mk(kind: ExprKind, span: Span) -> Expr {
 
 /// Converts any expression-level pair.
 pub(super) fn expr(p: Pair<'_, Rule>) -> Res<Expr> {
+    expr_d(p).map(|(e, _)| e)
+}
+
+/// The depth of a tree already bounded by [`MAX_EXPR_DEPTH`] (for the few
+/// sub-expressions built outside [`expr_d`]: indices, binders).
+fn depth(e: &Expr) -> usize {
+    let max = |es: &mut dyn Iterator<Item = &Expr>| es.map(depth).max().unwrap_or(0);
+    1 + match &e.kind {
+        ExprKind::Num(_) | ExprKind::Bool(_) | ExprKind::Name(_) => 0,
+        ExprKind::Unary(_, a) => depth(a),
+        ExprKind::Binary(_, a, b) => depth(a).max(depth(b)),
+        ExprKind::If(a, b, c) => depth(a).max(depth(b)).max(depth(c)),
+        ExprKind::Call(_, args) => max(&mut args.iter()),
+        ExprKind::Matrix(rows) => max(&mut rows.iter().flatten()),
+        ExprKind::Index(a, args) => depth(a).max(max(&mut args.iter().flat_map(index_exprs))),
+        ExprKind::Sum(b, body) => depth(body).max(binder_depth(b)),
+    }
+}
+
+fn index_exprs(a: &IndexArg) -> Vec<&Expr> {
+    match a {
+        IndexArg::One(e) => vec![e],
+        IndexArg::Slice(a, b) => vec![a, b],
+        IndexArg::All(_) => vec![],
+    }
+}
+
+fn binder_depth(b: &Binder) -> usize {
+    fn set_depth(s: &IndexSet) -> usize {
+        match s {
+            IndexSet::Range(a, b) | IndexSet::In(a, b) | IndexSet::Out(a, b) => {
+                depth(a).max(depth(b))
+            }
+            IndexSet::Edges(a) => depth(a),
+            IndexSet::Subsets(s) => set_depth(s),
+            IndexSet::Named(_) => 0,
+        }
+    }
+    set_depth(&b.set).max(b.filter.as_ref().map_or(0, depth))
+}
+
+/// `child_depth + 1`, or the error at `span` if that exceeds [`MAX_EXPR_DEPTH`].
+fn deeper(child_depth: usize, span: Span) -> Res<usize> {
+    if child_depth >= MAX_EXPR_DEPTH {
+        return Err(SyntaxError::TooLong {
+            span,
+            limit: MAX_EXPR_DEPTH,
+        });
+    }
+    Ok(child_depth + 1)
+}
+
+/// [`expr`] and the depth of the tree it built.
+fn expr_d(p: Pair<'_, Rule>) -> Res<(Expr, usize)> {
     let span: Span = p.as_span().into();
     let rule = p.as_rule();
     let text = p.as_str();
     let mut it = p.into_inner();
     match rule {
-        Rule::expr | Rule::paren => expr(first(&mut it, span)?),
+        Rule::expr | Rule::paren => expr_d(first(&mut it, span)?),
         Rule::if_expr => {
-            let c = expr(first(&mut it, span)?)?;
-            let a = expr(first(&mut it, span)?)?;
-            let b = expr(first(&mut it, span)?)?;
-            Ok(mk(
-                ExprKind::If(Box::new(c), Box::new(a), Box::new(b)),
-                span,
+            let (c, dc) = expr_d(first(&mut it, span)?)?;
+            let (a, da) = expr_d(first(&mut it, span)?)?;
+            let (b, db) = expr_d(first(&mut it, span)?)?;
+            let d = deeper(dc.max(da).max(db), span)?;
+            Ok((
+                mk(ExprKind::If(Box::new(c), Box::new(a), Box::new(b)), span),
+                d,
             ))
         }
         Rule::or_expr
@@ -417,9 +480,10 @@ pub(super) fn expr(p: Pair<'_, Rule>) -> Res<Expr> {
         | Rule::add_expr
         | Rule::mul_expr
         | Rule::power => {
-            let mut lhs = expr(first(&mut it, span)?)?;
+            let (mut lhs, mut d) = expr_d(first(&mut it, span)?)?;
             while let Some(op) = it.next() {
-                let rhs = expr(first(&mut it, span)?)?;
+                let (rhs, dr) = expr_d(first(&mut it, span)?)?;
+                d = deeper(d.max(dr), op.as_span().into())?;
                 let op = match op.as_str() {
                     "||" => BinOp::Or,
                     "&&" => BinOp::And,
@@ -440,7 +504,7 @@ pub(super) fn expr(p: Pair<'_, Rule>) -> Res<Expr> {
                 let s = lhs.span.to(rhs.span);
                 lhs = mk(ExprKind::Binary(op, Box::new(lhs), Box::new(rhs)), s);
             }
-            Ok(lhs)
+            Ok((lhs, d))
         }
         Rule::unary => {
             let parts: Vec<Pair<'_, Rule>> = it.collect();
@@ -451,8 +515,9 @@ pub(super) fn expr(p: Pair<'_, Rule>) -> Res<Expr> {
                     expected: "an expression".into(),
                 });
             };
-            let mut e = expr(last.clone())?;
+            let (mut e, mut d) = expr_d(last.clone())?;
             for op in prefixes.iter().rev() {
+                d = deeper(d, op.as_span().into())?;
                 let uop = if op.as_str() == "-" {
                     UnOp::Neg
                 } else {
@@ -461,44 +526,72 @@ pub(super) fn expr(p: Pair<'_, Rule>) -> Res<Expr> {
                 let s = Span::new(op.as_span().start(), e.span.end);
                 e = mk(ExprKind::Unary(uop, Box::new(e)), s);
             }
-            Ok(e)
+            Ok((e, d))
         }
         Rule::postfix => {
-            let mut e = expr(first(&mut it, span)?)?;
+            let (mut e, mut d) = expr_d(first(&mut it, span)?)?;
             for post in it {
-                let end = post.as_span().end();
-                let s = Span::new(e.span.start, end);
+                let post_span: Span = post.as_span().into();
+                let s = Span::new(e.span.start, post_span.end);
                 e = match post.as_rule() {
-                    Rule::transpose => mk(ExprKind::Unary(UnOp::Transpose, Box::new(e)), s),
-                    _ => mk(ExprKind::Index(Box::new(e), index_list(post)?), s),
+                    Rule::transpose => {
+                        d = deeper(d, post_span)?;
+                        mk(ExprKind::Unary(UnOp::Transpose, Box::new(e)), s)
+                    }
+                    _ => {
+                        let args = index_list(post)?;
+                        let da = args
+                            .iter()
+                            .flat_map(index_exprs)
+                            .map(depth)
+                            .max()
+                            .unwrap_or(0);
+                        d = deeper(d.max(da), post_span)?;
+                        mk(ExprKind::Index(Box::new(e), args), s)
+                    }
                 };
             }
-            Ok(e)
+            Ok((e, d))
         }
         Rule::number => match text.parse::<f64>() {
-            Ok(v) if v.is_finite() => Ok(mk(ExprKind::Num(v), span)),
+            Ok(v) if v.is_finite() => Ok((mk(ExprKind::Num(v), span), 1)),
             _ => Err(SyntaxError::BadNumber {
                 span,
                 text: text.to_string(),
             }),
         },
-        Rule::boolean => Ok(mk(ExprKind::Bool(text == "true"), span)),
-        Rule::ident => Ok(mk(ExprKind::Name(text.to_string()), span)),
+        Rule::boolean => Ok((mk(ExprKind::Bool(text == "true"), span), 1)),
+        Rule::ident => Ok((mk(ExprKind::Name(text.to_string()), span), 1)),
         Rule::call => {
             let name = ident(first(&mut it, span)?);
-            let args = it.map(expr).collect::<Res<_>>()?;
-            Ok(mk(ExprKind::Call(name, args), span))
+            let mut d = 0;
+            let mut args = Vec::new();
+            for a in it {
+                let (a, da) = expr_d(a)?;
+                d = d.max(da);
+                args.push(a);
+            }
+            Ok((mk(ExprKind::Call(name, args), span), deeper(d, span)?))
         }
         Rule::matrix => {
-            let rows = it
-                .map(|r| r.into_inner().map(expr).collect::<Res<Vec<_>>>())
-                .collect::<Res<_>>()?;
-            Ok(mk(ExprKind::Matrix(rows), span))
+            let mut d = 0;
+            let mut rows = Vec::new();
+            for r in it {
+                let mut row = Vec::new();
+                for e in r.into_inner() {
+                    let (e, de) = expr_d(e)?;
+                    d = d.max(de);
+                    row.push(e);
+                }
+                rows.push(row);
+            }
+            Ok((mk(ExprKind::Matrix(rows), span), deeper(d, span)?))
         }
         Rule::sum_expr => {
             let b = binder(first(&mut it, span)?)?;
-            let body = expr(first(&mut it, span)?)?;
-            Ok(mk(ExprKind::Sum(Box::new(b), Box::new(body)), span))
+            let (body, db) = expr_d(first(&mut it, span)?)?;
+            let d = deeper(db.max(binder_depth(&b)), span)?;
+            Ok((mk(ExprKind::Sum(Box::new(b), Box::new(body)), span), d))
         }
         _ => Err(SyntaxError::Unexpected {
             span,

@@ -23,6 +23,7 @@ mod props;
 mod props_cli;
 mod props_model;
 mod props_params;
+mod reliability;
 mod runtime_diagnostics;
 mod sinks;
 mod util;

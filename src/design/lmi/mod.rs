@@ -534,6 +534,15 @@ impl Problem {
                 detail: format!("constraint `{label}` has a non-finite entry"),
             });
         }
+        if expr.shape().0 == 0 || expr.shape().1 == 0 {
+            return Err(LmiError::Invalid {
+                detail: format!(
+                    "constraint `{label}` is empty ({}×{}): it constrains nothing",
+                    expr.shape().0,
+                    expr.shape().1
+                ),
+            });
+        }
         if expr.terms.iter().any(|t| t.var >= self.n_scalars) {
             return Err(LmiError::Invalid {
                 detail: format!("constraint `{label}` uses a variable of another problem"),

@@ -434,6 +434,18 @@ impl Problem {
     pub fn solve(&self) -> Result<Outcome, LmiError> {
         let start = Instant::now();
         self.validate_settings()?;
+        // The solvers (clarabel's QDLDL) index into the first variable and
+        // the first constraint: an empty problem never reaches them.
+        if self.n_scalars == 0 {
+            return Err(LmiError::Invalid {
+                detail: "the problem has no decision variable: declare one (`sym P[n]`, `full K[m, n]`, `var t`)".into(),
+            });
+        }
+        if self.constraints.is_empty() {
+            return Err(LmiError::Invalid {
+                detail: "the problem has no constraint: add one (`name: expr >= 0`)".into(),
+            });
+        }
         let data = self.data_scaling();
         // With `Rescale::Always` the first point only sets the scaling of the second solve.
         let first_scales = self.settings.rescale == Rescale::Always;
