@@ -12,5 +12,18 @@ fn main() -> std::process::ExitCode {
         libc::signal(libc::SIGPIPE, libc::SIG_DFL);
     }
     cli::install_panic_hook();
-    cli::run(std::env::args_os())
+    // The front end's recursion is bounded (`syntax::MAX_NESTING`,
+    // `syntax::MAX_EXPR_DEPTH`); a large stack is only a second line of
+    // defence (reserved, not committed, memory).
+    let args: Vec<_> = std::env::args_os().collect();
+    std::thread::Builder::new()
+        .name("hybsim".into())
+        .stack_size(STACK_BYTES)
+        .spawn(move || cli::run(args))
+        .ok()
+        .and_then(|worker| worker.join().ok())
+        .unwrap_or(std::process::ExitCode::from(101))
 }
+
+/// Stack of the thread that runs the command.
+const STACK_BYTES: usize = 256 << 20;
