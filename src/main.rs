@@ -15,14 +15,15 @@ fn main() -> std::process::ExitCode {
     // The front end's recursion is bounded (`syntax::MAX_NESTING`,
     // `syntax::MAX_EXPR_DEPTH`); a large stack is only a second line of
     // defence (reserved, not committed, memory).
-    let args: Vec<_> = std::env::args_os().collect();
-    std::thread::Builder::new()
+    let worker = std::thread::Builder::new()
         .name("hybsim".into())
         .stack_size(STACK_BYTES)
-        .spawn(move || cli::run(args))
-        .ok()
-        .and_then(|worker| worker.join().ok())
-        .unwrap_or(std::process::ExitCode::from(101))
+        .spawn(|| cli::run(std::env::args_os()));
+    match worker {
+        // A panic has been reported by the hook; 101 as Rust's own.
+        Ok(worker) => worker.join().unwrap_or(std::process::ExitCode::from(101)),
+        Err(_) => cli::run(std::env::args_os()),
+    }
 }
 
 /// Stack of the thread that runs the command.
