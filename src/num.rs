@@ -45,6 +45,18 @@ pub fn fmt_nums(xs: &[f64]) -> String {
         .join(", ")
 }
 
+/// A `rows × cols` matrix stored row-major in `vals` as JSON: a number
+/// (1×1), an array (a column), or an array of rows (also for zero columns:
+/// `rows` empty arrays).
+pub fn matrix_json(rows: usize, cols: usize, vals: &[f64]) -> serde_json::Value {
+    match (rows, cols) {
+        (1, 1) => serde_json::json!(vals[0]),
+        (_, 1) => serde_json::json!(vals),
+        (r, 0) => serde_json::json!(vec![Vec::<f64>::new(); r]),
+        (_, c) => serde_json::json!(vals.chunks(c).collect::<Vec<_>>()),
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -74,17 +86,5 @@ mod tests {
         assert_eq!(fmt_num(f64::NAN), "NaN");
         assert_eq!(fmt_num(f64::NEG_INFINITY), "-inf");
         assert_eq!(fmt_nums(&[1.0, 2e-7]), "1, 2e-7");
-    }
-}
-
-/// A `rows × cols` matrix stored row-major in `vals` as JSON: a number
-/// (1×1), an array (a column), or an array of rows (also for zero columns:
-/// `rows` empty arrays).
-pub fn matrix_json(rows: usize, cols: usize, vals: &[f64]) -> serde_json::Value {
-    match (rows, cols) {
-        (1, 1) => serde_json::json!(vals[0]),
-        (_, 1) => serde_json::json!(vals),
-        (r, 0) => serde_json::json!(vec![Vec::<f64>::new(); r]),
-        (_, c) => serde_json::json!(vals.chunks(c).collect::<Vec<_>>()),
     }
 }

@@ -25,7 +25,7 @@ pub const EXIT_FAILED: u8 = 1;
 /// Exit code: the model has errors (syntax, names, shapes, a bad `--set`),
 /// or the command line is malformed.
 pub const EXIT_MODEL_ERROR: u8 = 2;
-/// Exit code: interrupted with Ctrl-C (the output files are still completed).
+/// Exit code: interrupted with Ctrl-C, SIGTERM or SIGHUP (the output files are still completed).
 pub const EXIT_INTERRUPTED: u8 = 130;
 
 const EXAMPLES: &str = "\
@@ -43,7 +43,7 @@ Exit codes:
   1    the run failed (engine error, non-finite value, output file not written),
        or `hybsim test` found a counterexample
   2    the model has errors, or the command line is malformed
-  130  interrupted (Ctrl-C); output files are completed up to that point";
+  130  interrupted (Ctrl-C, SIGTERM, SIGHUP); output files are completed up to that point";
 
 /// Simulate, design and test hybrid dynamical systems written in `.hyb`.
 #[derive(Debug, Parser)]

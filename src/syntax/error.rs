@@ -94,7 +94,7 @@ impl SyntaxError {
             .primary(*span, "too deep")
             .help("split the expression into named parameters or outputs"),
             SyntaxError::TooLong { span, limit } => Diagnostic::error(
-                "E0105",
+                "E0106",
                 format!("expression deeper than {limit} operations"),
             )
             .primary(*span, "the limit is reached here")

@@ -254,7 +254,7 @@ fn long_flat_expressions_are_located_errors_not_stack_overflows() {
         std::fs::write(dir.path().join(&name), format!("{BASE}param p = {e}\n")).unwrap();
         let err = refused(dir.path(), &["check", &name], 2);
         assert!(
-            err.contains("E0105") && err.contains(&format!("{name}:5:")),
+            err.contains("E0106") && err.contains(&format!("{name}:5:")),
             "{}",
             &err[..err.len().min(2000)]
         );
