@@ -1315,7 +1315,7 @@ impl Checker {
             Err(_) => {
                 self.err(CheckError::Compute {
                     func: func.to_string(),
-                    reason: "the matrix is singular or has a NaN or infinite entry".into(),
+                    reason: "the matrix is singular".into(),
                     span,
                 });
                 None
