@@ -103,9 +103,30 @@ pub enum TerminationCause {
     },
     /// The state is neither in C (or cannot flow inside C) nor in D: the
     /// solution is maximal and ends here.
-    CannotFlowOrJump,
+    CannotFlowOrJump {
+        /// `true`: the last flow ended because it was leaving C (the state
+        /// is on C's boundary, the flow pointing out); `false`: the state is
+        /// outside C.
+        leaving: bool,
+        /// The atoms of C that fail at the state (exactly, without
+        /// `set_tol`), in the order of the flow set's atoms; empty for a
+        /// system that describes C without atoms.
+        failed: Vec<FailedAtom>,
+        /// The state.
+        state: Vec<f64>,
+    },
     /// The sink asked to stop (e.g. a file limit or a user interrupt).
     StoppedBySink,
+}
+
+/// An atom `g ⋈ 0` of the flow set that fails at the state where a solution
+/// could neither flow nor jump.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct FailedAtom {
+    /// Index into the flow set's atoms (`HybridSystem::set_atoms`).
+    pub index: usize,
+    /// The value of `g` there.
+    pub value: f64,
 }
 
 /// Which Zeno guard stopped a run.
@@ -153,7 +174,7 @@ impl Termination {
                 detail: ZenoDetail::TotalJumps { .. },
                 ..
             } => "raise `max_total_jumps` if this many jumps are intended",
-            TerminationCause::CannotFlowOrJump => {
+            TerminationCause::CannotFlowOrJump { .. } => {
                 "the state left C without entering D: check the flow set, the jump sets and \
                  their guards at this point"
             }
@@ -182,8 +203,23 @@ impl std::fmt::Display for Termination {
                     self.at
                 ),
             },
-            TerminationCause::CannotFlowOrJump => {
-                write!(f, "the solution can neither flow nor jump at {}", self.at)
+            TerminationCause::CannotFlowOrJump {
+                leaving, failed, ..
+            } => {
+                write!(f, "the solution can neither flow nor jump at {}: ", self.at)?;
+                if *leaving {
+                    write!(f, "the flow leaves C there")?;
+                } else {
+                    write!(f, "the state is outside C")?;
+                }
+                for (k, a) in failed.iter().enumerate() {
+                    let sep = if k == 0 { " (failing: " } else { ", " };
+                    write!(f, "{sep}atom {} of C with g = {:e}", a.index, a.value)?;
+                }
+                if !failed.is_empty() {
+                    write!(f, ")")?;
+                }
+                write!(f, " and it is in no jump set")
             }
             TerminationCause::StoppedBySink => write!(f, "stopped by the sink at {}", self.at),
         }
@@ -299,10 +335,13 @@ impl HybridArc {
         self.termination = Some(termination);
     }
 
-    /// The state at hybrid time `(t, j)`: linear interpolation between the
-    /// two samples of flow interval `j` around `t` (exact at samples; use a
-    /// fine `dt_out` or step output for accuracy between them). `None` if
-    /// `(t, j)` is not in the arc's domain.
+    /// The state at hybrid time `(t, j)`: exact at samples; between two
+    /// samples of flow interval `j`, the cubic through the four samples of
+    /// that interval nearest to `t` (fewer, and a lower degree, where the
+    /// interval has fewer samples). The engine's default dense output
+    /// samples each flow finely enough for this to follow the solution to
+    /// about the solver's tolerance; on a coarse `dt_out` grid it is only as
+    /// good as the grid. `None` if `(t, j)` is not in the arc's domain.
     pub fn value_at(&self, at: HybridTime) -> Option<Vec<f64>> {
         // Samples are sorted by (j, t): find the range of interval j.
         let lo = self.times.partition_point(|s| s.j < at.j);
@@ -319,10 +358,42 @@ impl HybridArc {
         if self.times[k].t == at.t || k == lo {
             return Some(xk.to_vec());
         }
-        let (t0, t1) = (self.times[k - 1].t, self.times[k].t);
-        let x0 = &self.states[(k - 1) * self.dim..k * self.dim];
-        let w = (at.t - t0) / (t1 - t0);
-        Some(x0.iter().zip(xk).map(|(a, b)| a + w * (b - a)).collect())
+        // Up to four samples around (k-1, k) with distinct times.
+        let mut nodes: Vec<usize> = vec![k - 1, k];
+        if k - 1 > lo && self.times[k - 2].t < self.times[k - 1].t {
+            nodes.insert(0, k - 2);
+        }
+        if k + 1 < hi && self.times[k + 1].t > self.times[k].t {
+            nodes.push(k + 1);
+        }
+        if nodes.len() == 3 && nodes[0] == k - 1 && k + 2 < hi {
+            // Only a right neighbour so far: take a second one.
+            if self.times[k + 2].t > self.times[k + 1].t {
+                nodes.push(k + 2);
+            }
+        } else if nodes.len() == 3
+            && nodes[0] == k - 2
+            && k > lo + 2
+            && self.times[k - 3].t < self.times[k - 2].t
+        {
+            nodes.insert(0, k - 3);
+        }
+        // Lagrange form.
+        let ts: Vec<f64> = nodes.iter().map(|&i| self.times[i].t).collect();
+        let mut out = vec![0.0; self.dim];
+        for (a, &ia) in nodes.iter().enumerate() {
+            let mut w = 1.0;
+            for (b, &tb) in ts.iter().enumerate() {
+                if a != b {
+                    w *= (at.t - tb) / (ts[a] - tb);
+                }
+            }
+            let xa = &self.states[ia * self.dim..(ia + 1) * self.dim];
+            for (o, v) in out.iter_mut().zip(xa) {
+                *o += w * v;
+            }
+        }
+        Some(out)
     }
 }
 

@@ -61,6 +61,14 @@ impl Diagnostic {
         }
     }
 
+    /// A warning with code `code` and message `message`, without labels.
+    pub fn warning(code: &'static str, message: impl Into<String>) -> Self {
+        Self {
+            severity: Severity::Warning,
+            ..Self::error(code, message)
+        }
+    }
+
     /// Adds the primary label.
     pub fn primary(mut self, span: Span, message: impl Into<String>) -> Self {
         self.labels.push(Label {

@@ -27,7 +27,7 @@ use crate::source::SourceFile;
 use crate::syntax;
 
 pub use crate::check::{Backend, CheckOptions, DesignReport, Override, SolveSummary};
-pub use crate::ir::CompiledModel;
+pub use crate::ir::{CompiledModel, JitStatus};
 
 impl FromStr for Override {
     type Err = Diagnostic;

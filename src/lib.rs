@@ -22,4 +22,5 @@ pub mod num;
 pub mod props;
 pub mod sinks;
 pub mod source;
+pub mod sweep;
 pub mod syntax;

@@ -199,6 +199,24 @@ impl Checker {
         }
     }
 
+    /// The graph `g` when it is the name of a square matrix parameter: its
+    /// size and value, borrowed. `in(G, i)` / `out(G, i)` then read one row
+    /// or column where evaluating `G` would copy all N² entries (`for k in
+    /// out(G, i)` inside `for i in 1..N` was O(N³)). `None` for anything
+    /// else (the general path evaluates and reports).
+    fn named_adjacency(&self, g: &Expr) -> Option<(usize, &Val)> {
+        let ExprKind::Name(name) = &g.kind else {
+            return None;
+        };
+        if self.scope_lookup(name).is_some() || self.poisoned.contains_key(name) {
+            return None;
+        }
+        let Some(Sym::Param { val, .. }) = self.syms.get(name) else {
+            return None;
+        };
+        (val.rows == val.cols).then_some((val.rows, val))
+    }
+
     /// The members of a binder's index set (tuples of 1-based indices),
     /// before filtering.
     pub(crate) fn index_set(&mut self, b: &Binder) -> Option<Vec<Vec<i64>>> {
@@ -241,6 +259,39 @@ impl Checker {
                 (lo..=hi).map(|i| vec![i]).collect()
             }
             IndexSet::In(g, i) | IndexSet::Out(g, i) => {
+                let inward = matches!(b.set, IndexSet::In(..));
+                if let Some(n) = self.named_adjacency(g).map(|(n, _)| n) {
+                    let iv = self.const_int(i, "an agent index")?;
+                    if iv < 1 || iv as usize > n {
+                        self.err(CheckError::IndexOutOfRange {
+                            index: iv,
+                            len: n,
+                            span: i.span,
+                        });
+                        return None;
+                    }
+                    let (_, a) = self.named_adjacency(g)?;
+                    let iv = iv as usize - 1;
+                    let weights: Option<Vec<f64>> = (0..n)
+                        .map(|k| {
+                            let w = if inward {
+                                a.e[iv * n + k]
+                            } else {
+                                a.e[k * n + iv]
+                            };
+                            self.dag.as_const(w)
+                        })
+                        .collect();
+                    // A matrix that is not constant: the general path says so.
+                    if let Some(weights) = weights {
+                        return Some(
+                            (0..n)
+                                .filter(|&k| weights[k] != 0.0)
+                                .map(|k| vec![k as i64 + 1])
+                                .collect(),
+                        );
+                    }
+                }
                 let (n, a) = adjacency(self, g)?;
                 let iv = self.const_int(i, "an agent index")?;
                 if iv < 1 || iv as usize > n {
@@ -252,7 +303,6 @@ impl Checker {
                     return None;
                 }
                 let iv = iv as usize - 1;
-                let inward = matches!(b.set, IndexSet::In(..));
                 (0..n)
                     .filter(|&k| {
                         let w = if inward { a[iv * n + k] } else { a[k * n + iv] };
@@ -936,6 +986,9 @@ impl Checker {
                 None
             }
         };
+        if self.is_reduction_call(name) {
+            return self.reduction_call(name, args, span);
+        }
         let n = args.len();
         let elementwise = |f: UnFn| Some(f);
         let un = match name {

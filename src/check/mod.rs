@@ -12,8 +12,10 @@ pub mod dag;
 mod design;
 mod error;
 mod expr;
+pub mod metric;
 mod model;
 pub mod property;
+pub mod sweep;
 #[cfg(test)]
 mod tests;
 
@@ -101,6 +103,9 @@ pub(crate) struct Checker {
     pub(crate) poison_hit: Option<String>,
     /// The interior-point method of the design blocks.
     pub(crate) backend: Backend,
+    /// Set while a `metric` expression is lowered (outside reduction
+    /// arguments): reduction calls are collected here.
+    pub(crate) metric_frame: Option<metric::MetricFrame>,
 }
 
 /// Checks a parsed model with overrides; on success returns the checked

@@ -4,10 +4,11 @@
 use std::collections::{BTreeMap, HashMap};
 
 use super::dag::{BinFn, Dag, Node, NodeId};
+use super::design::Solved;
 use super::error::{CheckError, Dims};
 use super::expr::{CONST_CTX, Ctx, Val, dims_words, suggest};
 use super::{Checker, DesignReport, Sym};
-use crate::engine::{Priority, SimSettings, Solver};
+use crate::engine::{ExactAffine, Priority, SimSettings, Solver};
 use crate::source::Span;
 use crate::syntax::ast::*;
 
@@ -107,6 +108,8 @@ pub struct CheckedModel {
     pub settings: SimSettings,
     /// Seed of the run.
     pub seed: u64,
+    /// `jit = on | off` (`None`: not given; machine code where supported).
+    pub jit: Option<bool>,
     /// Resolved parameters: name, shape, row-major values.
     pub params: Vec<(String, Dims, Vec<f64>)>,
     /// Span of each block operation, by its origin index.
@@ -116,10 +119,15 @@ pub struct CheckedModel {
     /// The `property` declarations (nodes in the property frame, see
     /// [`super::property`]).
     pub properties: Vec<super::property::CheckedProperty>,
+    /// The `metric` declarations and their reductions (see
+    /// [`super::metric`]).
+    pub metrics: super::metric::CheckedMetrics,
     /// The random parameters (`param g ~ uniform(a, b)`, or `--set
     /// g=uniform(a, b)`) not pinned by an override, in declaration order;
     /// each is declared with its distribution's centre.
     pub random_params: Vec<crate::props::Input>,
+    /// The `sweep { … }` block, if the model has one.
+    pub sweep: Option<super::sweep::SweepDecl>,
 }
 
 const FLOW_CTX: Ctx = Ctx {
@@ -161,18 +169,24 @@ const SIM_KEYS: &[&str] = &[
     "seed",
     "max_step",
     "event_tol",
+    "set_tol",
     "zeno_rate",
     "zeno_max_rate",
     "zeno_window",
     "max_total_jumps",
     "horizon_t",
     "horizon_j",
+    "exact_affine",
+    "jit",
 ];
 
 struct ModelChecker<'o> {
     c: Checker,
     overrides: HashMap<&'o str, &'o Override>,
     used: Vec<String>,
+    /// The names `--set` accepts besides the `sim` keys (parameters,
+    /// random parameters, initial values): sweep axes must be among them.
+    settable: Vec<String>,
     init: Vec<Option<NodeId>>,
     flow: Vec<Option<(NodeId, Span)>>,
     flow_set: Option<(NodeId, Span)>,
@@ -215,9 +229,11 @@ pub(crate) fn check_model(
             poisoned: HashMap::new(),
             poison_hit: None,
             backend: options.backend,
+            metric_frame: None,
         },
         overrides: overrides.iter().map(|o| (o.name.as_str(), o)).collect(),
         used: Vec::new(),
+        settable: SIM_KEYS.iter().map(|k| k.to_string()).collect(),
         init: Vec::new(),
         flow: Vec::new(),
         flow_set: None,
@@ -245,7 +261,14 @@ pub(crate) fn check_model(
     let rule_names: Vec<String> = m.rules.iter().map(|r| r.name.clone()).collect();
     let properties =
         super::property::check_properties(&mut m.c, &model.items, &rule_names, m.init.len());
-    let (settings, seed) = m.settings();
+    let mut collector =
+        super::metric::MetricCollector::new(&mut m.c, rule_names.clone(), m.init.len());
+    for it in &model.items {
+        m.metrics(it, &mut collector);
+    }
+    let metrics = collector.finish(&mut m.c);
+    let sweep = super::sweep::check_sweeps(&mut m.c, &model.items, &m.settable);
+    let (settings, seed, jit) = m.settings();
     for o in overrides {
         if !m.used.iter().any(|u| u == &o.name) && !SIM_KEYS.contains(&o.name.as_str()) {
             let mut cands: Vec<String> = m.c.syms.keys().cloned().collect();
@@ -309,11 +332,14 @@ pub(crate) fn check_model(
         wiener_dim: m.wiener_dim,
         settings,
         seed,
+        jit,
         params: m.params,
         block_spans: m.c.block_spans,
         designs: m.designs,
         properties,
+        metrics,
         random_params: m.random_params,
+        sweep,
     })
 }
 
@@ -335,6 +361,7 @@ impl ModelChecker<'_> {
     /// Elaborates `e`, or the override for `name` if there is one (errors in
     /// the override are reported as such).
     fn value_with_override(&mut self, name: &str, e: &Expr, ctx: &Ctx) -> Option<Val> {
+        self.settable.push(name.to_string());
         let Some(o) = self.overrides.get(name).copied() else {
             return self.c.expr(e, ctx);
         };
@@ -528,7 +555,9 @@ impl ModelChecker<'_> {
             | Item::Output(_)
             | Item::Sim(_)
             | Item::Property(_)
-            | Item::Together(..) => {}
+            | Item::Together(..)
+            | Item::Metric(_)
+            | Item::Sweep(_) => {}
         }
     }
 
@@ -568,7 +597,26 @@ impl ModelChecker<'_> {
             | Item::Graph(_)
             | Item::State(_)
             | Item::Design(_)
-            | Item::Property(_) => {}
+            | Item::Property(_)
+            | Item::Metric(_)
+            | Item::Sweep(_) => {}
+        }
+    }
+
+    /// The `metric` declarations (after every rule and output is known).
+    fn metrics(&mut self, item: &Item, m: &mut super::metric::MetricCollector) {
+        match item {
+            Item::Metric(defs) => {
+                for d in defs {
+                    m.metric(&mut self.c, d);
+                }
+            }
+            Item::For(b, items) => self.c_for(b, &mut |this| {
+                for it in items {
+                    this.metrics(it, m);
+                }
+            }),
+            _ => {}
         }
     }
 
@@ -617,6 +665,7 @@ impl ModelChecker<'_> {
             && is_draw(&o.expr)
         {
             // `--set g=uniform(a, b)`: a random parameter.
+            self.settable.push(name.clone());
             self.used.push(name);
             self.declare_random(&d.target, &o.expr);
             return;
@@ -679,6 +728,7 @@ impl ModelChecker<'_> {
             // A pinned value (or another draw): as any overridden parameter.
             self.param(d, false);
         } else {
+            self.settable.push(d.target.name.name.clone());
             self.declare_random(&d.target, &d.value);
         }
     }
@@ -743,8 +793,9 @@ impl ModelChecker<'_> {
         Some(dist)
     }
 
-    /// A `design` block: solved (unless `--set` gives every result), then its
-    /// results declared as parameters with the variables bound to their values.
+    /// A `design` block: solved (unless `--set` gives every result: then it
+    /// is not even assembled), then its results declared as parameters with
+    /// the variables bound to their values.
     fn design(&mut self, d: &DesignBlock) {
         let mut targets: Vec<&Target> = Vec::new();
         for s in &d.stmts {
@@ -769,8 +820,19 @@ impl ModelChecker<'_> {
                 span: targets[0].span,
             });
         }
-        let solve = if d.check { self.solve_checks } else { !all_set };
-        let Some(solved) = self.c.design_block(d, solve) else {
+        let solved = if !d.check && all_set {
+            // Nothing depends on the block: it is neither assembled nor
+            // solved (its LMIs can take seconds and hundreds of MB to build;
+            // `hybsim design` checks it).
+            Some(Solved {
+                values: Vec::new(),
+                summary: None,
+                unsolved: None,
+            })
+        } else {
+            self.c.design_block(d, !d.check || self.solve_checks)
+        };
+        let Some(solved) = solved else {
             // The results are unavailable: uses of them report nothing
             // (one failed design, one error). A block that failed because
             // it uses another failed block's results passes that block on.
@@ -1045,11 +1107,21 @@ impl ModelChecker<'_> {
     /// Resolves an assigned target to state components.
     fn resolve_state(&mut self, t: &Target, quiet: bool) -> Option<(Vec<usize>, Dims, String)> {
         let name = &t.name.name;
-        let (val, rest, display) = match self.c.syms.get(name).cloned() {
-            Some(Sym::State { field, .. }) => {
-                (self.c.field_val(field), &t.indices[..], name.clone())
-            }
-            Some(Sym::StateFamily { members, .. }) => {
+        // What the name is, without cloning a family's member table (a
+        // reset of a family member would otherwise cost O(family size)).
+        enum Kind {
+            State(usize),
+            Family,
+            Other(&'static str),
+        }
+        let kind = self.c.syms.get(name).map(|sym| match sym {
+            Sym::State { field, .. } => Kind::State(*field),
+            Sym::StateFamily { .. } => Kind::Family,
+            other => Kind::Other(other.kind_words()),
+        });
+        let (val, rest, display) = match kind {
+            Some(Kind::State(field)) => (self.c.field_val(field), &t.indices[..], name.clone()),
+            Some(Kind::Family) => {
                 let Some(first) = t.indices.first() else {
                     self.c.err(CheckError::FamilyIndex {
                         name: name.clone(),
@@ -1058,7 +1130,11 @@ impl ModelChecker<'_> {
                     return None;
                 };
                 let key = self.c.family_key(first)?;
-                let Some(&field) = members.get(&key) else {
+                let member = match self.c.syms.get(name) {
+                    Some(Sym::StateFamily { members, .. }) => members.get(&key).copied(),
+                    _ => None,
+                };
+                let Some(field) = member else {
                     let members = self.c.family_members_words(name);
                     self.c.err(CheckError::FamilyOutOfRange {
                         name: name.clone(),
@@ -1071,11 +1147,11 @@ impl ModelChecker<'_> {
                 let display = format!("{name}[{}]", label(&key));
                 (self.c.field_val(field), &t.indices[1..], display)
             }
-            Some(other) => {
+            Some(Kind::Other(kind)) => {
                 if !quiet {
                     self.c.err(CheckError::AssignToNonState {
                         name: name.clone(),
-                        kind: other.kind_words().into(),
+                        kind: kind.into(),
                         span: t.name.span,
                     });
                 }
@@ -1416,9 +1492,10 @@ impl ModelChecker<'_> {
         self.c.const_scalar(e, &format!("`{key}`"))
     }
 
-    fn settings(&mut self) -> (SimSettings, u64) {
+    fn settings(&mut self) -> (SimSettings, u64, Option<bool>) {
         let mut s = SimSettings::default();
         let mut seed = 0u64;
+        let mut jit = None;
         let mut solver_name: Option<(String, Span)> = None;
         let (mut rtol, mut atol, mut h) = (None, None, None);
         let mut items = std::mem::take(&mut self.sim);
@@ -1473,7 +1550,7 @@ impl ModelChecker<'_> {
                         Some(w) => solver_name = Some((w, e.span)),
                         None => bad(
                             self,
-                            "write one of dopri5, dop853, rk4, euler_maruyama".into(),
+                            "write one of dopri5, dop853, radau5, rk4, euler_maruyama".into(),
                         ),
                     }
                 }
@@ -1486,6 +1563,27 @@ impl ModelChecker<'_> {
                         Some("flows") => s.priority = Priority::Flows,
                         Some("random") => s.priority = Priority::Random,
                         _ => bad(self, "write one of jumps, flows, random".into()),
+                    }
+                }
+                "exact_affine" => {
+                    if self.overrides.contains_key("exact_affine") {
+                        self.used.push("exact_affine".into());
+                    }
+                    match word(self).as_deref() {
+                        Some("auto") => s.exact_affine = ExactAffine::Auto,
+                        Some("on") => s.exact_affine = ExactAffine::On,
+                        Some("off") => s.exact_affine = ExactAffine::Off,
+                        _ => bad(self, "write one of auto, on, off".into()),
+                    }
+                }
+                "jit" => {
+                    if self.overrides.contains_key("jit") {
+                        self.used.push("jit".into());
+                    }
+                    match word(self).as_deref() {
+                        Some("on") => jit = Some(true),
+                        Some("off") => jit = Some(false),
+                        _ => bad(self, "write on or off".into()),
                     }
                 }
                 _ => {
@@ -1506,6 +1604,7 @@ impl ModelChecker<'_> {
                         }
                         "max_step" if x > 0.0 => s.max_step = x,
                         "event_tol" if x >= 0.0 => s.event_tol = x,
+                        "set_tol" if x >= 0.0 && x.is_finite() => s.set_tol = x,
                         "zeno_rate" if x > 0.0 => s.zeno_max_rate = x,
                         "zeno_window" if x >= 2.0 && x.fract() == 0.0 && x <= u32::MAX as f64 => {
                             s.zeno_window = x as u32
@@ -1516,7 +1615,9 @@ impl ModelChecker<'_> {
                         "zeno_window" => bad(self, format!("{x} is not an integer ≥ 2")),
                         "max_total_jumps" => bad(self, format!("{x} is not an integer ≥ 1")),
                         "T" | "J" | "rtol" | "atol" | "h" | "dt_out" | "seed" | "max_step"
-                        | "event_tol" | "zeno_rate" => bad(self, format!("{x} is out of range")),
+                        | "event_tol" | "set_tol" | "zeno_rate" => {
+                            bad(self, format!("{x} is out of range"))
+                        }
                         _ => {
                             let suggestion = suggest(key, SIM_KEYS.iter().copied());
                             self.c.err(CheckError::UnknownSetting {
@@ -1540,6 +1641,7 @@ impl ModelChecker<'_> {
         s.solver = match name.as_str() {
             "dopri5" => Solver::Dopri5 { rtol, atol },
             "dop853" => Solver::Dop853 { rtol, atol },
+            "radau5" => Solver::Radau5 { rtol, atol },
             "rk4" => Solver::Rk4 {
                 h: h.unwrap_or(1e-3),
             },
@@ -1549,7 +1651,7 @@ impl ModelChecker<'_> {
             other => {
                 self.c.err(CheckError::BadSetting {
                     key: "solver".into(),
-                    reason: format!("`{other}` is not a solver; write one of dopri5, dop853, rk4, euler_maruyama"),
+                    reason: format!("`{other}` is not a solver; write one of dopri5, dop853, radau5, rk4, euler_maruyama"),
                     span,
                 });
                 s.solver
@@ -1562,7 +1664,7 @@ impl ModelChecker<'_> {
                 span,
             });
         }
-        (s, seed)
+        (s, seed, jit)
     }
 }
 

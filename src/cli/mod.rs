@@ -6,6 +6,7 @@ mod check;
 mod design;
 mod progress;
 mod run;
+mod sweep;
 mod test;
 
 use std::ffi::OsString;
@@ -37,6 +38,7 @@ Examples:
   hybsim check models/bouncing_ball.hyb               check the model only
   hybsim design models/platoon.hyb                    solve the design blocks, print the results
   hybsim test models/bouncing_ball.hyb --cases 500    check its `property` declarations
+  hybsim sweep models/bouncing_ball.hyb --grid lambda=0.5:0.1:0.9 --runs 10 -o ball_sweep
 
 Exit codes:
   0    success (a run ended: horizon reached, or an outcome such as Zeno suspected)
@@ -68,6 +70,10 @@ pub enum Command {
     /// Check the model's `property` declarations on sampled cases; shrink and
     /// print the first counterexample with a command that replays it.
     Test(test::TestArgs),
+    /// Run a grid of parameter values × seeded runs and collect the model's
+    /// metrics (per run and per grid point; CSV and SVG); `--shard k/n` runs a
+    /// part, `--merge` joins the parts.
+    Sweep(sweep::SweepArgs),
 }
 
 /// Replaces the default panic message by a short report: what went wrong
@@ -120,12 +126,35 @@ where
         Command::Check(args) => check::execute(args),
         Command::Design(args) => design::execute(args),
         Command::Test(args) => test::execute(args),
+        Command::Sweep(args) => sweep::execute(args),
     };
     match result {
         Ok(code) => ExitCode::from(code),
         Err(e) => {
             eprintln!("error: {e:#}");
             ExitCode::from(EXIT_FAILED)
+        }
+    }
+}
+
+/// `--jit on|off`: machine code for the model's programs, or the
+/// interpreter (the model's `sim { jit = … }` otherwise decides; default on).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum JitMode {
+    /// Compile the programs to machine code (Cranelift).
+    On,
+    /// Interpret the programs.
+    Off,
+}
+
+impl JitMode {
+    /// Adds the `jit` override this flag stands for (it wins over a
+    /// `--set jit=…`).
+    fn apply(mode: Option<Self>, overrides: &mut Vec<Override>) {
+        if let Some(mode) = mode {
+            let word = if mode == JitMode::On { "on" } else { "off" };
+            overrides.retain(|o| o.name != "jit");
+            overrides.push(format!("jit={word}").parse().expect("a valid override"));
         }
     }
 }

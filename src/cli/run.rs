@@ -10,7 +10,10 @@ use std::io::IsTerminal;
 use hybsim::arc::{ArcSink, HybridTime, Termination, TerminationCause};
 use hybsim::atomic_file;
 use hybsim::diagnostics::render;
-use hybsim::engine::{HybridSystem, Priority, SimError, SimRng, SimSettings, Solver, simulate};
+use hybsim::engine::{
+    ExactAffine, HybridSystem, Priority, SimError, SimRng, SimSettings, Solver, simulate,
+};
+use hybsim::ir::metric::Metrics;
 use hybsim::lang;
 use hybsim::sinks::csv::CsvSink;
 use hybsim::sinks::mcap::{McapOptions, McapSink};
@@ -21,7 +24,7 @@ use hybsim::sinks::{
 use serde_json::{Value, json};
 
 use super::progress::{Progress, interrupt_flag};
-use super::{EXIT_FAILED, EXIT_INTERRUPTED, EXIT_MODEL_ERROR, EXIT_OK, SdpKind};
+use super::{EXIT_FAILED, EXIT_INTERRUPTED, EXIT_MODEL_ERROR, EXIT_OK, JitMode, SdpKind};
 
 /// Arguments of `hybsim run`.
 #[derive(Debug, Args)]
@@ -60,6 +63,10 @@ pub struct RunArgs {
     /// Largest integrator step of the adaptive solvers.
     #[arg(long, value_name = "H")]
     pub max_step: Option<f64>,
+    /// Tolerance on the flow set's atoms when deciding whether a state may
+    /// flow (overrides the model's `set_tol`; default 1e-9).
+    #[arg(long, value_name = "TOL")]
+    pub set_tol: Option<f64>,
     /// What to do when the state is in both C and D.
     #[arg(long, value_enum)]
     pub priority: Option<PriorityKind>,
@@ -73,12 +80,20 @@ pub struct RunArgs {
     /// Zeno guard: jump budget of a run with unbounded J (≥ 1).
     #[arg(long, value_name = "N")]
     pub max_total_jumps: Option<u64>,
+    /// Advance affine flows exactly (matrix exponentials): `auto` (by cost,
+    /// per segment), `on` or `off` (overrides the model's).
+    #[arg(long, value_enum, value_name = "WHEN")]
+    pub exact_affine: Option<ExactAffineKind>,
     /// Interior-point method of the model's design blocks.
     #[arg(long, value_enum, default_value_t = SdpKind::Auto)]
     pub sdp: SdpKind,
     /// Seed of the run's random generator (overrides the model's).
     #[arg(long, value_name = "N")]
     pub seed: Option<u64>,
+    /// Machine code for the model (`on`, default where supported) or the
+    /// interpreter (`off`); overrides the model's `sim { jit = … }`.
+    #[arg(long, value_enum)]
+    pub jit: Option<JitMode>,
     /// Override a parameter: `--set name=value` (repeatable); the value is
     /// an expression of the model language, e.g. `--set K="[1, 2]"`.
     #[arg(long = "set", value_name = "NAME=VALUE")]
@@ -110,10 +125,23 @@ pub enum SolverKind {
     Dopri5,
     /// Dormand–Prince 8(5,3), adaptive.
     Dop853,
+    /// Radau IIA order 5, implicit, adaptive: for stiff flows.
+    Radau5,
     /// Runge–Kutta 4, fixed step (`--step`).
     Rk4,
     /// Euler–Maruyama, fixed step (`--step`), for noise-driven flows.
     EulerMaruyama,
+}
+
+/// `--exact-affine` values.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum ExactAffineKind {
+    /// Per segment, by cost.
+    Auto,
+    /// Always exact.
+    On,
+    /// Always the solver.
+    Off,
 }
 
 /// Priority names on the command line.
@@ -132,15 +160,18 @@ fn solver_from_flags(current: Solver, args: &RunArgs) -> Result<Solver, String> 
     let kind = args.solver.unwrap_or(match current {
         Solver::Dopri5 { .. } => SolverKind::Dopri5,
         Solver::Dop853 { .. } => SolverKind::Dop853,
+        Solver::Radau5 { .. } => SolverKind::Radau5,
         Solver::Rk4 { .. } => SolverKind::Rk4,
         Solver::EulerMaruyama { .. } => SolverKind::EulerMaruyama,
     });
     let (rtol0, atol0, h0) = match current {
-        Solver::Dopri5 { rtol, atol } | Solver::Dop853 { rtol, atol } => (rtol, atol, None),
+        Solver::Dopri5 { rtol, atol }
+        | Solver::Dop853 { rtol, atol }
+        | Solver::Radau5 { rtol, atol } => (rtol, atol, None),
         Solver::Rk4 { h } | Solver::EulerMaruyama { h } => (1e-6, 1e-9, Some(h)),
     };
     match kind {
-        SolverKind::Dopri5 | SolverKind::Dop853 => {
+        SolverKind::Dopri5 | SolverKind::Dop853 | SolverKind::Radau5 => {
             if args.step.is_some() {
                 return Err(
                     "`--step` applies to the fixed-step solvers; use `--solver rk4` or `--max-step`"
@@ -148,16 +179,17 @@ fn solver_from_flags(current: Solver, args: &RunArgs) -> Result<Solver, String> 
                 );
             }
             let (rtol, atol) = (args.rtol.unwrap_or(rtol0), args.atol.unwrap_or(atol0));
-            Ok(if kind == SolverKind::Dopri5 {
-                Solver::Dopri5 { rtol, atol }
-            } else {
-                Solver::Dop853 { rtol, atol }
+            Ok(match kind {
+                SolverKind::Dopri5 => Solver::Dopri5 { rtol, atol },
+                SolverKind::Dop853 => Solver::Dop853 { rtol, atol },
+                _ => Solver::Radau5 { rtol, atol },
             })
         }
         SolverKind::Rk4 | SolverKind::EulerMaruyama => {
             if args.rtol.is_some() || args.atol.is_some() {
                 return Err(
-                    "`--rtol`/`--atol` apply to the adaptive solvers dopri5 and dop853".into(),
+                    "`--rtol`/`--atol` apply to the adaptive solvers dopri5, dop853 and radau5"
+                        .into(),
                 );
             }
             let h = args
@@ -199,11 +231,21 @@ pub fn settings_from_flags(
     if let Some(n) = args.max_total_jumps {
         settings = settings.max_total_jumps(n);
     }
+    if let Some(tol) = args.set_tol {
+        settings = settings.set_tol(tol);
+    }
     if let Some(p) = args.priority {
         settings = settings.priority(match p {
             PriorityKind::Jumps => Priority::Jumps,
             PriorityKind::Flows => Priority::Flows,
             PriorityKind::Random => Priority::Random,
+        });
+    }
+    if let Some(e) = args.exact_affine {
+        settings = settings.exact_affine(match e {
+            ExactAffineKind::Auto => ExactAffine::Auto,
+            ExactAffineKind::On => ExactAffine::On,
+            ExactAffineKind::Off => ExactAffine::Off,
         });
     }
     let solver = solver_from_flags(settings.solver, args)?;
@@ -236,6 +278,8 @@ pub struct Outputs {
 pub struct Report {
     /// The outcome as written to the logs.
     pub outcome: RunOutcome,
+    /// How the engine ended the run (`None` if it failed).
+    pub termination: Option<Termination>,
     /// Counts of samples and jumps.
     pub tally: Tally,
     /// Files written.
@@ -244,6 +288,8 @@ pub struct Report {
     pub wall: Duration,
     /// Ctrl-C stopped the run.
     pub interrupted: bool,
+    /// The model's metrics (name, value), in declaration order.
+    pub metrics: Vec<(String, f64)>,
 }
 
 /// The outcome of a run for the logs.
@@ -271,6 +317,7 @@ pub fn settings_json(s: &SimSettings) -> Value {
     let solver = match s.solver {
         Solver::Dopri5 { rtol, atol } => json!({"method": "dopri5", "rtol": rtol, "atol": atol}),
         Solver::Dop853 { rtol, atol } => json!({"method": "dop853", "rtol": rtol, "atol": atol}),
+        Solver::Radau5 { rtol, atol } => json!({"method": "radau5", "rtol": rtol, "atol": atol}),
         Solver::Rk4 { h } => json!({"method": "rk4", "h": h}),
         Solver::EulerMaruyama { h } => json!({"method": "euler_maruyama", "h": h}),
     };
@@ -287,17 +334,19 @@ pub fn settings_json(s: &SimSettings) -> Value {
         "dt_out": s.dt_out.map(num),
         "max_step": num(s.max_step),
         "event_tol": num(s.event_tol),
+        "set_tol": num(s.set_tol),
         "guard_checks": s.guard_checks,
         "zeno_max_rate": num(s.zeno_max_rate),
         "zeno_window": s.zeno_window,
         "max_total_jumps": s.max_total_jumps,
-        "exact_affine": s.exact_affine,
+        "exact_affine": s.exact_affine.name(),
     })
 }
 
 /// Simulates `sys` from `x0` into the sinks named by `outputs`; every file
 /// is completed (or removed) before this returns. Returns the report and the
 /// engine's error, if the run failed (the files then record the failure).
+#[allow(clippy::too_many_arguments)] // the pieces of one run, each optional but the system
 pub fn simulate_to_files<S: HybridSystem + ?Sized>(
     sys: &S,
     x0: &[f64],
@@ -306,10 +355,12 @@ pub fn simulate_to_files<S: HybridSystem + ?Sized>(
     info: &RunInfo,
     output_fn: Option<OutputFn<'_>>,
     outputs: &Outputs,
+    metrics: Option<&Metrics>,
 ) -> anyhow::Result<(Report, Option<SimError>)> {
     // Installed before any output file exists, so that a signal from here
     // on completes (or removes) every file.
     let interrupted = interrupt_flag();
+    let mut metric_sink = metrics.filter(|m| !m.is_empty()).map(|m| m.sink());
     let mut mcap = match &outputs.mcap {
         Some(path) => Some(McapSink::create(
             path,
@@ -344,6 +395,9 @@ pub fn simulate_to_files<S: HybridSystem + ?Sized>(
     let start = Instant::now();
     let result = {
         let mut sinks: Vec<&mut dyn ArcSink> = vec![&mut progress];
+        if let Some(s) = metric_sink.as_mut() {
+            sinks.push(s);
+        }
         if let Some(s) = mcap.as_mut() {
             sinks.push(s);
         }
@@ -365,6 +419,7 @@ pub fn simulate_to_files<S: HybridSystem + ?Sized>(
         Err(payload) => (None, Some(panic_message(&*payload))),
     };
     let error = result.as_ref().and_then(|r| r.as_ref().err().cloned());
+    let termination = result.as_ref().and_then(|r| r.as_ref().ok().cloned());
     let wall = start.elapsed();
     progress.clear();
     let interrupted = progress.was_interrupted();
@@ -379,9 +434,11 @@ pub fn simulate_to_files<S: HybridSystem + ?Sized>(
             ),
         ),
     };
+    let metric_values = metric_sink.map(|m| m.named_values()).unwrap_or_default();
     let mut written = Vec::new();
     let mut first_error: Option<anyhow::Error> = None;
-    if let Some(sink) = mcap {
+    if let Some(mut sink) = mcap {
+        sink.set_metrics(metric_values.clone());
         match sink.finish(&outcome) {
             Ok(summary) => {
                 outcome = summary.outcome;
@@ -424,10 +481,12 @@ pub fn simulate_to_files<S: HybridSystem + ?Sized>(
     }
     let report = Report {
         outcome,
+        termination,
         tally: progress.tally,
         written,
         wall,
         interrupted,
+        metrics: metric_values,
     };
     Ok((report, error))
 }
@@ -443,7 +502,8 @@ pub fn panic_message(payload: &(dyn std::any::Any + Send)) -> String {
     }
 }
 
-/// The one-line summary: final (t, j), jumps per rule, cause, wall time.
+/// The summary: one line with the final (t, j), jumps per rule, cause and
+/// wall time, then one line per metric (`  metric NAME = VALUE`).
 pub fn summary_line(model: &str, report: &Report, rule_names: &[String]) -> String {
     let end = match report.tally.end {
         Some(at) => format!("(t = {}, j = {})", at.t, at.j),
@@ -462,12 +522,29 @@ pub fn summary_line(model: &str, report: &Report, rule_names: &[String]) -> Stri
     } else {
         jumps.join(", ")
     };
-    format!(
+    let mut line = format!(
         "{model}: ended at {end}; jumps: {jumps}; {}; {} samples; wall {:.3} s",
         report.outcome.message,
         report.tally.samples,
         report.wall.as_secs_f64()
-    )
+    );
+    for (name, value) in &report.metrics {
+        line.push_str(&format!("\n  metric {name} = {}", hybsim::num::Num(*value)));
+    }
+    line
+}
+
+/// `; compile T s (jit T s)`: the time from source to runnable model
+/// (design blocks included), for the summary line.
+fn compile_note(total: Duration, jit: &lang::JitStatus) -> String {
+    match jit {
+        lang::JitStatus::Native { time, .. } => format!(
+            "; compile {:.3} s (jit {:.3} s)",
+            total.as_secs_f64(),
+            time.as_secs_f64()
+        ),
+        _ => format!("; compile {:.3} s", total.as_secs_f64()),
+    }
 }
 
 /// The exit code of a finished run.
@@ -506,9 +583,11 @@ pub fn default_mcap_path(model: &Path) -> PathBuf {
 
 /// `hybsim run`.
 pub fn execute(args: RunArgs) -> anyhow::Result<u8> {
-    let Some((src, overrides)) = super::load(&args.model, &args.set)? else {
+    let Some((src, mut overrides)) = super::load(&args.model, &args.set)? else {
         return Ok(EXIT_MODEL_ERROR);
     };
+    JitMode::apply(args.jit, &mut overrides);
+    let compile_start = Instant::now();
     // Random parameters are drawn from the run's seed.
     let (model, seed) =
         match lang::compile_run_with(&src, &overrides, args.seed, &args.sdp.options()) {
@@ -518,6 +597,10 @@ pub fn execute(args: RunArgs) -> anyhow::Result<u8> {
                 return Ok(EXIT_MODEL_ERROR);
             }
         };
+    let compile_time = compile_start.elapsed();
+    if let (Some(JitMode::On), lang::JitStatus::Unavailable(e)) = (args.jit, model.jit()) {
+        eprintln!("warning: the model runs interpreted: {e}");
+    }
     let settings = match settings_from_flags(model.settings(), &args) {
         Ok(s) => s,
         Err(message) => {
@@ -596,6 +679,7 @@ pub fn execute(args: RunArgs) -> anyhow::Result<u8> {
         &info,
         Some(&output_fn),
         &outputs,
+        Some(model.metrics()),
     )?;
     if let Some(e) = &error {
         eprint!(
@@ -603,7 +687,18 @@ pub fn execute(args: RunArgs) -> anyhow::Result<u8> {
             render(&[model.runtime_diagnostic(e)], &src, stderr_is_terminal())
         );
     }
-    println!("{}", summary_line(model.name(), &report, &info.rule_names));
+    if let Some(d) = report
+        .termination
+        .as_ref()
+        .and_then(|t| model.termination_diagnostic(t))
+    {
+        eprint!("{}", render(&[d], &src, stderr_is_terminal()));
+    }
+    let mut line = summary_line(model.name(), &report, &info.rule_names);
+    if compile_time.as_secs_f64() > 0.1 {
+        line += &compile_note(compile_time, model.jit());
+    }
+    println!("{line}");
     for path in &report.written {
         eprintln!("wrote {}", path.display());
     }
@@ -646,6 +741,7 @@ mod tests {
             &info,
             None,
             &outputs,
+            None,
         )
         .unwrap();
         assert!(error.is_none());

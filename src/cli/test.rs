@@ -32,9 +32,17 @@ pub struct TestArgs {
     /// (a pinned initial value is no longer sampled).
     #[arg(long = "set", value_name = "NAME=VALUE")]
     pub set: Vec<String>,
+    /// Tolerance on the flow set's atoms when deciding whether a state may
+    /// flow (the `sim` key `set_tol`, as `--set set_tol=TOL`).
+    #[arg(long, value_name = "TOL")]
+    pub set_tol: Option<f64>,
     /// Interior-point method of the model's design blocks (solved per case).
     #[arg(long, value_enum, default_value_t = SdpKind::Auto)]
     pub sdp: SdpKind,
+    /// Machine code for the model (`on`, default where supported) or the
+    /// interpreter (`off`); overrides the model's `sim { jit = … }`.
+    #[arg(long, value_enum)]
+    pub jit: Option<super::JitMode>,
     /// Most runs spent shrinking a counterexample (0: no shrinking).
     #[arg(long, value_name = "N", default_value_t = 400)]
     pub max_shrink: usize,
@@ -52,7 +60,7 @@ pub struct TestArgs {
 }
 
 impl TestArgs {
-    /// The `--set` overrides, with the Zeno flags as `sim` keys.
+    /// The `--set` overrides, with the Zeno and set-tolerance flags as `sim` keys.
     fn overrides(&self) -> Vec<String> {
         let mut set = self.set.clone();
         if let Some(r) = self.zeno_rate {
@@ -70,6 +78,9 @@ impl TestArgs {
         }
         if let Some(n) = self.max_total_jumps {
             set.push(format!("max_total_jumps={n}"));
+        }
+        if let Some(tol) = self.set_tol {
+            set.push(format!("set_tol={tol:e}"));
         }
         set
     }
@@ -90,9 +101,10 @@ fn shell_word(arg: &str) -> String {
 
 /// `hybsim test`.
 pub fn execute(args: TestArgs) -> anyhow::Result<u8> {
-    let Some((src, overrides)) = super::load(&args.model, &args.overrides())? else {
+    let Some((src, mut overrides)) = super::load(&args.model, &args.overrides())? else {
         return Ok(EXIT_MODEL_ERROR);
     };
+    super::JitMode::apply(args.jit, &mut overrides);
     let color = std::io::IsTerminal::is_terminal(&std::io::stderr());
     let subject = match ModelSubject::with_options(src.clone(), overrides, args.sdp.options()) {
         Ok(s) => s,

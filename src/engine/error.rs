@@ -108,7 +108,8 @@ impl SimError {
                  `rtol`/`atol`, or make the discontinuity a jump"
             }
             SimError::Stiff { .. } => {
-                "the flow is stiff: use smaller horizons, `Rk4` with a small `h`, or rescale the model"
+                "the flow is stiff: use the implicit solver (`solver = radau5`, `--solver radau5`, \
+                 `Solver::Radau5`)"
             }
         }
     }

@@ -1,21 +1,41 @@
 //! Event detection and localization on one integrator step.
 //!
-//! A *watched function* is a jump rule's guard (an event when it becomes
-//! ≥ 0 and the rule's jump set then holds) or the flow guard (an event when
-//! it becomes < 0 and the flow-set predicate then fails). On each step
-//! `[s0, s1]` the watcher evaluates the watched functions at `guard_checks`
-//! interior points and at `s1`, on a [`StepPath`] (cubic Hermite interpolant
-//! of the step ends, or the exact solution of an affine flow); the first
-//! sign change is bracketed and shrunk by the Illinois variant of regula
-//! falsi with bisection safeguards, and the *pre-crossing* end of the final
-//! bracket is returned: it is still on the flow's side, so the jump map gets
-//! a state within the tolerance of D, and the next flow starts strictly on
-//! the right side of the guard.
+//! The watcher holds every set of the system (C and each D_i) as atoms
+//! `g_k ⋈ 0` combined by a monotone boolean expression (see
+//! [`SetAtoms`](super::SetAtoms); a system without atoms contributes its
+//! guard as the set's only atom). The *flowing* atoms of the sets that can
+//! cause an event (C, and the general rules' D_i unless the priority is
+//! [`Priority::Flows`]) are watched individually: on each step `[s0, s1]`
+//! their sign (−, 0, + or NaN) is evaluated at `guard_checks` interior
+//! points and at `s1` on a [`StepPath`] (cubic Hermite interpolant of the
+//! step ends, or the exact solution of an affine flow). Each sign change
+//! is bracketed and shrunk (Illinois regula falsi with bisection
+//! safeguards) to the first point where the sign differs from the
+//! bracket's start, within the event tolerance; the candidates are taken in
+//! time order and at each one every set is re-evaluated on the bracket
+//! `[a, b]`:
+//!
+//! - an inequality atom takes its value at `b`, the post-change end;
+//! - an equality atom `g = 0` holds iff `g(b) = 0` or `g` has strictly
+//!   opposite signs at `a` and `b` (the quantity reached the value within
+//!   the bracket); `g ≠ 0` is its negation;
+//! - an atom that cannot change along the flow keeps its value from the
+//!   segment's start.
+//!
+//! The first candidate at which a watched D_i becomes true (declaration
+//! order breaks ties) or C becomes false is the event; the segment ends at
+//! `b` with the state x(b), a point of D_i (or the first point found
+//! outside C). A candidate that changes no set's value is passed and the
+//! scan goes on from `b`.
+//!
+//! Atoms of C that hold at the segment's start only within
+//! [`set_tol`](super::SimSettings::set_tol) are watched relaxed by that
+//! tolerance (`g + set_tol` for `g ≥ 0`) until they hold exactly.
 
 use super::HybridSystem;
 use super::settings::{Priority, SimSettings};
-use super::system::GuardKind;
-use crate::arc::HybridTime;
+use super::system::{Cmp, GuardKind, SetAtoms, SetRef};
+use crate::arc::{FailedAtom, HybridTime};
 
 /// x(s) on one step `[s0, s1]`.
 pub(crate) trait StepPath {
@@ -83,116 +103,381 @@ impl StepPath for Linear<'_> {
 /// What a localized event is.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub(crate) enum EventKind {
-    /// Rule `i`'s guard became ≥ 0 and its jump set holds just past it.
+    /// Rule `i`'s jump set became true.
     Jump(usize),
-    /// The flow guard became < 0 and the state is outside C just past it.
+    /// The flow set became false.
     LeftFlowSet,
 }
 
-#[derive(Debug, Clone, Copy)]
-enum Watched {
-    Rule(usize),
-    LeavesC,
+/// One set as the watcher sees it.
+struct WSet {
+    set: SetRef,
+    /// `None`: the set's guard is its only atom (`≥ 0`) and the system's
+    /// predicate decides membership.
+    spec: Option<SetAtoms>,
+    /// Whether a change of this set ends a segment.
+    source: bool,
+    /// Per atom: relaxation (C's atoms that held only within `set_tol` at
+    /// the segment's start), truth at the segment's start.
+    relax: Vec<f64>,
+    start_truth: Vec<bool>,
+    /// Atom values at the checkpoint, at the bracket ends, at a trial point.
+    vs: Vec<f64>,
+    va: Vec<f64>,
+    vb: Vec<f64>,
+    vt: Vec<f64>,
+    truth: Vec<bool>,
+    /// The set's value at the cursor, and at the candidate being examined.
+    cur: bool,
+    new: bool,
 }
 
-/// Watches the guards along a flow segment; see the module docs.
+impl WSet {
+    fn atom_count(&self) -> usize {
+        self.spec.as_ref().map_or(1, |s| s.atoms.len())
+    }
+
+    fn cmp(&self, k: usize) -> Cmp {
+        self.spec.as_ref().map_or(Cmp::Ge, |s| s.atoms[k].cmp)
+    }
+
+    fn flows(&self, k: usize) -> bool {
+        self.spec.as_ref().is_none_or(|s| s.atoms[k].flows)
+    }
+}
+
+/// Evaluates the atoms of `ws` at (t, j, x) into `out`.
+fn atom_values<S: HybridSystem + ?Sized>(
+    sys: &S,
+    ws: &WSet,
+    at: HybridTime,
+    x: &[f64],
+    flowing_only: bool,
+    out: &mut [f64],
+) {
+    match (&ws.spec, ws.set) {
+        (Some(_), set) => sys.atom_values(set, at, x, flowing_only, out),
+        (None, SetRef::Jump(r)) => out[0] = sys.jump_guard(r, at, x),
+        (None, SetRef::Flow) => out[0] = sys.flow_guard(at, x).unwrap_or(f64::INFINITY),
+    }
+}
+
+/// The quantity whose sign is watched for an atom `g ⋈ 0` relaxed by
+/// `relax`: `g` itself, or the distance to the relaxed set's boundary.
+fn watched_value(cmp: Cmp, g: f64, relax: f64) -> f64 {
+    if relax <= 0.0 {
+        return g;
+    }
+    match cmp {
+        Cmp::Ge | Cmp::Gt => g + relax,
+        Cmp::Le | Cmp::Lt => g - relax,
+        Cmp::Eq => relax - g.abs(),
+        Cmp::Ne => g,
+    }
+}
+
+/// Sign class: −1, 0, +1, or 2 for NaN.
+fn class(v: f64) -> i8 {
+    if v > 0.0 {
+        1
+    } else if v < 0.0 {
+        -1
+    } else if v == 0.0 {
+        0
+    } else {
+        2
+    }
+}
+
+/// Whether an equality atom is met on the bracket whose ends have values
+/// `ga` and `gb`: exactly at `b`, or by a sign change inside.
+fn eq_met(ga: f64, gb: f64) -> bool {
+    gb == 0.0 || (ga < 0.0 && gb > 0.0) || (ga > 0.0 && gb < 0.0)
+}
+
+/// A watched atom: atom `atom` of set `set`.
+#[derive(Debug, Clone, Copy)]
+struct WAtom {
+    set: usize,
+    atom: usize,
+}
+
+/// At most this many candidates are examined between two checkpoints (an
+/// atom chattering around zero on the interpolant cannot stall the scan).
+const MAX_CANDIDATES: usize = 64;
+
+/// Fractions of the first step of a segment that starts near a boundary
+/// at which the watched atoms are also evaluated.
+const EARLY: [f64; 3] = [
+    1.0 / (1u64 << 30) as f64,
+    1.0 / (1u64 << 20) as f64,
+    1.0 / 1024.0,
+];
+
+/// Watches the sets along a flow segment; see the module docs.
 pub(crate) struct Watcher {
-    watched: Vec<Watched>,
-    /// Whether each watched function is on its event side at the current
-    /// step start.
-    triggered: Vec<bool>,
-    hits: Vec<bool>,
+    sets: Vec<WSet>,
+    /// Index of C in `sets`, if C is not the whole space.
+    flow: Option<usize>,
+    watched: Vec<WAtom>,
+    /// Sign class of each watched atom at the cursor and at the checkpoint.
+    cls: Vec<i8>,
+    cls_s: Vec<i8>,
     checks: usize,
     event_tol: f64,
+    set_tol: f64,
     /// The jump count of the segment being watched (constant along it).
     j: u64,
+    /// Whether a watched atom started the segment within `set_tol` of its
+    /// zero.
+    near_start: bool,
     buf_s: Vec<f64>,
     buf_a: Vec<f64>,
     buf_b: Vec<f64>,
-    buf_best: Vec<f64>,
-    buf_best_post: Vec<f64>,
-    /// The pre-crossing state of the last event found by [`Watcher::scan`].
+    buf_t: Vec<f64>,
+    best_a: Vec<f64>,
+    /// Offset of each set's atoms in the layout of
+    /// [`HybridSystem::all_atom_values`] (`None`: a set without atoms).
+    flat_off: Vec<Option<usize>>,
+    /// All sets' atom values at one point, in that layout.
+    flat: Vec<f64>,
+    /// Whether the system evaluates all sets at once (found at each
+    /// segment's start).
+    flat_ok: bool,
+    /// Whether the checkpoints use that: the event sources hold at least
+    /// half of all flowing atoms (the other sets' atoms are evaluated for
+    /// nothing) and there are several sources.
+    flat_checks: bool,
+    /// The state at the last event found by [`Watcher::scan`] (the
+    /// post-change end of its bracket).
     pub event_state: Vec<f64>,
+    /// First rule (declaration order) whose jump set holds at the last
+    /// event.
+    rule_at_event: Option<usize>,
 }
 
 impl Watcher {
-    /// A watcher for `sys` under `settings`: general jump guards are watched
-    /// unless the priority is [`Priority::Flows`] (which jumps only when the
-    /// flow cannot continue); the flow guard is watched if C has one.
+    /// A watcher for `sys` under `settings`: general jump rules are event
+    /// sources unless the priority is [`Priority::Flows`] (which jumps only
+    /// when the flow cannot continue); C is one if it is not everything.
     pub fn new<S: HybridSystem + ?Sized>(sys: &S, settings: &SimSettings, x0: &[f64]) -> Self {
+        let mut sets = Vec::new();
+        let push = |sets: &mut Vec<WSet>, set: SetRef, spec: Option<SetAtoms>, source: bool| {
+            let n = spec.as_ref().map_or(1, |s| s.atoms.len());
+            sets.push(WSet {
+                set,
+                spec,
+                source,
+                relax: vec![0.0; n],
+                start_truth: vec![false; n],
+                vs: vec![0.0; n],
+                va: vec![0.0; n],
+                vb: vec![0.0; n],
+                vt: vec![0.0; n],
+                truth: vec![false; n],
+                cur: false,
+                new: false,
+            });
+        };
+        for (i, rule) in sys.jump_rules().iter().enumerate() {
+            let source = settings.priority != Priority::Flows && rule.guard == GuardKind::General;
+            push(
+                &mut sets,
+                SetRef::Jump(i),
+                sys.set_atoms(SetRef::Jump(i)),
+                source,
+            );
+        }
+        let flow_spec = sys.set_atoms(SetRef::Flow);
+        let mut flow = None;
+        if flow_spec.is_some() || sys.flow_guard(HybridTime::new(0.0, 0), x0).is_some() {
+            flow = Some(sets.len());
+            push(&mut sets, SetRef::Flow, flow_spec, true);
+        }
         let mut watched = Vec::new();
-        if settings.priority != Priority::Flows {
-            for (i, rule) in sys.jump_rules().iter().enumerate() {
-                if rule.guard == GuardKind::General {
-                    watched.push(Watched::Rule(i));
+        for (i, ws) in sets.iter().enumerate() {
+            if ws.source {
+                for k in 0..ws.atom_count() {
+                    if ws.flows(k) {
+                        watched.push(WAtom { set: i, atom: k });
+                    }
                 }
             }
         }
-        if sys.flow_guard(HybridTime::new(0.0, 0), x0).is_some() {
-            watched.push(Watched::LeavesC);
+        // The layout of `all_atom_values`: C's atoms, then each rule's.
+        let mut flat_off = vec![None; sets.len()];
+        let mut total = 0;
+        let (mut flowing, mut watched_sets) = (0, 0);
+        for i in flow
+            .into_iter()
+            .chain((0..sets.len()).filter(|&i| Some(i) != flow))
+        {
+            let ws = &sets[i];
+            if let Some(spec) = &ws.spec {
+                flat_off[i] = Some(total);
+                total += spec.atoms.len();
+                flowing += spec.atoms.iter().filter(|a| a.flows).count();
+                watched_sets += usize::from(ws.source);
+            }
         }
+        let flat_checks = watched_sets >= 2 && 2 * watched.len() >= flowing;
         let n = x0.len();
         Self {
-            triggered: vec![false; watched.len()],
-            hits: vec![false; watched.len()],
+            sets,
+            flow,
+            flat_off,
+            flat: vec![0.0; total],
+            flat_ok: false,
+            flat_checks,
+            cls: vec![0; watched.len()],
+            cls_s: vec![0; watched.len()],
             watched,
             checks: settings.guard_checks as usize,
             event_tol: settings.event_tol,
+            set_tol: settings.set_tol,
             j: 0,
+            near_start: false,
             buf_s: vec![0.0; n],
             buf_a: vec![0.0; n],
             buf_b: vec![0.0; n],
-            buf_best: vec![0.0; n],
-            buf_best_post: vec![0.0; n],
+            buf_t: vec![0.0; n],
+            best_a: vec![0.0; n],
             event_state: vec![0.0; n],
+            rule_at_event: None,
         }
     }
 
-    /// The post-crossing state of the last event found (just past the
-    /// boundary, within the event tolerance of [`event_state`](Self::event_state)).
-    pub fn post_state(&self) -> &[f64] {
-        &self.buf_best_post
+    /// The first rule whose jump set holds at the last event found.
+    pub fn rule_at_event(&self) -> Option<usize> {
+        self.rule_at_event
     }
 
-    /// `true` if nothing is watched (timers only, C the whole space).
+    /// Whether rule `r`'s jump set holds at the last event found (as the
+    /// watcher decided it on the event's bracket: an equality atom met
+    /// inside the bracket counts).
+    pub fn reached_at_event(&self, r: usize) -> bool {
+        self.sets
+            .iter()
+            .any(|ws| ws.set == SetRef::Jump(r) && ws.new)
+    }
+
+    /// `true` if nothing is watched (timers only, C the whole space, no
+    /// flowing atom).
     pub fn is_empty(&self) -> bool {
         self.watched.is_empty()
     }
 
-    fn value<S: HybridSystem + ?Sized>(sys: &S, w: Watched, at: HybridTime, x: &[f64]) -> f64 {
-        match w {
-            Watched::Rule(i) => sys.jump_guard(i, at, x),
-            Watched::LeavesC => -sys.flow_guard(at, x).unwrap_or(f64::INFINITY),
-        }
-    }
-
-    fn is_triggered(w: Watched, v: f64) -> bool {
-        match w {
-            Watched::Rule(_) => v >= 0.0,
-            Watched::LeavesC => v > 0.0,
-        }
-    }
-
-    fn confirmed<S: HybridSystem + ?Sized>(sys: &S, w: Watched, at: HybridTime, x: &[f64]) -> bool {
-        match w {
-            Watched::Rule(i) => sys.jump_set(i, at, x),
-            Watched::LeavesC => !sys.flow_set(at, x),
-        }
-    }
-
     /// Records the state at the start of a flow segment (local time 0,
-    /// global hybrid time `at`).
+    /// global hybrid time `at`): constant atoms' truth, relaxations of C's
+    /// atoms on its boundary, each set's value and each watched atom's sign.
     pub fn start<S: HybridSystem + ?Sized>(&mut self, sys: &S, at: HybridTime, x: &[f64]) {
         self.j = at.j;
-        for (k, &w) in self.watched.iter().enumerate() {
-            self.triggered[k] = Self::is_triggered(w, Self::value(sys, w, at, x));
+        let set_tol = self.set_tol;
+        self.flat_ok = sys.all_atom_values(at, x, false, &mut self.flat);
+        for (i, ws) in self.sets.iter_mut().enumerate() {
+            let is_flow = self.flow == Some(i);
+            let mut vals = std::mem::take(&mut ws.vs);
+            match self.flat_off[i] {
+                Some(off) if self.flat_ok => {
+                    let len = vals.len();
+                    vals.copy_from_slice(&self.flat[off..off + len]);
+                }
+                _ => atom_values(sys, ws, at, x, false, &mut vals),
+            }
+            for (k, &g) in vals.iter().enumerate() {
+                let cmp = ws.cmp(k);
+                ws.relax[k] = if is_flow && !cmp.holds(g) && cmp.holds_within(g, set_tol) {
+                    set_tol
+                } else {
+                    0.0
+                };
+                ws.start_truth[k] = cmp.holds_within(g, ws.relax[k]);
+            }
+            ws.vs = vals;
+            ws.cur = match (&ws.spec, ws.set) {
+                (Some(spec), _) => spec.expr.eval(&ws.start_truth),
+                (None, SetRef::Jump(r)) => sys.jump_set(r, at, x),
+                (None, SetRef::Flow) => true,
+            };
+            if is_flow {
+                // The engine flows only from points of C (within set_tol).
+                ws.cur = true;
+            }
+        }
+        let near = set_tol.max(f64::MIN_POSITIVE);
+        self.near_start = false;
+        for (w, c) in self.watched.iter().zip(self.cls.iter_mut()) {
+            let ws = &self.sets[w.set];
+            let v = watched_value(ws.cmp(w.atom), ws.vs[w.atom], ws.relax[w.atom]);
+            self.near_start |= v.abs() <= 2.0 * near;
+            *c = class(v);
+        }
+    }
+
+    /// Sign classes of the watched atoms at (t, x) into `cls_s`, with the
+    /// values left in each set's `vs`.
+    fn classes_at<S: HybridSystem + ?Sized>(&mut self, sys: &S, t: f64, x: &[f64]) {
+        let at = HybridTime::new(t, self.j);
+        let flat =
+            self.flat_ok && self.flat_checks && sys.all_atom_values(at, x, true, &mut self.flat);
+        for (i, ws) in self.sets.iter_mut().enumerate() {
+            if !ws.source {
+                continue;
+            }
+            match self.flat_off[i] {
+                Some(off) if flat => {
+                    for k in 0..ws.vs.len() {
+                        if ws.flows(k) {
+                            ws.vs[k] = self.flat[off + k];
+                        }
+                    }
+                }
+                _ => {
+                    let mut vals = std::mem::take(&mut ws.vs);
+                    atom_values(sys, ws, at, x, true, &mut vals);
+                    ws.vs = vals;
+                }
+            }
+        }
+        self.classes_from_vs();
+    }
+
+    /// Sign classes of the watched atoms from the values in `vs` (the
+    /// checkpoint's) under the current relaxations, into `cls_s`.
+    fn classes_from_vs(&mut self) {
+        for (w, c) in self.watched.iter().zip(self.cls_s.iter_mut()) {
+            let ws = &self.sets[w.set];
+            *c = class(watched_value(
+                ws.cmp(w.atom),
+                ws.vs[w.atom],
+                ws.relax[w.atom],
+            ));
+        }
+    }
+
+    /// Ends the relaxation of C's atoms that hold exactly at the point
+    /// whose values are in `vs` (`vb` with `at_candidate`); their sign is
+    /// then that of `g` itself.
+    fn settle_relaxed(&mut self, at_candidate: bool) {
+        let Some(fi) = self.flow else { return };
+        for (w, c) in self.watched.iter().zip(self.cls.iter_mut()) {
+            if w.set != fi {
+                continue;
+            }
+            let ws = &mut self.sets[fi];
+            let vals = if at_candidate { &ws.vb } else { &ws.vs };
+            let (cmp, g) = (ws.cmp(w.atom), vals[w.atom]);
+            if ws.relax[w.atom] > 0.0 && cmp.holds(g) {
+                ws.relax[w.atom] = 0.0;
+                *c = class(g);
+            }
         }
     }
 
     /// Looks for the first event on the step `[s0, s1]` (local times; global
-    /// time is `t0 + s`) whose end state is `y1`. On success the pre-crossing
-    /// state is in [`event_state`](Self::event_state) and the local time and
-    /// kind are returned.
+    /// time is `t0 + s`) whose end state is `y1`. On success the state at
+    /// the event is in [`event_state`](Self::event_state) and the local time
+    /// and kind are returned.
     pub fn scan<S: HybridSystem + ?Sized, P: StepPath>(
         &mut self,
         sys: &S,
@@ -203,98 +488,206 @@ impl Watcher {
         y1: &[f64],
     ) -> Option<(f64, EventKind)> {
         let m = self.checks;
+        // A segment that starts on a boundary (a post-jump state, a few ulp
+        // on either side of an atom's zero) may cross it right away and
+        // come back within the first interval: look early in the first
+        // step too.
+        let early: &[f64] = if s0 == 0.0 && self.near_start {
+            &EARLY
+        } else {
+            &[]
+        };
         let mut prev = s0;
-        for k in 1..=m + 1 {
-            let s = if k == m + 1 {
+        for k in 0..early.len() + m + 1 {
+            let last = k == early.len() + m;
+            let s = if last {
                 s1
+            } else if k < early.len() {
+                s0 + (s1 - s0) * early[k]
             } else {
-                s0 + (s1 - s0) * (k as f64 / (m + 1) as f64)
+                let i = k - early.len() + 1;
+                s0 + (s1 - s0) * (i as f64 / (m + 1) as f64)
             };
-            if k == m + 1 {
-                self.buf_s.copy_from_slice(y1);
+            if s <= prev && !last {
+                continue;
+            }
+            let mut xs = std::mem::take(&mut self.buf_s);
+            if last {
+                xs.copy_from_slice(y1);
             } else {
-                path.eval(s, &mut self.buf_s);
+                path.eval(s, &mut xs);
             }
-            let mut any = false;
-            for (i, &w) in self.watched.iter().enumerate() {
-                let trig = Self::is_triggered(
-                    w,
-                    Self::value(sys, w, HybridTime::new(t0 + s, self.j), &self.buf_s),
-                );
-                self.hits[i] = trig && !self.triggered[i];
-                any |= self.hits[i];
-                self.triggered[i] = trig;
+            self.classes_at(sys, t0 + s, &xs);
+            self.buf_s = xs;
+            if self.cls != self.cls_s
+                && let Some(found) = self.resolve(sys, t0, path, prev, s)
+            {
+                return Some(found);
             }
-            if any {
-                let mut best: Option<(f64, EventKind)> = None;
-                for i in 0..self.watched.len() {
-                    if !self.hits[i] {
-                        continue;
-                    }
-                    let w = self.watched[i];
-                    if let Some((sb, _)) = best {
-                        // Cheap test against the event already found: a
-                        // crossing after it, or inside the same tolerance
-                        // bracket (the earlier-declared function wins, so a
-                        // rule wins over leaving C), cannot replace it.
-                        let tb = t0 + sb;
-                        let at_post =
-                            Self::value(sys, w, HybridTime::new(tb, self.j), &self.buf_best_post);
-                        let at_pre =
-                            Self::value(sys, w, HybridTime::new(tb, self.j), &self.buf_best);
-                        if !Self::is_triggered(w, at_post) || !Self::is_triggered(w, at_pre) {
-                            continue;
-                        }
-                    }
-                    let (a, b) = self.localize(sys, w, t0, path, prev, s);
-                    if best.is_some_and(|(sb, _)| sb <= a) {
-                        continue;
-                    }
-                    if Self::confirmed(sys, w, HybridTime::new(t0 + b, self.j), &self.buf_b) {
-                        let kind = match w {
-                            Watched::Rule(r) => EventKind::Jump(r),
-                            Watched::LeavesC => EventKind::LeftFlowSet,
-                        };
-                        best = Some((a, kind));
-                        self.buf_best.copy_from_slice(&self.buf_a);
-                        self.buf_best_post.copy_from_slice(&self.buf_b);
-                    }
-                }
-                if let Some(found) = best {
-                    self.event_state.copy_from_slice(&self.buf_best);
-                    return Some(found);
-                }
-            }
+            self.classes_from_vs();
+            self.cls.copy_from_slice(&self.cls_s);
+            self.settle_relaxed(false);
             prev = s;
         }
         None
     }
 
-    /// Shrinks the bracket `(a, b]` of watched function `w` (not triggered
-    /// at `a`, triggered at `b`) until its width is below the tolerance.
-    /// Leaves x(a) in `buf_a` and x(b) in `buf_b`.
+    /// Examines, in time order, the sign changes of the watched atoms
+    /// between the cursor `prev` (classes in `cls`) and the checkpoint `s`
+    /// (classes in `cls_s`); returns the first event.
+    fn resolve<S: HybridSystem + ?Sized, P: StepPath>(
+        &mut self,
+        sys: &S,
+        t0: f64,
+        path: &mut P,
+        mut cursor: f64,
+        s: f64,
+    ) -> Option<(f64, EventKind)> {
+        for _ in 0..MAX_CANDIDATES {
+            let mut best: Option<(f64, f64)> = None;
+            for w in 0..self.watched.len() {
+                if self.cls[w] == self.cls_s[w] {
+                    continue;
+                }
+                let (a, b) = self.localize(sys, w, t0, path, cursor, s);
+                if best.is_none_or(|(_, bb)| b < bb) {
+                    best = Some((a, b));
+                    self.best_a.copy_from_slice(&self.buf_a);
+                    self.event_state.copy_from_slice(&self.buf_b);
+                }
+            }
+            let (a, b) = best?;
+            self.evaluate_sets(sys, t0 + a, t0 + b);
+
+            let jump = self
+                .sets
+                .iter()
+                .position(|ws| ws.source && matches!(ws.set, SetRef::Jump(_)) && !ws.cur && ws.new);
+            let left = self.flow.filter(|&fi| {
+                let ws = &self.sets[fi];
+                ws.cur && !ws.new
+            });
+            if jump.is_some() || left.is_some() {
+                self.rule_at_event = self.sets.iter().find_map(|ws| match ws.set {
+                    SetRef::Jump(r) if ws.new => Some(r),
+                    _ => None,
+                });
+                let kind = match jump.map(|i| self.sets[i].set) {
+                    Some(SetRef::Jump(r)) => EventKind::Jump(r),
+                    _ => EventKind::LeftFlowSet,
+                };
+                return Some((b, kind));
+            }
+            // No set changed value: go on from b.
+            for ws in &mut self.sets {
+                ws.cur = ws.new;
+            }
+            for (w, c) in self.watched.iter().zip(self.cls.iter_mut()) {
+                let ws = &self.sets[w.set];
+                *c = class(watched_value(
+                    ws.cmp(w.atom),
+                    ws.vb[w.atom],
+                    ws.relax[w.atom],
+                ));
+            }
+            self.settle_relaxed(true);
+            self.classes_from_vs();
+            cursor = b;
+            if b >= s {
+                break;
+            }
+        }
+        None
+    }
+
+    /// Evaluates every set on the bracket `[ta, tb]` whose end states are
+    /// in `best_a` and `event_state`, into each set's `new` (module docs).
+    fn evaluate_sets<S: HybridSystem + ?Sized>(&mut self, sys: &S, ta: f64, tb: f64) {
+        let (ta, tb) = (HybridTime::new(ta, self.j), HybridTime::new(tb, self.j));
+        let (xa, xb) = (&self.best_a, &self.event_state);
+        for ws in &mut self.sets {
+            let mut va = std::mem::take(&mut ws.va);
+            let mut vb = std::mem::take(&mut ws.vb);
+            atom_values(sys, ws, ta, xa, false, &mut va);
+            atom_values(sys, ws, tb, xb, false, &mut vb);
+            ws.new = match (&ws.spec, ws.set) {
+                (Some(spec), _) => {
+                    for k in 0..vb.len() {
+                        let atom = spec.atoms[k];
+                        ws.truth[k] = if !atom.flows {
+                            ws.start_truth[k]
+                        } else if ws.relax[k] > 0.0 {
+                            atom.cmp.holds_within(vb[k], ws.relax[k])
+                        } else {
+                            match atom.cmp {
+                                Cmp::Eq => eq_met(va[k], vb[k]),
+                                Cmp::Ne => !eq_met(va[k], vb[k]),
+                                c => c.holds(vb[k]),
+                            }
+                        };
+                    }
+                    spec.expr.eval(&ws.truth)
+                }
+                (None, SetRef::Jump(r)) => sys.jump_set(r, tb, xb),
+                (None, SetRef::Flow) => {
+                    sys.flow_set(tb, xb) || (ws.relax[0] > 0.0 && vb[0] >= -ws.relax[0])
+                }
+            };
+            ws.va = va;
+            ws.vb = vb;
+        }
+    }
+
+    /// The watched value of atom `w` at local time `s` (state into `buf`).
+    fn watched_at<S: HybridSystem + ?Sized, P: StepPath>(
+        &mut self,
+        sys: &S,
+        w: usize,
+        t0: f64,
+        path: &mut P,
+        s: f64,
+        which: Buf,
+    ) -> f64 {
+        let WAtom { set, atom } = self.watched[w];
+        let buf = match which {
+            Buf::A => &mut self.buf_a,
+            Buf::B => &mut self.buf_b,
+            Buf::T => &mut self.buf_t,
+        };
+        path.eval(s, buf);
+        let ws = &mut self.sets[set];
+        let mut vt = std::mem::take(&mut ws.vt);
+        atom_values(sys, ws, HybridTime::new(t0 + s, self.j), buf, true, &mut vt);
+        let v = watched_value(ws.cmp(atom), vt[atom], ws.relax[atom]);
+        ws.vt = vt;
+        v
+    }
+
+    /// Shrinks the bracket `(a, b]` of watched atom `w` (sign class
+    /// `cls[w]` at `a`, another at `b`) to the first change within the
+    /// tolerance. Leaves x(a) in `buf_a` and x(b) in `buf_b`.
     fn localize<S: HybridSystem + ?Sized, P: StepPath>(
         &mut self,
         sys: &S,
-        w: Watched,
+        w: usize,
         t0: f64,
         path: &mut P,
         mut a: f64,
         mut b: f64,
     ) -> (f64, f64) {
-        path.eval(a, &mut self.buf_a);
-        path.eval(b, &mut self.buf_b);
-        let mut fa = Self::value(sys, w, HybridTime::new(t0 + a, self.j), &self.buf_a);
-        let mut fb = Self::value(sys, w, HybridTime::new(t0 + b, self.j), &self.buf_b);
-        if fb == 0.0 && matches!(w, Watched::Rule(_)) {
+        let c0 = self.cls[w];
+        let mut fa = self.watched_at(sys, w, t0, path, a, Buf::A);
+        let mut fb = self.watched_at(sys, w, t0, path, b, Buf::B);
+        if fb == 0.0 && c0 != 0 {
             // b is an exact root (a clock reaching its threshold at a step
-            // end, e.g. on a timer's instant): the crossing is at b. Secant
-            // and bisection would only creep towards b for ~50 iterations.
+            // end): the change is at b. Secant and bisection would only
+            // creep towards b for ~50 iterations.
             self.buf_a.copy_from_slice(&self.buf_b);
             return (b, b);
         }
         let mut side = 0i8;
         let mut widths = [f64::INFINITY; 2];
+        let mut first = true;
         for _ in 0..200 {
             let width = b - a;
             let tol = self.event_tol.max(4.0 * f64::EPSILON * b.abs());
@@ -303,11 +696,16 @@ impl Watcher {
             }
             let secant = b - fb * (b - a) / (fb - fa);
             let slow = width > 0.5 * widths[0];
-            let mut s = if secant.is_finite() && !slow {
+            let mut s = if c0 == 0 && first {
+                // Leaving an exact zero: the change is almost always
+                // right after a.
+                a + 0.5 * tol
+            } else if secant.is_finite() && !slow && c0 != 2 {
                 secant
             } else {
                 0.5 * (a + b)
             };
+            first = false;
             // Keep the trial strictly inside, a little away from the ends.
             let margin = 0.25 * tol;
             s = s.clamp(a + margin, b - margin);
@@ -318,12 +716,11 @@ impl Watcher {
                 }
             }
             widths = [widths[1], width];
-            path.eval(s, &mut self.buf_s);
-            let v = Self::value(sys, w, HybridTime::new(t0 + s, self.j), &self.buf_s);
-            if Self::is_triggered(w, v) {
+            let v = self.watched_at(sys, w, t0, path, s, Buf::T);
+            if class(v) != c0 {
                 b = s;
                 fb = v;
-                std::mem::swap(&mut self.buf_b, &mut self.buf_s);
+                std::mem::swap(&mut self.buf_b, &mut self.buf_t);
                 if side == -1 {
                     fa *= 0.5;
                 }
@@ -331,7 +728,7 @@ impl Watcher {
             } else {
                 a = s;
                 fa = v;
-                std::mem::swap(&mut self.buf_a, &mut self.buf_s);
+                std::mem::swap(&mut self.buf_a, &mut self.buf_t);
                 if side == 1 {
                     fb *= 0.5;
                 }
@@ -339,6 +736,76 @@ impl Watcher {
             }
         }
         (a, b)
+    }
+}
+
+#[derive(Clone, Copy)]
+enum Buf {
+    A,
+    B,
+    T,
+}
+
+/// Membership tests of the flow set C with reusable buffers.
+pub(crate) struct FlowSetTest {
+    spec: Option<SetAtoms>,
+    vals: Vec<f64>,
+    truth: Vec<bool>,
+}
+
+impl FlowSetTest {
+    pub fn new<S: HybridSystem + ?Sized>(sys: &S) -> Self {
+        let spec = sys.set_atoms(SetRef::Flow);
+        let n = spec.as_ref().map_or(0, |s| s.atoms.len());
+        Self {
+            spec,
+            vals: vec![0.0; n],
+            truth: vec![false; n],
+        }
+    }
+
+    /// Whether x is in C within `tol` on C's atoms (or, for a system
+    /// without atoms, in its predicate or within `tol` of its guard's zero).
+    pub fn contains<S: HybridSystem + ?Sized>(
+        &mut self,
+        sys: &S,
+        at: HybridTime,
+        x: &[f64],
+        tol: f64,
+    ) -> bool {
+        match &self.spec {
+            Some(spec) => {
+                sys.atom_values(SetRef::Flow, at, x, false, &mut self.vals);
+                for ((t, a), &g) in self.truth.iter_mut().zip(&spec.atoms).zip(&self.vals) {
+                    *t = a.cmp.holds_within(g, tol);
+                }
+                spec.expr.eval(&self.truth)
+            }
+            None => {
+                sys.flow_set(at, x)
+                    || (tol > 0.0 && sys.flow_guard(at, x).is_some_and(|g| g >= -tol))
+            }
+        }
+    }
+
+    /// The atoms of C that fail exactly at x (empty without atoms).
+    pub fn failed_atoms<S: HybridSystem + ?Sized>(
+        &mut self,
+        sys: &S,
+        at: HybridTime,
+        x: &[f64],
+    ) -> Vec<FailedAtom> {
+        let Some(spec) = &self.spec else {
+            return Vec::new();
+        };
+        sys.atom_values(SetRef::Flow, at, x, false, &mut self.vals);
+        spec.atoms
+            .iter()
+            .zip(&self.vals)
+            .enumerate()
+            .filter(|(_, (a, g))| !a.cmp.holds(**g))
+            .map(|(index, (_, &value))| FailedAtom { index, value })
+            .collect()
     }
 }
 

@@ -17,9 +17,12 @@ use nalgebra::{DMatrix, DVector, DVectorView, DVectorViewMut};
 use ode_solvers::{Dop853, Dopri5, OutputType, Rk4, System, dop_shared::IntegrationError};
 
 use super::HybridSystem;
+use super::dopri5::{Dopri5 as OwnDopri5, DopriPath, Failure};
 use super::error::SimError;
 use super::events::{EventKind, Hermite, Linear, StepPath, Watcher};
+use super::radau5::{Radau5, RadauPath};
 use super::settings::{SimSettings, Solver};
+use super::stepper::OwnStepper;
 use super::system::SimRng;
 use crate::arc::{ArcSink, HybridTime, SampleKind};
 
@@ -42,28 +45,119 @@ pub(crate) enum EndWhy {
     Stopped,
 }
 
-/// Output of flow samples to the sink: every step end, or a fixed grid.
+/// Relative deviation from a straight line, per component (against the
+/// largest magnitude the component has shown), below which the polyline
+/// through the flow samples is taken to draw the flow faithfully.
+const DENSE_REL: f64 = 1e-3;
+/// Most samples per accepted step in dense output.
+const DENSE_MAX: usize = 64;
+
+/// A step path that can also give dense output: its midpoint, and the
+/// points of a uniform grid on the step. Defaults evaluate the path.
+pub(crate) trait DensePath: StepPath {
+    /// x((s0 + s1) / 2) into `out`.
+    fn mid(&mut self, s0: f64, s1: f64, out: &mut [f64]) {
+        self.eval(0.5 * (s0 + s1), out);
+    }
+
+    /// x(s0 + k·δ) for k = 1, 2, … while `emit` continues and k < m, each
+    /// passed to `emit` (the point's local time and state).
+    fn grid(
+        &mut self,
+        s0: f64,
+        delta: f64,
+        m: usize,
+        buf: &mut [f64],
+        emit: &mut dyn FnMut(f64, &[f64]) -> ControlFlow<()>,
+    ) -> ControlFlow<()> {
+        for k in 1..m {
+            let s = s0 + k as f64 * delta;
+            self.eval(s, buf);
+            emit(s, buf)?;
+        }
+        ControlFlow::Continue(())
+    }
+}
+
+impl DensePath for Hermite<'_> {}
+impl DensePath for DopriPath<'_> {}
+impl DensePath for RadauPath<'_> {}
+impl DensePath for Linear<'_> {}
+
+/// Output of flow samples to the sink: a fixed grid (`dt_out`), or dense
+/// output: every step end, plus points of the step's path (the solver's
+/// interpolant or the exact solution) wherever the polyline through the
+/// step ends would deviate from the path by more than [`DENSE_REL`] of the
+/// components' magnitudes. The number of points per step follows from the
+/// deviation at the step's midpoint (it scales with the square of the
+/// spacing).
 pub(crate) struct Output<'a> {
     pub sink: &'a mut dyn ArcSink,
     dt: Option<f64>,
     next_k: u64,
     buf: Vec<f64>,
+    buf_lo: Vec<f64>,
+    buf_hi: Vec<f64>,
+    /// Largest magnitude of each component seen in the samples so far.
+    scale: Vec<f64>,
 }
 
 impl<'a> Output<'a> {
-    pub fn new(sink: &'a mut dyn ArcSink, dt: Option<f64>, n: usize) -> Self {
+    pub fn new(sink: &'a mut dyn ArcSink, dt: Option<f64>, x0: &[f64]) -> Self {
+        let n = x0.len();
         Self {
             sink,
             dt,
             next_k: 1,
             buf: vec![0.0; n],
+            buf_lo: vec![0.0; n],
+            buf_hi: vec![0.0; n],
+            scale: x0.iter().map(|v| v.abs()).collect(),
+        }
+    }
+
+    /// Whether flows are sampled densely (no output grid): flows advanced
+    /// in long exact steps must then cut them so that a step's midpoint
+    /// tells its curvature.
+    pub fn dense(&self) -> bool {
+        self.dt.is_none()
+    }
+
+    /// Number of equal parts of `(s_lo, s_hi]` (the state at `s_hi` is
+    /// `y_hi`) for dense output.
+    fn dense_parts<P: DensePath>(
+        &mut self,
+        path: &mut P,
+        s_lo: f64,
+        s_hi: f64,
+        y_hi: &[f64],
+    ) -> usize {
+        path.eval(s_lo, &mut self.buf_lo);
+        path.mid(s_lo, s_hi, &mut self.buf);
+        let mut ratio: f64 = 0.0;
+        for (i, sc) in self.scale.iter_mut().enumerate() {
+            let (a, m, b) = (self.buf_lo[i], self.buf[i], y_hi[i]);
+            *sc = sc.max(a.abs()).max(m.abs()).max(b.abs());
+            let dev = (m - 0.5 * (a + b)).abs();
+            if dev > 0.0 {
+                ratio = ratio.max(dev / (DENSE_REL * *sc));
+            }
+        }
+        // A power of two: on the exact path the grid spacings h/parts then
+        // repeat across steps and their propagators stay cached.
+        if ratio.is_finite() {
+            (ratio.sqrt().ceil() as usize)
+                .clamp(1, DENSE_MAX)
+                .next_power_of_two()
+        } else {
+            1
         }
     }
 
     /// Pushes the flow samples of the step `(s_lo, s_hi]` (local times,
     /// global `t0 + s`) that lie strictly before `limit`.
     #[allow(clippy::too_many_arguments)]
-    fn step<P: StepPath>(
+    fn step<P: DensePath>(
         &mut self,
         t0: f64,
         j: u64,
@@ -75,6 +169,39 @@ impl<'a> Output<'a> {
     ) -> ControlFlow<()> {
         match self.dt {
             None => {
+                // Dense points only on the part of the step the solution
+                // takes (up to an event inside it).
+                let s_end = s_hi.min(limit);
+                let parts = if s_end > s_lo {
+                    let mut y_end = std::mem::take(&mut self.buf_hi);
+                    if s_end < s_hi {
+                        path.eval(s_end, &mut y_end);
+                    } else {
+                        y_end.copy_from_slice(y_hi);
+                    }
+                    let parts = self.dense_parts(path, s_lo, s_end, &y_end);
+                    self.buf_hi = y_end;
+                    parts
+                } else {
+                    1
+                };
+                if parts > 1 {
+                    let sink = &mut *self.sink;
+                    let mut stopped = false;
+                    let mut emit = |s: f64, y: &[f64]| {
+                        if s >= limit {
+                            return ControlFlow::Break(());
+                        }
+                        let flow = sink.sample(HybridTime::new(t0 + s, j), y, SampleKind::Flow);
+                        stopped = flow.is_break();
+                        flow
+                    };
+                    let delta = (s_end - s_lo) / parts as f64;
+                    let _ = path.grid(s_lo, delta, parts, &mut self.buf, &mut emit);
+                    if stopped {
+                        return ControlFlow::Break(());
+                    }
+                }
                 if s_hi < limit {
                     self.sink
                         .sample(HybridTime::new(t0 + s_hi, j), y_hi, SampleKind::Flow)?;
@@ -114,8 +241,13 @@ impl<'a> Output<'a> {
 /// How flows are advanced.
 pub(crate) enum Method {
     Ode(Solver),
+    /// Always exact (`exact_affine = on`).
     Affine(Box<Affine>),
-    EulerMaruyama { h: f64 },
+    /// Exact or the solver, per segment by cost (`exact_affine = auto`).
+    Auto(Solver, Box<Affine>),
+    EulerMaruyama {
+        h: f64,
+    },
 }
 
 /// Exact propagators of `ẋ = A x + b`.
@@ -133,9 +265,21 @@ pub(crate) struct Affine {
     /// only these rows (k × (n+1)) and a step updates only these components.
     /// `None`: dense propagators ((n+1) × (n+1)).
     active: Option<Vec<usize>>,
+    /// A state-sized buffer for chained propagation.
+    scratch: Vec<f64>,
+    /// Estimated flops of one exponential.
+    exp_cost: f64,
+    /// Estimated flops of one evaluation of f on the solver path.
+    feval_cost: f64,
+    /// Solver work (flops, estimated) spent so far on whole segments of
+    /// each recent duration (bits of the duration), for the auto choice.
+    spent: Vec<(u64, f64)>,
+    next_spent: usize,
 }
 
-const AFFINE_CACHE: usize = 8;
+const AFFINE_CACHE: usize = 16;
+/// Durations whose solver work is remembered by the auto choice.
+const AFFINE_SPENT: usize = 16;
 
 impl Affine {
     pub fn new(n: usize, a: &[f64], b: &[f64]) -> Result<Self, SimError> {
@@ -165,6 +309,7 @@ impl Affine {
             gen_[(r, n)] = b[r];
             norm = norm.max(row);
         }
+        let nnz = gen_.iter().filter(|&&v| v != 0.0).count();
         let watch_step = if norm > 0.0 {
             1.0 / norm
         } else {
@@ -179,8 +324,51 @@ impl Affine {
             cache: Vec::with_capacity(AFFINE_CACHE),
             next_slot: 0,
             watch_step,
+            scratch: vec![0.0; n],
+            // Scaling and squaring with a degree-13 Padé approximant: about
+            // 20 products of m × m matrices, 2m³ flops each.
+            exp_cost: {
+                let m = if 2 * active.len() <= n {
+                    2 * active.len()
+                } else {
+                    n + 1
+                } as f64;
+                40.0 * m * m * m
+            },
+            // The products of f, and the vector updates of a Runge–Kutta
+            // stage (about 12 flops per component).
+            feval_cost: 2.0 * nnz as f64 + 12.0 * n as f64,
+            spent: Vec::with_capacity(AFFINE_SPENT),
+            next_spent: 0,
             active: (2 * active.len() <= n).then_some(active),
         })
+    }
+
+    /// The auto choice for a whole segment of duration `d`: exact if its
+    /// propagator is cached or the solver has already spent the cost of an
+    /// exponential on segments of this duration.
+    fn worth(&self, d: f64) -> bool {
+        let key = d.to_bits();
+        self.cache.iter().any(|(k, _)| *k == key)
+            || self
+                .spent
+                .iter()
+                .any(|&(k, w)| k == key && w >= self.exp_cost)
+    }
+
+    /// Records `fevals` solver evaluations of f on a whole segment of
+    /// duration `d`.
+    fn spend(&mut self, d: f64, fevals: u64) {
+        let key = d.to_bits();
+        let w = fevals as f64 * self.feval_cost;
+        if let Some(e) = self.spent.iter_mut().find(|(k, _)| *k == key) {
+            e.1 += w;
+        } else if self.spent.len() < AFFINE_SPENT {
+            self.spent.push((key, w));
+        } else {
+            self.spent[self.next_spent] = (key, w);
+            self.next_spent = (self.next_spent + 1) % AFFINE_SPENT;
+        }
     }
 
     /// Cache slot of the propagator for a step `h` (computed on a miss).
@@ -265,7 +453,7 @@ impl Affine {
 
 /// The exact solution of an affine flow on one step.
 struct AffinePath<'a> {
-    aff: &'a Affine,
+    aff: &'a mut Affine,
     s0: f64,
     s1: f64,
     y0: &'a [f64],
@@ -279,9 +467,44 @@ impl StepPath for AffinePath<'_> {
         } else if s == self.s0 {
             out.copy_from_slice(self.y0);
         } else {
+            // Not cached: event localization asks for many one-off times.
             let p = self.aff.exp_step(s - self.s0);
             self.aff.apply(&p, self.y0, out);
         }
+    }
+}
+
+/// Dense output on the exact path uses cached propagators (half step, grid
+/// spacing): on periodic sampling they are computed once.
+impl DensePath for AffinePath<'_> {
+    fn mid(&mut self, s0: f64, s1: f64, out: &mut [f64]) {
+        debug_assert_eq!(s0, self.s0);
+        self.aff.advance(0.5 * (s1 - s0), self.y0, out);
+    }
+
+    fn grid(
+        &mut self,
+        s0: f64,
+        delta: f64,
+        m: usize,
+        buf: &mut [f64],
+        emit: &mut dyn FnMut(f64, &[f64]) -> ControlFlow<()>,
+    ) -> ControlFlow<()> {
+        debug_assert_eq!(s0, self.s0);
+        let slot = self.aff.propagator(delta);
+        let mut prev = std::mem::take(&mut self.aff.scratch);
+        prev.copy_from_slice(self.y0);
+        let mut flow = ControlFlow::Continue(());
+        for k in 1..m {
+            self.aff.apply(&self.aff.cache[slot].1, &prev, buf);
+            flow = emit(s0 + k as f64 * delta, buf);
+            if flow.is_break() {
+                break;
+            }
+            prev.copy_from_slice(buf);
+        }
+        self.aff.scratch = prev;
+        flow
     }
 }
 
@@ -293,7 +516,6 @@ pub(crate) struct Flows {
     /// State indices of the timers of timer rules.
     timer_rows: Vec<usize>,
     max_step: f64,
-    need_derivative: bool,
     y_prev: Vec<f64>,
     f_prev: Vec<f64>,
     f_cur: Vec<f64>,
@@ -302,6 +524,14 @@ pub(crate) struct Flows {
     noise_dw: Vec<f64>,
     /// Last full accepted step of an adaptive solver, for diagnostics.
     last_h: f64,
+    /// Evaluations of f by the solver in the current segment.
+    fevals: u64,
+    /// The engine's Dopri5 stepper, if the solver is Dopri5 (kept across
+    /// segments: buffers and the step proposal).
+    dopri: Option<OwnDopri5>,
+    /// The Radau IIA stepper, if the solver is Radau5 (kept across
+    /// segments: buffers, step proposal, Jacobian and factorizations).
+    radau: Option<Radau5>,
 }
 
 /// End of a flow segment: local time reached and why; the state is written
@@ -332,7 +562,9 @@ pub(crate) fn check_finite<S: HybridSystem + ?Sized>(
 /// (rtol, atol) of an adaptive solver; (0, 1) (plain |ẋᵢ|) for the others.
 fn tolerances(solver: Solver) -> (f64, f64) {
     match solver {
-        Solver::Dopri5 { rtol, atol } | Solver::Dop853 { rtol, atol } => (rtol, atol),
+        Solver::Dopri5 { rtol, atol }
+        | Solver::Dop853 { rtol, atol }
+        | Solver::Radau5 { rtol, atol } => (rtol, atol),
         _ => (0.0, 1.0),
     }
 }
@@ -377,14 +609,11 @@ impl Flows {
                 super::GuardKind::General => None,
             })
             .collect();
-        let need_derivative =
-            !timer_rows.is_empty() || !watcher.is_empty() || settings.dt_out.is_some();
         Self {
             method,
             watcher,
             timer_rows,
             max_step: settings.max_step,
-            need_derivative,
             y_prev: vec![0.0; n],
             f_prev: vec![0.0; n],
             f_cur: vec![0.0; n],
@@ -392,12 +621,21 @@ impl Flows {
             noise_g: vec![0.0; n * m],
             noise_dw: vec![0.0; m],
             last_h: 0.0,
+            fevals: 0,
+            dopri: match settings.solver {
+                Solver::Dopri5 { rtol, atol } => Some(OwnDopri5::new(n, rtol, atol)),
+                _ => None,
+            },
+            radau: match settings.solver {
+                Solver::Radau5 { rtol, atol } => Some(Radau5::new(n, rtol, atol)),
+                _ => None,
+            },
         }
     }
 
     /// Prepares a segment starting at global hybrid time `at` from `x`;
-    /// returns f(x, t, j) (zeros if no one needs it), whose timer components
-    /// give the timers' constant rates.
+    /// returns f(x, t, j) (on the exact path only its timer components),
+    /// which give the timers' constant rates.
     pub fn start<S: HybridSystem + ?Sized>(
         &mut self,
         sys: &S,
@@ -420,16 +658,11 @@ impl Flows {
                             .sum::<f64>();
                 }
             }
-            _ if self.need_derivative => sys.flow_map(at, x, &mut self.f_prev),
-            _ => {}
+            // Timer rates and the Hermite interpolant (guards, output).
+            _ => sys.flow_map(at, x, &mut self.f_prev),
         }
         self.watcher.start(sys, at, x);
         &self.f_prev
-    }
-
-    /// Post-crossing state of the last event found.
-    pub fn event_post_state(&self) -> &[f64] {
-        self.watcher.post_state()
     }
 
     /// Advances `x` (at global time `t0`, jump count `j`) by at most `d_end`.
@@ -449,9 +682,24 @@ impl Flows {
         let end = match &mut self.method {
             Method::Ode(solver) => {
                 let solver = *solver;
-                self.ode_segment(sys, out, solver, t0, j, d_end)?
+                self.solver_segment(sys, out, solver, t0, j, d_end)?
             }
             Method::Affine(_) => self.affine_segment(sys, out, t0, j, d_end)?,
+            Method::Auto(solver, aff) => {
+                let solver = *solver;
+                if self.watcher.is_empty() && aff.worth(d_end) {
+                    self.affine_segment(sys, out, t0, j, d_end)?
+                } else {
+                    self.fevals = 0;
+                    let end = self.solver_segment(sys, out, solver, t0, j, d_end)?;
+                    if end.why == EndWhy::Reached
+                        && let Method::Auto(_, aff) = &mut self.method
+                    {
+                        aff.spend(d_end, self.fevals);
+                    }
+                    end
+                }
+            }
             Method::EulerMaruyama { h } => {
                 let h = *h;
                 self.em_segment(sys, out, rng, h, t0, j, d_end)?
@@ -459,6 +707,125 @@ impl Flows {
         };
         x.copy_from_slice(&self.y_end);
         Ok(end)
+    }
+
+    /// A segment on the solver: the engine's Dopri5 or Radau5, or
+    /// ode_solvers' others.
+    fn solver_segment<S: HybridSystem + ?Sized>(
+        &mut self,
+        sys: &S,
+        out: &mut Output<'_>,
+        solver: Solver,
+        t0: f64,
+        j: u64,
+        d_end: f64,
+    ) -> Result<SegmentEnd, SimError> {
+        if let Some(mut st) = self.dopri.take() {
+            let result = self.own_segment(sys, out, &mut st, solver, t0, j, d_end);
+            self.dopri = Some(st);
+            result
+        } else if let Some(mut st) = self.radau.take() {
+            let result = self.own_segment(sys, out, &mut st, solver, t0, j, d_end);
+            self.radau = Some(st);
+            result
+        } else {
+            self.ode_segment(sys, out, solver, t0, j, d_end)
+        }
+    }
+
+    /// A segment on one of the engine's own steppers: f at the start from
+    /// [`start`](Self::start), the carried step proposal, events and
+    /// output on each step's dense output; no allocation.
+    #[allow(clippy::too_many_arguments)]
+    fn own_segment<S: HybridSystem + ?Sized, St: OwnStepper>(
+        &mut self,
+        sys: &S,
+        out: &mut Output<'_>,
+        st: &mut St,
+        solver: Solver,
+        t0: f64,
+        j: u64,
+        d_end: f64,
+    ) -> Result<SegmentEnd, SimError> {
+        let fevals0 = st.fevals();
+        let result = self.own_steps(sys, out, st, solver, t0, j, d_end);
+        self.fevals += st.fevals() - fevals0 + 1;
+        result
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    fn own_steps<S: HybridSystem + ?Sized, St: OwnStepper>(
+        &mut self,
+        sys: &S,
+        out: &mut Output<'_>,
+        st: &mut St,
+        solver: Solver,
+        t0: f64,
+        j: u64,
+        d_end: f64,
+    ) -> Result<SegmentEnd, SimError> {
+        let mut f =
+            |s: f64, y: &[f64], dy: &mut [f64]| sys.flow_map(HybridTime::new(t0 + s, j), y, dy);
+        let mut jac =
+            |s: f64, y: &[f64], jm: &mut [f64]| sys.jacobian(HybridTime::new(t0 + s, j), y, jm);
+        st.start(&self.y_prev, &self.f_prev, &mut f);
+        let mut s = 0.0;
+        loop {
+            let remaining = d_end - s;
+            let h = match st.step(
+                s,
+                &self.y_prev,
+                remaining.min(self.max_step),
+                &mut f,
+                &mut jac,
+            ) {
+                Ok(h) => h,
+                Err(failure) => {
+                    let (component, name) = fastest_component(
+                        sys,
+                        HybridTime::new(t0 + s, j),
+                        &self.y_prev,
+                        tolerances(solver),
+                    );
+                    let at = HybridTime::new(t0 + s, j);
+                    return Err(match failure {
+                        Failure::Underflow => SimError::StepSizeCollapse {
+                            at,
+                            h: st.proposal(),
+                            component,
+                            name,
+                        },
+                        Failure::Stiff => SimError::Stiff {
+                            at,
+                            component,
+                            name,
+                        },
+                    });
+                }
+            };
+            let last = h >= remaining;
+            let s1 = if last { d_end } else { s + h };
+            if let Some(e) = check_finite(sys, HybridTime::new(t0 + s1, j), st.y_new(), None) {
+                return Err(e);
+            }
+            let mut path = st.path(s1);
+            if let Some(end) = close_step(
+                sys,
+                &mut self.watcher,
+                &mut self.y_end,
+                out,
+                &mut path,
+                (t0, j),
+                (s, s1),
+                st.y_new(),
+                last.then_some(EndWhy::Reached),
+            ) {
+                return Ok(end);
+            }
+            self.last_h = h;
+            self.y_prev.copy_from_slice(st.y_new());
+            s = s1;
+        }
     }
 
     fn ode_segment<S: HybridSystem + ?Sized>(
@@ -501,6 +868,7 @@ impl Flows {
             last_from,
             reach_why,
             f_is_start,
+            fevals: std::cell::Cell::new(0),
             s_prev: 0.0,
             end: None,
         };
@@ -555,12 +923,14 @@ impl Flows {
                 );
                 st.integrate().map(|_| ())
             }
+            Solver::Radau5 { .. } => unreachable!("Radau5 runs on the engine's own stepper"),
             Solver::Rk4 { .. } | Solver::EulerMaruyama { .. } => {
                 let mut st = Rk4::new(&mut step, 0.0, y0, d_stop, h_fixed);
                 st.integrate().map(|_| ())
             }
         };
         let (s_prev, end) = (step.s_prev, step.end.take());
+        self.fevals += step.fevals.get();
         match (end, result) {
             (Some(end), _) => end,
             (None, Ok(())) | (None, Err(IntegrationError::MaxNumStepReached { .. })) => {
@@ -610,10 +980,12 @@ impl Flows {
         j: u64,
         d_end: f64,
     ) -> Result<SegmentEnd, SimError> {
-        let Method::Affine(aff) = &mut self.method else {
+        let (Method::Affine(aff) | Method::Auto(_, aff)) = &mut self.method else {
             unreachable!("affine method")
         };
-        let watch = !self.watcher.is_empty();
+        // Guards, and dense output, need steps short enough that the path
+        // cannot turn back unseen between checks.
+        let watch = !self.watcher.is_empty() || out.dense();
         let hw = if watch {
             self.max_step.min(aff.watch_step)
         } else {
@@ -679,7 +1051,12 @@ impl Flows {
             let remaining = d_end - s;
             let last = remaining <= h * (1.0 + 1e-9);
             let (s1, dt) = if last { (d_end, remaining) } else { (s + h, h) };
-            sys.flow_map(HybridTime::new(t0 + s, j), &self.y_prev, &mut y1);
+            if s == 0.0 {
+                // f at the segment start was evaluated by `start`.
+                y1.copy_from_slice(&self.f_prev);
+            } else {
+                sys.flow_map(HybridTime::new(t0 + s, j), &self.y_prev, &mut y1);
+            }
             for (yn, &yo) in y1.iter_mut().zip(self.y_prev.iter()) {
                 *yn = yo + dt * *yn;
             }
@@ -735,7 +1112,7 @@ impl Flows {
 /// segment ends here. `reach` is `Some(why)` when `s1` is the segment's
 /// last point. On an end, `y_end` holds the state where the segment ends.
 #[allow(clippy::too_many_arguments)]
-fn close_step<S: HybridSystem + ?Sized, P: StepPath>(
+fn close_step<S: HybridSystem + ?Sized, P: DensePath>(
     sys: &S,
     watcher: &mut Watcher,
     y_end: &mut [f64],
@@ -785,6 +1162,8 @@ struct Stepper<'f, 'o, S: ?Sized> {
     reach_why: EndWhy,
     /// `Rk4` passes f at the step's start to `solout`; Dopri5/Dop853 at its end.
     f_is_start: bool,
+    /// Evaluations of f (`System::system` takes `&self`).
+    fevals: std::cell::Cell<u64>,
     s_prev: f64,
     end: Option<Result<SegmentEnd, SimError>>,
 }
@@ -804,13 +1183,11 @@ impl<S: HybridSystem + ?Sized> Stepper<'_, '_, S> {
         let last = s >= self.last_from;
         let s1 = if last { self.d_stop } else { s };
         let fl = &mut *self.fl;
-        if fl.need_derivative {
-            if self.f_is_start {
-                self.sys
-                    .flow_map(HybridTime::new(self.t0 + s1, self.j), y, &mut fl.f_cur);
-            } else {
-                fl.f_cur.copy_from_slice(dy);
-            }
+        if self.f_is_start {
+            self.sys
+                .flow_map(HybridTime::new(self.t0 + s1, self.j), y, &mut fl.f_cur);
+        } else {
+            fl.f_cur.copy_from_slice(dy);
         }
         let mut path = Hermite {
             s0: self.s_prev,
@@ -846,6 +1223,7 @@ impl<S: HybridSystem + ?Sized> Stepper<'_, '_, S> {
 
 impl<S: HybridSystem + ?Sized> System<f64, DVector<f64>> for &mut Stepper<'_, '_, S> {
     fn system(&self, s: f64, y: &DVector<f64>, dy: &mut DVector<f64>) {
+        self.fevals.set(self.fevals.get() + 1);
         self.sys.flow_map(
             HybridTime::new(self.t0 + s, self.j),
             y.as_slice(),

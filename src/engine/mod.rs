@@ -11,15 +11,15 @@
 //!    ([`TerminationCause::HorizonT`] / [`TerminationCause::HorizonJ`]); in
 //!    particular no jump is taken at `t = T`.
 //! 2. **Which rule is enabled.** The enabled rule is the *first rule in
-//!    declaration order* whose jump set contains x (or whose event the last
-//!    flow just localized, see below). By default one jump is one rule: it
+//!    declaration order* whose jump set contains x (or whose jump set the
+//!    last flow just reached, see below). By default one jump is one rule: it
 //!    increments j by exactly one; the state is then re-examined at the same
 //!    t, so if several rules are enabled they fire one after another, each
 //!    on the state left by the previous one, in declaration order, as long as
 //!    they stay enabled. **Simultaneous jumps:** if the enabled rule has a
 //!    [`group`](JumpRule::group), every rule of that group whose jump set
-//!    holds at the pre-jump point (or at the post-crossing end of the event
-//!    just localized, i.e. at the same instant within the event tolerance;
+//!    holds at the pre-jump point (or that the event just localized reached,
+//!    e.g. an equality atom met within the event's bracket;
 //!    grouped timers due within the tolerance land on their threshold with
 //!    it) fires in the same jump: each jump map is evaluated at the
 //!    pre-jump state and hybrid time, x⁺ takes component `k` from the rule
@@ -32,7 +32,11 @@
 //!    with x ∈ C ∩ D the [`Priority`] decides: [`Priority::Jumps`] (the
 //!    default, as HyEQ) jumps, [`Priority::Flows`] flows and jumps only when
 //!    the flow leaves C, [`Priority::Random`] flips a fair coin from the
-//!    run's [`SimRng`].
+//!    run's [`SimRng`]. Membership of C here is tested with
+//!    [`set_tol`](SimSettings::set_tol) on C's atoms (default 1e-9): an
+//!    atom `g ≥ 0` counts as holding when `g ≥ −set_tol`, so that a jump map
+//!    that lands on C's boundary up to rounding (`h⁺ = −h`) lets the
+//!    solution flow. Jump sets are tested exactly.
 //! 4. **Neither.** If x is in neither set (or the previous flow ended
 //!    because it was leaving C and x is not in D), the solution is maximal
 //!    and ends with [`TerminationCause::CannotFlowOrJump`].
@@ -48,47 +52,88 @@
 //!    finite J; with J unbounded it needs `zeno_max_rate = ∞` and stops
 //!    after `max_total_jumps`.
 //!
+//! # Sets and events
+//!
+//! Every set is a boolean combination of *atoms* `g(t, x) ⋈ 0` with `⋈` one
+//! of `< ≤ > ≥ = ≠` (see [`SetAtoms`]; a `.hyb` comparison `a ⋈ b` is the
+//! atom `a − b ⋈ 0`, `!` flips the comparison). As sets of the state:
+//! `g ≥ 0` and `g ≤ 0` are closed, `g > 0` and `g < 0` open, `g = 0` the
+//! level set (isolated points along a flow that crosses it), `g ≠ 0` its
+//! complement.
+//!
 //! A flow segment runs until the first of: the horizon T, the next *timer*
-//! event, or a localized *guard* event:
+//! event, or a localized *set* event:
 //!
 //! - [`GuardKind::Timer`] rules fire when their timer (a state with
 //!   constant rate along the flow) reaches the threshold: the time is
 //!   computed exactly and the timer is set exactly to the threshold. No
 //!   root finding.
-//! - [`GuardKind::General`] rules (not watched under [`Priority::Flows`])
-//!   fire when their guard changes from < 0 to ≥ 0 and the jump set holds
-//!   just past the crossing; the flow guard triggers when it changes from
-//!   ≥ 0 to < 0 and the flow-set predicate fails just past it. Guards are
-//!   evaluated at each step end and at [`guard_checks`](SimSettings::guard_checks)
-//!   interior points of the step (on the interpolant), then the first sign
+//! - Every other set is watched through its atoms. Atoms that cannot change
+//!   along a flow (modes, counters, held values, parameters: no
+//!   dependence on `t` or on a state with a non-zero flow) are evaluated
+//!   once per segment. Each flowing atom of C and of the general rules'
+//!   D_i (not watched under [`Priority::Flows`]) has its sign (−, 0, +)
+//!   evaluated at each step end and at
+//!   [`guard_checks`](SimSettings::guard_checks) interior points of the
+//!   step (on the interpolant; plus three early points in the first step
+//!   when the segment starts within `set_tol` of an atom's zero; a system
+//!   that offers [`HybridSystem::all_atom_values`] gives all sets' atoms of
+//!   a checkpoint in one call, sharing what the sets have in common). Each sign
 //!   change is bracketed and shrunk to [`event_tol`](SimSettings::event_tol)
-//!   (default: 4 ulp of the local time). The solution continues from the
-//!   *pre-crossing* end of the bracket, which is on the flow's side of the
-//!   guard within the tolerance: this point is the pre-jump state (for a
-//!   rule) or the last point of C (for the flow guard).
-//! - **Limit:** a guard that becomes ≥ 0 and < 0 again between two
-//!   consecutive checkpoints of one step (step ends and interior points) is
-//!   not seen; lower [`max_step`](SimSettings::max_step) or raise
-//!   `guard_checks` for guards that touch D only briefly. A flow that
-//!   starts with a guard already ≥ 0 but outside D_i is not an event until
-//!   the guard goes below 0 and comes back.
+//!   (default: 4 ulp of the local time) around the *first point where the
+//!   sign differs*. The candidates are examined in time order; at each one
+//!   the sets are re-evaluated on the final bracket `[a, b]`: inequality
+//!   atoms at `b` (the post-change end), equality atoms as *met* if
+//!   `g(b) = 0` or `g` has strictly opposite signs at `a` and `b` (the
+//!   quantity reached the value within `event_tol`), `≠` as not met there.
+//!   The earliest candidate at which a watched D_i becomes true (declaration
+//!   order breaks ties; a rule wins over leaving C) or C becomes false is
+//!   the event; the flow ends at `b`. So **a jump starts from a point of
+//!   D**: every inequality atom of D_i holds exactly at the pre-jump state
+//!   (a strict `x > 1` is approached from below and first holds at the
+//!   first float past the crossing, found to within `event_tol`); an
+//!   equality atom holds up to the bracket. The flow before `b` stays in C.
+//!   Leaving C ends the flow at the first point found outside C; the
+//!   solution jumps there if that point is in D, otherwise it ends.
+//! - C's atoms that hold at the start of a flow only within `set_tol` are
+//!   watched relaxed (`g + set_tol` for `g ≥ 0`) until they hold exactly:
+//!   a flow that points out of C leaves it at `−set_tol`.
+//! - **Limit:** an atom that changes sign and changes back between two
+//!   consecutive checkpoints of one step is not seen; lower
+//!   [`max_step`](SimSettings::max_step) or raise `guard_checks` for sets
+//!   that a flow touches only briefly.
 //!
-//! Flows are advanced by [`Solver::Dopri5`] (default), [`Solver::Dop853`]
-//! or [`Solver::Rk4`] from `ode_solvers`, each segment integrated in local
-//! time `[0, d]` while t is kept as a compensated sum of segment lengths;
-//! events are localized on the cubic Hermite interpolant of the step ends
-//! (exact for polynomial flows such as free fall; O(h⁴) otherwise). Flows
-//! declared [`FlowStructure::Affine`] are advanced exactly by the
-//! exponential of `[[A, b], [0, 0]]`, cached per step length, and their
-//! events are localized on the exact solution; a sampled-data loop whose
-//! flow is a linear plant plus held inputs and a timer costs one
-//! matrix-vector product per sample. Noisy flows
+//! A system that does not describe its atoms ([`HybridSystem::set_atoms`]
+//! returns `None`) is watched through its guards as single atoms, with its
+//! predicates deciding membership at each candidate. [`check_arc`] checks
+//! the invariants above on any arc.
+//!
+//! Flows are advanced by [`Solver::Dopri5`] (default, the engine's own
+//! stepper, events on its order-4 interpolant), [`Solver::Radau5`] (the
+//! engine's implicit stepper for stiff flows, events on each step's
+//! collocation polynomial; Newton iterations on
+//! [`HybridSystem::jacobian`]), [`Solver::Dop853`] or [`Solver::Rk4`] from
+//! `ode_solvers` (events on the cubic Hermite interpolant of the step ends:
+//! exact for polynomial flows such as free fall; O(h⁴) otherwise), each
+//! segment integrated in local time `[0, d]` while t is kept as a
+//! compensated sum of segment lengths. Flows
+//! declared [`FlowStructure::Affine`] can be advanced exactly by the
+//! exponential of `[[A, b], [0, 0]]`, cached per step length, with their
+//! events localized on the exact solution; [`SimSettings::exact_affine`]
+//! chooses, by default per segment by cost ([`ExactAffine::Auto`]): a
+//! sampled-data loop whose flow is a linear plant plus held inputs and a
+//! timer then costs one matrix-vector product per sample, while flows whose
+//! segment durations never repeat stay on the solver. Noisy flows
 //! ([`HybridSystem::noise_dim`] > 0) need [`Solver::EulerMaruyama`].
 //!
 //! # Output
 //! The sink receives an [`Initial`](crate::arc::SampleKind::Initial)
-//! sample, `Flow` samples at each integrator step (or at `t = k·dt_out`
-//! when [`dt_out`](SimSettings::dt_out) is set, interpolated as above), a
+//! sample, `Flow` samples at each integrator step plus, where the straight
+//! line between step ends would stray from the flow by more than 1e-3 of
+//! the components' magnitudes, points of the step's path in between (dense
+//! output: the interpolant, or the exact solution on affine flows), or
+//! instead samples at `t = k·dt_out` when [`dt_out`](SimSettings::dt_out)
+//! is set (interpolated as above); a
 //! `PreJump` sample, the jump, a `PostJump` sample for each jump, and a
 //! `Final` sample (which may repeat the last point). A sink may stop the
 //! run ([`TerminationCause::StoppedBySink`]).
@@ -134,16 +179,24 @@
 //! assert!(matches!(arc.termination().unwrap().cause, TerminationCause::ZenoSuspected { .. }));
 //! ```
 
+mod dopri5;
 mod error;
 mod events;
 mod flow;
+mod invariants;
 pub mod models;
+mod radau5;
 mod run;
 mod settings;
+mod stepper;
 pub mod system;
 
 pub use crate::arc::{Termination, TerminationCause, ZenoDetail};
 pub use error::SimError;
+pub use invariants::{ArcViolation, check_arc};
 pub use run::{simulate, simulate_arc};
-pub use settings::{Priority, SimSettings, Solver};
-pub use system::{FlowStructure, GuardKind, HybridSystem, JumpRule, SimRng};
+pub use settings::{ExactAffine, Priority, SimSettings, Solver};
+pub use system::{
+    Atom, Cmp, FlowStructure, GuardKind, HybridSystem, JumpRule, SetAtoms, SetExpr, SetRef, SimRng,
+    finite_difference_jacobian,
+};

@@ -5,9 +5,9 @@ use std::collections::VecDeque;
 
 use super::HybridSystem;
 use super::error::SimError;
-use super::events::EventKind;
+use super::events::{EventKind, FlowSetTest};
 use super::flow::{Affine, EndWhy, Flows, Method, Output, check_finite};
-use super::settings::{Priority, SimSettings, Solver};
+use super::settings::{ExactAffine, Priority, SimSettings, Solver};
 use super::system::{FlowStructure, GuardKind, SimRng};
 use crate::arc::{
     ArcSink, HybridArc, HybridTime, SampleKind, Termination, TerminationCause, ZenoDetail,
@@ -107,14 +107,14 @@ fn method_for<S: HybridSystem + ?Sized>(
     if noise_dim > 0 {
         return Err(SimError::NoiseNeedsEulerMaruyama { noise_dim });
     }
-    if settings.exact_affine
+    if settings.exact_affine != ExactAffine::Off
         && let FlowStructure::Affine { a, b } = sys.flow_structure()
     {
-        return Ok(Method::Affine(Box::new(Affine::new(
-            sys.state_dim(),
-            &a,
-            &b,
-        )?)));
+        let aff = Box::new(Affine::new(sys.state_dim(), &a, &b)?);
+        return Ok(match settings.exact_affine {
+            ExactAffine::On => Method::Affine(aff),
+            _ => Method::Auto(settings.solver, aff),
+        });
     }
     Ok(Method::Ode(settings.solver))
 }
@@ -233,8 +233,9 @@ pub fn simulate<S: HybridSystem + ?Sized>(
             .collect()
     };
     let groups = Groups::new(rules);
+    let mut flow_set = FlowSetTest::new(sys);
     let mut flows = Flows::new(sys, settings, method, x0);
-    let mut out = Output::new(sink, settings.dt_out, n);
+    let mut out = Output::new(sink, settings.dt_out, x0);
     let mut zeno = ZenoWatch::new(settings);
     let mut x = x0.to_vec();
     let mut x_plus = vec![0.0; n];
@@ -242,11 +243,12 @@ pub fn simulate<S: HybridSystem + ?Sized>(
     let mut firing: Vec<usize> = Vec::new();
     let mut time = TimeSum::default();
     let mut j: u64 = 0;
-    // Rule localized by the last flow segment (its pre-crossing point may
-    // sit a few ulp outside D); whether the last segment ended leaving C.
+    // Rule whose jump set the last flow segment reached (an equality atom
+    // met inside the event bracket need not hold exactly at its end);
+    // whether the last segment ended leaving C.
     let mut pending: Option<usize> = None;
-    // Whether `pending` comes from a localized event, whose post-crossing
-    // state (within the event tolerance) is in the flow's watcher.
+    // Whether `pending` comes from a localized event, whose sets the flow's
+    // watcher decided on the event's bracket.
     let mut from_event = false;
     let mut cannot_flow = false;
     let mut at_horizon = false;
@@ -285,7 +287,8 @@ pub fn simulate<S: HybridSystem + ?Sized>(
         let enabled = (0..rules.len()).find(|&r| pending == Some(r) || sys.jump_set(r, at, &x));
         pending = None;
         let after_event = std::mem::take(&mut from_event);
-        let can_flow = !std::mem::take(&mut cannot_flow) && sys.flow_set(at, &x);
+        let left_flow_set = std::mem::take(&mut cannot_flow);
+        let can_flow = !left_flow_set && flow_set.contains(sys, at, &x, settings.set_tol);
         let jump = enabled.is_some()
             && (!can_flow
                 || match settings.priority {
@@ -316,11 +319,10 @@ pub fn simulate<S: HybridSystem + ?Sized>(
                     // A member is enabled at the pre-jump point, or at the
                     // other end of the event bracket (the same instant
                     // within the event tolerance).
-                    let post_event = after_event.then(|| flows.event_post_state());
                     firing.extend(members.iter().copied().filter(|&r| {
                         r == rule
                             || sys.jump_set(r, at, &x)
-                            || post_event.is_some_and(|p| sys.jump_set(r, at, p))
+                            || (after_event && flows.watcher.reached_at_event(r))
                     }));
                     for &r in &firing {
                         x_rule.copy_from_slice(&x);
@@ -358,7 +360,12 @@ pub fn simulate<S: HybridSystem + ?Sized>(
             continue;
         }
         if !can_flow {
-            return finish(&mut out, at, &x, TerminationCause::CannotFlowOrJump);
+            let cause = TerminationCause::CannotFlowOrJump {
+                leaving: left_flow_set,
+                failed: flow_set.failed_atoms(sys, at, &x),
+                state: x.clone(),
+            };
+            return finish(&mut out, at, &x, cause);
         }
 
         // Flow until the next timer event, the horizon, or a localized event.
@@ -403,9 +410,8 @@ pub fn simulate<S: HybridSystem + ?Sized>(
             }
             EndWhy::Event(EventKind::LeftFlowSet) => {
                 cannot_flow = true;
-                let post = flows.event_post_state();
-                let at_post = HybridTime::new(time.value(), j);
-                pending = (0..rules.len()).find(|&r| sys.jump_set(r, at_post, post));
+                pending = flows.watcher.rule_at_event();
+                from_event = true;
             }
             EndWhy::Stopped => {
                 let at = HybridTime::new(time.value(), j);

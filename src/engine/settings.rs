@@ -25,6 +25,17 @@ pub enum Solver {
         /// Absolute tolerance of the local error (state units).
         atol: f64,
     },
+    /// Radau IIA of order 5 (implicit, L-stable), adaptive step: for stiff
+    /// flows (fast and slow time scales together, where the explicit
+    /// methods' steps collapse). Newton iterations use the system's
+    /// [`jacobian`](super::HybridSystem::jacobian); dense output is each
+    /// step's collocation polynomial.
+    Radau5 {
+        /// Relative tolerance of the local error (dimensionless).
+        rtol: f64,
+        /// Absolute tolerance of the local error (state units).
+        atol: f64,
+    },
     /// Classic fourth-order Runge–Kutta with fixed step (ode_solvers `Rk4`).
     /// Each flow segment is divided into equal steps of at most `h`.
     Rk4 {
@@ -45,6 +56,50 @@ impl Default for Solver {
         Solver::Dopri5 {
             rtol: 1e-6,
             atol: 1e-9,
+        }
+    }
+}
+
+/// Whether flows declared [`FlowStructure::Affine`](super::FlowStructure::Affine)
+/// (`ẋ = A x + b`) are advanced exactly, by matrix exponentials of the
+/// augmented generator `[[A, b], [0, 0]]`, or by the solver. The answer is
+/// the same within the solver's tolerance; only the cost differs.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum ExactAffine {
+    /// Per flow segment, by cost. Segments on which a guard is watched use
+    /// the solver (localizing an event on the exact path needs a fresh
+    /// exponential per trial time). The others use a cached exponential
+    /// when one for the segment's duration exists; otherwise they use the
+    /// solver until the solver's work on segments of that same duration
+    /// (f-evaluations times an estimate of their flops) has exceeded the
+    /// estimated cost of one exponential, and from then on the exact path
+    /// with that exponential cached: periodic sampling turns exact after a
+    /// few periods, while durations that never repeat (random timers, bouncing)
+    /// never pay for an exponential. At most twice the cost of the better
+    /// choice made in hindsight (the ski-rental rule).
+    #[default]
+    Auto,
+    /// Every segment of an affine flow exactly (exponentials cached per
+    /// step length), events localized on the exact solution.
+    On,
+    /// Always the solver.
+    Off,
+}
+
+impl From<bool> for ExactAffine {
+    /// `true`: [`ExactAffine::On`]; `false`: [`ExactAffine::Off`].
+    fn from(on: bool) -> Self {
+        if on { Self::On } else { Self::Off }
+    }
+}
+
+impl ExactAffine {
+    /// The name used in `.hyb` files and on the command line.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Auto => "auto",
+            Self::On => "on",
+            Self::Off => "off",
         }
     }
 }
@@ -101,6 +156,16 @@ pub struct SimSettings {
     /// bracket is shrunk to 4 ulp of the local time, which keeps long
     /// sequences of events accurate (≤ 1e-10 for any local time < 1e5).
     pub event_tol: f64,
+    /// Tolerance on the flow set's atoms when deciding whether a state may
+    /// flow (at the start of each flow, typically just after a jump): an
+    /// atom `g ≥ 0` of C counts as holding when `g ≥ −set_tol` (`|g| ≤
+    /// set_tol` for `=`), so that a jump map that lands on C's boundary up
+    /// to rounding (a reflecting `h⁺ = −h`) lets the solution flow. Such an
+    /// atom stays relaxed along that flow until it holds exactly. Default
+    /// 1e-9: above the rounding of quantities up to ~10⁶ (ulp(10⁶) ≈ 1e-10),
+    /// far below any meaningful distance to a boundary. Jump sets are never
+    /// relaxed.
+    pub set_tol: f64,
     /// Number of interior points per step at which guards are evaluated in
     /// addition to the step ends, to catch a guard that crosses and
     /// re-crosses inside one step. Default 3.
@@ -118,9 +183,10 @@ pub struct SimSettings {
     /// after this many jumps even with `zeno_max_rate = ∞` (≥ 1). Default
     /// 10⁷ (a few minutes of jumps). With a finite J, J is the budget.
     pub max_total_jumps: u64,
-    /// Advance flows declared [`FlowStructure::Affine`](super::FlowStructure::Affine)
-    /// exactly by matrix exponentials instead of the solver. Default `true`.
-    pub exact_affine: bool,
+    /// When flows declared [`FlowStructure::Affine`](super::FlowStructure::Affine)
+    /// are advanced exactly instead of by the solver. Default
+    /// [`ExactAffine::Auto`] (by cost, per segment).
+    pub exact_affine: ExactAffine,
 }
 
 impl Default for SimSettings {
@@ -133,11 +199,12 @@ impl Default for SimSettings {
             dt_out: None,
             max_step: f64::INFINITY,
             event_tol: 0.0,
+            set_tol: 1e-9,
             guard_checks: 3,
             zeno_max_rate: 1e6,
             zeno_window: 10,
             max_total_jumps: 10_000_000,
-            exact_affine: true,
+            exact_affine: ExactAffine::Auto,
         }
     }
 }
@@ -168,6 +235,8 @@ impl SimSettings {
         max_step: f64);
     setter!(/// Sets [`event_tol`](Self::event_tol).
         event_tol: f64);
+    setter!(/// Sets [`set_tol`](Self::set_tol).
+        set_tol: f64);
     setter!(/// Sets [`guard_checks`](Self::guard_checks).
         guard_checks: u32);
     setter!(/// Sets [`zeno_max_rate`](Self::zeno_max_rate).
@@ -176,8 +245,13 @@ impl SimSettings {
         zeno_window: u32);
     setter!(/// Sets [`max_total_jumps`](Self::max_total_jumps).
         max_total_jumps: u64);
-    setter!(/// Sets [`exact_affine`](Self::exact_affine).
-        exact_affine: bool);
+    /// Sets [`exact_affine`](Self::exact_affine) (`true`/`false` mean
+    /// [`ExactAffine::On`]/[`ExactAffine::Off`]).
+    #[must_use]
+    pub fn exact_affine(mut self, value: impl Into<ExactAffine>) -> Self {
+        self.exact_affine = value.into();
+        self
+    }
 
     /// Checks every field; the error names the first faulty one.
     pub fn validate(&self) -> Result<(), SimError> {
@@ -195,7 +269,9 @@ impl SimSettings {
             );
         }
         match self.solver {
-            Solver::Dopri5 { rtol, atol } | Solver::Dop853 { rtol, atol } => {
+            Solver::Dopri5 { rtol, atol }
+            | Solver::Dop853 { rtol, atol }
+            | Solver::Radau5 { rtol, atol } => {
                 if !positive(rtol) {
                     return bad("solver.rtol", format!("must be finite and > 0, got {rtol}"));
                 }
@@ -224,6 +300,12 @@ impl SimSettings {
             return bad(
                 "event_tol",
                 format!("must be in [0, 1e-3], got {}", self.event_tol),
+            );
+        }
+        if !(self.set_tol.is_finite() && self.set_tol >= 0.0) {
+            return bad(
+                "set_tol",
+                format!("must be finite and ≥ 0, got {}", self.set_tol),
             );
         }
         if self.guard_checks > 64 {

@@ -21,10 +21,26 @@
 //! | D = ∪ D_i | one [`JumpRule`] per `i`: [`HybridSystem::jump_set`] (predicate) + [`HybridSystem::jump_guard`] (continuous, ≥ 0 on D_i's side) |
 //! | G = G_i on D_i | [`HybridSystem::jump_map`], set-valued through the seeded [`SimRng`] |
 //!
-//! Guards are continuous functions whose zero crossings mark the boundary of
-//! a set, so that the engine can localize the first time a flow reaches `D_i`
-//! (or leaves `C`) by root finding. The predicates are authoritative for
-//! membership; the guards only tell the engine where to look.
+//! # Sets as boolean combinations of atoms
+//!
+//! A set is described to the engine by its *atoms* `g_k(t, x) ⋈ 0`
+//! (`⋈` one of [`Cmp`]) and a monotone boolean structure over them
+//! ([`SetExpr`]: `and`/`or` of atoms, negations already pushed into the
+//! comparisons), returned by [`HybridSystem::set_atoms`] and evaluated by
+//! [`HybridSystem::atom_values`]. An atom that cannot change during a flow
+//! (it depends only on parameters, the jump counter or states whose flow is
+//! zero) is marked `flows = false`: the engine evaluates it once per flow
+//! segment and never root-finds on it. The engine watches every flowing
+//! atom individually, localizes each change of its sign, and re-evaluates
+//! the whole set at each candidate in time order (see the
+//! [engine docs](super)).
+//!
+//! A system that does not describe its atoms (the default, `None`) is
+//! watched through one atom per set, its guard ([`HybridSystem::jump_guard`]
+//! ≥ 0, [`HybridSystem::flow_guard`] ≥ 0), and the predicates
+//! ([`HybridSystem::jump_set`], [`HybridSystem::flow_set`]) decide
+//! membership at each candidate. In both cases the predicates must agree
+//! with the atoms.
 
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -90,6 +106,129 @@ pub enum GuardKind {
         /// Value at which the rule fires.
         threshold: f64,
     },
+}
+
+/// How an atom compares its value `g` with zero.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Cmp {
+    /// `g < 0`
+    Lt,
+    /// `g ≤ 0`
+    Le,
+    /// `g > 0`
+    Gt,
+    /// `g ≥ 0`
+    Ge,
+    /// `g = 0`
+    Eq,
+    /// `g ≠ 0`
+    Ne,
+}
+
+impl Cmp {
+    /// Whether `g ⋈ 0` holds exactly (`false` for NaN, except `≠`).
+    pub fn holds(self, g: f64) -> bool {
+        match self {
+            Cmp::Lt => g < 0.0,
+            Cmp::Le => g <= 0.0,
+            Cmp::Gt => g > 0.0,
+            Cmp::Ge => g >= 0.0,
+            Cmp::Eq => g == 0.0,
+            Cmp::Ne => g != 0.0,
+        }
+    }
+
+    /// Whether `g` is within `tol ≥ 0` of the set `{g ⋈ 0}`: `g ≥ −tol`
+    /// for `≥`, `g > −tol` for `>`, `|g| ≤ tol` for `=`; `≠` is not relaxed
+    /// (a point exactly on its excluded level set is not a rounding case).
+    pub fn holds_within(self, g: f64, tol: f64) -> bool {
+        if tol <= 0.0 {
+            return self.holds(g);
+        }
+        match self {
+            Cmp::Lt => g < tol,
+            Cmp::Le => g <= tol,
+            Cmp::Gt => g > -tol,
+            Cmp::Ge => g >= -tol,
+            Cmp::Eq => g.abs() <= tol,
+            Cmp::Ne => g != 0.0,
+        }
+    }
+}
+
+/// One atom `g(t, x) ⋈ 0` of a set.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub struct Atom {
+    /// The comparison with zero.
+    pub cmp: Cmp,
+    /// Whether `g` can change along a flow (it depends on `t` or on a state
+    /// whose flow is not identically zero). Atoms with `flows = false` are
+    /// evaluated once per flow segment.
+    pub flows: bool,
+}
+
+/// A monotone boolean combination of the atoms of one set.
+#[derive(Debug, Clone, PartialEq)]
+pub enum SetExpr {
+    /// Always true or always false.
+    Const(bool),
+    /// Atom `k` of the set's [`SetAtoms::atoms`].
+    Atom(usize),
+    /// All of them hold.
+    And(Vec<SetExpr>),
+    /// At least one of them holds.
+    Or(Vec<SetExpr>),
+}
+
+impl SetExpr {
+    /// The value of the combination given the truth of each atom.
+    pub fn eval(&self, truth: &[bool]) -> bool {
+        match self {
+            SetExpr::Const(b) => *b,
+            SetExpr::Atom(k) => truth[*k],
+            SetExpr::And(v) => v.iter().all(|e| e.eval(truth)),
+            SetExpr::Or(v) => v.iter().any(|e| e.eval(truth)),
+        }
+    }
+
+    /// The atoms whose failure makes the combination fail, given the truth
+    /// of each atom (for diagnostics): for a failing `and`, the failing
+    /// conjuncts' atoms; for a failing `or`, every alternative's.
+    pub fn failing_atoms(&self, truth: &[bool], out: &mut Vec<usize>) {
+        match self {
+            SetExpr::Const(_) => {}
+            SetExpr::Atom(k) => {
+                if !truth[*k] {
+                    out.push(*k);
+                }
+            }
+            SetExpr::And(v) | SetExpr::Or(v) => {
+                for e in v {
+                    if !e.eval(truth) {
+                        e.failing_atoms(truth, out);
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// The atoms of a set and their boolean structure; see the module docs.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SetAtoms {
+    /// The atoms, indexed by [`SetExpr::Atom`].
+    pub atoms: Vec<Atom>,
+    /// The set as a monotone combination of the atoms.
+    pub expr: SetExpr,
+}
+
+/// Which set of the system: the flow set C or the jump set D_i of a rule.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum SetRef {
+    /// The flow set C.
+    Flow,
+    /// The jump set of rule `i`.
+    Jump(usize),
 }
 
 /// Structure of the flow map that lets the engine advance flows exactly.
@@ -160,6 +299,58 @@ pub trait HybridSystem {
         x_plus: &mut [f64],
     );
 
+    /// The atoms and boolean structure of `set`, or `None` (the default)
+    /// to have the engine watch the set's guard as its only atom. Called
+    /// once per run.
+    fn set_atoms(&self, _set: SetRef) -> Option<SetAtoms> {
+        None
+    }
+
+    /// Writes the value `g_k(t, j, x)` of each atom of `set` into `out`
+    /// (length: the number of atoms of [`set_atoms`](Self::set_atoms)).
+    /// With `flowing_only`, only the atoms with `flows = true` need be
+    /// written. Called only for sets that have atoms.
+    fn atom_values(
+        &self,
+        _set: SetRef,
+        _at: HybridTime,
+        _x: &[f64],
+        _flowing_only: bool,
+        _out: &mut [f64],
+    ) {
+    }
+
+    /// The Jacobian ∂f/∂x of the flow map at (`at`, `x`): writes the n×n
+    /// matrix row-major into `jac` (`jac[r·n + c] = ∂f_r/∂x_c`). Used by the
+    /// implicit solver ([`Solver::Radau5`](super::Solver::Radau5)). The
+    /// default takes forward differences of [`flow_map`](Self::flow_map)
+    /// ([`finite_difference_jacobian`]: n + 1 evaluations, about half the
+    /// digits); override it with the exact derivative where known.
+    fn jacobian(&self, at: HybridTime, x: &[f64], jac: &mut [f64]) {
+        finite_difference_jacobian(self, at, x, jac);
+    }
+
+    /// Writes the atoms of every set that has atoms at once, in the order
+    /// C, D_0, D_1, … (sets without atoms left out), each set's atoms as
+    /// [`atom_values`](Self::atom_values) writes them, one set after the
+    /// other into `out` (length: the total number of atoms; with
+    /// `flowing_only`, only the flowing atoms need be written). Returns
+    /// `false` (the default) if the system does not offer this; the engine
+    /// then evaluates the sets one by one. A system whose sets share
+    /// subexpressions evaluates them once here (the compiled model runs one
+    /// program for all sets): the engine uses it at the points where it
+    /// looks at all watched sets. The values must equal `atom_values`'
+    /// to the last bit.
+    fn all_atom_values(
+        &self,
+        _at: HybridTime,
+        _x: &[f64],
+        _flowing_only: bool,
+        _out: &mut [f64],
+    ) -> bool {
+        false
+    }
+
     /// Structure of the flow map; [`FlowStructure::General`] by default.
     fn flow_structure(&self) -> FlowStructure {
         FlowStructure::General
@@ -175,6 +366,33 @@ pub trait HybridSystem {
     /// Writes g(x, t, j) (row-major n×m) into `g`. Called only if
     /// [`noise_dim`](Self::noise_dim) > 0.
     fn diffusion(&self, _at: HybridTime, _x: &[f64], _g: &mut [f64]) {}
+}
+
+/// ∂f/∂x of `sys`'s flow map at (`at`, `x`) by forward differences, written
+/// row-major into `jac`: column c is `(f(x + δ e_c) − f(x)) / δ` with
+/// `δ = √ε · max(|x_c|, 1)`. Allocates three state-sized vectors.
+pub fn finite_difference_jacobian<S: HybridSystem + ?Sized>(
+    sys: &S,
+    at: HybridTime,
+    x: &[f64],
+    jac: &mut [f64],
+) {
+    let n = x.len();
+    let mut xp = x.to_vec();
+    let mut f0 = vec![0.0; n];
+    let mut f1 = vec![0.0; n];
+    sys.flow_map(at, x, &mut f0);
+    for c in 0..n {
+        let delta = f64::EPSILON.sqrt() * x[c].abs().max(1.0);
+        xp[c] = x[c] + delta;
+        // The step actually taken (rounding of x + δ).
+        let delta = xp[c] - x[c];
+        sys.flow_map(at, &xp, &mut f1);
+        for r in 0..n {
+            jac[r * n + c] = (f1[r] - f0[r]) / delta;
+        }
+        xp[c] = x[c];
+    }
 }
 
 /// The run's seeded random source, passed to jump maps (and to the

@@ -5,6 +5,7 @@
 use std::collections::HashMap;
 
 use crate::check::dag::{BinFn, Dag, Node, NodeId, UnFn};
+use crate::engine::{Cmp, SetExpr};
 
 /// A continuous function that is ≥ 0 where the condition `cond` holds (on
 /// its side of the boundary): `a <= b` → `b − a`, `a >= b` → `a − b`,
@@ -44,6 +45,123 @@ pub(crate) fn guard_of(dag: &mut Dag, cond: NodeId) -> NodeId {
             let minus = dag.konst(-1.0);
             dag.select(cond, one, minus)
         }
+    }
+}
+
+/// A condition as atoms `g ⋈ 0` (negations pushed into the comparisons)
+/// combined by `and`/`or`; `nodes[k]` is the DAG node of atom `k`'s `g`.
+pub(crate) struct CondAtoms {
+    pub atoms: Vec<(Cmp, NodeId)>,
+    pub expr: SetExpr,
+}
+
+/// The atoms of condition `cond` in negation normal form: `a ⋈ b` becomes
+/// `a − b ⋈ 0`, `!` flips a comparison (`<` ↔ `>=`, `==` ↔ `!=`), `if c
+/// then p else q` becomes `(c && p) || (!c && q)`, and any other
+/// expression `e` used as a condition is the atom `e != 0`. Comparisons
+/// whose `a − b` folds to a constant become constants.
+pub(crate) fn atoms_of(dag: &mut Dag, cond: NodeId) -> CondAtoms {
+    let mut out = CondAtoms {
+        atoms: Vec::new(),
+        expr: SetExpr::Const(true),
+    };
+    out.expr = nnf(dag, cond, false, &mut out.atoms);
+    out
+}
+
+fn nnf(dag: &mut Dag, cond: NodeId, neg: bool, atoms: &mut Vec<(Cmp, NodeId)>) -> SetExpr {
+    let cmp_of = |f: BinFn| match f {
+        BinFn::Lt => Some(Cmp::Lt),
+        BinFn::Le => Some(Cmp::Le),
+        BinFn::Gt => Some(Cmp::Gt),
+        BinFn::Ge => Some(Cmp::Ge),
+        BinFn::Eq => Some(Cmp::Eq),
+        BinFn::Ne => Some(Cmp::Ne),
+        _ => None,
+    };
+    let flip = |c: Cmp| match c {
+        Cmp::Lt => Cmp::Ge,
+        Cmp::Le => Cmp::Gt,
+        Cmp::Gt => Cmp::Le,
+        Cmp::Ge => Cmp::Lt,
+        Cmp::Eq => Cmp::Ne,
+        Cmp::Ne => Cmp::Eq,
+    };
+    let mut atom = |dag: &mut Dag, cmp: Cmp, g: NodeId| {
+        let cmp = if neg { flip(cmp) } else { cmp };
+        if let Some(c) = dag.as_const(g) {
+            return SetExpr::Const(cmp.holds(c));
+        }
+        let k = match atoms.iter().position(|&a| a == (cmp, g)) {
+            Some(k) => k,
+            None => {
+                atoms.push((cmp, g));
+                atoms.len() - 1
+            }
+        };
+        SetExpr::Atom(k)
+    };
+    match dag.node(cond) {
+        Node::Bin(f, a, b) if cmp_of(f).is_some() => {
+            let g = dag.bin(BinFn::Sub, a, b);
+            atom(dag, cmp_of(f).expect("a comparison"), g)
+        }
+        Node::Bin(f @ (BinFn::And | BinFn::Or), p, q) => {
+            let (p, q) = (nnf(dag, p, neg, atoms), nnf(dag, q, neg, atoms));
+            if (f == BinFn::And) != neg {
+                SetExpr::And(vec![p, q])
+            } else {
+                SetExpr::Or(vec![p, q])
+            }
+        }
+        Node::Un(UnFn::Not, p) => nnf(dag, p, !neg, atoms),
+        Node::Select(c, p, q) => {
+            let (c_t, c_f) = (nnf(dag, c, false, atoms), nnf(dag, c, true, atoms));
+            let (p, q) = (nnf(dag, p, neg, atoms), nnf(dag, q, neg, atoms));
+            SetExpr::Or(vec![SetExpr::And(vec![c_t, p]), SetExpr::And(vec![c_f, q])])
+        }
+        Node::Const(b) => SetExpr::Const((f64::from_bits(b) != 0.0) != neg),
+        _ => atom(dag, Cmp::Ne, cond),
+    }
+}
+
+/// Which nodes of a graph can change along a flow: time (not the jump
+/// count), noise, random draws, states not in `still` (the states whose
+/// flow is identically zero), and everything computed from them. Kept up to
+/// date as the graph grows ([`Varying::of`] looks only at the nodes added
+/// since its last call), so the sets of a model with thousands of rules
+/// cost one pass over the graph, not one per set.
+pub(crate) struct Varying {
+    still: Vec<bool>,
+    v: Vec<bool>,
+}
+
+impl Varying {
+    pub(crate) fn new(still: Vec<bool>) -> Self {
+        Self {
+            still,
+            v: Vec::new(),
+        }
+    }
+
+    /// Whether each node of `dag` (the graph this was used with, grown
+    /// since: nodes are only appended, after their inputs) varies.
+    pub(crate) fn of(&mut self, dag: &Dag) -> &[bool] {
+        for id in self.v.len()..dag.len() {
+            let v = &self.v;
+            let varies = match dag.node(id as NodeId) {
+                // The jump count is constant along a flow.
+                Node::Const(_) | Node::Jumps => false,
+                Node::State(k) => !self.still.get(k as usize).copied().unwrap_or(false),
+                Node::Time | Node::Wiener(_) | Node::Rand(..) => true,
+                Node::Un(_, a) => v[a as usize],
+                Node::Bin(_, a, b) => v[a as usize] || v[b as usize],
+                Node::Select(c, a, b) => v[c as usize] || v[a as usize] || v[b as usize],
+                Node::BlockOut(b, _) => dag.block(b).inputs.iter().any(|&i| v[i as usize]),
+            };
+            self.v.push(varies);
+        }
+        &self.v
     }
 }
 

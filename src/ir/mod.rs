@@ -8,12 +8,20 @@
 //! | flow set C and its guard | `flow_set`, `flow_guard` |
 //! | rule i: D_i, its guard, G_i | `rules[i].set`, `.guard`, `.map` |
 //! | initial values, outputs | `init`, `outputs` |
+//! | ∂f/∂x (nonzero entries), for the implicit solver | `jacobian` (compiled on first use) |
 //!
 //! Each program runs on a thread-local register file sized once, so the hot
 //! path (flow map, guards) neither allocates nor looks anything up by name.
+//! Unless the model says `jit = off`, every program (and every property
+//! predicate) is also compiled to machine code ([`jit`]), which
+//! [`Program::run`] then executes instead of interpreting.
 
 mod analysis;
+mod describe;
 mod inputs;
+mod jacobian;
+pub mod jit;
+pub mod metric;
 mod program;
 mod property;
 #[cfg(test)]
@@ -21,13 +29,16 @@ mod tests;
 
 use std::cell::RefCell;
 use std::collections::HashMap;
+use std::sync::{Arc, OnceLock};
+use std::time::{Duration, Instant};
 
-use crate::arc::HybridTime;
-use crate::check::dag::Node;
+use crate::arc::{HybridTime, Termination, TerminationCause};
+use crate::check::dag::{Dag, Node, NodeId};
 use crate::check::{CheckedModel, StateField};
 use crate::diagnostics::Diagnostic;
 use crate::engine::{
-    FlowStructure, GuardKind, HybridSystem, JumpRule, SimError, SimRng, SimSettings,
+    Atom, FlowStructure, GuardKind, HybridSystem, JumpRule, SetAtoms, SetRef, SimError, SimRng,
+    SimSettings, finite_difference_jacobian,
 };
 use crate::layout::{Declared, Layout, Shape};
 use crate::source::{SourceFile, Span};
@@ -52,14 +63,184 @@ fn with_regs<R>(need: usize, f: impl FnOnce(&mut [f64]) -> R) -> R {
     })
 }
 
+/// A set compiled for the engine: its predicate, its continuous guard, and
+/// its atoms (all of them; only the flowing ones) with their structure.
+#[derive(Debug, Clone)]
+struct SetCode {
+    cond: Program,
+    guard: Program,
+    atoms: SetAtoms,
+    all: Program,
+    flowing: Program,
+    /// Atom index of each output of `flowing`.
+    flowing_idx: Vec<usize>,
+    /// Source-like text of each atom (only for the flow set).
+    atom_text: Vec<String>,
+    /// The node of each atom.
+    nodes: Vec<NodeId>,
+}
+
+impl SetCode {
+    /// The code of the set `cond`; with `names` (state names), the text of
+    /// each atom too, for messages.
+    fn new(
+        dag: &mut Dag,
+        frame: Frame,
+        cond: NodeId,
+        varying: &mut analysis::Varying,
+        names: Option<&[String]>,
+    ) -> Self {
+        let g = analysis::guard_of(dag, cond);
+        let ca = analysis::atoms_of(dag, cond);
+        let varying = varying.of(dag);
+        let atoms: Vec<Atom> = ca
+            .atoms
+            .iter()
+            .map(|&(cmp, n)| Atom {
+                cmp,
+                flows: varying[n as usize],
+            })
+            .collect();
+        let nodes: Vec<NodeId> = ca.atoms.iter().map(|&(_, n)| n).collect();
+        let flowing_idx: Vec<usize> = (0..atoms.len()).filter(|&k| atoms[k].flows).collect();
+        let fnodes: Vec<NodeId> = flowing_idx.iter().map(|&k| nodes[k]).collect();
+        let atom_text = names.map_or_else(Vec::new, |names| {
+            ca.atoms
+                .iter()
+                .map(|&(cmp, g)| describe::atom_text(dag, cmp, g, names))
+                .collect()
+        });
+        SetCode {
+            atom_text,
+            cond: Program::compile(dag, frame, &[cond]),
+            guard: Program::compile(dag, frame, &[g]),
+            all: Program::compile(dag, frame, &nodes),
+            flowing: Program::compile(dag, frame, &fnodes),
+            flowing_idx,
+            nodes,
+            atoms: SetAtoms {
+                atoms,
+                expr: ca.expr,
+            },
+        }
+    }
+
+    /// Its programs, the one the engine evaluates most often first (the
+    /// flowing atoms, at every guard check).
+    fn programs_mut(&mut self) -> [&mut Program; 4] {
+        [
+            &mut self.flowing,
+            &mut self.guard,
+            &mut self.cond,
+            &mut self.all,
+        ]
+    }
+
+    fn nregs(&self) -> usize {
+        [&self.cond, &self.guard, &self.all, &self.flowing]
+            .iter()
+            .map(|p| p.nregs)
+            .max()
+            .unwrap_or(0)
+    }
+}
+
+/// The atoms of every set in one program (C's first, then each rule's, as
+/// [`HybridSystem::all_atom_values`] lays them out), so that what several
+/// sets share (the reference trajectory's `sin(0.5 t)` in the triggers of
+/// five nodes) is computed once per point.
+#[derive(Debug, Clone)]
+struct AllAtoms {
+    all: Program,
+    flowing: Program,
+    /// Position in the layout of each output of `flowing`.
+    flowing_pos: Vec<usize>,
+}
+
+impl AllAtoms {
+    fn new<'a>(dag: &Dag, frame: Frame, sets: impl Iterator<Item = &'a SetCode>) -> Self {
+        let (mut all, mut flowing, mut flowing_pos) = (Vec::new(), Vec::new(), Vec::new());
+        for code in sets {
+            let off = all.len();
+            all.extend_from_slice(&code.nodes);
+            for &k in &code.flowing_idx {
+                flowing.push(code.nodes[k]);
+                flowing_pos.push(off + k);
+            }
+        }
+        AllAtoms {
+            all: Program::compile(dag, frame, &all),
+            flowing: Program::compile(dag, frame, &flowing),
+            flowing_pos,
+        }
+    }
+}
+
 #[derive(Debug, Clone)]
 struct RuleCode {
-    set: Program,
-    guard: Program,
+    set: SetCode,
     map: Program,
     /// State component of each output of `map`.
     targets: Vec<usize>,
     span: Span,
+}
+
+/// The exact Jacobian of the flow: a program computing its entries that
+/// are not constant, and the constant ones.
+#[derive(Debug)]
+struct JacobianCode {
+    program: Program,
+    /// Row-major entry (r·n + c) of each output of `program`.
+    entries: Vec<usize>,
+    /// All n² entries with the constant ones filled in.
+    constants: Vec<f64>,
+}
+
+/// The flow's graph, kept to derive the Jacobian on first use (only the
+/// implicit solver asks for it).
+#[derive(Debug)]
+struct JacobianSource {
+    dag: Dag,
+    /// The flow (noise set to 0), one node per state.
+    drift: Vec<NodeId>,
+    /// Whether the model's programs run as machine code (then so does the
+    /// Jacobian's).
+    jit: bool,
+    code: OnceLock<Option<JacobianCode>>,
+}
+
+impl JacobianSource {
+    fn code(&self, frame: Frame) -> Option<&JacobianCode> {
+        self.code
+            .get_or_init(|| {
+                let n = self.drift.len();
+                let mut dag = self.dag.clone();
+                let nodes = jacobian::derivative_nodes(&mut dag, &self.drift, n)?;
+                let mut constants = vec![0.0; n * n];
+                let mut entries = Vec::new();
+                let mut outputs = Vec::new();
+                for (e, &node) in nodes.iter().enumerate() {
+                    match dag.as_const(node) {
+                        Some(v) => constants[e] = v,
+                        None => {
+                            entries.push(e);
+                            outputs.push(node);
+                        }
+                    }
+                }
+                let mut program = Program::compile(&dag, frame, &outputs);
+                if self.jit {
+                    // Interpreted if the JIT declines (size, machine).
+                    let _ = jit::compile(&mut [&mut program], 1);
+                }
+                Some(JacobianCode {
+                    program,
+                    entries,
+                    constants,
+                })
+            })
+            .as_ref()
+    }
 }
 
 /// A `.hyb` model compiled for the engine. Build with
@@ -77,9 +258,10 @@ pub struct CompiledModel {
     fields: Vec<StateField>,
     flow: Program,
     diffusion: Program,
-    flow_set: Option<(Program, Program, Span)>,
+    flow_set: Option<(SetCode, Span)>,
     rules: Vec<JumpRule>,
     rule_code: Vec<RuleCode>,
+    atoms: AllAtoms,
     init: Program,
     outputs: Program,
     structure: FlowStructure,
@@ -96,6 +278,31 @@ pub struct CompiledModel {
     param_draws: Vec<crate::props::Dist>,
     designs: Vec<crate::check::DesignReport>,
     properties: Vec<(crate::props::Property, Span)>,
+    metrics: metric::Metrics,
+    jit: JitStatus,
+    sweep: Option<crate::check::sweep::SweepDecl>,
+    jacobian: Arc<JacobianSource>,
+}
+
+/// Whether a compiled model runs machine code ([`CompiledModel::jit`]).
+#[derive(Debug, Clone, PartialEq)]
+pub enum JitStatus {
+    /// The programs run as machine code; `interpreted` of them (beyond
+    /// the JIT's size limits, see [`jit::MAX_TOTAL_OPS`]) stay interpreted.
+    Native {
+        /// Programs that run without the interpreter: compiled to machine
+        /// code (property predicates included) or computing nothing.
+        compiled: usize,
+        /// Programs left to the interpreter.
+        interpreted: usize,
+        /// Time spent generating the code.
+        time: Duration,
+    },
+    /// `jit = off`: interpreted.
+    Off,
+    /// The JIT was wanted but could not run (unsupported machine, code
+    /// generation error): interpreted.
+    Unavailable(jit::JitError),
 }
 
 fn shape(rows: usize, cols: usize) -> Shape {
@@ -148,18 +355,25 @@ impl CompiledModel {
         } else {
             FlowStructure::General
         };
+        // States whose flow is identically zero (modes, counters, held
+        // values): atoms of them alone do not change along a flow.
+        let still: Vec<bool> = (0..m.dim)
+            .map(|k| {
+                m.dag.as_const(drift[k]) == Some(0.0)
+                    && diff[k * m.wiener_dim..(k + 1) * m.wiener_dim]
+                        .iter()
+                        .all(|&d| m.dag.as_const(d) == Some(0.0))
+            })
+            .collect();
+        let mut varying = analysis::Varying::new(still);
+        let names = self::state_layout(&m.fields, true).flat_names(m.dim);
         let flow_set = m.flow_set.map(|(cond, span)| {
-            let g = analysis::guard_of(&mut m.dag, cond);
-            (
-                Program::compile(&m.dag, frame, &[cond]),
-                Program::compile(&m.dag, frame, &[g]),
-                span,
-            )
+            let code = SetCode::new(&mut m.dag, frame, cond, &mut varying, Some(&names));
+            (code, span)
         });
         let mut rules = Vec::new();
         let mut rule_code = Vec::new();
         for r in &m.rules {
-            let g = analysis::guard_of(&mut m.dag, r.guard);
             let kind = match r.timer {
                 Some((index, threshold)) => GuardKind::Timer { index, threshold },
                 None => detect_timer(&m, r.guard).unwrap_or(GuardKind::General),
@@ -172,8 +386,7 @@ impl CompiledModel {
             });
             let values: Vec<_> = r.resets.iter().map(|&(_, n)| n).collect();
             rule_code.push(RuleCode {
-                set: Program::compile(&m.dag, frame, &[r.guard]),
-                guard: Program::compile(&m.dag, frame, &[g]),
+                set: SetCode::new(&mut m.dag, frame, r.guard, &mut varying, None),
                 map: Program::compile(&m.dag, frame, &values),
                 targets: r.resets.iter().map(|&(k, _)| k).collect(),
                 span: r.span,
@@ -181,31 +394,98 @@ impl CompiledModel {
         }
         let out_nodes: Vec<_> = m.outputs.iter().flat_map(|o| o.nodes.clone()).collect();
         let flow = Program::compile(&m.dag, frame, &drift);
+        let flow_nodes = drift.clone();
         let diffusion = Program::compile(&m.dag, frame, &diff);
         let init = Program::compile(&m.dag, frame, &m.init);
         let outputs = Program::compile(&m.dag, frame, &out_nodes);
-        let mut nregs = [&flow, &diffusion, &init, &outputs]
-            .iter()
-            .map(|p| p.nregs)
-            .max()
-            .unwrap_or(0);
+        let atoms = AllAtoms::new(
+            &m.dag,
+            frame,
+            flow_set
+                .iter()
+                .map(|(c, _)| c)
+                .chain(rule_code.iter().map(|rc| &rc.set)),
+        );
+        let mut nregs = [
+            &flow,
+            &diffusion,
+            &init,
+            &outputs,
+            &atoms.all,
+            &atoms.flowing,
+        ]
+        .iter()
+        .map(|p| p.nregs)
+        .max()
+        .unwrap_or(0);
         for rc in &rule_code {
-            nregs = nregs
-                .max(rc.set.nregs)
-                .max(rc.guard.nregs)
-                .max(rc.map.nregs);
+            nregs = nregs.max(rc.set.nregs()).max(rc.map.nregs);
         }
-        if let Some((a, b, _)) = &flow_set {
-            nregs = nregs.max(a.nregs).max(b.nregs);
+        if let Some((code, _)) = &flow_set {
+            nregs = nregs.max(code.nregs());
         }
         nregs = nregs.max(frame.fixed());
         let state_layout = state_layout(&m.fields, false);
         let (output_layout, output_dim) = output_layout(&m.outputs);
-        let names = self::state_layout(&m.fields, true).flat_names(m.dim);
         let inputs = inputs::random_inputs(&m);
         let param_inputs = m.random_params.len();
         let param_draws = m.random_params.iter().map(|i| i.dist).collect();
-        let properties = property::compile(&m.dag, &m.properties, m.dim, &source);
+        let want_jit = m.jit.unwrap_or(true);
+        let jit_start = Instant::now();
+        let (properties, native_props) =
+            property::compile(&m.dag, &m.properties, m.dim, &source, want_jit);
+        let mut metrics = metric::Metrics::compile(&m.dag, &m.metrics, m.dim, m.rules.len());
+        let mut flow = flow;
+        let mut diffusion = diffusion;
+        let mut init = init;
+        let mut outputs = outputs;
+        let mut flow_set = flow_set;
+        let mut rule_code = rule_code;
+        let mut atoms = atoms;
+        let jit = if want_jit {
+            // Hottest first (the JIT's budget may run out): the flow, then
+            // the atoms the engine watches at every step, all sets' at once
+            // and each set's (these get the better register allocator),
+            // then the sets' other programs (evaluated at event candidates
+            // and jumps), then the rest.
+            let mut progs: Vec<&mut Program> = vec![&mut flow, &mut diffusion, &mut atoms.flowing];
+            let (mut codes, mut maps) = (Vec::new(), Vec::new());
+            if let Some((code, _)) = &mut flow_set {
+                codes.push(code);
+            }
+            for rc in &mut rule_code {
+                codes.push(&mut rc.set);
+                maps.push(&mut rc.map);
+            }
+            let mut sets = Vec::new();
+            for code in codes {
+                let [flowing, rest @ ..] = code.programs_mut();
+                progs.push(flowing);
+                sets.extend(rest);
+            }
+            let hot = progs.len();
+            progs.push(&mut atoms.all);
+            progs.extend(sets);
+            progs.extend([&mut outputs, metrics.sample_mut(), &mut init]);
+            progs.extend(maps);
+            let total = progs.len();
+            match jit::compile(&mut progs, hot) {
+                Ok(compiled) => JitStatus::Native {
+                    compiled: compiled + native_props,
+                    interpreted: total - compiled,
+                    time: jit_start.elapsed(),
+                },
+                Err(e) => JitStatus::Unavailable(e),
+            }
+        } else {
+            JitStatus::Off
+        };
+        let jacobian = Arc::new(JacobianSource {
+            dag: std::mem::take(&mut m.dag),
+            drift: flow_nodes,
+            jit: matches!(jit, JitStatus::Native { .. }),
+            code: OnceLock::new(),
+        });
         CompiledModel {
             name: m.name,
             source,
@@ -221,6 +501,7 @@ impl CompiledModel {
             flow_set,
             rules,
             rule_code,
+            atoms,
             init,
             outputs,
             structure,
@@ -234,7 +515,25 @@ impl CompiledModel {
             param_draws,
             designs: m.designs,
             properties,
+            metrics,
+            jit,
+            sweep: m.sweep,
+            jacobian,
         }
+    }
+
+    /// Whether ∂f/∂x is derived symbolically (compiled on first call):
+    /// false when the flow reaches a matrix block (`inv`, `solve`, `expm`,
+    /// `norm2`) of the state or is too large, in which case
+    /// [`HybridSystem::jacobian`] takes finite differences.
+    pub fn has_exact_jacobian(&self) -> bool {
+        self.jacobian.code(self.frame).is_some()
+    }
+
+    /// Whether the model's programs run as machine code, and how long
+    /// generating it took.
+    pub fn jit(&self) -> &JitStatus {
+        &self.jit
     }
 
     /// The model's name (`model NAME`).
@@ -326,6 +625,18 @@ impl CompiledModel {
         self.properties.iter().map(|(p, _)| p.clone()).collect()
     }
 
+    /// The model's `metric` declarations, compiled: a
+    /// [`MetricSink`](metric::MetricSink) per run reduces it as it streams.
+    pub fn metrics(&self) -> &metric::Metrics {
+        &self.metrics
+    }
+
+    /// The model's `sweep { … }` block (the grid and settings `hybsim
+    /// sweep` runs without `--grid`), if it has one.
+    pub fn sweep(&self) -> Option<&crate::check::sweep::SweepDecl> {
+        self.sweep.as_ref()
+    }
+
     /// Span of the declaration of property `name`.
     pub fn property_span(&self, name: &str) -> Option<Span> {
         self.properties
@@ -357,8 +668,8 @@ impl CompiledModel {
         let mut x0 = vec![0.0; self.frame.n];
         let zero = vec![0.0; self.frame.n];
         with_regs(self.nregs, |regs| {
-            self.load(regs, HybridTime::new(0.0, 0), &zero);
-            self.init.run(regs, Some(rng));
+            self.init
+                .run_at(regs, HybridTime::new(0.0, 0), &zero, Some(rng));
             for (o, &r) in x0.iter_mut().zip(&self.init.outs) {
                 *o = regs[r as usize];
             }
@@ -370,8 +681,7 @@ impl CompiledModel {
     /// (length [`output_dim`](Self::output_dim)).
     pub fn outputs(&self, at: HybridTime, x: &[f64], out: &mut [f64]) {
         with_regs(self.nregs, |regs| {
-            self.load(regs, at, x);
-            self.outputs.run(regs, None);
+            self.outputs.run_at(regs, at, x, None);
             for (o, &r) in out.iter_mut().zip(&self.outputs.outs) {
                 *o = regs[r as usize];
             }
@@ -424,6 +734,59 @@ impl CompiledModel {
             map.insert(name.clone(), v);
         }
         serde_json::Value::Object(map)
+    }
+
+    /// A warning for a run that ended because it could neither flow nor
+    /// jump (W0603): which case holds, the flow set's source with the atoms
+    /// that fail there and their values, and the state. `None` for other
+    /// endings.
+    pub fn termination_diagnostic(&self, term: &Termination) -> Option<Diagnostic> {
+        let TerminationCause::CannotFlowOrJump {
+            leaving,
+            failed,
+            state,
+        } = &term.cause
+        else {
+            return None;
+        };
+        let at = term.at;
+        let case = if *leaving {
+            "the flow leaves the flow set C there (the state is on its boundary, the flow points out)"
+        } else {
+            "the state is outside the flow set C"
+        };
+        let mut d = Diagnostic::warning(
+            "W0603",
+            format!(
+                "the solution can neither flow nor jump at {at}: {case}, and it is in no jump set"
+            ),
+        )
+        .help(term.help());
+        if let Some((code, span)) = &self.flow_set {
+            let fails: Vec<String> = failed
+                .iter()
+                .map(|a| {
+                    let text = code.atom_text.get(a.index).map_or("?", String::as_str);
+                    format!("`{text}` fails ({:e})", a.value)
+                })
+                .collect();
+            let label = if fails.is_empty() {
+                "the flow set".to_string()
+            } else {
+                format!("{} at {at}", fails.join(", "))
+            };
+            d = d.primary(*span, label);
+        }
+        let names = self.state_names();
+        let values: Vec<String> = state
+            .iter()
+            .enumerate()
+            .map(|(k, v)| match names.get(k) {
+                Some(n) => format!("{n} = {}", describe::number(*v)),
+                None => format!("x[{k}] = {}", describe::number(*v)),
+            })
+            .collect();
+        Some(d.note(format!("the state there: {}", values.join(", "))))
     }
 
     /// A diagnostic for a simulation error that points into the model: the
@@ -515,18 +878,18 @@ impl CompiledModel {
             .find(|f| k >= f.offset && k < f.offset + f.rows * f.cols)
     }
 
-    #[inline]
-    fn load(&self, regs: &mut [f64], at: HybridTime, x: &[f64]) {
-        regs[..self.frame.n].copy_from_slice(x);
-        regs[self.frame.time_reg()] = at.t;
-        regs[self.frame.jumps_reg()] = at.j as f64;
+    /// The compiled code of a set (`None`: C is the whole space).
+    fn set_code(&self, set: SetRef) -> Option<&SetCode> {
+        match set {
+            SetRef::Flow => self.flow_set.as_ref().map(|(c, _)| c),
+            SetRef::Jump(r) => self.rule_code.get(r).map(|c| &c.set),
+        }
     }
 
     #[inline]
     fn scalar(&self, p: &Program, at: HybridTime, x: &[f64]) -> f64 {
         with_regs(self.nregs, |regs| {
-            self.load(regs, at, x);
-            p.run(regs, None);
+            p.run_at(regs, at, x, None);
             regs[p.outs[0] as usize]
         })
     }
@@ -615,9 +978,11 @@ fn detect_timer(m: &CheckedModel, cond: crate::check::dag::NodeId) -> Option<Gua
     };
     let threshold = m.dag.as_const(b)?;
     let rate = m.dag.as_const(*m.flow.get(k as usize)?)?;
+    // Only non-strict comparisons: the timer is set exactly on its
+    // threshold, where a strict one does not hold yet.
     let ok = match f {
-        BinFn::Ge | BinFn::Gt => rate > 0.0,
-        BinFn::Le | BinFn::Lt => rate < 0.0,
+        BinFn::Ge => rate > 0.0,
+        BinFn::Le => rate < 0.0,
         _ => false,
     };
     (ok && m.wiener_dim == 0).then_some(GuardKind::Timer {
@@ -637,17 +1002,32 @@ impl HybridSystem for CompiledModel {
 
     fn flow_map(&self, at: HybridTime, x: &[f64], dx: &mut [f64]) {
         with_regs(self.nregs, |regs| {
-            self.load(regs, at, x);
-            self.flow.run(regs, None);
+            self.flow.run_at(regs, at, x, None);
             for (d, &r) in dx.iter_mut().zip(&self.flow.outs) {
                 *d = regs[r as usize];
             }
         });
     }
 
+    /// The symbolic Jacobian (see [`CompiledModel::has_exact_jacobian`]),
+    /// or finite differences.
+    fn jacobian(&self, at: HybridTime, x: &[f64], jac: &mut [f64]) {
+        let Some(code) = self.jacobian.code(self.frame) else {
+            finite_difference_jacobian(self, at, x, jac);
+            return;
+        };
+        jac.copy_from_slice(&code.constants);
+        with_regs(self.nregs.max(code.program.nregs), |regs| {
+            code.program.run_at(regs, at, x, None);
+            for (&e, &r) in code.entries.iter().zip(&code.program.outs) {
+                jac[e] = regs[r as usize];
+            }
+        });
+    }
+
     fn flow_set(&self, at: HybridTime, x: &[f64]) -> bool {
         match &self.flow_set {
-            Some((set, _, _)) => self.scalar(set, at, x) != 0.0,
+            Some((code, _)) => self.scalar(&code.cond, at, x) != 0.0,
             None => true,
         }
     }
@@ -655,7 +1035,61 @@ impl HybridSystem for CompiledModel {
     fn flow_guard(&self, at: HybridTime, x: &[f64]) -> Option<f64> {
         self.flow_set
             .as_ref()
-            .map(|(_, guard, _)| self.scalar(guard, at, x))
+            .map(|(code, _)| self.scalar(&code.guard, at, x))
+    }
+
+    fn set_atoms(&self, set: SetRef) -> Option<SetAtoms> {
+        self.set_code(set).map(|c| c.atoms.clone())
+    }
+
+    fn atom_values(
+        &self,
+        set: SetRef,
+        at: HybridTime,
+        x: &[f64],
+        flowing_only: bool,
+        out: &mut [f64],
+    ) {
+        let Some(code) = self.set_code(set) else {
+            return;
+        };
+        with_regs(self.nregs, |regs| {
+            if flowing_only {
+                code.flowing.run_at(regs, at, x, None);
+                for (&k, &r) in code.flowing_idx.iter().zip(&code.flowing.outs) {
+                    out[k] = regs[r as usize];
+                }
+            } else {
+                code.all.run_at(regs, at, x, None);
+                for (o, &r) in out.iter_mut().zip(&code.all.outs) {
+                    *o = regs[r as usize];
+                }
+            }
+        });
+    }
+
+    fn all_atom_values(
+        &self,
+        at: HybridTime,
+        x: &[f64],
+        flowing_only: bool,
+        out: &mut [f64],
+    ) -> bool {
+        let atoms = &self.atoms;
+        with_regs(self.nregs, |regs| {
+            if flowing_only {
+                atoms.flowing.run_at(regs, at, x, None);
+                for (&k, &r) in atoms.flowing_pos.iter().zip(&atoms.flowing.outs) {
+                    out[k] = regs[r as usize];
+                }
+            } else {
+                atoms.all.run_at(regs, at, x, None);
+                for (o, &r) in out.iter_mut().zip(&atoms.all.outs) {
+                    *o = regs[r as usize];
+                }
+            }
+        });
+        true
     }
 
     fn jump_rules(&self) -> &[JumpRule] {
@@ -663,11 +1097,11 @@ impl HybridSystem for CompiledModel {
     }
 
     fn jump_set(&self, rule: usize, at: HybridTime, x: &[f64]) -> bool {
-        self.scalar(&self.rule_code[rule].set, at, x) != 0.0
+        self.scalar(&self.rule_code[rule].set.cond, at, x) != 0.0
     }
 
     fn jump_guard(&self, rule: usize, at: HybridTime, x: &[f64]) -> f64 {
-        self.scalar(&self.rule_code[rule].guard, at, x)
+        self.scalar(&self.rule_code[rule].set.guard, at, x)
     }
 
     fn jump_map(
@@ -680,8 +1114,7 @@ impl HybridSystem for CompiledModel {
     ) {
         let code = &self.rule_code[rule];
         with_regs(self.nregs, |regs| {
-            self.load(regs, at, x);
-            code.map.run(regs, Some(rng));
+            code.map.run_at(regs, at, x, Some(rng));
             x_plus.copy_from_slice(x);
             for (&k, &r) in code.targets.iter().zip(&code.map.outs) {
                 x_plus[k] = regs[r as usize];
@@ -699,8 +1132,7 @@ impl HybridSystem for CompiledModel {
 
     fn diffusion(&self, at: HybridTime, x: &[f64], g: &mut [f64]) {
         with_regs(self.nregs, |regs| {
-            self.load(regs, at, x);
-            self.diffusion.run(regs, None);
+            self.diffusion.run_at(regs, at, x, None);
             for (o, &r) in g.iter_mut().zip(&self.diffusion.outs) {
                 *o = regs[r as usize];
             }

@@ -17,12 +17,13 @@
 
 use std::cell::Cell;
 
+use crate::arc::HybridTime;
 use crate::check::dag::{BinFn, BlockKind, Dag, Dist, Node, NodeId, UnFn, eval_bin, eval_un};
 use crate::engine::SimRng;
 
 /// One instruction; `d` is the destination register.
 #[derive(Debug, Clone, Copy, PartialEq)]
-enum Op {
+pub(super) enum Op {
     Const {
         d: u32,
         c: f64,
@@ -132,14 +133,21 @@ pub(crate) fn take_fault() -> Option<u32> {
 /// A compiled program: evaluates a list of output nodes.
 #[derive(Debug, Clone, Default)]
 pub(crate) struct Program {
-    ops: Vec<Op>,
-    gather: Vec<u32>,
+    pub(super) ops: Vec<Op>,
+    /// Source registers of the [`Op::Block`] inputs.
+    pub(super) gather: Vec<u32>,
     /// Terms of the [`Op::Lin`] instructions: (register or [`CONST_TERM`], coefficient).
-    lin: Vec<(u32, f64)>,
+    pub(super) lin: Vec<(u32, f64)>,
     /// Register of each output.
     pub outs: Vec<u32>,
     /// Registers needed.
     pub nregs: usize,
+    /// Number of state registers (`x`, the frame's `n`): [`run_at`](Self::run_at)
+    /// takes them from the state slice.
+    pub(super) state_regs: usize,
+    /// Machine code for the same instructions (see [`super::jit`]), used
+    /// by [`run`](Self::run) when present.
+    native: Option<super::jit::Native>,
 }
 
 /// Fixed registers of a model: state dimension and noise dimension.
@@ -175,7 +183,7 @@ fn as_reg(dag: &Dag, id: NodeId, reg: &mut [u32], ops: &mut Vec<Op>, next: &mut 
 }
 
 /// Register of an [`Op::Lin`] term that is a constant (its coefficient).
-const CONST_TERM: u32 = u32::MAX;
+pub(super) const CONST_TERM: u32 = u32::MAX;
 
 /// `a ± b`: the sign of `b`, for the nodes that [`Op::Lin`] fuses.
 fn as_sum(dag: &Dag, id: NodeId) -> Option<(NodeId, NodeId, f64)> {
@@ -209,21 +217,22 @@ fn as_scaled(dag: &Dag, id: NodeId) -> Option<(NodeId, f64)> {
 /// left-leaning chain keeps its order of additions), or as either operand
 /// if a product with a constant. Anything else (a sum on the right, a
 /// product of a sum) would change the rounding, so it stays a register.
-fn absorbed_nodes(dag: &Dag, reach: &[bool], outputs: &[NodeId]) -> Vec<bool> {
-    let mut uses = vec![0u32; dag.len()];
-    for id in 0..dag.len() as NodeId {
-        if reach[id as usize] {
-            dag.inputs(id, |i| uses[i as usize] += 1);
-        }
+/// `order` are the nodes reachable from `outputs`; `uses` (all zero) and
+/// `absorbed` (all false) are indexed by node and filled for them.
+fn absorbed_nodes(
+    dag: &Dag,
+    order: &[NodeId],
+    outputs: &[NodeId],
+    uses: &mut [u32],
+    absorbed: &mut [bool],
+) {
+    for &id in order {
+        dag.inputs(id, |i| uses[i as usize] += 1);
     }
     for &o in outputs {
         uses[o as usize] += 1;
     }
-    let mut absorbed = vec![false; dag.len()];
-    for id in 0..dag.len() as NodeId {
-        if !reach[id as usize] {
-            continue;
-        }
+    for &id in order {
         if let Some((a, b, _)) = as_sum(dag, id) {
             if uses[a as usize] == 1 && (as_sum(dag, a).is_some() || as_scaled(dag, a).is_some()) {
                 absorbed[a as usize] = true;
@@ -233,7 +242,58 @@ fn absorbed_nodes(dag: &Dag, reach: &[bool], outputs: &[NodeId]) -> Vec<bool> {
             }
         }
     }
-    absorbed
+}
+
+/// Per-node work arrays of [`Program::compile`], kept per thread and reset
+/// after each program over the nodes it touched, so that compiling a
+/// program costs time in its own size, not in the size of the graph (a
+/// model with thousands of jump maps compiles each from one shared graph).
+#[derive(Default)]
+struct Scratch {
+    seen: Vec<bool>,
+    uses: Vec<u32>,
+    absorbed: Vec<bool>,
+    reg: Vec<u32>,
+}
+
+thread_local! {
+    static SCRATCH: std::cell::RefCell<Scratch> = std::cell::RefCell::default();
+}
+
+impl Scratch {
+    /// The nodes reachable from `roots`, in increasing id order (a
+    /// topological order).
+    fn reachable(&mut self, dag: &Dag, roots: &[NodeId]) -> Vec<NodeId> {
+        let n = dag.len();
+        if self.seen.len() < n {
+            self.seen.resize(n, false);
+            self.uses.resize(n, 0);
+            self.absorbed.resize(n, false);
+            self.reg.resize(n, u32::MAX);
+        }
+        let mut order = Vec::new();
+        let mut stack: Vec<NodeId> = roots.to_vec();
+        while let Some(id) = stack.pop() {
+            if std::mem::replace(&mut self.seen[id as usize], true) {
+                continue;
+            }
+            order.push(id);
+            dag.inputs(id, |i| stack.push(i));
+        }
+        order.sort_unstable();
+        order
+    }
+
+    /// Back to the all-default state after a program over `order`.
+    fn reset(&mut self, order: &[NodeId]) {
+        for &id in order {
+            let i = id as usize;
+            self.seen[i] = false;
+            self.uses[i] = 0;
+            self.absorbed[i] = false;
+            self.reg[i] = u32::MAX;
+        }
+    }
 }
 
 /// Appends the terms of node `id`, times `sign`, in evaluation order: the
@@ -278,20 +338,36 @@ impl Program {
     /// [`compile`](Self::compile), with sums fused into [`Op::Lin`] or not
     /// (the reference the fused programs are tested against).
     fn compile_with(dag: &Dag, frame: Frame, outputs: &[NodeId], fuse: bool) -> Self {
-        let reach = dag.reachable(outputs);
-        let mut reg: Vec<u32> = vec![u32::MAX; dag.len()];
+        SCRATCH.with(|s| match s.try_borrow_mut() {
+            Ok(mut s) => Self::compile_in(dag, frame, outputs, fuse, &mut s),
+            Err(_) => Self::compile_in(dag, frame, outputs, fuse, &mut Scratch::default()),
+        })
+    }
+
+    fn compile_in(
+        dag: &Dag,
+        frame: Frame,
+        outputs: &[NodeId],
+        fuse: bool,
+        scratch: &mut Scratch,
+    ) -> Self {
+        let order = scratch.reachable(dag, outputs);
+        let Scratch {
+            uses,
+            absorbed,
+            reg,
+            ..
+        } = scratch;
         let mut next = frame.fixed() as u32;
         let mut ops = Vec::new();
         let mut gather = Vec::new();
         let mut done_blocks: Vec<Option<u32>> = Vec::new();
         let mut lin = Vec::new();
-        let absorbed = if fuse {
-            absorbed_nodes(dag, &reach, outputs)
-        } else {
-            vec![false; dag.len()]
-        };
-        for id in 0..dag.len() as NodeId {
-            if !reach[id as usize] || absorbed[id as usize] {
+        if fuse {
+            absorbed_nodes(dag, &order, outputs, uses, absorbed);
+        }
+        for &id in &order {
+            if absorbed[id as usize] {
                 continue;
             }
             let node = dag.node(id);
@@ -316,13 +392,13 @@ impl Program {
                 _ => {}
             }
             let d = next;
-            let r = |x: NodeId, reg: &mut Vec<u32>, ops: &mut Vec<Op>, next: &mut u32| {
+            let r = |x: NodeId, reg: &mut [u32], ops: &mut Vec<Op>, next: &mut u32| {
                 as_reg(dag, x, reg, ops, next)
             };
             match node {
                 Node::Un(f, a) => {
                     next += 1;
-                    let a = r(a, &mut reg, &mut ops, &mut next);
+                    let a = r(a, reg, &mut ops, &mut next);
                     ops.push(if f == UnFn::Neg {
                         Op::Neg { d, a }
                     } else {
@@ -335,7 +411,7 @@ impl Program {
                 {
                     next += 1;
                     let t0 = lin.len() as u32;
-                    push_terms(dag, id, 1.0, &absorbed, &reg, &mut lin);
+                    push_terms(dag, id, 1.0, absorbed, reg, &mut lin);
                     let len = lin.len() as u32 - t0;
                     ops.push(Op::Lin { d, t0, len });
                 }
@@ -361,8 +437,8 @@ impl Program {
                             });
                         }
                         _ => {
-                            let a = r(a, &mut reg, &mut ops, &mut next);
-                            let b = r(b, &mut reg, &mut ops, &mut next);
+                            let a = r(a, reg, &mut ops, &mut next);
+                            let b = r(b, reg, &mut ops, &mut next);
                             ops.push(match f {
                                 BinFn::Add => Op::Add { d, a, b },
                                 BinFn::Sub => Op::Sub { d, a, b },
@@ -375,15 +451,15 @@ impl Program {
                 }
                 Node::Select(c, a, b) => {
                     next += 1;
-                    let c = r(c, &mut reg, &mut ops, &mut next);
-                    let a = r(a, &mut reg, &mut ops, &mut next);
-                    let b = r(b, &mut reg, &mut ops, &mut next);
+                    let c = r(c, reg, &mut ops, &mut next);
+                    let a = r(a, reg, &mut ops, &mut next);
+                    let b = r(b, reg, &mut ops, &mut next);
                     ops.push(Op::Select { d, c, a, b });
                 }
                 Node::Rand(dist, a, b, _) => {
                     next += 1;
-                    let a = r(a, &mut reg, &mut ops, &mut next);
-                    let b = r(b, &mut reg, &mut ops, &mut next);
+                    let a = r(a, reg, &mut ops, &mut next);
+                    let b = r(b, reg, &mut ops, &mut next);
                     ops.push(Op::Rand { d, dist, a, b });
                 }
                 Node::BlockOut(bi, k) => {
@@ -397,7 +473,7 @@ impl Program {
                             let block = dag.block(bi as u32);
                             let g0 = gather.len() as u32;
                             for &i in &block.inputs {
-                                let ri = r(i, &mut reg, &mut ops, &mut next);
+                                let ri = r(i, reg, &mut ops, &mut next);
                                 gather.push(ri);
                             }
                             let len = block.inputs.len() as u32;
@@ -426,15 +502,33 @@ impl Program {
         }
         let outs = outputs
             .iter()
-            .map(|&o| as_reg(dag, o, &mut reg, &mut ops, &mut next))
+            .map(|&o| as_reg(dag, o, reg, &mut ops, &mut next))
             .collect();
+        scratch.reset(&order);
         Program {
             ops,
             gather,
             lin,
             outs,
             nregs: next as usize,
+            state_regs: frame.n,
+            native: None,
         }
+    }
+
+    /// Attaches machine code generated from this program.
+    pub(super) fn set_native(&mut self, native: super::jit::Native) {
+        self.native = Some(native);
+    }
+
+    /// Whether [`run`](Self::run) executes machine code.
+    pub fn is_native(&self) -> bool {
+        self.native.is_some()
+    }
+
+    /// Whether the program computes nothing (no instruction, no output).
+    pub fn is_nothing(&self) -> bool {
+        self.ops.is_empty() && self.outs.is_empty()
     }
 
     /// Number of instructions.
@@ -442,9 +536,37 @@ impl Program {
         self.ops.len()
     }
 
-    /// Runs the program on `regs` (fixed registers already filled).
+    /// Runs the program on `regs` (fixed registers already filled): its
+    /// machine code if it has some, else the interpreter.
     #[inline]
-    pub fn run(&self, regs: &mut [f64], mut rng: Option<&mut SimRng>) {
+    pub fn run(&self, regs: &mut [f64], rng: Option<&mut SimRng>) {
+        match &self.native {
+            Some(native) => native.run(regs, rng),
+            None => self.interpret(regs, rng),
+        }
+    }
+
+    /// Runs the program at hybrid time `at` on state `x` (length at least
+    /// the frame's `n`), with `regs` as the register file (its other fixed
+    /// registers already filled). Machine code reads `x` where it is; the
+    /// interpreter copies it into `regs` first.
+    #[inline]
+    pub fn run_at(&self, regs: &mut [f64], at: HybridTime, x: &[f64], rng: Option<&mut SimRng>) {
+        let n = self.state_regs;
+        let frame = Frame { n, m: 0 };
+        regs[frame.time_reg()] = at.t;
+        regs[frame.jumps_reg()] = at.j as f64;
+        match &self.native {
+            Some(native) => native.run_at(regs, &x[..n], rng),
+            None => {
+                regs[..n].copy_from_slice(&x[..n]);
+                self.interpret(regs, rng)
+            }
+        }
+    }
+
+    /// Runs the program on `regs` with the interpreter (the reference).
+    pub fn interpret(&self, regs: &mut [f64], mut rng: Option<&mut SimRng>) {
         for op in &self.ops {
             match *op {
                 Op::Const { d, c } => regs[d as usize] = c,
@@ -469,21 +591,8 @@ impl Program {
                     }
                 }
                 Op::Rand { d, dist, a, b } => {
-                    let (x, y) = (regs[a as usize], regs[b as usize]);
-                    regs[d as usize] = match rng.as_deref_mut() {
-                        Some(rng) => match dist {
-                            Dist::Uniform => rng.uniform(x, y),
-                            Dist::Normal => rng.normal(x, y),
-                            Dist::Bernoulli => {
-                                if rng.bernoulli(x) {
-                                    1.0
-                                } else {
-                                    0.0
-                                }
-                            }
-                        },
-                        None => f64::NAN,
-                    }
+                    regs[d as usize] =
+                        draw(rng.as_deref_mut(), dist, regs[a as usize], regs[b as usize])
                 }
                 Op::Lin { d, t0, len } => {
                     let terms = &self.lin[t0 as usize..(t0 + len) as usize];
@@ -513,13 +622,46 @@ impl Program {
                     for (k, &src) in self.gather[g0..g0 + len].iter().enumerate() {
                         regs[inp + k] = regs[src as usize];
                     }
-                    let (lo, hi) = regs.split_at_mut(out);
-                    if !kind.apply(&lo[inp..inp + len], &mut hi[..kind.outputs()]) {
-                        FAULT.with(|f| f.set(Some(origin)));
-                    }
+                    apply_block(regs, kind, inp, len, out, origin);
                 }
             }
         }
+    }
+}
+
+/// A random draw of `dist` with parameters `(x, y)`; NaN without a
+/// generator (programs that may not draw).
+pub(super) fn draw(rng: Option<&mut SimRng>, dist: Dist, x: f64, y: f64) -> f64 {
+    match rng {
+        Some(rng) => match dist {
+            Dist::Uniform => rng.uniform(x, y),
+            Dist::Normal => rng.normal(x, y),
+            Dist::Bernoulli => {
+                if rng.bernoulli(x) {
+                    1.0
+                } else {
+                    0.0
+                }
+            }
+        },
+        None => f64::NAN,
+    }
+}
+
+/// Applies block `kind` to the gathered inputs `regs[inp..inp + len]`,
+/// writing its outputs from `regs[out]` on; a failure (singular matrix) is
+/// recorded for [`take_fault`] with the block's `origin`.
+pub(super) fn apply_block(
+    regs: &mut [f64],
+    kind: BlockKind,
+    inp: usize,
+    len: usize,
+    out: usize,
+    origin: u32,
+) {
+    let (lo, hi) = regs.split_at_mut(out);
+    if !kind.apply(&lo[inp..inp + len], &mut hi[..kind.outputs()]) {
+        FAULT.with(|f| f.set(Some(origin)));
     }
 }
 

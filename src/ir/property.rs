@@ -26,9 +26,15 @@ struct Eval {
 }
 
 impl Eval {
-    fn new(dag: &Dag, node: NodeId, n: usize) -> Arc<Self> {
+    /// The program of `node`, as machine code if `jit` (and the JIT works).
+    fn new(dag: &Dag, node: NodeId, n: usize, jit: bool) -> Arc<Self> {
         let frame = Frame { n: 2 * n + 1, m: 0 };
-        let prog = Program::compile(dag, frame, &[node]);
+        let mut prog = Program::compile(dag, frame, &[node]);
+        if jit {
+            // On failure the program stays interpreted; the model's
+            // programs report the reason (same machine, same generator).
+            let _ = super::jit::compile(&mut [&mut prog], 0);
+        }
         let nregs = prog.nregs.max(frame.fixed());
         Arc::new(Self { prog, nregs, n })
     }
@@ -53,28 +59,36 @@ impl Eval {
 }
 
 /// The properties of a model with `n` state components; their text is
-/// taken from `source`.
+/// taken from `source`. Their predicates are machine code if `jit`; the
+/// second result counts those that are.
 pub(crate) fn compile(
     dag: &Dag,
     props: &[CheckedProperty],
     n: usize,
     source: &SourceFile,
-) -> Vec<(Property, Span)> {
-    props
+    jit: bool,
+) -> (Vec<(Property, Span)>, usize) {
+    let native = std::cell::Cell::new(0);
+    let eval = |node: NodeId| {
+        let e = Eval::new(dag, node, n, jit);
+        native.set(native.get() + usize::from(e.prog.is_native()));
+        e
+    };
+    let props = props
         .iter()
         .map(|p| {
             let name = p.name.clone();
             let prop = match p.kind {
                 PropertyKind::Always(e) => {
-                    let e = Eval::new(dag, e, n);
+                    let e = eval(e);
                     Property::always(name, move |at, x| e.holds(at, x, None))
                 }
                 PropertyKind::DuringFlows(e) => {
-                    let e = Eval::new(dag, e, n);
+                    let e = eval(e);
                     Property::during_flows(name, move |at, x| e.holds(at, x, None))
                 }
                 PropertyKind::AlwaysAfter { enter, pred } => {
-                    let (e, p) = (Eval::new(dag, enter, n), Eval::new(dag, pred, n));
+                    let (e, p) = (eval(enter), eval(pred));
                     Property::always_after(
                         name,
                         move |at, x| e.holds(at, x, None),
@@ -82,7 +96,7 @@ pub(crate) fn compile(
                     )
                 }
                 PropertyKind::AtJumps { rule, pred } => {
-                    let e = Eval::new(dag, pred, n);
+                    let e = eval(pred);
                     let f = move |jv: &crate::props::JumpView<'_>| {
                         e.holds(jv.at, jv.pre, Some(jv.post))
                     };
@@ -92,7 +106,7 @@ pub(crate) fn compile(
                     }
                 }
                 PropertyKind::EventuallyWithin { within, pred } => {
-                    let e = Eval::new(dag, pred, n);
+                    let e = eval(pred);
                     Property::eventually_within(name, within, move |at, x| e.holds(at, x, None))
                 }
                 PropertyKind::Monotone {
@@ -101,7 +115,7 @@ pub(crate) fn compile(
                     v,
                     tol,
                 } => {
-                    let e = Eval::new(dag, v, n);
+                    let e = eval(v);
                     let how = if decreasing {
                         Monotonicity::Decreasing
                     } else {
@@ -116,7 +130,7 @@ pub(crate) fn compile(
                     alpha,
                     tol,
                 } => {
-                    let e = Eval::new(dag, v, n);
+                    let e = eval(v);
                     Property::exponential_bound(name, kappa, alpha, tol, move |at, x| {
                         e.eval(at, x, None)
                     })
@@ -133,5 +147,6 @@ pub(crate) fn compile(
                 .join(" ");
             (prop.with_text(text), p.span)
         })
-        .collect()
+        .collect();
+    (props, native.get())
 }

@@ -361,7 +361,9 @@ impl<'p> Monitor<'p> {
             (&self.prop.kind, &self.state)
         {
             let end = self.last.unwrap_or(termination.at);
-            if end.t >= *within || termination.cause == TerminationCause::CannotFlowOrJump {
+            if end.t >= *within
+                || matches!(termination.cause, TerminationCause::CannotFlowOrJump { .. })
+            {
                 return Err(self.violation(
                     end,
                     &[],

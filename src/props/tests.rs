@@ -159,7 +159,11 @@ fn eventually_within_fails_past_the_deadline_and_is_inconclusive_when_cut_short(
     // … a failure if the solution is maximal there.
     let stuck = Builder::new(1.0)
         .flow(&[(1.0, 0.5)])
-        .end(TerminationCause::CannotFlowOrJump);
+        .end(TerminationCause::CannotFlowOrJump {
+            leaving: false,
+            failed: Vec::new(),
+            state: vec![0.5],
+        });
     let v = later.check(&stuck).unwrap_err();
     assert_eq!(v.at, at(1.0, 0));
     assert_eq!(

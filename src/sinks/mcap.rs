@@ -17,6 +17,7 @@
 //! | channel `/hybsim/jumps` | one message per jump: `{t, j, rule, rule_id, index?, pre, post}` |
 //! | channel `/hybsim/log` | run start and end (`foxglove.Log`) |
 //! | metadata `hybsim.result` | `termination`, `message`, `status` (`completed`, `ended`, `failed`), `t_end`, `j_end`, `jumps` (per rule), `samples_logged` |
+//! | metadata `hybsim.metrics` | one entry per `metric` of the model (its value), when it has any ([`McapSink::set_metrics`]) |
 //!
 //! `log_time = publish_time = round((t − t0)·10⁹)` ns, with t0 the time of
 //! the first sample; every payload carries the exact `t` and `j`, because
@@ -124,6 +125,7 @@ pub struct McapSink<'a> {
     y: Vec<f64>,
     buf: Vec<u8>,
     error: Option<SinkError>,
+    metrics: Vec<(String, f64)>,
 }
 
 fn meta_entries<I, K>(entries: I) -> BTreeMap<String, String>
@@ -314,6 +316,7 @@ impl<'a> McapSink<'a> {
             y: vec![0.0; info.output_dim],
             buf: Vec::with_capacity(256),
             error: None,
+            metrics: Vec::new(),
         })
     }
 
@@ -509,6 +512,12 @@ impl<'a> McapSink<'a> {
         self.complete(&outcome).inspect_err(|_| self.discard())
     }
 
+    /// The run's metrics (name, value), written to `hybsim.metrics` by
+    /// [`finish`](Self::finish) (values as shortest round-trip decimals).
+    pub fn set_metrics(&mut self, metrics: Vec<(String, f64)>) {
+        self.metrics = metrics;
+    }
+
     /// Why this sink stopped the run, if it did (a write error or a
     /// non-finite value).
     pub fn stopped_by(&self) -> Option<&SinkError> {
@@ -554,6 +563,19 @@ impl<'a> McapSink<'a> {
             source,
         };
         let mut writer = self.writer.take().expect("finish is called once");
+        if !self.metrics.is_empty() {
+            let metadata = self
+                .metrics
+                .iter()
+                .map(|(k, v)| (k.clone(), crate::num::Num(*v).to_string()))
+                .collect();
+            writer
+                .write_metadata(&Metadata {
+                    name: "hybsim.metrics".into(),
+                    metadata,
+                })
+                .map_err(mcap_err)?;
+        }
         writer
             .write_metadata(&Metadata {
                 name: "hybsim.result".into(),

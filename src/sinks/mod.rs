@@ -23,6 +23,7 @@ pub mod csv;
 pub mod foxglove;
 pub mod json;
 pub mod mcap;
+pub mod parquet;
 pub mod plot;
 
 use std::collections::BTreeMap;
@@ -466,7 +467,7 @@ impl RunOutcome {
             TerminationCause::HorizonT => ("horizon_t", RunStatus::Completed),
             TerminationCause::HorizonJ => ("horizon_j", RunStatus::Completed),
             TerminationCause::ZenoSuspected { .. } => ("zeno_suspected", RunStatus::Ended),
-            TerminationCause::CannotFlowOrJump => ("cannot_flow_or_jump", RunStatus::Ended),
+            TerminationCause::CannotFlowOrJump { .. } => ("cannot_flow_or_jump", RunStatus::Ended),
             TerminationCause::StoppedBySink => ("stopped_by_sink", RunStatus::Ended),
         };
         Self {

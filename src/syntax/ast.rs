@@ -55,6 +55,40 @@ pub enum Item {
     Design(DesignBlock),
     /// `property NAME: BODY`.
     Property(PropertyDecl),
+    /// `metric rate = count(fire) / t`: scalar reductions of a run.
+    Metric(Vec<Definition>),
+    /// `sweep { delta in 0:5:80; runs = 20 }`: the grid and settings of
+    /// `hybsim sweep`.
+    Sweep(SweepBlock),
+}
+
+/// `sweep { NAME in VALUES; …; runs = N; seed = S }`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SweepBlock {
+    /// The axes in order (the first varies slowest).
+    pub axes: Vec<SweepAxis>,
+    /// `key = value` settings (`runs`, `seed`).
+    pub settings: Vec<Setting>,
+    /// The `sweep` word.
+    pub span: Span,
+}
+
+/// `NAME in a:step:b` or `NAME in VALUES` in a `sweep` block.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SweepAxis {
+    /// The parameter, initial value or `sim` key swept.
+    pub name: Ident,
+    /// Its values.
+    pub values: AxisValues,
+}
+
+/// The values of a sweep axis.
+#[derive(Debug, Clone, PartialEq)]
+pub enum AxisValues {
+    /// `start:step:stop` (inclusive).
+    Range(Expr, Expr, Expr),
+    /// A constant scalar (one value) or vector (its elements).
+    List(Expr),
 }
 
 /// A declared or assigned name with optional index lists: `x`, `x[i]`,

@@ -238,6 +238,50 @@ fn item(p: Pair<'_, Rule>) -> Res<Item> {
                 .collect::<Res<_>>()?,
         ),
         Rule::property_decl => Item::Property(super::property::property_decl(inner, span)?),
+        Rule::metric_decl => Item::Metric(
+            inner
+                .filter(|p| p.as_rule() == Rule::definition)
+                .map(definition)
+                .collect::<Res<_>>()?,
+        ),
+        Rule::sweep_block => {
+            let word = first(&mut inner, span)?.as_span().into();
+            let mut axes = Vec::new();
+            let mut settings = Vec::new();
+            for s in inner {
+                let sspan = s.as_span().into();
+                let rule = s.as_rule();
+                let mut it = s.into_inner();
+                let name = ident(first(&mut it, sspan)?);
+                let v = first(&mut it, sspan)?;
+                if rule == Rule::sim_setting {
+                    settings.push(Setting {
+                        key: name,
+                        value: expr(v)?,
+                    });
+                } else if v.as_rule() == Rule::sweep_range {
+                    let vspan = v.as_span().into();
+                    let mut r = v.into_inner();
+                    let a = expr(first(&mut r, vspan)?)?;
+                    let step = expr(first(&mut r, vspan)?)?;
+                    let b = expr(first(&mut r, vspan)?)?;
+                    axes.push(SweepAxis {
+                        name,
+                        values: AxisValues::Range(a, step, b),
+                    });
+                } else {
+                    axes.push(SweepAxis {
+                        name,
+                        values: AxisValues::List(expr(v)?),
+                    });
+                }
+            }
+            Item::Sweep(SweepBlock {
+                axes,
+                settings,
+                span: word,
+            })
+        }
         Rule::for_item | Rule::together_for => {
             let b = binder(first(&mut inner, span)?)?;
             let items = inner.map(item).collect::<Res<_>>()?;

@@ -105,6 +105,30 @@ fn set_replaces_a_design_result_and_skips_a_fully_given_block() {
     assert!(m.design_reports()[0].summary_line().contains("not solved"));
 }
 
+/// A block whose results are all given is not even assembled: its LMIs
+/// (here 2^20 of them, beyond the limit of `subsets`) are never built, and
+/// what they would report does not stop the model.
+#[test]
+fn a_fully_given_block_is_not_assembled() {
+    let text = "model m
+param M = 20
+design huge {
+    sym P[1]
+    for S in subsets(1..M) {
+        stable: P >= 1
+    }
+    param K = P
+}
+state x = 0
+flow { x' = -K * x }
+";
+    let (code, _, message) = error(text);
+    assert_eq!(code, "E0304", "{message}");
+    let m = ok(text, &["K=2"]);
+    assert_eq!(param(&m, "K")[(0, 0)], 2.0);
+    assert!(m.design_reports()[0].solve.is_none());
+}
+
 #[test]
 fn infeasible_and_unbounded_designs_are_errors_naming_the_block() {
     let infeasible = "model m

@@ -119,7 +119,8 @@ fn without_together_the_composite_rules_fire_one_after_the_other() {
 
 /// A plant ẋ = −x + u sampled by an ADC (`xs+ = x`) and driven by a ZOH
 /// (`u+ = −K xs`), both every Ts. Together, the ZOH holds the previous
-/// sample (one-step delay): u_k = −K x_{k−1}.
+/// sample (one-step delay): u_k = −K x_{k−1}. The flow is advanced exactly
+/// so that the samples match the sampled system's recursion to 1e-12.
 fn adc_zoh(together: bool) -> String {
     let rules = "jump adc every Ts { xs+ = x }
     jump zoh every Ts { u+ = -K * xs }";
@@ -134,7 +135,7 @@ param Ts = 0.1, K = 2
 state x = 1, xs = 0, u = 0
 flow {{ x' = -x + u; xs' = 0; u' = 0 }}
 {rules}
-sim {{ T = 1.05 }}
+sim {{ T = 1.05; exact_affine = on }}
 "
     )
 }

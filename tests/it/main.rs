@@ -1,6 +1,7 @@
 //! Integration tests, one binary, a module per area.
 
 mod cli;
+mod dense;
 mod design;
 mod design_backend;
 mod design_check;
@@ -14,6 +15,7 @@ mod intermittent_check;
 mod intermittent_estimation;
 mod intermittent_model;
 mod intermittent_reproduction;
+mod jit;
 mod lang;
 mod models;
 mod muehlebach;
@@ -25,7 +27,11 @@ mod props_model;
 mod props_params;
 mod reliability;
 mod runtime_diagnostics;
+mod semantics;
 mod sinks;
+mod slurm;
+mod stiff;
+mod sweep;
 mod util;
 mod variance_props;
 mod variance_trigger;

@@ -223,8 +223,10 @@ fn refused(dir: &Path, args: &[&str], exit: i32) -> String {
         !err.contains("internal error") && !err.contains("panicked"),
         "{short}"
     );
+    // A guard against hangs and super-linear blow-ups, not a speed target:
+    // generous enough for a loaded 2-core CI machine.
     assert!(
-        start.elapsed() < Duration::from_secs(2),
+        start.elapsed() < Duration::from_secs(30),
         "{:?} took {:?}",
         &args[..2],
         start.elapsed()

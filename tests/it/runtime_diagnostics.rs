@@ -107,3 +107,54 @@ fn the_cli_prints_file_line_and_caret() {
         "{err}"
     );
 }
+
+/// A ball whose floor is a flow set `h >= 0` with no jump: it lands at
+/// t = 1 (from h = 4.905 with g = 9.81) and can neither flow nor jump.
+const NO_BOUNCE: &str = "model nobounce
+param g = 9.81
+state h = 4.905, v = 0
+flow { h' = v; v' = -g } in h >= 0 && v <= 100
+sim { T = 3 }
+";
+
+#[test]
+fn cannot_flow_or_jump_names_the_case_the_failing_atom_and_the_state() {
+    // Leaving C: the flow points out of `h >= 0` at t = 1.
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::write(dir.path().join("nb.hyb"), NO_BOUNCE).unwrap();
+    let o = hybsim(dir.path(), &["run", "nb.hyb", "--no-mcap"]);
+    assert_eq!(code(&o), 0, "{}", stderr(&o));
+    let err = stderr(&o);
+    for want in [
+        "warning[W0603]",
+        "the flow leaves the flow set C there",
+        "nb.hyb:4:",
+        "`h >= 0` fails",
+        "the state there: h = ",
+        "v = -9.8",
+    ] {
+        assert!(err.contains(want), "missing {want:?} in\n{err}");
+    }
+    assert!(!err.contains("`v <= 100` fails"), "{err}");
+    // Outside C from the start: the atom that fails and its value.
+    let src = SourceFile::new(
+        "out.hyb",
+        "model outside\nstate x = -2, y = 1\nflow { x' = 1; y' = 0 } in y > 0 && x + y >= 0\n",
+    );
+    let m = lang::compile(&src, &[]).expect("compiles");
+    let (x0, mut rng) = m.start(m.seed());
+    let arc = simulate_arc(&m, &x0, &m.settings(), &mut rng).expect("runs");
+    let d = m
+        .termination_diagnostic(arc.termination().unwrap())
+        .expect("a diagnostic for a stuck solution");
+    let text = hybsim::diagnostics::render(&[d], &src, false);
+    for want in [
+        "the state is outside the flow set C",
+        "`x + y >= 0` fails (-1e0)",
+        "out.hyb:3:",
+        "x = -2, y = 1",
+    ] {
+        assert!(text.contains(want), "missing {want:?} in\n{text}");
+    }
+    assert!(!text.contains("`y > 0` fails"), "{text}");
+}

@@ -1,0 +1,210 @@
+//! hybsim against the hand-written limit (`../shared/limit`): the three
+//! benchmarks written in `.hyb` (`benches/models/limit_*.hyb`, from the
+//! limit's README and params.json), run as `hybsim run --no-mcap` runs them
+//! (compiled model, every sample pushed to a sink that keeps nothing), on
+//! the default settings and with `exact_affine` on and off, interleaved with
+//! the limit's variants in the same minutes. Prints CPU times (this
+//! thread's, from /proc), the work done (jumps, end time, accuracy) and the
+//! ratios. Results and the machine are in BENCHMARKS.md.
+//!
+//! Build the limit first (outside ../shared, which is read-only):
+//!
+//! ```text
+//! CARGO_TARGET_DIR=target/limit cargo build --release --locked --manifest-path ../shared/limit/Cargo.toml
+//! cargo bench --bench limit            # [-- ROUNDS] (default 3)
+//! ```
+//!
+//! Without the limit binary only hybsim's side is timed.
+
+use std::ops::ControlFlow;
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::time::Instant;
+
+use hybsim::arc::{ArcSink, HybridTime, SampleKind, Termination};
+use hybsim::engine::{ExactAffine, simulate};
+use hybsim::ir::CompiledModel;
+use hybsim::lang;
+use hybsim::source::SourceFile;
+use serde_json::Value;
+
+/// Keeps the counts and the last state only, like `--no-mcap`'s tally.
+#[derive(Default)]
+struct Tally {
+    samples: u64,
+    jumps: u64,
+    last: Vec<f64>,
+    end: Option<Termination>,
+}
+
+impl ArcSink for Tally {
+    fn sample(&mut self, _: HybridTime, x: &[f64], kind: SampleKind) -> ControlFlow<()> {
+        self.samples += 1;
+        if kind == SampleKind::Final {
+            self.last.clear();
+            self.last.extend_from_slice(x);
+        }
+        ControlFlow::Continue(())
+    }
+
+    fn jump(&mut self, _: HybridTime, _: usize, _: &[f64], _: &[f64]) -> ControlFlow<()> {
+        self.jumps += 1;
+        ControlFlow::Continue(())
+    }
+
+    fn finish(&mut self, termination: &Termination) {
+        self.end = Some(termination.clone());
+    }
+}
+
+/// CPU time of this thread in seconds (Linux), else wall time.
+fn cpu_now() -> f64 {
+    if let Ok(s) = std::fs::read_to_string("/proc/thread-self/schedstat")
+        && let Some(ns) = s
+            .split_whitespace()
+            .next()
+            .and_then(|v| v.parse::<f64>().ok())
+    {
+        return ns * 1e-9;
+    }
+    thread_local!(static T0: Instant = Instant::now());
+    T0.with(|t| t.elapsed().as_secs_f64())
+}
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v[v.len() / 2]
+}
+
+/// One run of `m` with `mode`: its tally.
+fn run(m: &CompiledModel, mode: ExactAffine) -> Tally {
+    let (x0, mut rng) = m.start(m.seed());
+    let s = m.settings().exact_affine(mode);
+    let mut tally = Tally::default();
+    simulate(m, &x0, &s, &mut rng, &mut tally).expect("simulation");
+    tally
+}
+
+/// Median CPU seconds of runs filling about `budget` seconds (≥ 5 runs).
+fn time(m: &CompiledModel, mode: ExactAffine, budget: f64) -> f64 {
+    let mut times = Vec::new();
+    let start = cpu_now();
+    while times.len() < 5 || (cpu_now() - start < budget && times.len() < 1000) {
+        let t0 = cpu_now();
+        let _ = std::hint::black_box(run(m, mode));
+        times.push(cpu_now() - t0);
+    }
+    median(times)
+}
+
+/// The limit's JSON lines for `bench` (all variants), if its binary exists.
+fn limit(bin: &Path, bench: &str) -> Vec<Value> {
+    let Ok(out) = Command::new(bin)
+        .args([bench, "--budget", "0.5", "--min-reps", "5"])
+        .output()
+    else {
+        return Vec::new();
+    };
+    String::from_utf8_lossy(&out.stdout)
+        .lines()
+        .filter_map(|l| serde_json::from_str(l).ok())
+        .collect()
+}
+
+fn main() {
+    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR"));
+    let rounds: usize = std::env::args()
+        .skip(1)
+        .find_map(|a| a.parse().ok())
+        .unwrap_or(3);
+    let limit_bin = root.join("target/limit/release/hybsim-limit");
+    let have_limit = limit_bin.exists();
+    if !have_limit {
+        eprintln!(
+            "no {} (see this file's docs): timing hybsim only",
+            limit_bin.display()
+        );
+    }
+    let params: Value = serde_json::from_str(
+        &std::fs::read_to_string(root.join("../shared/limit/params.json")).unwrap_or_default(),
+    )
+    .unwrap_or(Value::Null);
+    let modes = [ExactAffine::Auto, ExactAffine::On, ExactAffine::Off];
+    println!(
+        "| benchmark | hybsim auto | hybsim on | hybsim off | limit-Dopri5 | limit-expm | auto / Dopri5 | off / Dopri5 | on / expm | jumps (hybsim / limit) |"
+    );
+    println!("|---|---|---|---|---|---|---|---|---|---|");
+    for bench in ["bb", "sh", "agents"] {
+        let path = root.join(format!("benches/models/limit_{bench}.hyb"));
+        let src = SourceFile::read(&path).expect("benchmark model");
+        let m = lang::compile(&src, &[])
+            .unwrap_or_else(|d| panic!("{}", hybsim::diagnostics::render(&d, &src, false)));
+        // Same work on every path: jumps and the end state.
+        let tallies: Vec<Tally> = modes.iter().map(|&mode| run(&m, mode)).collect();
+        for (mode, t) in modes.iter().zip(&tallies) {
+            let end = t.end.as_ref().map(|e| e.to_string()).unwrap_or_default();
+            eprintln!(
+                "{bench} {mode:?}: {} jumps, {} samples, {end}",
+                t.jumps, t.samples
+            );
+        }
+        if bench == "sh"
+            && let Some(exact) = params["sh"]["xp_T_exact"].as_array()
+        {
+            for (mode, t) in modes.iter().zip(&tallies) {
+                let err = exact
+                    .iter()
+                    .zip(&t.last)
+                    .map(|(e, x)| (e.as_f64().unwrap_or(f64::NAN) - x).abs())
+                    .fold(0.0, f64::max);
+                eprintln!("sh {mode:?}: max |xp(100) - exact| = {err:.2e}");
+            }
+        }
+        let mut ours = vec![Vec::new(); modes.len()];
+        let mut dopri = Vec::new();
+        let mut expm = Vec::new();
+        let mut limit_jumps = None;
+        for _ in 0..rounds {
+            for (k, &mode) in modes.iter().enumerate() {
+                // The exact path on every segment of the agents costs seconds.
+                if bench == "agents" && mode == ExactAffine::On {
+                    continue;
+                }
+                ours[k].push(time(&m, mode, 0.5));
+            }
+            if have_limit {
+                for line in limit(&limit_bin, bench) {
+                    let cpu = line["cpu_median_s"].as_f64().unwrap_or(f64::NAN);
+                    match line["peer"].as_str() {
+                        Some("limit-Dopri5") => {
+                            dopri.push(cpu);
+                            limit_jumps = line["jumps"]
+                                .as_u64()
+                                .or_else(|| line["accuracy"]["jumps"].as_u64())
+                                .or(limit_jumps);
+                        }
+                        Some("limit-expm") => expm.push(cpu),
+                        _ => {}
+                    }
+                }
+            }
+        }
+        let ms = |v: &Vec<f64>| {
+            if v.is_empty() {
+                f64::NAN
+            } else {
+                median(v.clone()) * 1e3
+            }
+        };
+        let (auto, on, off) = (ms(&ours[0]), ms(&ours[1]), ms(&ours[2]));
+        let (d, e) = (ms(&dopri), ms(&expm));
+        println!(
+            "| {bench} | {auto:.3} ms | {on:.3} ms | {off:.3} ms | {d:.3} ms | {e:.3} ms | {:.2} | {:.2} | {:.2} | {} / {} |",
+            auto / d,
+            off / d,
+            on / e,
+            tallies[0].jumps,
+            limit_jumps.map_or("?".into(), |j| j.to_string())
+        );
+    }
+}

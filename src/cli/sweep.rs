@@ -1,0 +1,295 @@
+//! `hybsim sweep`: a grid of `--set` values × seeded runs, reduced by the
+//! model's metrics, on all cores; `--shard k/n` runs a part, `--merge`
+//! joins the parts.
+
+use std::io::IsTerminal;
+use std::path::PathBuf;
+use std::time::Instant;
+
+use clap::Args;
+use hybsim::sweep::{self, Axis, Shard, SweepSpec, table};
+use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+
+use super::{EXIT_FAILED, EXIT_INTERRUPTED, EXIT_MODEL_ERROR, EXIT_OK, SdpKind};
+
+/// Arguments of `hybsim sweep`.
+#[derive(Debug, Args)]
+pub struct SweepArgs {
+    /// The model file (`.hyb`); it declares the `metric`s to collect, and
+    /// may declare the grid in a `sweep { … }` block.
+    #[arg(required_unless_present = "merge")]
+    pub model: Option<PathBuf>,
+    /// A grid axis (repeatable; the first varies slowest):
+    /// `name=start:step:stop`, `name=[v1, v2, …]` or `name=v`. Any name
+    /// `--set` accepts (parameter, initial value, `sim` key). Given, the
+    /// `--grid` axes replace those of the model's `sweep` block.
+    #[arg(long = "grid", value_name = "NAME=VALUES")]
+    pub grid: Vec<String>,
+    /// Runs per grid point, each with its own seed (default: `runs` of the
+    /// model's `sweep` block, else 1).
+    #[arg(long, value_parser = clap::value_parser!(u64).range(1..))]
+    pub runs: Option<u64>,
+    /// Base seed of the run seeds (default: `seed` of the model's `sweep`
+    /// block, else its `sim { seed }`).
+    #[arg(long, value_name = "S")]
+    pub seed: Option<u64>,
+    /// A fixed override for every run: `--set name=value` (repeatable).
+    #[arg(long = "set", value_name = "NAME=VALUE")]
+    pub set: Vec<String>,
+    /// Run only part k of n of the runs (k = 1…n), e.g. a Slurm array task:
+    /// `--shard $SLURM_ARRAY_TASK_ID/$SLURM_ARRAY_TASK_COUNT`.
+    #[arg(long, value_name = "K/N", conflicts_with = "merge")]
+    pub shard: Option<String>,
+    /// Merge the results of shards (directories written with `--shard`)
+    /// into `-o DIR`: the same files as an unsharded run.
+    #[arg(long, value_name = "DIR", num_args = 1.., conflicts_with_all = ["grid", "set", "seed"])]
+    pub merge: Vec<PathBuf>,
+    /// Results directory (created if needed).
+    #[arg(short = 'o', long = "output", value_name = "DIR")]
+    pub output: PathBuf,
+    /// Worker threads (default: all cores, or RAYON_NUM_THREADS).
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u64).range(1..))]
+    pub threads: Option<u64>,
+    /// Interior-point method of the model's design blocks.
+    #[arg(long, value_enum, default_value_t = SdpKind::Auto)]
+    pub sdp: SdpKind,
+    /// Complete the sweep in `-o DIR`, interrupted before its end: the runs
+    /// it holds are kept, the others run (the same command otherwise).
+    #[arg(long, conflicts_with = "merge")]
+    pub resume: bool,
+    /// No progress bar.
+    #[arg(short, long)]
+    pub quiet: bool,
+}
+
+/// `hybsim sweep`.
+pub fn execute(args: SweepArgs) -> anyhow::Result<u8> {
+    if !args.merge.is_empty() {
+        return match table::merge(&args.merge, &args.output) {
+            Ok(written) => {
+                for p in written {
+                    eprintln!("wrote {}", p.display());
+                }
+                Ok(EXIT_OK)
+            }
+            Err(e) => {
+                eprintln!("error: {e}");
+                Ok(EXIT_FAILED)
+            }
+        };
+    }
+    let model_path = args.model.clone().expect("clap requires the model");
+    let Some((src, fixed)) = super::load(&model_path, &args.set)? else {
+        return Ok(EXIT_MODEL_ERROR);
+    };
+    let usage = |e: &dyn std::fmt::Display| {
+        eprintln!("error: {e}");
+        Ok(EXIT_MODEL_ERROR)
+    };
+    let mut axes = Vec::new();
+    for g in &args.grid {
+        match g.parse::<Axis>() {
+            Ok(a) => axes.push(a),
+            Err(e) => return usage(&e),
+        }
+    }
+    let shard = match args.shard.as_deref().map(str::parse::<Shard>).transpose() {
+        Ok(s) => s,
+        Err(e) => return usage(&e),
+    };
+    // The model must compile as given (errors located in the file); grid
+    // points that fail later are rows.
+    let options = args.sdp.options();
+    let base = match hybsim::lang::compile_with(&src, &fixed, &options) {
+        Ok(m) => m,
+        Err(diags) => {
+            let color = std::io::stderr().is_terminal();
+            eprint!("{}", hybsim::diagnostics::render(&diags, &src, color));
+            return Ok(EXIT_MODEL_ERROR);
+        }
+    };
+    if base.metrics().is_empty() {
+        eprintln!(
+            "note: {} declares no `metric`; the rows hold only how each run ended",
+            model_path.display()
+        );
+    }
+    // The model's `sweep { … }` block gives what the command line does not.
+    let block = base.sweep().cloned().unwrap_or_default();
+    if args.grid.is_empty() {
+        axes = block
+            .axes
+            .into_iter()
+            .map(|(name, values)| Axis { name, values })
+            .collect();
+    }
+    let spec = SweepSpec::new(
+        axes,
+        args.runs.or(block.runs).unwrap_or(1),
+        args.seed.or(block.seed).unwrap_or(base.seed()),
+    );
+    if let Err(e) = spec.validate(&fixed) {
+        return usage(&e);
+    }
+    // A grid name the model does not know (or a value that is not an
+    // override) is an error before anything runs; other failures of a grid
+    // point are its rows.
+    if let Err(diags) = sweep::check_point(&src, &fixed, &spec, 0, &options) {
+        let unknown: Vec<_> = diags
+            .into_iter()
+            .filter(|d| d.code == "E0204" || d.code == "E0508")
+            .collect();
+        if !unknown.is_empty() {
+            let color = std::io::stderr().is_terminal();
+            eprint!("{}", hybsim::diagnostics::render(&unknown, &src, color));
+            return Ok(EXIT_MODEL_ERROR);
+        }
+    }
+    let mut manifest = table::Manifest {
+        hybsim: env!("CARGO_PKG_VERSION").to_string(),
+        model: model_path.display().to_string(),
+        model_sha256: sha256_hex(src.text()),
+        sets: fixed
+            .iter()
+            .map(|o| format!("{}={}", o.name, o.value))
+            .collect(),
+        spec: spec.clone(),
+        metrics: base.metrics().names().to_vec(),
+        shard,
+        interrupted: false,
+    };
+    drop(base);
+    // The runs an interrupted sweep in the output directory already holds.
+    let kept = if args.resume {
+        match resumed_rows(&args.output, &manifest) {
+            Ok(rows) => rows,
+            Err(e) => {
+                eprintln!("error: {e}");
+                return Ok(EXIT_FAILED);
+            }
+        }
+    } else {
+        Vec::new()
+    };
+    let kept_index: Vec<u64> = kept
+        .iter()
+        .map(|r| r.point as u64 * spec.runs + r.run)
+        .collect();
+    let shard = shard.unwrap_or(Shard::ALL);
+    let mine = (0..spec.total_runs())
+        .filter(|&i| shard.contains(i))
+        .count() as u64;
+    let bar = progress_bar(mine, !args.quiet);
+    bar.set_position(kept.len() as u64);
+    // Installed before the runs start: Ctrl-C, SIGTERM and SIGHUP stop the
+    // sweep, and the runs that finished are written.
+    let stop = super::progress::interrupt_flag();
+    let start = Instant::now();
+    let control = sweep::Control {
+        done: &|| bar.inc(1),
+        stop: &stop,
+        skip: &|i| kept_index.binary_search(&i).is_ok(),
+    };
+    let run = || sweep::run(&src, &fixed, &spec, shard, &options, control);
+    let new_rows = match args.threads {
+        Some(n) => rayon::ThreadPoolBuilder::new()
+            .num_threads(n as usize)
+            .build()?
+            .install(run),
+        None => run(),
+    };
+    bar.finish_and_clear();
+    let ran = new_rows.len();
+    let mut rows = kept;
+    rows.extend(new_rows);
+    rows.sort_by_key(|r| (r.point, r.run));
+    manifest.interrupted = (rows.len() as u64) < mine;
+    let written = table::write(&args.output, &manifest, &rows)?;
+    let failed = rows
+        .iter()
+        .filter(|r| r.status != hybsim::sinks::RunStatus::Completed)
+        .count();
+    println!(
+        "{}: {} runs ({} grid points × {} runs{}; {ran} run now) in {:.2} s; {} completed, \
+         {failed} did not",
+        manifest.model,
+        rows.len(),
+        spec.points(),
+        spec.runs,
+        if shard == Shard::ALL {
+            String::new()
+        } else {
+            format!(", shard {shard}")
+        },
+        start.elapsed().as_secs_f64(),
+        rows.len() - failed,
+    );
+    for r in rows
+        .iter()
+        .filter(|r| r.status != hybsim::sinks::RunStatus::Completed)
+        .take(5)
+    {
+        let first = r.message.lines().next().unwrap_or_default();
+        eprintln!("  {} ({}): {first}", manifest.command(r), r.cause);
+    }
+    for p in written {
+        eprintln!("wrote {}", p.display());
+    }
+    if manifest.interrupted {
+        eprintln!(
+            "interrupted: {} of {mine} runs written; the same command with --resume runs the \
+             other {}",
+            rows.len(),
+            mine - rows.len() as u64
+        );
+        return Ok(EXIT_INTERRUPTED);
+    }
+    Ok(EXIT_OK)
+}
+
+/// The rows of the sweep in `dir` if it is the sweep `m` (interrupted or
+/// not); none if `dir` holds no sweep.
+fn resumed_rows(
+    dir: &std::path::Path,
+    m: &table::Manifest,
+) -> Result<Vec<table::RunRow>, hybsim::sweep::SweepError> {
+    if !dir.join("sweep.json").exists() {
+        return Ok(Vec::new());
+    }
+    let (old, rows) = table::read(dir)?;
+    if (table::Manifest {
+        interrupted: false,
+        ..old
+    }) != *m
+    {
+        return Err(hybsim::sweep::SweepError::Merge(format!(
+            "{} holds another sweep (model, --set, grid, runs, seed, shard or hybsim version \
+             differ): --resume continues only the same command",
+            dir.display()
+        )));
+    }
+    Ok(rows)
+}
+
+fn sha256_hex(text: &str) -> String {
+    use sha2::Digest;
+    sha2::Sha256::digest(text.as_bytes())
+        .iter()
+        .map(|b| format!("{b:02x}"))
+        .collect()
+}
+
+/// A bar with ETA on stderr, only if it is a terminal and `show`.
+fn progress_bar(len: u64, show: bool) -> ProgressBar {
+    let target = if show && std::io::stderr().is_terminal() {
+        ProgressDrawTarget::stderr_with_hz(10)
+    } else {
+        ProgressDrawTarget::hidden()
+    };
+    let bar = ProgressBar::with_draw_target(Some(len), target);
+    bar.set_style(
+        ProgressStyle::with_template("[{elapsed_precise}] {wide_bar} {pos}/{len} runs, ETA {eta}")
+            .expect("a valid template"),
+    );
+    bar
+}

@@ -1,0 +1,375 @@
+//! The engine's own Dormand–Prince 5(4) stepper, built for hybrid runs:
+//! steps one at a time (the caller decides after each accepted step),
+//! reuses f at the step end as the next step's first stage (FSAL) and the
+//! caller's f at a segment start, keeps the controller's step proposal
+//! across segments and jumps, gives the order-4 dense-output interpolant of
+//! each step, and allocates nothing after construction.
+//!
+//! ode_solvers' `Dopri5` (kept for the reference-style benchmarks) hides
+//! the step proposal and the interpolant and allocates per stepper; see
+//! BENCHMARKS.md for the measured difference. Coefficients and controller
+//! follow Hairer, Nørsett & Wanner, *Solving ODEs I*, II.4–II.6 (DOPRI5).
+
+use super::events::StepPath;
+
+// Nodes and coefficients of the Dormand–Prince pair.
+const C2: f64 = 1.0 / 5.0;
+const C3: f64 = 3.0 / 10.0;
+const C4: f64 = 4.0 / 5.0;
+const C5: f64 = 8.0 / 9.0;
+const A21: f64 = 1.0 / 5.0;
+const A31: f64 = 3.0 / 40.0;
+const A32: f64 = 9.0 / 40.0;
+const A41: f64 = 44.0 / 45.0;
+const A42: f64 = -56.0 / 15.0;
+const A43: f64 = 32.0 / 9.0;
+const A51: f64 = 19372.0 / 6561.0;
+const A52: f64 = -25360.0 / 2187.0;
+const A53: f64 = 64448.0 / 6561.0;
+const A54: f64 = -212.0 / 729.0;
+const A61: f64 = 9017.0 / 3168.0;
+const A62: f64 = -355.0 / 33.0;
+const A63: f64 = 46732.0 / 5247.0;
+const A64: f64 = 49.0 / 176.0;
+const A65: f64 = -5103.0 / 18656.0;
+const A71: f64 = 35.0 / 384.0;
+const A73: f64 = 500.0 / 1113.0;
+const A74: f64 = 125.0 / 192.0;
+const A75: f64 = -2187.0 / 6784.0;
+const A76: f64 = 11.0 / 84.0;
+const E1: f64 = 71.0 / 57600.0;
+const E3: f64 = -71.0 / 16695.0;
+const E4: f64 = 71.0 / 1920.0;
+const E5: f64 = -17253.0 / 339200.0;
+const E6: f64 = 22.0 / 525.0;
+const E7: f64 = -1.0 / 40.0;
+const D1: f64 = -12715105075.0 / 11282082432.0;
+const D3: f64 = 87487479700.0 / 32700410799.0;
+const D4: f64 = -10690763975.0 / 1880347072.0;
+const D5: f64 = 701980252875.0 / 199316789632.0;
+const D6: f64 = -1453857185.0 / 822651844.0;
+const D7: f64 = 69997945.0 / 29380423.0;
+
+// Step-size controller (Hairer's defaults, as ode_solvers uses them).
+const SAFE: f64 = 0.9;
+const BETA: f64 = 0.04;
+const FAC_MIN: f64 = 0.2;
+const FAC_MAX: f64 = 10.0;
+/// Steps between stiffness tests, and the test's thresholds.
+const STIFF_EVERY: u32 = 1000;
+const STIFF_HLAMB: f64 = 3.25;
+const STIFF_COUNT: u32 = 15;
+
+/// The flow in local time: `f(s, y, dy)` writes ẏ at (s, y) into `dy`.
+pub(crate) type Rhs<'a> = dyn FnMut(f64, &[f64], &mut [f64]) + 'a;
+
+/// Why a step attempt failed for good.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) enum Failure {
+    /// The step size fell below the resolution of the local time.
+    Underflow,
+    /// The stiffness test fired repeatedly.
+    Stiff,
+}
+
+/// Dopri5 state: tolerances, the carried step proposal, the stages and the
+/// interpolant of the last accepted step.
+pub(crate) struct Dopri5 {
+    rtol: f64,
+    atol: f64,
+    /// Step proposal of the controller (carried across segments); 0 before
+    /// the first step.
+    h_next: f64,
+    facold: f64,
+    /// Stiffness test state.
+    accepted: u32,
+    stiff_hits: u32,
+    nonstiff_hits: u32,
+    /// k1 (f at the step start; FSAL) … k7 (f at the step end).
+    k: [Vec<f64>; 7],
+    y_stage: Vec<f64>,
+    /// The state at the end of the last accepted step.
+    pub y_new: Vec<f64>,
+    /// The five vectors of the dense-output polynomial of the last step.
+    rcont: [Vec<f64>; 5],
+    /// Start and length of the last accepted step.
+    s_old: f64,
+    h_old: f64,
+    /// Evaluations of f since construction.
+    pub fevals: u64,
+}
+
+impl Dopri5 {
+    pub fn new(n: usize, rtol: f64, atol: f64) -> Self {
+        let v = || vec![0.0; n];
+        Self {
+            rtol,
+            atol,
+            h_next: 0.0,
+            facold: 1e-4,
+            accepted: 0,
+            stiff_hits: 0,
+            nonstiff_hits: 0,
+            k: [v(), v(), v(), v(), v(), v(), v()],
+            y_stage: v(),
+            y_new: v(),
+            rcont: [v(), v(), v(), v(), v()],
+            s_old: 0.0,
+            h_old: 0.0,
+            fevals: 0,
+        }
+    }
+
+    /// Starts a segment at local time 0 from `y` with `f0 = f(0, y)`; the
+    /// carried proposal is kept, or a first step estimated (one more f).
+    pub fn start(&mut self, y: &[f64], f0: &[f64], f: &mut Rhs<'_>) {
+        self.k[0].copy_from_slice(f0);
+        if self.h_next <= 0.0 {
+            self.h_next = self.initial_step(y, f);
+        }
+    }
+
+    /// Hairer's initial step estimate (HINIT), with one evaluation of f.
+    fn initial_step(&mut self, y: &[f64], f: &mut Rhs<'_>) -> f64 {
+        let n = y.len() as f64;
+        let sk = |i: usize| self.atol + self.rtol * y[i].abs();
+        let (mut dnf, mut dny) = (0.0, 0.0);
+        for (i, yi) in y.iter().enumerate() {
+            dnf += (self.k[0][i] / sk(i)).powi(2);
+            dny += (yi / sk(i)).powi(2);
+        }
+        let mut h = if dnf <= 1e-10 || dny <= 1e-10 {
+            1e-6
+        } else {
+            (dny / dnf).sqrt() * 0.01
+        };
+        for (i, yi) in y.iter().enumerate() {
+            self.y_stage[i] = yi + h * self.k[0][i];
+        }
+        f(h, &self.y_stage, &mut self.k[1]);
+        self.fevals += 1;
+        let mut der2: f64 = 0.0;
+        for i in 0..y.len() {
+            der2 += ((self.k[1][i] - self.k[0][i]) / sk(i)).powi(2);
+        }
+        let der2 = der2.sqrt() / h;
+        let der12 = der2.abs().max((dnf / n).sqrt());
+        let h1 = if der12 <= 1e-15 {
+            (h * 1e-3).max(1e-6)
+        } else {
+            (0.01 / der12).powf(0.2)
+        };
+        h = (100.0 * h).min(h1);
+        h
+    }
+
+    /// The proposal for the next step.
+    pub fn proposal(&self) -> f64 {
+        self.h_next
+    }
+
+    /// One accepted step from (`s`, `y`) of at most `h_max` (rejected
+    /// attempts are retried with smaller steps); `h_max` is taken exactly
+    /// if the proposal reaches it. Returns the step length; the new state
+    /// is in [`y_new`](Self::y_new) (f there is the next step's first stage), and
+    /// the step's interpolant in [`path`](Self::path).
+    pub fn step(&mut self, s: f64, y: &[f64], h_max: f64, f: &mut Rhs<'_>) -> Result<f64, Failure> {
+        let n = y.len();
+        let mut rejected = false;
+        loop {
+            // A proposal within 1 % of h_max takes h_max: no sliver of a
+            // step (or an underflow) left before a segment end.
+            let mut h = self.h_next.min(h_max);
+            let clipped = h >= 0.99 * h_max;
+            if clipped {
+                h = h_max;
+            }
+            if h <= 0.0 || s + 0.1 * h == s {
+                return Err(Failure::Underflow);
+            }
+            let [k1, k2, k3, k4, k5, k6, k7] = &mut self.k;
+            let ys = &mut self.y_stage;
+            for i in 0..n {
+                ys[i] = y[i] + h * A21 * k1[i];
+            }
+            f(s + C2 * h, ys, k2);
+            for i in 0..n {
+                ys[i] = y[i] + h * (A31 * k1[i] + A32 * k2[i]);
+            }
+            f(s + C3 * h, ys, k3);
+            for i in 0..n {
+                ys[i] = y[i] + h * (A41 * k1[i] + A42 * k2[i] + A43 * k3[i]);
+            }
+            f(s + C4 * h, ys, k4);
+            for i in 0..n {
+                ys[i] = y[i] + h * (A51 * k1[i] + A52 * k2[i] + A53 * k3[i] + A54 * k4[i]);
+            }
+            f(s + C5 * h, ys, k5);
+            for i in 0..n {
+                ys[i] = y[i]
+                    + h * (A61 * k1[i] + A62 * k2[i] + A63 * k3[i] + A64 * k4[i] + A65 * k5[i]);
+            }
+            let s_new = s + h;
+            f(s_new, ys, k6);
+            let yn = &mut self.y_new;
+            for i in 0..n {
+                yn[i] = y[i]
+                    + h * (A71 * k1[i] + A73 * k3[i] + A74 * k4[i] + A75 * k5[i] + A76 * k6[i]);
+            }
+            f(s_new, yn, k7);
+            self.fevals += 6;
+            let mut err = 0.0;
+            for i in 0..n {
+                let e = h
+                    * (E1 * k1[i] + E3 * k3[i] + E4 * k4[i] + E5 * k5[i] + E6 * k6[i] + E7 * k7[i]);
+                let sk = self.atol + self.rtol * y[i].abs().max(yn[i].abs());
+                err += (e / sk) * (e / sk);
+            }
+            let err = (err / n as f64).sqrt();
+            let fac11 = err.powf(0.2 - BETA * 0.75);
+            let fac = (fac11 / self.facold.powf(BETA) / SAFE).clamp(1.0 / FAC_MAX, 1.0 / FAC_MIN);
+            let mut h_new = h / fac;
+            if !err.is_finite() {
+                // A non-finite stage: retry much smaller.
+                self.h_next = h * FAC_MIN;
+                rejected = true;
+                continue;
+            }
+            if err > 1.0 {
+                self.h_next = h / (1.0 / FAC_MIN).min(fac11 / SAFE);
+                rejected = true;
+                continue;
+            }
+            self.facold = err.max(1e-4);
+            // Dense output of this step.
+            let [r1, r2, r3, r4, r5] = &mut self.rcont;
+            for i in 0..n {
+                let ydiff = yn[i] - y[i];
+                let bspl = h * k1[i] - ydiff;
+                r1[i] = y[i];
+                r2[i] = ydiff;
+                r3[i] = bspl;
+                r4[i] = ydiff - h * k7[i] - bspl;
+                r5[i] = h
+                    * (D1 * k1[i] + D3 * k3[i] + D4 * k4[i] + D5 * k5[i] + D6 * k6[i] + D7 * k7[i]);
+            }
+            self.stiffness(h, n)?;
+            self.k.swap(0, 6);
+            if rejected {
+                h_new = h_new.min(h);
+            }
+            // A step cut short by h_max keeps the controller's own proposal,
+            // so a segment end (a sampling instant) does not shrink the
+            // steps of the next segments.
+            self.h_next = if clipped {
+                h_new.max(self.h_next)
+            } else {
+                h_new
+            };
+            self.s_old = s;
+            self.h_old = h;
+            return Ok(h);
+        }
+    }
+
+    /// Hairer's stiffness test on the last accepted step: h·λ estimated
+    /// from the last two stages, every [`STIFF_EVERY`] steps.
+    fn stiffness(&mut self, h: f64, n: usize) -> Result<(), Failure> {
+        self.accepted += 1;
+        if !self.accepted.is_multiple_of(STIFF_EVERY) && self.stiff_hits == 0 {
+            return Ok(());
+        }
+        let (mut num, mut den) = (0.0, 0.0);
+        for i in 0..n {
+            num += (self.k[6][i] - self.k[5][i]).powi(2);
+            den += (self.y_new[i] - self.y_stage[i]).powi(2);
+        }
+        if den > 0.0 && h * (num / den).sqrt() > STIFF_HLAMB {
+            self.nonstiff_hits = 0;
+            self.stiff_hits += 1;
+            if self.stiff_hits == STIFF_COUNT {
+                return Err(Failure::Stiff);
+            }
+        } else {
+            self.nonstiff_hits += 1;
+            if self.nonstiff_hits == 6 {
+                self.stiff_hits = 0;
+            }
+        }
+        Ok(())
+    }
+
+    /// The interpolant of the last accepted step, ending at local time
+    /// `s1` (its end, or the segment end it was rounded to).
+    pub fn path(&self, s1: f64) -> DopriPath<'_> {
+        DopriPath {
+            rcont: &self.rcont,
+            s0: self.s_old,
+            h: self.h_old,
+            s1,
+            y1: &self.y_new,
+        }
+    }
+}
+
+/// The order-4 dense output of one Dopri5 step.
+pub(crate) struct DopriPath<'a> {
+    rcont: &'a [Vec<f64>; 5],
+    s0: f64,
+    h: f64,
+    s1: f64,
+    y1: &'a [f64],
+}
+
+impl StepPath for DopriPath<'_> {
+    fn eval(&mut self, s: f64, out: &mut [f64]) {
+        if s == self.s1 {
+            out.copy_from_slice(self.y1);
+            return;
+        }
+        let th = (s - self.s0) / self.h;
+        let th1 = 1.0 - th;
+        let [r1, r2, r3, r4, r5] = self.rcont;
+        for (i, o) in out.iter_mut().enumerate() {
+            *o = r1[i] + th * (r2[i] + th1 * (r3[i] + th * (r4[i] + th1 * r5[i])));
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// y' = -y + sin(s): steps and interpolant against the closed form,
+    /// within the tolerance.
+    #[test]
+    fn dopri5_steps_and_dense_output_follow_the_solution() {
+        let exact = |s: f64| 1.5 * (-s).exp() + 0.5 * (s.sin() - s.cos());
+        let mut f = |s: f64, y: &[f64], dy: &mut [f64]| dy[0] = -y[0] + s.sin();
+        let mut st = Dopri5::new(1, 1e-8, 1e-10);
+        let mut y = vec![1.0];
+        let mut f0 = vec![0.0];
+        f(0.0, &y, &mut f0);
+        st.start(&y, &f0, &mut f);
+        let mut s = 0.0;
+        let mut steps = 0;
+        while s < 10.0 {
+            let h = st.step(s, &y, 10.0 - s, &mut f).unwrap();
+            let s1 = if s + h >= 10.0 { 10.0 } else { s + h };
+            let mut p = st.path(s1);
+            let mut out = [0.0];
+            for k in 1..4 {
+                let sm = s + h * k as f64 / 4.0;
+                p.eval(sm, &mut out);
+                assert!((out[0] - exact(sm)).abs() < 1e-7, "at {sm}");
+            }
+            y.copy_from_slice(&st.y_new);
+            s = s1;
+            steps += 1;
+        }
+        assert!((y[0] - exact(10.0)).abs() < 1e-7);
+        assert!(steps < 200, "{steps} steps");
+        // FSAL: six evaluations per step, plus the initial estimate's one.
+        assert!(st.fevals <= 6 * steps as u64 + 6 * 20 + 1);
+    }
+}

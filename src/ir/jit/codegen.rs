@@ -1,0 +1,386 @@
+//! Translation of one register program into a Cranelift function.
+//!
+//! Programs are straight-line code (a selection is a `select`, not a
+//! branch), so each becomes one basic block in SSA form: a register's value
+//! is the Cranelift value that defined it; the state registers are loaded
+//! from the state pointer, the other fixed registers and the block outputs
+//! from the register file, on first use; the outputs are stored into the
+//! register file at the end.
+
+use cranelift_codegen::Context;
+use cranelift_codegen::ir::condcodes::FloatCC;
+use cranelift_codegen::ir::{
+    AbiParam, InstBuilder, MemFlagsData, SigRef, Signature, Type, UserFuncName, Value, types,
+};
+use cranelift_frontend::{FunctionBuilder, FunctionBuilderContext};
+use cranelift_jit::JITModule;
+use cranelift_module::{FuncId, Linkage, Module};
+
+use super::JitError;
+use super::helpers::{self, BlockDesc};
+use crate::check::dag::{BinFn, UnFn};
+use crate::ir::program::{CONST_TERM, Op, Program};
+
+/// Translates programs one after the other, reusing Cranelift's buffers.
+pub(super) struct Generator {
+    ctx: Context,
+    fctx: FunctionBuilderContext,
+    count: u32,
+}
+
+/// The imported signatures of the helpers, per function.
+struct Sigs {
+    un: SigRef,
+    bin: SigRef,
+    rand: SigRef,
+    block: SigRef,
+}
+
+/// State of the translation of one program.
+struct Emit<'a, 'b> {
+    b: &'b mut FunctionBuilder<'a>,
+    ptr: Type,
+    regs: Value,
+    /// Where the state registers are read from.
+    x: Value,
+    state_regs: u32,
+    rng: Value,
+    vals: Vec<Option<Value>>,
+    sigs: Sigs,
+}
+
+fn sig(module: &JITModule, params: &[Type], ret: Option<Type>) -> Signature {
+    let mut s = module.make_signature();
+    s.params.extend(params.iter().map(|&t| AbiParam::new(t)));
+    s.returns.extend(ret.map(AbiParam::new));
+    s
+}
+
+impl Generator {
+    pub fn new(module: &JITModule) -> Self {
+        Self {
+            ctx: module.make_context(),
+            fctx: FunctionBuilderContext::new(),
+            count: 0,
+        }
+    }
+
+    /// Defines `p` in `module`; `blocks` are its block descriptors (kept
+    /// alive by the caller as long as the code).
+    pub fn define(
+        &mut self,
+        module: &mut JITModule,
+        p: &Program,
+        blocks: &[BlockDesc],
+    ) -> Result<FuncId, JitError> {
+        let ptr = module.target_config().pointer_type();
+        let entry_sig = sig(module, &[ptr, ptr, ptr], None);
+        let name = format!("program{}", self.count);
+        self.count += 1;
+        let id = module
+            .declare_function(&name, Linkage::Local, &entry_sig)
+            .map_err(|e| JitError::Codegen(e.to_string()))?;
+        module.clear_context(&mut self.ctx);
+        self.ctx.func.signature = entry_sig;
+        self.ctx.func.name = UserFuncName::user(0, id.as_u32());
+        {
+            let mut b = FunctionBuilder::new(&mut self.ctx.func, &mut self.fctx);
+            let block = b.create_block();
+            b.append_block_params_for_function_params(block);
+            b.switch_to_block(block);
+            let params = b.block_params(block);
+            let (regs, x, rng) = (params[0], params[1], params[2]);
+            let f64t = types::F64;
+            let sigs = Sigs {
+                un: b.import_signature(sig(module, &[f64t], Some(f64t))),
+                bin: b.import_signature(sig(module, &[f64t, f64t], Some(f64t))),
+                rand: b.import_signature(sig(module, &[ptr, types::I32, f64t, f64t], Some(f64t))),
+                block: b.import_signature(sig(module, &[ptr, ptr], None)),
+            };
+            let mut e = Emit {
+                b: &mut b,
+                ptr,
+                regs,
+                x,
+                state_regs: p.state_regs as u32,
+                rng,
+                vals: vec![None; p.nregs],
+                sigs,
+            };
+            e.program(p, blocks);
+            b.ins().return_(&[]);
+            b.seal_all_blocks();
+            b.finalize(module.target_config());
+        }
+        module
+            .define_function(id, &mut self.ctx)
+            .map_err(|e| JitError::Codegen(format!("{e:?}")))?;
+        Ok(id)
+    }
+}
+
+fn offset(r: u32) -> i32 {
+    // Register files are far below 2³¹ / 8 registers (`Program` indexes
+    // them with u32 and the JIT's size limit bounds them further).
+    (r as usize * 8) as i32
+}
+
+impl Emit<'_, '_> {
+    fn get(&mut self, r: u32) -> Value {
+        match self.vals[r as usize] {
+            Some(v) => v,
+            None => {
+                let base = if r < self.state_regs {
+                    self.x
+                } else {
+                    self.regs
+                };
+                let v = self
+                    .b
+                    .ins()
+                    .load(types::F64, MemFlagsData::trusted(), base, offset(r));
+                self.vals[r as usize] = Some(v);
+                v
+            }
+        }
+    }
+
+    fn set(&mut self, r: u32, v: Value) {
+        self.vals[r as usize] = Some(v);
+    }
+
+    fn konst(&mut self, c: f64) -> Value {
+        self.b.ins().f64const(c)
+    }
+
+    fn b2f(&mut self, cond: Value) -> Value {
+        let (one, zero) = (self.konst(1.0), self.konst(0.0));
+        self.b.ins().select(cond, one, zero)
+    }
+
+    fn nonzero(&mut self, a: Value) -> Value {
+        let zero = self.konst(0.0);
+        self.b.ins().fcmp(FloatCC::NotEqual, a, zero)
+    }
+
+    fn address(&mut self, p: *const u8) -> Value {
+        self.b.ins().iconst(self.ptr, p as i64)
+    }
+
+    fn call(&mut self, sig: SigRef, f: *const u8, args: &[Value]) -> Option<Value> {
+        let callee = self.address(f);
+        let call = self.b.ins().call_indirect(sig, callee, args);
+        self.b.inst_results(call).first().copied()
+    }
+
+    fn un(&mut self, f: UnFn, a: Value) -> Value {
+        if let Some(h) = helpers::un_helper(f) {
+            let sig = self.sigs.un;
+            return self.call(sig, h as *const u8, &[a]).expect("one result");
+        }
+        match f {
+            UnFn::Neg => self.b.ins().fneg(a),
+            UnFn::Abs => self.b.ins().fabs(a),
+            UnFn::Sqrt => self.b.ins().sqrt(a),
+            UnFn::Floor => self.b.ins().floor(a),
+            UnFn::Ceil => self.b.ins().ceil(a),
+            UnFn::Sign => {
+                let zero = self.konst(0.0);
+                let gt = self.b.ins().fcmp(FloatCC::GreaterThan, a, zero);
+                let lt = self.b.ins().fcmp(FloatCC::LessThan, a, zero);
+                let (one, minus) = (self.konst(1.0), self.konst(-1.0));
+                let neg = self.b.ins().select(lt, minus, zero);
+                self.b.ins().select(gt, one, neg)
+            }
+            UnFn::Not => {
+                let zero = self.konst(0.0);
+                let eq = self.b.ins().fcmp(FloatCC::Equal, a, zero);
+                self.b2f(eq)
+            }
+            _ => unreachable!("{f:?} is a helper call"),
+        }
+    }
+
+    /// `f(a, b)`; `b_const` is `b`'s value when it is an immediate.
+    fn bin(&mut self, f: BinFn, a: Value, b: Value, b_const: Option<f64>) -> Value {
+        if f == BinFn::Pow && b_const == Some(2.0) {
+            return self.b.ins().fmul(a, a);
+        }
+        if let Some(h) = helpers::bin_helper(f) {
+            let sig = self.sigs.bin;
+            return self.call(sig, h as *const u8, &[a, b]).expect("one result");
+        }
+        let cmp = |e: &mut Self, cc: FloatCC| {
+            let c = e.b.ins().fcmp(cc, a, b);
+            e.b2f(c)
+        };
+        match f {
+            BinFn::Add => self.b.ins().fadd(a, b),
+            BinFn::Sub => self.b.ins().fsub(a, b),
+            BinFn::Mul => self.b.ins().fmul(a, b),
+            BinFn::Div => self.b.ins().fdiv(a, b),
+            BinFn::Mod => {
+                // a − b·⌊a / b⌋, as `eval_bin` computes it.
+                let q = self.b.ins().fdiv(a, b);
+                let fl = self.b.ins().floor(q);
+                let m = self.b.ins().fmul(b, fl);
+                self.b.ins().fsub(a, m)
+            }
+            BinFn::Rem => {
+                // a − b·trunc(a / b), as `eval_bin` computes it.
+                let q = self.b.ins().fdiv(a, b);
+                let tr = self.b.ins().trunc(q);
+                let m = self.b.ins().fmul(b, tr);
+                self.b.ins().fsub(a, m)
+            }
+            BinFn::Lt => cmp(self, FloatCC::LessThan),
+            BinFn::Le => cmp(self, FloatCC::LessThanOrEqual),
+            BinFn::Gt => cmp(self, FloatCC::GreaterThan),
+            BinFn::Ge => cmp(self, FloatCC::GreaterThanOrEqual),
+            BinFn::Eq => cmp(self, FloatCC::Equal),
+            // Unordered or unequal: true for NaN, as Rust's `!=`.
+            BinFn::Ne => cmp(self, FloatCC::NotEqual),
+            BinFn::And | BinFn::Or => {
+                let (x, y) = (self.nonzero(a), self.nonzero(b));
+                let c = if f == BinFn::And {
+                    self.b.ins().band(x, y)
+                } else {
+                    self.b.ins().bor(x, y)
+                };
+                self.b2f(c)
+            }
+            _ => unreachable!("{f:?} is a helper call"),
+        }
+    }
+
+    fn program(&mut self, p: &Program, blocks: &[BlockDesc]) {
+        let mut next_block = 0;
+        for op in &p.ops {
+            match *op {
+                Op::Const { d, c } => {
+                    let v = self.konst(c);
+                    self.set(d, v);
+                }
+                Op::Add { d, a, b }
+                | Op::Sub { d, a, b }
+                | Op::Mul { d, a, b }
+                | Op::Div { d, a, b } => {
+                    let f = match op {
+                        Op::Add { .. } => BinFn::Add,
+                        Op::Sub { .. } => BinFn::Sub,
+                        Op::Mul { .. } => BinFn::Mul,
+                        _ => BinFn::Div,
+                    };
+                    let (a, b) = (self.get(a), self.get(b));
+                    let v = self.bin(f, a, b, None);
+                    self.set(d, v);
+                }
+                Op::AddC { d, a, c } => {
+                    let (a, c) = (self.get(a), self.konst(c));
+                    let v = self.b.ins().fadd(a, c);
+                    self.set(d, v);
+                }
+                Op::MulC { d, a, c } => {
+                    let (a, c) = (self.get(a), self.konst(c));
+                    let v = self.b.ins().fmul(a, c);
+                    self.set(d, v);
+                }
+                Op::BinRC { d, f, a, c } => {
+                    let (a, k) = (self.get(a), self.konst(c));
+                    let v = self.bin(f, a, k, Some(c));
+                    self.set(d, v);
+                }
+                Op::BinCR { d, f, c, b } => {
+                    let (k, b) = (self.konst(c), self.get(b));
+                    let v = self.bin(f, k, b, None);
+                    self.set(d, v);
+                }
+                Op::Bin { d, f, a, b } => {
+                    let (a, b) = (self.get(a), self.get(b));
+                    let v = self.bin(f, a, b, None);
+                    self.set(d, v);
+                }
+                Op::Neg { d, a } => {
+                    let a = self.get(a);
+                    let v = self.b.ins().fneg(a);
+                    self.set(d, v);
+                }
+                Op::Un { d, f, a } => {
+                    let a = self.get(a);
+                    let v = self.un(f, a);
+                    self.set(d, v);
+                }
+                Op::Select { d, c, a, b } => {
+                    let c = self.get(c);
+                    let cond = self.nonzero(c);
+                    let (a, b) = (self.get(a), self.get(b));
+                    let v = self.b.ins().select(cond, a, b);
+                    self.set(d, v);
+                }
+                Op::Rand { d, dist, a, b } => {
+                    let (a, b) = (self.get(a), self.get(b));
+                    let code = self
+                        .b
+                        .ins()
+                        .iconst(types::I32, i64::from(helpers::dist_code(dist)));
+                    let (sig, rng) = (self.sigs.rand, self.rng);
+                    let r = helpers::rand as helpers::Rand as *const u8;
+                    let v = self.call(sig, r, &[rng, code, a, b]).expect("one result");
+                    self.set(d, v);
+                }
+                Op::Lin { d, t0, len } => {
+                    let terms = &p.lin[t0 as usize..(t0 + len) as usize];
+                    let mut acc = None;
+                    for &(r, c) in terms {
+                        let k = self.konst(c);
+                        let term = if r == CONST_TERM {
+                            k
+                        } else {
+                            let x = self.get(r);
+                            self.b.ins().fmul(x, k)
+                        };
+                        acc = Some(match acc {
+                            None => term,
+                            Some(s) => self.b.ins().fadd(s, term),
+                        });
+                    }
+                    let v = acc.expect("a sum has terms");
+                    self.set(d, v);
+                }
+                Op::Block {
+                    kind,
+                    g0,
+                    len,
+                    inp,
+                    out,
+                    ..
+                } => {
+                    for k in 0..len {
+                        let v = self.get(p.gather[(g0 + k) as usize]);
+                        self.b
+                            .ins()
+                            .store(MemFlagsData::trusted(), v, self.regs, offset(inp + k));
+                    }
+                    let desc = &blocks[next_block] as *const BlockDesc as *const u8;
+                    next_block += 1;
+                    let desc = self.address(desc);
+                    let (sig, regs) = (self.sigs.block, self.regs);
+                    let h = helpers::block as helpers::Block as *const u8;
+                    self.call(sig, h, &[desc, regs]);
+                    // The outputs are in the register file now.
+                    for r in out..out + kind.outputs() as u32 {
+                        self.vals[r as usize] = None;
+                    }
+                }
+            }
+        }
+        // Every output lands in the register file, also one that is a state
+        // register read from `x`.
+        for &o in &p.outs {
+            let v = self.get(o);
+            self.b
+                .ins()
+                .store(MemFlagsData::trusted(), v, self.regs, offset(o));
+        }
+    }
+}

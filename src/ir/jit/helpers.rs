@@ -1,0 +1,165 @@
+//! Rust functions the generated code calls: the transcendental functions
+//! (through the interpreter's own `eval_un` / `eval_bin`, so both run the
+//! same libm code), random draws and matrix blocks.
+
+use crate::check::dag::{BinFn, BlockKind, Dist, UnFn, eval_bin, eval_un};
+use crate::engine::SimRng;
+use crate::ir::program::{Op, Program, apply_block, draw};
+
+/// A function of one argument called by the generated code.
+pub(super) type Un = extern "C" fn(f64) -> f64;
+/// A function of two arguments called by the generated code.
+pub(super) type Bin = extern "C" fn(f64, f64) -> f64;
+/// `draw(rng, dist, a, b)`.
+pub(super) type Rand = extern "C" fn(*mut SimRng, u32, f64, f64) -> f64;
+/// `block(desc, regs)`.
+pub(super) type Block = extern "C" fn(*const BlockDesc, *mut f64);
+
+macro_rules! un_helpers {
+    ($($name:ident = $f:ident),* $(,)?) => {
+        $(extern "C" fn $name(a: f64) -> f64 {
+            eval_un(UnFn::$f, a)
+        })*
+    };
+}
+
+macro_rules! bin_helpers {
+    ($($name:ident = $f:ident),* $(,)?) => {
+        $(extern "C" fn $name(a: f64, b: f64) -> f64 {
+            eval_bin(BinFn::$f, a, b)
+        })*
+    };
+}
+
+un_helpers!(
+    un_exp = Exp,
+    un_log = Log,
+    un_sin = Sin,
+    un_cos = Cos,
+    un_tan = Tan,
+    un_atan = Atan,
+    un_tanh = Tanh,
+    un_round = Round,
+);
+
+bin_helpers!(
+    bin_pow = Pow,
+    bin_min = Min,
+    bin_max = Max,
+    bin_atan2 = Atan2,
+    bin_hypot = Hypot,
+);
+
+/// The helper computing `f`, or `None` for the functions emitted inline
+/// (exact IEEE operations and comparisons).
+pub(super) fn un_helper(f: UnFn) -> Option<Un> {
+    match f {
+        UnFn::Exp => Some(un_exp),
+        UnFn::Log => Some(un_log),
+        UnFn::Sin => Some(un_sin),
+        UnFn::Cos => Some(un_cos),
+        UnFn::Tan => Some(un_tan),
+        UnFn::Atan => Some(un_atan),
+        UnFn::Tanh => Some(un_tanh),
+        // Cranelift's `nearest` rounds halves to even, `f64::round` away
+        // from zero: a call.
+        UnFn::Round => Some(un_round),
+        UnFn::Neg | UnFn::Abs | UnFn::Sqrt | UnFn::Sign | UnFn::Floor | UnFn::Ceil | UnFn::Not => {
+            None
+        }
+    }
+}
+
+/// The helper computing `f`, or `None` for the functions emitted inline.
+pub(super) fn bin_helper(f: BinFn) -> Option<Bin> {
+    match f {
+        BinFn::Pow => Some(bin_pow),
+        BinFn::Min => Some(bin_min),
+        BinFn::Max => Some(bin_max),
+        BinFn::Atan2 => Some(bin_atan2),
+        BinFn::Hypot => Some(bin_hypot),
+        BinFn::Add
+        | BinFn::Sub
+        | BinFn::Mul
+        | BinFn::Div
+        | BinFn::Mod
+        | BinFn::Rem
+        | BinFn::Lt
+        | BinFn::Le
+        | BinFn::Gt
+        | BinFn::Ge
+        | BinFn::Eq
+        | BinFn::Ne
+        | BinFn::And
+        | BinFn::Or => None,
+    }
+}
+
+/// The code of `dist` passed to [`rand`].
+pub(super) fn dist_code(dist: Dist) -> u32 {
+    match dist {
+        Dist::Uniform => 0,
+        Dist::Normal => 1,
+        Dist::Bernoulli => 2,
+    }
+}
+
+/// A random draw (the interpreter's [`draw`]); `rng` null draws NaN.
+pub(super) extern "C" fn rand(rng: *mut SimRng, dist: u32, a: f64, b: f64) -> f64 {
+    let dist = match dist {
+        0 => Dist::Uniform,
+        1 => Dist::Normal,
+        _ => Dist::Bernoulli,
+    };
+    // SAFETY: `Native::run` passes null or a pointer from a live `&mut SimRng`.
+    let rng = unsafe { rng.as_mut() };
+    draw(rng, dist, a, b)
+}
+
+/// What the generated code passes to [`block`]: one matrix operation of a
+/// program and the length of its register file.
+#[derive(Debug, Clone, Copy)]
+pub(super) struct BlockDesc {
+    kind: BlockKind,
+    inp: usize,
+    len: usize,
+    out: usize,
+    origin: u32,
+    nregs: usize,
+}
+
+/// The descriptors of `p`'s block operations, in program order.
+pub(super) fn block_descs(p: &Program) -> Box<[BlockDesc]> {
+    p.ops
+        .iter()
+        .filter_map(|op| match *op {
+            Op::Block {
+                kind,
+                len,
+                inp,
+                out,
+                origin,
+                ..
+            } => Some(BlockDesc {
+                kind,
+                inp: inp as usize,
+                len: len as usize,
+                out: out as usize,
+                origin,
+                nregs: p.nregs,
+            }),
+            _ => None,
+        })
+        .collect()
+}
+
+/// A matrix block (the interpreter's [`apply_block`]) on gathered inputs.
+pub(super) extern "C" fn block(desc: *const BlockDesc, regs: *mut f64) {
+    // SAFETY: `desc` points into the descriptors kept alive with the code;
+    // `regs` is the register file `Native::run` checked to hold `nregs`.
+    let (d, regs) = unsafe {
+        let d = &*desc;
+        (d, std::slice::from_raw_parts_mut(regs, d.nregs))
+    };
+    apply_block(regs, d.kind, d.inp, d.len, d.out, d.origin);
+}

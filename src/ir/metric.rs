@@ -1,0 +1,300 @@
+//! A model's `metric` declarations compiled into two register programs and
+//! reduced while a run streams ([`MetricSink`], an [`ArcSink`] that keeps
+//! no arc).
+//!
+//! The *sample program* evaluates, at each sample, every reduction's
+//! argument and window in the property frame `[x (n) | j | x⁺ (n) | t]`
+//! (see [`crate::check::property`]); the *metric program* combines the
+//! reduced values (registers `base..base + r` of its frame, `t` = the final
+//! time) into the metrics. Integrals and means use the trapezoid rule
+//! between consecutive samples of one flow interval, so their accuracy is
+//! that of the sample grid (`dt_out`, or the integrator's steps); the
+//! window is evaluated at the samples, and a flow segment counts if both
+//! its end samples are in it.
+
+use std::ops::ControlFlow;
+
+use super::program::{Frame, Program};
+use super::with_regs;
+use crate::arc::{ArcSink, HybridTime, SampleKind, Termination};
+use crate::check::dag::Dag;
+use crate::check::metric::{CheckedMetrics, ReductionKind};
+
+#[derive(Debug, Clone)]
+struct Spec {
+    kind: ReductionKind,
+    /// Output of the sample program holding the argument.
+    arg: Option<usize>,
+    /// Output of the sample program holding the window.
+    window: Option<usize>,
+}
+
+/// A model's compiled metrics. Build a [`MetricSink`] per run with
+/// [`Metrics::sink`].
+#[derive(Debug, Clone)]
+pub struct Metrics {
+    names: Vec<String>,
+    specs: Vec<Spec>,
+    /// Count reductions per rule index.
+    by_rule: Vec<Vec<usize>>,
+    sample: Program,
+    sample_regs: usize,
+    n: usize,
+    combine: Program,
+    combine_regs: usize,
+    base: usize,
+}
+
+impl Metrics {
+    /// Compiles the checked metrics of a model with `n` state components
+    /// and `rules` jump rules.
+    pub(crate) fn compile(dag: &Dag, m: &CheckedMetrics, n: usize, rules: usize) -> Self {
+        let mut outs = Vec::new();
+        let mut specs = Vec::new();
+        let mut by_rule = vec![Vec::new(); rules];
+        for (k, r) in m.reductions.iter().enumerate() {
+            let mut slot = |node: Option<_>| {
+                node.map(|node| {
+                    outs.push(node);
+                    outs.len() - 1
+                })
+            };
+            let arg = slot(r.arg);
+            let window = slot(r.window);
+            for &rule in &r.rules {
+                if let Some(list) = by_rule.get_mut(rule) {
+                    list.push(k);
+                }
+            }
+            specs.push(Spec {
+                kind: r.kind,
+                arg,
+                window,
+            });
+        }
+        let frame = Frame { n: 2 * n + 1, m: 0 };
+        let sample = Program::compile(dag, frame, &outs);
+        let sample_regs = sample.nregs.max(frame.fixed());
+        let cframe = Frame {
+            n: m.base + m.reductions.len(),
+            m: 0,
+        };
+        let nodes: Vec<_> = m.metrics.iter().map(|x| x.node).collect();
+        let combine = Program::compile(dag, cframe, &nodes);
+        let combine_regs = combine.nregs.max(cframe.fixed());
+        Self {
+            names: m.metrics.iter().map(|x| x.name.clone()).collect(),
+            specs,
+            by_rule,
+            sample,
+            sample_regs,
+            n,
+            combine,
+            combine_regs,
+            base: m.base,
+        }
+    }
+
+    /// The program evaluated at every sample (compiled to machine code
+    /// with the model's programs).
+    pub(super) fn sample_mut(&mut self) -> &mut Program {
+        &mut self.sample
+    }
+
+    /// The metrics' names in declaration order (`rate[2]` for family members).
+    pub fn names(&self) -> &[String] {
+        &self.names
+    }
+
+    /// True if the model declares no metric.
+    pub fn is_empty(&self) -> bool {
+        self.names.is_empty()
+    }
+
+    /// A sink that reduces one run.
+    pub fn sink(&self) -> MetricSink<'_> {
+        let specs = &self.specs;
+        MetricSink {
+            m: self,
+            acc: specs.iter().map(|s| Acc::new(s.kind)).collect(),
+            prev: None,
+            vals: vec![0.0; self.sample.outs.len()],
+            prev_vals: vec![0.0; self.sample.outs.len()],
+            end: None,
+        }
+    }
+
+    /// Evaluates the sample program at `(at, x)` into `vals`.
+    fn eval(&self, at: HybridTime, x: &[f64], vals: &mut [f64]) {
+        if vals.is_empty() {
+            return;
+        }
+        let n = self.n;
+        with_regs(self.sample_regs, |regs| {
+            regs[..n].copy_from_slice(&x[..n]);
+            regs[n] = at.j as f64;
+            regs[n + 1..2 * n + 1].copy_from_slice(&x[..n]);
+            regs[2 * n + 1] = at.t;
+            regs[2 * n + 2] = at.j as f64;
+            self.sample.run(regs, None);
+            for (v, &o) in vals.iter_mut().zip(&self.sample.outs) {
+                *v = regs[o as usize];
+            }
+        })
+    }
+}
+
+/// One reduction's running value.
+#[derive(Debug, Clone, Copy)]
+enum Acc {
+    Count(u64),
+    Integral(f64),
+    Mean { num: f64, den: f64 },
+    Extreme(Option<f64>),
+    Final(f64),
+}
+
+impl Acc {
+    fn new(kind: ReductionKind) -> Self {
+        match kind {
+            ReductionKind::Count => Acc::Count(0),
+            ReductionKind::Integral => Acc::Integral(0.0),
+            ReductionKind::Mean => Acc::Mean { num: 0.0, den: 0.0 },
+            ReductionKind::Max | ReductionKind::Min => Acc::Extreme(None),
+            ReductionKind::Final => Acc::Final(f64::NAN),
+        }
+    }
+
+    fn value(&self) -> f64 {
+        match *self {
+            Acc::Count(c) => c as f64,
+            Acc::Integral(s) => s,
+            Acc::Mean { num, den } => {
+                if den > 0.0 {
+                    num / den
+                } else {
+                    f64::NAN
+                }
+            }
+            Acc::Extreme(v) => v.unwrap_or(f64::NAN),
+            Acc::Final(v) => v,
+        }
+    }
+}
+
+/// Reduces one run into the model's metrics as it streams; keeps only the
+/// previous sample's evaluated values. Read the result with
+/// [`MetricSink::values`] after the run (also valid for a run that ended
+/// early: the metrics of what was computed).
+#[derive(Debug)]
+pub struct MetricSink<'a> {
+    m: &'a Metrics,
+    acc: Vec<Acc>,
+    prev: Option<HybridTime>,
+    vals: Vec<f64>,
+    prev_vals: Vec<f64>,
+    end: Option<HybridTime>,
+}
+
+impl MetricSink<'_> {
+    /// The metrics' values, in the order of [`Metrics::names`]. A mean over
+    /// no flow time, or a max/min/final over no sample, is NaN.
+    pub fn values(&self) -> Vec<f64> {
+        let m = self.m;
+        if m.names.is_empty() {
+            return Vec::new();
+        }
+        let t_end = self.end.map_or(f64::NAN, |e| e.t);
+        let j_end = self.end.map_or(f64::NAN, |e| e.j as f64);
+        with_regs(m.combine_regs, |regs| {
+            regs[..m.base].fill(0.0);
+            for (k, a) in self.acc.iter().enumerate() {
+                regs[m.base + k] = a.value();
+            }
+            regs[m.base + self.acc.len()] = t_end;
+            regs[m.base + self.acc.len() + 1] = j_end;
+            m.combine.run(regs, None);
+            m.combine.outs.iter().map(|&o| regs[o as usize]).collect()
+        })
+    }
+
+    /// The metrics with their names.
+    pub fn named_values(&self) -> Vec<(String, f64)> {
+        self.m.names.iter().cloned().zip(self.values()).collect()
+    }
+}
+
+impl ArcSink for MetricSink<'_> {
+    fn sample(&mut self, at: HybridTime, x: &[f64], _kind: SampleKind) -> ControlFlow<()> {
+        self.m.eval(at, x, &mut self.vals);
+        let holds = |vals: &[f64], w: Option<usize>| w.is_none_or(|w| vals[w] != 0.0);
+        // Flow interval since the previous sample (same j).
+        let dt = match self.prev {
+            Some(p) if p.j == at.j && at.t > p.t => at.t - p.t,
+            _ => 0.0,
+        };
+        for (spec, acc) in self.m.specs.iter().zip(&mut self.acc) {
+            let now_in = holds(&self.vals, spec.window);
+            let value = spec.arg.map_or(0.0, |a| self.vals[a]);
+            match acc {
+                Acc::Count(_) => {}
+                // A flow segment counts if both its samples are in the window.
+                Acc::Integral(s) | Acc::Mean { num: s, .. }
+                    if dt > 0.0 && now_in && holds(&self.prev_vals, spec.window) =>
+                {
+                    let before = spec.arg.map_or(0.0, |a| self.prev_vals[a]);
+                    *s += 0.5 * dt * (before + value);
+                    if let Acc::Mean { den, .. } = acc {
+                        *den += dt;
+                    }
+                }
+                Acc::Integral(_) | Acc::Mean { .. } => {}
+                Acc::Extreme(best) => {
+                    if now_in {
+                        let better = match *best {
+                            None => true,
+                            Some(b) if spec.kind == ReductionKind::Max => value > b,
+                            Some(b) => value < b,
+                        };
+                        if better || value.is_nan() {
+                            *best = Some(value);
+                        }
+                    }
+                }
+                Acc::Final(v) => *v = value,
+            }
+        }
+        std::mem::swap(&mut self.vals, &mut self.prev_vals);
+        self.prev = Some(at);
+        self.end = Some(at);
+        ControlFlow::Continue(())
+    }
+
+    fn jump(&mut self, at: HybridTime, rule: usize, pre: &[f64], _post: &[f64]) -> ControlFlow<()> {
+        let Some(list) = self.m.by_rule.get(rule) else {
+            return ControlFlow::Continue(());
+        };
+        if list.is_empty() {
+            return ControlFlow::Continue(());
+        }
+        // The window at the pre-jump point: the previous sample's values
+        // when it is that point.
+        let vals = if self.prev == Some(at) {
+            &self.prev_vals
+        } else {
+            self.m.eval(at, pre, &mut self.vals);
+            &self.vals
+        };
+        for &k in list {
+            let w = self.m.specs[k].window;
+            if w.is_none_or(|w| vals[w] != 0.0)
+                && let Acc::Count(c) = &mut self.acc[k]
+            {
+                *c += 1;
+            }
+        }
+        ControlFlow::Continue(())
+    }
+
+    fn finish(&mut self, _termination: &Termination) {}
+}

@@ -1,0 +1,456 @@
+//! Sweeps and Monte Carlo: a Cartesian grid of `--set` values × seeded runs
+//! of a model, reduced by the model's `metric` declarations while each run
+//! streams (no arc is kept), on all cores, in shards that merge into the
+//! same files.
+//!
+//! ```
+//! use hybsim::source::SourceFile;
+//! use hybsim::sweep::{self, Axis, Shard, SweepSpec};
+//!
+//! let src = SourceFile::new("ball.hyb", "model ball
+//! param g = 9.81, lambda = 0.8
+//! state h = 1, v = 0
+//! flow { h' = v; v' = -g } in h >= 0
+//! jump impact when h <= 0 && v <= 0 { v+ = -lambda * v }
+//! metric bounces = count(impact)
+//! sim { T = 1 }
+//! ");
+//! let spec = SweepSpec::new(vec!["lambda=[0.5, 0.8]".parse::<Axis>().unwrap()], 2, 1);
+//! let rows = sweep::run(&src, &[], &spec, Shard::ALL, &Default::default(), Default::default());
+//! assert_eq!(rows.len(), 4);
+//! let points = sweep::aggregate(&spec, &rows);
+//! // A less lively ball lands sooner: two bounces before T = 1, not one.
+//! assert_eq!(points[0].stats[0].mean, 2.0);
+//! assert_eq!(points[1].stats[0].mean, 1.0);
+//! ```
+//!
+//! Run `r` of grid point `p` has the seed [`run_seed`]`(seed, label(p), r)`,
+//! so `hybsim run MODEL --set … --seed S` (the `command` of its row)
+//! replays it alone. Results ([`table`]): one row per run and one per grid
+//! point (mean, std, min, max, count of each metric over the completed
+//! runs), written in grid order whatever the number of threads or shards.
+
+pub mod grid;
+pub mod table;
+
+use std::ops::ControlFlow;
+use std::sync::Mutex;
+use std::sync::atomic::{AtomicBool, Ordering};
+
+use rayon::prelude::*;
+
+pub use grid::{Axis, Shard, run_seed};
+pub use table::{PointRow, RunRow, Stats};
+
+use crate::arc::{ArcSink, HybridTime, SampleKind, Termination, TerminationCause};
+use crate::engine::simulate;
+use crate::lang::{self, CheckOptions, CompiledModel, Override};
+use crate::num::Num;
+use crate::sinks::{RunOutcome, RunStatus};
+use crate::source::SourceFile;
+
+/// What can go wrong setting up or merging a sweep (a failing *run* is a
+/// row, not an error).
+#[derive(Debug, thiserror::Error)]
+pub enum SweepError {
+    /// A `--grid` axis that does not parse.
+    #[error("invalid grid axis `{text}`: {message}")]
+    Grid {
+        /// The axis as written.
+        text: String,
+        /// What is wrong.
+        message: String,
+    },
+    /// A `--shard` that is not `k/n` with 1 ≤ k ≤ n.
+    #[error("invalid shard `{0}`: write k/n with 1 ≤ k ≤ n (e.g. --shard 2/8)")]
+    Shard(String),
+    /// The same name on two axes, or on an axis and a `--set`.
+    #[error("`{0}` is set twice (on two grid axes, or by a grid axis and --set)")]
+    Twice(String),
+    /// Too many runs.
+    #[error("{0} runs in total: at most {MAX_RUNS} per sweep (split it)")]
+    TooMany(u128),
+    /// A file could not be read or written.
+    #[error("{path}: {source}")]
+    Io {
+        /// The file.
+        path: std::path::PathBuf,
+        /// Why.
+        source: std::io::Error,
+    },
+    /// A results file that is not what `hybsim sweep` writes.
+    #[error("{path}: {message}")]
+    Format {
+        /// The file.
+        path: std::path::PathBuf,
+        /// What is wrong.
+        message: String,
+    },
+    /// Shards that do not belong together or do not cover the sweep.
+    #[error("cannot merge: {0}")]
+    Merge(String),
+}
+
+/// Largest number of runs in one sweep.
+pub const MAX_RUNS: u64 = 1 << 40;
+
+/// A sweep: grid axes (the first varies slowest), runs per grid point and
+/// the base seed.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct SweepSpec {
+    /// The axes; no axis: one grid point (a plain Monte Carlo).
+    pub axes: Vec<Axis>,
+    /// Runs per grid point.
+    pub runs: u64,
+    /// Base seed of the run seeds.
+    pub seed: u64,
+}
+
+impl SweepSpec {
+    /// A sweep over `axes` with `runs` runs per point and base seed `seed`.
+    pub fn new(axes: Vec<Axis>, runs: u64, seed: u64) -> Self {
+        Self { axes, runs, seed }
+    }
+
+    /// Checks names (no axis twice, none also in `fixed`) and the size.
+    pub fn validate(&self, fixed: &[Override]) -> Result<(), SweepError> {
+        for (k, a) in self.axes.iter().enumerate() {
+            if self.axes[..k].iter().any(|b| b.name == a.name)
+                || fixed.iter().any(|o| o.name == a.name)
+            {
+                return Err(SweepError::Twice(a.name.clone()));
+            }
+        }
+        let total = self
+            .axes
+            .iter()
+            .fold(u128::from(self.runs), |n, a| n * a.values.len() as u128);
+        if total > u128::from(MAX_RUNS) {
+            return Err(SweepError::TooMany(total));
+        }
+        Ok(())
+    }
+
+    /// Number of grid points.
+    pub fn points(&self) -> usize {
+        self.axes.iter().map(|a| a.values.len()).product()
+    }
+
+    /// Total number of runs.
+    pub fn total_runs(&self) -> u64 {
+        self.points() as u64 * self.runs
+    }
+
+    /// The values of grid point `p` (one per axis; the last axis varies
+    /// fastest).
+    pub fn point(&self, mut p: usize) -> Vec<f64> {
+        let mut v = vec![0.0; self.axes.len()];
+        for (k, a) in self.axes.iter().enumerate().rev() {
+            v[k] = a.values[p % a.values.len()];
+            p /= a.values.len();
+        }
+        v
+    }
+
+    /// `name=value` of each axis at grid point `p` (values as shortest
+    /// round-trip decimals).
+    pub fn point_sets(&self, p: usize) -> Vec<String> {
+        self.axes
+            .iter()
+            .zip(self.point(p))
+            .map(|(a, v)| format!("{}={}", a.name, Num(v)))
+            .collect()
+    }
+
+    /// The label of grid point `p` in seeds: its `name=value`s joined by
+    /// `,` (empty without axes).
+    pub fn point_label(&self, p: usize) -> String {
+        self.point_sets(p).join(",")
+    }
+
+    /// The seed of run `run` at grid point `p`.
+    pub fn seed_of(&self, p: usize, run: u64) -> u64 {
+        run_seed(self.seed, &self.point_label(p), run)
+    }
+}
+
+/// How a caller follows and stops a sweep, and which runs it already has.
+#[derive(Clone, Copy)]
+pub struct Control<'a> {
+    /// Called after each run (for a progress bar).
+    pub done: &'a (dyn Fn() + Sync),
+    /// When set, no further run starts and the runs under way stop at
+    /// their next sample and are left out (Ctrl-C).
+    pub stop: &'a AtomicBool,
+    /// Runs not to do again (`index = point · runs + run`), e.g. those an
+    /// interrupted sweep already wrote.
+    pub skip: &'a (dyn Fn(u64) -> bool + Sync),
+}
+
+impl Default for Control<'_> {
+    /// No progress, never stopped, nothing skipped.
+    fn default() -> Self {
+        static NEVER: AtomicBool = AtomicBool::new(false);
+        Self {
+            done: &|| {},
+            stop: &NEVER,
+            skip: &|_| false,
+        }
+    }
+}
+
+/// Runs the part `shard` of `spec` on the model `src` with the fixed
+/// overrides `fixed`, on rayon's current thread pool, followed and stopped
+/// through `control`. Returns the rows of the runs that finished, in grid
+/// order (point, then run), the same for any number of threads. A grid
+/// point whose model does not compile gives failed rows (cause
+/// `model_error`); a run that panics (a bug) is a failed row (cause
+/// `internal_error`). Runs stopped by `control.stop` have no row.
+pub fn run(
+    src: &SourceFile,
+    fixed: &[Override],
+    spec: &SweepSpec,
+    shard: Shard,
+    options: &CheckOptions,
+    control: Control<'_>,
+) -> Vec<RunRow> {
+    let runs = spec.runs;
+    let jobs: Vec<u64> = (0..spec.total_runs())
+        .filter(|&i| shard.contains(i) && !(control.skip)(i))
+        .collect();
+    let mut points: Vec<usize> = jobs.iter().map(|&i| (i / runs) as usize).collect();
+    points.dedup();
+    // One compiled model per grid point (design blocks solved once).
+    let compiled: Vec<(usize, Result<CompiledModel, String>)> = points
+        .par_iter()
+        .map(|&p| {
+            (
+                p,
+                compile_point(src, fixed, spec, p, options, None).map(|m| m.0),
+            )
+        })
+        .collect();
+    let rows = Mutex::new(Vec::with_capacity(jobs.len()));
+    jobs.par_iter().for_each(|&i| {
+        if control.stop.load(Ordering::Relaxed) {
+            return;
+        }
+        let (p, r) = ((i / runs) as usize, i % runs);
+        let k = compiled
+            .binary_search_by_key(&p, |c| c.0)
+            .expect("every point of a job was compiled");
+        let Some(row) = run_one(
+            src,
+            fixed,
+            spec,
+            p,
+            r,
+            &compiled[k].1,
+            options,
+            control.stop,
+        ) else {
+            return;
+        };
+        rows.lock()
+            .expect("no run panics while holding the lock")
+            .push(row);
+        (control.done)();
+    });
+    let mut rows = rows.into_inner().expect("no run panicked");
+    rows.sort_by_key(|row| (row.point, row.run));
+    rows
+}
+
+/// Compiles grid point `p` as the sweep does: the diagnostics if it fails.
+pub fn check_point(
+    src: &SourceFile,
+    fixed: &[Override],
+    spec: &SweepSpec,
+    p: usize,
+    options: &CheckOptions,
+) -> Result<(), Vec<crate::diagnostics::Diagnostic>> {
+    let mut overrides = fixed.to_vec();
+    for s in spec.point_sets(p) {
+        overrides.push(s.parse().map_err(|d| vec![d])?);
+    }
+    lang::compile_with(src, &overrides, options).map(|_| ())
+}
+
+/// The overrides of grid point `p`: `fixed`, then the axes.
+fn point_overrides(
+    fixed: &[Override],
+    spec: &SweepSpec,
+    p: usize,
+) -> Result<Vec<Override>, String> {
+    let mut all = fixed.to_vec();
+    for s in spec.point_sets(p) {
+        all.push(
+            s.parse()
+                .map_err(|d: crate::diagnostics::Diagnostic| d.message)?,
+        );
+    }
+    Ok(all)
+}
+
+/// Compiles grid point `p` (with seed `seed`: as `hybsim run --seed`).
+fn compile_point(
+    src: &SourceFile,
+    fixed: &[Override],
+    spec: &SweepSpec,
+    p: usize,
+    options: &CheckOptions,
+    seed: Option<u64>,
+) -> Result<(CompiledModel, u64), String> {
+    let overrides = point_overrides(fixed, spec, p)?;
+    let compiled = match seed {
+        Some(_) => lang::compile_run_with(src, &overrides, seed, options),
+        None => lang::compile_with(src, &overrides, options).map(|m| {
+            let s = m.seed();
+            (m, s)
+        }),
+    };
+    compiled.map_err(|diags| crate::diagnostics::render(&diags, src, false))
+}
+
+/// Run `r` of grid point `p`; `None` if `stop` stopped it.
+#[allow(clippy::too_many_arguments)] // one run of the sweep and where it comes from
+fn run_one(
+    src: &SourceFile,
+    fixed: &[Override],
+    spec: &SweepSpec,
+    p: usize,
+    r: u64,
+    compiled: &Result<CompiledModel, String>,
+    options: &CheckOptions,
+    stop: &AtomicBool,
+) -> Option<RunRow> {
+    let seed = spec.seed_of(p, r);
+    let mut row = RunRow {
+        point: p,
+        run: r,
+        seed,
+        values: spec.point(p),
+        status: RunStatus::Failed,
+        cause: String::new(),
+        message: String::new(),
+        metrics: Vec::new(),
+    };
+    let model = match compiled {
+        Err(message) => {
+            row.cause = "model_error".into();
+            row.message = message.trim_end().to_string();
+            return Some(row);
+        }
+        Ok(m) => m,
+    };
+    // Random parameters are drawn from the run's seed, as `hybsim run` does.
+    let redrawn;
+    let model = if model.random_params().is_empty() {
+        model
+    } else {
+        match compile_point(src, fixed, spec, p, options, Some(seed)) {
+            Ok((m, _)) => {
+                redrawn = m;
+                &redrawn
+            }
+            Err(message) => {
+                row.cause = "model_error".into();
+                row.message = message.trim_end().to_string();
+                return Some(row);
+            }
+        }
+    };
+    let (x0, mut rng) = model.start(seed);
+    let mut sink = Stoppable {
+        inner: model.metrics().sink(),
+        stop,
+    };
+    // A panic (a bug) is the row's cause; the panic hook has printed it.
+    let result = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+        simulate(model, &x0, &model.settings(), &mut rng, &mut sink)
+    }));
+    let Ok(result) = result else {
+        row.cause = "internal_error".into();
+        row.message = "internal error (a bug in hybsim): the run panicked".into();
+        return Some(row);
+    };
+    if let Ok(term) = &result
+        && term.cause == TerminationCause::StoppedBySink
+    {
+        return None;
+    }
+    let outcome = match &result {
+        Ok(term) => RunOutcome::from_termination(term),
+        Err(e) => RunOutcome::failed("error", format!("{e}; {}", e.help())),
+    };
+    if let Ok(term) = &result
+        && matches!(term.cause, TerminationCause::ZenoSuspected { .. })
+    {
+        row.message = format!("{}; {}", outcome.message, term.help());
+    } else {
+        row.message = outcome.message.clone();
+    }
+    row.status = outcome.status;
+    row.cause = outcome.cause;
+    if row.status == RunStatus::Completed {
+        row.metrics = sink.inner.values();
+    }
+    Some(row)
+}
+
+/// A sink that stops the run at its next sample once `stop` is set.
+struct Stoppable<'a, S> {
+    inner: S,
+    stop: &'a AtomicBool,
+}
+
+impl<S: ArcSink> ArcSink for Stoppable<'_, S> {
+    fn sample(&mut self, at: HybridTime, x: &[f64], kind: SampleKind) -> ControlFlow<()> {
+        if self.stop.load(Ordering::Relaxed) {
+            return ControlFlow::Break(());
+        }
+        self.inner.sample(at, x, kind)
+    }
+
+    fn jump(&mut self, at: HybridTime, rule: usize, pre: &[f64], post: &[f64]) -> ControlFlow<()> {
+        self.inner.jump(at, rule, pre, post)
+    }
+
+    fn finish(&mut self, termination: &Termination) {
+        self.inner.finish(termination);
+    }
+}
+
+/// The per-grid-point statistics of `rows` (all rows of each point present
+/// in `rows`), in grid order.
+pub fn aggregate(spec: &SweepSpec, rows: &[RunRow]) -> Vec<PointRow> {
+    let mut out: Vec<PointRow> = Vec::new();
+    for row in rows {
+        if out.last().is_none_or(|p| p.point != row.point) {
+            out.push(PointRow {
+                point: row.point,
+                values: spec.point(row.point),
+                runs: 0,
+                completed: 0,
+                stats: Vec::new(),
+            });
+        }
+        let p = out.last_mut().expect("just pushed");
+        p.runs += 1;
+        if row.status == RunStatus::Completed {
+            p.completed += 1;
+            if p.stats.len() < row.metrics.len() {
+                p.stats.resize(row.metrics.len(), Stats::default());
+            }
+            for (s, &v) in p.stats.iter_mut().zip(&row.metrics) {
+                s.push(v);
+            }
+        }
+    }
+    for p in &mut out {
+        for s in &mut p.stats {
+            s.finish();
+        }
+    }
+    out
+}

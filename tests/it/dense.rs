@@ -1,0 +1,125 @@
+//! Dense output and the exact-affine choice: the default samples draw each
+//! flow faithfully (`HybridArc::value_at` follows the solution between
+//! samples), and `exact_affine = auto | on | off` give the same arcs within
+//! the solver's tolerance on every shipped model.
+
+use hybsim::arc::{HybridArc, HybridTime, SampleKind};
+use hybsim::engine::models::BouncingBall;
+use hybsim::engine::{ExactAffine, HybridSystem, SimRng, SimSettings, simulate_arc};
+
+use super::lang::load;
+
+/// Height of the ball (h0 = 1, λ = 0.8) at (t, j) in closed form.
+fn ball_height(t: f64, j: u64) -> f64 {
+    let (g, lam) = (9.81_f64, 0.8_f64);
+    let t1 = (2.0 / g).sqrt();
+    if j == 0 {
+        return 1.0 - 0.5 * g * t * t;
+    }
+    // Impact k at t1 + Σ_{i<k} 2 λ^i v1 / g with v1 = g t1.
+    let mut tk = t1;
+    let mut v = g * t1;
+    for _ in 1..j {
+        v *= lam;
+        tk += 2.0 * v / g;
+    }
+    let v_post = lam * v;
+    let s = t - tk;
+    v_post * s - 0.5 * g * s * s
+}
+
+#[test]
+fn value_at_follows_the_ball_between_samples() {
+    let mut ball = BouncingBall::new(9.81, 0.8);
+    ball.affine = true;
+    for mode in [ExactAffine::Auto, ExactAffine::On, ExactAffine::Off] {
+        let s = SimSettings::default().horizon_t(3.0).exact_affine(mode);
+        let arc = simulate_arc(&ball, &[1.0, 0.0], &s, &mut SimRng::seed_from(0)).unwrap();
+        // The example of issue 16: 0.639 at (0.8, 1).
+        let h = arc.value_at(HybridTime::new(0.8, 1)).unwrap()[0];
+        assert!((h - ball_height(0.8, 1)).abs() < 1e-6, "{mode:?}: {h}");
+        let mut worst: f64 = 0.0;
+        for r in 0..arc.jumps().len().saturating_sub(1).min(8) {
+            let (a, b) = (arc.jumps()[r].at.t, arc.jumps()[r + 1].at.t);
+            for k in 1..50 {
+                let t = a + (b - a) * k as f64 / 50.0;
+                let j = r as u64 + 1;
+                let x = arc.value_at(HybridTime::new(t, j)).unwrap();
+                worst = worst.max((x[0] - ball_height(t, j)).abs());
+            }
+        }
+        assert!(worst < 1e-6, "{mode:?}: value_at off by {worst:e}");
+        // Faithful, not exhaustive: tens of samples per bounce.
+        let flows = arc.samples().filter(|x| x.kind == SampleKind::Flow).count();
+        let bounces = arc.jumps().len() + 1;
+        assert!(
+            flows >= 4 * bounces && flows <= 200 * bounces,
+            "{mode:?}: {flows} flow samples for {bounces} flow intervals"
+        );
+        // The polyline through the samples stays within 1e-3 of the apex.
+        for w in arc.samples().collect::<Vec<_>>().windows(2) {
+            let (p, q) = (&w[0], &w[1]);
+            if p.at.j != q.at.j || q.at.t <= p.at.t {
+                continue;
+            }
+            let tm = 0.5 * (p.at.t + q.at.t);
+            let line = 0.5 * (p.x[0] + q.x[0]);
+            let d = (line - ball_height(tm, p.at.j)).abs();
+            assert!(d < 2e-3, "{mode:?}: chord off by {d} at t = {tm}");
+        }
+    }
+}
+
+/// Every shipped model, its horizon cut to 5, run with the exact path
+/// chosen by cost, always and never: same jumps (rules, times) and states.
+#[test]
+fn exact_affine_auto_on_off_agree_on_every_model() {
+    let dir = format!("{}/models", env!("CARGO_MANIFEST_DIR"));
+    let mut names: Vec<String> = std::fs::read_dir(&dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().into_string().unwrap())
+        .filter(|n| n.ends_with(".hyb"))
+        .collect();
+    names.sort();
+    assert!(names.len() >= 10);
+    for name in &names {
+        let m = load(name, &[]);
+        let (x0, _) = m.start(m.seed());
+        let base = m.settings();
+        let horizon = base.horizon_t.min(5.0);
+        let arcs: Vec<HybridArc> = [ExactAffine::Auto, ExactAffine::On, ExactAffine::Off]
+            .iter()
+            .map(|&mode| {
+                let s = base.clone().horizon_t(horizon).exact_affine(mode);
+                let (_, mut rng) = m.start(m.seed());
+                simulate_arc(&m, &x0, &s, &mut rng)
+                    .unwrap_or_else(|e| panic!("{name} {mode:?}: {e}"))
+            })
+            .collect();
+        let scale: Vec<f64> = (0..m.state_dim())
+            .map(|i| arcs[2].samples().map(|x| x.x[i].abs()).fold(1.0, f64::max))
+            .collect();
+        for (k, arc) in arcs.iter().enumerate().take(2) {
+            let other = &arcs[2];
+            assert_eq!(arc.jumps().len(), other.jumps().len(), "{name} mode {k}");
+            for (a, b) in arc.jumps().iter().zip(other.jumps()) {
+                assert_eq!(a.rule, b.rule, "{name} mode {k} at {}", a.at);
+                assert!(
+                    (a.at.t - b.at.t).abs() <= 1e-4 * (1.0 + b.at.t),
+                    "{name} mode {k}: jump at {} vs {}",
+                    a.at,
+                    b.at
+                );
+            }
+            let (xa, xb) = (arc.last().unwrap().x, other.last().unwrap().x);
+            for i in 0..xa.len() {
+                assert!(
+                    (xa[i] - xb[i]).abs() <= 1e-4 * scale[i],
+                    "{name} mode {k}: x[{i}] = {} vs {}",
+                    xa[i],
+                    xb[i]
+                );
+            }
+        }
+    }
+}

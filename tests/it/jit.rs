@@ -1,0 +1,361 @@
+//! Machine code (`jit = on`) against the interpreter (`jit = off`): the
+//! same arcs, bit for bit, and the same values of every program the engine
+//! calls (flow map, diffusion, set predicates and guards, the atoms of every
+//! set, jump maps, outputs) along them, and the metrics of the runs. On
+//! every shipped model, on models written for what the shipped ones do not
+//! use (`j` in every kind of expression, `together` groups, boolean set
+//! expressions with `==`/`!=`, the rounding functions, noise, metrics), and
+//! on the random systems of the semantics reference test. Also: all sets'
+//! atoms evaluated at once (one program) against set by set.
+
+use hybsim::arc::HybridTime;
+use hybsim::engine::{HybridSystem, SetRef, SimRng, simulate_arc};
+use hybsim::lang::{self, CompiledModel, JitStatus, Override};
+use hybsim::source::SourceFile;
+
+fn compile(src: &SourceFile, jit: &str) -> CompiledModel {
+    let ov: Vec<Override> = vec![format!("jit={jit}").parse().unwrap()];
+    match lang::compile(src, &ov) {
+        Ok(m) => m,
+        Err(d) => panic!("{}", hybsim::diagnostics::render(&d, src, false)),
+    }
+}
+
+fn bits(x: &[f64]) -> Vec<u64> {
+    // NaN counts as one value: which NaN comes out of an operation on two
+    // NaNs depends on the order of its operands (`src/ir/jit`).
+    x.iter()
+        .map(|v| if v.is_nan() { f64::NAN } else { *v }.to_bits())
+        .collect()
+}
+
+/// Every program of `a` and `b` at `(at, x)`: the same bits.
+fn same_programs(name: &str, a: &CompiledModel, b: &CompiledModel, at: HybridTime, x: &[f64]) {
+    let n = a.state_dim();
+    let (mut va, mut vb) = (vec![0.0; n], vec![0.0; n]);
+    a.flow_map(at, x, &mut va);
+    b.flow_map(at, x, &mut vb);
+    assert_eq!(bits(&va), bits(&vb), "{name}: flow map at {at}");
+    let g = n * a.noise_dim();
+    let (mut ga, mut gb) = (vec![0.0; g], vec![0.0; g]);
+    a.diffusion(at, x, &mut ga);
+    b.diffusion(at, x, &mut gb);
+    assert_eq!(bits(&ga), bits(&gb), "{name}: diffusion at {at}");
+    let (mut ya, mut yb) = (vec![0.0; a.output_dim()], vec![0.0; b.output_dim()]);
+    a.outputs(at, x, &mut ya);
+    b.outputs(at, x, &mut yb);
+    assert_eq!(bits(&ya), bits(&yb), "{name}: outputs at {at}");
+    assert_eq!(a.flow_set(at, x), b.flow_set(at, x), "{name}: C at {at}");
+    assert_eq!(
+        a.flow_guard(at, x).map(|g| bits(&[g])),
+        b.flow_guard(at, x).map(|g| bits(&[g])),
+        "{name}: C's guard at {at}"
+    );
+    let sets = std::iter::once(SetRef::Flow).chain((0..a.jump_rules().len()).map(SetRef::Jump));
+    for set in sets {
+        let atoms = a.set_atoms(set);
+        assert_eq!(atoms, b.set_atoms(set), "{name}: atoms of {set:?}");
+        let Some(atoms) = atoms else { continue };
+        for flowing_only in [false, true] {
+            let k = atoms.atoms.len();
+            let (mut va, mut vb) = (vec![0.0; k], vec![0.0; k]);
+            a.atom_values(set, at, x, flowing_only, &mut va);
+            b.atom_values(set, at, x, flowing_only, &mut vb);
+            assert_eq!(
+                bits(&va),
+                bits(&vb),
+                "{name}: atoms of {set:?} (flowing only: {flowing_only}) at {at}"
+            );
+        }
+    }
+    // All sets at once: the machine code's and the interpreter's, and the
+    // per-set values, agree.
+    let sets: Vec<SetRef> = std::iter::once(SetRef::Flow)
+        .chain((0..a.jump_rules().len()).map(SetRef::Jump))
+        .collect();
+    let total: usize = sets
+        .iter()
+        .filter_map(|&s| a.set_atoms(s))
+        .map(|s| s.atoms.len())
+        .sum();
+    let (mut fa, mut fb) = (vec![0.0; total], vec![0.0; total]);
+    assert!(a.all_atom_values(at, x, false, &mut fa));
+    assert!(b.all_atom_values(at, x, false, &mut fb));
+    assert_eq!(bits(&fa), bits(&fb), "{name}: all atoms at {at}");
+    let mut per_set = Vec::new();
+    for &set in &sets {
+        if let Some(spec) = a.set_atoms(set) {
+            let mut v = vec![0.0; spec.atoms.len()];
+            a.atom_values(set, at, x, false, &mut v);
+            per_set.extend(v);
+        }
+    }
+    assert_eq!(bits(&fa), bits(&per_set), "{name}: all atoms vs set by set");
+    let mut flowing = vec![f64::NAN; total];
+    assert!(a.all_atom_values(at, x, true, &mut flowing));
+    let mut k = 0;
+    for &set in &sets {
+        if let Some(spec) = a.set_atoms(set) {
+            for atom in &spec.atoms {
+                if atom.flows {
+                    assert_eq!(
+                        bits(&[flowing[k]]),
+                        bits(&[fa[k]]),
+                        "{name}: flowing atom {k} at {at}"
+                    );
+                }
+                k += 1;
+            }
+        }
+    }
+    for r in 0..a.jump_rules().len() {
+        assert_eq!(a.jump_set(r, at, x), b.jump_set(r, at, x), "{name}: D_{r}");
+        assert_eq!(
+            bits(&[a.jump_guard(r, at, x)]),
+            bits(&[b.jump_guard(r, at, x)]),
+            "{name}: guard of rule {r} at {at}"
+        );
+        let (mut pa, mut pb) = (vec![0.0; n], vec![0.0; n]);
+        a.jump_map(r, at, x, &mut SimRng::seed_from(3), &mut pa);
+        b.jump_map(r, at, x, &mut SimRng::seed_from(3), &mut pb);
+        assert_eq!(bits(&pa), bits(&pb), "{name}: map of rule {r} at {at}");
+    }
+}
+
+/// Compiles `src` with and without machine code, runs both for at most
+/// `horizon` units of t, and compares the arcs (samples, jumps,
+/// termination) and, at up to `probes` samples spread over the arc, every
+/// program.
+fn assert_bit_identical(name: &str, src: &SourceFile, horizon: f64, probes: usize) {
+    let (native, interpreted) = (compile(src, "on"), compile(src, "off"));
+    if hybsim::ir::jit::supported() {
+        assert!(
+            matches!(native.jit(), JitStatus::Native { interpreted: 0, .. }),
+            "{name}: {:?}",
+            native.jit()
+        );
+    }
+    assert_eq!(interpreted.jit(), &JitStatus::Off);
+    let mut settings = native.settings();
+    settings.horizon_t = settings.horizon_t.min(horizon);
+    let arc = |m: &CompiledModel| {
+        let (x0, mut rng) = m.start(m.seed());
+        simulate_arc(m, &x0, &settings, &mut rng).expect("simulation")
+    };
+    let (a, b) = (arc(&native), arc(&interpreted));
+    assert_eq!(a.len(), b.len(), "{name}: samples");
+    assert!(a.len() > 1, "{name}");
+    let every = (a.len() / probes.max(1)).max(1);
+    for (k, (sa, sb)) in a.samples().zip(b.samples()).enumerate() {
+        assert_eq!(
+            sa.at.t.to_bits(),
+            sb.at.t.to_bits(),
+            "{name}: t of sample {k}"
+        );
+        assert_eq!(sa.at.j, sb.at.j, "{name}: j of sample {k}");
+        assert_eq!(bits(sa.x), bits(sb.x), "{name}: x of sample {k}");
+        if k % every == 0 {
+            same_programs(name, &native, &interpreted, sa.at, sa.x);
+        }
+    }
+    assert_eq!(a.jumps(), b.jumps(), "{name}: jumps");
+    assert_eq!(a.termination(), b.termination(), "{name}: termination");
+    let metrics = |m: &CompiledModel| {
+        let (x0, mut rng) = m.start(m.seed());
+        let mut sink = m.metrics().sink();
+        hybsim::engine::simulate(m, &x0, &settings, &mut rng, &mut sink).expect("simulation");
+        sink.values()
+    };
+    assert_eq!(
+        bits(&metrics(&native)),
+        bits(&metrics(&interpreted)),
+        "{name}: metrics"
+    );
+}
+
+/// Every model of `models/`: the arcs (samples, jumps, termination) and the
+/// programs along them are bit-identical with and without machine code.
+#[test]
+fn every_shipped_model_runs_bit_identically_as_machine_code() {
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("models");
+    let mut paths: Vec<_> = std::fs::read_dir(&dir)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.extension().is_some_and(|e| e == "hyb"))
+        .collect();
+    paths.sort();
+    assert!(paths.len() >= 10, "models found: {paths:?}");
+    for path in &paths {
+        let src = SourceFile::read(path).expect("model file");
+        // A few seconds of every model cover its flows, jumps and draws.
+        assert_bit_identical(&path.display().to_string(), &src, 4.0, 50);
+    }
+}
+
+/// Models for the language the shipped ones do not exercise: `j` in flows,
+/// sets, guards, resets, outputs and metrics; `together` groups in a `for`; sets
+/// made of `&&`, `||`, `!`, `if`, `==` and `!=` atoms over modes and
+/// flowing states; the rounding functions; random resets; white noise.
+#[test]
+fn jumps_counter_groups_and_atom_sets_run_bit_identically() {
+    let models = [
+        (
+            "j everywhere",
+            "model jcount
+state x = 0, y = 0, z = 0
+flow { x' = 1 + 0.1 * rem(j, 3); y' = 0; z' = j } in x <= 2 + j || !(y >= 0)
+jump r when x >= 1 + 0.5 * j && y != 7 { x+ = frac(0.3 * j); y+ = y + round(10 * x) + ceil(0.5 * j) }
+output jo = [2 * j + 0.5, hypot(x, j), clamp(z - j, -1, 1)]
+metric resets = count(r), late = mean(x + j, t >= 5), top = max(z * j)
+sim { T = 20 }
+",
+        ),
+        (
+            "together fireflies",
+            "model fireflies
+param eps = 0.3
+state tau[1] = 0.9
+state tau[2] = 0.5
+state tau[3] = 0.1
+for i in 1..3 { flow { tau[i]' = 1 } }
+together { for i in 1..3 {
+    jump fire[i] when max(tau[1], max(tau[2], tau[3])) >= 1 {
+        tau[i]+ = if tau[i] >= max(tau[1], max(tau[2], tau[3])) then 0 else min(1, (1 + eps) * tau[i])
+    }
+} }
+sim { T = 12 }
+",
+        ),
+        (
+            "modes and equality atoms",
+            "model modes
+param lo = 18, hi = 22
+state temp = 20, q = 1, k = 0, m = 0
+flow { temp' = if q == 1 then 0.3 * (30 - temp) else -0.2 * temp; q' = 0; k' = 0; m' = 0 } in (q == 1 && temp <= hi) || (q != 1 && !(temp < lo))
+jump off when q == 1 && temp >= hi { q+ = 0; k+ = k + 1 }
+jump on when q == 0 && (temp <= lo || k > 100) { q+ = 1; k+ = k + uniform(0, 1) }
+jump mark when temp == 21 && q == 1 && m <= k { m+ = m + 1 }
+output e = [temp - 20, q]
+sim { T = 30; priority = jumps }
+",
+        ),
+        (
+            "noise and draws",
+            "model noisy
+state x = normal(0, 1), tau = 0
+noise w ~ wiener(1)
+flow { x' = -x + 0.2 * w + 0.01 * j; tau' = 1 }
+jump kick when tau >= 0.25 && (x > -10 || x < 10) { x+ = x + normal(0, 0.1); tau+ = 0 }
+sim { T = 3; solver = euler_maruyama; h = 1e-3; seed = 5 }
+",
+        ),
+    ];
+    for (name, text) in models {
+        let src = SourceFile::new("m.hyb", text);
+        assert_bit_identical(name, &src, f64::INFINITY, 200);
+    }
+}
+
+/// The random systems of the semantics reference test (flow sets and jump
+/// sets of strict, non-strict and equality atoms under `&&`, `||`, `!` and
+/// `if`, over modes and flowing states, both priorities).
+#[test]
+fn random_systems_run_bit_identically() {
+    let mut rng = SimRng::seed_from(18);
+    for case in 0..200 {
+        let text = crate::semantics::reference::random_model(&mut rng);
+        let src = SourceFile::new("r.hyb", &text);
+        assert_bit_identical(&format!("case {case}:\n{text}"), &src, f64::INFINITY, 20);
+    }
+}
+
+/// The model seen set by set: everything but [`HybridSystem::all_atom_values`]
+/// (so the engine evaluates the sets one by one).
+struct SetBySet<'a>(&'a CompiledModel);
+
+impl HybridSystem for SetBySet<'_> {
+    fn state_dim(&self) -> usize {
+        self.0.state_dim()
+    }
+    fn state_names(&self) -> Vec<String> {
+        self.0.state_names()
+    }
+    fn flow_map(&self, at: HybridTime, x: &[f64], dx: &mut [f64]) {
+        self.0.flow_map(at, x, dx)
+    }
+    fn flow_set(&self, at: HybridTime, x: &[f64]) -> bool {
+        self.0.flow_set(at, x)
+    }
+    fn flow_guard(&self, at: HybridTime, x: &[f64]) -> Option<f64> {
+        self.0.flow_guard(at, x)
+    }
+    fn jump_rules(&self) -> &[hybsim::engine::JumpRule] {
+        self.0.jump_rules()
+    }
+    fn jump_set(&self, rule: usize, at: HybridTime, x: &[f64]) -> bool {
+        self.0.jump_set(rule, at, x)
+    }
+    fn jump_guard(&self, rule: usize, at: HybridTime, x: &[f64]) -> f64 {
+        self.0.jump_guard(rule, at, x)
+    }
+    fn jump_map(&self, rule: usize, at: HybridTime, x: &[f64], rng: &mut SimRng, xp: &mut [f64]) {
+        self.0.jump_map(rule, at, x, rng, xp)
+    }
+    fn set_atoms(&self, set: SetRef) -> Option<hybsim::engine::SetAtoms> {
+        self.0.set_atoms(set)
+    }
+    fn atom_values(&self, set: SetRef, at: HybridTime, x: &[f64], flowing: bool, out: &mut [f64]) {
+        self.0.atom_values(set, at, x, flowing, out)
+    }
+    fn flow_structure(&self) -> hybsim::engine::FlowStructure {
+        self.0.flow_structure()
+    }
+    fn noise_dim(&self) -> usize {
+        self.0.noise_dim()
+    }
+    fn diffusion(&self, at: HybridTime, x: &[f64], g: &mut [f64]) {
+        self.0.diffusion(at, x, g)
+    }
+}
+
+/// The engine's checkpoints evaluate all sets of a compiled model in one
+/// program (shared subexpressions once): the arcs are those of evaluating
+/// the sets one by one, bit for bit, on the shipped models and the random
+/// systems.
+#[test]
+fn all_sets_at_once_give_the_arcs_of_set_by_set() {
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("models");
+    let mut sources: Vec<(String, SourceFile)> = std::fs::read_dir(&dir)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.extension().is_some_and(|e| e == "hyb"))
+        .map(|p| (p.display().to_string(), SourceFile::read(&p).unwrap()))
+        .collect();
+    sources.sort_by(|a, b| a.0.cmp(&b.0));
+    let mut rng = SimRng::seed_from(19);
+    for case in 0..100 {
+        let text = crate::semantics::reference::random_model(&mut rng);
+        sources.push((
+            format!("case {case}:\n{text}"),
+            SourceFile::new("r.hyb", &text),
+        ));
+    }
+    for (name, src) in &sources {
+        let m = compile(src, "on");
+        let mut settings = m.settings();
+        settings.horizon_t = settings.horizon_t.min(4.0);
+        let run = |sys: &dyn HybridSystem| {
+            let (x0, mut rng) = m.start(m.seed());
+            simulate_arc(sys, &x0, &settings, &mut rng).expect("simulation")
+        };
+        let (a, b) = (run(&m), run(&SetBySet(&m)));
+        assert_eq!(a.len(), b.len(), "{name}: samples");
+        for (k, (sa, sb)) in a.samples().zip(b.samples()).enumerate() {
+            assert_eq!(sa.at.t.to_bits(), sb.at.t.to_bits(), "{name}: t of {k}");
+            assert_eq!(sa.at.j, sb.at.j, "{name}: j of {k}");
+            assert_eq!(bits(sa.x), bits(sb.x), "{name}: x of {k}");
+        }
+        assert_eq!(a.jumps(), b.jumps(), "{name}: jumps");
+        assert_eq!(a.termination(), b.termination(), "{name}: termination");
+    }
+}

@@ -1,0 +1,904 @@
+//! Event semantics on textbook hybrid systems written in `.hyb` from their
+//! equations, through the real pipeline (parse → check → compile →
+//! simulate), against closed forms: jump times to 1e-9, jump counts exact,
+//! and the set invariants of every arc ([`check_arc`]).
+
+use hybsim::arc::{FailedAtom, HybridArc, TerminationCause};
+use hybsim::engine::{SimSettings, check_arc, simulate_arc};
+use hybsim::ir::CompiledModel;
+use hybsim::lang;
+use hybsim::source::SourceFile;
+
+/// Compiles `src` (panics with the rendered diagnostic if it does not).
+fn compile(src: &str) -> CompiledModel {
+    let file = SourceFile::new("t.hyb", src);
+    match lang::compile(&file, &[]) {
+        Ok(m) => m,
+        Err(d) => panic!("{}", hybsim::diagnostics::render(&d, &file, false)),
+    }
+}
+
+/// Runs the model under `settings`, checking the arc's set invariants.
+fn run_with(m: &CompiledModel, settings: &SimSettings) -> HybridArc {
+    let (x0, mut rng) = m.start(m.seed());
+    let arc = simulate_arc(m, &x0, settings, &mut rng).expect("simulation runs");
+    if let Err(v) = check_arc(m, &arc, settings) {
+        panic!("{v}");
+    }
+    arc
+}
+
+fn run(m: &CompiledModel) -> HybridArc {
+    run_with(m, &m.settings())
+}
+
+fn jump_times(arc: &HybridArc) -> Vec<f64> {
+    arc.jumps().iter().map(|r| r.at.t).collect()
+}
+
+fn assert_times(arc: &HybridArc, expected: &[f64], what: &str) {
+    let got = jump_times(arc);
+    assert_eq!(
+        got.len(),
+        expected.len(),
+        "{what}: {} jumps at {got:?}, expected {expected:?}",
+        got.len()
+    );
+    for (k, (g, e)) in got.iter().zip(expected).enumerate() {
+        assert!(
+            (g - e).abs() <= 1e-9 * e.abs().max(1.0),
+            "{what}: jump {k} at t = {g}, expected {e} (error {:e})",
+            (g - e).abs()
+        );
+    }
+}
+
+/// `x' = 1` from 0.5, reset to 0 when the guard holds: every spelling of
+/// "x exceeds 1", strict or not, jumps at t = 0.5, 1.5, 2.5.
+#[test]
+fn every_spelling_of_a_threshold_guard_jumps_at_the_crossing() {
+    for guard in [
+        "x > 1",
+        "x >= 1",
+        "1 < x",
+        "1 <= x",
+        "!(x <= 1)",
+        "!(x < 1)",
+        "x - 1 > 0",
+        "0 < x - 1",
+        "!(1 >= x)",
+        "x > 1 || x > 5",
+        "x > 1 && x > -5",
+        "if x > 0 then x > 1 else false",
+    ] {
+        for flow in ["1", "(1 + x^2) / (1 + x^2)"] {
+            for max_step in ["", "; max_step = 0.01"] {
+                let src = format!(
+                    "model m\nstate x = 0.5\nflow {{ x' = {flow} }}\njump g when {guard} {{ x+ = 0 }}\nsim {{ T = 3{max_step} }}\n"
+                );
+                let m = compile(&src);
+                let arc = run(&m);
+                let what = format!("`{guard}`, x' = {flow}{max_step}");
+                assert_times(&arc, &[0.5, 1.5, 2.5], &what);
+                let strict = !["x >= 1", "1 <= x", "!(x < 1)"].contains(&guard);
+                for r in arc.jumps() {
+                    if strict {
+                        assert!(r.pre[0] > 1.0, "{what}: pre-jump x = {}", r.pre[0]);
+                    } else {
+                        assert!(r.pre[0] >= 1.0, "{what}: pre-jump x = {}", r.pre[0]);
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// A nonlinear flow, `x' = x` from 0.5 reset to 0.5 at `x > 1`: period
+/// ln 2 (Dop853 at tight tolerances and events located on the cubic
+/// Hermite interpolant of steps ≤ 0.005 on the general path; exactly on
+/// the affine path).
+#[test]
+fn strict_guard_on_a_nonlinear_flow() {
+    for flow in ["x", "x * (1 + x^2) / (1 + x^2)"] {
+        let src = format!(
+            "model m\nstate x = 0.5\nflow {{ x' = {flow} }}\njump g when x > 1 {{ x+ = 0.5 }}\n\
+             sim {{ T = 3; solver = dop853; rtol = 1e-12; atol = 1e-14; max_step = 0.005 }}\n"
+        );
+        let arc = run(&compile(&src));
+        let l2 = std::f64::consts::LN_2;
+        assert_times(&arc, &[l2, 2.0 * l2, 3.0 * l2, 4.0 * l2], flow);
+    }
+}
+
+/// The thermostat with hysteresis and a mode q: heating `x' = 30 − x`
+/// while q = 1 until x ≥ 22, cooling `x' = −x` while q = 0 until x ≤ 18.
+/// The mode conjunct is constant during each flow; the temperature atom is
+/// localized.
+#[test]
+fn thermostat_with_modes_switches_at_the_thresholds() {
+    let src = "model thermostat
+param xlo = 18
+param xhi = 22
+state x = 20, q = 1
+flow { x' = if q == 1 then 30 - x else -x }
+jump off when q == 1 && x >= xhi { q+ = 0 }
+jump on when q == 0 && x <= xlo { q+ = 1 }
+sim { T = 5; solver = dop853; rtol = 1e-12; atol = 1e-12; max_step = 0.005 }
+";
+    // The same system with an affine flow (advanced exactly).
+    let affine = "model thermostat
+param xlo = 18
+param xhi = 22
+state x = 20, q = 1
+flow { x' = 30 * q - x }
+jump off when q == 1 && x >= xhi { q+ = 0 }
+jump on when q == 0 && x <= xlo { q+ = 1 }
+sim { T = 5; exact_affine = on }
+";
+    let first = (10.0f64 / 8.0).ln();
+    let cool = (22.0f64 / 18.0).ln();
+    let heat = (12.0f64 / 8.0).ln();
+    let mut expected = vec![first];
+    let mut t = first;
+    loop {
+        let next = t + if expected.len() % 2 == 1 { cool } else { heat };
+        if next >= 5.0 {
+            break;
+        }
+        expected.push(next);
+        t = next;
+    }
+    for (src, what) in [(src, "if-then-else flow"), (affine, "affine flow")] {
+        let arc = run(&compile(src));
+        assert_times(&arc, &expected, what);
+        for (k, r) in arc.jumps().iter().enumerate() {
+            let bound = if k % 2 == 0 { 22.0 } else { 18.0 };
+            assert!(
+                (r.pre[0] - bound).abs() < 1e-9,
+                "{what}: jump {k} at x = {}",
+                r.pre[0]
+            );
+        }
+    }
+}
+
+/// The ball of the HyEQ examples with the reflecting map `h⁺ = −h`,
+/// `v⁺ = −λv` and C = {h ≥ 0}: it bounces until the horizon J, at the
+/// closed-form impact times, under both priorities.
+#[test]
+fn reflecting_ball_bounces_to_its_zeno_time() {
+    let (g, lambda): (f64, f64) = (9.81, 0.8);
+    let t1 = (2.0 / g).sqrt();
+    // Impact k at t1 (1 + 2λ + … + 2λ^(k−1)).
+    let impacts: Vec<f64> = (0..40)
+        .map(|k| t1 * (1.0 + 2.0 * (1..=k).map(|i| lambda.powi(i)).sum::<f64>()))
+        .collect();
+    for (priority, d) in [("jumps", "h <= 0 && v <= 0"), ("flows", "h <= 0")] {
+        let src = format!(
+            "model ball\nparam g = 9.81\nparam lambda = 0.8\nstate h = 1, v = 0\n\
+             flow {{ h' = v; v' = -g }} in h >= 0\n\
+             jump bounce when {d} {{ h+ = -h; v+ = -lambda * v }}\n\
+             sim {{ T = 10; J = 40; priority = {priority} }}\n"
+        );
+        let arc = run(&compile(&src));
+        assert_eq!(
+            arc.termination().unwrap().cause,
+            TerminationCause::HorizonJ,
+            "priority {priority}"
+        );
+        assert_times(&arc, &impacts, &format!("priority {priority}"));
+    }
+}
+
+/// An isolated point of D (`x == 7`, as in the HyEQ documentation's
+/// "behaviour in C ∩ D" example) and an equality guard on a timer are hit
+/// when the flow passes through them.
+#[test]
+fn equality_guards_fire_when_the_flow_reaches_the_value() {
+    let src =
+        "model m\nstate x = 0\nflow { x' = 1 }\njump hit when x == 7 { x+ = 0 }\nsim { T = 20 }\n";
+    assert_times(&run(&compile(src)), &[7.0, 14.0], "x == 7");
+    let src = "model m\nstate x = 0\nflow { x' = (1 + x^2) / (1 + x^2) }\njump hit when x == 7 { x+ = 0 }\nsim { T = 20 }\n";
+    assert_times(&run(&compile(src)), &[7.0, 14.0], "x == 7, general flow");
+    let src = "model m\nstate tau = 0, n = 0\nflow { tau' = 1 }\n\
+               jump tick when tau == 1 { tau+ = 0; n+ = n + 1 }\nsim { T = 10.5 }\n";
+    let arc = run(&compile(src));
+    let expected: Vec<f64> = (1..=10).map(f64::from).collect();
+    assert_times(&arc, &expected, "tau == 1");
+    assert_eq!(arc.jumps().last().unwrap().post[1], 10.0);
+    // A strict timer guard jumps just past the threshold.
+    let src = "model m\nstate tau = 0\nflow { tau' = 1 }\njump tick when tau > 1 { tau+ = 0 }\nsim { T = 10.5 }\n";
+    assert_times(&run(&compile(src)), &expected, "tau > 1");
+    // `!=` as a flow set is left when the quantity reaches the value.
+    let src = "model m\nstate x = 0\nflow { x' = 1 } in x != 3\nsim { T = 10 }\n";
+    let arc = run(&compile(src));
+    let end = arc.termination().unwrap();
+    assert!(
+        matches!(
+            end.cause,
+            TerminationCause::CannotFlowOrJump { leaving: true, .. }
+        ),
+        "{end:?}"
+    );
+    assert!((end.at.t - 3.0).abs() < 1e-9, "ended at {}", end.at);
+}
+
+/// A rotation `x' = −y, y' = x` in the upper half plane C = {y ≥ 0} with
+/// the map (x, y)⁺ = (−x, −y) on D = {y ≤ 0, x ≤ 0}: a jump every half
+/// turn, at t = kπ, under both priorities (under `flows` the jump happens
+/// as the flow leaves C).
+#[test]
+fn rotation_reflected_at_the_half_plane_jumps_every_half_turn() {
+    let pi = std::f64::consts::PI;
+    let expected: Vec<f64> = (1..=6).map(|k| k as f64 * pi).collect();
+    for priority in ["jumps", "flows"] {
+        for flow in ["x' = -y; y' = x", "x' = -y * (1 + x^2) / (1 + x^2); y' = x"] {
+            let src = format!(
+                "model rot\nstate x = 1, y = 0\nflow {{ {flow} }} in y >= 0\n\
+                 jump flip when y <= 0 && x <= 0 {{ x+ = -x; y+ = -y }}\n\
+                 sim {{ T = 20; priority = {priority}; solver = dop853; rtol = 1e-12; atol = 1e-14; max_step = 0.005 }}\n"
+            );
+            let arc = run(&compile(&src));
+            assert_times(&arc, &expected, &format!("{priority}, {flow}"));
+        }
+    }
+}
+
+/// A jump map that lands on C's boundary up to rounding (`y⁺ = y` at the
+/// post-crossing point, a few ulp below 0) can flow with the default
+/// `set_tol`; with `set_tol = 0` the solution ends there.
+#[test]
+fn set_tol_lets_a_boundary_state_flow() {
+    let src = "model rot\nstate x = 1, y = 0\nflow { x' = -y; y' = x } in y >= 0\n\
+               jump flip when y <= 0 && x <= 0 { x+ = -x; y+ = y - 1e-15 }\nsim { T = 20 }\n";
+    let m = compile(src);
+    let arc = run(&m);
+    assert_eq!(arc.jumps().len(), 6, "{:?}", jump_times(&arc));
+    let strict = m.settings().set_tol(0.0);
+    let arc = run_with(&m, &strict);
+    assert_eq!(arc.jumps().len(), 1);
+    assert!(matches!(
+        arc.termination().unwrap().cause,
+        TerminationCause::CannotFlowOrJump { .. }
+    ));
+    // A state outside C by more than set_tol (and not in D) cannot flow.
+    // The ending names the case, the failing atom of C and the state.
+    let src = "model m\nstate x = -1e-6\nflow { x' = 1 } in x >= 0\nsim { T = 1 }\n";
+    let arc = run(&compile(src));
+    assert_eq!(
+        arc.termination().unwrap().cause,
+        TerminationCause::CannotFlowOrJump {
+            leaving: false,
+            failed: vec![FailedAtom {
+                index: 0,
+                value: -1e-6
+            }],
+            state: vec![-1e-6],
+        }
+    );
+    // Within set_tol it flows, and the relaxed atom does not end the flow
+    // while it moves into C.
+    let src = "model m\nstate x = -1e-12\nflow { x' = 1 } in x >= 0\nsim { T = 1 }\n";
+    let arc = run(&compile(src));
+    assert_eq!(arc.termination().unwrap().cause, TerminationCause::HorizonT);
+    // ... but a flow pointing out of C leaves the relaxed set at −set_tol.
+    let src = "model m\nstate x = -1e-12\nflow { x' = -1 } in x >= 0\nsim { T = 1 }\n";
+    let arc = run(&compile(src));
+    let end = arc.termination().unwrap();
+    assert!(
+        matches!(
+            end.cause,
+            TerminationCause::CannotFlowOrJump { leaving: true, .. }
+        ),
+        "{end:?}"
+    );
+    assert!(end.at.t < 1e-8, "ended at {}", end.at);
+}
+
+/// The reference-semantics property test: random small hybrid systems
+/// (1–3 states and sometimes a mode; constant, affine and nonlinear flows;
+/// guards mixing strict, non-strict and equality atoms with `&&`, `||`,
+/// `!`; flow sets; both priorities), written as `.hyb` and run through the
+/// real pipeline, against an independent brute-force reference: fixed RK4
+/// steps of 1e-3 and bisection on the set predicates themselves.
+pub(crate) mod reference {
+    use super::*;
+    use hybsim::engine::SimRng;
+
+    /// An expression of the generated models.
+    #[derive(Debug, Clone)]
+    enum E {
+        C(f64),
+        X(usize),
+        Q,
+        Add(Box<E>, Box<E>),
+        Sub(Box<E>, Box<E>),
+        Mul(Box<E>, Box<E>),
+        Sin(Box<E>),
+        If(Box<B>, Box<E>, Box<E>),
+    }
+
+    /// A condition.
+    #[derive(Debug, Clone)]
+    enum B {
+        Cmp(E, &'static str, E),
+        And(Box<B>, Box<B>),
+        Or(Box<B>, Box<B>),
+        Not(Box<B>),
+    }
+
+    fn name(i: usize) -> &'static str {
+        ["x", "y", "z"][i]
+    }
+
+    impl E {
+        fn eval(&self, x: &[f64], q: f64) -> f64 {
+            match self {
+                E::C(c) => *c,
+                E::X(i) => x[*i],
+                E::Q => q,
+                E::Add(a, b) => a.eval(x, q) + b.eval(x, q),
+                E::Sub(a, b) => a.eval(x, q) - b.eval(x, q),
+                E::Mul(a, b) => a.eval(x, q) * b.eval(x, q),
+                E::Sin(a) => a.eval(x, q).sin(),
+                E::If(c, a, b) => {
+                    if c.eval(x, q) {
+                        a.eval(x, q)
+                    } else {
+                        b.eval(x, q)
+                    }
+                }
+            }
+        }
+
+        fn hyb(&self) -> String {
+            match self {
+                E::C(c) => format!("({c:e})"),
+                E::X(i) => name(*i).into(),
+                E::Q => "q".into(),
+                E::Add(a, b) => format!("({} + {})", a.hyb(), b.hyb()),
+                E::Sub(a, b) => format!("({} - {})", a.hyb(), b.hyb()),
+                E::Mul(a, b) => format!("({} * {})", a.hyb(), b.hyb()),
+                E::Sin(a) => format!("sin({})", a.hyb()),
+                E::If(c, a, b) => format!("(if {} then {} else {})", c.hyb(), a.hyb(), b.hyb()),
+            }
+        }
+    }
+
+    /// `g` of an atom `a ⋈ b` is `a − b`; `⋈` with the negation applied.
+    fn holds(op: &str, g: f64, neg: bool) -> bool {
+        let v = match op {
+            "<" => g < 0.0,
+            "<=" => g <= 0.0,
+            ">" => g > 0.0,
+            ">=" => g >= 0.0,
+            "==" => g == 0.0,
+            _ => g != 0.0,
+        };
+        v != neg
+    }
+
+    impl B {
+        fn eval(&self, x: &[f64], q: f64) -> bool {
+            self.eval_on(x, x, q, 0.0, false, false)
+        }
+
+        /// The condition on a bracket whose ends are `xa`, `xb`: inequality
+        /// atoms at `xb`, equality atoms met if `g(xb) = 0` or `g` changes
+        /// sign strictly between the ends (only with `bracket`); `tol`
+        /// relaxes every atom towards the set (negations pushed inward).
+        fn eval_on(
+            &self,
+            xa: &[f64],
+            xb: &[f64],
+            q: f64,
+            tol: f64,
+            neg: bool,
+            bracket: bool,
+        ) -> bool {
+            match self {
+                B::Cmp(a, op, b) => {
+                    let gb = a.eval(xb, q) - b.eval(xb, q);
+                    let ga = a.eval(xa, q) - b.eval(xa, q);
+                    let eq_like = matches!((*op, neg), ("==", false) | ("!=", true));
+                    let ne_like = matches!((*op, neg), ("!=", false) | ("==", true));
+                    if tol > 0.0 {
+                        // Relaxed: the closure grown by tol.
+                        let strict_op = match (*op, neg) {
+                            ("<", false) | (">=", true) => "<",
+                            ("<=", false) | (">", true) => "<=",
+                            (">", false) | ("<=", true) => ">",
+                            (">=", false) | ("<", true) => ">=",
+                            _ => "",
+                        };
+                        return match strict_op {
+                            "<" => gb < tol,
+                            "<=" => gb <= tol,
+                            ">" => gb > -tol,
+                            ">=" => gb >= -tol,
+                            _ if eq_like => gb.abs() <= tol,
+                            _ => true,
+                        };
+                    }
+                    let met = gb == 0.0
+                        || (bracket && ((ga < 0.0 && gb > 0.0) || (ga > 0.0 && gb < 0.0)));
+                    if eq_like {
+                        met
+                    } else if ne_like {
+                        !met
+                    } else {
+                        holds(op, gb, neg)
+                    }
+                }
+                B::And(p, r) | B::Or(p, r) => {
+                    let and = matches!(self, B::And(..)) != neg;
+                    let (vp, vr) = (
+                        p.eval_on(xa, xb, q, tol, neg, bracket),
+                        r.eval_on(xa, xb, q, tol, neg, bracket),
+                    );
+                    if and { vp && vr } else { vp || vr }
+                }
+                B::Not(p) => p.eval_on(xa, xb, q, tol, !neg, bracket),
+            }
+        }
+
+        fn hyb(&self) -> String {
+            match self {
+                B::Cmp(a, op, b) => format!("{} {op} {}", a.hyb(), b.hyb()),
+                B::And(p, r) => format!("({} && {})", p.hyb(), r.hyb()),
+                B::Or(p, r) => format!("({} || {})", p.hyb(), r.hyb()),
+                B::Not(p) => format!("!({})", p.hyb()),
+            }
+        }
+
+        /// Whether an atom is within 1e-12 of its zero at (x, q).
+        fn has_eq_near(&self, x: &[f64], q: f64) -> bool {
+            match self {
+                B::Cmp(a, op, b) => {
+                    let _ = op;
+                    (a.eval(x, q) - b.eval(x, q)).abs() < 1e-12
+                }
+                B::And(p, r) | B::Or(p, r) => p.has_eq_near(x, q) || r.has_eq_near(x, q),
+                B::Not(p) => p.has_eq_near(x, q),
+            }
+        }
+
+        /// Values of the atoms' `g` at (x, q), for ambiguity checks.
+        fn atoms(&self, x: &[f64], q: f64, out: &mut Vec<f64>) {
+            match self {
+                B::Cmp(a, _, b) => out.push(a.eval(x, q) - b.eval(x, q)),
+                B::And(p, r) | B::Or(p, r) => {
+                    p.atoms(x, q, out);
+                    r.atoms(x, q, out);
+                }
+                B::Not(p) => p.atoms(x, q, out),
+            }
+        }
+    }
+
+    struct Rule {
+        guard: B,
+        /// (state, new value as an expression of the pre-jump state).
+        resets: Vec<(usize, E)>,
+        toggles_q: bool,
+    }
+
+    struct Sys {
+        n: usize,
+        mode: bool,
+        flow: Vec<E>,
+        c: Option<B>,
+        rules: Vec<Rule>,
+        x0: Vec<f64>,
+        q0: f64,
+        flows_priority: bool,
+    }
+
+    fn pick<T: Copy>(rng: &mut SimRng, v: &[T]) -> T {
+        v[(rng.uniform(0.0, v.len() as f64) as usize).min(v.len() - 1)]
+    }
+
+    fn round2(v: f64) -> f64 {
+        (v * 4.0).round() / 4.0
+    }
+
+    fn gen_sys(rng: &mut SimRng) -> Sys {
+        let n = pick(rng, &[1, 1, 2, 2, 3]);
+        let mode = rng.bernoulli(0.4);
+        let mut flow = Vec::new();
+        for i in 0..n {
+            let c = round2(rng.uniform(0.5, 2.0)) * if rng.bernoulli(0.25) { -1.0 } else { 1.0 };
+            let j = pick(rng, &(0..n).collect::<Vec<_>>());
+            let f = match pick(rng, &[0, 0, 1, 2]) {
+                0 => E::C(c),
+                1 => E::Add(
+                    Box::new(E::C(c)),
+                    Box::new(E::Mul(
+                        Box::new(E::C(round2(rng.uniform(-0.5, 0.5)))),
+                        Box::new(E::X(j)),
+                    )),
+                ),
+                _ => E::Add(
+                    Box::new(E::C(c)),
+                    Box::new(E::Mul(
+                        Box::new(E::C(0.5)),
+                        Box::new(E::Sin(Box::new(E::X(j)))),
+                    )),
+                ),
+            };
+            let f = if mode && i == 0 {
+                E::If(
+                    Box::new(B::Cmp(E::Q, "==", E::C(1.0))),
+                    Box::new(f),
+                    Box::new(E::C(-c.abs())),
+                )
+            } else {
+                f
+            };
+            flow.push(f);
+        }
+        let atom = |rng: &mut SimRng| -> B {
+            if mode && rng.bernoulli(0.25) {
+                return B::Cmp(E::Q, pick(rng, &["==", "!="]), E::C(pick(rng, &[0.0, 1.0])));
+            }
+            let i = pick(rng, &(0..n).collect::<Vec<_>>());
+            let lhs = if n > 1 && rng.bernoulli(0.2) {
+                E::Sub(Box::new(E::X(i)), Box::new(E::X((i + 1) % n)))
+            } else {
+                E::X(i)
+            };
+            let op = pick(rng, &["<", "<=", ">", ">=", "==", "!=", ">", ">="]);
+            let c = round2(rng.uniform(-1.0, 3.0)) + 0.125;
+            if rng.bernoulli(0.3) {
+                B::Cmp(E::C(c), op, lhs)
+            } else {
+                B::Cmp(lhs, op, E::C(c))
+            }
+        };
+        let cond = |rng: &mut SimRng| -> B {
+            let a = atom(rng);
+            let b = match pick(rng, &[0, 0, 1, 2, 3]) {
+                0 => a,
+                1 => B::And(Box::new(a), Box::new(atom(rng))),
+                2 => B::Or(Box::new(a), Box::new(atom(rng))),
+                _ => B::Not(Box::new(a)),
+            };
+            if rng.bernoulli(0.15) {
+                B::Not(Box::new(b))
+            } else {
+                b
+            }
+        };
+        let c = rng.bernoulli(0.5).then(|| cond(rng));
+        let nr = pick(rng, &[1, 1, 2]);
+        let rules = (0..nr)
+            .map(|_| {
+                let i = pick(rng, &(0..n).collect::<Vec<_>>());
+                let value = match pick(rng, &[0, 1, 2]) {
+                    0 => E::C(round2(rng.uniform(-1.0, 1.0))),
+                    1 => E::Sub(
+                        Box::new(E::X(i)),
+                        Box::new(E::C(round2(rng.uniform(0.5, 2.0)))),
+                    ),
+                    _ => E::Mul(Box::new(E::C(-0.5)), Box::new(E::X(i))),
+                };
+                Rule {
+                    guard: cond(rng),
+                    resets: vec![(i, value)],
+                    toggles_q: mode && rng.bernoulli(0.7),
+                }
+            })
+            .collect();
+        Sys {
+            n,
+            mode,
+            flow,
+            c,
+            rules,
+            x0: (0..n)
+                .map(|_| round2(rng.uniform(-1.0, 1.0)) + 0.0625)
+                .collect(),
+            q0: if mode { pick(rng, &[0.0, 1.0]) } else { 0.0 },
+            flows_priority: rng.bernoulli(0.4),
+        }
+    }
+
+    const T: f64 = 3.0;
+    const J: u64 = 8;
+
+    /// The `.hyb` text of a random system of this test (for the
+    /// machine-code comparison in `jit.rs`).
+    pub(crate) fn random_model(rng: &mut SimRng) -> String {
+        to_hyb(&gen_sys(rng))
+    }
+
+    fn to_hyb(s: &Sys) -> String {
+        let mut src = String::from("model r\n");
+        for i in 0..s.n {
+            src += &format!("state {} = {:e}\n", name(i), s.x0[i]);
+        }
+        if s.mode {
+            src += &format!("state q = {}\n", s.q0);
+        }
+        src += "flow {\n";
+        for i in 0..s.n {
+            src += &format!("    {}' = {}\n", name(i), s.flow[i].hyb());
+        }
+        src += "}";
+        if let Some(c) = &s.c {
+            src += &format!(" in {}", c.hyb());
+        }
+        src += "\n";
+        for (k, r) in s.rules.iter().enumerate() {
+            src += &format!("jump r{k} when {} {{", r.guard.hyb());
+            for (i, v) in &r.resets {
+                src += &format!(" {}+ = {};", name(*i), v.hyb());
+            }
+            if r.toggles_q {
+                src += " q+ = 1 - q;";
+            }
+            src += " }\n";
+        }
+        let p = if s.flows_priority { "flows" } else { "jumps" };
+        src += &format!(
+            "sim {{ T = {T}; J = {J}; priority = {p}; solver = dop853; rtol = 1e-13; atol = 1e-13; max_step = 0.005 }}\n"
+        );
+        src
+    }
+
+    /// One jump of the reference: time, rule, pre and post states.
+    #[derive(Debug)]
+    struct RefJump {
+        t: f64,
+        rule: usize,
+        pre: Vec<f64>,
+        post: Vec<f64>,
+    }
+
+    #[derive(Debug, PartialEq)]
+    enum RefEnd {
+        HorizonT,
+        HorizonJ,
+        Stuck,
+    }
+
+    const H: f64 = 1e-3;
+    const SET_TOL: f64 = 1e-9;
+    /// Why a case is left out: an event too close to another, to T, or to
+    /// tangency, where the answer depends on rounding.
+    struct Ambiguous;
+
+    fn rk4(s: &Sys, q: f64, x: &[f64], h: f64) -> Vec<f64> {
+        let f = |x: &[f64]| -> Vec<f64> { s.flow.iter().map(|e| e.eval(x, q)).collect() };
+        let add = |x: &[f64], k: &[f64], a: f64| -> Vec<f64> {
+            x.iter().zip(k).map(|(x, k)| x + a * k).collect()
+        };
+        let k1 = f(x);
+        let k2 = f(&add(x, &k1, h / 2.0));
+        let k3 = f(&add(x, &k2, h / 2.0));
+        let k4 = f(&add(x, &k3, h));
+        (0..x.len())
+            .map(|i| x[i] + h / 6.0 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i]))
+            .collect()
+    }
+
+    fn in_c(s: &Sys, x: &[f64], q: f64, tol: f64) -> bool {
+        s.c.as_ref()
+            .is_none_or(|c| c.eval_on(x, x, q, tol, false, false))
+    }
+
+    /// Checks that no atom of any set is within `eps` of zero (but not
+    /// exactly zero) at (x, q).
+    fn clear_of_boundaries(s: &Sys, x: &[f64], q: f64, eps: f64) -> Result<(), Ambiguous> {
+        let mut g = Vec::new();
+        for r in &s.rules {
+            r.guard.atoms(x, q, &mut g);
+        }
+        if let Some(c) = &s.c {
+            c.atoms(x, q, &mut g);
+        }
+        if g.iter().any(|&v| v != 0.0 && v.abs() < eps) {
+            return Err(Ambiguous);
+        }
+        Ok(())
+    }
+
+    fn reference(s: &Sys) -> Result<(Vec<RefJump>, RefEnd), Ambiguous> {
+        let mut x = s.x0.clone();
+        let mut q = s.q0;
+        let mut t = 0.0;
+        let mut jumps = Vec::new();
+        let mut pending: Option<usize> = None;
+        let mut stuck_flow = false;
+        loop {
+            if t >= T {
+                return Ok((jumps, RefEnd::HorizonT));
+            }
+            if jumps.len() as u64 >= J {
+                return Ok((jumps, RefEnd::HorizonJ));
+            }
+            let enabled =
+                (0..s.rules.len()).find(|&r| pending == Some(r) || s.rules[r].guard.eval(&x, q));
+            pending = None;
+            let can_flow = !std::mem::take(&mut stuck_flow) && in_c(s, &x, q, SET_TOL);
+            if let Some(r) = enabled
+                && (!can_flow || !s.flows_priority)
+            {
+                let mut post = x.clone();
+                for (i, v) in &s.rules[r].resets {
+                    post[*i] = v.eval(&x, q);
+                }
+                let qn = if s.rules[r].toggles_q { 1.0 - q } else { q };
+                jumps.push(RefJump {
+                    t,
+                    rule: r,
+                    pre: x.clone(),
+                    post: post.clone(),
+                });
+                x = post;
+                q = qn;
+                continue;
+            }
+            if !can_flow {
+                return Ok((jumps, RefEnd::Stuck));
+            }
+            // A flow: leave out starts on a boundary up to rounding, and
+            // starts near a boundary where rounding decides.
+            if !in_c(s, &x, q, 0.0) {
+                return Err(Ambiguous);
+            }
+            clear_of_boundaries(s, &x, q, 1e-7)?;
+            let d_start: Vec<bool> = s.rules.iter().map(|r| r.guard.eval(&x, q)).collect();
+            let x_start = x.clone();
+            let (t_start, mut k) = (t, 0u64);
+            let at = |k: u64| t_start + k as f64 * H;
+            let mut cur = x_start.clone();
+            loop {
+                let (s0, s1) = (at(k), at(k + 1));
+                if s0 >= T {
+                    return Ok((jumps, RefEnd::HorizonT));
+                }
+                let nxt = rk4(s, q, &cur, H);
+                // The event (rule or leaving C) on the bracket (s0, s1].
+                let event = |lo_x: &[f64], hi_x: &[f64]| -> Option<Option<usize>> {
+                    if !s.flows_priority {
+                        for (r, rule) in s.rules.iter().enumerate() {
+                            if !d_start[r] && rule.guard.eval_on(lo_x, hi_x, q, 0.0, false, true) {
+                                return Some(Some(r));
+                            }
+                        }
+                    }
+                    let c_ok =
+                        s.c.as_ref()
+                            .is_none_or(|c| c.eval_on(lo_x, hi_x, q, 0.0, false, true));
+                    (!c_ok).then_some(None)
+                };
+                if event(&cur, &nxt).is_some() {
+                    // Bisection on the predicates: lo has no event, (lo, hi] has.
+                    let (mut lo, mut hi) = (0.0, H);
+                    let (mut xlo, mut xhi) = (cur.clone(), nxt.clone());
+                    while hi - lo > 1e-14 {
+                        let mid = 0.5 * (lo + hi);
+                        let xm = rk4(s, q, &cur, mid);
+                        if event(&xlo, &xm).is_some() {
+                            hi = mid;
+                            xhi = xm;
+                        } else {
+                            lo = mid;
+                            xlo = xm;
+                        }
+                    }
+                    let kind = event(&xlo, &xhi).expect("kept by bisection");
+                    t = s0 + hi;
+                    if (T - t).abs() < 1e-6 {
+                        return Err(Ambiguous);
+                    }
+                    // Tangency: an atom's rate at the event too small.
+                    let xd = rk4(s, q, &xhi, 1e-6);
+                    let (mut ga, mut gb) = (Vec::new(), Vec::new());
+                    for r in &s.rules {
+                        r.guard.atoms(&xhi, q, &mut ga);
+                        r.guard.atoms(&xd, q, &mut gb);
+                    }
+                    if let Some(c) = &s.c {
+                        c.atoms(&xhi, q, &mut ga);
+                        c.atoms(&xd, q, &mut gb);
+                    }
+                    for (a, b) in ga.iter().zip(&gb) {
+                        if a == b {
+                            continue; // constant along the flow
+                        }
+                        if a.abs() < 1e-6 && ((b - a) / 1e-6).abs() < 1e-2 {
+                            return Err(Ambiguous);
+                        }
+                        // Another atom changes within 1e-6 of this event.
+                        if a.abs() > 1e-12 && a.abs() < 1e-5 {
+                            return Err(Ambiguous);
+                        }
+                    }
+                    x = xhi;
+                    match kind {
+                        Some(r) => pending = Some(r),
+                        None => {
+                            stuck_flow = true;
+                            pending = s
+                                .rules
+                                .iter()
+                                .position(|r| r.guard.eval_on(&xlo, &x, q, 0.0, false, true));
+                            // With no rule met on the bracket, a rule atom on
+                            // its boundary at the end point decides: rounding
+                            // (the engine may land exactly on it).
+                            if pending.is_none()
+                                && s.rules.iter().any(|r| r.guard.has_eq_near(&x, q))
+                            {
+                                return Err(Ambiguous);
+                            }
+                        }
+                    }
+                    break;
+                }
+                if s1 >= T {
+                    return Ok((jumps, RefEnd::HorizonT));
+                }
+                cur = nxt;
+                k += 1;
+            }
+        }
+    }
+
+    #[test]
+    fn random_systems_match_the_brute_force_reference() {
+        let mut rng = SimRng::seed_from(16);
+        let (mut compared, mut left_out, mut with_jumps) = (0, 0, 0);
+        let mut attempts = 0;
+        while compared < 1000 {
+            attempts += 1;
+            assert!(
+                attempts < 6000,
+                "too many ambiguous cases: {left_out} of {attempts}"
+            );
+            let sys = gen_sys(&mut rng);
+            let Ok((jumps, end)) = reference(&sys) else {
+                left_out += 1;
+                continue;
+            };
+            let src = to_hyb(&sys);
+            let m = compile(&src);
+            let arc = run(&m);
+            compared += 1;
+            with_jumps += usize::from(!jumps.is_empty());
+            let cause = &arc.termination().unwrap().cause;
+            let same_end = match end {
+                RefEnd::HorizonT => *cause == TerminationCause::HorizonT,
+                RefEnd::HorizonJ => *cause == TerminationCause::HorizonJ,
+                RefEnd::Stuck => matches!(cause, TerminationCause::CannotFlowOrJump { .. }),
+            };
+            let ctx = || {
+                format!(
+                    "\n{src}\nreference: {jumps:?} {end:?}\nhybsim: {:?} {cause:?}",
+                    arc.jumps()
+                )
+            };
+            assert_eq!(arc.jumps().len(), jumps.len(), "jump count{}", ctx());
+            assert!(same_end, "end{}", ctx());
+            for (a, r) in arc.jumps().iter().zip(&jumps) {
+                assert_eq!(a.rule, r.rule, "rule{}", ctx());
+                assert!((a.at.t - r.t).abs() <= 1e-8, "time{}", ctx());
+                let close = |u: &[f64], v: &[f64]| {
+                    u.iter()
+                        .zip(v)
+                        .all(|(a, b)| (a - b).abs() <= 1e-7 * (1.0 + b.abs()))
+                };
+                assert!(close(&a.pre[..sys.n], &r.pre), "pre{}", ctx());
+                assert!(close(&a.post[..sys.n], &r.post), "post{}", ctx());
+            }
+        }
+        assert!(
+            with_jumps >= 300,
+            "only {with_jumps} of {compared} cases jump"
+        );
+        eprintln!(
+            "{compared} cases compared, {with_jumps} with jumps, {left_out} left out as ambiguous"
+        );
+    }
+}

@@ -1,0 +1,639 @@
+//! Metrics in the model (`metric …`) and `hybsim sweep`: values against
+//! closed forms, located errors, the MCAP record, replay of a row,
+//! determinism over threads and shards, failing grid points.
+
+use std::path::Path;
+
+use hybsim::lang;
+use hybsim::source::SourceFile;
+
+use crate::util::{code, hybsim, stderr, stdout};
+
+/// x' = 1 from 0 over [0, 10] sampled every 0.1, a timer firing every 1
+/// (the sample at t = 3 is 30·0.1 = 3.0000000000000004, outside `t <= 3`).
+const RAMP: &str = "model ramp
+state x = 0
+flow { x' = 1 }
+every 1 { }
+jump reset_never when x >= 100 { x+ = 0 }
+output sq = x * x
+metric area = integral(x), avg = mean(x), late = mean(x, t >= 5)
+metric top = max(x), bottom = min(x - 3), last = final(x), ticks = count(step)
+metric late_ticks = count(step, t > 4.5), per_time = count(step) / t
+metric area_sq = integral(sq, t <= 3), scaled = 2 * final(x) + mean(x)
+sim { T = 10; dt_out = 0.1 }
+";
+
+fn metrics_of(text: &str) -> Vec<(String, f64)> {
+    let src = SourceFile::new("m.hyb", text);
+    let model = lang::compile(&src, &[]).unwrap_or_else(|d| {
+        panic!("{}", hybsim::diagnostics::render(&d, &src, false));
+    });
+    let (x0, mut rng) = model.start(model.seed());
+    let mut sink = model.metrics().sink();
+    hybsim::engine::simulate(&model, &x0, &model.settings(), &mut rng, &mut sink).unwrap();
+    sink.named_values()
+}
+
+#[test]
+fn metrics_match_closed_forms() {
+    let m = metrics_of(RAMP);
+    let get = |n: &str| m.iter().find(|(k, _)| k == n).unwrap().1;
+    let close = |a: f64, b: f64| (a - b).abs() < 1e-9 * (1.0 + b.abs());
+    assert!(close(get("area"), 50.0), "{m:?}");
+    assert!(close(get("avg"), 5.0));
+    assert!(close(get("late"), 7.5));
+    assert!(close(get("top"), 10.0));
+    assert!(close(get("bottom"), -3.0));
+    assert!(close(get("last"), 10.0));
+    // The timer fires at t = 1, …, 9; the run ends at T = 10 before the tenth.
+    assert_eq!(get("ticks"), 9.0);
+    assert_eq!(get("late_ticks"), 5.0);
+    assert!(close(get("per_time"), 0.9));
+    // ∫_0^3 x² dt = 9, trapezoid on a 0.1 grid: 9 + 3·0.1²/6.
+    assert!(
+        close(get("area_sq"), 9.0 + 3.0 * 0.01 / 6.0),
+        "{}",
+        get("area_sq")
+    );
+    assert!(close(get("scaled"), 25.0));
+    let names: Vec<&str> = m.iter().map(|(k, _)| k.as_str()).collect();
+    assert_eq!(names[..3], ["area", "avg", "late"]);
+}
+
+#[test]
+fn metric_families_and_rule_families() {
+    let m = metrics_of(
+        "model fam
+param N = 3
+for i in 1..N {
+  state x[i] = i / 10
+  flow { x[i]' = 1 }
+  jump fire[i] when x[i] >= i { x[i]+ = 0 }
+  metric rate[i] = count(fire[i]) / t
+}
+metric total = count(fire), empty = mean(x[1], t > 100)
+sim { T = 12 }
+",
+    );
+    let names: Vec<&str> = m.iter().map(|(k, _)| k.as_str()).collect();
+    assert_eq!(names, ["rate[1]", "rate[2]", "rate[3]", "total", "empty"]);
+    // fire[i] every i time units, the first after i − i/10.
+    let counts = [12.0, 6.0, 4.0];
+    for (k, c) in counts.iter().enumerate() {
+        assert!((m[k].1 * 12.0 - c).abs() < 1e-9, "{m:?}");
+    }
+    assert_eq!(m[3].1, 22.0);
+    assert!(m[4].1.is_nan(), "a mean over no time is NaN");
+}
+
+#[test]
+fn metric_errors_are_located() {
+    let src = SourceFile::new(
+        "bad.hyb",
+        "model bad
+state h = 1, v = 0
+flow { h' = v; v' = -9.81 } in h >= 0
+jump impact when h <= 0 && v <= 0 { v+ = -0.8 * v }
+metric a = h + 1
+metric b = count(impakt)
+metric c = mean([h; v])
+metric d = mean(h, 3)
+metric e = final(h, t > 1)
+metric f = max()
+",
+    );
+    let diags = lang::check_only(&src, &[]);
+    let text = hybsim::diagnostics::render(&diags, &src, false);
+    for (code, at) in [
+        ("E0304", "bad.hyb:5:12"),
+        ("E0201", "bad.hyb:6:18"),
+        ("E0304", "bad.hyb:7:17"),
+        ("E0304", "bad.hyb:8:20"),
+        ("E0303", "bad.hyb:9:12"),
+        ("E0303", "bad.hyb:10:12"),
+    ] {
+        assert!(
+            text.contains(&format!("error[{code}]")) && text.contains(at),
+            "{code} at {at}:\n{text}"
+        );
+    }
+    assert!(text.contains("did you mean `impact`"), "{text}");
+    // Outside metrics, `count`/`mean`/`final` are not functions and `max` is the usual one.
+    let src = SourceFile::new("m.hyb", "model m\nstate x = 1\noutput y = count(x)\n");
+    let text = hybsim::diagnostics::render(&lang::check_only(&src, &[]), &src, false);
+    assert!(text.contains("E0203"), "{text}");
+}
+
+#[test]
+fn run_prints_metrics_and_stores_them_in_the_mcap() {
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::write(dir.path().join("ramp.hyb"), RAMP).unwrap();
+    let out = hybsim(dir.path(), &["run", "ramp.hyb", "-o", "r.mcap"]);
+    assert_eq!(code(&out), 0, "{}", stderr(&out));
+    let text = stdout(&out);
+    let top: f64 = text
+        .lines()
+        .find_map(|l| l.trim().strip_prefix("metric top = "))
+        .and_then(|v| v.parse().ok())
+        .unwrap_or_else(|| panic!("no `metric top` in {text}"));
+    assert!((top - 10.0).abs() < 1e-12, "{text}");
+    assert!(text.contains("metric ticks = 9"), "{text}");
+    let bytes = std::fs::read(dir.path().join("r.mcap")).unwrap();
+    let summary = mcap::read::Summary::read(&bytes).unwrap().unwrap();
+    let metrics = summary
+        .metadata_indexes
+        .iter()
+        .map(|i| mcap::read::metadata(&bytes, i).unwrap())
+        .find(|m| m.name == "hybsim.metrics")
+        .expect("a hybsim.metrics record");
+    assert_eq!(metrics.metadata["ticks"], "9");
+    assert_eq!(metrics.metadata.len(), 11);
+}
+
+const BALL: &str = "model ball
+param g = 9.81, lambda = 0.8
+state h ~ uniform(0.5, 1.5), v = 0
+flow { h' = v; v' = -g } in h >= 0
+jump impact when h <= 0 && v <= 0 { v+ = -lambda * v }
+output energy = 0.5*v^2 + g*h
+metric bounces = count(impact), e_mean = mean(energy), hmax = max(h)
+sim { T = 2; dt_out = 0.01 }
+";
+
+fn sweep(dir: &Path, extra: &[&str]) -> std::process::Output {
+    let mut args = vec![
+        "sweep",
+        "ball.hyb",
+        "--grid",
+        "lambda=0.6:0.1:0.9",
+        "--grid",
+        "g=[9.81, 3.7]",
+        "--runs",
+        "3",
+        "--seed",
+        "5",
+        "-q",
+    ];
+    args.extend_from_slice(extra);
+    let out = hybsim(dir, &args);
+    assert_eq!(code(&out), 0, "{}", stderr(&out));
+    out
+}
+
+fn files(dir: &Path) -> Vec<(String, Vec<u8>)> {
+    let mut v: Vec<(String, Vec<u8>)> = std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| {
+            let e = e.unwrap();
+            (
+                e.file_name().to_string_lossy().into_owned(),
+                std::fs::read(e.path()).unwrap(),
+            )
+        })
+        .collect();
+    v.sort();
+    v
+}
+
+#[test]
+fn sweeps_are_deterministic_over_threads_and_shards() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    std::fs::write(d.join("ball.hyb"), BALL).unwrap();
+    sweep(d, &["-o", "all", "--threads", "2"]);
+    sweep(d, &["-o", "one", "--threads", "1"]);
+    for k in 1..=3 {
+        sweep(d, &["-o", &format!("s{k}"), "--shard", &format!("{k}/3")]);
+    }
+    let all = files(&d.join("all"));
+    let names: Vec<&str> = all.iter().map(|(n, _)| n.as_str()).collect();
+    assert_eq!(
+        names,
+        [
+            "bounces.svg",
+            "e_mean.svg",
+            "hmax.svg",
+            "points.csv",
+            "points.parquet",
+            "runs.csv",
+            "runs.parquet",
+            "sweep.json"
+        ]
+    );
+    assert_eq!(all, files(&d.join("one")), "1 thread vs 2 threads");
+    let out = hybsim(d, &["sweep", "--merge", "s3", "s1", "s2", "-o", "merged"]);
+    assert_eq!(code(&out), 0, "{}", stderr(&out));
+    assert_eq!(
+        all,
+        files(&d.join("merged")),
+        "sharded + merged vs unsharded"
+    );
+    // A missing or repeated shard is refused.
+    let out = hybsim(d, &["sweep", "--merge", "s1", "s2", "-o", "x"]);
+    assert_eq!(code(&out), 1);
+    assert!(stderr(&out).contains("3/3 missing"), "{}", stderr(&out));
+    let out = hybsim(d, &["sweep", "--merge", "s1", "s1", "s2", "-o", "x"]);
+    assert!(stderr(&out).contains("twice"), "{}", stderr(&out));
+
+    // 8 points × 3 runs; the points table has the statistics of each point.
+    let runs = String::from_utf8(all[5].1.clone()).unwrap();
+    assert_eq!(runs.lines().count(), 1 + 24);
+    let points = String::from_utf8(all[3].1.clone()).unwrap();
+    let header: Vec<&str> = points.lines().next().unwrap().split(',').collect();
+    assert_eq!(header[..5], ["point", "lambda", "g", "runs", "completed"]);
+    assert!(header.contains(&"e_mean_std") && header.contains(&"hmax_count"));
+    assert_eq!(points.lines().count(), 1 + 8);
+}
+
+#[test]
+fn a_row_replays_alone_with_its_command() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    std::fs::write(d.join("ball.hyb"), BALL).unwrap();
+    sweep(d, &["-o", "out"]);
+    let text = std::fs::read_to_string(d.join("out/runs.csv")).unwrap();
+    let mut reader = csv::Reader::from_reader(text.as_bytes());
+    let headers = reader.headers().unwrap().clone();
+    let col = |n: &str| headers.iter().position(|h| h == n).unwrap();
+    let rows: Vec<csv::StringRecord> = reader.records().map(|r| r.unwrap()).collect();
+    let row = rows
+        .iter()
+        .find(|r| &r[col("status")] == "completed" && &r[col("run")] == "2")
+        .expect("a completed run");
+    let command = &row[col("command")];
+    assert!(
+        command.starts_with("hybsim run ball.hyb --set lambda="),
+        "{command}"
+    );
+    let words: Vec<&str> = command.split(' ').skip(1).chain(["--no-mcap"]).collect();
+    let out = hybsim(d, &words);
+    assert_eq!(code(&out), 0, "{}", stderr(&out));
+    let text = stdout(&out);
+    for m in ["bounces", "e_mean", "hmax"] {
+        let line = format!("metric {m} = {}", &row[col(m)]);
+        assert!(text.contains(&line), "{line} in\n{text}");
+    }
+}
+
+#[test]
+fn failing_grid_points_are_rows_and_the_others_complete() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    std::fs::write(d.join("ball.hyb"), BALL).unwrap();
+    // lambda = 0.3: Zeno suspected before T; T = -1: the model does not compile.
+    let out = hybsim(
+        d,
+        &[
+            "sweep",
+            "ball.hyb",
+            "--grid",
+            "lambda=[0.3, 0.8]",
+            "--grid",
+            "T=[-1, 2]",
+            "--runs",
+            "2",
+            "-o",
+            "out",
+            "-q",
+        ],
+    );
+    assert_eq!(code(&out), 0, "{}", stderr(&out));
+    assert!(
+        stdout(&out).contains("2 completed, 6 did not"),
+        "{}",
+        stdout(&out)
+    );
+    let text = std::fs::read_to_string(d.join("out/runs.csv")).unwrap();
+    let causes: Vec<String> = csv::Reader::from_reader(text.as_bytes())
+        .records()
+        .map(|r| {
+            let r = r.unwrap();
+            format!("{},{},{}", &r[3], &r[4], &r[6])
+        })
+        .collect();
+    assert_eq!(
+        causes,
+        [
+            "0.3,-1,model_error",
+            "0.3,-1,model_error",
+            "0.3,2,zeno_suspected",
+            "0.3,2,zeno_suspected",
+            "0.8,-1,model_error",
+            "0.8,-1,model_error",
+            "0.8,2,horizon_t",
+            "0.8,2,horizon_t",
+        ]
+    );
+    assert!(
+        text.contains("E0506"),
+        "the model error is in the row:\n{text}"
+    );
+    let points = std::fs::read_to_string(d.join("out/points.csv")).unwrap();
+    assert!(
+        points.lines().nth(4).unwrap().starts_with("3,0.8,2,2,2,"),
+        "{points}"
+    );
+}
+
+#[test]
+fn bad_sweep_arguments_are_reported() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    std::fs::write(d.join("ball.hyb"), BALL).unwrap();
+    // An unknown grid name is an error before anything runs (E0204).
+    for (args, needle) in [
+        (&["--grid", "lambda=1:0:2"][..], "invalid grid axis"),
+        (&["--grid", "lambda=[1", "--runs", "2"][..], "ends with `]`"),
+        (&["--shard", "3/2"][..], "invalid shard"),
+        (&["--grid", "g=[1]", "--set", "g=2"][..], "set twice"),
+        (&["--grid", "nosuch=[1, 2]"][..], "E0204"),
+    ] {
+        let mut all = vec!["sweep", "ball.hyb", "-o", "out", "-q"];
+        all.extend_from_slice(args);
+        let out = hybsim(d, &all);
+        assert_eq!(code(&out), 2, "{args:?}");
+        assert!(stderr(&out).contains(needle), "{args:?}: {}", stderr(&out));
+    }
+}
+
+/// A pendulum (not affine: stepped, no exact propagator) with a metric;
+/// `T = 1e9` is a run that does not end within any test.
+const PENDULUM: &str = "model pendulum
+state x = 1, v = 0
+flow { x' = v; v' = -sin(x) }
+metric top = max(x), last = final(v)
+sim { T = 0.5; solver = rk4; h = 1e-3 }
+";
+
+#[test]
+fn an_interrupted_sweep_keeps_the_runs_that_finished() {
+    use std::process::{Command, Stdio};
+    use std::time::Duration;
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    std::fs::write(d.join("p.hyb"), PENDULUM).unwrap();
+    // One thread takes the runs in grid order: three short ones, then one
+    // that cannot end before the signal.
+    let grid = "T=[0.5, 0.6, 0.7, 1e9]";
+    let child = Command::new(crate::util::BIN)
+        .args(["sweep", "p.hyb", "--grid", grid, "--threads", "1", "-q"])
+        .args(["-o", "part"])
+        .current_dir(d)
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    std::thread::sleep(Duration::from_secs(2));
+    // SAFETY: signalling our own child by its process id.
+    unsafe {
+        libc::kill(child.id() as i32, libc::SIGINT);
+    }
+    let out = child.wait_with_output().unwrap();
+    assert_eq!(out.status.code(), Some(130), "{}", stderr(&out));
+    assert!(
+        stderr(&out).contains("interrupted: 3 of 4 runs written"),
+        "{}",
+        stderr(&out)
+    );
+    let part = d.join("part");
+    assert!(crate::util::temp_files(&part).is_empty());
+    let manifest = std::fs::read_to_string(part.join("sweep.json")).unwrap();
+    assert!(manifest.contains("\"interrupted\": true"), "{manifest}");
+    // The rows written are those of the same runs in a sweep that ends.
+    let short = hybsim(
+        d,
+        &[
+            "sweep",
+            "p.hyb",
+            "--grid",
+            "T=[0.5, 0.6, 0.7]",
+            "-q",
+            "-o",
+            "short",
+        ],
+    );
+    assert_eq!(code(&short), 0, "{}", stderr(&short));
+    let lines = |p: &Path| -> Vec<String> {
+        let text = std::fs::read_to_string(p).unwrap();
+        text.lines().skip(1).map(String::from).collect()
+    };
+    assert_eq!(
+        lines(&part.join("runs.csv")),
+        lines(&d.join("short/runs.csv"))
+    );
+    // An interrupted shard cannot be merged.
+    let out = hybsim(d, &["sweep", "--merge", "part", "-o", "m"]);
+    assert_eq!(code(&out), 1);
+    assert!(stderr(&out).contains("interrupted"), "{}", stderr(&out));
+}
+
+#[test]
+fn resume_completes_an_interrupted_sweep_into_the_same_files() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    std::fs::write(d.join("ball.hyb"), BALL).unwrap();
+    sweep(d, &["-o", "full"]);
+    // What an interruption after 10 of the 24 runs (not in grid order)
+    // leaves: those rows, marked interrupted.
+    let part = d.join("part");
+    std::fs::create_dir(&part).unwrap();
+    let runs = std::fs::read_to_string(d.join("full/runs.csv")).unwrap();
+    let mut lines = runs.lines();
+    let mut kept = vec![lines.next().unwrap()];
+    kept.extend(lines.enumerate().filter(|(i, _)| i % 5 < 2).map(|(_, l)| l));
+    std::fs::write(part.join("runs.csv"), kept.join("\n") + "\n").unwrap();
+    let manifest = std::fs::read_to_string(d.join("full/sweep.json")).unwrap();
+    let interrupted = manifest.replacen("{", "{\n  \"interrupted\": true,", 1);
+    std::fs::write(part.join("sweep.json"), interrupted).unwrap();
+    let out = sweep(d, &["-o", "part", "--resume"]);
+    assert!(stdout(&out).contains("; 14 run now)"), "{}", stdout(&out));
+    assert_eq!(files(&d.join("full")), files(&part));
+    // Resuming a finished sweep runs nothing; another sweep is refused.
+    let out = sweep(d, &["-o", "part", "--resume"]);
+    assert!(stdout(&out).contains("; 0 run now)"), "{}", stdout(&out));
+    let out = hybsim(
+        d,
+        &[
+            "sweep", "ball.hyb", "--runs", "2", "-q", "-o", "part", "--resume",
+        ],
+    );
+    assert_eq!(code(&out), 1);
+    assert!(stderr(&out).contains("another sweep"), "{}", stderr(&out));
+}
+
+/// The ball of the determinism test with its grid in the model.
+fn ball_with_block() -> String {
+    BALL.replace(
+        "sim {",
+        "sweep {\n  lambda in 0.6:0.1:0.9   # the first axis varies slowest\n  g in [9.81, 3.7]\n  \
+         runs = 3; seed = 5\n}\nsim {",
+    )
+}
+
+#[test]
+fn a_sweep_block_is_the_grid_the_command_line_would_give() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    // Same model text in both files: the manifests (model SHA-256) agree.
+    std::fs::write(d.join("ball.hyb"), ball_with_block()).unwrap();
+    sweep(d, &["-o", "flags"]);
+    let out = hybsim(d, &["sweep", "ball.hyb", "-q", "-o", "block"]);
+    assert_eq!(code(&out), 0, "{}", stderr(&out));
+    assert!(
+        stdout(&out).contains("24 runs (8 grid points × 3 runs"),
+        "{}",
+        stdout(&out)
+    );
+    assert_eq!(files(&d.join("flags")), files(&d.join("block")));
+    // `hybsim run` ignores the block.
+    let out = hybsim(d, &["run", "ball.hyb", "-q", "--no-mcap"]);
+    assert_eq!(code(&out), 0, "{}", stderr(&out));
+    // --grid replaces the block's axes, --runs and --seed its settings.
+    let out = hybsim(
+        d,
+        &[
+            "sweep", "ball.hyb", "--grid", "g=[1, 2]", "--runs", "2", "-q", "-o", "cli",
+        ],
+    );
+    assert_eq!(code(&out), 0, "{}", stderr(&out));
+    let runs = std::fs::read_to_string(d.join("cli/runs.csv")).unwrap();
+    assert!(runs.starts_with("point,run,seed,g,status"), "{runs}");
+    assert_eq!(runs.lines().count(), 1 + 4);
+    // A name the block sweeps and --set fixes is refused.
+    let out = hybsim(d, &["sweep", "ball.hyb", "--set", "g=2", "-q", "-o", "x"]);
+    assert_eq!(code(&out), 2);
+    assert!(
+        stderr(&out).contains("`g` is set twice"),
+        "{}",
+        stderr(&out)
+    );
+}
+
+#[test]
+fn sweep_block_errors_are_located() {
+    let src = SourceFile::new(
+        "bad.hyb",
+        "model bad
+param k = 2, step = -1
+state x = 1
+flow { x' = -k * x }
+sweep {
+  kk in [1, 2]
+  k in 1:step:3
+  x in [1, 2; 3, 4]
+  k in [1]
+  rnus = 3
+  k = 4
+  runs = 0
+  seed = 0.5
+}
+sweep { runs = 2 }
+for i in 1..2 { sweep { k in [1] } }
+",
+    );
+    let diags = lang::check_only(&src, &[]);
+    let text = hybsim::diagnostics::render(&diags, &src, false);
+    for (code, at) in [
+        ("E0204", "bad.hyb:6:3"),
+        ("E0506", "bad.hyb:7:8"),
+        ("E0304", "bad.hyb:8:8"),
+        ("E0202", "bad.hyb:9:3"),
+        ("E0204", "bad.hyb:10:3"),
+        ("E0204", "bad.hyb:11:3"),
+        ("E0506", "bad.hyb:12:10"),
+        ("E0506", "bad.hyb:13:10"),
+        ("E0202", "bad.hyb:15:1"),
+        ("E0507", "bad.hyb:16:17"),
+    ] {
+        assert!(
+            text.contains(&format!("error[{code}]")) && text.contains(at),
+            "{code} at {at}:\n{text}"
+        );
+    }
+    assert!(text.contains("did you mean `k`?"), "{text}");
+    assert!(text.contains("did you mean `runs`?"), "{text}");
+    assert!(text.contains("did you mean `k in [values]`?"), "{text}");
+    assert!(text.contains("does not lead from 1 to 3"), "{text}");
+    // `sweep` stays usable as a name.
+    let src = SourceFile::new(
+        "ok.hyb",
+        "model ok\nparam sweep = 2\nstate x = 1\nflow { x' = -sweep * x }\nsweep { sweep in 1:1:3 }\n",
+    );
+    let model = lang::compile(&src, &[]).unwrap_or_else(|d| {
+        panic!("{}", hybsim::diagnostics::render(&d, &src, false));
+    });
+    let block = model.sweep().unwrap();
+    assert_eq!(block.axes, [("sweep".to_string(), vec![1.0, 2.0, 3.0])]);
+    assert_eq!((block.runs, block.seed), (None, None));
+}
+
+/// The columns of a Parquet file as text, each value as the CSV writes it
+/// (floats as shortest round-trip decimals, null as empty).
+fn parquet_as_csv(bytes: &[u8]) -> Vec<Vec<String>> {
+    use arrow_array::{Array, Float64Array, StringArray, UInt64Array};
+    use parquet::arrow::arrow_reader::ParquetRecordBatchReaderBuilder;
+    use std::io::Write;
+    let mut file = tempfile::tempfile().unwrap();
+    file.write_all(bytes).unwrap();
+    let reader = ParquetRecordBatchReaderBuilder::try_new(file)
+        .unwrap()
+        .build()
+        .unwrap();
+    let mut rows: Vec<Vec<String>> = Vec::new();
+    for batch in reader {
+        let batch = batch.unwrap();
+        if rows.is_empty() {
+            let schema = batch.schema();
+            rows.push(schema.fields().iter().map(|f| f.name().clone()).collect());
+        }
+        for i in 0..batch.num_rows() {
+            let row = batch
+                .columns()
+                .iter()
+                .map(|c| {
+                    let any = c.as_any();
+                    if c.is_null(i) {
+                        String::new()
+                    } else if let Some(a) = any.downcast_ref::<UInt64Array>() {
+                        a.value(i).to_string()
+                    } else if let Some(a) = any.downcast_ref::<Float64Array>() {
+                        hybsim::num::Num(a.value(i)).to_string()
+                    } else {
+                        let a = any.downcast_ref::<StringArray>().unwrap();
+                        a.value(i).to_string()
+                    }
+                })
+                .collect();
+            rows.push(row);
+        }
+    }
+    rows
+}
+
+fn csv_rows(bytes: &[u8]) -> Vec<Vec<String>> {
+    let mut r = csv::ReaderBuilder::new()
+        .has_headers(false)
+        .from_reader(bytes);
+    r.records()
+        .map(|rec| rec.unwrap().iter().map(String::from).collect())
+        .collect()
+}
+
+#[test]
+fn parquet_tables_hold_the_values_of_the_csv_tables() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    std::fs::write(d.join("ball.hyb"), BALL).unwrap();
+    // Two grid points whose runs are Zeno-suspected: rows without metrics,
+    // and statistics of no value (NaN).
+    sweep(d, &["-o", "out"]);
+    let read = |name: &str| std::fs::read(d.join("out").join(name)).unwrap();
+    for table in ["runs", "points"] {
+        let csv = csv_rows(&read(&format!("{table}.csv")));
+        let parquet = parquet_as_csv(&read(&format!("{table}.parquet")));
+        assert_eq!(csv, parquet, "{table}");
+    }
+    let runs = String::from_utf8(read("runs.csv")).unwrap();
+    assert!(runs.contains("zeno_suspected"), "{runs}");
+}
