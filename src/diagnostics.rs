@@ -145,6 +145,44 @@ impl Diagnostic {
     }
 }
 
+/// `diag` as one JSON object for editors and scripts (`hybsim check
+/// --message-format json`): `code`, `severity`, `message`, `file`, the
+/// primary span's `line`/`column`/`end_line`/`end_column` (1-based; `null`
+/// without a location), every `labels` entry with its own span, `notes` and
+/// `help`.
+pub fn to_json(diag: &Diagnostic, src: &SourceFile) -> serde_json::Value {
+    use serde_json::json;
+    let span_json = |s: Span| (src.line_col(s.start), src.line_col(s.end.max(s.start)));
+    let labels: Vec<serde_json::Value> = diag
+        .labels
+        .iter()
+        .map(|l| {
+            let (a, b) = span_json(l.span);
+            json!({
+                "line": a.line, "column": a.col, "end_line": b.line, "end_column": b.col,
+                "message": l.message, "primary": l.primary,
+            })
+        })
+        .collect();
+    let primary = diag.primary_span().map(span_json);
+    json!({
+        "code": diag.code,
+        "severity": match diag.severity {
+            Severity::Error => "error",
+            Severity::Warning => "warning",
+        },
+        "message": diag.message,
+        "file": src.name(),
+        "line": primary.map(|(a, _)| a.line),
+        "column": primary.map(|(a, _)| a.col),
+        "end_line": primary.map(|(_, b)| b.line),
+        "end_column": primary.map(|(_, b)| b.col),
+        "labels": labels,
+        "notes": diag.notes,
+        "help": diag.help,
+    })
+}
+
 /// Renders `diags` against `src`: for each, `error[E0201]: message`, then
 /// `┌─ file:line:col`, the source line with carets, notes and help. With
 /// `color`, ANSI colour codes are included (for terminals).
@@ -186,5 +224,31 @@ mod tests {
         assert!(text.contains("state h = x"), "{text}");
         assert!(text.contains('^'), "{text}");
         assert!(text.contains("help: declare it"), "{text}");
+    }
+
+    #[test]
+    fn json_has_the_primary_location_and_every_field() {
+        let src = SourceFile::new("ball.hyb", "model b\nstate h = x\n");
+        let d = Diagnostic::error("E0201", "unknown name `x`")
+            .primary(Span::new(18, 19), "not declared")
+            .note("names are declared before use")
+            .help("declare it");
+        let v = to_json(&d, &src);
+        assert_eq!(v["code"], "E0201");
+        assert_eq!(v["severity"], "error");
+        assert_eq!(v["file"], "ball.hyb");
+        assert_eq!(
+            (v["line"].as_u64(), v["column"].as_u64()),
+            (Some(2), Some(11))
+        );
+        assert_eq!(
+            (v["end_line"].as_u64(), v["end_column"].as_u64()),
+            (Some(2), Some(12))
+        );
+        assert_eq!(v["labels"][0]["message"], "not declared");
+        assert_eq!(v["notes"][0], "names are declared before use");
+        assert_eq!(v["help"], "declare it");
+        let unlocated = to_json(&Diagnostic::warning("W0001", "w"), &src);
+        assert!(unlocated["line"].is_null());
     }
 }

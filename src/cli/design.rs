@@ -1,7 +1,6 @@
 //! `hybsim design`: solve a model's `design` blocks and print, per block, the
 //! solver's report and the resulting parameters. Nothing is simulated.
 
-use std::io::IsTerminal;
 use std::path::PathBuf;
 
 use clap::Args;
@@ -62,7 +61,7 @@ pub fn execute(args: DesignArgs) -> anyhow::Result<u8> {
     let reports = match lang::design_only_with(&src, &overrides, &args.sdp.options()) {
         Ok(r) => r,
         Err(diags) => {
-            eprint!("{}", render(&diags, &src, std::io::stderr().is_terminal()));
+            eprint!("{}", render(&diags, &src, super::color()));
             return Ok(EXIT_MODEL_ERROR);
         }
     };

@@ -4,6 +4,7 @@
 
 mod check;
 mod design;
+mod fmt;
 mod progress;
 mod run;
 mod sweep;
@@ -54,6 +55,37 @@ pub struct Cli {
     /// What to do.
     #[command(subcommand)]
     pub command: Command,
+    /// Colour in diagnostics: `auto` (when stderr is a terminal and
+    /// `NO_COLOR` is not set), `always` or `never`.
+    #[arg(long, global = true, value_enum, default_value_t = ColorChoice::Auto)]
+    pub color: ColorChoice,
+}
+
+/// `--color`.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, clap::ValueEnum)]
+pub enum ColorChoice {
+    /// Colour when stderr is a terminal and `NO_COLOR` is unset or empty.
+    #[default]
+    Auto,
+    /// Always colour.
+    Always,
+    /// Never colour.
+    Never,
+}
+
+/// The process's `--color` choice, set once by [`run`].
+static COLOR: std::sync::OnceLock<ColorChoice> = std::sync::OnceLock::new();
+
+/// Whether diagnostics on stderr are coloured (see [`ColorChoice`]).
+pub fn color() -> bool {
+    match COLOR.get().copied().unwrap_or_default() {
+        ColorChoice::Always => true,
+        ColorChoice::Never => false,
+        ColorChoice::Auto => {
+            std::io::IsTerminal::is_terminal(&std::io::stderr())
+                && std::env::var_os("NO_COLOR").is_none_or(|v| v.is_empty())
+        }
+    }
 }
 
 /// The subcommands.
@@ -74,6 +106,15 @@ pub enum Command {
     /// metrics (per run and per grid point; CSV and SVG); `--shard k/n` runs a
     /// part, `--merge` joins the parts.
     Sweep(sweep::SweepArgs),
+    /// Rewrite `.hyb` files in the canonical layout (`--check`: only list
+    /// those that would change, exit 1 if any).
+    Fmt(fmt::FmtArgs),
+    /// Print a shell completion script (`hybsim completions bash > /etc/bash_completion.d/hybsim`).
+    Completions {
+        /// The shell.
+        #[arg(value_enum)]
+        shell: clap_complete::Shell,
+    },
 }
 
 /// Replaces the default panic message by a short report: what went wrong
@@ -121,12 +162,19 @@ where
             });
         }
     };
+    let _ = COLOR.set(cli.color);
     let result = match cli.command {
         Command::Run(args) => run::execute(args),
         Command::Check(args) => check::execute(args),
         Command::Design(args) => design::execute(args),
         Command::Test(args) => test::execute(args),
         Command::Sweep(args) => sweep::execute(args),
+        Command::Fmt(args) => fmt::execute(args),
+        Command::Completions { shell } => {
+            use clap::CommandFactory;
+            clap_complete::generate(shell, &mut Cli::command(), "hybsim", &mut std::io::stdout());
+            Ok(EXIT_OK)
+        }
     };
     match result {
         Ok(code) => ExitCode::from(code),
@@ -159,6 +207,47 @@ impl JitMode {
     }
 }
 
+/// The event and Zeno guard flags of `run` and `test`. Each is the `sim` key
+/// of the same name, passed as an override after the user's `--set`s (so a
+/// flag wins), and therefore checked and located like one.
+#[derive(Debug, Clone, Default, clap::Args)]
+pub struct GuardArgs {
+    /// Tolerance on the flow set's atoms when deciding whether a state may
+    /// flow (the `sim` key `set_tol`; default 1e-9).
+    #[arg(long, value_name = "TOL")]
+    pub set_tol: Option<f64>,
+    /// Zeno guard: most jumps per unit of t over the window (`inf`
+    /// disables it); applies only when J is unbounded (`sim` key `zeno_rate`).
+    #[arg(long, value_name = "RATE")]
+    pub zeno_rate: Option<f64>,
+    /// Zeno guard: number of jumps over which the rate is measured (≥ 2).
+    #[arg(long, value_name = "N")]
+    pub zeno_window: Option<u32>,
+    /// Zeno guard: jump budget of a run with unbounded J (≥ 1).
+    #[arg(long, value_name = "N")]
+    pub max_total_jumps: Option<u64>,
+}
+
+impl GuardArgs {
+    /// `set` followed by the flags as `sim`-key overrides (`name=value`).
+    pub fn with_overrides(&self, set: &[String]) -> Vec<String> {
+        // `{:e}` keeps every digit of a float; `inf` is the language's spelling.
+        let float = |x: f64| {
+            if x.is_infinite() && x > 0.0 {
+                "inf".to_string()
+            } else {
+                format!("{x:e}")
+            }
+        };
+        let mut all = set.to_vec();
+        all.extend(self.set_tol.map(|x| format!("set_tol={}", float(x))));
+        all.extend(self.zeno_rate.map(|x| format!("zeno_rate={}", float(x))));
+        all.extend(self.zeno_window.map(|n| format!("zeno_window={n}")));
+        all.extend(self.max_total_jumps.map(|n| format!("max_total_jumps={n}")));
+        all
+    }
+}
+
 /// Interior-point methods for `design` blocks on the command line
 /// (`--sdp`; `--solver` of `hybsim run` is the flow integrator).
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, clap::ValueEnum)]
@@ -188,19 +277,22 @@ impl SdpKind {
     }
 }
 
-/// Reads the model file and parses the `--set` overrides. Prints the
-/// problem and returns `None` if either fails (exit code 2).
-fn load(
+/// Why a model and its `--set` overrides could not be loaded.
+enum LoadError {
+    /// The model file cannot be read (the message says why).
+    Unreadable(String),
+    /// Some overrides do not parse: their diagnostics, against the model.
+    Overrides(SourceFile, Vec<hybsim::diagnostics::Diagnostic>),
+}
+
+/// Reads the model file and parses the `--set` overrides.
+fn read_inputs(
     path: &std::path::Path,
     set: &[String],
-) -> anyhow::Result<Option<(SourceFile, Vec<Override>)>> {
-    let src = match SourceFile::read(path) {
-        Ok(src) => src,
-        Err(e) => {
-            eprintln!("error: cannot read model file `{}`: {e}", path.display());
-            return Ok(None);
-        }
-    };
+) -> Result<(SourceFile, Vec<Override>), LoadError> {
+    let src = SourceFile::read(path).map_err(|e| {
+        LoadError::Unreadable(format!("cannot read model file `{}`: {e}", path.display()))
+    })?;
     let mut overrides = Vec::new();
     let mut problems = Vec::new();
     for s in set {
@@ -209,12 +301,30 @@ fn load(
             Err(d) => problems.push(d),
         }
     }
-    if !problems.is_empty() {
-        let color = std::io::IsTerminal::is_terminal(&std::io::stderr());
-        eprint!("{}", render(&problems, &src, color));
-        return Ok(None);
+    if problems.is_empty() {
+        Ok((src, overrides))
+    } else {
+        Err(LoadError::Overrides(src, problems))
     }
-    Ok(Some((src, overrides)))
+}
+
+/// Reads the model file and parses the `--set` overrides. Prints the
+/// problem and returns `None` if either fails (exit code 2).
+fn load(
+    path: &std::path::Path,
+    set: &[String],
+) -> anyhow::Result<Option<(SourceFile, Vec<Override>)>> {
+    match read_inputs(path, set) {
+        Ok(loaded) => Ok(Some(loaded)),
+        Err(LoadError::Unreadable(message)) => {
+            eprintln!("error: {message}");
+            Ok(None)
+        }
+        Err(LoadError::Overrides(src, problems)) => {
+            eprint!("{}", render(&problems, &src, color()));
+            Ok(None)
+        }
+    }
 }
 
 #[cfg(test)]

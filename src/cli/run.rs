@@ -5,7 +5,6 @@ use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 use clap::Args;
-use std::io::IsTerminal;
 
 use hybsim::arc::{ArcSink, HybridTime, Termination, TerminationCause};
 use hybsim::atomic_file;
@@ -24,7 +23,9 @@ use hybsim::sinks::{
 use serde_json::{Value, json};
 
 use super::progress::{Progress, interrupt_flag};
-use super::{EXIT_FAILED, EXIT_INTERRUPTED, EXIT_MODEL_ERROR, EXIT_OK, JitMode, SdpKind};
+use super::{
+    EXIT_FAILED, EXIT_INTERRUPTED, EXIT_MODEL_ERROR, EXIT_OK, GuardArgs, JitMode, SdpKind,
+};
 
 /// Arguments of `hybsim run`.
 #[derive(Debug, Args)]
@@ -63,23 +64,11 @@ pub struct RunArgs {
     /// Largest integrator step of the adaptive solvers.
     #[arg(long, value_name = "H")]
     pub max_step: Option<f64>,
-    /// Tolerance on the flow set's atoms when deciding whether a state may
-    /// flow (overrides the model's `set_tol`; default 1e-9).
-    #[arg(long, value_name = "TOL")]
-    pub set_tol: Option<f64>,
     /// What to do when the state is in both C and D.
     #[arg(long, value_enum)]
     pub priority: Option<PriorityKind>,
-    /// Zeno guard: most jumps per unit of t over the window (`inf`
-    /// disables it); applies only when J is unbounded.
-    #[arg(long, value_name = "RATE")]
-    pub zeno_rate: Option<f64>,
-    /// Zeno guard: number of jumps over which the rate is measured (≥ 2).
-    #[arg(long, value_name = "N")]
-    pub zeno_window: Option<u32>,
-    /// Zeno guard: jump budget of a run with unbounded J (≥ 1).
-    #[arg(long, value_name = "N")]
-    pub max_total_jumps: Option<u64>,
+    #[command(flatten)]
+    pub guard: GuardArgs,
     /// Advance affine flows exactly (matrix exponentials): `auto` (by cost,
     /// per segment), `on` or `off` (overrides the model's).
     #[arg(long, value_enum, value_name = "WHEN")]
@@ -221,18 +210,6 @@ pub fn settings_from_flags(
     }
     if let Some(h) = args.max_step {
         settings = settings.max_step(h);
-    }
-    if let Some(r) = args.zeno_rate {
-        settings = settings.zeno_max_rate(r);
-    }
-    if let Some(w) = args.zeno_window {
-        settings = settings.zeno_window(w);
-    }
-    if let Some(n) = args.max_total_jumps {
-        settings = settings.max_total_jumps(n);
-    }
-    if let Some(tol) = args.set_tol {
-        settings = settings.set_tol(tol);
     }
     if let Some(p) = args.priority {
         settings = settings.priority(match p {
@@ -583,7 +560,9 @@ pub fn default_mcap_path(model: &Path) -> PathBuf {
 
 /// `hybsim run`.
 pub fn execute(args: RunArgs) -> anyhow::Result<u8> {
-    let Some((src, mut overrides)) = super::load(&args.model, &args.set)? else {
+    let Some((src, mut overrides)) =
+        super::load(&args.model, &args.guard.with_overrides(&args.set))?
+    else {
         return Ok(EXIT_MODEL_ERROR);
     };
     JitMode::apply(args.jit, &mut overrides);
@@ -593,7 +572,7 @@ pub fn execute(args: RunArgs) -> anyhow::Result<u8> {
         match lang::compile_run_with(&src, &overrides, args.seed, &args.sdp.options()) {
             Ok(compiled) => compiled,
             Err(diags) => {
-                eprint!("{}", render(&diags, &src, stderr_is_terminal()));
+                eprint!("{}", render(&diags, &src, super::color()));
                 return Ok(EXIT_MODEL_ERROR);
             }
         };
@@ -684,7 +663,7 @@ pub fn execute(args: RunArgs) -> anyhow::Result<u8> {
     if let Some(e) = &error {
         eprint!(
             "{}",
-            render(&[model.runtime_diagnostic(e)], &src, stderr_is_terminal())
+            render(&[model.runtime_diagnostic(e)], &src, super::color())
         );
     }
     if let Some(d) = report
@@ -692,7 +671,7 @@ pub fn execute(args: RunArgs) -> anyhow::Result<u8> {
         .as_ref()
         .and_then(|t| model.termination_diagnostic(t))
     {
-        eprint!("{}", render(&[d], &src, stderr_is_terminal()));
+        eprint!("{}", render(&[d], &src, super::color()));
     }
     let mut line = summary_line(model.name(), &report, &info.rule_names);
     if compile_time.as_secs_f64() > 0.1 {
@@ -703,10 +682,6 @@ pub fn execute(args: RunArgs) -> anyhow::Result<u8> {
         eprintln!("wrote {}", path.display());
     }
     Ok(exit_code(&report))
-}
-
-fn stderr_is_terminal() -> bool {
-    std::io::stderr().is_terminal()
 }
 
 #[cfg(test)]

@@ -103,7 +103,7 @@ pub fn execute(args: SweepArgs) -> anyhow::Result<u8> {
     let base = match hybsim::lang::compile_with(&src, &fixed, &options) {
         Ok(m) => m,
         Err(diags) => {
-            let color = std::io::stderr().is_terminal();
+            let color = super::color();
             eprint!("{}", hybsim::diagnostics::render(&diags, &src, color));
             return Ok(EXIT_MODEL_ERROR);
         }
@@ -140,7 +140,7 @@ pub fn execute(args: SweepArgs) -> anyhow::Result<u8> {
             .filter(|d| d.code == "E0204" || d.code == "E0508")
             .collect();
         if !unknown.is_empty() {
-            let color = std::io::stderr().is_terminal();
+            let color = super::color();
             eprint!("{}", hybsim::diagnostics::render(&unknown, &src, color));
             return Ok(EXIT_MODEL_ERROR);
         }

@@ -11,7 +11,7 @@ use hybsim::props::{
     ModelRunError, ModelSubject, Outcome, Property, Subject, TestConfig, replay_args, run_tests,
 };
 
-use super::{EXIT_FAILED, EXIT_MODEL_ERROR, EXIT_OK, SdpKind};
+use super::{EXIT_FAILED, EXIT_MODEL_ERROR, EXIT_OK, GuardArgs, SdpKind};
 
 /// Arguments of `hybsim test`.
 #[derive(Debug, Args)]
@@ -32,10 +32,6 @@ pub struct TestArgs {
     /// (a pinned initial value is no longer sampled).
     #[arg(long = "set", value_name = "NAME=VALUE")]
     pub set: Vec<String>,
-    /// Tolerance on the flow set's atoms when deciding whether a state may
-    /// flow (the `sim` key `set_tol`, as `--set set_tol=TOL`).
-    #[arg(long, value_name = "TOL")]
-    pub set_tol: Option<f64>,
     /// Interior-point method of the model's design blocks (solved per case).
     #[arg(long, value_enum, default_value_t = SdpKind::Auto)]
     pub sdp: SdpKind,
@@ -46,44 +42,8 @@ pub struct TestArgs {
     /// Most runs spent shrinking a counterexample (0: no shrinking).
     #[arg(long, value_name = "N", default_value_t = 400)]
     pub max_shrink: usize,
-    /// Zeno guard: most jumps per unit of t over the window (`inf`
-    /// disables it); applies only when J is unbounded. Same as
-    /// `--set zeno_rate=RATE`.
-    #[arg(long, value_name = "RATE")]
-    pub zeno_rate: Option<f64>,
-    /// Zeno guard: number of jumps over which the rate is measured (≥ 2).
-    #[arg(long, value_name = "N")]
-    pub zeno_window: Option<u32>,
-    /// Zeno guard: jump budget of a run with unbounded J (≥ 1).
-    #[arg(long, value_name = "N")]
-    pub max_total_jumps: Option<u64>,
-}
-
-impl TestArgs {
-    /// The `--set` overrides, with the Zeno and set-tolerance flags as `sim` keys.
-    fn overrides(&self) -> Vec<String> {
-        let mut set = self.set.clone();
-        if let Some(r) = self.zeno_rate {
-            set.push(format!(
-                "zeno_rate={}",
-                if r.is_infinite() {
-                    "inf".to_string()
-                } else {
-                    format!("{r:e}")
-                }
-            ));
-        }
-        if let Some(w) = self.zeno_window {
-            set.push(format!("zeno_window={w}"));
-        }
-        if let Some(n) = self.max_total_jumps {
-            set.push(format!("max_total_jumps={n}"));
-        }
-        if let Some(tol) = self.set_tol {
-            set.push(format!("set_tol={tol:e}"));
-        }
-        set
-    }
+    #[command(flatten)]
+    pub guard: GuardArgs,
 }
 
 /// `arg` as one shell word (single-quoted unless plainly safe).
@@ -101,11 +61,13 @@ fn shell_word(arg: &str) -> String {
 
 /// `hybsim test`.
 pub fn execute(args: TestArgs) -> anyhow::Result<u8> {
-    let Some((src, mut overrides)) = super::load(&args.model, &args.overrides())? else {
+    let Some((src, mut overrides)) =
+        super::load(&args.model, &args.guard.with_overrides(&args.set))?
+    else {
         return Ok(EXIT_MODEL_ERROR);
     };
     super::JitMode::apply(args.jit, &mut overrides);
-    let color = std::io::IsTerminal::is_terminal(&std::io::stderr());
+    let color = super::color();
     let subject = match ModelSubject::with_options(src.clone(), overrides, args.sdp.options()) {
         Ok(s) => s,
         Err(diags) => {

@@ -4,10 +4,12 @@
 pub mod ast;
 mod design;
 mod error;
+mod format;
 mod parse;
 mod property;
 #[cfg(test)]
 mod tests;
 
 pub use error::SyntaxError;
+pub use format::format_source;
 pub use parse::{MAX_EXPR_DEPTH, MAX_NESTING, parse_expr, parse_model};

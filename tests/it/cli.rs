@@ -253,3 +253,93 @@ fn zeno_flags_of_run_and_test() {
     );
     assert_eq!(code(&out), 0, "{}", stderr(&out));
 }
+
+/// `hybsim check --message-format json`: one object per diagnostic and line on
+/// stdout, with code, severity, file and 1-based line/column; nothing else.
+#[test]
+fn check_prints_diagnostics_as_json_lines() {
+    let dir = tempfile::tempdir().unwrap();
+    let bad = write(
+        dir.path(),
+        "bad.hyb",
+        "model bad\nstate h = 1\nflow { h' = v }\noutput y = w\n",
+    );
+    let out = hybsim(
+        dir.path(),
+        &["check", bad.to_str().unwrap(), "--message-format", "json"],
+    );
+    assert_eq!(code(&out), 2);
+    let text = crate::util::stdout(&out);
+    let diags: Vec<Value> = text
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap_or_else(|e| panic!("{e}: {l}")))
+        .collect();
+    assert_eq!(diags.len(), 2, "{text}");
+    for (d, (line, col)) in diags.iter().zip([(3, 13), (4, 12)]) {
+        assert_eq!(d["severity"], "error", "{d}");
+        assert!(d["code"].as_str().unwrap().starts_with('E'), "{d}");
+        assert!(d["file"].as_str().unwrap().ends_with("bad.hyb"), "{d}");
+        assert_eq!(d["line"], line, "{d}");
+        assert_eq!(d["column"], col, "{d}");
+    }
+    assert!(stderr(&out).is_empty(), "{}", stderr(&out));
+    let good = hybsim(
+        dir.path(),
+        &[
+            "check",
+            ball_model().to_str().unwrap(),
+            "--message-format",
+            "json",
+        ],
+    );
+    assert_eq!(code(&good), 0);
+    assert!(crate::util::stdout(&good).is_empty());
+    let missing = hybsim(
+        dir.path(),
+        &["check", "nope.hyb", "--message-format", "json"],
+    );
+    assert_eq!(code(&missing), 2);
+    let v: Value = serde_json::from_str(crate::util::stdout(&missing).trim()).unwrap();
+    assert!(
+        v["message"].as_str().unwrap().contains("cannot read"),
+        "{v}"
+    );
+}
+
+/// `--color always|never` and `NO_COLOR`: ANSI escapes only when asked.
+#[test]
+fn color_follows_the_flag_and_no_color() {
+    let dir = tempfile::tempdir().unwrap();
+    let bad = write(dir.path(), "bad.hyb", "model bad\nstate h = x\n");
+    let bad = bad.to_str().unwrap();
+    let always = hybsim(dir.path(), &["check", bad, "--color", "always"]);
+    assert!(stderr(&always).contains('\x1b'), "{}", stderr(&always));
+    let never = hybsim(dir.path(), &["--color", "never", "check", bad]);
+    assert!(!stderr(&never).contains('\x1b'));
+    // `auto` never colours a pipe, whatever NO_COLOR says.
+    let auto = std::process::Command::new(env!("CARGO_BIN_EXE_hybsim"))
+        .args(["check", bad])
+        .env("NO_COLOR", "1")
+        .output()
+        .unwrap();
+    assert!(!stderr(&auto).contains('\x1b'));
+    assert_eq!(
+        code(&hybsim(dir.path(), &["check", bad, "--color", "blue"])),
+        2
+    );
+}
+
+/// `hybsim completions SHELL` prints a script that names the subcommands.
+#[test]
+fn completions_for_each_shell() {
+    let dir = tempfile::tempdir().unwrap();
+    for shell in ["bash", "zsh", "fish", "elvish", "powershell"] {
+        let out = hybsim(dir.path(), &["completions", shell]);
+        assert_eq!(code(&out), 0, "{shell}: {}", stderr(&out));
+        let text = crate::util::stdout(&out);
+        for word in ["run", "check", "sweep", "--message-format"] {
+            assert!(text.contains(word), "{shell} lacks {word}");
+        }
+    }
+    assert_eq!(code(&hybsim(dir.path(), &["completions", "tcsh"])), 2);
+}

@@ -3,9 +3,10 @@
 //! samples), and `exact_affine = auto | on | off` give the same arcs within
 //! the solver's tolerance on every shipped model.
 
+use crate::util::simulate_arc;
 use hybsim::arc::{HybridArc, HybridTime, SampleKind};
 use hybsim::engine::models::BouncingBall;
-use hybsim::engine::{ExactAffine, HybridSystem, SimRng, SimSettings, simulate_arc};
+use hybsim::engine::{ExactAffine, HybridSystem, SimRng, SimSettings};
 
 use super::lang::load;
 

@@ -1,11 +1,10 @@
 //! Engine tests: analytic models through `engine::simulate`, with stated
 //! tolerances.
 
+use crate::util::simulate_arc;
 use hybsim::arc::{HybridArc, SampleKind, TerminationCause, ZenoDetail};
 use hybsim::engine::models::{BouncingBall, OverlapDemo, RandomTimers, SampleAndHold};
-use hybsim::engine::{
-    ExactAffine, HybridSystem, Priority, SimRng, SimSettings, Solver, simulate_arc,
-};
+use hybsim::engine::{ExactAffine, HybridSystem, Priority, SimRng, SimSettings, Solver};
 use nalgebra::DMatrix;
 
 fn run<S: HybridSystem>(sys: &S, x0: &[f64], s: &SimSettings, seed: u64) -> HybridArc {
@@ -321,6 +320,7 @@ mod invariants {
 
 mod semantics {
     use super::*;
+    use crate::util::simulate_arc;
     use hybsim::arc::HybridTime;
     use hybsim::engine::{GuardKind, JumpRule, SimError, simulate};
 

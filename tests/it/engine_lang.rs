@@ -4,8 +4,9 @@
 //! `frac`, `rem`, `hypot`, `clamp`. Each answer is checked against a closed
 //! form or a recursion written out here.
 
+use crate::util::simulate_arc;
 use hybsim::arc::{HybridArc, HybridTime, TerminationCause, ZenoDetail};
-use hybsim::engine::{GuardKind, HybridSystem, JumpRule, SimRng, SimSettings, simulate_arc};
+use hybsim::engine::{GuardKind, HybridSystem, JumpRule, SimRng, SimSettings};
 use hybsim::lang::{self, CompiledModel};
 use hybsim::source::SourceFile;
 

@@ -2,9 +2,10 @@
 //! compute: families and graphs, `every`, held and white noise, matrix
 //! states, outputs, and the run-time diagnostics.
 
+use crate::util::simulate_arc;
 use hybsim::arc::HybridTime;
 use hybsim::diagnostics::render;
-use hybsim::engine::{FlowStructure, HybridSystem, SimRng, simulate_arc};
+use hybsim::engine::{FlowStructure, HybridSystem, SimRng};
 use hybsim::lang::{self, CompiledModel};
 use hybsim::source::SourceFile;
 use nalgebra::{DMatrix, Matrix2};

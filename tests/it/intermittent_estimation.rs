@@ -5,11 +5,11 @@
 //! written directly in Rust on top of `analysis::intermittent_estimation`
 //! (the reference for `models/intermittent_estimation.hyb`).
 
+use crate::util::simulate_arc;
 use hybsim::analysis::intermittent_estimation::{Network, Scenario};
 use hybsim::arc::{HybridArc, HybridTime};
 use hybsim::engine::{
     ExactAffine, FlowStructure, GuardKind, HybridSystem, JumpRule, SimRng, SimSettings,
-    simulate_arc,
 };
 use nalgebra::DVector;
 

@@ -2,10 +2,11 @@
 //! (parse → check → compile → simulate) against the Rust reference system
 //! of `intermittent_estimation.rs` and against the paper's claims.
 
+use crate::util::simulate_arc;
 use hybsim::analysis::intermittent_estimation::{EdgeGains, Network, Scenario};
 use hybsim::arc::{HybridArc, HybridTime};
 use hybsim::diagnostics::render;
-use hybsim::engine::{SimRng, simulate_arc};
+use hybsim::engine::SimRng;
 use hybsim::lang::{self, CompiledModel, Override};
 use hybsim::source::SourceFile;
 use nalgebra::DMatrix;

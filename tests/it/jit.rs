@@ -8,8 +8,9 @@
 //! on the random systems of the semantics reference test. Also: all sets'
 //! atoms evaluated at once (one program) against set by set.
 
+use crate::util::simulate_arc;
 use hybsim::arc::HybridTime;
-use hybsim::engine::{HybridSystem, SetRef, SimRng, simulate_arc};
+use hybsim::engine::{HybridSystem, SetRef, SimRng};
 use hybsim::lang::{self, CompiledModel, JitStatus, Override};
 use hybsim::source::SourceFile;
 

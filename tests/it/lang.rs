@@ -1,8 +1,9 @@
 //! The `.hyb` front end through the real pipeline: parse → check → compile →
 //! simulate with the engine.
 
+use crate::util::simulate_arc;
 use hybsim::arc::{HybridArc, HybridTime};
-use hybsim::engine::{HybridSystem, simulate_arc};
+use hybsim::engine::HybridSystem;
 use hybsim::lang::{self, CompiledModel, Override};
 use hybsim::source::SourceFile;
 

@@ -6,7 +6,9 @@ use std::path::Path;
 use std::process::Command;
 
 use hybsim::engine::models::SampleAndHold;
-use hybsim::engine::{FlowStructure, HybridSystem, Solver, simulate_arc};
+
+use crate::util::simulate_arc;
+use hybsim::engine::{FlowStructure, HybridSystem, Solver};
 use nalgebra::{DMatrix, DVector};
 
 use super::lang::{load, run};

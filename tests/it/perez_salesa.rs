@@ -366,7 +366,8 @@ fn perez_salesa_model_properties_hold() {
 /// `event[i]` with τ̲ = h hits it at every step).
 #[test]
 fn perez_salesa_clock_guard_on_a_timer_instant_fires_there() {
-    use hybsim::engine::{HybridSystem, simulate_arc};
+    use crate::util::simulate_arc;
+    use hybsim::engine::HybridSystem;
     let src = hybsim::source::SourceFile::new(
         "clock.hyb",
         "model clock\nstate k = 0, c = 0, m = 0\nflow { c' = 1 }\nevery 1 { k+ = k + 1 }\n\

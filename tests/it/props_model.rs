@@ -2,8 +2,8 @@
 //! inputs, the initial draws' own stream, and cases that replay exactly as
 //! `hybsim run` would run them.
 
+use crate::util::simulate_arc;
 use hybsim::arc::HybridArc;
-use hybsim::engine::simulate_arc;
 use hybsim::lang::{self, CompiledModel, Override};
 use hybsim::props::{
     Dist, ModelSubject, Outcome, Property, Subject, TestConfig, run_tests, sample_case,

@@ -2,7 +2,9 @@
 //! equation of the fastest-changing state when the integrator gives up, the
 //! jump whose map produced a non-finite value.
 
-use hybsim::engine::{SimError, simulate_arc};
+use hybsim::engine::SimError;
+
+use crate::util::simulate_arc;
 use hybsim::lang;
 use hybsim::source::SourceFile;
 

@@ -3,8 +3,9 @@
 //! simulate), against closed forms: jump times to 1e-9, jump counts exact,
 //! and the set invariants of every arc ([`check_arc`]).
 
+use crate::util::simulate_arc;
 use hybsim::arc::{FailedAtom, HybridArc, TerminationCause};
-use hybsim::engine::{SimSettings, check_arc, simulate_arc};
+use hybsim::engine::{SimSettings, check_arc};
 use hybsim::ir::CompiledModel;
 use hybsim::lang;
 use hybsim::source::SourceFile;

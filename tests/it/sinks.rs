@@ -639,8 +639,9 @@ fn engine_run_logged_to_mcap_matches_closed_form_impacts() {
 /// Replaying an in-memory arc gives the same file as logging the run directly.
 #[test]
 fn replayed_arc_gives_the_same_mcap_as_a_direct_run() {
+    use crate::util::simulate_arc;
     use hybsim::engine::models::BouncingBall;
-    use hybsim::engine::{SimRng, SimSettings, simulate, simulate_arc};
+    use hybsim::engine::{SimRng, SimSettings, simulate};
 
     let dir = tempfile::tempdir().unwrap();
     let info = ball_info();

@@ -8,11 +8,10 @@
 //! `10·(rtol·|ref| + atol)` of the reference (the global error of a
 //! well-behaved run stays within a small multiple of the local tolerance).
 
+use crate::util::simulate_arc;
 use hybsim::arc::{HybridArc, HybridTime, SampleKind, TerminationCause};
 use hybsim::engine::models::BouncingBall;
-use hybsim::engine::{
-    HybridSystem, SimError, SimRng, SimSettings, Solver, check_arc, simulate_arc,
-};
+use hybsim::engine::{HybridSystem, SimError, SimRng, SimSettings, Solver, check_arc};
 use hybsim::ir::CompiledModel;
 use hybsim::lang;
 use hybsim::source::SourceFile;

@@ -212,3 +212,19 @@ pub fn test_model(name: &str) -> PathBuf {
         .join("tests/models")
         .join(name)
 }
+
+/// `hybsim::engine::simulate_arc`, and every arc it returns checked with
+/// `engine::check_arc` (each jump starts from a point of D, each flow in C
+/// within `set_tol`): the integration tests simulate through this.
+pub fn simulate_arc<S: hybsim::engine::HybridSystem + ?Sized>(
+    sys: &S,
+    x0: &[f64],
+    settings: &hybsim::engine::SimSettings,
+    rng: &mut hybsim::engine::SimRng,
+) -> Result<hybsim::arc::HybridArc, hybsim::engine::SimError> {
+    let arc = hybsim::engine::simulate_arc(sys, x0, settings, rng)?;
+    if let Err(violation) = hybsim::engine::check_arc(sys, &arc, settings) {
+        panic!("the arc breaks the engine's invariants: {violation}");
+    }
+    Ok(arc)
+}
