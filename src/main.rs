@@ -12,6 +12,9 @@ fn main() -> std::process::ExitCode {
         libc::signal(libc::SIGPIPE, libc::SIG_DFL);
     }
     cli::install_panic_hook();
+    // One OpenBLAS thread before any BLAS call (the design layer pins it too; here it also
+    // holds for anything else in the process).
+    hybsim::design::blas::pin();
     // The front end's recursion is bounded (`syntax::MAX_NESTING`,
     // `syntax::MAX_EXPR_DEPTH`); a large stack is only a second line of
     // defence (reserved, not committed, memory).

@@ -10,6 +10,8 @@
 //!   and shape at run time, affine matrix expressions, semidefinite constraints, linear objective)
 //!   solved with clarabel's positive semidefinite cone, with an a-posteriori check of every
 //!   constraint at the returned point.
+//! - [`blas`]: OpenBLAS pinned to one thread (the same digits on every machine).
 
+pub mod blas;
 pub mod control;
 pub mod lmi;

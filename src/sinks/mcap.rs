@@ -6,7 +6,7 @@
 //!
 //! | record | content |
 //! |---|---|
-//! | metadata `hybsim.run` | `version`, `model` (path), `model_name`, `model_sha256`, `seed`, `state_names`, `output_names`, `rule_names`, `argv` (JSON arrays) |
+//! | metadata `hybsim.run` | `version`, `model` (path), `model_name`, `model_sha256`, `seed`, `state_names`, `output_names`, `rule_names`, `argv` (JSON arrays), `decimation`, `blas_threads` (OpenBLAS threads, 1), `threads` (rayon's worker threads) |
 //! | metadata `hybsim.parameters` | one entry per resolved parameter (JSON value) |
 //! | metadata `hybsim.solver` | one entry per setting (JSON value) |
 //! | metadata `hybsim.design` | design results, when the model has design blocks |
@@ -210,6 +210,10 @@ impl<'a> McapSink<'a> {
                 "decimation",
                 Value::String(json!(options.decimation).to_string()),
             ),
+            // The threads the design layer ran on: BLAS is pinned (design::blas), rayon's
+            // pool follows the machine (the designs' numbers do not).
+            ("blas_threads", json!(crate::design::blas::threads())),
+            ("threads", json!(rayon::current_num_threads())),
         ]);
         let mut records = vec![
             ("hybsim.run", run),

@@ -242,6 +242,11 @@ impl Block {
 /// Variables per batch of the Schur-matrix inner products ([`Block::add_schur`]).
 const SCHUR_BATCH: usize = 32;
 
+/// Groups of blocks whose Schur parts are formed in parallel (each its own m×m matrix) and then
+/// added in group order. Independent of the thread count so that M's rounding is too; 4 keeps
+/// the extra memory at 3 m² doubles while using 4 cores.
+const SCHUR_GROUPS: usize = 4;
+
 /// Reduced-accuracy thresholds (clarabel's defaults): a run that stops early with its best
 /// iterate within these is [`SolverStatus::AlmostSolved`].
 const REDUCED_FEAS: f64 = 1e-4;
@@ -602,16 +607,17 @@ pub(crate) fn solve(conic: &Conic, opts: &IpmOptions) -> IpmResult {
         s.push(DMatrix::identity(blk.d, blk.d) * eta);
         z.push(DMatrix::identity(blk.d, blk.d) * xi);
     }
-    // Balance the Schur work over the threads: contiguous groups of similar cost.
-    let threads = rayon::current_num_threads().max(1);
+    // Balance the Schur work over SCHUR_GROUPS contiguous groups of similar cost, summed in
+    // group order: a fixed number (not the thread count), so the rounding of M, and the design,
+    // is the same on every machine.
     let groups = {
         let costs: Vec<usize> = blocks.iter().map(Block::schur_cost).collect();
         let total: usize = costs.iter().sum::<usize>().max(1);
-        let per = total.div_ceil(threads);
+        let per = total.div_ceil(SCHUR_GROUPS);
         let mut groups: Vec<Vec<usize>> = vec![Vec::new()];
         let mut acc = 0;
         for (k, c) in costs.iter().enumerate() {
-            if acc >= per && groups.len() < threads {
+            if acc >= per && groups.len() < SCHUR_GROUPS {
                 groups.push(Vec::new());
                 acc = 0;
             }

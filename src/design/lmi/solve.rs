@@ -433,6 +433,7 @@ impl Problem {
     /// [`super::Settings::rescale`]) rescales from that point and solves again.
     pub fn solve(&self) -> Result<Outcome, LmiError> {
         let start = Instant::now();
+        crate::design::blas::pin();
         self.validate_settings()?;
         // The solvers (clarabel's QDLDL) index into the first variable and
         // the first constraint: an empty problem never reaches them.
@@ -482,9 +483,18 @@ impl Problem {
             solve_time += second.solve_time;
             iterations += second.iterations;
             let second_checks = self.check(&second.x);
-            // Keep the second pass unless it is worse (not solved while the first was, and the
-            // first was meant as a design, not only as a scaling).
-            if solved(second.status) || !solved(pass.status) || first_scales {
+            // Keep the second pass unless it is worse: not solved while the first was, and the
+            // first is a design (verified, and a full solve, not the Schur method's rough
+            // scaling-only pass). On a problem whose optimum is not attained (a bound approached
+            // as a matrix variable grows or becomes singular), the first pass ends near the
+            // infimum with reduced accuracy and the second, scaled by that point, can break
+            // down: the verified first point is then the design. Which of the two breaks down
+            // follows the last bits of BLAS, so dropping the first one made such designs fail
+            // on some machines and not on others.
+            let first_is_design = solved(pass.status)
+                && all_hold(&checks)
+                && !(first_scales && pass.backend == Backend::Schur);
+            if solved(second.status) || !first_is_design {
                 pass = second;
                 checks = second_checks;
             }
