@@ -238,7 +238,8 @@ fn space_between(p: &Token<'_>, rp: Role, c: &Token<'_>, rc: Role) -> bool {
             "," | ";" | "'" | ")" | "]" => return false,
             "}" => return pt != "{",
             "{" => return true,
-            ":" => return false,
+            // A slice's `:` after a comma (`P[1:2, :]`) is spaced like any element.
+            ":" => return p_op && matches!(pt, "," | ";"),
             ".." | "^" => return false,
             "(" => {
                 return match p.kind {
