@@ -320,6 +320,7 @@ impl Agents {
             .map(|k| JumpRule {
                 name: format!("transmit[{k}]"),
                 group: None,
+                part: None,
                 writes: Vec::new(),
                 guard: GuardKind::Timer {
                     index: AGENT * k + 13,

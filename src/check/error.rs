@@ -15,6 +15,14 @@ fn shape(d: Dims) -> String {
     }
 }
 
+fn cycle_words(cycle: &[(String, Span)]) -> String {
+    let mut names: Vec<String> = cycle.iter().map(|(n, _)| format!("`{n}`")).collect();
+    if let Some(first) = names.first().cloned() {
+        names.push(first);
+    }
+    names.join(" → ")
+}
+
 fn did_you_mean(s: &Option<String>) -> Option<String> {
     s.as_ref().map(|s| format!("did you mean `{s}`?"))
 }
@@ -236,6 +244,37 @@ pub enum CheckError {
         /// Where.
         span: Span,
     },
+    /// Outputs and instance inputs that depend on each other at one instant
+    /// (an algebraic loop): each name in order, with its definition.
+    #[error("algebraic loop: {}", cycle_words(.cycle))]
+    AlgebraicLoop {
+        /// The names of the loop in dependency order (each uses the next;
+        /// the last uses the first), with their definitions.
+        cycle: Vec<(String, Span)>,
+    },
+    /// An instance argument that is neither a parameter nor an input of
+    /// its subsystem, or a parameter without default left without value,
+    /// or an input left unconnected.
+    #[error("{message}")]
+    Instance {
+        /// What is wrong, in words.
+        message: String,
+        /// Where.
+        span: Span,
+        /// The subsystem's declaration (or the declaration concerned).
+        decl: Option<Span>,
+        /// What to change.
+        help: String,
+    },
+    /// A subsystem that contains an instance of itself (directly or through
+    /// others): the chain of subsystems.
+    #[error("subsystem `{}` contains itself: {}", chain[0], chain.join(" → "))]
+    RecursiveSubsystem {
+        /// The subsystems from the first back to it.
+        chain: Vec<String>,
+        /// The instance that closes the chain.
+        span: Span,
+    },
     /// A failure while computing a parameter (singular matrix, Riccati
     /// equation without a solution, ...).
     #[error("cannot compute `{func}`: {reason}")]
@@ -306,10 +345,13 @@ impl CheckError {
             | RandomNotAllowed { span, .. }
             | BadSetting { span, .. }
             | Unsupported { span, .. }
+            | Instance { span, .. }
+            | RecursiveSubsystem { span, .. }
             | Compute { span, .. }
             | TooLarge { span, .. }
             | NoiseNotAffine { span, .. } => *span,
             Design(e) => e.span(),
+            AlgebraicLoop { cycle } => cycle.first().map(|c| c.1).unwrap_or_default(),
             Override { .. } => Span::default(),
         }
     }
@@ -344,6 +386,9 @@ impl CheckError {
             Unsupported { .. } => "E0507",
             Override { .. } => "E0508",
             NoiseNotAffine { .. } => "E0509",
+            AlgebraicLoop { .. } => "E0511",
+            Instance { .. } => "E0512",
+            RecursiveSubsystem { .. } => "E0513",
             Design(e) => e.code(),
         }
     }
@@ -433,6 +478,32 @@ impl CheckError {
                 .help("draw in a jump reset or an initial value, or declare `noise`"),
             BadSetting { span, .. } => d.primary(*span, "invalid value"),
             Unsupported { span, .. } => d.primary(*span, "not supported yet"),
+            AlgebraicLoop { cycle } => {
+                let mut d = d;
+                for (k, (name, span)) in cycle.iter().enumerate() {
+                    let next = &cycle[(k + 1) % cycle.len()].0;
+                    let msg = format!("`{name}` uses `{next}`");
+                    d = if k == 0 {
+                        d.primary(*span, msg)
+                    } else {
+                        d.secondary(*span, msg)
+                    };
+                }
+                d.note("outputs and inputs are evaluated at one instant, each from the ones it uses: a loop among them has no order")
+                    .help("break the loop with a state (e.g. a zero-order hold or a first-order filter) on one of its connections")
+            }
+            Instance {
+                span, decl, help, ..
+            } => {
+                let d = d.primary(*span, "here").help(help.clone());
+                match decl {
+                    Some(s) => d.secondary(*s, "declared here"),
+                    None => d,
+                }
+            }
+            RecursiveSubsystem { span, .. } => d
+                .primary(*span, "this instance closes the chain")
+                .help("a subsystem cannot contain an instance of itself"),
             Override { .. } => d.help("fix the value given with --set"),
             NoiseNotAffine { span, .. } => d
                 .primary(*span, "a nonlinear function of white noise")

@@ -397,6 +397,7 @@ impl Checker {
     /// All names visible now, for suggestions.
     pub(crate) fn visible_names(&self) -> Vec<String> {
         let mut v: Vec<String> = self.syms.keys().cloned().collect();
+        v.extend(self.signal_names().cloned());
         v.extend(self.scopes.iter().map(|(n, _)| n.clone()));
         v.push("t".into());
         v.push("j".into());
@@ -446,6 +447,18 @@ impl Checker {
         }
         if self.is_poisoned(name) {
             return None;
+        }
+        if !self.syms.contains_key(name) {
+            if self.is_signal_family(name) {
+                self.err(CheckError::FamilyIndex {
+                    name: name.to_string(),
+                    span,
+                });
+                return None;
+            }
+            if !self.demand_signal(name, &[]) {
+                return None;
+            }
         }
         match self.syms.get(name) {
             Some(Sym::Param { val, .. }) | Some(Sym::Output { val, .. }) => Some(val.clone()),
@@ -519,6 +532,9 @@ impl Checker {
             .map(|i| i.to_string())
             .collect::<Vec<_>>()
             .join(",");
+        if !self.demand_signal(name, &key) {
+            return None;
+        }
         let found = match self.syms.get(name) {
             Some(Sym::ParamFamily { members, .. }) | Some(Sym::OutputFamily { members, .. }) => {
                 members.get(&key).cloned().map(Ok)
@@ -567,12 +583,13 @@ impl Checker {
     }
 
     pub(crate) fn is_family(&self, name: &str) -> bool {
-        matches!(
-            self.syms.get(name),
-            Some(Sym::ParamFamily { .. })
-                | Some(Sym::StateFamily { .. })
-                | Some(Sym::OutputFamily { .. })
-        )
+        self.is_signal_family(name)
+            || matches!(
+                self.syms.get(name),
+                Some(Sym::ParamFamily { .. })
+                    | Some(Sym::StateFamily { .. })
+                    | Some(Sym::OutputFamily { .. })
+            )
     }
 
     /// Elaborates an expression. `None` means an error was recorded.

@@ -8,6 +8,7 @@
 //! declared before it), then flows, jumps, outputs and the `sim` block,
 //! which may refer to every state.
 
+mod compose;
 pub mod dag;
 mod design;
 mod error;
@@ -15,6 +16,7 @@ mod expr;
 pub mod metric;
 mod model;
 pub mod property;
+mod signal;
 pub mod sweep;
 #[cfg(test)]
 mod tests;
@@ -106,6 +108,8 @@ pub(crate) struct Checker {
     /// Set while a `metric` expression is lowered (outside reduction
     /// arguments): reduction calls are collected here.
     pub(crate) metric_frame: Option<metric::MetricFrame>,
+    /// Outputs and instance inputs, lowered on first use.
+    pub(crate) signals: signal::Signals,
 }
 
 /// Checks a parsed model with overrides; on success returns the checked

@@ -1,7 +1,7 @@
 //! Checking of declarations: parameters, states, noise, flows, jumps,
 //! outputs and simulation settings.
 
-use std::collections::{BTreeMap, HashMap};
+use std::collections::HashMap;
 
 use super::dag::{BinFn, Dag, Node, NodeId};
 use super::design::Solved;
@@ -57,6 +57,10 @@ pub struct CheckedRule {
     /// The `together` block the rule belongs to (numbered in source
     /// order, one per block instance), if any.
     pub group: Option<usize>,
+    /// In a model with subsystem instances: the part of the composite jump
+    /// (0 the model's own rules, then one per instance); at most one rule
+    /// of a part fires in a jump (see `engine::JumpRule::part`).
+    pub part: Option<usize>,
     /// The rule's head.
     pub span: Span,
 }
@@ -150,7 +154,7 @@ const RESET_CTX: Ctx = Ctx {
     wiener: false,
     place: "a reset",
 };
-const OUTPUT_CTX: Ctx = Ctx {
+pub(crate) const OUTPUT_CTX: Ctx = Ctx {
     random: false,
     wiener: false,
     place: "an output",
@@ -180,6 +184,10 @@ const SIM_KEYS: &[&str] = &[
     "jit",
 ];
 
+/// A component reset in a `together` group: by which rule, where, and the
+/// rule's part of the composite jump.
+type GroupReset = (String, Span, Option<usize>);
+
 struct ModelChecker<'o> {
     c: Checker,
     overrides: HashMap<&'o str, &'o Override>,
@@ -202,7 +210,11 @@ struct ModelChecker<'o> {
     groups: usize,
     /// Per group: each reset component with its rule and reset, to report
     /// two rules of one group that reset one component.
-    group_resets: Vec<HashMap<usize, (String, Span)>>,
+    group_resets: Vec<HashMap<usize, GroupReset>>,
+    /// The part of the composite jump being checked (models with
+    /// instances), and the parts by instance name.
+    part: Option<usize>,
+    parts: HashMap<String, usize>,
     designs: Vec<DesignReport>,
     random_params: Vec<crate::props::Input>,
     solve_checks: bool,
@@ -230,6 +242,7 @@ pub(crate) fn check_model(
             poison_hit: None,
             backend: options.backend,
             metric_frame: None,
+            signals: Default::default(),
         },
         overrides: overrides.iter().map(|o| (o.name.as_str(), o)).collect(),
         used: Vec::new(),
@@ -247,13 +260,33 @@ pub(crate) fn check_model(
         group: None,
         groups: 0,
         group_resets: Vec::new(),
+        part: None,
+        parts: HashMap::new(),
         designs: Vec::new(),
         random_params: Vec::new(),
         solve_checks: options.solve_checks,
         unavailable: Vec::new(),
     };
+    // Subsystem instances are expanded into the flat model first.
+    let flat = super::compose::elaborate(model, &mut m.c.errors);
+    let composite = flat.is_some();
+    let model = flat.as_ref().unwrap_or(model);
     for it in &model.items {
         m.pass1(it);
+    }
+    for it in &model.items {
+        m.signals(it);
+    }
+    m.c.lower_signals();
+    m.outputs = m.c.take_outputs();
+    if composite {
+        // HyEQ's composite system: one jump group; the model's own rules
+        // are part 0, each instance a part of its own.
+        m.group = Some(m.groups);
+        m.groups += 1;
+        m.group_resets.push(HashMap::new());
+        m.part = Some(0);
+        m.parts.insert(String::new(), 0);
     }
     for it in &model.items {
         m.pass2(it);
@@ -379,130 +412,14 @@ impl ModelChecker<'_> {
         v
     }
 
-    /// Declares `target` as a name (or family member); returns the display
-    /// name and the family key, if any.
+    /// Declares `target` as a name (or family member); see
+    /// [`Checker::declare`].
     fn declare(
         &mut self,
         target: &Target,
         sym: impl FnOnce(Option<&[i64]>) -> Sym,
     ) -> Option<String> {
-        let name = &target.name.name;
-        let span = target.span;
-        match target.indices.len() {
-            0 => {
-                if let Some(prev) = self.c.syms.get(name) {
-                    self.c.err(CheckError::Duplicate {
-                        name: name.clone(),
-                        span: target.name.span,
-                        first: prev.span(),
-                    });
-                    return None;
-                }
-                let s = sym(None);
-                self.c.syms.insert(name.clone(), s);
-                Some(name.clone())
-            }
-            1 => {
-                let key = self.c.family_key(&target.indices[0])?;
-                let s = sym(Some(&key));
-                let display = format!("{name}[{}]", label(&key));
-                let dup = |prev: Span| CheckError::Duplicate {
-                    name: display.clone(),
-                    span,
-                    first: prev,
-                };
-                match (self.c.syms.get_mut(name), s) {
-                    (None, Sym::Param { val, span: sp }) => {
-                        let mut members = BTreeMap::new();
-                        members.insert(key, val);
-                        self.c
-                            .syms
-                            .insert(name.clone(), Sym::ParamFamily { members, span: sp });
-                    }
-                    (None, Sym::Output { val, span: sp }) => {
-                        let mut members = BTreeMap::new();
-                        members.insert(key, val);
-                        self.c
-                            .syms
-                            .insert(name.clone(), Sym::OutputFamily { members, span: sp });
-                    }
-                    (None, Sym::State { field, span: sp }) => {
-                        let mut members = BTreeMap::new();
-                        members.insert(key, field);
-                        self.c
-                            .syms
-                            .insert(name.clone(), Sym::StateFamily { members, span: sp });
-                    }
-                    (
-                        Some(Sym::ParamFamily {
-                            members,
-                            span: first,
-                        }),
-                        Sym::Param { val, .. },
-                    ) => {
-                        if members.contains_key(&key) {
-                            let e = dup(*first);
-                            self.c.err(e);
-                            return None;
-                        }
-                        members.insert(key, val);
-                    }
-                    (
-                        Some(Sym::OutputFamily {
-                            members,
-                            span: first,
-                        }),
-                        Sym::Output { val, .. },
-                    ) => {
-                        if members.contains_key(&key) {
-                            let e = dup(*first);
-                            self.c.err(e);
-                            return None;
-                        }
-                        members.insert(key, val);
-                    }
-                    (
-                        Some(Sym::StateFamily {
-                            members,
-                            span: first,
-                        }),
-                        Sym::State { field, .. },
-                    ) => {
-                        if members.contains_key(&key) {
-                            let e = dup(*first);
-                            self.c.err(e);
-                            return None;
-                        }
-                        members.insert(key, field);
-                    }
-                    (Some(prev), _) => {
-                        let first = prev.span();
-                        self.c.err(CheckError::Duplicate {
-                            name: name.clone(),
-                            span: target.name.span,
-                            first,
-                        });
-                        return None;
-                    }
-                    (None, _) => {
-                        self.c.err(CheckError::Unsupported {
-                            what: "families of this kind".into(),
-                            span,
-                        });
-                        return None;
-                    }
-                }
-                Some(display)
-            }
-            _ => {
-                self.c.err(CheckError::Expected {
-                    expected: "a name or `name[i]`".into(),
-                    found: "several index lists".into(),
-                    span,
-                });
-                None
-            }
-        }
+        self.c.declare(target, sym)
     }
 
     fn add_field(
@@ -550,9 +467,19 @@ impl ModelChecker<'_> {
                 }
             }),
             Item::Design(d) => self.design(d),
+            Item::Part(_, items) => {
+                for it in items {
+                    self.pass1(it);
+                }
+            }
             Item::Flow(_)
             | Item::Jump(_)
             | Item::Output(_)
+            | Item::Signal(_)
+            | Item::Import(_)
+            | Item::Subsystem(_)
+            | Item::Input(_)
+            | Item::Instance(_)
             | Item::Sim(_)
             | Item::Property(_)
             | Item::Together(..)
@@ -566,10 +493,17 @@ impl ModelChecker<'_> {
             Item::Flow(f) => self.flow_block(f),
             Item::Jump(j) => self.jump(j),
             Item::Noise(n) => self.noise_rule(n),
-            Item::Output(defs) => {
-                for d in defs {
-                    self.output(d);
+            Item::Part(t, items) => {
+                let Some(label) = self.part_label(t) else {
+                    return;
+                };
+                let n = self.parts.len();
+                let p = *self.parts.entry(label).or_insert(n);
+                let outer = self.part.replace(p);
+                for it in items {
+                    self.pass2(it);
                 }
+                self.part = outer;
             }
             Item::Sim(settings) => {
                 for s in settings {
@@ -599,7 +533,49 @@ impl ModelChecker<'_> {
             | Item::Design(_)
             | Item::Property(_)
             | Item::Metric(_)
-            | Item::Sweep(_) => {}
+            | Item::Sweep(_)
+            | Item::Output(_)
+            | Item::Signal(_)
+            | Item::Import(_)
+            | Item::Subsystem(_)
+            | Item::Input(_)
+            | Item::Instance(_) => {}
+        }
+    }
+
+    /// Registers the outputs and instance inputs (lowered on first use, see
+    /// `check::signal`).
+    fn signals(&mut self, item: &Item) {
+        match item {
+            Item::Output(defs) => {
+                for d in defs {
+                    self.c.register_signal(d, true);
+                }
+            }
+            Item::Signal(d) => self.c.register_signal(d, false),
+            Item::For(b, items) => self.c_for(b, &mut |this| {
+                for it in items {
+                    this.signals(it);
+                }
+            }),
+            Item::Part(_, items) | Item::Together(items, _) => {
+                for it in items {
+                    self.signals(it);
+                }
+            }
+            _ => {}
+        }
+    }
+
+    /// The instance a part stands for, `node[3]`.
+    fn part_label(&mut self, t: &Target) -> Option<String> {
+        match t.indices.as_slice() {
+            [] => Some(t.name.name.clone()),
+            [args] => {
+                let key = self.c.family_key(args)?;
+                Some(format!("{}[{}]", t.name.name, label(&key)))
+            }
+            _ => None,
         }
     }
 
@@ -1366,6 +1342,7 @@ impl ModelChecker<'_> {
             timer,
             resets: out,
             group: self.group,
+            part: self.part,
             span,
         });
     }
@@ -1382,7 +1359,10 @@ impl ModelChecker<'_> {
         for &(k, _) in resets {
             let span = spans.get(&k).copied().unwrap_or_default();
             match self.group_resets[g].get(&k) {
-                Some((first_rule, first)) => {
+                // Rules of one part (one instance) are alternatives: at
+                // most one of them fires in a jump.
+                Some((_, _, part)) if part.is_some() && *part == self.part => {}
+                Some((first_rule, first, _)) => {
                     let (first_rule, first) = (first_rule.clone(), *first);
                     let name = self.component_name(k);
                     self.c.err(CheckError::GroupResetTwice {
@@ -1395,7 +1375,7 @@ impl ModelChecker<'_> {
                     return;
                 }
                 None => {
-                    self.group_resets[g].insert(k, (rule.to_string(), span));
+                    self.group_resets[g].insert(k, (rule.to_string(), span, self.part));
                 }
             }
         }
@@ -1454,29 +1434,6 @@ impl ModelChecker<'_> {
                     out.push((k, n));
                 }
             }
-        }
-    }
-
-    fn output(&mut self, d: &Definition) {
-        let v = self.c.expr(&d.value, &OUTPUT_CTX);
-        let Some(v) = v else { return };
-        let span = d.target.name.span;
-        let val = v.clone();
-        if let Some(name) = self.declare(&d.target, |_| Sym::Output { val, span }) {
-            // `declare` names a member `e[label]`.
-            let family = (!d.target.indices.is_empty()).then(|| {
-                let base = &d.target.name.name;
-                let label = name[base.len() + 1..name.len() - 1].to_string();
-                (base.clone(), label)
-            });
-            self.outputs.push(OutputField {
-                family,
-                name,
-                rows: v.rows,
-                cols: v.cols,
-                nodes: v.e,
-                span: d.target.span,
-            });
         }
     }
 

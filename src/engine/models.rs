@@ -31,6 +31,7 @@ impl BouncingBall {
             rules: vec![JumpRule {
                 name: "impact".into(),
                 group: None,
+                part: None,
                 writes: Vec::new(),
                 guard: GuardKind::General,
             }],
@@ -127,6 +128,7 @@ impl RandomTimers {
             .map(|i| JumpRule {
                 name: format!("reset[{i}]"),
                 group: None,
+                part: None,
                 writes: Vec::new(),
                 guard: GuardKind::Timer {
                     index: i,
@@ -193,6 +195,7 @@ impl SampleAndHold {
         let rules = vec![JumpRule {
             name: "sample".into(),
             group: None,
+            part: None,
             writes: Vec::new(),
             guard: GuardKind::Timer {
                 index,
@@ -345,6 +348,7 @@ impl Default for OverlapDemo {
             rules: vec![JumpRule {
                 name: "reset".into(),
                 group: None,
+                part: None,
                 writes: Vec::new(),
                 guard: GuardKind::General,
             }],

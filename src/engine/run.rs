@@ -135,11 +135,13 @@ fn check_system<S: HybridSystem + ?Sized>(sys: &S, x0: &[f64]) -> Result<(), Sim
     let rules = sys.jump_rules();
     for (i, rule) in rules.iter().enumerate() {
         if let Some(g) = rule.group {
+            // Rules of one part are alternatives and may share components.
+            let same_part = |o: &super::JumpRule| rule.part.is_some() && o.part == rule.part;
             let clash = rule.writes.iter().find(|&&k| {
                 k >= n
                     || rules[..i]
                         .iter()
-                        .any(|o| o.group == Some(g) && o.writes.contains(&k))
+                        .any(|o| o.group == Some(g) && !same_part(o) && o.writes.contains(&k))
             });
             if let Some(&k) = clash {
                 return Err(SimError::InvalidSystem {
@@ -319,11 +321,24 @@ pub fn simulate<S: HybridSystem + ?Sized>(
                     // A member is enabled at the pre-jump point, or at the
                     // other end of the event bracket (the same instant
                     // within the event tolerance).
+                    // At most one rule per part: the enabling rule, then
+                    // the first enabled of each other part.
+                    let part = |r: usize| rules[r].part;
                     firing.extend(members.iter().copied().filter(|&r| {
                         r == rule
-                            || sys.jump_set(r, at, &x)
-                            || (after_event && flows.watcher.reached_at_event(r))
+                            || (part(r).is_none_or(|p| Some(p) != part(rule))
+                                && (sys.jump_set(r, at, &x)
+                                    || (after_event && flows.watcher.reached_at_event(r))))
                     }));
+                    let mut taken: Vec<usize> = Vec::new();
+                    firing.retain(|&r| match part(r) {
+                        None => true,
+                        Some(p) if r == rule || !taken.contains(&p) => {
+                            taken.push(p);
+                            true
+                        }
+                        Some(_) => false,
+                    });
                     for &r in &firing {
                         x_rule.copy_from_slice(&x);
                         sys.jump_map(r, at, &x, rng, &mut x_rule);

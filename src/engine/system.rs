@@ -65,9 +65,16 @@ pub struct JumpRule {
     /// as HyEQ's `CompositeHybridSystem`. Group numbers are arbitrary
     /// labels.
     pub group: Option<usize>,
+    /// The part of its group the rule belongs to (`None`: a part of its
+    /// own). A part is one subsystem of a composite system: its rules are
+    /// alternatives, so when the group jumps at most one rule of each part
+    /// fires (the first enabled in declaration order), and rules of one
+    /// part may write the same components. Part numbers are arbitrary
+    /// labels.
+    pub part: Option<usize>,
     /// The state components the jump map may change; required (and
-    /// disjoint between the rules of one group) for grouped rules, ignored
-    /// otherwise.
+    /// disjoint between the rules of different parts of one group) for
+    /// grouped rules, ignored otherwise.
     pub writes: Vec<usize>,
 }
 
@@ -78,6 +85,7 @@ impl JumpRule {
             name: name.into(),
             guard,
             group: None,
+            part: None,
             writes: Vec::new(),
         }
     }
@@ -87,6 +95,13 @@ impl JumpRule {
     pub fn together(mut self, group: usize, writes: Vec<usize>) -> Self {
         self.group = Some(group);
         self.writes = writes;
+        self
+    }
+
+    /// The same rule in part `part` of its group (see [`Self::part`]).
+    #[must_use]
+    pub fn in_part(mut self, part: usize) -> Self {
+        self.part = Some(part);
         self
     }
 }

@@ -382,6 +382,7 @@ impl CompiledModel {
                 name: r.name.clone(),
                 guard: kind,
                 group: r.group,
+                part: r.part,
                 writes: r.resets.iter().map(|&(k, _)| k).collect(),
             });
             let values: Vec<_> = r.resets.iter().map(|&(_, n)| n).collect();

@@ -13,6 +13,7 @@
 //! | family of scalars `z[i]` | `"z": [1, 2]` | `array` of `number` |
 //! | family of vectors `xhat[i]` | `"xhat": [{"data": [..]}, ..]` | `array` of `object` |
 //! | family of matrices or of mixed shapes `P[i]` | `"P": [{"rows": 2, "cols": 2, "data": [..]}, ..]` | `array` of `object` |
+//! | members of a subsystem instance `ball.h`, `node.x[i]` | `"ball": {"h": ..}`, `"node": {"x": [..]}` | `object` |
 //!
 //! State families and output families are written alike. Every record
 //! carries `t` (number) and `j` (integer). Schemas obey the rules of
@@ -101,18 +102,72 @@ fn fields_schema(fields: &[Field]) -> (serde_json::Map<String, Value>, Vec<Strin
 
 /// Properties and required names of the values of `layout` (no `t`, `j`).
 fn layout_properties(layout: &Layout) -> (serde_json::Map<String, Value>, Vec<String>) {
+    nodes_properties(&nest(&layout.entries))
+}
+
+/// Entries of a layout nested by the dots of their names: `ball.h` and
+/// `ball.v` (members of a subsystem instance `ball`) become the object
+/// `ball: {h, v}`, so that every JSON name is an identifier that Foxglove's
+/// message paths reach (`/hybsim/state.ball.h`).
+enum Node<'a> {
+    /// An entry, shown under the last part of its name.
+    Leaf(&'a Entry, &'a str),
+    /// The entries whose names start with `name.`.
+    Group(&'a str, Vec<Node<'a>>),
+}
+
+fn nest(entries: &[Entry]) -> Vec<Node<'_>> {
+    let mut out = Vec::new();
+    for e in entries {
+        let name = match e {
+            Entry::Field(f) => f.name.as_str(),
+            Entry::Family { name, .. } => name.as_str(),
+        };
+        insert(&mut out, e, name);
+    }
+    out
+}
+
+fn insert<'a>(level: &mut Vec<Node<'a>>, e: &'a Entry, name: &'a str) {
+    let Some((head, tail)) = name.split_once('.') else {
+        level.push(Node::Leaf(e, name));
+        return;
+    };
+    let at = level
+        .iter()
+        .position(|n| matches!(n, Node::Group(g, _) if *g == head));
+    let at = at.unwrap_or_else(|| {
+        level.push(Node::Group(head, Vec::new()));
+        level.len() - 1
+    });
+    if let Node::Group(_, inner) = &mut level[at] {
+        insert(inner, e, tail);
+    }
+}
+
+fn nodes_properties(nodes: &[Node<'_>]) -> (serde_json::Map<String, Value>, Vec<String>) {
     let mut props = serde_json::Map::new();
     let mut required = Vec::new();
-    for e in &layout.entries {
+    for node in nodes {
+        let (e, shown) = match node {
+            Node::Leaf(e, shown) => (*e, *shown),
+            Node::Group(name, inner) => {
+                let (p, r) = nodes_properties(inner);
+                props.insert(
+                    name.to_string(),
+                    json!({"type": "object", "properties": p, "required": r}),
+                );
+                required.push(name.to_string());
+                continue;
+            }
+        };
         match e {
             Entry::Field(f) => {
-                props.insert(f.name.clone(), field_schema(f.shape));
-                required.push(f.name.clone());
+                props.insert(shown.to_string(), field_schema(f.shape));
+                required.push(shown.to_string());
             }
             Entry::Family {
-                name,
-                labels,
-                members,
+                labels, members, ..
             } => {
                 let items = match family_form(members) {
                     FamilyForm::Numbers => json!({"type": "number"}),
@@ -142,7 +197,7 @@ fn layout_properties(layout: &Layout) -> (serde_json::Map<String, Value>, Vec<St
                     }
                 };
                 props.insert(
-                    name.clone(),
+                    shown.to_string(),
                     json!({
                         "type": "array",
                         "description": format!("members in order: {}", labels.join("; ")),
@@ -151,7 +206,7 @@ fn layout_properties(layout: &Layout) -> (serde_json::Map<String, Value>, Vec<St
                         "items": items
                     }),
                 );
-                required.push(name.clone());
+                required.push(shown.to_string());
             }
         }
     }
@@ -408,6 +463,13 @@ impl Serialize for Family<'_> {
 
 impl Values<'_> {
     fn put<M: SerializeMap>(&self, m: &mut M) -> Result<(), M::Error> {
+        let dotted = self.layout.entries.iter().any(|e| match e {
+            Entry::Field(f) => f.name.contains('.'),
+            Entry::Family { name, .. } => name.contains('.'),
+        });
+        if dotted {
+            return put_nodes(m, &nest(&self.layout.entries), self.x);
+        }
         for e in &self.layout.entries {
             match e {
                 Entry::Field(f) => put_field(m, f, self.x)?,
@@ -417,6 +479,35 @@ impl Values<'_> {
             }
         }
         Ok(())
+    }
+}
+
+fn put_nodes<M: SerializeMap>(m: &mut M, nodes: &[Node<'_>], x: &[f64]) -> Result<(), M::Error> {
+    for node in nodes {
+        match node {
+            Node::Leaf(Entry::Field(f), shown) => {
+                m.serialize_entry(*shown, &FieldValue { f, x })?
+            }
+            Node::Leaf(Entry::Family { members, .. }, shown) => {
+                m.serialize_entry(*shown, &Family { members, x })?
+            }
+            Node::Group(name, inner) => m.serialize_entry(*name, &Group { nodes: inner, x })?,
+        }
+    }
+    Ok(())
+}
+
+/// The object of a [`Node::Group`].
+struct Group<'a> {
+    nodes: &'a [Node<'a>],
+    x: &'a [f64],
+}
+
+impl Serialize for Group<'_> {
+    fn serialize<S: Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        let mut m = s.serialize_map(None)?;
+        put_nodes(&mut m, self.nodes, self.x)?;
+        m.end()
     }
 }
 

@@ -60,6 +60,64 @@ pub enum Item {
     /// `sweep { delta in 0:5:80; runs = 20 }`: the grid and settings of
     /// `hybsim sweep`.
     Sweep(SweepBlock),
+    /// `import "lib/zoh.hyb"`: the subsystems of another file.
+    Import(Import),
+    /// `subsystem Name(params) { items }`: a reusable hybrid system.
+    Subsystem(SubsystemDecl),
+    /// `input u, w = 0` (in a subsystem): values the instance receives.
+    Input(Vec<InputDef>),
+    /// `ball = Ball(lambda = 0.8, u = plat.y)`: an instance of a subsystem.
+    Instance(InstanceDecl),
+    /// Produced by elaboration, never parsed: an instance's input as a
+    /// named value (an output that is not logged).
+    Signal(Definition),
+    /// Produced by elaboration, never parsed: the items of one subsystem
+    /// instance (the target names it, `node[i]`), whose jump rules are
+    /// one part of the composite jump (see `check::compose`).
+    Part(Target, Vec<Item>),
+}
+
+/// `import "path"`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Import {
+    /// The path as written (between the quotes).
+    pub path: String,
+    /// The string literal.
+    pub span: Span,
+}
+
+/// `subsystem Name(p = default, q) { items }`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SubsystemDecl {
+    /// Its name.
+    pub name: Ident,
+    /// Parameters in order, each with its default value if any.
+    pub params: Vec<(Ident, Option<Expr>)>,
+    /// The body: parameters, inputs, states, noise, flows, jumps, outputs,
+    /// loops and nested instances.
+    pub items: Vec<Item>,
+}
+
+/// One input of a subsystem, with its value when left unconnected.
+#[derive(Debug, Clone, PartialEq)]
+pub struct InputDef {
+    /// The input's name.
+    pub target: Target,
+    /// `= value` when not connected.
+    pub default: Option<Expr>,
+}
+
+/// `name = Subsystem(arg = value, ...)`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct InstanceDecl {
+    /// The instance's name (`ball`, `node[i]`).
+    pub target: Target,
+    /// The subsystem instantiated.
+    pub subsystem: Ident,
+    /// Parameter values and input connections, by name.
+    pub args: Vec<(Ident, Expr)>,
+    /// The whole declaration.
+    pub span: Span,
 }
 
 /// `sweep { NAME in VALUES; …; runs = N; seed = S }`.

@@ -234,7 +234,20 @@ fn describe(rule: Rule) -> Option<&'static str> {
         | Rule::w_check
         | Rule::together_block
         | Rule::w_together
-        | Rule::design_block => "a declaration (param, state, flow, jump, every, output, sim, ...)",
+        | Rule::design_block
+        | Rule::import_decl
+        | Rule::w_import
+        | Rule::subsystem_decl
+        | Rule::w_subsystem
+        | Rule::instance_decl => {
+            "a declaration (param, state, flow, jump, every, output, sim, ...)"
+        }
+        Rule::input_decl | Rule::w_input | Rule::sub_for => {
+            "a subsystem item (param, input, state, flow, jump, every, output, for, an instance)"
+        }
+        Rule::sub_params | Rule::sub_param => "parameters `(name = default, ...)`",
+        Rule::inst_arg => "an argument `name = value`",
+        Rule::string => "a quoted path",
         Rule::together_for => "a rule (`jump`, `every`, `for`)",
         Rule::flow_eq | Rule::flow_for => "an equation `x' = ...`",
         Rule::reset_eq | Rule::reset_for => "a reset `x+ = ...`",

@@ -12,4 +12,4 @@ mod tests;
 
 pub use error::SyntaxError;
 pub use format::format_source;
-pub use parse::{MAX_EXPR_DEPTH, MAX_NESTING, parse_expr, parse_model};
+pub use parse::{MAX_EXPR_DEPTH, MAX_NESTING, parse_expr, parse_library, parse_model};

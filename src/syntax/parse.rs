@@ -46,6 +46,19 @@ pub fn parse_model(text: &str) -> Result<Model, SyntaxError> {
     Ok(Model { name, items })
 }
 
+/// Parses a file brought in by `import`: subsystem declarations and its own
+/// imports (returned as [`Item::Subsystem`] and [`Item::Import`] items).
+pub fn parse_library(text: &str) -> Result<Vec<Item>, SyntaxError> {
+    check_depth(text)?;
+    let mut pairs =
+        HybParser::parse(Rule::library, text).map_err(|e| SyntaxError::from_pest(e, text))?;
+    let lib = first(&mut pairs, Span::new(0, text.len()))?;
+    lib.into_inner()
+        .filter(|p| p.as_rule() != Rule::EOI)
+        .map(item)
+        .collect()
+}
+
 /// Parses one expression (an override value `--set name=EXPR`).
 pub fn parse_expr(text: &str) -> Result<Expr, SyntaxError> {
     check_depth(text)?;
@@ -282,7 +295,71 @@ fn item(p: Pair<'_, Rule>) -> Res<Item> {
                 span: word,
             })
         }
-        Rule::for_item | Rule::together_for => {
+        Rule::import_decl => {
+            let _word = first(&mut inner, span)?;
+            let lit = first(&mut inner, span)?;
+            let text = lit.as_str();
+            Item::Import(Import {
+                path: text[1..text.len() - 1].to_string(),
+                span: lit.as_span().into(),
+            })
+        }
+        Rule::subsystem_decl => {
+            let _word = first(&mut inner, span)?;
+            let name = ident(first(&mut inner, span)?);
+            let mut params = Vec::new();
+            let mut items = Vec::new();
+            for p in inner {
+                if p.as_rule() == Rule::sub_params {
+                    for sp in p.into_inner() {
+                        let pspan = sp.as_span().into();
+                        let mut it = sp.into_inner();
+                        let n = ident(first(&mut it, pspan)?);
+                        params.push((n, it.next().map(expr).transpose()?));
+                    }
+                } else {
+                    items.push(item(p)?);
+                }
+            }
+            Item::Subsystem(SubsystemDecl {
+                name,
+                params,
+                items,
+            })
+        }
+        Rule::input_decl => {
+            let _word = first(&mut inner, span)?;
+            Item::Input(
+                inner
+                    .map(|d| {
+                        let dspan = d.as_span().into();
+                        let mut it = d.into_inner();
+                        let target = target(first(&mut it, dspan)?)?;
+                        let default = it.next().map(expr).transpose()?;
+                        Ok(InputDef { target, default })
+                    })
+                    .collect::<Res<_>>()?,
+            )
+        }
+        Rule::instance_decl => {
+            let target = target(first(&mut inner, span)?)?;
+            let subsystem = ident(first(&mut inner, span)?);
+            let args = inner
+                .map(|a| {
+                    let aspan = a.as_span().into();
+                    let mut it = a.into_inner();
+                    let n = ident(first(&mut it, aspan)?);
+                    Ok((n, expr(first(&mut it, aspan)?)?))
+                })
+                .collect::<Res<_>>()?;
+            Item::Instance(InstanceDecl {
+                target,
+                subsystem,
+                args,
+                span,
+            })
+        }
+        Rule::for_item | Rule::together_for | Rule::sub_for => {
             let b = binder(first(&mut inner, span)?)?;
             let items = inner.map(item).collect::<Res<_>>()?;
             Item::For(b, items)
@@ -442,6 +519,34 @@ fn index_set(set_pair: Pair<'_, Rule>) -> Res<IndexSet> {
     })
 }
 
+/// `e.name`: a member of an instance, `ball.h` → the name `ball.h`, and
+/// `node[k].y` → `node.y[k]` (a family of instances gives families of
+/// members, indexed first by the instance's index).
+fn member(e: Expr, name: &str, span: Span) -> Res<Expr> {
+    match e.kind {
+        ExprKind::Name(n) => Ok(mk(ExprKind::Name(format!("{n}.{name}")), span)),
+        ExprKind::Index(inner, args) => match inner.kind {
+            ExprKind::Name(n) => Ok(mk(
+                ExprKind::Index(
+                    Box::new(mk(ExprKind::Name(format!("{n}.{name}")), inner.span)),
+                    args,
+                ),
+                span,
+            )),
+            _ => Err(SyntaxError::Unexpected {
+                span,
+                found: format!("`.{name}`"),
+                expected: "an operator (`.name` follows an instance: `ball.h`, `node[k].y`)".into(),
+            }),
+        },
+        _ => Err(SyntaxError::Unexpected {
+            span,
+            found: format!("`.{name}`"),
+            expected: "an operator (`.name` follows an instance: `ball.h`, `node[k].y`)".into(),
+        }),
+    }
+}
+
 fn mk(kind: ExprKind, span: Span) -> Expr {
     Expr { kind, span }
 }
@@ -578,6 +683,7 @@ fn expr_d(p: Pair<'_, Rule>) -> Res<(Expr, usize)> {
                 let post_span: Span = post.as_span().into();
                 let s = Span::new(e.span.start, post_span.end);
                 e = match post.as_rule() {
+                    Rule::member => member(e, &post.as_str()[1..], s)?,
                     Rule::transpose => {
                         d = deeper(d, post_span)?;
                         mk(ExprKind::Unary(UnOp::Transpose, Box::new(e)), s)

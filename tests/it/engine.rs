@@ -340,6 +340,7 @@ mod semantics {
                 rules: vec![JumpRule {
                     name: "band".into(),
                     group: None,
+                    part: None,
                     writes: Vec::new(),
                     guard: GuardKind::General,
                 }],

@@ -40,6 +40,7 @@ impl Observer {
             .map(|k| JumpRule {
                 name: format!("send[{}]", k + 1),
                 group: None,
+                part: None,
                 writes: Vec::new(),
                 guard: GuardKind::Timer {
                     index: l.tau(k),

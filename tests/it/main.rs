@@ -33,6 +33,7 @@ mod semantics;
 mod sinks;
 mod slurm;
 mod stiff;
+mod subsystems;
 mod sweep;
 mod util;
 mod variance_props;
