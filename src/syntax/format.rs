@@ -240,7 +240,8 @@ fn space_between(p: &Token<'_>, rp: Role, c: &Token<'_>, rc: Role) -> bool {
             "{" => return true,
             // A slice's `:` after a comma (`P[1:2, :]`) is spaced like any element.
             ":" => return p_op && matches!(pt, "," | ";"),
-            ".." | "^" => return false,
+            // `ball.h`: a member of an instance.
+            "." | ".." | "^" => return false,
             "(" => {
                 return match p.kind {
                     Kind::Word if !is_keyword(p) => false, // a call
@@ -263,7 +264,7 @@ fn space_between(p: &Token<'_>, rp: Role, c: &Token<'_>, rc: Role) -> bool {
     }
     if p_op {
         match pt {
-            "(" | "[" | ".." | "^" => return false,
+            "(" | "[" | "." | ".." | "^" => return false,
             "{" | "," | ";" => return true,
             ":" => return rp != Role::SliceColon && c.spaced,
             _ => {}
@@ -292,7 +293,10 @@ fn space_between(p: &Token<'_>, rp: Role, c: &Token<'_>, rc: Role) -> bool {
 /// );
 /// ```
 pub fn format_source(text: &str) -> Result<String, SyntaxError> {
-    parse_model(text)?;
+    // A model, or a file of subsystems brought in by `import`.
+    if let Err(e) = parse_model(text) {
+        crate::syntax::parse_library(text).map_err(|_| e)?;
+    }
     let tokens = lex(text);
     let roles = roles(&tokens);
     let mut out = String::with_capacity(text.len() + text.len() / 8);
@@ -445,6 +449,20 @@ mod tests {
         assert!(f.contains("} in (x[1] >= -9)"), "{f}");
         assert!(f.contains("sym P[2][2]"), "{f}");
         assert!(f.contains("g in 0:1:4"), "{f}");
+    }
+
+    #[test]
+    fn members_of_instances_and_files_of_subsystems() {
+        let text = "subsystem S(a=1){input u\nstate x=a\nflow{x'=-x+u}\noutput y=x}\n";
+        assert_eq!(
+            fmt(text),
+            "subsystem S(a = 1) { input u\n    state x = a\n    flow { x' = -x + u }\n    output y = x }\n"
+        );
+        let text = "model m\nimport \"lib/s.hyb\"\ns=S(u=t)\noutput z=s.y+f[1].y*2\n";
+        assert_eq!(
+            fmt(text),
+            "model m\nimport \"lib/s.hyb\"\ns = S(u = t)\noutput z = s.y + f[1].y * 2\n"
+        );
     }
 
     #[test]
