@@ -5,6 +5,7 @@
 mod check;
 mod design;
 mod fmt;
+mod info;
 mod progress;
 mod run;
 mod sweep;
@@ -109,6 +110,10 @@ pub enum Command {
     /// Rewrite `.hyb` files in the canonical layout (`--check`: only list
     /// those that would change, exit 1 if any).
     Fmt(fmt::FmtArgs),
+    /// Describe a run's MCAP file: model, parameters, seed, solver,
+    /// channels and message counts, how the run ended, the command that
+    /// reproduces it.
+    Info(info::InfoArgs),
     /// Print a shell completion script (`hybsim completions bash > /etc/bash_completion.d/hybsim`).
     Completions {
         /// The shell.
@@ -170,6 +175,7 @@ where
         Command::Test(args) => test::execute(args),
         Command::Sweep(args) => sweep::execute(args),
         Command::Fmt(args) => fmt::execute(args),
+        Command::Info(args) => info::execute(args),
         Command::Completions { shell } => {
             use clap::CommandFactory;
             clap_complete::generate(shell, &mut Cli::command(), "hybsim", &mut std::io::stdout());
@@ -274,6 +280,20 @@ impl SdpKind {
             backend,
             ..CheckOptions::default()
         }
+    }
+}
+
+/// `arg` as one shell word (single-quoted unless plainly safe), for the
+/// replay commands that `test` and `info` print.
+pub(crate) fn shell_word(arg: &str) -> String {
+    let safe = !arg.is_empty()
+        && arg
+            .chars()
+            .all(|c| c.is_ascii_alphanumeric() || "_-+=.,/:@%".contains(c));
+    if safe {
+        arg.to_string()
+    } else {
+        format!("'{}'", arg.replace('\'', r"'\''"))
     }
 }
 

@@ -16,7 +16,7 @@ use hybsim::ir::metric::Metrics;
 use hybsim::lang;
 use hybsim::sinks::csv::CsvSink;
 use hybsim::sinks::mcap::{McapOptions, McapSink};
-use hybsim::sinks::plot::PlotSink;
+use hybsim::sinks::plot::{PlotKind, PlotSink};
 use hybsim::sinks::{
     Decimation, Fanout, OutputFn, RunInfo, RunOutcome, RunStatus, Tally, rule_name,
 };
@@ -96,6 +96,11 @@ pub struct RunArgs {
     /// States or outputs to plot, by name (comma-separated). Default: the states.
     #[arg(long, value_name = "NAMES", value_delimiter = ',', requires = "plot")]
     pub plot_vars: Vec<String>,
+    /// What the plot draws (HyEQ's kinds): each component against t
+    /// (`flows`) or against j (`jumps`), the second selected component
+    /// against the first (`phase`), or the hybrid time domain (`domain`).
+    #[arg(long, value_enum, default_value_t = PlotKindArg::Flows, requires = "plot")]
+    pub plot_kind: PlotKindArg,
     /// Log every N-th flow sample (jump and end samples are always logged).
     #[arg(long, value_name = "N", default_value_t = 1, value_parser = clap::value_parser!(u64).range(1..))]
     pub log_every: u64,
@@ -233,6 +238,30 @@ pub fn settings_from_flags(
     Ok(settings)
 }
 
+/// `--plot-kind`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum PlotKindArg {
+    /// Components against t.
+    Flows,
+    /// Components against j.
+    Jumps,
+    /// The second selected component against the first.
+    Phase,
+    /// j against t.
+    Domain,
+}
+
+impl From<PlotKindArg> for PlotKind {
+    fn from(k: PlotKindArg) -> Self {
+        match k {
+            PlotKindArg::Flows => PlotKind::Flows,
+            PlotKindArg::Jumps => PlotKind::Jumps,
+            PlotKindArg::Phase => PlotKind::Phase,
+            PlotKindArg::Domain => PlotKind::Domain,
+        }
+    }
+}
+
 /// The files a run writes.
 #[derive(Debug, Clone, Default)]
 pub struct Outputs {
@@ -244,6 +273,8 @@ pub struct Outputs {
     pub plot: Option<PathBuf>,
     /// Entries to plot.
     pub plot_vars: Vec<String>,
+    /// What the plot draws.
+    pub plot_kind: PlotKind,
     /// Which samples to write.
     pub decimation: Decimation,
     /// Show a progress bar (if stderr is a terminal).
@@ -358,7 +389,8 @@ pub fn simulate_to_files<S: HybridSystem + ?Sized>(
             output_fn,
             &outputs.plot_vars,
             outputs.decimation,
-        )?),
+        )?
+        .kind(outputs.plot_kind)?),
         None => None,
     };
     let mut progress = Progress::new(
@@ -625,6 +657,12 @@ pub fn execute(args: RunArgs) -> anyhow::Result<u8> {
             return Ok(EXIT_MODEL_ERROR);
         }
     }
+    if args.plot.is_some()
+        && let Err(e) = PlotSink::check_selection(&info, &args.plot_vars, args.plot_kind.into())
+    {
+        eprintln!("error: {e}");
+        return Ok(EXIT_MODEL_ERROR);
+    }
     for report in model.design_reports() {
         eprintln!("{}", report.summary_line());
     }
@@ -641,6 +679,7 @@ pub fn execute(args: RunArgs) -> anyhow::Result<u8> {
         csv: args.csv.clone(),
         plot: args.plot.clone(),
         plot_vars: args.plot_vars.clone(),
+        plot_kind: args.plot_kind.into(),
         decimation: Decimation::all().every(args.log_every).dt(args.log_dt),
         progress: !args.quiet,
     };

@@ -11,7 +11,7 @@ use hybsim::props::{
     ModelRunError, ModelSubject, Outcome, Property, Subject, TestConfig, replay_args, run_tests,
 };
 
-use super::{EXIT_FAILED, EXIT_MODEL_ERROR, EXIT_OK, GuardArgs, SdpKind};
+use super::{EXIT_FAILED, EXIT_MODEL_ERROR, EXIT_OK, GuardArgs, SdpKind, shell_word};
 
 /// Arguments of `hybsim test`.
 #[derive(Debug, Args)]
@@ -44,19 +44,6 @@ pub struct TestArgs {
     pub max_shrink: usize,
     #[command(flatten)]
     pub guard: GuardArgs,
-}
-
-/// `arg` as one shell word (single-quoted unless plainly safe).
-fn shell_word(arg: &str) -> String {
-    let safe = !arg.is_empty()
-        && arg
-            .chars()
-            .all(|c| c.is_ascii_alphanumeric() || "_-+=.,/:@%".contains(c));
-    if safe {
-        arg.to_string()
-    } else {
-        format!("'{}'", arg.replace('\'', r"'\''"))
-    }
 }
 
 /// `hybsim test`.

@@ -23,6 +23,7 @@ pub mod csv;
 pub mod foxglove;
 pub mod json;
 pub mod mcap;
+pub mod mcap_read;
 pub mod parquet;
 pub mod plot;
 

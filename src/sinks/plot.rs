@@ -51,6 +51,13 @@ const COLORS: [RGBColor; 10] = [
 /// At most this many series are drawn (and listed) in one panel.
 pub const MAX_SERIES_PER_PANEL: usize = 10;
 
+/// Above this many jumps in one series, jumps are drawn solid in one
+/// polyline instead of as separate dashed segments (see [`Series::hybrid_points`]).
+pub const MAX_DASHED_JUMPS: usize = 400;
+
+/// Width in pixels of the legend column right of each panel's axes.
+const LEGEND_WIDTH: u32 = 190;
+
 /// One named line: polyline pieces, optional dashed connectors between
 /// points (jumps), optional markers at the points.
 #[derive(Debug, Clone, PartialEq, Default)]
@@ -87,21 +94,37 @@ impl Series {
     /// order. Each flow interval (constant j) is one piece; consecutive
     /// pieces are joined by a dashed segment (the jump).
     pub fn hybrid(name: impl Into<String>, samples: &[(HybridTime, f64)]) -> Self {
+        let points: Vec<(HybridTime, (f64, f64))> =
+            samples.iter().map(|&(at, v)| (at, (at.t, v))).collect();
+        Self::hybrid_points(name, &points)
+    }
+
+    /// A hybrid arc drawn in any plane: `points[k] = ((t, j), (x, y))` in
+    /// domain order. Each flow interval is one piece, each jump a dashed
+    /// segment from its pre- to its post-jump point. Above
+    /// [`MAX_DASHED_JUMPS`] jumps the dashes would only blacken the plot and
+    /// bloat the file: the pieces are then joined into one polyline (the
+    /// jumps drawn solid).
+    pub fn hybrid_points(name: impl Into<String>, points: &[(HybridTime, (f64, f64))]) -> Self {
         let mut pieces: Vec<Vec<(f64, f64)>> = Vec::new();
         let mut connectors = Vec::new();
-        let mut last: Option<(HybridTime, f64)> = None;
-        for &(at, v) in samples {
+        let mut last: Option<(HybridTime, (f64, f64))> = None;
+        for &(at, p) in points {
             match last {
                 Some((prev, _)) if prev.j == at.j => {
-                    pieces.last_mut().expect("a piece exists").push((at.t, v))
+                    pieces.last_mut().expect("a piece exists").push(p)
                 }
-                Some((prev, pv)) => {
-                    connectors.push([(prev.t, pv), (at.t, v)]);
-                    pieces.push(vec![(at.t, v)]);
+                Some((_, pp)) => {
+                    connectors.push([pp, p]);
+                    pieces.push(vec![p]);
                 }
-                None => pieces.push(vec![(at.t, v)]),
+                None => pieces.push(vec![p]),
             }
-            last = Some((at, v));
+            last = Some((at, p));
+        }
+        if connectors.len() > MAX_DASHED_JUMPS {
+            pieces = vec![points.iter().map(|&(_, p)| p).collect()];
+            connectors.clear();
         }
         Self {
             name: name.into(),
@@ -267,7 +290,15 @@ where
     Y::CoordDescType: ValueFormatter<f64>,
 {
     let err = |e: &dyn std::fmt::Display| PlotError(e.to_string());
-    let mut chart = ChartBuilder::on(area)
+    let shown = panel.series.len().min(MAX_SERIES_PER_PANEL);
+    // The legend gets its own column right of the axes, so it never covers data.
+    let (plot_area, legend_area) = if shown > 0 {
+        let (w, _) = area.dim_in_pixel();
+        area.split_horizontally(w.saturating_sub(LEGEND_WIDTH))
+    } else {
+        area.split_horizontally(area.dim_in_pixel().0)
+    };
+    let mut chart = ChartBuilder::on(&plot_area)
         .caption(&panel.title, ("sans-serif", 16))
         .margin(10)
         .x_label_area_size(36)
@@ -281,22 +312,14 @@ where
         .light_line_style(RGBColor(235, 235, 235))
         .draw()
         .map_err(|e| err(&e))?;
-    let shown = panel.series.len().min(MAX_SERIES_PER_PANEL);
     for (k, s) in panel.series.iter().take(shown).enumerate() {
         let color = COLORS[k % COLORS.len()];
         let line = color.stroke_width(2);
-        let mut labelled = false;
         for piece in &s.pieces {
             for run in drawable_runs(piece, panel.log_y) {
-                let drawn = chart
+                chart
                     .draw_series(LineSeries::new(run.iter().copied(), line))
                     .map_err(|e| err(&e))?;
-                if !labelled {
-                    drawn.label(s.name.as_str()).legend(move |(x, y)| {
-                        PathElement::new(vec![(x, y), (x + 20, y)], color.stroke_width(2))
-                    });
-                    labelled = true;
-                }
                 if s.markers {
                     chart
                         .draw_series(run.iter().map(|&p| Circle::new(p, 3, color.filled())))
@@ -314,14 +337,17 @@ where
                 jumps.map(|r| DashedPathElement::new(r, 4, 3, color.mix(0.7).stroke_width(1))),
             )
             .map_err(|e| err(&e))?;
-    }
-    if shown > 0 {
-        chart
-            .configure_series_labels()
-            .background_style(WHITE.mix(0.85))
-            .border_style(RGBColor(200, 200, 200))
-            .position(SeriesLabelPosition::UpperRight)
-            .draw()
+        // Legend entry: a line sample and the name, top to bottom.
+        let y = 40 + 20 * k as i32;
+        legend_area
+            .draw(&PathElement::new(vec![(8, y), (30, y)], color.stroke_width(2)))
+            .map_err(|e| err(&e))?;
+        legend_area
+            .draw(&Text::new(
+                s.name.clone(),
+                (36, y - 7),
+                ("sans-serif", 13).into_font(),
+            ))
             .map_err(|e| err(&e))?;
     }
     Ok(())
@@ -464,9 +490,51 @@ fn entry_panels(entry: &Entry, source: Source) -> Vec<PanelSpec> {
     }
 }
 
-/// Keeps the selected states and outputs of a run and draws them against t
-/// when [`finish`](Self::finish)ed.
+/// What a [`PlotSink`] draws: the plot kinds of the HyEQ Toolbox.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub enum PlotKind {
+    /// Each component against t (`plotFlows`): flows solid, jumps dashed.
+    #[default]
+    Flows,
+    /// Each component against j (`plotJumps`): the values of the flow at
+    /// each j on the vertical through j, jumps dashed from j to j + 1.
+    Jumps,
+    /// The second selected component against the first (`plotHarc` in a
+    /// plane): flows solid, jumps dashed.
+    Phase,
+    /// The hybrid time domain: j against t, flows horizontal, jumps dashed.
+    Domain,
+}
+
+impl PlotKind {
+    /// The kind's name on the command line.
+    pub fn name(self) -> &'static str {
+        match self {
+            PlotKind::Flows => "flows",
+            PlotKind::Jumps => "jumps",
+            PlotKind::Phase => "phase",
+            PlotKind::Domain => "domain",
+        }
+    }
+}
+
+/// [`PlotKind::Phase`] needs two components.
+fn check_kind(kind: PlotKind, components: usize) -> Result<(), SinkError> {
+    if kind == PlotKind::Phase && components < 2 {
+        return Err(SinkError::Option {
+            option: "--plot-kind phase",
+            message: format!(
+                "a phase plot needs two components (select them with --plot-vars); {components} selected"
+            ),
+        });
+    }
+    Ok(())
+}
+
+/// Keeps the selected states and outputs of a run and draws them (against
+/// t by default, see [`PlotKind`]) when [`finish`](Self::finish)ed.
 pub struct PlotSink<'a> {
+    kind: PlotKind,
     path: PathBuf,
     outputs: Option<OutputFn<'a>>,
     panels: Vec<PanelSpec>,
@@ -531,6 +599,7 @@ impl<'a> PlotSink<'a> {
             .flat_map(|p| p.series.iter().map(|&(_, s, k)| (s, k)))
             .collect();
         Ok(Self {
+            kind: PlotKind::Flows,
             path: path.as_ref().to_path_buf(),
             outputs,
             panels,
@@ -544,13 +613,55 @@ impl<'a> PlotSink<'a> {
         })
     }
 
-    /// Drops every other flow sample.
+    /// Draws `kind` instead of flows. [`PlotKind::Phase`] needs two
+    /// selected components (the first two are drawn).
+    pub fn kind(mut self, kind: PlotKind) -> Result<Self, SinkError> {
+        check_kind(kind, self.columns.len())?;
+        self.kind = kind;
+        Ok(self)
+    }
+
+    /// Whether `kind` can draw the selection `select` of a run described by
+    /// `info` (as [`PlotSink::new`] would select), before anything runs.
+    pub fn check_selection(
+        info: &RunInfo,
+        select: &[String],
+        kind: PlotKind,
+    ) -> Result<(), SinkError> {
+        let count = |e: &Entry| -> usize {
+            entry_panels(e, Source::State)
+                .iter()
+                .map(|p| p.series.len())
+                .sum()
+        };
+        let components: usize = if select.is_empty() {
+            let entries = info.state_layout.entries.iter();
+            entries.take(MAX_DEFAULT_PANELS).map(count).sum()
+        } else {
+            select
+                .iter()
+                .filter_map(|n| {
+                    info.state_layout
+                        .find(n)
+                        .or_else(|| info.output_layout.find(n))
+                })
+                .map(|e| count(&e))
+                .sum()
+        };
+        check_kind(kind, components)
+    }
+
+    /// Drops every other flow sample; when jump samples are most of what is
+    /// kept (a discrete-time system), every other sample of any kind but the
+    /// first, so that drawing stays bounded for any number of jumps.
     fn thin(&mut self) {
         let ncols = self.columns.len();
+        let flows = self.thinnable.iter().filter(|&&f| f).count();
+        let any_kind = flows < self.times.len() / 2;
         let mut keep_flow = false;
         let mut w = 0;
         for r in 0..self.times.len() {
-            let keep = if self.thinnable[r] {
+            let keep = if r > 0 && (any_kind || self.thinnable[r]) {
                 keep_flow = !keep_flow;
                 keep_flow
             } else {
@@ -579,9 +690,54 @@ impl<'a> PlotSink<'a> {
         self.times.is_empty()
     }
 
+    /// The values kept of plotted column `col`, with their hybrid times.
+    fn column(&self, col: usize) -> impl Iterator<Item = (HybridTime, f64)> + '_ {
+        let ncols = self.columns.len();
+        self.times
+            .iter()
+            .enumerate()
+            .map(move |(r, &at)| (at, self.values[r * ncols + col]))
+    }
+
     /// The figure of what was kept so far.
     pub fn figure(&self) -> Figure {
-        let ncols = self.columns.len();
+        match self.kind {
+            PlotKind::Flows | PlotKind::Jumps => self.component_figure(),
+            PlotKind::Phase => {
+                let labels: Vec<&String> = self
+                    .panels
+                    .iter()
+                    .flat_map(|p| p.series.iter().map(|(l, _, _)| l))
+                    .collect();
+                let points: Vec<(HybridTime, (f64, f64))> = self
+                    .column(0)
+                    .zip(self.column(1))
+                    .map(|((at, a), (_, b))| (at, (a, b)))
+                    .collect();
+                let name = format!("{} vs {}", labels[1], labels[0]);
+                Figure::new().size(900, 600).panel(
+                    Panel::new(format!("{}: {name}", self.model_name))
+                        .x_label(labels[0].as_str())
+                        .y_label(labels[1].as_str())
+                        .series(Series::hybrid_points(name, &points)),
+                )
+            }
+            PlotKind::Domain => {
+                let points: Vec<(HybridTime, (f64, f64))> =
+                    self.times.iter().map(|&at| (at, (at.t, at.j as f64))).collect();
+                Figure::new().panel(
+                    Panel::new(format!("{}: hybrid time domain", self.model_name))
+                        .x_label("t")
+                        .y_label("j")
+                        .series(Series::hybrid_points("(t, j)", &points)),
+                )
+            }
+        }
+    }
+
+    /// One panel per selected entry, each component against t or j.
+    fn component_figure(&self) -> Figure {
+        let over_j = self.kind == PlotKind::Jumps;
         let mut col = 0;
         let mut figure = Figure::new();
         for spec in &self.panels {
@@ -593,15 +749,16 @@ impl<'a> PlotSink<'a> {
                     spec.total
                 ));
             }
-            let mut panel = Panel::new(title).x_label("t");
+            let mut panel = Panel::new(title).x_label(if over_j { "j" } else { "t" });
             for (label, _, _) in &spec.series {
-                let samples: Vec<(HybridTime, f64)> = self
-                    .times
-                    .iter()
-                    .enumerate()
-                    .map(|(r, &at)| (at, self.values[r * ncols + col]))
+                let points: Vec<(HybridTime, (f64, f64))> = self
+                    .column(col)
+                    .map(|(at, v)| (at, (if over_j { at.j as f64 } else { at.t }, v)))
                     .collect();
-                panel = panel.series(Series::hybrid(label.clone(), &samples));
+                let series = Series::hybrid_points(label.clone(), &points);
+                // HyEQ marks the values at each j; only while that stays legible.
+                let markers = over_j && points.len() <= 2 * MAX_DASHED_JUMPS;
+                panel = panel.series(series.markers(markers));
                 col += 1;
             }
             figure = figure.panel(panel);

@@ -343,3 +343,107 @@ fn completions_for_each_shell() {
     }
     assert_eq!(code(&hybsim(dir.path(), &["completions", "tcsh"])), 2);
 }
+
+/// `--plot-kind`: HyEQ's plots from a run, each with its axes and series
+/// names; a phase plot of one component is a usage error.
+#[test]
+fn plot_kinds_draw_their_axes_and_series() {
+    let dir = tempfile::tempdir().unwrap();
+    let m = ball_model();
+    let m = m.to_str().unwrap();
+    for (kind, vars, must) in [
+        ("flows", "h,v", vec![">t<", ">h<", ">v<"]),
+        ("jumps", "h", vec![">j<", ">h<"]),
+        ("phase", "h,v", vec![">h<", ">v<", "v vs h"]),
+        ("domain", "h", vec![">t<", ">j<", "(t, j)"]),
+    ] {
+        let svg = dir.path().join(format!("{kind}.svg"));
+        let out = hybsim(
+            dir.path(),
+            &[
+                "run", m, "--no-mcap", "-q", "--plot", svg.to_str().unwrap(), "--plot-kind",
+                kind, "--plot-vars", vars,
+            ],
+        );
+        assert_eq!(code(&out), 0, "{kind}: {}", stderr(&out));
+        let text = std::fs::read_to_string(&svg).unwrap();
+        for s in must {
+            assert!(text.contains(s), "{kind}: no `{s}` in the SVG");
+        }
+        // Jumps are dashed: many short segments of the lighter colour.
+        assert!(text.matches("<polyline").count() + text.matches("<path").count() > 10);
+    }
+    let out = hybsim(
+        dir.path(),
+        &["run", m, "--no-mcap", "-q", "--plot", "p.svg", "--plot-kind", "phase", "--plot-vars", "h"],
+    );
+    assert_eq!(code(&out), 2, "{}", stderr(&out));
+    assert!(stderr(&out).contains("two components"), "{}", stderr(&out));
+    assert!(!dir.path().join("p.svg").exists());
+}
+
+/// A discrete-time model with tens of thousands of jumps draws a bounded
+/// SVG (jump samples thinned, dashes merged above `MAX_DASHED_JUMPS`).
+#[test]
+fn plots_of_many_jumps_stay_small() {
+    let dir = tempfile::tempdir().unwrap();
+    let m = Path::new(env!("CARGO_MANIFEST_DIR")).join("models/platoon.hyb");
+    let svg = dir.path().join("platoon.svg");
+    let out = hybsim(
+        dir.path(),
+        &["run", m.to_str().unwrap(), "--no-mcap", "-q", "--plot", svg.to_str().unwrap()],
+    );
+    assert_eq!(code(&out), 0, "{}", stderr(&out));
+    let size = std::fs::metadata(&svg).unwrap().len();
+    assert!(size < 5_000_000, "platoon SVG is {size} bytes");
+}
+
+/// `hybsim info`: what the file holds and a replay command that rebuilds
+/// it byte for byte; truncated, empty and foreign files exit 2.
+#[test]
+fn info_describes_a_run_and_replays_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let m = ball_model();
+    let run = hybsim(
+        dir.path(),
+        &["run", m.to_str().unwrap(), "-o", "a.mcap", "--seed", "3", "--set", "lambda=0.7", "-q"],
+    );
+    assert_eq!(code(&run), 0, "{}", stderr(&run));
+    std::fs::rename(dir.path().join("a.mcap"), dir.path().join("b.mcap")).unwrap();
+    let info = hybsim(dir.path(), &["info", "b.mcap"]);
+    assert_eq!(code(&info), 0, "{}", stderr(&info));
+    let text = crate::util::stdout(&info);
+    for s in ["bouncing_ball", "seed        3", "lambda = 0.7", "/hybsim/state", "/hybsim/jumps", "result"] {
+        assert!(text.contains(s), "no `{s}` in\n{text}");
+    }
+    let replay = text
+        .lines()
+        .find_map(|l| l.strip_prefix("replay      "))
+        .expect("a replay line");
+    let words: Vec<&str> = replay.split_whitespace().collect();
+    assert_eq!(words[0], "hybsim");
+    let again = hybsim(dir.path(), &words[1..]);
+    assert_eq!(code(&again), 0, "{}", stderr(&again));
+    assert!(
+        std::fs::read(dir.path().join("a.mcap")).unwrap()
+            == std::fs::read(dir.path().join("b.mcap")).unwrap(),
+        "the replayed run differs"
+    );
+    let json = hybsim(dir.path(), &["info", "--json", "b.mcap"]);
+    let v: Value = serde_json::from_str(&crate::util::stdout(&json)).unwrap();
+    assert_eq!(v["metadata"]["hybsim.run"]["seed"], 3);
+
+    let bytes = std::fs::read(dir.path().join("b.mcap")).unwrap();
+    std::fs::write(dir.path().join("cut.mcap"), &bytes[..bytes.len() / 2]).unwrap();
+    std::fs::write(dir.path().join("empty.mcap"), b"").unwrap();
+    for (file, says) in [
+        ("cut.mcap", "cut short"),
+        ("empty.mcap", "not an MCAP file"),
+        (m.to_str().unwrap(), "not an MCAP file"),
+        ("missing.mcap", "cannot read"),
+    ] {
+        let out = hybsim(dir.path(), &["info", file]);
+        assert_eq!(code(&out), 2, "{file}");
+        assert!(stderr(&out).contains(says), "{file}: {}", stderr(&out));
+    }
+}
