@@ -52,7 +52,11 @@ pub fn execute(args: InfoArgs) -> anyhow::Result<u8> {
             })
             .unwrap_or_default()
     };
-    println!("file        {} ({} bytes)", args.file.display(), bytes.len());
+    println!(
+        "file        {} ({} bytes)",
+        args.file.display(),
+        bytes.len()
+    );
     println!(
         "model       {} ({}, sha256 {})",
         get("hybsim.run", "model_name"),

@@ -383,14 +383,16 @@ pub fn simulate_to_files<S: HybridSystem + ?Sized>(
         None => None,
     };
     let mut plot = match &outputs.plot {
-        Some(path) => Some(PlotSink::new(
-            path,
-            info,
-            output_fn,
-            &outputs.plot_vars,
-            outputs.decimation,
-        )?
-        .kind(outputs.plot_kind)?),
+        Some(path) => Some(
+            PlotSink::new(
+                path,
+                info,
+                output_fn,
+                &outputs.plot_vars,
+                outputs.decimation,
+            )?
+            .kind(outputs.plot_kind)?,
+        ),
         None => None,
     };
     let mut progress = Progress::new(

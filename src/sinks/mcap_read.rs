@@ -14,7 +14,9 @@ pub enum ReadError {
     NotMcap,
     /// An MCAP file without its summary section: cut short (the run was
     /// killed, the copy is incomplete) or written without one.
-    #[error("the MCAP file has no summary section: it was cut short (killed run, incomplete copy) or not written by hybsim ({0})")]
+    #[error(
+        "the MCAP file has no summary section: it was cut short (killed run, incomplete copy) or not written by hybsim ({0})"
+    )]
     Truncated(String),
     /// An MCAP file, but not written by hybsim (no `hybsim.run` metadata).
     #[error("an MCAP file, but not a hybsim run: it has no `hybsim.run` metadata")]

@@ -340,7 +340,10 @@ where
         // Legend entry: a line sample and the name, top to bottom.
         let y = 40 + 20 * k as i32;
         legend_area
-            .draw(&PathElement::new(vec![(8, y), (30, y)], color.stroke_width(2)))
+            .draw(&PathElement::new(
+                vec![(8, y), (30, y)],
+                color.stroke_width(2),
+            ))
             .map_err(|e| err(&e))?;
         legend_area
             .draw(&Text::new(
@@ -723,8 +726,11 @@ impl<'a> PlotSink<'a> {
                 )
             }
             PlotKind::Domain => {
-                let points: Vec<(HybridTime, (f64, f64))> =
-                    self.times.iter().map(|&at| (at, (at.t, at.j as f64))).collect();
+                let points: Vec<(HybridTime, (f64, f64))> = self
+                    .times
+                    .iter()
+                    .map(|&at| (at, (at.t, at.j as f64)))
+                    .collect();
                 Figure::new().panel(
                     Panel::new(format!("{}: hybrid time domain", self.model_name))
                         .x_label("t")
