@@ -12,7 +12,7 @@ use super::{EXIT_MODEL_ERROR, EXIT_OK, LoadError};
 /// Arguments of `hybsim check`.
 #[derive(Debug, Args)]
 pub struct CheckArgs {
-    /// The model file (`.hyb`).
+    /// The model file (`.hyb`; `-` reads it from standard input).
     pub model: PathBuf,
     /// Check with parameter overrides applied (`--set name=value`, repeatable).
     #[arg(long = "set", value_name = "NAME=VALUE")]

@@ -12,7 +12,7 @@ use super::{EXIT_FAILED, EXIT_MODEL_ERROR, EXIT_OK, SdpKind};
 /// Arguments of `hybsim design`.
 #[derive(Debug, Args)]
 pub struct DesignArgs {
-    /// The model file (`.hyb`).
+    /// The model file (`.hyb`; `-` reads it from standard input).
     pub model: PathBuf,
     /// Parameter overrides (`--set name=value`, repeatable); a design result
     /// given here replaces the computed one (a block whose results are all

@@ -7,7 +7,6 @@ use std::path::PathBuf;
 use clap::Args;
 use hybsim::atomic_file;
 use hybsim::diagnostics::render;
-use hybsim::source::SourceFile;
 use hybsim::syntax::format_source;
 
 use super::{EXIT_FAILED, EXIT_MODEL_ERROR, EXIT_OK};
@@ -15,7 +14,8 @@ use super::{EXIT_FAILED, EXIT_MODEL_ERROR, EXIT_OK};
 /// Arguments of `hybsim fmt`.
 #[derive(Debug, Args)]
 pub struct FmtArgs {
-    /// The model files (`.hyb`).
+    /// The model files (`.hyb`); `-` reads standard input and writes the
+    /// formatted text to standard output.
     #[arg(required = true)]
     pub files: Vec<PathBuf>,
     /// Change nothing; list the files that would change and exit 1 if any.
@@ -28,7 +28,7 @@ pub struct FmtArgs {
 pub fn execute(args: FmtArgs) -> anyhow::Result<u8> {
     let mut code = EXIT_OK;
     for path in &args.files {
-        let src = match SourceFile::read(path) {
+        let src = match super::read_model(path) {
             Ok(src) => src,
             Err(e) => {
                 eprintln!("error: cannot read model file `{}`: {e}", path.display());
@@ -44,6 +44,18 @@ pub fn execute(args: FmtArgs) -> anyhow::Result<u8> {
                 continue;
             }
         };
+        if path == std::path::Path::new("-") {
+            // A filter, like rustfmt: standard input in, the layout out.
+            if args.check {
+                if formatted != src.text() {
+                    println!("would reformat <stdin>");
+                    code = code.max(EXIT_FAILED);
+                }
+            } else {
+                print!("{formatted}");
+            }
+            continue;
+        }
         if formatted == src.text() {
             continue;
         }

@@ -297,6 +297,18 @@ pub(crate) fn shell_word(arg: &str) -> String {
     }
 }
 
+/// The model file at `path`, or standard input for `-` (named `<stdin>` in
+/// diagnostics).
+pub(crate) fn read_model(path: &std::path::Path) -> std::io::Result<SourceFile> {
+    if path == std::path::Path::new("-") {
+        let mut text = String::new();
+        std::io::Read::read_to_string(&mut std::io::stdin(), &mut text)?;
+        Ok(SourceFile::new("<stdin>", text))
+    } else {
+        SourceFile::read(path)
+    }
+}
+
 /// Why a model and its `--set` overrides could not be loaded.
 enum LoadError {
     /// The model file cannot be read (the message says why).
@@ -310,7 +322,7 @@ fn read_inputs(
     path: &std::path::Path,
     set: &[String],
 ) -> Result<(SourceFile, Vec<Override>), LoadError> {
-    let src = SourceFile::read(path).map_err(|e| {
+    let src = read_model(path).map_err(|e| {
         LoadError::Unreadable(format!("cannot read model file `{}`: {e}", path.display()))
     })?;
     let mut overrides = Vec::new();

@@ -30,7 +30,7 @@ use super::{
 /// Arguments of `hybsim run`.
 #[derive(Debug, Args)]
 pub struct RunArgs {
-    /// The model file (`.hyb`).
+    /// The model file (`.hyb`; `-` reads it from standard input).
     pub model: PathBuf,
     /// MCAP output file. Default: the model's file name with `.mcap`, in
     /// the current directory.
@@ -580,15 +580,22 @@ pub fn output_path_clash(model: &Path, outputs: &Outputs) -> Option<String> {
     .into_iter()
     .filter_map(|(flag, path)| path.map(|p| (flag, p)))
     .collect();
-    atomic_file::clash(&[("the model", model)], &named)
+    // A model read from standard input (`-`) is no file an output could overwrite.
+    let inputs: &[(&str, &Path)] = if model == Path::new("-") {
+        &[]
+    } else {
+        &[("the model", model)]
+    };
+    atomic_file::clash(inputs, &named)
 }
 
 /// Default MCAP path: the model's file name with `.mcap`, in the current directory.
 pub fn default_mcap_path(model: &Path) -> PathBuf {
     let stem = model
         .file_stem()
+        .filter(|_| model != Path::new("-"))
         .map(|s| s.to_os_string())
-        .unwrap_or_else(|| "run".into());
+        .unwrap_or_else(|| "stdin".into());
     PathBuf::from(stem).with_extension("mcap")
 }
 

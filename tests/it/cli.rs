@@ -504,3 +504,51 @@ fn info_describes_a_run_and_replays_it() {
         assert!(stderr(&out).contains(says), "{file}: {}", stderr(&out));
     }
 }
+
+/// `-` is standard input for the model and standard output for `-o`/`--csv`
+/// (and `hybsim fmt -` is a filter).
+#[test]
+fn dash_is_stdin_for_models_and_stdout_for_outputs() {
+    use std::io::Write;
+    use std::process::{Command, Stdio};
+    let dir = tempfile::tempdir().unwrap();
+    let source = std::fs::read_to_string(ball_model()).unwrap();
+    let pipe = |args: &[&str], input: &str| {
+        let mut child = Command::new(env!("CARGO_BIN_EXE_hybsim"))
+            .args(args)
+            .current_dir(dir.path())
+            .stdin(Stdio::piped())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap();
+        child
+            .stdin
+            .take()
+            .unwrap()
+            .write_all(input.as_bytes())
+            .unwrap();
+        child.wait_with_output().unwrap()
+    };
+    let csv = pipe(&["run", "-", "--no-mcap", "--csv", "-", "-q"], &source);
+    assert_eq!(code(&csv), 0, "{}", stderr(&csv));
+    let text = crate::util::stdout(&csv);
+    assert!(
+        text.starts_with("t,j,kind,h,v"),
+        "{}",
+        &text[..text.len().min(80)]
+    );
+    let mcap = pipe(&["run", "-", "-o", "-", "-q"], &source);
+    assert_eq!(code(&mcap), 0, "{}", stderr(&mcap));
+    assert!(mcap.stdout.starts_with(b"\x89MCAP0\r\n"));
+    assert!(!dir.path().join("-").exists());
+    let check = pipe(&["check", "-"], "model m\nstate x = y\n");
+    assert_eq!(code(&check), 2);
+    assert!(
+        stderr(&check).contains("<stdin>:2:11"),
+        "{}",
+        stderr(&check)
+    );
+    let fmt = pipe(&["fmt", "-"], "model m\nstate x=1\n");
+    assert_eq!(crate::util::stdout(&fmt), "model m\nstate x = 1\n");
+}
