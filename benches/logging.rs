@@ -1,10 +1,20 @@
-//! Cost of logging: 10⁴ samples of a 40-float state (one jump every 100
-//! samples) pushed into the MCAP and CSV sinks, files in a temporary
-//! directory. The engine's own benchmarks run with logging off.
+//! Cost of logging.
+//!
+//! First, the budget of issue 19 on real runs: `hybsim run MODEL` with its
+//! MCAP file against `--no-mcap`, for the consensus model and the
+//! sample-and-hold benchmark, as CPU time of the whole process (user +
+//! system, `getrusage` of the child), the two sides interleaved, medians of
+//! `HYBSIM_BENCH_ROUNDS` rounds (default 5); prints the ratios (target:
+//! at most 1.5) and the load average. Then 10⁴ samples of a 40-float state
+//! (one jump every 100 samples) pushed into the MCAP and CSV sinks (criterion).
+//! Files go to a temporary directory. The engine's own benchmarks run with
+//! logging off.
 
 use std::hint::black_box;
+use std::path::Path;
+use std::process::Command;
 
-use criterion::{Criterion, Throughput, criterion_group, criterion_main};
+use criterion::{Criterion, Throughput, criterion_group};
 use hybsim::arc::{ArcSink, HybridTime, SampleKind};
 use hybsim::layout::{Entry, Field, Layout, Shape};
 use hybsim::sinks::csv::CsvSink;
@@ -96,5 +106,77 @@ fn logging(c: &mut Criterion) {
     group.finish();
 }
 
+/// CPU time (user + system) of the finished children of this process, in seconds.
+fn children_cpu() -> f64 {
+    // SAFETY: getrusage writes the struct it is given.
+    let mut r: libc::rusage = unsafe { std::mem::zeroed() };
+    unsafe { libc::getrusage(libc::RUSAGE_CHILDREN, &mut r) };
+    let secs = |t: libc::timeval| t.tv_sec as f64 + t.tv_usec as f64 * 1e-6;
+    secs(r.ru_utime) + secs(r.ru_stime)
+}
+
+/// CPU time of one `hybsim run MODEL ARGS`.
+fn run_cpu(model: &Path, args: &[&str], dir: &Path) -> f64 {
+    let before = children_cpu();
+    let status = Command::new(env!("CARGO_BIN_EXE_hybsim"))
+        .arg("run")
+        .arg(model)
+        .args(args)
+        .arg("--quiet")
+        .current_dir(dir)
+        .stdout(std::process::Stdio::null())
+        .status()
+        .expect("hybsim runs");
+    assert!(status.success(), "{} {args:?}", model.display());
+    children_cpu() - before
+}
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v[v.len() / 2]
+}
+
+/// MCAP against `--no-mcap` on the models of the logging budget.
+fn ratios() {
+    let rounds: usize = std::env::var("HYBSIM_BENCH_ROUNDS")
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(5);
+    let dir = tempfile::tempdir().expect("a temporary directory");
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let load = std::fs::read_to_string("/proc/loadavg").unwrap_or_default();
+    println!("logging budget (MCAP / --no-mcap CPU time, median of {rounds}; load {load:.14})");
+    for (name, model, extra) in [
+        ("consensus", "models/consensus_estimation.hyb", &[][..]),
+        (
+            "consensus, everything logged",
+            "models/consensus_estimation.hyb",
+            &["--log-vars", "*", "--log-rules", "*"][..],
+        ),
+        ("sample-and-hold", "benches/models/limit_sh.hyb", &[][..]),
+    ] {
+        let model = root.join(model);
+        let (mut off, mut on) = (Vec::new(), Vec::new());
+        for _ in 0..rounds {
+            off.push(run_cpu(&model, &["--no-mcap"], dir.path()));
+            let mut args = vec!["-o", "run.mcap"];
+            args.extend(extra);
+            on.push(run_cpu(&model, &args, dir.path()));
+        }
+        let size = std::fs::metadata(dir.path().join("run.mcap")).map_or(0, |m| m.len());
+        let (off, on) = (median(off), median(on));
+        println!(
+            "  {name:<30} --no-mcap {off:8.3} s   MCAP {on:8.3} s   ratio {:5.2}   file {:.1} MB",
+            on / off,
+            size as f64 / 1e6
+        );
+    }
+}
+
 criterion_group!(benches, logging);
-criterion_main!(benches);
+
+fn main() {
+    ratios();
+    benches();
+    Criterion::default().configure_from_args().final_summary();
+}

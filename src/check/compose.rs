@@ -753,6 +753,7 @@ fn item_span(it: &Item) -> Span {
         Item::Design(d) => d.name.span,
         Item::Property(p) => p.span,
         Item::Sweep(s) => s.span,
+        Item::Log(l) => l.span,
         Item::Import(i) => i.span,
         Item::Subsystem(s) => s.name.span,
         Item::Instance(i) => i.span,

@@ -13,6 +13,7 @@ pub mod dag;
 mod design;
 mod error;
 mod expr;
+pub mod log;
 pub mod metric;
 mod model;
 pub mod property;
@@ -27,6 +28,7 @@ pub use crate::design::lmi::Backend;
 pub use design::{DesignError, DesignReport, SolveSummary};
 pub use error::{CheckError, Dims};
 pub use expr::Val;
+pub use log::{LogDecl, RuleSelection};
 pub use model::{CheckedModel, CheckedRule, OutputField, Override, StateField};
 
 use crate::source::Span;

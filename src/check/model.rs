@@ -63,6 +63,8 @@ pub struct CheckedRule {
     pub part: Option<usize>,
     /// The rule's head.
     pub span: Span,
+    /// True for the redraw rule of a held `noise` (`v.redraw`).
+    pub redraw: bool,
 }
 
 /// A named output.
@@ -132,6 +134,8 @@ pub struct CheckedModel {
     pub random_params: Vec<crate::props::Input>,
     /// The `sweep { … }` block, if the model has one.
     pub sweep: Option<super::sweep::SweepDecl>,
+    /// What `hybsim run` logs (the `log { … }` block, or the defaults).
+    pub log: super::log::LogDecl,
 }
 
 const FLOW_CTX: Ctx = Ctx {
@@ -301,6 +305,7 @@ pub(crate) fn check_model(
     }
     let metrics = collector.finish(&mut m.c);
     let sweep = super::sweep::check_sweeps(&mut m.c, &model.items, &m.settable);
+    let log = super::log::check_logs(&mut m.c, &model.items, &m.rules);
     let (settings, seed, jit) = m.settings();
     for o in overrides {
         if !m.used.iter().any(|u| u == &o.name) && !SIM_KEYS.contains(&o.name.as_str()) {
@@ -373,6 +378,7 @@ pub(crate) fn check_model(
         metrics,
         random_params: m.random_params,
         sweep,
+        log,
     })
 }
 
@@ -484,7 +490,8 @@ impl ModelChecker<'_> {
             | Item::Property(_)
             | Item::Together(..)
             | Item::Metric(_)
-            | Item::Sweep(_) => {}
+            | Item::Sweep(_)
+            | Item::Log(_) => {}
         }
     }
 
@@ -539,7 +546,8 @@ impl ModelChecker<'_> {
             | Item::Import(_)
             | Item::Subsystem(_)
             | Item::Input(_)
-            | Item::Instance(_) => {}
+            | Item::Instance(_)
+            | Item::Log(_) => {}
         }
     }
 
@@ -1077,6 +1085,7 @@ impl ModelChecker<'_> {
             &Trigger::Every(every.clone()),
             &resets,
             n.span,
+            true,
         );
     }
 
@@ -1288,10 +1297,17 @@ impl ModelChecker<'_> {
                 }
             }
         };
-        self.rule(name, &j.trigger, &j.resets, j.span);
+        self.rule(name, &j.trigger, &j.resets, j.span, false);
     }
 
-    fn rule(&mut self, name: String, trigger: &Trigger, resets: &[ResetStmt], span: Span) {
+    fn rule(
+        &mut self,
+        name: String,
+        trigger: &Trigger,
+        resets: &[ResetStmt],
+        span: Span,
+        redraw: bool,
+    ) {
         if let Some(&first) = self.rule_names.get(&name) {
             self.c.err(CheckError::Duplicate { name, span, first });
             return;
@@ -1344,6 +1360,7 @@ impl ModelChecker<'_> {
             group: self.group,
             part: self.part,
             span,
+            redraw,
         });
     }
 

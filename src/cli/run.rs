@@ -101,12 +101,25 @@ pub struct RunArgs {
     /// against the first (`phase`), or the hybrid time domain (`domain`).
     #[arg(long, value_enum, default_value_t = PlotKindArg::Flows, requires = "plot")]
     pub plot_kind: PlotKindArg,
-    /// Log every N-th flow sample (jump and end samples are always logged).
-    #[arg(long, value_name = "N", default_value_t = 1, value_parser = clap::value_parser!(u64).range(1..))]
-    pub log_every: u64,
-    /// Log flow samples at least DT apart in t (jump and end samples are always logged).
+    /// Log every N-th flow sample (samples of logged jumps and the first and
+    /// last samples are always logged); overrides the model's `log { every }`.
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u64).range(1..))]
+    pub log_every: Option<u64>,
+    /// Log flow samples at least DT apart in t (samples of logged jumps and the
+    /// first and last samples are always logged); overrides `log { dt }`.
     #[arg(long, value_name = "DT")]
     pub log_dt: Option<f64>,
+    /// States and outputs written to the MCAP and CSV files, comma-separated:
+    /// entries (`xh`, `err`) or family members (`xh[2]`, `e[1,3]`); `*` for
+    /// all. Replaces the model's `log { vars }`; default: all.
+    #[arg(long, value_name = "NAMES")]
+    pub log_vars: Option<String>,
+    /// Jump rules whose jumps are logged, comma-separated: `fire` (a rule or
+    /// a whole family), `fire[2]`, `v.redraw` (a noise's redraws); empty for
+    /// none, `*` for all. Replaces the model's `log { rules }`; default: all but the
+    /// noise redraws.
+    #[arg(long, value_name = "RULES")]
+    pub log_rules: Option<String>,
     /// No progress bar.
     #[arg(short, long)]
     pub quiet: bool,
@@ -275,6 +288,8 @@ pub struct Outputs {
     pub plot_vars: Vec<String>,
     /// What the plot draws.
     pub plot_kind: PlotKind,
+    /// States and outputs written to the MCAP and CSV files (`None`: all).
+    pub log_vars: Option<Vec<String>>,
     /// Which samples to write.
     pub decimation: Decimation,
     /// Show a progress bar (if stderr is a terminal).
@@ -369,17 +384,28 @@ pub fn simulate_to_files<S: HybridSystem + ?Sized>(
     // on completes (or removes) every file.
     let interrupted = interrupt_flag();
     let mut metric_sink = metrics.filter(|m| !m.is_empty()).map(|m| m.sink());
+    // The files log the selected states and outputs; plots choose their own.
+    let selected = outputs
+        .log_vars
+        .as_ref()
+        .map(|names| info.select_vars(names).0);
+    let logged = selected.as_ref().unwrap_or(info);
     let mut mcap = match &outputs.mcap {
         Some(path) => Some(McapSink::create(
             path,
-            info,
+            logged,
             output_fn,
             McapOptions::default().decimation(outputs.decimation),
         )?),
         None => None,
     };
     let mut csv = match &outputs.csv {
-        Some(path) => Some(CsvSink::create(path, info, output_fn, outputs.decimation)?),
+        Some(path) => Some(CsvSink::create(
+            path,
+            logged,
+            output_fn,
+            outputs.decimation,
+        )?),
         None => None,
     };
     let mut plot = match &outputs.plot {
@@ -628,7 +654,7 @@ pub fn execute(args: RunArgs) -> anyhow::Result<u8> {
             return Ok(EXIT_MODEL_ERROR);
         }
     };
-    let info = RunInfo {
+    let mut info = RunInfo {
         model_name: model.name().to_string(),
         model_path: args.model.display().to_string(),
         source: src.text().to_string(),
@@ -650,6 +676,7 @@ pub fn execute(args: RunArgs) -> anyhow::Result<u8> {
         output_layout: model.output_layout().clone(),
         output_dim: model.output_dim(),
         rule_names: model.rule_names(),
+        logged_rules: model.log_decl().rules.clone(),
         parameters: model.parameters_json(),
         solver: settings_json(&settings),
         design: model.design_json(),
@@ -672,6 +699,42 @@ pub fn execute(args: RunArgs) -> anyhow::Result<u8> {
         eprintln!("error: {e}");
         return Ok(EXIT_MODEL_ERROR);
     }
+    // Unknown `--log-vars`/`--log-rules` names are usage errors (exit 2),
+    // found before the run; the model's `log` block was checked with it.
+    let log_vars = match &args.log_vars {
+        Some(list) if list.trim() == "*" => None,
+        Some(list) => {
+            let names = split_names(list);
+            let (_, unknown) = info.select_vars(&names);
+            if let Some(name) = unknown.first() {
+                let mut known = hybsim::sinks::entry_names(&info.state_layout);
+                known.extend(hybsim::sinks::entry_names(&info.output_layout));
+                eprintln!(
+                    "error: `--log-vars {name}`: neither a state nor an output of the model (known: {}; a family member is `name[i]`)",
+                    known.join(", ")
+                );
+                return Ok(EXIT_MODEL_ERROR);
+            }
+            Some(names)
+        }
+        None => model.log_decl().vars.clone(),
+    };
+    if let Some(list) = &args.log_rules {
+        if list.trim() == "*" {
+            info.logged_rules = vec![true; info.rule_names.len()];
+        } else {
+            match select_rules(&split_names(list), &info.rule_names) {
+                Ok(logged) => info.logged_rules = logged,
+                Err(name) => {
+                    eprintln!(
+                        "error: `--log-rules {name}`: no jump rule of the model has that name (rules: {}; a family is `fire` or `fire[i]`, a noise's redraws `v.redraw`)",
+                        info.rule_names.join(", ")
+                    );
+                    return Ok(EXIT_MODEL_ERROR);
+                }
+            }
+        }
+    }
     for report in model.design_reports() {
         eprintln!("{}", report.summary_line());
     }
@@ -689,7 +752,10 @@ pub fn execute(args: RunArgs) -> anyhow::Result<u8> {
         plot: args.plot.clone(),
         plot_vars: args.plot_vars.clone(),
         plot_kind: args.plot_kind.into(),
-        decimation: Decimation::all().every(args.log_every).dt(args.log_dt),
+        log_vars,
+        decimation: Decimation::all()
+            .every(args.log_every.or(model.log_decl().every).unwrap_or(1))
+            .dt(args.log_dt.or(model.log_decl().dt)),
         progress: !args.quiet,
     };
     if let Some(message) = output_path_clash(&args.model, &outputs) {
@@ -730,6 +796,53 @@ pub fn execute(args: RunArgs) -> anyhow::Result<u8> {
         eprintln!("wrote {}", path.display());
     }
     Ok(exit_code(&report))
+}
+
+/// Splits a comma-separated list of names, keeping commas inside brackets
+/// (`e[1,3],x` → `e[1,3]`, `x`); empty items are dropped.
+pub fn split_names(list: &str) -> Vec<String> {
+    let mut names = Vec::new();
+    let mut depth = 0usize;
+    let mut current = String::new();
+    for ch in list.chars() {
+        match ch {
+            '[' => depth += 1,
+            ']' => depth = depth.saturating_sub(1),
+            ',' if depth == 0 => {
+                names.push(std::mem::take(&mut current));
+                continue;
+            }
+            _ => {}
+        }
+        current.push(ch);
+    }
+    names.push(current);
+    names
+        .into_iter()
+        .map(|n| n.trim().to_string())
+        .filter(|n| !n.is_empty())
+        .collect()
+}
+
+/// Per rule, whether one of `names` selects it (see
+/// [`RuleSelection`](hybsim::check::RuleSelection)); or the first name that
+/// selects no rule.
+pub fn select_rules(names: &[String], rules: &[String]) -> Result<Vec<bool>, String> {
+    let mut logged = vec![false; rules.len()];
+    for name in names {
+        let selection = hybsim::check::RuleSelection::parse(name);
+        let mut any = false;
+        for (k, rule) in rules.iter().enumerate() {
+            if selection.matches(rule) {
+                logged[k] = true;
+                any = true;
+            }
+        }
+        if !any {
+            return Err(name.clone());
+        }
+    }
+    Ok(logged)
 }
 
 #[cfg(test)]

@@ -281,6 +281,7 @@ pub struct CompiledModel {
     metrics: metric::Metrics,
     jit: JitStatus,
     sweep: Option<crate::check::sweep::SweepDecl>,
+    log: crate::check::LogDecl,
     jacobian: Arc<JacobianSource>,
 }
 
@@ -519,6 +520,7 @@ impl CompiledModel {
             metrics,
             jit,
             sweep: m.sweep,
+            log: m.log,
             jacobian,
         }
     }
@@ -636,6 +638,12 @@ impl CompiledModel {
     /// sweep` runs without `--grid`), if it has one.
     pub fn sweep(&self) -> Option<&crate::check::sweep::SweepDecl> {
         self.sweep.as_ref()
+    }
+
+    /// What `hybsim run` logs: the model's `log { … }` block, or the
+    /// defaults (every state and output, every rule but the noise redraws).
+    pub fn log_decl(&self) -> &crate::check::LogDecl {
+        &self.log
     }
 
     /// Span of the declaration of property `name`.

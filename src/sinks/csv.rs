@@ -1,17 +1,22 @@
 //! A run as CSV: one row per logged sample, columns
 //! `t, j, kind, <state components>, <output components>`, named by the
 //! layouts' flat names (`h`, `x[2]`, `P[1,2]`, `agent[3].xhat[1]`; names
-//! with commas are quoted). Numbers are written in Rust's shortest
-//! round-trip form, so reading a file back gives the exact values.
+//! with commas are quoted). Numbers are written in shortest round-trip form
+//! (`0.1`, `2.220446049250313e-16`, `1e+300`: the fewest digits that read
+//! back as exactly the same value, with an exponent for very small and very
+//! large magnitudes), so reading a file back gives the exact values.
+//!
+//! Jumps of rules that are not logged ([`RunInfo::logged_rules`]) leave
+//! their pre-jump sample as a `flow` row and no `post_jump` row (see
+//! [`super::JumpFilter`]).
 
-use std::fmt::Write as _;
 use std::io::BufWriter;
 use std::ops::ControlFlow;
 use std::path::{Path, PathBuf};
 
 use crate::atomic_file::OutputFile;
 
-use super::{Decimation, Decimator, OutputFn, RunInfo, SinkError, Tally};
+use super::{Decimation, Decimator, JumpFilter, OutputFn, PostJump, RunInfo, SinkError, Tally};
 use crate::arc::{ArcSink, HybridTime, SampleKind};
 use crate::atomic_file;
 
@@ -40,8 +45,14 @@ pub struct CsvSink<'a> {
     y: Vec<f64>,
     state_cols: Vec<usize>,
     output_cols: Vec<usize>,
-    cell: String,
+    filter: JumpFilter,
     error: Option<SinkError>,
+}
+
+/// The text of a number in a CSV cell: shortest round-trip form, `NaN`,
+/// `inf` and `-inf` for non-finite values (which `pandas.read_csv` reads).
+pub fn number_text(v: f64, buf: &mut zmij::Buffer) -> &str {
+    buf.format(v)
 }
 
 impl<'a> CsvSink<'a> {
@@ -92,7 +103,7 @@ impl<'a> CsvSink<'a> {
             output_cols,
             decimator: Decimator::new(decimation),
             tally: Tally::new(info.rule_names.len()),
-            cell: String::new(),
+            filter: JumpFilter::new(&info.logged_rules),
             error: None,
         })
     }
@@ -110,22 +121,45 @@ impl<'a> CsvSink<'a> {
             .writer
             .as_mut()
             .expect("the writer is present until finish");
-        let cell = &mut self.cell;
-        let mut put = |v: &dyn std::fmt::Display| {
-            cell.clear();
-            write!(cell, "{v}").expect("writing to a String cannot fail");
-            w.write_field(cell.as_bytes())
-        };
-        put(&at.t)?;
-        put(&at.j)?;
-        put(&kind_name(kind))?;
+        let mut num = zmij::Buffer::new();
+        w.write_field(number_text(at.t, &mut num))?;
+        w.write_field(itoa::Buffer::new().format(at.j))?;
+        w.write_field(kind_name(kind))?;
         for &k in &self.state_cols {
-            put(&x[k])?;
+            w.write_field(number_text(x[k], &mut num))?;
         }
         for &k in &self.output_cols {
-            put(&self.y[k])?;
+            w.write_field(number_text(self.y[k], &mut num))?;
         }
         w.write_record(None::<&[u8]>)
+    }
+
+    /// Writes the row if the decimation keeps the sample.
+    fn keep_and_write(
+        &mut self,
+        at: HybridTime,
+        x: &[f64],
+        kind: SampleKind,
+    ) -> Result<(), ::csv::Error> {
+        if self.decimator.keep(at, kind) {
+            self.write_row(at, x, kind)
+        } else {
+            Ok(())
+        }
+    }
+
+    /// Stores the first error and stops the run.
+    fn settle(&mut self, r: Result<(), ::csv::Error>) -> ControlFlow<()> {
+        match r {
+            Ok(()) => ControlFlow::Continue(()),
+            Err(source) => {
+                self.error = Some(SinkError::Csv {
+                    path: self.path.clone(),
+                    source,
+                });
+                ControlFlow::Break(())
+            }
+        }
     }
 
     /// Samples and jumps seen so far.
@@ -137,6 +171,14 @@ impl<'a> CsvSink<'a> {
     pub fn finish(mut self) -> Result<PathBuf, SinkError> {
         if let Some(e) = self.error.take() {
             return Err(e);
+        }
+        // A run that ended between a held pre-jump sample and its jump.
+        if let Some((at, x)) = self.filter.take_unfinished() {
+            self.write_row(at, &x, SampleKind::PreJump)
+                .map_err(|source| SinkError::Csv {
+                    path: self.path.clone(),
+                    source,
+                })?;
         }
         let path = &self.path;
         let writer = self.writer.take().expect("finish is called once");
@@ -159,19 +201,20 @@ impl ArcSink for CsvSink<'_> {
             return ControlFlow::Break(());
         }
         self.tally.sample(at);
-        if !self.decimator.keep(at, kind) {
-            return ControlFlow::Continue(());
-        }
-        match self.write_row(at, x, kind) {
-            Ok(()) => ControlFlow::Continue(()),
-            Err(source) => {
-                self.error = Some(SinkError::Csv {
-                    path: self.path.clone(),
-                    source,
-                });
-                ControlFlow::Break(())
-            }
-        }
+        let r = match kind {
+            SampleKind::PreJump if self.filter.hold(at, x) => Ok(()),
+            SampleKind::PostJump => match self.filter.post_jump() {
+                PostJump::Write => self.keep_and_write(at, x, kind),
+                PostJump::HeldAsFlow(pre) => {
+                    let held = self.filter.take_held_values();
+                    let r = self.keep_and_write(pre, &held, SampleKind::Flow);
+                    self.filter.restore_held_values(held);
+                    r
+                }
+            },
+            _ => self.keep_and_write(at, x, kind),
+        };
+        self.settle(r)
     }
 
     fn jump(
@@ -181,7 +224,17 @@ impl ArcSink for CsvSink<'_> {
         _pre: &[f64],
         _post: &[f64],
     ) -> ControlFlow<()> {
+        if self.error.is_some() {
+            return ControlFlow::Break(());
+        }
         self.tally.jump(rule);
+        let (_, flush) = self.filter.jump(rule);
+        if flush && let Some((pre_at, _)) = self.filter.held() {
+            let held = self.filter.take_held_values();
+            let r = self.keep_and_write(pre_at, &held, SampleKind::PreJump);
+            self.filter.restore_held_values(held);
+            return self.settle(r);
+        }
         ControlFlow::Continue(())
     }
 }

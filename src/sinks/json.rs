@@ -21,8 +21,7 @@
 //! arrays, no `$ref`, no unions, names that message paths reach without
 //! quoting (`/hybsim/state.xhat[1].data[0]`).
 
-use serde::ser::{SerializeMap, SerializeStruct};
-use serde::{Serialize, Serializer};
+use serde::Serialize;
 use serde_json::{Value, json};
 
 use crate::arc::HybridTime;
@@ -353,204 +352,6 @@ impl LogTimestamp {
     }
 }
 
-/// The values of a flat vector `x`, structured by `layout` (serializes as a
-/// map of the layout's entries).
-#[derive(Clone, Copy)]
-pub struct Values<'a> {
-    /// The structure.
-    pub layout: &'a Layout,
-    /// The flat vector.
-    pub x: &'a [f64],
-}
-
-struct Matrix<'a> {
-    rows: usize,
-    cols: usize,
-    data: &'a [f64],
-}
-
-impl Serialize for Matrix<'_> {
-    fn serialize<S: Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
-        let mut m = s.serialize_struct("Matrix", 3)?;
-        m.serialize_field("rows", &self.rows)?;
-        m.serialize_field("cols", &self.cols)?;
-        m.serialize_field("data", self.data)?;
-        m.end()
-    }
-}
-
-fn put_field<M: SerializeMap>(m: &mut M, f: &Field, x: &[f64]) -> Result<(), M::Error> {
-    m.serialize_entry(&f.name, &FieldValue { f, x })
-}
-
-/// The value of one field: a number, an array or a matrix object.
-struct FieldValue<'a> {
-    f: &'a Field,
-    x: &'a [f64],
-}
-
-impl Serialize for FieldValue<'_> {
-    fn serialize<S: Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
-        let v = &self.x[self.f.offset..self.f.offset + self.f.shape.len()];
-        match self.f.shape {
-            Shape::Scalar => v[0].serialize(s),
-            Shape::Vector(_) => v.serialize(s),
-            Shape::Matrix { rows, cols } => Matrix {
-                rows,
-                cols,
-                data: v,
-            }
-            .serialize(s),
-        }
-    }
-}
-
-/// One member of a family written in `form`.
-struct Member<'a> {
-    form: FamilyForm,
-    fields: &'a [Field],
-    x: &'a [f64],
-}
-
-impl Serialize for Member<'_> {
-    fn serialize<S: Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
-        match (self.form, self.fields) {
-            (FamilyForm::Numbers, [f]) => FieldValue { f, x: self.x }.serialize(s),
-            (FamilyForm::Vectors(_), [f]) => {
-                let mut m = s.serialize_struct("Vector", 1)?;
-                m.serialize_field("data", &self.x[f.offset..f.offset + f.shape.len()])?;
-                m.end()
-            }
-            (FamilyForm::Matrices, [f]) => {
-                let (rows, cols) = match f.shape {
-                    Shape::Scalar => (1, 1),
-                    Shape::Vector(n) => (n, 1),
-                    Shape::Matrix { rows, cols } => (rows, cols),
-                };
-                Matrix {
-                    rows,
-                    cols,
-                    data: &self.x[f.offset..f.offset + f.shape.len()],
-                }
-                .serialize(s)
-            }
-            _ => {
-                let mut m = s.serialize_map(Some(self.fields.len()))?;
-                for f in self.fields {
-                    put_field(&mut m, f, self.x)?;
-                }
-                m.end()
-            }
-        }
-    }
-}
-
-struct Family<'a> {
-    members: &'a [Vec<Field>],
-    x: &'a [f64],
-}
-
-impl Serialize for Family<'_> {
-    fn serialize<S: Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
-        let form = family_form(self.members);
-        s.collect_seq(self.members.iter().map(|fields| Member {
-            form,
-            fields,
-            x: self.x,
-        }))
-    }
-}
-
-impl Values<'_> {
-    fn put<M: SerializeMap>(&self, m: &mut M) -> Result<(), M::Error> {
-        let dotted = self.layout.entries.iter().any(|e| match e {
-            Entry::Field(f) => f.name.contains('.'),
-            Entry::Family { name, .. } => name.contains('.'),
-        });
-        if dotted {
-            return put_nodes(m, &nest(&self.layout.entries), self.x);
-        }
-        for e in &self.layout.entries {
-            match e {
-                Entry::Field(f) => put_field(m, f, self.x)?,
-                Entry::Family { name, members, .. } => {
-                    m.serialize_entry(name, &Family { members, x: self.x })?
-                }
-            }
-        }
-        Ok(())
-    }
-}
-
-fn put_nodes<M: SerializeMap>(m: &mut M, nodes: &[Node<'_>], x: &[f64]) -> Result<(), M::Error> {
-    for node in nodes {
-        match node {
-            Node::Leaf(Entry::Field(f), shown) => {
-                m.serialize_entry(*shown, &FieldValue { f, x })?
-            }
-            Node::Leaf(Entry::Family { members, .. }, shown) => {
-                m.serialize_entry(*shown, &Family { members, x })?
-            }
-            Node::Group(name, inner) => m.serialize_entry(*name, &Group { nodes: inner, x })?,
-        }
-    }
-    Ok(())
-}
-
-/// The object of a [`Node::Group`].
-struct Group<'a> {
-    nodes: &'a [Node<'a>],
-    x: &'a [f64],
-}
-
-impl Serialize for Group<'_> {
-    fn serialize<S: Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
-        let mut m = s.serialize_map(None)?;
-        put_nodes(&mut m, self.nodes, self.x)?;
-        m.end()
-    }
-}
-
-impl Serialize for Values<'_> {
-    fn serialize<S: Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
-        let mut m = s.serialize_map(None)?;
-        self.put(&mut m)?;
-        m.end()
-    }
-}
-
-/// A sample record `{t, j, ...values}`.
-pub struct SampleRecord<'a> {
-    /// Hybrid time.
-    pub at: HybridTime,
-    /// The values.
-    pub values: Values<'a>,
-}
-
-impl Serialize for SampleRecord<'_> {
-    fn serialize<S: Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
-        let mut m = s.serialize_map(None)?;
-        m.serialize_entry("t", &self.at.t)?;
-        m.serialize_entry("j", &self.at.j)?;
-        self.values.put(&mut m)?;
-        m.end()
-    }
-}
-
-/// A jump record `{t, j, rule, rule_id, index?, pre, post}`.
-pub struct JumpRecordJson<'a> {
-    /// Pre-jump hybrid time.
-    pub at: HybridTime,
-    /// Rule name as in the model (`transmit[2]`).
-    pub rule: &'a str,
-    /// Position of the rule.
-    pub rule_id: usize,
-    /// State before.
-    pub pre: Values<'a>,
-    /// State after.
-    pub post: Values<'a>,
-}
-
 /// The indices of an indexed rule name: `transmit[2]` → `[2]`,
 /// `edge[1,3]` → `[1, 3]`; `None` for a plain name or non-integer indices.
 pub fn rule_indices(name: &str) -> Option<Vec<i64>> {
@@ -562,18 +363,236 @@ pub fn rule_indices(name: &str) -> Option<Vec<i64>> {
         .collect()
 }
 
-impl Serialize for JumpRecordJson<'_> {
-    fn serialize<S: Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
-        let mut m = s.serialize_map(None)?;
-        m.serialize_entry("t", &self.at.t)?;
-        m.serialize_entry("j", &self.at.j)?;
-        m.serialize_entry("rule", self.rule)?;
-        m.serialize_entry("rule_id", &self.rule_id)?;
-        if let Some(index) = rule_indices(self.rule) {
-            m.serialize_entry("index", &index)?;
-        }
-        m.serialize_entry("pre", &self.pre)?;
-        m.serialize_entry("post", &self.post)?;
-        m.end()
+/// Appends the shortest text that reads back as exactly `v` (JSON's number
+/// syntax for finite values: `0.1`, `1e-7`, `2.220446049250313e-16`).
+/// Callers check finiteness first; this is what `serde_json` writes.
+#[inline]
+pub fn push_f64(out: &mut Vec<u8>, v: f64) {
+    out.extend_from_slice(zmij::Buffer::new().format_finite(v).as_bytes());
+}
+
+/// Appends an unsigned integer in decimal.
+#[inline]
+pub fn push_u64(out: &mut Vec<u8>, v: u64) {
+    out.extend_from_slice(itoa::Buffer::new().format(v).as_bytes());
+}
+
+/// The JSON text of the values of a flat vector structured by a [`Layout`],
+/// compiled once per layout: literal text with holes for the numbers. Writing
+/// a record is then copying the literals and formatting the numbers, with no
+/// intermediate value and no per-record allocation (a run writes one record
+/// per sample; the layouts never change during a run).
+///
+/// The text is an object body without braces, `"h":1.5,"x":[1,2]`, in the
+/// shapes of the module documentation.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Template {
+    /// All literal text, concatenated.
+    lits: Vec<u8>,
+    /// Per hole: the end of the literal text before it, and the component.
+    holes: Vec<(usize, usize)>,
+}
+
+impl Template {
+    /// The body of the values of `layout` (no braces, no leading comma);
+    /// dotted names (`ball.h`) nest as objects, as in the schemas.
+    pub fn new(layout: &Layout) -> Self {
+        let mut t = Self::default();
+        t.nodes(&nest(&layout.entries));
+        t
     }
+
+    fn nodes(&mut self, nodes: &[Node<'_>]) {
+        for (k, node) in nodes.iter().enumerate() {
+            if k > 0 {
+                self.lit(",");
+            }
+            match node {
+                Node::Leaf(Entry::Field(f), shown) => {
+                    self.key(shown);
+                    self.field(f);
+                }
+                Node::Leaf(Entry::Family { members, .. }, shown) => {
+                    self.key(shown);
+                    self.family(members);
+                }
+                Node::Group(name, inner) => {
+                    self.key(name);
+                    self.lit("{");
+                    self.nodes(inner);
+                    self.lit("}");
+                }
+            }
+        }
+    }
+
+    /// True if the layout has no entries (the body is empty).
+    pub fn is_empty(&self) -> bool {
+        self.lits.is_empty() && self.holes.is_empty()
+    }
+
+    /// Appends the body with the values of `x` (finite, checked by the caller).
+    #[inline]
+    pub fn write(&self, out: &mut Vec<u8>, x: &[f64]) {
+        let mut start = 0;
+        for &(end, k) in &self.holes {
+            out.extend_from_slice(&self.lits[start..end]);
+            push_f64(out, x[k]);
+            start = end;
+        }
+        out.extend_from_slice(&self.lits[start..]);
+    }
+
+    fn lit(&mut self, s: &str) {
+        self.lits.extend_from_slice(s.as_bytes());
+    }
+
+    fn key(&mut self, name: &str) {
+        let quoted = serde_json::to_string(name).expect("a string serializes");
+        self.lit(&quoted);
+        self.lit(":");
+    }
+
+    fn hole(&mut self, k: usize) {
+        self.holes.push((self.lits.len(), k));
+    }
+
+    fn numbers(&mut self, offset: usize, n: usize) {
+        self.lit("[");
+        for k in 0..n {
+            if k > 0 {
+                self.lit(",");
+            }
+            self.hole(offset + k);
+        }
+        self.lit("]");
+    }
+
+    fn matrix(&mut self, rows: usize, cols: usize, offset: usize) {
+        self.lit(&format!("{{\"rows\":{rows},\"cols\":{cols},\"data\":"));
+        self.numbers(offset, rows * cols);
+        self.lit("}");
+    }
+
+    /// A number, an array or a matrix object.
+    fn field(&mut self, f: &Field) {
+        match f.shape {
+            Shape::Scalar => self.hole(f.offset),
+            Shape::Vector(n) => self.numbers(f.offset, n),
+            Shape::Matrix { rows, cols } => self.matrix(rows, cols, f.offset),
+        }
+    }
+
+    fn family(&mut self, members: &[Vec<Field>]) {
+        let form = family_form(members);
+        self.lit("[");
+        for (k, fields) in members.iter().enumerate() {
+            if k > 0 {
+                self.lit(",");
+            }
+            match (form, fields.as_slice()) {
+                (FamilyForm::Numbers, [f]) => self.field(f),
+                (FamilyForm::Vectors(_), [f]) => {
+                    self.lit("{\"data\":");
+                    self.numbers(f.offset, f.shape.len());
+                    self.lit("}");
+                }
+                (FamilyForm::Matrices, [f]) => {
+                    let (rows, cols) = match f.shape {
+                        Shape::Scalar => (1, 1),
+                        Shape::Vector(n) => (n, 1),
+                        Shape::Matrix { rows, cols } => (rows, cols),
+                    };
+                    self.matrix(rows, cols, f.offset);
+                }
+                _ => {
+                    self.lit("{");
+                    for (i, f) in fields.iter().enumerate() {
+                        if i > 0 {
+                            self.lit(",");
+                        }
+                        self.key(&f.name);
+                        self.field(f);
+                    }
+                    self.lit("}");
+                }
+            }
+        }
+        self.lit("]");
+    }
+}
+
+/// Writes the records of one run: sample records `{t, j, <values>}` and jump
+/// records `{t, j, rule, rule_id, index?, pre{..}, post{..}}`, as compact
+/// JSON into a caller's buffer.
+#[derive(Debug, Clone)]
+pub struct RecordWriter {
+    body: Template,
+    /// Per rule: `,"rule":"NAME","rule_id":K[,"index":[..]],"pre":{`.
+    rule_heads: Vec<Vec<u8>>,
+}
+
+impl RecordWriter {
+    /// Records of vectors structured by `layout`, jumps of the rules named
+    /// `rule_names` (in the system's order).
+    pub fn new(layout: &Layout, rule_names: &[String]) -> Self {
+        Self {
+            body: Template::new(layout),
+            rule_heads: (0..rule_names.len())
+                .map(|k| rule_head(&super::rule_name(rule_names, k), k))
+                .collect(),
+        }
+    }
+
+    fn time(out: &mut Vec<u8>, at: HybridTime) {
+        out.extend_from_slice(b"{\"t\":");
+        push_f64(out, at.t);
+        out.extend_from_slice(b",\"j\":");
+        push_u64(out, at.j);
+    }
+
+    /// Appends the sample record of `x` at `at`.
+    pub fn sample(&self, out: &mut Vec<u8>, at: HybridTime, x: &[f64]) {
+        Self::time(out, at);
+        if !self.body.is_empty() {
+            out.push(b',');
+        }
+        self.body.write(out, x);
+        out.push(b'}');
+    }
+
+    /// Appends the jump record of rule `rule` (named `name` if the writer
+    /// does not know it) at the pre-jump time `at`.
+    pub fn jump(
+        &self,
+        out: &mut Vec<u8>,
+        at: HybridTime,
+        rule: usize,
+        name: &str,
+        pre: &[f64],
+        post: &[f64],
+    ) {
+        Self::time(out, at);
+        match self.rule_heads.get(rule) {
+            Some(head) => out.extend_from_slice(head),
+            None => out.extend_from_slice(&rule_head(name, rule)),
+        }
+        self.body.write(out, pre);
+        out.extend_from_slice(b"},\"post\":{");
+        self.body.write(out, post);
+        out.extend_from_slice(b"}}");
+    }
+}
+
+fn rule_head(name: &str, rule: usize) -> Vec<u8> {
+    let mut head = b",\"rule\":".to_vec();
+    serde_json::to_writer(&mut head, name).expect("a string serializes");
+    head.extend_from_slice(b",\"rule_id\":");
+    push_u64(&mut head, rule as u64);
+    if let Some(index) = rule_indices(name) {
+        head.extend_from_slice(b",\"index\":");
+        serde_json::to_writer(&mut head, &index).expect("integers serialize");
+    }
+    head.extend_from_slice(b",\"pre\":{");
+    head
 }

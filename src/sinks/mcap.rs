@@ -38,12 +38,11 @@ use serde::Serialize;
 use serde_json::{Value, json};
 
 use super::json::{
-    JumpRecordJson, LogLevel, LogRecord, LogTimestamp, SampleRecord, Values, jump_schema,
-    log_schema, sample_schema,
+    LogLevel, LogRecord, LogTimestamp, RecordWriter, jump_schema, log_schema, sample_schema,
 };
 use super::{
-    Decimation, Decimator, OutputFn, RunInfo, RunOutcome, RunStatus, SinkError, Tally,
-    first_non_finite, rule_name,
+    Decimation, Decimator, JumpFilter, OutputFn, PostJump, RunInfo, RunOutcome, RunStatus,
+    SinkError, Tally, first_non_finite, rule_name,
 };
 use crate::arc::{ArcSink, HybridTime, SampleKind};
 use crate::atomic_file;
@@ -62,7 +61,8 @@ pub const LOG_TOPIC: &str = "/hybsim/log";
 pub struct McapOptions {
     /// Which samples to write. Default: all.
     pub decimation: Decimation,
-    /// zstd level. Default 1 (fast; level 3 saves a few percent more).
+    /// zstd level. Default 1, the fastest level (level 3 saves a few
+    /// percent more space for about twice the compression time).
     pub zstd_level: u32,
 }
 
@@ -124,6 +124,9 @@ pub struct McapSink<'a> {
     sequence: u32,
     y: Vec<f64>,
     buf: Vec<u8>,
+    states: RecordWriter,
+    outputs_rec: RecordWriter,
+    filter: JumpFilter,
     error: Option<SinkError>,
     metrics: Vec<(String, f64)>,
 }
@@ -181,7 +184,10 @@ impl<'a> McapSink<'a> {
         let mut writer = WriteOptions::new()
             .compression(Some(Compression::Zstd))
             .compression_level(options.zstd_level)
-            .compression_threads(1)
+            // Compression on this thread: zstd's worker threads (any count ≥ 1)
+            // cost a copy of every chunk and locking per write, and their
+            // bytes depend on the count; single-threaded zstd is deterministic.
+            .compression_threads(0)
             .disable_seeking(!seekable)
             .profile("")
             .library(format!("hybsim {}", env!("CARGO_PKG_VERSION")))
@@ -204,6 +210,10 @@ impl<'a> McapSink<'a> {
             (
                 "rule_names",
                 Value::String(json!(info.rule_names).to_string()),
+            ),
+            (
+                "logged_rules",
+                Value::String(json!(info.logged_rule_names()).to_string()),
             ),
             ("argv", Value::String(json!(info.argv).to_string())),
             (
@@ -251,6 +261,7 @@ impl<'a> McapSink<'a> {
             "state": {"dim": info.state_dim, "layout": info.state_layout, "names": state_names},
             "outputs": {"dim": info.output_dim, "layout": info.output_layout, "names": output_names},
             "rules": info.rule_names,
+            "logged_rules": info.logged_rule_names(),
         });
         let description =
             serde_json::to_vec_pretty(&description).expect("a JSON value always serializes");
@@ -281,7 +292,7 @@ impl<'a> McapSink<'a> {
             sample_schema(&format!("hybsim.{model}.State"), &info.state_layout),
         )
         .map_err(mcap_err)?;
-        let outputs_channel = if info.output_dim > 0 {
+        let outputs_channel = if info.output_dim > 0 && !info.output_layout.entries.is_empty() {
             Some(
                 channel(
                     OUTPUTS_TOPIC,
@@ -319,6 +330,9 @@ impl<'a> McapSink<'a> {
             sequence: 0,
             y: vec![0.0; info.output_dim],
             buf: Vec::with_capacity(256),
+            states: RecordWriter::new(&info.state_layout, &info.rule_names),
+            outputs_rec: RecordWriter::new(&info.output_layout, &[]),
+            filter: JumpFilter::new(&info.logged_rules),
             error: None,
             metrics: Vec::new(),
         })
@@ -416,23 +430,12 @@ impl<'a> McapSink<'a> {
             );
             self.write_log(LogLevel::Info, &message, log_time)?;
         }
-        let info = self.info;
-        self.serialize(&SampleRecord {
-            at,
-            values: Values {
-                layout: &info.state_layout,
-                x,
-            },
-        });
+        self.buf.clear();
+        self.states.sample(&mut self.buf, at, x);
         self.write_buf(self.channels.state, log_time)?;
         if let Some(channel) = self.channels.outputs {
-            self.serialize(&SampleRecord {
-                at,
-                values: Values {
-                    layout: &info.output_layout,
-                    x: &y,
-                },
-            });
+            self.buf.clear();
+            self.outputs_rec.sample(&mut self.buf, at, &y);
             self.write_buf(channel, log_time)?;
         }
         self.y = y;
@@ -457,23 +460,29 @@ impl<'a> McapSink<'a> {
             }
         }
         let log_time = self.log_time(at.t);
-        let info = self.info;
-        let name = rule_name(&info.rule_names, rule);
-        self.serialize(&JumpRecordJson {
-            at,
-            rule: &name,
-            rule_id: rule,
-            pre: Values {
-                layout: &info.state_layout,
-                x: pre,
-            },
-            post: Values {
-                layout: &info.state_layout,
-                x: post,
-            },
-        });
+        let name = if rule < self.info.rule_names.len() {
+            String::new()
+        } else {
+            rule_name(&self.info.rule_names, rule)
+        };
+        self.buf.clear();
+        self.states.jump(&mut self.buf, at, rule, &name, pre, post);
         self.write_buf(self.channels.jumps, log_time)?;
         Ok(ControlFlow::Continue(()))
+    }
+
+    /// Writes the sample if the decimation keeps it.
+    fn keep_and_write(
+        &mut self,
+        at: HybridTime,
+        x: &[f64],
+        kind: SampleKind,
+    ) -> Result<ControlFlow<()>, SinkError> {
+        if self.decimator.keep(at, kind) {
+            self.write_sample(at, x)
+        } else {
+            Ok(ControlFlow::Continue(()))
+        }
     }
 
     /// Stores the first error and stops the run.
@@ -529,6 +538,10 @@ impl<'a> McapSink<'a> {
     }
 
     fn complete(&mut self, outcome: &RunOutcome) -> Result<McapSummary, SinkError> {
+        // A run that ended between a held pre-jump sample and its jump.
+        if let Some((at, x)) = self.filter.take_unfinished() {
+            let _ = self.write_sample(at, &x)?;
+        }
         let level = match outcome.status {
             RunStatus::Completed => LogLevel::Info,
             RunStatus::Ended => LogLevel::Warning,
@@ -620,10 +633,19 @@ impl ArcSink for McapSink<'_> {
             return ControlFlow::Break(());
         }
         self.tally.sample(at);
-        if !self.decimator.keep(at, kind) {
-            return ControlFlow::Continue(());
-        }
-        let r = self.write_sample(at, x);
+        let r = match kind {
+            SampleKind::PreJump if self.filter.hold(at, x) => Ok(ControlFlow::Continue(())),
+            SampleKind::PostJump => match self.filter.post_jump() {
+                PostJump::Write => self.keep_and_write(at, x, kind),
+                PostJump::HeldAsFlow(pre) => {
+                    let held = self.filter.take_held_values();
+                    let r = self.keep_and_write(pre, &held, SampleKind::Flow);
+                    self.filter.restore_held_values(held);
+                    r
+                }
+            },
+            _ => self.keep_and_write(at, x, kind),
+        };
         self.settle(r)
     }
 
@@ -632,7 +654,16 @@ impl ArcSink for McapSink<'_> {
             return ControlFlow::Break(());
         }
         self.tally.jump(rule);
-        let r = self.write_jump(at, rule, pre, post);
+        let (record, flush) = self.filter.jump(rule);
+        let mut r = Ok(ControlFlow::Continue(()));
+        if flush && let Some((pre_at, _)) = self.filter.held() {
+            let held = self.filter.take_held_values();
+            r = self.keep_and_write(pre_at, &held, SampleKind::PreJump);
+            self.filter.restore_held_values(held);
+        }
+        if record && matches!(r, Ok(ControlFlow::Continue(()))) {
+            r = self.write_jump(at, rule, pre, post);
+        }
         self.settle(r)
     }
 }

@@ -218,6 +218,12 @@ pub struct RunInfo {
     pub output_dim: usize,
     /// Names of the jump rules, in the system's order.
     pub rule_names: Vec<String>,
+    /// Per rule (the system's order), whether its jumps are logged; rules
+    /// past the end are. A jump in which no logged rule fires leaves no jump
+    /// record, and of its two samples only the pre-jump one, as a flow
+    /// sample (see [`JumpFilter`]). `hybsim run` leaves the noise redraws
+    /// out unless a `log` block or `--log-rules` asks for them.
+    pub logged_rules: Vec<bool>,
     /// Resolved parameters (after overrides), name → value.
     pub parameters: serde_json::Value,
     /// Simulation settings (horizons, solver, tolerances, priority).
@@ -243,10 +249,39 @@ impl RunInfo {
             output_layout: Layout::default(),
             output_dim: 0,
             rule_names: rule_names.iter().map(|s| s.as_ref().to_string()).collect(),
+            logged_rules: vec![true; rule_names.len()],
             parameters: serde_json::Value::Object(Default::default()),
             solver: serde_json::Value::Object(Default::default()),
             design: None,
         }
+    }
+
+    /// This run's information with only the states and outputs named in
+    /// `names` logged (entries, whole families or members such as `xh[2]`,
+    /// see [`Layout::select`]), and the names that are neither.
+    pub fn select_vars<S: AsRef<str>>(&self, names: &[S]) -> (RunInfo, Vec<String>) {
+        let (state_layout, unknown_states) = self.state_layout.select(names);
+        let (output_layout, _) = self.output_layout.select(names);
+        let unknown = unknown_states
+            .into_iter()
+            .filter(|n| self.output_layout.find(n).is_none())
+            .collect();
+        let info = RunInfo {
+            state_layout,
+            output_layout,
+            ..self.clone()
+        };
+        (info, unknown)
+    }
+
+    /// Names of the rules whose jumps are logged.
+    pub fn logged_rule_names(&self) -> Vec<&str> {
+        self.rule_names
+            .iter()
+            .enumerate()
+            .filter(|(k, _)| self.logged_rules.get(*k).copied().unwrap_or(true))
+            .map(|(_, n)| n.as_str())
+            .collect()
     }
 
     /// Checks that both layouts match their dimensions.
@@ -389,6 +424,114 @@ impl Decimator {
             self.last_kept_t = Some(at.t);
         }
         keep
+    }
+}
+
+/// How a sink treats the jumps of rules that are not logged
+/// ([`RunInfo::logged_rules`]). The engine sends a pre-jump sample, one jump
+/// record per firing rule, then the post-jump sample; the filter holds the
+/// pre-jump sample until the rules are known. A jump in which a logged rule
+/// fires is written as usual (pre-jump sample, the records of its logged
+/// rules, post-jump sample). Any other jump is invisible in the log: no
+/// record, its pre-jump sample becomes a flow sample (subject to
+/// decimation) and its post-jump sample is dropped, so that e.g. a noise
+/// redraw at every integrator step costs one sample, not three records.
+#[derive(Debug, Clone, Default)]
+pub struct JumpFilter {
+    logged: Vec<bool>,
+    /// Some rule is not logged (otherwise the filter passes everything).
+    filtering: bool,
+    /// The held pre-jump sample, until the jump is known.
+    held_at: Option<HybridTime>,
+    held: Vec<f64>,
+    /// A logged rule fired in the current jump.
+    visible: bool,
+}
+
+/// What a sink does with a post-jump sample ([`JumpFilter::post_jump`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum PostJump {
+    /// Write it (always kept): the jump was logged.
+    Write,
+    /// Drop it; write the held pre-jump sample ([`JumpFilter::held`]) at
+    /// this time as a flow sample, if the decimation keeps it.
+    HeldAsFlow(HybridTime),
+}
+
+impl JumpFilter {
+    /// A filter for the rules logged per `logged` (rules past the end are).
+    pub fn new(logged: &[bool]) -> Self {
+        Self {
+            logged: logged.to_vec(),
+            filtering: logged.iter().any(|l| !l),
+            ..Self::default()
+        }
+    }
+
+    /// Whether jumps of rule `rule` are logged.
+    pub fn logs(&self, rule: usize) -> bool {
+        self.logged.get(rule).copied().unwrap_or(true)
+    }
+
+    /// A pre-jump sample: true if the filter holds it (the sink writes
+    /// nothing now), false if the sink writes it as usual.
+    pub fn hold(&mut self, at: HybridTime, x: &[f64]) -> bool {
+        if !self.filtering {
+            return false;
+        }
+        self.held.clear();
+        self.held.extend_from_slice(x);
+        self.held_at = Some(at);
+        self.visible = false;
+        true
+    }
+
+    /// A jump record of rule `rule`: (write the record, write the held
+    /// pre-jump sample first, as a pre-jump sample).
+    pub fn jump(&mut self, rule: usize) -> (bool, bool) {
+        if !self.filtering {
+            return (true, false);
+        }
+        if !self.logs(rule) {
+            return (false, false);
+        }
+        let flush = self.held_at.is_some() && !self.visible;
+        self.visible = true;
+        (true, flush)
+    }
+
+    /// A post-jump sample: what to write.
+    pub fn post_jump(&mut self) -> PostJump {
+        match self.held_at.take() {
+            Some(at) if !self.visible => PostJump::HeldAsFlow(at),
+            _ => PostJump::Write,
+        }
+    }
+
+    /// The held pre-jump sample (its time and values), if any.
+    pub fn held(&self) -> Option<(HybridTime, &[f64])> {
+        self.held_at.map(|at| (at, self.held.as_slice()))
+    }
+
+    /// Moves the held values out (to write them while the sink is borrowed
+    /// mutably); give them back with
+    /// [`restore_held_values`](Self::restore_held_values) to reuse the buffer.
+    /// After [`post_jump`](Self::post_jump) returned
+    /// [`PostJump::HeldAsFlow`], these are that sample's values.
+    pub fn take_held_values(&mut self) -> Vec<f64> {
+        std::mem::take(&mut self.held)
+    }
+
+    /// Gives the buffer of [`take_held_values`](Self::take_held_values) back.
+    pub fn restore_held_values(&mut self, held: Vec<f64>) {
+        self.held = held;
+    }
+
+    /// Takes the held pre-jump sample of a run that ended before its jump
+    /// was known (the sink writes it as its last sample).
+    pub fn take_unfinished(&mut self) -> Option<(HybridTime, Vec<f64>)> {
+        let at = self.held_at.take()?;
+        (!self.visible).then(|| (at, std::mem::take(&mut self.held)))
     }
 }
 

@@ -1,6 +1,6 @@
 use serde_json::{Value, json};
 
-use super::json::{JumpRecordJson, SampleRecord, Values, jump_schema, rule_indices, sample_schema};
+use super::json::{RecordWriter, jump_schema, push_f64, rule_indices, sample_schema};
 use super::plot::{Figure, Panel, Series};
 use super::*;
 use crate::layout::{Entry, Field, Layout, Shape};
@@ -56,14 +56,14 @@ fn layouts_are_checked_against_their_dimension() {
 fn records_follow_the_layout_shapes() {
     let (layout, dim) = rich_layout();
     let x: Vec<f64> = (0..dim).map(|k| k as f64 + 0.5).collect();
-    let rec = SampleRecord {
-        at: HybridTime::new(0.25, 3),
-        values: Values {
-            layout: &layout,
-            x: &x,
-        },
-    };
-    let v: Value = serde_json::from_slice(&serde_json::to_vec(&rec).unwrap()).unwrap();
+    let mut out = Vec::new();
+    RecordWriter::new(&layout, &[]).sample(&mut out, HybridTime::new(0.25, 3), &x);
+    let v: Value = serde_json::from_slice(&out).unwrap();
+    // Compact, fields in layout order, shortest round-trip numbers.
+    assert_eq!(
+        String::from_utf8(out).unwrap(),
+        r#"{"t":0.25,"j":3,"h":0.5,"x":[1.5,2.5],"P":{"rows":2,"cols":2,"data":[3.5,4.5,5.5,6.5]},"agent":[{"xhat":[7.5,8.5],"s":9.5},{"xhat":[10.5,11.5],"s":12.5}]}"#
+    );
     assert_eq!(
         v,
         json!({
@@ -77,20 +77,24 @@ fn records_follow_the_layout_shapes() {
 #[test]
 fn jump_records_carry_rule_index_pre_and_post() {
     let layout = Layout::scalars(&["h", "v"]);
-    let rec = JumpRecordJson {
-        at: HybridTime::new(1.5, 0),
-        rule: "transmit[2]",
-        rule_id: 4,
-        pre: Values {
-            layout: &layout,
-            x: &[0.0, -3.0],
-        },
-        post: Values {
-            layout: &layout,
-            x: &[0.0, 2.4],
-        },
-    };
-    let v: Value = serde_json::to_value(&rec).unwrap();
+    let rules: Vec<String> = ["a", "b", "c", "d", "transmit[2]"].map(String::from).into();
+    let writer = RecordWriter::new(&layout, &rules);
+    let mut out = Vec::new();
+    let at = HybridTime::new(1.5, 0);
+    writer.jump(&mut out, at, 4, "", &[0.0, -3.0], &[0.0, 2.4]);
+    let v: Value = serde_json::from_slice(&out).unwrap();
+    assert_eq!(
+        String::from_utf8(out).unwrap(),
+        r#"{"t":1.5,"j":0,"rule":"transmit[2]","rule_id":4,"index":[2],"pre":{"h":0.0,"v":-3.0},"post":{"h":0.0,"v":2.4}}"#
+    );
+    // A rule the writer does not know is written under the given name.
+    let mut other = Vec::new();
+    writer.jump(&mut other, at, 7, "#7", &[0.0, -3.0], &[0.0, 2.4]);
+    let other: Value = serde_json::from_slice(&other).unwrap();
+    assert_eq!(
+        (other["rule"].as_str(), other["rule_id"].as_u64()),
+        (Some("#7"), Some(7))
+    );
     assert_eq!(
         v,
         json!({"t": 1.5, "j": 0, "rule": "transmit[2]", "rule_id": 4, "index": [2],
@@ -99,6 +103,94 @@ fn jump_records_carry_rule_index_pre_and_post() {
     assert_eq!(rule_indices("edge[1, 3]"), Some(vec![1, 3]));
     assert_eq!(rule_indices("impact"), None);
     assert_eq!(rule_indices("odd[i]"), None);
+}
+
+#[test]
+fn families_of_every_form_and_empty_layouts_are_written() {
+    let member = |shape, offset| vec![field("", shape, offset)];
+    let family = |name: &str, members: Vec<Vec<Field>>| Entry::Family {
+        name: name.into(),
+        labels: (1..=members.len()).map(|k| k.to_string()).collect(),
+        members,
+    };
+    let layout = Layout {
+        entries: vec![
+            family(
+                "z",
+                vec![member(Shape::Scalar, 0), member(Shape::Scalar, 1)],
+            ),
+            family("xh", vec![member(Shape::Vector(2), 2)]),
+            family(
+                "m",
+                vec![
+                    member(Shape::Matrix { rows: 1, cols: 2 }, 4),
+                    member(Shape::Vector(1), 6),
+                ],
+            ),
+        ],
+    };
+    let x: Vec<f64> = (0..7).map(f64::from).collect();
+    let mut out = Vec::new();
+    RecordWriter::new(&layout, &[]).sample(&mut out, HybridTime::new(0.0, 0), &x);
+    assert_eq!(
+        String::from_utf8(out).unwrap(),
+        r#"{"t":0.0,"j":0,"z":[0.0,1.0],"xh":[{"data":[2.0,3.0]}],"m":[{"rows":1,"cols":2,"data":[4.0,5.0]},{"rows":1,"cols":1,"data":[6.0]}]}"#
+    );
+    let mut empty = Vec::new();
+    RecordWriter::new(&Layout::default(), &[]).sample(&mut empty, HybridTime::new(2.5, 7), &[]);
+    assert_eq!(empty, br#"{"t":2.5,"j":7}"#);
+}
+
+#[test]
+fn numbers_are_written_in_shortest_round_trip_form() {
+    let cases = [
+        (f64::EPSILON, "2.220446049250313e-16"),
+        (0.1 + 0.2, "0.30000000000000004"),
+        (1e300, "1e+300"),
+        (-0.0, "-0.0"),
+        (5e-324, "5e-324"),
+        (123456.0, "123456.0"),
+    ];
+    for (v, text) in cases {
+        let mut out = Vec::new();
+        push_f64(&mut out, v);
+        assert_eq!(std::str::from_utf8(&out).unwrap(), text);
+        let mut buf = zmij::Buffer::new();
+        assert_eq!(super::csv::number_text(v, &mut buf), text);
+        let back: f64 = text.parse().unwrap();
+        assert_eq!(back.to_bits(), v.to_bits());
+    }
+    let mut buf = zmij::Buffer::new();
+    assert_eq!(super::csv::number_text(f64::NAN, &mut buf), "NaN");
+    assert_eq!(super::csv::number_text(f64::NEG_INFINITY, &mut buf), "-inf");
+}
+
+#[test]
+fn jump_filter_hides_jumps_of_unlogged_rules() {
+    // Rule 0 logged, rule 1 (a redraw) not.
+    let mut f = JumpFilter::new(&[true, false]);
+    let at = HybridTime::new(1.0, 0);
+    // A jump of rule 1 alone: nothing written until the post-jump sample,
+    // then the held pre-jump sample as a flow sample.
+    assert!(f.hold(at, &[1.0, 2.0]));
+    assert_eq!(f.jump(1), (false, false));
+    assert_eq!(f.post_jump(), PostJump::HeldAsFlow(at));
+    assert_eq!(f.take_held_values(), [1.0, 2.0]);
+    // Rules 1 and 0 in one jump: the pre-jump sample is written before the
+    // first logged record, once; the post-jump sample is written.
+    assert!(f.hold(at, &[3.0, 4.0]));
+    assert_eq!(f.jump(1), (false, false));
+    assert_eq!(f.jump(0), (true, true));
+    assert_eq!(f.jump(0), (true, false));
+    assert_eq!(f.post_jump(), PostJump::Write);
+    // A run that ends after a held sample keeps it.
+    assert!(f.hold(at, &[5.0, 6.0]));
+    assert_eq!(f.take_unfinished(), Some((at, vec![5.0, 6.0])));
+    // Without unlogged rules nothing is held.
+    let mut all = JumpFilter::new(&[true, true]);
+    assert!(!all.hold(at, &[1.0]));
+    assert_eq!(all.jump(1), (true, false));
+    assert_eq!(all.post_jump(), PostJump::Write);
 }
 
 /// Schemas use no `$ref`, no unions and no arrays of arrays (what Foxglove

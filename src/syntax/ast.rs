@@ -75,6 +75,9 @@ pub enum Item {
     /// instance (the target names it, `node[i]`), whose jump rules are
     /// one part of the composite jump (see `check::compose`).
     Part(Target, Vec<Item>),
+    /// `log { vars = [..]; rules = [..]; every = N; dt = DT }`: what
+    /// `hybsim run` logs.
+    Log(LogBlock),
 }
 
 /// `import "path"`.
@@ -117,6 +120,28 @@ pub struct InstanceDecl {
     /// Parameter values and input connections, by name.
     pub args: Vec<(Ident, Expr)>,
     /// The whole declaration.
+    pub span: Span,
+}
+
+/// `log { vars = [xh, err]; rules = [event, v.redraw]; every = 10 }`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LogBlock {
+    /// `KEY = [names]` lists (`vars`, `rules`), in order.
+    pub lists: Vec<(Ident, Vec<LogName>)>,
+    /// `KEY = value` settings (`every`, `dt`).
+    pub settings: Vec<Setting>,
+    /// The `log` word.
+    pub span: Span,
+}
+
+/// A name in a `log` list: `xh`, `xh[2]`, `e[1, 3]`, `v.redraw`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LogName {
+    /// The name and its family index, if any.
+    pub target: Target,
+    /// The part after a dot (`redraw` in `v.redraw`).
+    pub suffix: Option<Ident>,
+    /// The whole name.
     pub span: Span,
 }
 

@@ -254,7 +254,7 @@ fn describe(rule: Rule) -> Option<&'static str> {
         Rule::when_clause | Rule::every_clause => "`when` or `every`",
         Rule::reset_block => "`{`",
         Rule::reset_post => "`+`",
-        Rule::sim_setting => "a setting `key = value`",
+        Rule::sim_setting | Rule::log_setting | Rule::log_key => "a setting `key = value`",
         Rule::index_list => "`[`",
         Rule::index_arg | Rule::slice | Rule::colon_all => "an index",
         Rule::transpose => "`'`",
@@ -283,6 +283,8 @@ fn describe(rule: Rule) -> Option<&'static str> {
         Rule::init_eq | Rule::init_draw => "`=` or `~` and an initial value",
         Rule::definition => "a definition `name = value`",
         Rule::state_def => "a state name",
+        Rule::log_list => "a list `vars = [names]` or `rules = [names]`",
+        Rule::log_name => "a state, output or rule name (`xh`, `xh[2]`, `v.redraw`)",
         _ => return None,
     })
 }

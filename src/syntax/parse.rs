@@ -359,6 +359,43 @@ fn item(p: Pair<'_, Rule>) -> Res<Item> {
                 span,
             })
         }
+        Rule::log_block => {
+            let word = first(&mut inner, span)?.as_span().into();
+            let mut lists = Vec::new();
+            let mut settings = Vec::new();
+            for s in inner {
+                let sspan = s.as_span().into();
+                let rule = s.as_rule();
+                let mut it = s.into_inner();
+                let key = ident(first(&mut it, sspan)?);
+                if rule == Rule::log_setting {
+                    settings.push(Setting {
+                        key,
+                        value: expr(first(&mut it, sspan)?)?,
+                    });
+                    continue;
+                }
+                let names = it
+                    .map(|n| {
+                        let nspan: Span = n.as_span().into();
+                        let mut parts = n.into_inner();
+                        let target = target(first(&mut parts, nspan)?)?;
+                        let suffix = parts.next().map(ident);
+                        Ok(LogName {
+                            target,
+                            suffix,
+                            span: nspan,
+                        })
+                    })
+                    .collect::<Res<_>>()?;
+                lists.push((key, names));
+            }
+            Item::Log(LogBlock {
+                lists,
+                settings,
+                span: word,
+            })
+        }
         Rule::for_item | Rule::together_for | Rule::sub_for => {
             let b = binder(first(&mut inner, span)?)?;
             let items = inner.map(item).collect::<Res<_>>()?;

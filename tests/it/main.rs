@@ -19,6 +19,7 @@ mod intermittent_model;
 mod intermittent_reproduction;
 mod jit;
 mod lang;
+mod logging;
 mod models;
 mod muehlebach;
 mod outputs;

@@ -1,0 +1,383 @@
+//! Checking a model's `log { … }` block: which states and outputs (`vars`),
+//! which jump rules (`rules`) and which flow samples (`every`, `dt`)
+//! `hybsim run` logs. Without a block every state and output is logged, and
+//! every rule but the noise redraws.
+
+use std::collections::HashMap;
+
+use super::error::CheckError;
+use super::expr::suggest;
+use super::model::CheckedRule;
+use super::{Checker, Sym};
+use crate::source::Span;
+use crate::syntax::ast::{Item, LogBlock, LogName};
+
+/// A model's logging choices after checking (the defaults without a `log`
+/// block).
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct LogDecl {
+    /// `vars`: the states and outputs logged, as the model names them
+    /// (`xh`, `xh[2]`, `e[1,3]`); `None`: all of them.
+    pub vars: Option<Vec<String>>,
+    /// Per rule (the model's order): whether its jumps are logged. Default:
+    /// every rule but the redraws of held `noise`.
+    pub rules: Vec<bool>,
+    /// `every = N`: every N-th flow sample.
+    pub every: Option<u64>,
+    /// `dt = DT`: flow samples at least DT apart.
+    pub dt: Option<f64>,
+}
+
+/// The keys a `log` block knows.
+const KEYS: &[&str] = &["vars", "rules", "every", "dt"];
+
+/// Checks the `log` block among the top-level `items` (at most one; none
+/// inside `for`) against the model's rules.
+pub(crate) fn check_logs(c: &mut Checker, items: &[Item], rules: &[CheckedRule]) -> LogDecl {
+    let mut decl = LogDecl {
+        rules: rules.iter().map(|r| !r.redraw).collect(),
+        ..LogDecl::default()
+    };
+    let mut first: Option<Span> = None;
+    for it in items {
+        match it {
+            Item::Log(b) => match first {
+                Some(first) => c.err(CheckError::Duplicate {
+                    name: "log".into(),
+                    span: b.span,
+                    first,
+                }),
+                None => {
+                    first = Some(b.span);
+                    check_block(c, b, rules, &mut decl);
+                }
+            },
+            Item::For(_, inner) => nested(c, inner),
+            _ => {}
+        }
+    }
+    decl
+}
+
+/// Reports `log` blocks inside `for` loops.
+fn nested(c: &mut Checker, items: &[Item]) {
+    for it in items {
+        match it {
+            Item::Log(b) => c.err(CheckError::Unsupported {
+                what: "a `log` block inside `for` (write it once, at the top level)".into(),
+                span: b.span,
+            }),
+            Item::For(_, inner) => nested(c, inner),
+            _ => {}
+        }
+    }
+}
+
+fn check_block(c: &mut Checker, b: &LogBlock, rules: &[CheckedRule], decl: &mut LogDecl) {
+    let mut seen: HashMap<&str, Span> = HashMap::new();
+    let keys = b
+        .lists
+        .iter()
+        .map(|(k, _)| k)
+        .chain(b.settings.iter().map(|s| &s.key));
+    for key in keys {
+        if let Some(&first) = seen.get(key.name.as_str()) {
+            c.err(CheckError::Duplicate {
+                name: key.name.clone(),
+                span: key.span,
+                first,
+            });
+        }
+        seen.insert(&key.name, key.span);
+    }
+    for (key, names) in &b.lists {
+        match key.name.as_str() {
+            "vars" => {
+                let vars: Vec<String> = names.iter().filter_map(|n| var_name(c, n)).collect();
+                decl.vars = Some(vars);
+            }
+            "rules" => {
+                let mut chosen = vec![false; rules.len()];
+                for n in names {
+                    for k in rule_indices(c, n, rules) {
+                        chosen[k] = true;
+                    }
+                }
+                decl.rules = chosen;
+            }
+            other => c.err(CheckError::UnknownSetting {
+                name: other.to_string(),
+                span: key.span,
+                suggestion: suggest(other, KEYS.iter().copied()),
+            }),
+        }
+    }
+    for s in &b.settings {
+        let key = s.key.name.as_str();
+        let bad = |c: &mut Checker, reason: &str| {
+            c.err(CheckError::BadSetting {
+                key: key.to_string(),
+                reason: reason.to_string(),
+                span: s.value.span,
+            })
+        };
+        match key {
+            "every" => match c.const_int(&s.value, "`every`") {
+                Some(n) if n >= 1 => decl.every = Some(n as u64),
+                Some(_) => bad(c, "at least 1 (1 keeps every flow sample)"),
+                None => {}
+            },
+            "dt" => match c.const_scalar(&s.value, "`dt`") {
+                Some(dt) if dt.is_finite() && dt > 0.0 => decl.dt = Some(dt),
+                Some(_) => bad(c, "a positive number of time units"),
+                None => {}
+            },
+            "vars" | "rules" => c.err(CheckError::Expected {
+                expected: format!("a list of names `{key} = [a, b[2]]`"),
+                found: "an expression".into(),
+                span: s.value.span,
+            }),
+            other => c.err(CheckError::UnknownSetting {
+                name: other.to_string(),
+                span: s.key.span,
+                suggestion: suggest(other, KEYS.iter().copied()),
+            }),
+        }
+    }
+}
+
+/// The family label of `n`'s index (`2`, `1,3`), if it has one.
+fn label_of(c: &mut Checker, n: &LogName) -> Option<Option<String>> {
+    match n.target.indices.as_slice() {
+        [] => Some(None),
+        [args] => {
+            let key = c.family_key(args)?;
+            let words: Vec<String> = key.iter().map(|i| i.to_string()).collect();
+            Some(Some(words.join(",")))
+        }
+        _ => {
+            c.err(CheckError::Expected {
+                expected: "one index list (`xh[2]`, `e[1, 3]`)".into(),
+                found: "several index lists".into(),
+                span: n.span,
+            });
+            None
+        }
+    }
+}
+
+/// The name of a state or output to log (`xh`, `xh[2]`), or an error.
+fn var_name(c: &mut Checker, n: &LogName) -> Option<String> {
+    let mut name = n.target.name.name.clone();
+    if let Some(suffix) = &n.suffix {
+        // A state or output of a subsystem instance: `ball.h`.
+        let dotted = format!("{name}.{}", suffix.name);
+        if !n.target.indices.is_empty() || !c.syms.contains_key(&dotted) {
+            c.err(CheckError::Expected {
+                expected: "a state or an output (`x`, `xh[2]`, `ball.h`)".into(),
+                found: format!("`{}`", dotted),
+                span: n.span,
+            });
+            return None;
+        }
+        name = dotted;
+    }
+    let name = name.as_str();
+    let family = match c.syms.get(name) {
+        Some(Sym::State { .. } | Sym::Output { .. }) => false,
+        Some(Sym::StateFamily { .. } | Sym::OutputFamily { .. }) => true,
+        Some(other) => {
+            let found = other.kind_words().to_string();
+            c.err(CheckError::Expected {
+                expected: "a state or an output".into(),
+                found,
+                span: n.target.name.span,
+            });
+            return None;
+        }
+        None => {
+            let candidates: Vec<&str> = c
+                .syms
+                .iter()
+                .filter(|(_, s)| {
+                    matches!(
+                        s,
+                        Sym::State { .. }
+                            | Sym::StateFamily { .. }
+                            | Sym::Output { .. }
+                            | Sym::OutputFamily { .. }
+                    )
+                })
+                .map(|(k, _)| k.as_str())
+                .collect();
+            let suggestion = suggest(name, candidates.into_iter());
+            c.err(CheckError::UnknownName {
+                name: name.to_string(),
+                span: n.target.name.span,
+                suggestion,
+            });
+            return None;
+        }
+    };
+    let label = label_of(c, n)?;
+    match (family, label) {
+        (_, None) => Some(name.to_string()),
+        (false, Some(_)) => {
+            c.err(CheckError::Expected {
+                expected: format!(
+                    "`{name}` whole (only members of families are chosen one by one)"
+                ),
+                found: "an index".into(),
+                span: n.span,
+            });
+            None
+        }
+        (true, Some(label)) => {
+            let key: Vec<i64> = label.split(',').filter_map(|s| s.parse().ok()).collect();
+            let present = match c.syms.get(name) {
+                Some(Sym::StateFamily { members, .. }) => members.contains_key(&key),
+                Some(Sym::OutputFamily { members, .. }) => members.contains_key(&key),
+                _ => false,
+            };
+            if !present {
+                let members = c.family_members_words(name);
+                c.err(CheckError::FamilyOutOfRange {
+                    name: name.to_string(),
+                    index: label,
+                    members,
+                    span: n.span,
+                });
+                return None;
+            }
+            Some(format!("{name}[{label}]"))
+        }
+    }
+}
+
+/// The rules a name in `rules = [..]` selects, or an error (and none).
+fn rule_indices(c: &mut Checker, n: &LogName, rules: &[CheckedRule]) -> Vec<usize> {
+    let Some(label) = label_of(c, n) else {
+        return Vec::new();
+    };
+    let base = n.target.name.name.as_str();
+    let suffix = n.suffix.as_ref().map(|s| s.name.as_str());
+    let selection = RuleSelection {
+        base,
+        label: label.as_deref(),
+        suffix,
+    };
+    let found: Vec<usize> = rules
+        .iter()
+        .enumerate()
+        .filter(|(_, r)| selection.matches(&r.name))
+        .map(|(k, _)| k)
+        .collect();
+    if found.is_empty() {
+        let name = selection.to_string();
+        // Families and noises by their own names too (`fire` for `fire[2]`).
+        let mut candidates: Vec<String> = Vec::new();
+        for r in rules {
+            let p = RuleSelection::parse(&r.name);
+            let whole = RuleSelection { label: None, ..p }.to_string();
+            for c in [r.name.clone(), whole] {
+                if !candidates.contains(&c) {
+                    candidates.push(c);
+                }
+            }
+        }
+        let suggestion = suggest(&name, candidates.iter().map(|s| s.as_str()));
+        c.err(CheckError::UnknownName {
+            name,
+            span: n.span,
+            suggestion,
+        });
+    }
+    found
+}
+
+/// A name that selects jump rules: `fire` (a rule, or every member of the
+/// family `fire`), `fire[2]`, `v.redraw` (the redraws of the noise `v`, or of
+/// every member of the noise family `v`), `v[2].redraw`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct RuleSelection<'a> {
+    /// The name before any index.
+    pub base: &'a str,
+    /// The family label (`2`, `1,3`), if given.
+    pub label: Option<&'a str>,
+    /// The part after the dot (`redraw`), if any.
+    pub suffix: Option<&'a str>,
+}
+
+impl<'a> RuleSelection<'a> {
+    /// Splits a rule name or selection as written (`fire[1, 3]`,
+    /// `v[2].redraw`); spaces inside the index are ignored by
+    /// [`matches`](Self::matches).
+    pub fn parse(name: &'a str) -> Self {
+        let name = name.trim();
+        // A suffix follows the last `.` that is not inside brackets.
+        let (head, suffix) = match name.rsplit_once('.') {
+            Some((h, s)) if !s.contains(']') && !s.is_empty() => (h, Some(s.trim())),
+            _ => (name, None),
+        };
+        let (base, label) = match head.strip_suffix(']').and_then(|h| h.split_once('[')) {
+            Some((b, l)) => (b.trim(), Some(l)),
+            None => (head.trim(), None),
+        };
+        Self {
+            base,
+            label,
+            suffix,
+        }
+    }
+
+    /// Whether the rule named `rule` (as the model names its rules) is
+    /// selected.
+    pub fn matches(&self, rule: &str) -> bool {
+        let r = RuleSelection::parse(rule);
+        let same_label =
+            |a: &str, b: &str| a.split(',').map(str::trim).eq(b.split(',').map(str::trim));
+        r.base == self.base
+            && r.suffix == self.suffix
+            && match (self.label, r.label) {
+                (None, _) => true,
+                (Some(a), Some(b)) => same_label(a, b),
+                (Some(_), None) => false,
+            }
+    }
+}
+
+impl std::fmt::Display for RuleSelection<'_> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{}", self.base)?;
+        if let Some(l) = self.label {
+            write!(f, "[{l}]")?;
+        }
+        if let Some(s) = self.suffix {
+            write!(f, ".{s}")?;
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::RuleSelection;
+
+    #[test]
+    fn rule_selections_match_rules_families_and_redraws() {
+        let sel = |s| RuleSelection::parse(s);
+        assert!(sel("event").matches("event"));
+        assert!(sel("event").matches("event[3]"));
+        assert!(sel("event[3]").matches("event[3]"));
+        assert!(!sel("event[3]").matches("event[2]"));
+        assert!(!sel("event").matches("event.redraw"));
+        assert!(sel("edge[1, 3]").matches("edge[1,3]"));
+        assert!(!sel("edge[1]").matches("edge[1,3]"));
+        assert!(sel("v.redraw").matches("v.redraw"));
+        assert!(sel("v.redraw").matches("v[2].redraw"));
+        assert!(sel("v[2].redraw").matches("v[2].redraw"));
+        assert!(!sel("v").matches("v.redraw"));
+        assert!(!sel("eve").matches("event"));
+        assert_eq!(sel("v[2].redraw").to_string(), "v[2].redraw");
+    }
+}

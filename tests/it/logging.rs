@@ -1,0 +1,341 @@
+//! Selective logging through the real binary: the model's `log { … }` block
+//! and `--log-vars`/`--log-rules` choose what the MCAP and CSV files hold;
+//! noise redraws are left out unless asked for; unknown names are located
+//! errors (block) or usage errors (flags); CSV numbers read back bit for bit
+//! equal to the MCAP values.
+
+use std::collections::BTreeMap;
+use std::path::Path;
+
+use serde_json::Value;
+
+use super::util::{code, hybsim, stderr};
+
+/// Two agents with a vector state family, a scalar, a held noise redrawn
+/// every 0.01, an output family and a plain output, a rule family.
+const MODEL: &str = "model agents
+param N = 2
+noise v ~ normal(0, 1) every 0.01
+state c = 0
+for i in 1..N {
+    state xh[i] = [i; 0]
+    state k[i] = 0
+    output e[i] = xh[i] - [1; 1]
+}
+output total = c + v
+flow {
+    for i in 1..N {
+        xh[i]' = [xh[i][2]; -xh[i][1]]
+        k[i]' = 1
+    }
+    c' = 1
+}
+for i in 1..N {
+    jump fire[i] when xh[i][1] >= 0.5 && k[i] >= 0.03 * i { k[i]+ = 0 }
+}
+sim { T = 1; J = 1000; seed = 3 }
+";
+
+fn write_model(dir: &Path, extra: &str) -> String {
+    let path = dir.join("agents.hyb");
+    std::fs::write(&path, format!("{MODEL}{extra}")).unwrap();
+    path.to_str().unwrap().to_string()
+}
+
+/// Runs `hybsim run MODEL -o out.mcap --csv out.csv --quiet ARGS`, expecting success.
+fn run(dir: &Path, model: &str, args: &[&str]) -> (Vec<u8>, String) {
+    let mut all = vec![
+        "run", model, "-o", "out.mcap", "--csv", "out.csv", "--quiet",
+    ];
+    all.extend(args);
+    let o = hybsim(dir, &all);
+    assert_eq!(code(&o), 0, "{}", stderr(&o));
+    let mcap = std::fs::read(dir.join("out.mcap")).unwrap();
+    let csv = std::fs::read_to_string(dir.join("out.csv")).unwrap();
+    (mcap, csv)
+}
+
+/// Messages per topic, as JSON, and each topic's schema.
+fn messages(bytes: &[u8]) -> (BTreeMap<String, Vec<Value>>, BTreeMap<String, Value>) {
+    let mut topics: BTreeMap<String, Vec<Value>> = BTreeMap::new();
+    let mut schemas = BTreeMap::new();
+    for m in mcap::MessageStream::new(bytes).unwrap() {
+        let m = m.unwrap();
+        let schema = m.channel.schema.as_ref().unwrap();
+        schemas
+            .entry(m.channel.topic.clone())
+            .or_insert_with(|| serde_json::from_slice(&schema.data).unwrap());
+        topics
+            .entry(m.channel.topic.clone())
+            .or_default()
+            .push(serde_json::from_slice(&m.data).unwrap());
+    }
+    (topics, schemas)
+}
+
+fn keys(v: &Value) -> Vec<String> {
+    v.as_object().unwrap().keys().cloned().collect()
+}
+
+fn rules_of(topics: &BTreeMap<String, Vec<Value>>) -> BTreeMap<String, usize> {
+    let mut n = BTreeMap::new();
+    for r in topics.get("/hybsim/jumps").into_iter().flatten() {
+        *n.entry(r["rule"].as_str().unwrap().to_string())
+            .or_default() += 1;
+    }
+    n
+}
+
+/// Jumps per rule of the whole run (`hybsim.result`, every rule counted).
+fn result_jumps(bytes: &[u8]) -> BTreeMap<String, u64> {
+    let summary = mcap::Summary::read(bytes).unwrap().unwrap();
+    for index in &summary.metadata_indexes {
+        let meta = mcap::read::metadata(bytes, index).unwrap();
+        if meta.name == "hybsim.result" {
+            return serde_json::from_str(&meta.metadata["jumps"]).unwrap();
+        }
+    }
+    panic!("no hybsim.result");
+}
+
+#[test]
+fn redraws_are_left_out_by_default_and_logged_when_asked() {
+    let dir = tempfile::tempdir().unwrap();
+    let model = write_model(dir.path(), "");
+    let (bytes, csv) = run(dir.path(), &model, &[]);
+    let (topics, _) = messages(&bytes);
+    let jumps = result_jumps(&bytes);
+    assert!(jumps["v.redraw"] >= 99, "{jumps:?}");
+    let logged = rules_of(&topics);
+    assert!(!logged.contains_key("v.redraw"), "{logged:?}");
+    // Every jump of the fire rules is logged, with its pre- and post-jump samples.
+    let fires = jumps["fire[1]"] + jumps["fire[2]"];
+    assert!(fires >= 2, "{jumps:?}");
+    assert_eq!(logged.values().sum::<usize>() as u64, fires);
+    let states = &topics["/hybsim/state"];
+    let kinds: Vec<&str> = csv
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').nth(2).unwrap())
+        .collect();
+    assert_eq!(kinds.len(), states.len());
+    assert_eq!(
+        kinds.iter().filter(|k| **k == "pre_jump").count() as u64,
+        fires
+    );
+    assert_eq!(
+        kinds.iter().filter(|k| **k == "post_jump").count() as u64,
+        fires
+    );
+    // j counts every jump, the hidden ones too.
+    let j_end = states.last().unwrap()["j"].as_u64().unwrap();
+    assert_eq!(j_end, jumps.values().sum::<u64>());
+
+    let (bytes, csv) = run(dir.path(), &model, &["--log-rules", "v.redraw,fire"]);
+    let (topics, _) = messages(&bytes);
+    let logged = rules_of(&topics);
+    assert_eq!(logged["v.redraw"] as u64, jumps["v.redraw"]);
+    assert_eq!(
+        logged.values().sum::<usize>() as u64,
+        jumps.values().sum::<u64>()
+    );
+    let post = csv.lines().filter(|l| l.contains(",post_jump,")).count() as u64;
+    assert!(post >= jumps["v.redraw"], "{post}");
+
+    // No jump at all; the same seed gives the same file.
+    let (none, _) = run(dir.path(), &model, &["--log-rules", ""]);
+    let (topics, _) = messages(&none);
+    assert!(!topics.contains_key("/hybsim/jumps"));
+    let (again, _) = run(dir.path(), &model, &["--log-rules", ""]);
+    assert_eq!(none, again);
+}
+
+#[test]
+fn log_block_and_flags_select_states_outputs_and_rules() {
+    let dir = tempfile::tempdir().unwrap();
+    let model = write_model(
+        dir.path(),
+        "log { vars = [xh[2], total]; rules = [fire[1]]; every = 2 }\n",
+    );
+    let (bytes, csv) = run(dir.path(), &model, &[]);
+    let (topics, schemas) = messages(&bytes);
+    let state = &topics["/hybsim/state"][0];
+    assert_eq!(keys(state), ["j", "t", "xh"]);
+    assert_eq!(
+        state["xh"].as_array().unwrap().len(),
+        1,
+        "one member: {state}"
+    );
+    assert_eq!(keys(&topics["/hybsim/outputs"][0]), ["j", "t", "total"]);
+    assert_eq!(
+        keys(&schemas["/hybsim/state"]["properties"]),
+        ["j", "t", "xh"]
+    );
+    assert_eq!(rules_of(&topics).keys().collect::<Vec<_>>(), ["fire[1]"]);
+    let header = csv.lines().next().unwrap();
+    assert_eq!(header, "t,j,kind,xh[2][1],xh[2][2],total");
+
+    // Flags replace the block's lists.
+    let (bytes, csv) = run(
+        dir.path(),
+        &model,
+        &["--log-vars", "c,e", "--log-rules", "fire"],
+    );
+    let (topics, _) = messages(&bytes);
+    assert_eq!(keys(&topics["/hybsim/state"][0]), ["c", "j", "t"]);
+    assert_eq!(keys(&topics["/hybsim/outputs"][0]), ["e", "j", "t"]);
+    let logged = rules_of(&topics);
+    assert!(
+        logged.contains_key("fire[1]") && logged.contains_key("fire[2]"),
+        "{logged:?}"
+    );
+    assert!(
+        csv.starts_with("t,j,kind,c,e[1][1],e[1][2],e[2][1],e[2][2]\n"),
+        "{csv}"
+    );
+    // Only states: no output channel at all.
+    let (bytes, _) = run(dir.path(), &model, &["--log-vars", "xh"]);
+    let (topics, _) = messages(&bytes);
+    assert!(!topics.contains_key("/hybsim/outputs"));
+}
+
+#[test]
+fn unknown_names_are_located_errors_in_the_block_and_usage_errors_in_flags() {
+    let dir = tempfile::tempdir().unwrap();
+    let cases = [
+        (
+            "log { vars = [xhat] }\n",
+            "unknown name `xhat`",
+            "did you mean `xh`?",
+        ),
+        ("log { vars = [xh[3]] }\n", "xh", "E0402"),
+        ("log { vars = [N] }\n", "a parameter", "E0304"),
+        (
+            "log { rules = [fir] }\n",
+            "unknown name `fir`",
+            "did you mean `fire`?",
+        ),
+        (
+            "log { rules = [v.redrw] }\n",
+            "unknown name `v.redrw`",
+            "E0201",
+        ),
+        (
+            "log { rulez = [fire] }\n",
+            "unknown setting `rulez`",
+            "E0204",
+        ),
+    ];
+    for (block, message, detail) in cases {
+        let model = write_model(dir.path(), block);
+        let o = hybsim(dir.path(), &["check", &model]);
+        let err = stderr(&o);
+        assert_ne!(code(&o), 0, "{block}");
+        assert!(
+            err.contains(message) && err.contains(detail),
+            "{block}: {err}"
+        );
+        // Located: file, line and column of the name (the block is the last line).
+        let line = MODEL.lines().count() + 1;
+        assert!(
+            err.contains(&format!("agents.hyb:{line}:")),
+            "{block}: {err}"
+        );
+    }
+    let model = write_model(dir.path(), "");
+    for (flag, value) in [
+        ("--log-vars", "xh,nope"),
+        ("--log-vars", "xh[3]"),
+        ("--log-rules", "fire,nope"),
+        ("--log-rules", "fire[9]"),
+    ] {
+        let o = hybsim(
+            dir.path(),
+            &["run", &model, "-o", "x.mcap", "-q", flag, value],
+        );
+        assert_eq!(code(&o), 2, "{flag} {value}: {}", stderr(&o));
+        assert!(stderr(&o).contains(&format!("`{flag} ")), "{}", stderr(&o));
+        assert!(!dir.path().join("x.mcap").exists());
+    }
+}
+
+/// The numbers of one JSON text in order, as written (strings skipped),
+/// without the `rows`/`cols` of matrices: the values of a record.
+fn numbers(text: &str) -> Vec<String> {
+    let mut out = Vec::new();
+    let mut chars = text.char_indices().peekable();
+    let mut last_key = String::new();
+    while let Some((i, ch)) = chars.next() {
+        match ch {
+            '"' => {
+                let mut s = String::new();
+                for (_, c) in chars.by_ref() {
+                    if c == '"' {
+                        break;
+                    }
+                    s.push(c);
+                }
+                last_key = s;
+            }
+            '-' | '0'..='9' => {
+                let mut end = i + 1;
+                while let Some(&(k, c)) = chars.peek() {
+                    if c.is_ascii_digit() || "+-.eE".contains(c) {
+                        chars.next();
+                        end = k + 1;
+                    } else {
+                        break;
+                    }
+                }
+                if last_key != "rows" && last_key != "cols" {
+                    out.push(text[i..end].to_string());
+                }
+                last_key.clear();
+            }
+            _ => {}
+        }
+    }
+    out
+}
+
+#[test]
+fn csv_values_equal_the_mcap_values_bit_for_bit() {
+    let dir = tempfile::tempdir().unwrap();
+    let model = Path::new(env!("CARGO_MANIFEST_DIR")).join("models/consensus_estimation.hyb");
+    let (bytes, csv) = run(
+        dir.path(),
+        model.to_str().unwrap(),
+        &["--T", "0.02", "--log-rules", "event,v.redraw"],
+    );
+    let mut states = Vec::new();
+    let mut outputs = Vec::new();
+    for m in mcap::MessageStream::new(&bytes).unwrap() {
+        let m = m.unwrap();
+        let text = std::str::from_utf8(&m.data).unwrap().to_string();
+        match m.channel.topic.as_str() {
+            "/hybsim/state" => states.push(numbers(&text)),
+            "/hybsim/outputs" => outputs.push(numbers(&text)),
+            _ => {}
+        }
+    }
+    let rows: Vec<Vec<&str>> = csv
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').collect())
+        .collect();
+    assert!(rows.len() > 200, "{}", rows.len());
+    assert_eq!((rows.len(), outputs.len()), (states.len(), states.len()));
+    for ((row, s), o) in rows.iter().zip(&states).zip(&outputs) {
+        // t, j, then the state values; the outputs message repeats t, j.
+        let mcap: Vec<&String> = s.iter().chain(o.iter().skip(2)).collect();
+        let cells: Vec<&&str> = row[..2].iter().chain(row[3..].iter()).collect();
+        assert_eq!(mcap.len(), cells.len());
+        for (a, b) in mcap.iter().zip(cells) {
+            let (a, b): (f64, f64) = (a.parse().unwrap(), b.parse().unwrap());
+            assert_eq!(a.to_bits(), b.to_bits(), "{a} {b}");
+        }
+        // Shortest form: at most 17 digits, a sign, a point and an
+        // exponent, never tens of positional zeros.
+        assert!(row.iter().all(|c| c.len() <= 24), "{row:?}");
+    }
+}
