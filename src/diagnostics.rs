@@ -4,10 +4,10 @@
 //! carets under the offending text.
 
 use codespan_reporting::diagnostic as cs;
-use codespan_reporting::files::SimpleFile;
+use codespan_reporting::files::SimpleFiles;
 use codespan_reporting::term::{self, Config, termcolor};
 
-use crate::source::{LineCol, SourceFile, Span};
+use crate::source::{LineCol, SourceFile, SourceMap, Span};
 
 /// How serious a diagnostic is.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -28,6 +28,9 @@ pub struct Label {
     pub message: String,
     /// True for the main location of the diagnostic.
     pub primary: bool,
+    /// The file the span is in when it is not the model's own text (a file
+    /// brought in by `import`); set by [`Diagnostic::locate`].
+    pub file: Option<std::sync::Arc<SourceFile>>,
 }
 
 /// One diagnostic: a stable code (e.g. `E0201`), a message, labelled source
@@ -75,6 +78,7 @@ impl Diagnostic {
             span,
             message: message.into(),
             primary: true,
+            file: None,
         });
         self
     }
@@ -85,6 +89,7 @@ impl Diagnostic {
             span,
             message: message.into(),
             primary: false,
+            file: None,
         });
         self
     }
@@ -106,17 +111,45 @@ impl Diagnostic {
         self.labels.iter().find(|l| l.primary).map(|l| l.span)
     }
 
-    /// Line and column of the primary span in `src`.
+    /// Line and column of the primary span in `src` (or in the imported
+    /// file the label is in, see [`Self::primary_file`]).
     pub fn line_col(&self, src: &SourceFile) -> Option<LineCol> {
-        self.primary_span().map(|s| src.line_col(s.start))
+        let l = self.labels.iter().find(|l| l.primary)?;
+        Some(l.file.as_deref().unwrap_or(src).line_col(l.span.start))
     }
 
-    fn to_codespan(&self, src: &SourceFile) -> cs::Diagnostic<()> {
-        let len = src.text().len();
-        let clamp = |s: Span| {
-            let start = s.start.min(len);
-            start..s.end.clamp(start, len)
-        };
+    /// The name of the file of the primary span: `src`'s, or the imported
+    /// file's.
+    pub fn primary_file<'a>(&'a self, src: &'a SourceFile) -> &'a str {
+        match self.labels.iter().find(|l| l.primary) {
+            Some(Label { file: Some(f), .. }) => f.name(),
+            _ => src.name(),
+        }
+    }
+
+    /// Moves the labels whose spans are in imported files (spans of the
+    /// model's offset space, see [`SourceMap`]) into those files.
+    #[must_use]
+    pub fn locate(mut self, map: &SourceMap) -> Self {
+        for l in &mut self.labels {
+            if l.file.is_none()
+                && let Some((file, span)) = map.locate(l.span)
+            {
+                l.file = Some(file);
+                l.span = span;
+            }
+        }
+        self
+    }
+
+    /// The diagnostic for codespan, with each label in its file: `src` is
+    /// file 0 of `files`, imported files are added as labels need them.
+    fn to_codespan(
+        &self,
+        src: &SourceFile,
+        files: &mut SimpleFiles<String, String>,
+        ids: &mut Vec<String>,
+    ) -> cs::Diagnostic<usize> {
         let severity = match self.severity {
             Severity::Error => cs::Severity::Error,
             Severity::Warning => cs::Severity::Warning,
@@ -130,7 +163,18 @@ impl Diagnostic {
                 } else {
                     cs::LabelStyle::Secondary
                 };
-                cs::Label::new(style, (), clamp(l.span)).with_message(l.message.clone())
+                let file = l.file.as_deref().unwrap_or(src);
+                let id = match ids.iter().position(|n| n == file.name()) {
+                    Some(id) => id,
+                    None => {
+                        ids.push(file.name().to_string());
+                        files.add(file.name().to_string(), file.text().to_string())
+                    }
+                };
+                let len = file.text().len();
+                let start = l.span.start.min(len);
+                let range = start..l.span.end.clamp(start, len);
+                cs::Label::new(style, id, range).with_message(l.message.clone())
             })
             .collect();
         let mut notes = self.notes.clone();
@@ -152,19 +196,24 @@ impl Diagnostic {
 /// `help`.
 pub fn to_json(diag: &Diagnostic, src: &SourceFile) -> serde_json::Value {
     use serde_json::json;
-    let span_json = |s: Span| (src.line_col(s.start), src.line_col(s.end.max(s.start)));
+    let span_json = |l: &Label| {
+        let f = l.file.as_deref().unwrap_or(src);
+        let s = l.span;
+        (f.line_col(s.start), f.line_col(s.end.max(s.start)))
+    };
     let labels: Vec<serde_json::Value> = diag
         .labels
         .iter()
         .map(|l| {
-            let (a, b) = span_json(l.span);
+            let (a, b) = span_json(l);
+            let file = l.file.as_deref().unwrap_or(src).name();
             json!({
-                "line": a.line, "column": a.col, "end_line": b.line, "end_column": b.col,
-                "message": l.message, "primary": l.primary,
+                "file": file, "line": a.line, "column": a.col, "end_line": b.line,
+                "end_column": b.col, "message": l.message, "primary": l.primary,
             })
         })
         .collect();
-    let primary = diag.primary_span().map(span_json);
+    let primary = diag.labels.iter().find(|l| l.primary).map(span_json);
     json!({
         "code": diag.code,
         "severity": match diag.severity {
@@ -172,7 +221,7 @@ pub fn to_json(diag: &Diagnostic, src: &SourceFile) -> serde_json::Value {
             Severity::Warning => "warning",
         },
         "message": diag.message,
-        "file": src.name(),
+        "file": diag.primary_file(src),
         "line": primary.map(|(a, _)| a.line),
         "column": primary.map(|(a, _)| a.col),
         "end_line": primary.map(|(_, b)| b.line),
@@ -187,11 +236,13 @@ pub fn to_json(diag: &Diagnostic, src: &SourceFile) -> serde_json::Value {
 /// `┌─ file:line:col`, the source line with carets, notes and help. With
 /// `color`, ANSI colour codes are included (for terminals).
 pub fn render(diags: &[Diagnostic], src: &SourceFile, color: bool) -> String {
-    let file = SimpleFile::new(src.name(), src.text());
+    let mut file = SimpleFiles::new();
+    let mut ids = vec![src.name().to_string()];
+    file.add(src.name().to_string(), src.text().to_string());
     let config = Config::default();
     let mut out = String::new();
     for d in diags {
-        let cd = d.to_codespan(src);
+        let cd = d.to_codespan(src, &mut file, &mut ids);
         if color {
             let mut buf = termcolor::Buffer::ansi();
             if term::emit_to_write_style(&mut buf, &config, &file, &cd).is_ok() {

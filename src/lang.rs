@@ -23,7 +23,7 @@ use std::str::FromStr;
 
 use crate::check;
 use crate::diagnostics::Diagnostic;
-use crate::source::SourceFile;
+use crate::source::{SourceFile, SourceMap};
 use crate::syntax;
 
 pub use crate::check::{Backend, CheckOptions, DesignReport, Override, SolveSummary};
@@ -89,14 +89,26 @@ pub fn compile_with(
     overrides: &[Override],
     options: &CheckOptions,
 ) -> Result<CompiledModel, Vec<Diagnostic>> {
-    let model = syntax::parse_model(src.text()).map_err(|e| vec![e.to_diagnostic()])?;
-    let checked = check::check_with(&model, overrides, options)
-        .map_err(|errs| errs.iter().map(|e| e.to_diagnostic()).collect::<Vec<_>>())?;
+    let (model, map) = parse(src)?;
+    let located = |d: Diagnostic| d.locate(&map);
+    let checked = check::check_with(&model, overrides, options).map_err(|errs| {
+        errs.iter()
+            .map(|e| located(e.to_diagnostic()))
+            .collect::<Vec<_>>()
+    })?;
     let errs = crate::ir::structural_errors(&checked);
     if !errs.is_empty() {
-        return Err(errs.iter().map(|e| e.to_diagnostic()).collect());
+        return Err(errs.iter().map(|e| located(e.to_diagnostic())).collect());
     }
-    Ok(CompiledModel::new(checked, src.clone()))
+    Ok(CompiledModel::new(checked, src.clone()).with_imports(map))
+}
+
+/// Parses `src` and appends the subsystems of the files it imports (see
+/// [`crate::imports`]); returns the model and the map of those files.
+fn parse(src: &SourceFile) -> Result<(syntax::ast::Model, SourceMap), Vec<Diagnostic>> {
+    let mut model = syntax::parse_model(src.text()).map_err(|e| vec![e.to_diagnostic()])?;
+    let map = crate::imports::resolve(src, &mut model)?;
+    Ok((model, map))
 }
 
 /// Compiles `src` as `hybsim run` starts it with run seed `seed` (`None`:
@@ -165,14 +177,17 @@ pub fn compile_run_with(
 /// Runs only the checks (`hybsim check`): the diagnostics, empty if the
 /// model is valid.
 pub fn check_only(src: &SourceFile, overrides: &[Override]) -> Vec<Diagnostic> {
-    match syntax::parse_model(src.text()) {
-        Err(e) => vec![e.to_diagnostic()],
-        Ok(model) => match check::check(&model, overrides) {
+    match parse(src) {
+        Err(diags) => diags,
+        Ok((model, map)) => match check::check(&model, overrides) {
             Ok(checked) => crate::ir::structural_errors(&checked)
                 .iter()
-                .map(|e| e.to_diagnostic())
+                .map(|e| e.to_diagnostic().locate(&map))
                 .collect(),
-            Err(errs) => errs.iter().map(|e| e.to_diagnostic()).collect(),
+            Err(errs) => errs
+                .iter()
+                .map(|e| e.to_diagnostic().locate(&map))
+                .collect(),
         },
     }
 }
@@ -194,12 +209,16 @@ pub fn design_only_with(
     overrides: &[Override],
     options: &CheckOptions,
 ) -> Result<Vec<DesignReport>, Vec<Diagnostic>> {
-    let model = syntax::parse_model(src.text()).map_err(|e| vec![e.to_diagnostic()])?;
+    let (model, map) = parse(src)?;
     let options = CheckOptions {
         solve_checks: true,
         ..*options
     };
     check::check_with(&model, overrides, &options)
         .map(|m| m.designs)
-        .map_err(|errs| errs.iter().map(|e| e.to_diagnostic()).collect())
+        .map_err(|errs| {
+            errs.iter()
+                .map(|e| e.to_diagnostic().locate(&map))
+                .collect()
+        })
 }

@@ -15,6 +15,7 @@ pub mod design;
 pub mod diagnostics;
 pub mod engine;
 pub mod experiments;
+pub mod imports;
 pub mod ir;
 pub mod lang;
 pub mod layout;

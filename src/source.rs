@@ -114,6 +114,50 @@ impl SourceFile {
     }
 }
 
+/// Where the spans of a model's imported files are: a model and the files
+/// it imports share one offset space (the model's text first, each imported
+/// file after it at its `base`), so that a [`Span`] of the AST says in which
+/// file it is. [`crate::diagnostics::Diagnostic::locate`] moves a diagnostic's
+/// labels into their files.
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct SourceMap {
+    /// Imported files in order of their bases.
+    files: Vec<(usize, std::sync::Arc<SourceFile>)>,
+}
+
+impl SourceMap {
+    /// The first offset after everything mapped so far, given the model's
+    /// text length: where the next imported file starts (one past the end,
+    /// so that an end-of-file span stays in its file).
+    pub fn next_base(&self, model_len: usize) -> usize {
+        match self.files.last() {
+            Some((base, f)) => base + f.text().len() + 1,
+            None => model_len + 1,
+        }
+    }
+
+    /// Adds `file` at `base` (from [`Self::next_base`]).
+    pub fn push(&mut self, base: usize, file: SourceFile) {
+        self.files.push((base, std::sync::Arc::new(file)));
+    }
+
+    /// The imported files with their bases.
+    pub fn files(&self) -> impl Iterator<Item = (usize, &SourceFile)> {
+        self.files.iter().map(|(b, f)| (*b, f.as_ref()))
+    }
+
+    /// The imported file `span` is in and the span within it; `None` for a
+    /// span of the model's own text.
+    pub fn locate(&self, span: Span) -> Option<(std::sync::Arc<SourceFile>, Span)> {
+        let k = self.files.partition_point(|(b, _)| *b <= span.start);
+        let (base, file) = self.files.get(k.checked_sub(1)?)?;
+        Some((
+            file.clone(),
+            Span::new(span.start - base, span.end.saturating_sub(*base)),
+        ))
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

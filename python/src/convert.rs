@@ -26,7 +26,7 @@ fn diagnostic_dict<'py>(
         },
     )?;
     out.set_item("message", &d.message)?;
-    out.set_item("file", src.name())?;
+    out.set_item("file", d.primary_file(src))?;
     let at = d.line_col(src);
     out.set_item("line", at.map(|lc| lc.line))?;
     out.set_item("col", at.map(|lc| lc.col))?;
@@ -34,8 +34,11 @@ fn diagnostic_dict<'py>(
     out.set_item("notes", d.notes.clone())?;
     let labels = PyList::empty(py);
     for l in &d.labels {
-        let (start, end) = (src.line_col(l.span.start), src.line_col(l.span.end));
+        // A label in an imported file carries that file.
+        let file = l.file.as_deref().unwrap_or(src);
+        let (start, end) = (file.line_col(l.span.start), file.line_col(l.span.end));
         let label = PyDict::new(py);
+        label.set_item("file", file.name())?;
         label.set_item("line", start.line)?;
         label.set_item("col", start.col)?;
         label.set_item("end_line", end.line)?;

@@ -83,6 +83,10 @@ fn scan<'m>(
                 what: "a subsystem declared inside `for` (declare it at the top level)".into(),
                 span: s.name.span,
             }),
+            Item::Import(i) if !top => errors.push(CheckError::Unsupported {
+                what: "an import inside `for` (import at the top level)".into(),
+                span: i.span,
+            }),
             Item::Instance(inst) => {
                 let family = !inst.target.indices.is_empty();
                 let t = &inst.target.name;

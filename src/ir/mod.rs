@@ -41,7 +41,7 @@ use crate::engine::{
     SimSettings, finite_difference_jacobian,
 };
 use crate::layout::{Declared, Layout, Shape};
-use crate::source::{SourceFile, Span};
+use crate::source::{SourceFile, SourceMap, Span};
 use program::{Frame, Program};
 
 thread_local! {
@@ -249,6 +249,8 @@ impl JacobianSource {
 pub struct CompiledModel {
     name: String,
     source: SourceFile,
+    /// The files the model imports (where spans beyond its text are).
+    imports: SourceMap,
     frame: Frame,
     nregs: usize,
     names: Vec<String>,
@@ -491,6 +493,7 @@ impl CompiledModel {
         CompiledModel {
             name: m.name,
             source,
+            imports: SourceMap::default(),
             frame,
             nregs,
             names,
@@ -805,6 +808,23 @@ impl CompiledModel {
     /// stiffness), or the matrix operation that failed, with the hybrid
     /// time.
     pub fn runtime_diagnostic(&self, err: &SimError) -> Diagnostic {
+        self.runtime_diagnostic_here(err).locate(&self.imports)
+    }
+
+    /// The files the model imports (see [`crate::imports`]).
+    pub fn imports(&self) -> &SourceMap {
+        &self.imports
+    }
+
+    /// The model with the map of the files it imports, so that run-time
+    /// diagnostics point into them.
+    #[must_use]
+    pub fn with_imports(mut self, imports: SourceMap) -> Self {
+        self.imports = imports;
+        self
+    }
+
+    fn runtime_diagnostic_here(&self, err: &SimError) -> Diagnostic {
         let mut d = Diagnostic::error("E0601", err.to_string()).help(err.help());
         if let Some(origin) = program::take_fault()
             && let Some(&span) = self.block_spans.get(origin as usize)

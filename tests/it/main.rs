@@ -12,6 +12,7 @@ mod engine;
 mod engine_lang;
 mod features;
 mod format;
+mod imports;
 mod intermittent_certificate;
 mod intermittent_check;
 mod intermittent_estimation;
