@@ -281,8 +281,6 @@ pub(crate) fn check_model(
     for it in &model.items {
         m.signals(it);
     }
-    m.c.lower_signals();
-    m.outputs = m.c.take_outputs();
     if composite {
         // HyEQ's composite system: one jump group; the model's own rules
         // are part 0, each instance a part of its own.
@@ -295,6 +293,8 @@ pub(crate) fn check_model(
     for it in &model.items {
         m.pass2(it);
     }
+    m.c.lower_signals();
+    m.outputs = m.c.take_outputs();
     let rule_names: Vec<String> = m.rules.iter().map(|r| r.name.clone()).collect();
     let properties =
         super::property::check_properties(&mut m.c, &model.items, &rule_names, m.init.len());
@@ -541,13 +541,17 @@ impl ModelChecker<'_> {
             | Item::Property(_)
             | Item::Metric(_)
             | Item::Sweep(_)
-            | Item::Output(_)
-            | Item::Signal(_)
             | Item::Import(_)
             | Item::Subsystem(_)
             | Item::Input(_)
             | Item::Instance(_)
             | Item::Log(_) => {}
+            Item::Output(defs) => {
+                for _ in defs {
+                    self.c.lower_next_signal();
+                }
+            }
+            Item::Signal(_) => self.c.lower_next_signal(),
         }
     }
 

@@ -2,9 +2,9 @@
 //!
 //! Every `output` (and every input of a subsystem instance, an unlogged
 //! output after elaboration) is registered with the loop indices in scope
-//! where it is declared, then lowered when an expression first uses it (or
-//! at the end of registration), so a value may use values declared after
-//! it. A value that uses itself through others is an algebraic loop
+//! where it is declared, then lowered when an expression first uses it or
+//! when the checker reaches its declaration, so a value may use values
+//! declared after it (and errors still come in source order). A value that uses itself through others is an algebraic loop
 //! ([`CheckError::AlgebraicLoop`], naming the loop): outputs and inputs are
 //! evaluated at one instant and such a loop has no order. Dependencies are
 //! followed member by member, so a family of instances connected along an
@@ -50,6 +50,8 @@ pub(crate) struct Signals {
     stack: Vec<usize>,
     /// The logged values lowered so far, with their declaration number.
     lowered: Vec<(usize, OutputField)>,
+    /// The next value in source order ([`Checker::lower_next_signal`]).
+    next: usize,
 }
 
 fn label(key: &[i64]) -> String {
@@ -62,13 +64,23 @@ fn label(key: &[i64]) -> String {
 impl Checker {
     /// Registers `def` (an output if `logged`, else an instance's input)
     /// with the loop indices now in scope.
+    /// Every call adds one entry (a failed one if the declaration is
+    /// wrong), so that the n-th declaration met in source order is value n
+    /// ([`Self::lower_signal_at`]).
     pub(crate) fn register_signal(&mut self, def: &Definition, logged: bool) {
         let t = &def.target;
+        let failed = Signal {
+            def: def.clone(),
+            scopes: Vec::new(),
+            display: t.name.name.clone(),
+            logged,
+            state: State::Failed,
+        };
         let key = match t.indices.as_slice() {
             [] => Vec::new(),
             [args] => match self.family_key(args) {
                 Some(k) => k,
-                None => return,
+                None => return self.signals.list.push(failed),
             },
             _ => {
                 self.err(CheckError::Expected {
@@ -76,7 +88,7 @@ impl Checker {
                     found: "several index lists".into(),
                     span: t.span,
                 });
-                return;
+                return self.signals.list.push(failed);
             }
         };
         let display = if t.indices.is_empty() {
@@ -97,7 +109,7 @@ impl Checker {
                 span: t.span,
                 first,
             });
-            return;
+            return self.signals.list.push(failed);
         }
         entry.0 |= !t.indices.is_empty();
         entry.1.insert(key, id);
@@ -113,6 +125,17 @@ impl Checker {
     /// Lowers every registered value not yet lowered, in declaration order.
     pub(crate) fn lower_signals(&mut self) {
         for id in 0..self.signals.list.len() {
+            self.lower_signal(id);
+        }
+    }
+
+    /// Lowers the next value in source order (the checker meets the
+    /// declarations in the order they were registered), so that errors come
+    /// in source order; values used earlier are already lowered.
+    pub(crate) fn lower_next_signal(&mut self) {
+        let id = self.signals.next;
+        self.signals.next += 1;
+        if id < self.signals.list.len() {
             self.lower_signal(id);
         }
     }
