@@ -123,6 +123,11 @@ pub struct RunArgs {
     /// No progress bar.
     #[arg(short, long)]
     pub quiet: bool,
+    /// Print the summary as one JSON object on stdout (model, status, cause,
+    /// message, end, jumps per rule, samples, files written, times,
+    /// metrics) instead of the summary line.
+    #[arg(long)]
+    pub json: bool,
 }
 
 /// Solver names on the command line.
@@ -787,6 +792,13 @@ pub fn execute(args: RunArgs) -> anyhow::Result<u8> {
     {
         eprint!("{}", render(&[d], &src, super::color()));
     }
+    if args.json {
+        println!(
+            "{}",
+            summary_json(model.name(), &report, &info.rule_names, compile_time)
+        );
+        return Ok(exit_code(&report));
+    }
     let mut line = summary_line(model.name(), &report, &info.rule_names);
     if compile_time.as_secs_f64() > 0.1 {
         line += &compile_note(compile_time, model.jit());
@@ -796,6 +808,50 @@ pub fn execute(args: RunArgs) -> anyhow::Result<u8> {
         eprintln!("wrote {}", path.display());
     }
     Ok(exit_code(&report))
+}
+
+/// The run's summary as JSON (`hybsim run --json`): what [`summary_line`]
+/// says, for scripts. Non-finite metric values are strings (`"inf"`, `"nan"`).
+pub fn summary_json(
+    model: &str,
+    report: &Report,
+    rule_names: &[String],
+    compile_time: Duration,
+) -> Value {
+    let jumps: serde_json::Map<String, Value> = report
+        .tally
+        .jumps
+        .iter()
+        .enumerate()
+        .map(|(k, n)| (rule_name(rule_names, k), json!(n)))
+        .collect();
+    let number = |x: f64| {
+        if x.is_finite() {
+            json!(x)
+        } else {
+            json!(hybsim::num::Num(x).to_string())
+        }
+    };
+    let metrics: serde_json::Map<String, Value> = report
+        .metrics
+        .iter()
+        .map(|(name, v)| (name.clone(), number(*v)))
+        .collect();
+    json!({
+        "model": model,
+        "status": report.outcome.status,
+        "cause": report.outcome.cause,
+        "message": report.outcome.message,
+        "interrupted": report.interrupted,
+        "end": report.tally.end.map(|at| json!({"t": at.t, "j": at.j})),
+        "jumps": jumps,
+        "jumps_total": report.tally.total_jumps(),
+        "samples": report.tally.samples,
+        "written": report.written.iter().map(|p| p.display().to_string()).collect::<Vec<_>>(),
+        "wall_s": report.wall.as_secs_f64(),
+        "compile_s": compile_time.as_secs_f64(),
+        "metrics": metrics,
+    })
 }
 
 /// Splits a comma-separated list of names, keeping commas inside brackets

@@ -552,3 +552,35 @@ fn dash_is_stdin_for_models_and_stdout_for_outputs() {
     let fmt = pipe(&["fmt", "-"], "model m\nstate x=1\n");
     assert_eq!(crate::util::stdout(&fmt), "model m\nstate x = 1\n");
 }
+
+/// `hybsim run --json`: the summary as one JSON object on stdout.
+#[test]
+fn run_prints_its_summary_as_json() {
+    let dir = tempfile::tempdir().unwrap();
+    let m = ball_model();
+    let out = hybsim(
+        dir.path(),
+        &[
+            "run",
+            m.to_str().unwrap(),
+            "--json",
+            "-q",
+            "--J",
+            "5",
+            "--csv",
+            "b.csv",
+            "--no-mcap",
+        ],
+    );
+    assert_eq!(code(&out), 0, "{}", stderr(&out));
+    let v: Value = serde_json::from_str(&crate::util::stdout(&out)).unwrap();
+    assert_eq!(v["model"], "bouncing_ball");
+    assert_eq!(v["status"], "completed");
+    assert_eq!(v["cause"], "horizon_j");
+    assert_eq!(v["end"]["j"], 5);
+    assert_eq!(v["jumps"]["impact"], 5);
+    assert_eq!(v["jumps_total"], 5);
+    assert!(v["samples"].as_u64().unwrap() > 10);
+    assert!(v["written"][0].as_str().unwrap().ends_with("b.csv"));
+    assert!(!stderr(&out).contains("wrote"));
+}
