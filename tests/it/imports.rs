@@ -44,22 +44,14 @@ fn instants(arc: &HybridArc) -> Vec<(f64, Vec<f64>, Vec<f64>)> {
     out.into_iter().map(|(_, t, a, b)| (t, a, b)).collect()
 }
 
-/// `LinearPlant` + `Adc` + `Zoh` with a gain on the connection: the exact
+/// `models/sampled_loop.hyb`, `LinearPlant` + `Adc` + `Zoh` with a gain on
+/// the connection: the exact
 /// discretisation x_{k+1} = e^{aT} x_k + (e^{aT} − 1)/a · b u_k with
 /// u_k = −K x((k−1)T) (the hold takes the pre-jump sample).
 #[test]
 fn linear_plant_adc_and_zoh_match_the_exact_discretisation() {
-    let src = beside_lib(
-        "model loop
-import \"lib/linear.hyb\"
-import \"lib/adc.hyb\"
-import \"lib/zoh.hyb\"
-plant = LinearPlant(A = 0.5, B = 1, C = 1, x0 = 1, u = zoh.y)
-adc = Adc(Ts = 0.1, u = plant.y)
-zoh = Zoh(Ts = 0.1, u = -1.5 * adc.y)
-sim { T = 2.05 }
-",
-    );
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("models/sampled_loop.hyb");
+    let src = SourceFile::read(path).unwrap();
     let m = compile(&src);
     let arc = run(&m, 1);
     let jumps = instants(&arc);
