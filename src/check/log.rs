@@ -128,8 +128,8 @@ fn check_block(c: &mut Checker, b: &LogBlock, rules: &[CheckedRule], decl: &mut 
                 None => {}
             },
             "dt" => match c.const_scalar(&s.value, "`dt`") {
-                Some(dt) if dt.is_finite() && dt > 0.0 => decl.dt = Some(dt),
-                Some(_) => bad(c, "a positive number of time units"),
+                Some(dt) if dt.is_finite() && dt >= 0.0 => decl.dt = Some(dt),
+                Some(_) => bad(c, "a number of time units ≥ 0"),
                 None => {}
             },
             "vars" | "rules" => c.err(CheckError::Expected {

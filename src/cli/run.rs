@@ -106,7 +106,8 @@ pub struct RunArgs {
     #[arg(long, value_name = "N", value_parser = clap::value_parser!(u64).range(1..))]
     pub log_every: Option<u64>,
     /// Log flow samples at least DT apart in t (samples of logged jumps and the
-    /// first and last samples are always logged); overrides `log { dt }`.
+    /// first and last samples are always logged); overrides `log { dt }` (0
+    /// keeps every flow sample).
     #[arg(long, value_name = "DT")]
     pub log_dt: Option<f64>,
     /// States and outputs written to the MCAP and CSV files, comma-separated:

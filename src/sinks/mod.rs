@@ -367,7 +367,8 @@ impl Decimation {
         Self { dt, ..self }
     }
 
-    /// Checks `every ≥ 1` and `dt > 0` finite.
+    /// Checks `every ≥ 1` and `dt ≥ 0` finite (0: no minimum, which lets
+    /// `--log-dt 0` undo a model's `log { dt }`).
     pub fn validate(&self) -> Result<(), SinkError> {
         if self.every == 0 {
             return Err(SinkError::Option {
@@ -376,11 +377,13 @@ impl Decimation {
             });
         }
         if let Some(dt) = self.dt
-            && !(dt.is_finite() && dt > 0.0)
+            && !(dt.is_finite() && dt >= 0.0)
         {
             return Err(SinkError::Option {
                 option: "--log-dt",
-                message: format!("must be a positive number of time units, got {dt}"),
+                message: format!(
+                    "must be a number of time units ≥ 0 (0 keeps every flow sample), got {dt}"
+                ),
             });
         }
         Ok(())

@@ -305,7 +305,16 @@ fn csv_values_equal_the_mcap_values_bit_for_bit() {
     let (bytes, csv) = run(
         dir.path(),
         model.to_str().unwrap(),
-        &["--T", "0.02", "--log-rules", "event,v.redraw"],
+        &[
+            "--T",
+            "0.02",
+            "--log-vars",
+            "*",
+            "--log-rules",
+            "event,v.redraw",
+            "--log-dt",
+            "0",
+        ],
     );
     let mut states = Vec::new();
     let mut outputs = Vec::new();
