@@ -67,7 +67,9 @@ impl<'a> CsvSink<'a> {
         let path = path.as_ref().to_path_buf();
         info.validate()?;
         decimation.validate()?;
-        let outputs = outputs.filter(|_| info.output_dim > 0);
+        // Outputs are evaluated only when some are logged.
+        let outputs =
+            outputs.filter(|_| info.output_dim > 0 && !info.output_layout.entries.is_empty());
         let file = atomic_file::create(&path).map_err(|e| SinkError::io(&path, e))?;
         let mut writer = ::csv::Writer::from_writer(BufWriter::new(file));
         let mut header: Vec<String> = FIXED_COLUMNS.iter().map(|s| s.to_string()).collect();
