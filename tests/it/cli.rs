@@ -270,10 +270,11 @@ fn check_prints_diagnostics_as_json_lines() {
     );
     assert_eq!(code(&out), 2);
     let text = crate::util::stdout(&out);
-    let diags: Vec<Value> = text
+    let mut diags: Vec<Value> = text
         .lines()
         .map(|l| serde_json::from_str(l).unwrap_or_else(|e| panic!("{e}: {l}")))
         .collect();
+    diags.sort_by_key(|d| d["line"].as_u64());
     assert_eq!(diags.len(), 2, "{text}");
     for (d, (line, col)) in diags.iter().zip([(3, 13), (4, 12)]) {
         assert_eq!(d["severity"], "error", "{d}");
