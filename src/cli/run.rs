@@ -664,6 +664,11 @@ pub fn execute(args: RunArgs) -> anyhow::Result<u8> {
         model_name: model.name().to_string(),
         model_path: args.model.display().to_string(),
         source: src.text().to_string(),
+        imports: model
+            .imports()
+            .files()
+            .map(|(_, f)| (f.name().to_string(), f.text().to_string()))
+            .collect(),
         seed,
         // The program's own path would make files depend on where it is installed.
         argv: std::iter::once("hybsim".to_string())

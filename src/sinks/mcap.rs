@@ -6,7 +6,7 @@
 //!
 //! | record | content |
 //! |---|---|
-//! | metadata `hybsim.run` | `version`, `model` (path), `model_name`, `model_sha256`, `seed`, `state_names`, `output_names`, `rule_names`, `argv` (JSON arrays), `decimation`, `blas_threads` (OpenBLAS threads, 1), `threads` (rayon's worker threads) |
+//! | metadata `hybsim.run` | `version`, `model` (path), `model_name`, `model_sha256`, `imports` (JSON `[{path, sha256}]` of the imported files), `seed`, `state_names`, `output_names`, `rule_names`, `argv` (JSON arrays), `decimation`, `blas_threads` (OpenBLAS threads, 1), `threads` (rayon's worker threads) |
 //! | metadata `hybsim.parameters` | one entry per resolved parameter (JSON value) |
 //! | metadata `hybsim.solver` | one entry per setting (JSON value) |
 //! | metadata `hybsim.design` | design results, when the model has design blocks |
@@ -201,6 +201,10 @@ impl<'a> McapSink<'a> {
             ("model", json!(info.model_path)),
             ("model_name", json!(info.model_name)),
             ("model_sha256", json!(info.source_sha256())),
+            (
+                "imports",
+                Value::String(json!(imports_json(info)).to_string()),
+            ),
             ("seed", json!(info.seed.to_string())),
             ("state_names", Value::String(json!(state_names).to_string())),
             (
@@ -250,7 +254,8 @@ impl<'a> McapSink<'a> {
         let description = json!({
             "hybsim_version": env!("CARGO_PKG_VERSION"),
             "model": {"name": info.model_name, "path": info.model_path,
-                      "sha256": info.source_sha256(), "attachment": source_name},
+                      "sha256": info.source_sha256(), "attachment": source_name,
+                      "imports": imports_json(info)},
             "seed": info.seed,
             "argv": info.argv,
             "overrides": info.overrides,
@@ -666,4 +671,14 @@ impl ArcSink for McapSink<'_> {
         }
         self.settle(r)
     }
+}
+
+/// The imported files of the run as `[{path, sha256}]`.
+fn imports_json(info: &RunInfo) -> Value {
+    Value::Array(
+        info.imports_sha256()
+            .into_iter()
+            .map(|(path, sha)| json!({"path": path, "sha256": sha}))
+            .collect(),
+    )
 }

@@ -202,6 +202,9 @@ pub struct RunInfo {
     /// The model source exactly as parsed.
     #[serde(skip)]
     pub source: String,
+    /// The files the model imports (`import "lib/zoh.hyb"`): path and text.
+    #[serde(skip)]
+    pub imports: Vec<(String, String)>,
     /// Seed of the run's random generator.
     pub seed: u64,
     /// Command line of the run (empty for library use).
@@ -232,6 +235,12 @@ pub struct RunInfo {
     pub design: Option<serde_json::Value>,
 }
 
+fn sha256_hex(text: &str) -> String {
+    use sha2::Digest;
+    let digest = sha2::Sha256::digest(text.as_bytes());
+    digest.iter().map(|b| format!("{b:02x}")).collect()
+}
+
 impl RunInfo {
     /// Run information for a system with scalar states `state_names`, no
     /// outputs, and jump rules `rule_names`; fill in the other fields as
@@ -241,6 +250,7 @@ impl RunInfo {
             model_name: model_name.to_string(),
             model_path: String::new(),
             source: String::new(),
+            imports: Vec::new(),
             seed: 0,
             argv: Vec::new(),
             overrides: Vec::new(),
@@ -292,9 +302,15 @@ impl RunInfo {
 
     /// Hex SHA-256 of the model source.
     pub fn source_sha256(&self) -> String {
-        use sha2::Digest;
-        let digest = sha2::Sha256::digest(self.source.as_bytes());
-        digest.iter().map(|b| format!("{b:02x}")).collect()
+        sha256_hex(&self.source)
+    }
+
+    /// Path and hex SHA-256 of each imported file.
+    pub fn imports_sha256(&self) -> Vec<(String, String)> {
+        self.imports
+            .iter()
+            .map(|(path, text)| (path.clone(), sha256_hex(text)))
+            .collect()
     }
 
     /// Flat names of the logged state components (`h`, `x[2]`, `P[1,2]`,
