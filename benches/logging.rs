@@ -125,6 +125,7 @@ fn run_cpu(model: &Path, args: &[&str], dir: &Path) -> f64 {
         .arg("--quiet")
         .current_dir(dir)
         .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null())
         .status()
         .expect("hybsim runs");
     assert!(status.success(), "{} {args:?}", model.display());
