@@ -29,7 +29,8 @@ pub struct Label {
     /// True for the main location of the diagnostic.
     pub primary: bool,
     /// The file the span is in when it is not the model's own text (a file
-    /// brought in by `import`); set by [`Diagnostic::locate`].
+    /// brought in by `import`, set by [`Diagnostic::locate`]; the text of a
+    /// `--set` override, set by [`Diagnostic::in_override`]).
     pub file: Option<std::sync::Arc<SourceFile>>,
 }
 
@@ -103,6 +104,23 @@ impl Diagnostic {
     /// Sets the help sentence.
     pub fn help(mut self, help: impl Into<String>) -> Self {
         self.help = Some(help.into());
+        self
+    }
+
+    /// Points the labels into the override `--set name=value` instead of the model: `spans` are
+    /// byte ranges of `value` (the override's expression was parsed from it alone). Renders as
+    /// `┌─ --set name:1:col` with the caret under the value.
+    pub fn in_override(mut self, name: &str, value: &str) -> Self {
+        let shift = name.len() + 1;
+        // Named after the override, so that two overrides are two files when rendered.
+        let origin = std::sync::Arc::new(SourceFile::new(
+            format!("--set {name}"),
+            format!("{name}={value}"),
+        ));
+        for l in &mut self.labels {
+            l.span = Span::new(l.span.start + shift, l.span.end + shift);
+            l.file = Some(origin.clone());
+        }
         self
     }
 

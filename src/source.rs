@@ -55,9 +55,14 @@ pub struct SourceFile {
 }
 
 impl SourceFile {
-    /// A source named `name` (usually its path) with contents `text`.
+    /// A source named `name` (usually its path) with contents `text` (a leading UTF-8
+    /// byte-order mark removed).
     pub fn new(name: impl Into<String>, text: impl Into<String>) -> Self {
-        let text = text.into();
+        let mut text = text.into();
+        // A UTF-8 byte-order mark (editors on Windows write one) is not part of the text.
+        if text.starts_with('\u{feff}') {
+            text.drain(..'\u{feff}'.len_utf8());
+        }
         let line_starts = std::iter::once(0)
             .chain(text.match_indices('\n').map(|(i, _)| i + 1))
             .collect();

@@ -19,6 +19,7 @@ use nalgebra::DMatrix;
 use super::dag::NodeId;
 use super::error::{CheckError, Dims};
 use super::expr::{CONST_CTX, Val};
+use super::limits::Quantity;
 use super::{Checker, Sym};
 use crate::design::lmi::{
     Backend, Expr as LExpr, LmiError, Outcome, Problem, Relation, Rescale, Settings, SolverStatus,
@@ -407,6 +408,8 @@ struct Cx {
     /// Scope depth at the start of the block (loop indices above it label constraints).
     depth: usize,
     count: usize,
+    /// Conic rows of the constraints so far (Σ d(d+1)/2, or the entries of `= 0` ones).
+    rows: usize,
     failed: bool,
 }
 
@@ -424,6 +427,7 @@ impl Checker {
             objective: None,
             depth: self.scopes.len(),
             count: 0,
+            rows: 0,
             failed: false,
         };
         self.poison_hit = None;
@@ -743,6 +747,13 @@ impl Checker {
             (VarShape::Diagonal, [n]) => VarKind::Full(*n, 1),
             _ => VarKind::Scalar,
         };
+        // The solvers' memory grows with the square of the scalar variables (the Schur or KKT
+        // matrix): refuse before the variable's expression is built.
+        let total = cx.problem.num_scalars() as f64 + kind.count() as f64;
+        if !self.within_limit(Quantity::DesignVars, total, span) {
+            cx.failed = true;
+            return;
+        }
         let v = match cx.problem.add_variable(name, kind) {
             Ok(v) => v,
             Err(e) => {
@@ -819,7 +830,25 @@ impl Checker {
             });
             return;
         }
+        // Every subset repeats the body's constraints: refuse before building any of them.
+        let per_subset = count_constraints(body) as f64;
+        let estimate = cx.count as f64 + per_subset * (1u64 << members.len()) as f64;
+        if per_subset > 0.0 && !self.within_limit(Quantity::LmiBlocks, estimate, b.span) {
+            cx.failed = true;
+            return;
+        }
+        let rows_before = cx.rows;
         for mask in 0u64..(1u64 << members.len()) {
+            // After the first subset: its conic rows times the number of subsets, before the
+            // others are built (one of 2^M is cheap, all of them may not be).
+            if mask == 1 {
+                let per = (cx.rows - rows_before) as f64;
+                let estimate = rows_before as f64 + per * (1u64 << members.len()) as f64;
+                if !self.within_limit(Quantity::LmiRows, estimate, b.span) {
+                    cx.failed = true;
+                    break;
+                }
+            }
             let subset: Vec<i64> = members
                 .iter()
                 .enumerate()
@@ -859,6 +888,10 @@ impl Checker {
 
     fn d_constraint(&mut self, cx: &mut Cx, c: &Constraint) {
         cx.count += 1;
+        if !self.within_limit(Quantity::LmiBlocks, cx.count as f64, c.span) {
+            cx.failed = true;
+            return;
+        }
         let lhs = self.side(cx, &c.lhs);
         let rhs = self.side(cx, &c.rhs);
         let (Some(lhs), Some(rhs)) = (lhs, rhs) else {
@@ -909,6 +942,16 @@ impl Checker {
                 shape: f.shape(),
                 span: c.span,
             }));
+            cx.failed = true;
+            return;
+        }
+        if matrix && !self.within_limit(Quantity::LmiSize, f.shape().0 as f64, c.span) {
+            cx.failed = true;
+            return;
+        }
+        let (r, k) = f.shape();
+        cx.rows += if matrix { r * (r + 1) / 2 } else { r * k };
+        if !self.within_limit(Quantity::LmiRows, cx.rows as f64, c.span) {
             cx.failed = true;
             return;
         }
@@ -1413,6 +1456,18 @@ impl Checker {
             }
         }
     }
+}
+
+/// The constraint statements of `body`, those in nested loops and branches once each (a lower
+/// bound on what one pass over `body` builds).
+fn count_constraints(body: &[DesignStmt]) -> usize {
+    body.iter()
+        .map(|s| match s {
+            DesignStmt::Constraint(_) => 1,
+            DesignStmt::For(_, inner) | DesignStmt::If(_, inner) => count_constraints(inner),
+            _ => 0,
+        })
+        .sum()
 }
 
 /// Solver settings of design blocks: the LMI layer's defaults, but always a

@@ -23,6 +23,15 @@ fn cycle_words(cycle: &[(String, Span)]) -> String {
     names.join(" → ")
 }
 
+/// An estimated count: exact up to 10^15, then in scientific form with 3 digits.
+fn estimate_words(x: f64) -> String {
+    if x < 1e15 {
+        format!("{}", x.round())
+    } else {
+        format!("{x:.2e}")
+    }
+}
+
 fn did_you_mean(s: &Option<String>) -> Option<String> {
     s.as_ref().map(|s| format!("did you mean `{s}`?"))
 }
@@ -298,6 +307,27 @@ pub enum CheckError {
         /// Where the budget ran out.
         span: Span,
     },
+    /// A size that grows with the parameters over its limit, found before allocating it
+    /// (see [`super::limits`]).
+    #[error("{} {quantity}: over the limit of {limit}", estimate_words(*estimate))]
+    Limit {
+        /// What is counted.
+        quantity: super::limits::Quantity,
+        /// The estimated size (a float: `T / dt_out` may be astronomical).
+        estimate: f64,
+        /// The limit in force.
+        limit: u64,
+        /// The construct that asks for it.
+        span: Span,
+    },
+    /// A flow equation affine in the state with an infinite or NaN coefficient.
+    #[error("the flow equation of `{target}` has a coefficient that is not finite (inf or NaN)")]
+    NonFiniteFlow {
+        /// The equation's left-hand side (`x'`).
+        target: String,
+        /// The equation.
+        span: Span,
+    },
     /// A flow equation in which white noise does not enter linearly
     /// (`x' = w^2`): the engine needs `x' = f(x) + G(x) w`.
     #[error("white noise must enter `{target}` linearly")]
@@ -316,6 +346,13 @@ pub enum CheckError {
         value: String,
         /// The underlying message.
         message: String,
+        /// Where in the value (a byte range of `value`), when known.
+        at: Option<Span>,
+        /// The underlying error's advice, if any.
+        advice: Option<String>,
+        /// The underlying error's code when it is kept (a bad `sim` value stays E0506);
+        /// `None`: E0508.
+        inner_code: Option<&'static str>,
     },
 }
 
@@ -349,6 +386,8 @@ impl CheckError {
             | RecursiveSubsystem { span, .. }
             | Compute { span, .. }
             | TooLarge { span, .. }
+            | Limit { span, .. }
+            | NonFiniteFlow { span, .. }
             | NoiseNotAffine { span, .. } => *span,
             Design(e) => e.span(),
             AlgebraicLoop { cycle } => cycle.first().map(|c| c.1).unwrap_or_default(),
@@ -372,7 +411,7 @@ impl CheckError {
             Expected { .. } => "E0304",
             NotConstant { .. } => "E0305",
             Compute { .. } => "E0306",
-            TooLarge { .. } => "E0307",
+            TooLarge { .. } | Limit { .. } => "E0307",
             IndexOutOfRange { .. } => "E0401",
             FamilyOutOfRange { .. } => "E0402",
             FamilyIndex { .. } => "E0403",
@@ -384,11 +423,12 @@ impl CheckError {
             RandomNotAllowed { .. } => "E0505",
             BadSetting { .. } => "E0506",
             Unsupported { .. } => "E0507",
-            Override { .. } => "E0508",
+            Override { inner_code, .. } => inner_code.unwrap_or("E0508"),
             NoiseNotAffine { .. } => "E0509",
             AlgebraicLoop { .. } => "E0511",
             Instance { .. } => "E0512",
             RecursiveSubsystem { .. } => "E0513",
+            NonFiniteFlow { .. } => "E0514",
             Design(e) => e.code(),
         }
     }
@@ -442,7 +482,14 @@ impl CheckError {
             Compute { span, .. } => d.primary(*span, "while computing this"),
             TooLarge { span, .. } => d
                 .primary(*span, "the budget ran out here")
-                .help("use smaller dimensions, fewer family members or shorter loops"),
+                .help("use smaller dimensions, fewer family members or shorter loops, or raise the limit: `max_ops = N` in `sim` or `--set max_ops=N`"),
+            Limit { span, quantity, .. } => d
+                .primary(*span, "asked for here")
+                .help(format!(
+                    "use {}, or raise the limit: `max_{key} = N` in `sim` or `--set max_{key}=N`",
+                    quantity.remedy(),
+                    key = quantity.key()
+                )),
             IndexOutOfRange { span, .. } => d.primary(*span, "out of range"),
             FamilyOutOfRange { span, members, .. } => d
                 .primary(*span, "no such member")
@@ -504,7 +551,23 @@ impl CheckError {
             RecursiveSubsystem { span, .. } => d
                 .primary(*span, "this instance closes the chain")
                 .help("a subsystem cannot contain an instance of itself"),
-            Override { .. } => d.help("fix the value given with --set"),
+            Override {
+                name,
+                value,
+                at,
+                advice,
+                ..
+            } => {
+                let d = match at {
+                    Some(at) => d.primary(*at, "here"),
+                    None => d.primary(Span::new(0, value.len()), ""),
+                };
+                d.help(advice.as_deref().unwrap_or("fix the value given with --set"))
+                    .in_override(name, value)
+            }
+            NonFiniteFlow { span, .. } => d
+                .primary(*span, "inf or NaN in this equation")
+                .help("check the parameters it uses (a division by zero, an overflow, `inf`)"),
             NoiseNotAffine { span, .. } => d
                 .primary(*span, "a nonlinear function of white noise")
                 .note("flows with noise are read as x' = f(x) + G(x) w, w white noise")

@@ -3,6 +3,7 @@
 
 use super::dag::{BinFn, BlockKind, Dist, NodeId, UnFn};
 use super::error::{CheckError, Dims};
+use super::limits::Quantity;
 use super::{Checker, Sym};
 use crate::source::Span;
 use crate::syntax::ast::{BinOp, Binder, Expr, ExprKind, IndexArg, IndexSet, UnOp};
@@ -102,28 +103,51 @@ pub(crate) const BUILTINS: &[&str] = &[
     "wiener",
 ];
 
-/// Most scalar operations (and loop iterations) a model may take to compile.
-pub(crate) const MAX_OPS: u64 = 50_000_000;
-
 impl Checker {
     /// False (and one error recorded) once the work done plus `cost`
-    /// exceeds [`MAX_OPS`].
+    /// exceeds the `ops` limit ([`super::limits`]).
     pub(crate) fn within_budget(&mut self, cost: u64, span: Span) -> bool {
-        if self.dag.ops().saturating_add(cost) <= MAX_OPS {
+        let limit = self.limits.get(Quantity::Ops);
+        if self.dag.ops().saturating_add(cost) <= limit {
             return true;
         }
         if !self
             .errors
             .iter()
-            .any(|e| matches!(e, CheckError::TooLarge { .. }))
+            .any(|e| matches!(e, CheckError::TooLarge { .. } | CheckError::Limit { .. }))
         {
-            self.err(CheckError::TooLarge {
-                limit: MAX_OPS,
-                span,
-            });
+            self.err(CheckError::TooLarge { limit, span });
         }
         // Stay over the budget so that every later check fails fast.
-        self.dag.charge(MAX_OPS);
+        self.dag.charge(limit);
+        false
+    }
+
+    /// False (and an error at `span`) when `estimate` of `q` is over its limit. Called before
+    /// anything of that size is allocated.
+    pub(crate) fn within_limit(&mut self, q: Quantity, estimate: f64, span: Span) -> bool {
+        let limit = self.limits.get(q);
+        if estimate <= limit as f64 {
+            return true;
+        }
+        // One error per quantity (a family over the limit would repeat it per member).
+        if self
+            .errors
+            .iter()
+            .any(|e| matches!(e, CheckError::Limit { quantity, .. } if *quantity == q))
+        {
+            return false;
+        }
+        self.err(CheckError::Limit {
+            quantity: q,
+            estimate,
+            limit,
+            span,
+        });
+        // Stop here: every later loop and expression fails fast on the spent budget (a family
+        // cut short would otherwise give one error per missing member), and `check_model`
+        // drops what follows this error.
+        self.dag.charge(self.limits.get(Quantity::Ops));
         false
     }
 
@@ -248,12 +272,8 @@ impl Checker {
             IndexSet::Range(lo, hi) => {
                 let lo = self.const_int(lo, "a range bound")?;
                 let hi = self.const_int(hi, "a range bound")?;
-                if hi - lo > 1_000_000 {
-                    self.err(CheckError::Expected {
-                        expected: "at most 10^6 members".into(),
-                        found: format!("{}", hi - lo + 1),
-                        span: b.span,
-                    });
+                let members = (i128::from(hi) - i128::from(lo) + 1).max(0);
+                if !self.within_limit(Quantity::Iterations, members as f64, b.span) {
                     return None;
                 }
                 (lo..=hi).map(|i| vec![i]).collect()
@@ -893,6 +913,52 @@ impl Checker {
                         }
                         Some(r)
                     }
+                    // The exponent is fine but the base is not square.
+                    Some(k) if k >= 0.0 && k.fract() == 0.0 && k <= 64.0 => {
+                        self.err(CheckError::ShapeMismatch {
+                            op: "^ (scalars, or a square matrix to a constant integer power)"
+                                .into(),
+                            left: a.dims(),
+                            right: b.dims(),
+                            span,
+                        });
+                        None
+                    }
+                    // A square matrix with an exponent it cannot take: say which.
+                    k if a.rows == a.cols && b.is_scalar() => {
+                        let found = match k {
+                            None => "an exponent that is not a constant".to_string(),
+                            Some(k) if k < 0.0 && k.fract() == 0.0 => {
+                                if k == -1.0 {
+                                    "the power -1 of a matrix; write `inv(A)` for the inverse"
+                                        .into()
+                                } else {
+                                    format!(
+                                        "the power {} of a matrix; write `inv(A)^{}` for a power of the inverse",
+                                        crate::num::Num(k),
+                                        crate::num::Num(-k)
+                                    )
+                                }
+                            }
+                            Some(k) if k < 0.0 => {
+                                format!("the power {} of a matrix", crate::num::Num(k))
+                            }
+                            Some(k) if k.fract() != 0.0 => {
+                                format!("the non-integer power {} of a matrix", crate::num::Num(k))
+                            }
+                            Some(k) => format!(
+                                "the power {} of a matrix, above the largest supported power 64 (use `expm`, or a product of powers)",
+                                crate::num::Num(k)
+                            ),
+                        };
+                        self.err(CheckError::Expected {
+                            expected: "a constant integer power from 0 to 64 of a square matrix"
+                                .into(),
+                            found,
+                            span,
+                        });
+                        None
+                    }
                     _ => {
                         self.err(CheckError::ShapeMismatch {
                             op: "^ (scalars, or a square matrix to a constant integer power)"
@@ -1039,12 +1105,15 @@ impl Checker {
                     None => Some(1),
                 };
                 let (r, c) = (r?, c?);
-                if !(0..=100_000).contains(&r) || !(0..=100_000).contains(&c) || r * c > 1_000_000 {
+                if r < 0 || c < 0 {
                     self.err(CheckError::Expected {
-                        expected: "dimensions between 0 and 10^5 (10^6 elements)".into(),
+                        expected: "dimensions of at least 0".into(),
                         found: format!("{r}×{c}"),
                         span,
                     });
+                    return None;
+                }
+                if !self.within_limit(Quantity::Elements, r as f64 * c as f64, span) {
                     return None;
                 }
                 let (r, c) = (r as usize, c as usize);

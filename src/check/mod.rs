@@ -13,6 +13,7 @@ pub mod dag;
 mod design;
 mod error;
 mod expr;
+pub mod limits;
 pub mod log;
 pub mod metric;
 mod model;
@@ -112,6 +113,8 @@ pub(crate) struct Checker {
     pub(crate) metric_frame: Option<metric::MetricFrame>,
     /// Outputs and instance inputs, lowered on first use.
     pub(crate) signals: signal::Signals,
+    /// The resource limits in force.
+    pub(crate) limits: limits::Limits,
 }
 
 /// Checks a parsed model with overrides; on success returns the checked
@@ -146,6 +149,9 @@ pub struct CheckOptions {
     pub backend: Backend,
     /// Also solve the `check` blocks (see [`check_with_designs`]).
     pub solve_checks: bool,
+    /// The resource limits (the model's `sim { max_<name> = N }` and `--set max_<name>=N`
+    /// change them further).
+    pub limits: limits::Limits,
 }
 
 impl Default for CheckOptions {
@@ -153,6 +159,7 @@ impl Default for CheckOptions {
         Self {
             backend: Backend::Auto,
             solve_checks: false,
+            limits: limits::Limits::default(),
         }
     }
 }

@@ -7,8 +7,9 @@ use super::dag::{BinFn, Dag, Node, NodeId};
 use super::design::Solved;
 use super::error::{CheckError, Dims};
 use super::expr::{CONST_CTX, Ctx, Val, dims_words, suggest};
+use super::limits::{Limits, Quantity};
 use super::{Checker, DesignReport, Sym};
-use crate::engine::{ExactAffine, Priority, SimSettings, Solver};
+use crate::engine::{ExactAffine, Priority, SimError, SimSettings, Solver};
 use crate::source::Span;
 use crate::syntax::ast::*;
 
@@ -247,6 +248,7 @@ pub(crate) fn check_model(
             backend: options.backend,
             metric_frame: None,
             signals: Default::default(),
+            limits: options.limits,
         },
         overrides: overrides.iter().map(|o| (o.name.as_str(), o)).collect(),
         used: Vec::new(),
@@ -275,6 +277,7 @@ pub(crate) fn check_model(
     let flat = super::compose::elaborate(model, &mut m.c.errors);
     let composite = flat.is_some();
     let model = flat.as_ref().unwrap_or(model);
+    m.limit_keys(model);
     for it in &model.items {
         m.pass1(it);
     }
@@ -334,6 +337,15 @@ pub(crate) fn check_model(
             found: "a model without states".into(),
             span: model.name.span,
         });
+    }
+    // After a size over its limit the checker stopped short: what follows are its echoes
+    // (names never declared, members never made).
+    if let Some(k) =
+        m.c.errors
+            .iter()
+            .position(|e| matches!(e, CheckError::Limit { .. } | CheckError::TooLarge { .. }))
+    {
+        m.c.errors.truncate(k + 1);
     }
     if !m.c.errors.is_empty() {
         for e in &mut m.c.errors {
@@ -407,15 +419,28 @@ impl ModelChecker<'_> {
         self.used.push(name.to_string());
         let before = self.c.errors.len();
         let v = self.c.expr(&o.expr, ctx);
+        self.locate_in_override(before, o, false);
+        v
+    }
+
+    /// Rewrites the errors recorded since `before` (found while elaborating the override `o`,
+    /// whose spans are byte ranges of its value) as errors located in that override.
+    /// With `keep_code` the errors keep their own codes (a `sim` value: E0506 as in the
+    /// model's `sim` block), otherwise they become E0508.
+    fn locate_in_override(&mut self, before: usize, o: &Override, keep_code: bool) {
         let new: Vec<CheckError> = self.c.errors.drain(before..).collect();
         for err in new {
+            let at = err.span();
+            let inner_code = keep_code.then(|| err.code());
             self.c.err(CheckError::Override {
                 name: o.name.clone(),
                 value: o.value.clone(),
                 message: err.to_string(),
+                at: (at.end <= o.value.len() && at != Span::default()).then_some(at),
+                advice: err.to_diagnostic().help,
+                inner_code,
             });
         }
-        v
     }
 
     /// Declares `target` as a name (or family member); see
@@ -990,6 +1015,15 @@ impl ModelChecker<'_> {
             });
             return;
         }
+        // The engine's work and memory (the implicit solver's Jacobian is n × n) grow with the
+        // number of scalar states.
+        let states = (self.init.len() + v.rows * v.cols) as f64;
+        if !self
+            .c
+            .within_limit(Quantity::States, states, sd.target.span)
+        {
+            return;
+        }
         let field_idx = self.c.fields.len();
         let span = sd.target.name.span;
         if let Some(display) = self.declare(&sd.target, |_| Sym::State {
@@ -1458,6 +1492,56 @@ impl ModelChecker<'_> {
         }
     }
 
+    /// The limits the model sets itself (`sim { max_states = 1e5 }`, or `--set max_states=…`),
+    /// applied before anything is checked since they bound what the checker may build. Their
+    /// values must be numbers (nothing else is known yet).
+    fn limit_keys(&mut self, model: &Model) {
+        let mut keys: Vec<(&str, &Expr, bool)> = Vec::new();
+        for it in &model.items {
+            if let Item::Sim(settings) = it {
+                keys.extend(
+                    settings
+                        .iter()
+                        .map(|s| (s.key.name.as_str(), &s.value, false)),
+                );
+            }
+        }
+        let overrides: Vec<&Override> = self.overrides.values().copied().collect();
+        keys.extend(overrides.iter().map(|o| (o.name.as_str(), &o.expr, true)));
+        for (key, e, is_override) in keys {
+            let Some(q) = key
+                .starts_with("max_")
+                .then(|| Limits::quantity(key))
+                .flatten()
+            else {
+                continue;
+            };
+            if is_override {
+                self.used.push(key.to_string());
+            }
+            let value = match &e.kind {
+                ExprKind::Num(x) if *x >= 1.0 && x.fract() == 0.0 && *x < 2f64.powi(64) => {
+                    Some(*x as u64)
+                }
+                _ => None,
+            };
+            let before = self.c.errors.len();
+            match value {
+                Some(v) => self.c.limits.set(q, v),
+                None => self.c.err(CheckError::BadSetting {
+                    key: key.to_string(),
+                    reason:
+                        "a limit is a positive integer written as a number (e.g. 100000 or 1e5)"
+                            .into(),
+                    span: e.span,
+                }),
+            }
+            if is_override && let Some(o) = self.overrides.get(key).copied() {
+                self.locate_in_override(before, o, true);
+            }
+        }
+    }
+
     fn sim_number(&mut self, key: &str, e: &Expr) -> Option<f64> {
         let ov = self.overrides.get(key).copied();
         let e = match ov {
@@ -1486,7 +1570,13 @@ impl ModelChecker<'_> {
             }
         }
         let mut seen: HashMap<String, Span> = HashMap::new();
+        // Per canonical key: where its value is, for the checks of the settings as a whole.
+        let mut values: HashMap<String, (Span, Option<&Override>)> = HashMap::new();
+        let overrides = self.overrides.clone();
         for (key, e, span) in &items {
+            if key.starts_with("max_") && Limits::quantity(key).is_some() {
+                continue; // applied by `limit_keys`
+            }
             let canon = match key.as_str() {
                 "horizon_t" => "T",
                 "horizon_j" => "J",
@@ -1502,112 +1592,126 @@ impl ModelChecker<'_> {
                 continue;
             }
             seen.insert(canon.to_string(), *span);
-            let bad = |this: &mut Self, reason: String| {
-                this.c.err(CheckError::BadSetting {
-                    key: key.clone(),
-                    reason,
-                    span: e.span,
-                })
-            };
-            let word = |this: &Self| -> Option<String> {
-                let e = match this.overrides.get(key.as_str()) {
-                    Some(o) => &o.expr,
-                    None => e,
+            // An override's value replaces the block's; its spans are in the override's text,
+            // so the errors about it are located there.
+            let ov = overrides.get(key.as_str()).copied();
+            let e = ov.map_or(e, |o| &o.expr);
+            values.insert(canon.to_string(), (e.span, ov));
+            let before = self.c.errors.len();
+            'key: {
+                let bad = |this: &mut Self, reason: String| {
+                    this.c.err(CheckError::BadSetting {
+                        key: key.clone(),
+                        reason,
+                        span: e.span,
+                    })
                 };
-                match &e.kind {
-                    ExprKind::Name(n) => Some(n.clone()),
-                    _ => None,
-                }
-            };
-            match canon {
-                "solver" => {
-                    if self.overrides.contains_key("solver") {
-                        self.used.push("solver".into());
-                    }
-                    match word(self) {
-                        Some(w) => solver_name = Some((w, e.span)),
-                        None => bad(
-                            self,
-                            "write one of dopri5, dop853, radau5, rk4, euler_maruyama".into(),
-                        ),
-                    }
-                }
-                "priority" => {
-                    if self.overrides.contains_key("priority") {
-                        self.used.push("priority".into());
-                    }
-                    match word(self).as_deref() {
-                        Some("jumps") => s.priority = Priority::Jumps,
-                        Some("flows") => s.priority = Priority::Flows,
-                        Some("random") => s.priority = Priority::Random,
-                        _ => bad(self, "write one of jumps, flows, random".into()),
-                    }
-                }
-                "exact_affine" => {
-                    if self.overrides.contains_key("exact_affine") {
-                        self.used.push("exact_affine".into());
-                    }
-                    match word(self).as_deref() {
-                        Some("auto") => s.exact_affine = ExactAffine::Auto,
-                        Some("on") => s.exact_affine = ExactAffine::On,
-                        Some("off") => s.exact_affine = ExactAffine::Off,
-                        _ => bad(self, "write one of auto, on, off".into()),
-                    }
-                }
-                "jit" => {
-                    if self.overrides.contains_key("jit") {
-                        self.used.push("jit".into());
-                    }
-                    match word(self).as_deref() {
-                        Some("on") => jit = Some(true),
-                        Some("off") => jit = Some(false),
-                        _ => bad(self, "write on or off".into()),
-                    }
-                }
-                _ => {
-                    let Some(x) = self.sim_number(key, e) else {
-                        continue;
+                let word = |this: &Self| -> Option<String> {
+                    let e = match this.overrides.get(key.as_str()) {
+                        Some(o) => &o.expr,
+                        None => e,
                     };
-                    match canon {
-                        "T" if x > 0.0 && x.is_finite() => s.horizon_t = x,
-                        "J" if x >= 0.0 && x.fract() == 0.0 => {
-                            s.horizon_j = x.min(u64::MAX as f64) as u64
+                    match &e.kind {
+                        ExprKind::Name(n) => Some(n.clone()),
+                        _ => None,
+                    }
+                };
+                match canon {
+                    "solver" => {
+                        if self.overrides.contains_key("solver") {
+                            self.used.push("solver".into());
                         }
-                        "rtol" if x > 0.0 => rtol = Some(x),
-                        "atol" if x > 0.0 => atol = Some(x),
-                        "h" if x > 0.0 && x.is_finite() => h = Some(x),
-                        "dt_out" if x > 0.0 && x.is_finite() => s.dt_out = Some(x),
-                        "seed" if x >= 0.0 && x.fract() == 0.0 && x < 2f64.powi(64) => {
-                            seed = x as u64
+                        match word(self) {
+                            Some(w) => solver_name = Some((w, e.span)),
+                            None => bad(
+                                self,
+                                "write one of dopri5, dop853, radau5, rk4, euler_maruyama".into(),
+                            ),
                         }
-                        "max_step" if x > 0.0 => s.max_step = x,
-                        "event_tol" if x >= 0.0 => s.event_tol = x,
-                        "set_tol" if x >= 0.0 && x.is_finite() => s.set_tol = x,
-                        "zeno_rate" if x > 0.0 => s.zeno_max_rate = x,
-                        "zeno_window" if x >= 2.0 && x.fract() == 0.0 && x <= u32::MAX as f64 => {
-                            s.zeno_window = x as u32
+                    }
+                    "priority" => {
+                        if self.overrides.contains_key("priority") {
+                            self.used.push("priority".into());
                         }
-                        "max_total_jumps" if x >= 1.0 && x.fract() == 0.0 => {
-                            s.max_total_jumps = x.min(u64::MAX as f64) as u64
+                        match word(self).as_deref() {
+                            Some("jumps") => s.priority = Priority::Jumps,
+                            Some("flows") => s.priority = Priority::Flows,
+                            Some("random") => s.priority = Priority::Random,
+                            _ => bad(self, "write one of jumps, flows, random".into()),
                         }
-                        "zeno_window" => bad(self, format!("{x} is not an integer ≥ 2")),
-                        "max_total_jumps" => bad(self, format!("{x} is not an integer ≥ 1")),
-                        "T" | "J" | "rtol" | "atol" | "h" | "dt_out" | "seed" | "max_step"
-                        | "event_tol" | "set_tol" | "zeno_rate" => {
-                            bad(self, format!("{x} is out of range"))
+                    }
+                    "exact_affine" => {
+                        if self.overrides.contains_key("exact_affine") {
+                            self.used.push("exact_affine".into());
                         }
-                        _ => {
-                            let suggestion = suggest(key, SIM_KEYS.iter().copied());
-                            self.c.err(CheckError::UnknownSetting {
-                                name: key.clone(),
-                                span: *span,
-                                suggestion,
-                            });
+                        match word(self).as_deref() {
+                            Some("auto") => s.exact_affine = ExactAffine::Auto,
+                            Some("on") => s.exact_affine = ExactAffine::On,
+                            Some("off") => s.exact_affine = ExactAffine::Off,
+                            _ => bad(self, "write one of auto, on, off".into()),
+                        }
+                    }
+                    "jit" => {
+                        if self.overrides.contains_key("jit") {
+                            self.used.push("jit".into());
+                        }
+                        match word(self).as_deref() {
+                            Some("on") => jit = Some(true),
+                            Some("off") => jit = Some(false),
+                            _ => bad(self, "write on or off".into()),
+                        }
+                    }
+                    _ => {
+                        let Some(x) = self.sim_number(key, e) else {
+                            break 'key;
+                        };
+                        match canon {
+                            "T" if x > 0.0 && x.is_finite() => s.horizon_t = x,
+                            "J" if x >= 0.0 && x.fract() == 0.0 => {
+                                s.horizon_j = x.min(u64::MAX as f64) as u64
+                            }
+                            "rtol" if x > 0.0 => rtol = Some(x),
+                            "atol" if x > 0.0 => atol = Some(x),
+                            "h" if x > 0.0 && x.is_finite() => h = Some(x),
+                            "dt_out" if x > 0.0 && x.is_finite() => s.dt_out = Some(x),
+                            "seed" if x >= 0.0 && x.fract() == 0.0 && x < 2f64.powi(64) => {
+                                seed = x as u64
+                            }
+                            "max_step" if x > 0.0 => s.max_step = x,
+                            "event_tol" if x >= 0.0 => s.event_tol = x,
+                            "set_tol" if x >= 0.0 && x.is_finite() => s.set_tol = x,
+                            "zeno_rate" if x > 0.0 => s.zeno_max_rate = x,
+                            "zeno_window"
+                                if x >= 2.0 && x.fract() == 0.0 && x <= u32::MAX as f64 =>
+                            {
+                                s.zeno_window = x as u32
+                            }
+                            "max_total_jumps" if x >= 1.0 && x.fract() == 0.0 => {
+                                s.max_total_jumps = x.min(u64::MAX as f64) as u64
+                            }
+                            "zeno_window" => bad(self, format!("{x} is not an integer ≥ 2")),
+                            "max_total_jumps" => bad(self, format!("{x} is not an integer ≥ 1")),
+                            "T" | "J" | "rtol" | "atol" | "h" | "dt_out" | "seed" | "max_step"
+                            | "event_tol" | "set_tol" | "zeno_rate" => {
+                                bad(self, format!("{x} is out of range"))
+                            }
+                            _ => {
+                                let suggestion = suggest(key, SIM_KEYS.iter().copied());
+                                self.c.err(CheckError::UnknownSetting {
+                                    name: key.clone(),
+                                    span: *span,
+                                    suggestion,
+                                });
+                            }
                         }
                     }
                 }
             }
+            if let Some(o) = ov {
+                self.locate_in_override(before, o, true);
+            }
         }
+        let before_solver = self.c.errors.len();
         let noisy = self.wiener_dim > 0;
         let default_name = if noisy { "euler_maruyama" } else { "dopri5" };
         let (name, span) = solver_name.unwrap_or((default_name.into(), Span::default()));
@@ -1642,7 +1746,71 @@ impl ModelChecker<'_> {
                 span,
             });
         }
+        if let Some(&(_, Some(o))) = values.get("solver") {
+            self.locate_in_override(before_solver, o, true);
+        }
+        self.whole_settings(&s, &values);
         (s, seed, jit)
+    }
+
+    /// The checks of the settings as a whole, located at the value of the key involved: the
+    /// engine's own validation (so `check` rejects what `run` would), the smallest output and
+    /// step intervals relative to the horizon, and the jump budget of a run without a Zeno guard.
+    fn whole_settings(
+        &mut self,
+        s: &SimSettings,
+        values: &HashMap<String, (Span, Option<&Override>)>,
+    ) {
+        let bad = |this: &mut Self, key: &str, reason: String| {
+            let (span, ov) = values.get(key).copied().unwrap_or_default();
+            let before = this.c.errors.len();
+            this.c.err(CheckError::BadSetting {
+                key: key.into(),
+                reason,
+                span,
+            });
+            if let Some(o) = ov {
+                this.locate_in_override(before, o, true);
+            }
+        };
+        if let Err(SimError::InvalidSettings { field, reason }) = s.validate() {
+            let key = match field {
+                "horizon_t" => "T",
+                "solver.rtol" => "rtol",
+                "solver.atol" => "atol",
+                "solver.h" => "h",
+                "zeno_max_rate" => "zeno_rate",
+                f => f,
+            };
+            bad(self, key, reason);
+            return;
+        }
+        // The output grid and the steps `max_step` forces, relative to the horizon.
+        for (key, q, dt) in [
+            ("dt_out", Quantity::OutputPoints, s.dt_out),
+            ("max_step", Quantity::Steps, Some(s.max_step)),
+        ] {
+            let Some(dt) = dt.filter(|d| d.is_finite()) else {
+                continue;
+            };
+            let (span, ov) = values.get(key).copied().unwrap_or_default();
+            let before = self.c.errors.len();
+            if !self.c.within_limit(q, (s.horizon_t / dt).ceil(), span)
+                && let Some(o) = ov
+            {
+                self.locate_in_override(before, o, true);
+            }
+        }
+        if s.zeno_max_rate == f64::INFINITY
+            && s.horizon_j == u64::MAX
+            && !values.contains_key("max_total_jumps")
+        {
+            bad(
+                self,
+                "zeno_rate",
+                "`zeno_rate = inf` turns the Zeno guard off: give the run an explicit jump budget (`J = ...` or `max_total_jumps = ...` in `sim`)".into(),
+            );
+        }
     }
 }
 

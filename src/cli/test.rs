@@ -18,8 +18,8 @@ use super::{EXIT_FAILED, EXIT_MODEL_ERROR, EXIT_OK, GuardArgs, SdpKind, shell_wo
 pub struct TestArgs {
     /// The model file (`.hyb`) with `property` declarations.
     pub model: PathBuf,
-    /// Number of sampled cases.
-    #[arg(long, value_name = "N", default_value_t = 100)]
+    /// Number of sampled cases (≥ 1).
+    #[arg(long, value_name = "N", default_value_t = 100, value_parser = at_least_one)]
     pub cases: usize,
     /// Master seed from which each case's seed is derived (default: the
     /// model's `sim { seed }`).
@@ -44,6 +44,15 @@ pub struct TestArgs {
     pub max_shrink: usize,
     #[command(flatten)]
     pub guard: GuardArgs,
+}
+
+/// A count of at least 1: `--cases 0` would pass vacuously.
+fn at_least_one(s: &str) -> Result<usize, String> {
+    match s.parse::<usize>() {
+        Ok(0) => Err("0 cases would test nothing; give at least 1".into()),
+        Ok(n) => Ok(n),
+        Err(e) => Err(e.to_string()),
+    }
 }
 
 /// `hybsim test`.

@@ -339,7 +339,7 @@ impl CompiledModel {
                 diff.push(m.dag.bin(crate::check::dag::BinFn::Sub, with, drift[i]));
             }
         }
-        let structure = if m.wiener_dim == 0 {
+        let structure = if m.wiener_dim == 0 && m.dim <= MAX_EXACT_AFFINE_DIM {
             match analysis::affine_forms(&m.dag, &drift) {
                 Some(forms) => {
                     let n = m.dim;
@@ -966,7 +966,7 @@ fn output_layout(outputs: &[crate::check::OutputField]) -> (Layout, usize) {
 /// as f(x, e_k) − f(x, 0), which is only right for `f(x) + G(x) w`).
 pub fn structural_errors(m: &CheckedModel) -> Vec<crate::check::CheckError> {
     if m.wiener_dim == 0 {
-        return Vec::new();
+        return non_finite_flows(m);
     }
     let forms = analysis::affine_in(&m.dag, &m.flow, analysis::Vars::Wiener);
     let mut seen = Vec::new();
@@ -994,6 +994,42 @@ pub fn structural_errors(m: &CheckedModel) -> Vec<crate::check::CheckError> {
     }
     errors
 }
+
+/// Flow equations affine in the state with a coefficient or constant that is not finite
+/// (`x' = (1/0)*x`, a parameter that overflowed): located here, before the engine would reject
+/// the flow as a whole.
+fn non_finite_flows(m: &CheckedModel) -> Vec<crate::check::CheckError> {
+    let forms = analysis::affine_in(&m.dag, &m.flow, analysis::Vars::State);
+    let mut seen = Vec::new();
+    let mut errors = Vec::new();
+    for (k, form) in forms.iter().enumerate() {
+        let Some(form) = form else { continue };
+        if form.c.is_finite() && form.terms.iter().all(|(_, v)| v.is_finite()) {
+            continue;
+        }
+        let Some(span) = m.flow_spans[k] else {
+            continue;
+        };
+        if seen.contains(&span) {
+            continue;
+        }
+        seen.push(span);
+        let field = m
+            .fields
+            .iter()
+            .find(|f| k >= f.offset && k < f.offset + f.rows * f.cols);
+        errors.push(crate::check::CheckError::NonFiniteFlow {
+            target: format!("{}'", field.map_or("x", |f| f.name.as_str())),
+            span,
+        });
+    }
+    errors
+}
+
+/// Largest state dimension whose affine flow is handed to the engine as a dense n×n matrix for
+/// exact propagation: above it the matrix alone is tens of MB and its exponential minutes of
+/// work, while the compiled flow costs O(nonzeros) per evaluation; such flows are integrated.
+pub const MAX_EXACT_AFFINE_DIM: usize = 2000;
 
 /// A `when` rule whose condition is `x[k] >= c` (or `<=`) for a state with
 /// constant rate in the right direction is a timer.

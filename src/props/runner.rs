@@ -1,7 +1,7 @@
 //! The property-test runner: sample cases, run them in parallel, stop at
 //! the first failure, shrink it to a minimal counterexample.
 
-use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::Mutex;
 
 use rayon::prelude::*;
 
@@ -375,10 +375,11 @@ pub enum Outcome<E> {
 /// The result of [`run_tests`].
 #[derive(Debug)]
 pub struct TestReport<E> {
-    /// Cases simulated (in parallel, cases after the first failure may
-    /// have run too).
+    /// Cases up to the first failing one in case order (all of them when
+    /// every case passed); cases after it that ran in parallel are not
+    /// counted, so the count does not depend on the thread count.
     pub cases_run: usize,
-    /// Cases on which some property was inconclusive.
+    /// Cases among those on which some property was inconclusive.
     pub inconclusive: usize,
     /// The outcome.
     pub outcome: Outcome<E>,
@@ -405,18 +406,22 @@ pub fn run_tests<S: Subject + ?Sized>(
     props: &[Property],
     config: &TestConfig,
 ) -> TestReport<S::Error> {
-    let ran = AtomicUsize::new(0);
-    let inconclusive = AtomicUsize::new(0);
+    // Indices of the inconclusive cases: the counts reported are those of the cases up to the
+    // first failure in case order, which all ran whatever the thread count (later cases may
+    // have run too, depending on scheduling, and are not counted).
+    let inconclusive = Mutex::new(Vec::new());
     let first = (0..config.cases)
         .into_par_iter()
         .map(|index| {
             let case = sample_case(subject.inputs(), config.seed, index as u64);
-            ran.fetch_add(1, Ordering::Relaxed);
             match run_case(subject, props, &case) {
                 Ok(Verdict::Fails(v)) => Some((index, CaseResult::Failed(case, v))),
                 Ok(Verdict::Holds { inconclusive: inc }) => {
                     if !inc.is_empty() {
-                        inconclusive.fetch_add(1, Ordering::Relaxed);
+                        inconclusive
+                            .lock()
+                            .unwrap_or_else(|e| e.into_inner())
+                            .push(index);
                     }
                     None
                 }
@@ -424,6 +429,13 @@ pub fn run_tests<S: Subject + ?Sized>(
             }
         })
         .find_map_first(|r| r);
+    let counted = first.as_ref().map_or(config.cases, |(index, _)| index + 1);
+    let inconclusive = inconclusive
+        .into_inner()
+        .unwrap_or_else(|e| e.into_inner())
+        .into_iter()
+        .filter(|&i| i < counted)
+        .count();
     let outcome = match first {
         None => Outcome::Passed,
         Some((index, CaseResult::Error(case, error))) => Outcome::Error { index, case, error },
@@ -441,8 +453,8 @@ pub fn run_tests<S: Subject + ?Sized>(
         }
     };
     TestReport {
-        cases_run: ran.into_inner(),
-        inconclusive: inconclusive.into_inner(),
+        cases_run: counted,
+        inconclusive,
         outcome,
     }
 }

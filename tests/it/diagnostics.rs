@@ -389,7 +389,7 @@ const CASES: &[Case] = &[
         src: "model m\nparam g = 1\nstate x = g\nflow { x' = g }\n",
         overrides: &["g=foo"],
         code: "E0508",
-        at: "",
+        at: "1:3",
         message: "in override `g=foo`: unknown name `foo`",
     },
     Case {
