@@ -57,15 +57,18 @@ impl ArcSink for Tally {
     }
 }
 
-/// CPU time of this thread in seconds (Linux), else wall time.
+/// CPU time of this thread in seconds. `CLOCK_THREAD_CPUTIME_ID` adds the
+/// time since the last scheduler tick; `/proc/thread-self/schedstat` does
+/// not, and moves in 4 ms steps on some kernels (too coarse for runs of
+/// tens of µs).
 fn cpu_now() -> f64 {
-    if let Ok(s) = std::fs::read_to_string("/proc/thread-self/schedstat")
-        && let Some(ns) = s
-            .split_whitespace()
-            .next()
-            .and_then(|v| v.parse::<f64>().ok())
-    {
-        return ns * 1e-9;
+    let mut ts = libc::timespec {
+        tv_sec: 0,
+        tv_nsec: 0,
+    };
+    // SAFETY: `ts` is a valid timespec for clock_gettime to fill.
+    if unsafe { libc::clock_gettime(libc::CLOCK_THREAD_CPUTIME_ID, &mut ts) } == 0 {
+        return ts.tv_sec as f64 + ts.tv_nsec as f64 * 1e-9;
     }
     thread_local!(static T0: Instant = Instant::now());
     T0.with(|t| t.elapsed().as_secs_f64())
@@ -85,16 +88,21 @@ fn run(m: &CompiledModel, mode: ExactAffine) -> Tally {
     tally
 }
 
-/// Median CPU seconds of runs filling about `budget` seconds (≥ 5 runs).
+/// CPU seconds per run: the median over 5 batches of the mean of runs
+/// filling about `budget / 5` seconds each (batches average out the
+/// clock's granularity on runs of tens of µs).
 fn time(m: &CompiledModel, mode: ExactAffine, budget: f64) -> f64 {
-    let mut times = Vec::new();
-    let start = cpu_now();
-    while times.len() < 5 || (cpu_now() - start < budget && times.len() < 1000) {
-        let t0 = cpu_now();
-        let _ = std::hint::black_box(run(m, mode));
-        times.push(cpu_now() - t0);
+    let mut batches = Vec::new();
+    for _ in 0..5 {
+        let start = cpu_now();
+        let mut n = 0u32;
+        while n == 0 || (cpu_now() - start < budget / 5.0 && n < 10_000) {
+            let _ = std::hint::black_box(run(m, mode));
+            n += 1;
+        }
+        batches.push((cpu_now() - start) / f64::from(n));
     }
-    median(times)
+    median(batches)
 }
 
 /// The limit's JSON lines for `bench` (all variants), if its binary exists.
