@@ -56,7 +56,7 @@ def test_plots_render(ball, tmp_path):
 LONG = """model slow
 state x = 1
 flow { x' = -x }
-sim { T = 1e9; max_step = 1e-3 }
+sim { T = 1e9; max_step = 1e-3; max_step_count = 1e13 }  # a run long enough to interrupt: raise the step limit
 """
 
 
