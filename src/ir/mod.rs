@@ -968,43 +968,41 @@ pub fn structural_errors(m: &CheckedModel) -> Vec<crate::check::CheckError> {
     if m.wiener_dim == 0 {
         return non_finite_flows(m);
     }
-    let forms = analysis::affine_in(&m.dag, &m.flow, analysis::Vars::Wiener);
-    let mut seen = Vec::new();
-    let mut errors = Vec::new();
-    for (k, form) in forms.iter().enumerate() {
-        if form.is_some() {
-            continue;
-        }
-        let Some(span) = m.flow_spans[k] else {
-            continue;
-        };
-        // One error per equation (a vector equation covers many components).
-        if seen.contains(&span) {
-            continue;
-        }
-        seen.push(span);
-        let field = m
-            .fields
-            .iter()
-            .find(|f| k >= f.offset && k < f.offset + f.rows * f.cols);
-        errors.push(crate::check::CheckError::NoiseNotAffine {
-            target: format!("{}'", field.map_or("x", |f| f.name.as_str())),
-            span,
-        });
-    }
-    errors
+    flow_equation_errors(
+        m,
+        analysis::Vars::Wiener,
+        |form| form.is_none(),
+        |target, span| crate::check::CheckError::NoiseNotAffine { target, span },
+    )
 }
 
 /// Flow equations affine in the state with a coefficient or constant that is not finite
 /// (`x' = (1/0)*x`, a parameter that overflowed): located here, before the engine would reject
 /// the flow as a whole.
 fn non_finite_flows(m: &CheckedModel) -> Vec<crate::check::CheckError> {
-    let forms = analysis::affine_in(&m.dag, &m.flow, analysis::Vars::State);
+    flow_equation_errors(
+        m,
+        analysis::Vars::State,
+        |form| {
+            form.is_some_and(|f| !(f.c.is_finite() && f.terms.iter().all(|(_, v)| v.is_finite())))
+        },
+        |target, span| crate::check::CheckError::NonFiniteFlow { target, span },
+    )
+}
+
+/// One error per flow equation (a vector equation covers many components) with a component
+/// whose affine form in `vars` is `bad`, made by `error` from the equation's target (`x'`) and span.
+fn flow_equation_errors(
+    m: &CheckedModel,
+    vars: analysis::Vars,
+    bad: impl Fn(Option<&analysis::Lin>) -> bool,
+    error: impl Fn(String, crate::source::Span) -> crate::check::CheckError,
+) -> Vec<crate::check::CheckError> {
+    let forms = analysis::affine_in(&m.dag, &m.flow, vars);
     let mut seen = Vec::new();
     let mut errors = Vec::new();
     for (k, form) in forms.iter().enumerate() {
-        let Some(form) = form else { continue };
-        if form.c.is_finite() && form.terms.iter().all(|(_, v)| v.is_finite()) {
+        if !bad(form.as_ref()) {
             continue;
         }
         let Some(span) = m.flow_spans[k] else {
@@ -1018,10 +1016,10 @@ fn non_finite_flows(m: &CheckedModel) -> Vec<crate::check::CheckError> {
             .fields
             .iter()
             .find(|f| k >= f.offset && k < f.offset + f.rows * f.cols);
-        errors.push(crate::check::CheckError::NonFiniteFlow {
-            target: format!("{}'", field.map_or("x", |f| f.name.as_str())),
+        errors.push(error(
+            format!("{}'", field.map_or("x", |f| f.name.as_str())),
             span,
-        });
+        ));
     }
     errors
 }
