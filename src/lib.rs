@@ -14,7 +14,6 @@ pub mod check;
 pub mod design;
 pub mod diagnostics;
 pub mod engine;
-pub mod experiments;
 pub mod imports;
 pub mod ir;
 pub mod lang;

@@ -357,3 +357,25 @@ fn example_models_pass_hybsim_check() {
         );
     }
 }
+
+#[test]
+fn hybsim_run_does_not_need_the_check() {
+    // `hybsim run` does not solve a model's `check` blocks (here the LMI of
+    // intermittent_estimation's `check prop_3_5`) and says so.
+    let dir = tempfile::tempdir().unwrap();
+    let run = Command::new(BIN)
+        .args([
+            "run",
+            &model_path("intermittent_estimation.hyb"),
+            "--T",
+            "1",
+            "--no-mcap",
+            "-q",
+        ])
+        .current_dir(dir.path())
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&run.stderr);
+    assert_eq!(run.status.code(), Some(0), "{err}");
+    assert!(err.contains("check prop_3_5: not solved here"), "{err}");
+}

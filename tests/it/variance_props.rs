@@ -152,9 +152,11 @@ fn a_too_small_invariant_interval_is_refuted_and_replayed() {
         value("r"),
         value("delta"),
     );
-    let pbar = hybsim::analysis::variance_trigger::VarianceIteration::new(a, c, q, r, delta)
-        .unwrap()
-        .p_bar();
+    // p̄ = DARE(a', c', q, r), the steady-state prediction variance, as the
+    // model's `param pbar` states it, from the library's Riccati solver.
+    let scalar = |v: f64| nalgebra::DMatrix::from_element(1, 1, v);
+    let pbar = hybsim::design::control::dare(&scalar(a), &scalar(c), &scalar(q), &scalar(r))
+        .unwrap()[(0, 0)];
     let bound = a * a * (pbar + delta / (c * c));
     let csv = std::fs::read_to_string(dir.path().join("replay.csv")).unwrap();
     let mut lines = csv.lines();

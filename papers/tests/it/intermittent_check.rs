@@ -2,20 +2,18 @@
 //! models/intermittent_estimation.hyb — its matrices against the library's
 //! `Network`, its verdict against `Network::check_prop_3_5` over all 2^N
 //! vertices of the timer box, why all vertices are needed, and `hybsim
-//! design` / `hybsim run` on the model.
+//! design` on the model (`hybsim run` skipping the check: tests/it/models.rs
+//! of the library).
 
-use std::path::{Path, PathBuf};
-use std::process::Command;
+use std::path::PathBuf;
 
-use hybsim::analysis::intermittent_estimation::{Network, Scenario, Vertices};
-use hybsim::experiments;
 use hybsim::source::SourceFile;
+use hybsim_papers::analysis::intermittent_estimation::{Network, Scenario, Vertices};
+use hybsim_papers::experiments;
 use nalgebra::DMatrix;
 
-const BIN: &str = env!("CARGO_BIN_EXE_hybsim");
-
 fn shipped() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("models/intermittent_estimation.hyb")
+    hybsim_papers::model_path("intermittent_estimation.hyb")
 }
 
 fn scenario_sets(s: Scenario) -> Vec<&'static str> {
@@ -137,26 +135,11 @@ fn the_check_block_agrees_with_the_library() {
 }
 
 #[test]
-fn hybsim_run_does_not_need_the_check() {
-    // `hybsim run` does not solve the check and still works.
-    let dir = tempfile::tempdir().unwrap();
-    let m = shipped();
-    let run = Command::new(BIN)
-        .args(["run", m.to_str().unwrap(), "--T", "1", "--no-mcap", "-q"])
-        .current_dir(dir.path())
-        .output()
-        .unwrap();
-    let err = String::from_utf8_lossy(&run.stderr);
-    assert_eq!(run.status.code(), Some(0), "{err}");
-    assert!(err.contains("check prop_3_5: not solved here"), "{err}");
-}
-
-#[test]
 fn the_fig2_program_runs_and_writes_its_figures() {
     // What `cargo run --example intermittent_fig2 -- DIR 1 2` does, on a
     // short horizon: the three scenarios run and four SVGs are written.
     let src = SourceFile::read(shipped()).unwrap();
-    let traces = hybsim::experiments::intermittent::fig2(&src, 1, 2.0, 0.05).unwrap();
+    let traces = hybsim_papers::experiments::intermittent::fig2(&src, 1, 2.0, 0.05).unwrap();
     assert_eq!(traces.len(), 3);
     for tr in &traces {
         let last = tr.enorm[tr.enorm.len() - 1];
@@ -164,7 +147,7 @@ fn the_fig2_program_runs_and_writes_its_figures() {
         assert!(tr.enorm.iter().all(|(_, e)| e.is_finite() && *e > 0.0));
     }
     let dir = tempfile::tempdir().unwrap();
-    let figures = hybsim::experiments::intermittent::fig2_figures(&traces, 1);
+    let figures = hybsim_papers::experiments::intermittent::fig2_figures(&traces, 1);
     let names: Vec<&str> = figures.iter().map(|(n, _)| n.as_str()).collect();
     assert_eq!(
         names,

@@ -17,8 +17,10 @@
 use std::error::Error;
 use std::path::PathBuf;
 
-use hybsim::analysis::variance_trigger::VarianceIteration;
-use hybsim::experiments::variance_trigger::{MODEL_PATH, SweepSettings, VarianceTriggerModel};
+use hybsim_papers::analysis::variance_trigger::VarianceIteration;
+use hybsim_papers::experiments::variance_trigger::{
+    MODEL_PATH, SweepSettings, VarianceTriggerModel,
+};
 
 /// Steps drawn per transmit sequence.
 const TRACE_STEPS: usize = 60;
@@ -26,7 +28,7 @@ const TRACE_STEPS: usize = 60;
 fn main() -> Result<(), Box<dyn Error>> {
     let out = PathBuf::from(std::env::args().nth(1).unwrap_or_else(|| "fig4-out".into()));
     std::fs::create_dir_all(&out)?;
-    let model_path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join(MODEL_PATH);
+    let model_path = hybsim_papers::repo_path(MODEL_PATH);
     let model = VarianceTriggerModel::read(&model_path)
         .map_err(|e| format!("{}: {e}", model_path.display()))?;
     let example1 = VarianceIteration::new(1.2, 1.0, 1.0, 1.0, 3.0)?;

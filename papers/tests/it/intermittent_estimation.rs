@@ -6,11 +6,11 @@
 //! (the reference for `models/intermittent_estimation.hyb`).
 
 use crate::util::simulate_arc;
-use hybsim::analysis::intermittent_estimation::{Network, Scenario};
 use hybsim::arc::{HybridArc, HybridTime};
 use hybsim::engine::{
     ExactAffine, FlowStructure, GuardKind, HybridSystem, JumpRule, SimRng, SimSettings,
 };
+use hybsim_papers::analysis::intermittent_estimation::{Network, Scenario};
 use nalgebra::DVector;
 
 /// How a timer is reset when it reaches 0.

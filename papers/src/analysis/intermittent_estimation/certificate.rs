@@ -1,6 +1,6 @@
 //! The matrix inequalities of Theorem 3.4 / Proposition 3.5 as LMI problems
 //! in `P` and `R_ik` for fixed gains and σ, solved with
-//! [`crate::design::lmi`].
+//! [`hybsim::design::lmi`].
 //!
 //! `M(ν) = He(diag(P, R(ν)) A_f) − σ diag(0, R(ν))` is affine in
 //! `(P, R_ik)` for fixed ν. Proposition 3.5 imposes `M(ν) ≺ 0` at `ν = 0`
@@ -19,7 +19,7 @@
 use nalgebra::DMatrix;
 
 use super::Network;
-use crate::design::lmi::{Expr, LmiError, Outcome, Problem, Relation, SolverStatus, VarKind};
+use hybsim::design::lmi::{Expr, LmiError, Outcome, Problem, Relation, SolverStatus, VarKind};
 
 /// Where in the timer box 𝒯 the inequality `M(ν) ≺ 0` is imposed.
 #[derive(Debug, Clone, PartialEq)]

@@ -11,8 +11,8 @@
 //! tests compare with stated tolerances.
 //!
 //! ```no_run
-//! use hybsim::analysis::variance_trigger::VarianceIteration;
-//! use hybsim::experiments::variance_trigger::{Noise, VarianceTriggerModel};
+//! use hybsim_papers::analysis::variance_trigger::VarianceIteration;
+//! use hybsim_papers::experiments::variance_trigger::{Noise, VarianceTriggerModel};
 //! let model = VarianceTriggerModel::read("models/variance_triggering.hyb").unwrap();
 //! let it = VarianceIteration::new(1.2, 1.0, 1.0, 1.0, 3.0).unwrap(); // Example 1
 //! let run = model.run(&it, None, 100, Noise::Off).unwrap();
@@ -24,12 +24,12 @@ use std::path::Path;
 use rayon::prelude::*;
 
 use super::{ExperimentError, StepTable, compile, scalar_parameter, simulate, simulate_seeded};
-use crate::analysis::periodicity::PeriodSettings;
 use crate::analysis::variance_trigger::{SweepRow, VarianceIteration, refined_delta_grid};
-use crate::arc::HybridArc;
-use crate::lang::CompiledModel;
-use crate::sinks::plot::{Figure, Panel, Series};
-use crate::source::SourceFile;
+use hybsim::analysis::periodicity::PeriodSettings;
+use hybsim::arc::HybridArc;
+use hybsim::lang::CompiledModel;
+use hybsim::sinks::plot::{Figure, Panel, Series};
+use hybsim::source::SourceFile;
 
 /// The model file, relative to the crate root.
 pub const MODEL_PATH: &str = "models/variance_triggering.hyb";

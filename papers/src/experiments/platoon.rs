@@ -19,7 +19,7 @@
 //! ensemble of its size can need, so memory stays bounded.
 //!
 //! ```no_run
-//! use hybsim::experiments::platoon::{Platoon, Window};
+//! use hybsim_papers::experiments::platoon::{Platoon, Window};
 //! let p = Platoon::read("models/platoon.hyb", &["M=5", "corollary=3"]).unwrap();
 //! let e = p.ensemble(1..=20, &Window::default()).unwrap();
 //! println!("rates {:?} ± {:?}", e.rate_mean, e.rate_std);
@@ -29,11 +29,11 @@ use std::ops::{ControlFlow, RangeInclusive};
 use std::path::Path;
 
 use super::{ExperimentError, compile, simulate_seeded_into};
-use crate::arc::{ArcSink, HybridTime, SampleKind};
-use crate::engine::TerminationCause;
-use crate::lang::CompiledModel;
-use crate::layout::{Entry, Shape};
-use crate::source::SourceFile;
+use hybsim::arc::{ArcSink, HybridTime, SampleKind};
+use hybsim::engine::TerminationCause;
+use hybsim::lang::CompiledModel;
+use hybsim::layout::{Entry, Shape};
+use hybsim::source::SourceFile;
 
 /// The model file, relative to the crate root.
 pub const MODEL_PATH: &str = "models/platoon.hyb";

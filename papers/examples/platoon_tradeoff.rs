@@ -14,10 +14,10 @@ use std::error::Error;
 use std::fmt::Write as _;
 
 use hybsim::design::control::{StateSpace, dare, h2_norm};
-use hybsim::experiments::platoon::{Platoon, Window};
 use hybsim::lang::{self, CompiledModel, Override};
 use hybsim::sinks::plot::{Figure, Panel, Series};
 use hybsim::source::SourceFile;
+use hybsim_papers::experiments::platoon::{Platoon, Window};
 use nalgebra::DMatrix;
 
 /// A parameter of the compiled model (after overrides and `design` blocks).
@@ -53,7 +53,7 @@ fn simulate(src: &SourceFile, delta: &[f64], seeds: u64) -> Result<(f64, f64), B
 
 fn main() -> Result<(), Box<dyn Error>> {
     let out = std::env::args().nth(1).unwrap_or_else(|| ".".into());
-    let path = format!("{}/models/platoon.hyb", env!("CARGO_MANIFEST_DIR"));
+    let path = hybsim_papers::model_path("platoon.hyb");
     let src = SourceFile::read(&path)?;
     let m = compile(&src, &[])?;
     let (a, b, c, l) = (

@@ -16,7 +16,7 @@
 //! for the model's graph and gains.
 //!
 //! ```no_run
-//! use hybsim::experiments::consensus_estimation::ConsensusModel;
+//! use hybsim_papers::experiments::consensus_estimation::ConsensusModel;
 //! let model = ConsensusModel::read("models/consensus_estimation.hyb").unwrap();
 //! let m = model.run(&["delta=25"], 1).unwrap();
 //! println!("E = {}, F = {}", m.error, m.frequency_normalised);
@@ -28,10 +28,10 @@ use std::path::Path;
 use nalgebra::DMatrix;
 
 use super::{ExperimentError, compile, scalar_parameter};
-use crate::arc::{ArcSink, HybridTime, SampleKind};
-use crate::engine::{HybridSystem, simulate};
-use crate::lang::CompiledModel;
-use crate::source::SourceFile;
+use hybsim::arc::{ArcSink, HybridTime, SampleKind};
+use hybsim::engine::{HybridSystem, simulate};
+use hybsim::lang::CompiledModel;
+use hybsim::source::SourceFile;
 
 /// The model file, relative to the crate root.
 pub const MODEL_PATH: &str = "models/consensus_estimation.hyb";
@@ -85,7 +85,7 @@ struct Outputs {
 
 fn output_index(model: &CompiledModel, name: &str) -> Result<usize, ExperimentError> {
     for entry in &model.output_layout().entries {
-        if let crate::layout::Entry::Field(f) = entry
+        if let hybsim::layout::Entry::Field(f) = entry
             && f.name == name
         {
             return Ok(f.offset);
@@ -475,8 +475,8 @@ pub fn tradeoff_csv(points: &[TradeoffPoint]) -> String {
 }
 
 /// Fig. 6 as a figure: `𝓔` against the normalised `𝓕`, and both against δ.
-pub fn tradeoff_figure(points: &[TradeoffPoint]) -> crate::sinks::plot::Figure {
-    use crate::sinks::plot::{Figure, Panel, Series};
+pub fn tradeoff_figure(points: &[TradeoffPoint]) -> hybsim::sinks::plot::Figure {
+    use hybsim::sinks::plot::{Figure, Panel, Series};
     let ok = points.iter().filter(|p| p.runs > 0);
     let ef: Vec<(f64, f64)> = ok.clone().map(|p| (p.frequency, p.error)).collect();
     let ed: Vec<(f64, f64)> = ok.clone().map(|p| (p.delta, p.error)).collect();

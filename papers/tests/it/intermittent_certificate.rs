@@ -2,8 +2,10 @@
 //! reconstructed gains of Example 3.8, over a σ grid; with positive controls
 //! showing that the LMI machinery does find certificates where they exist.
 
-use hybsim::analysis::intermittent_estimation::{EdgeGains, Network, Prop35, Scenario, Vertices};
 use hybsim::design::lmi::Outcome;
+use hybsim_papers::analysis::intermittent_estimation::{
+    EdgeGains, Network, Prop35, Scenario, Vertices,
+};
 use nalgebra::DMatrix;
 
 /// ε of the feasibility problem (`M ⪯ −ε I` with `P, R_ik ⪰ I`).

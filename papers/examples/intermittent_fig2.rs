@@ -9,12 +9,12 @@
 //! Writes `fig2a.svg`, `fig2b.svg`, `fig2c.svg` (|e| on a linear axis, one
 //! scenario each, as in the paper) and `fig2_log.svg` (the three on a
 //! logarithmic axis, where the rates can be compared); horizon T = 40 by
-//! default. The data come from `hybsim::experiments::intermittent::fig2`.
+//! default. The data come from `hybsim_papers::experiments::intermittent::fig2`.
 
 use std::path::PathBuf;
 
-use hybsim::experiments::intermittent::{fig2, fig2_figures};
 use hybsim::source::SourceFile;
+use hybsim_papers::experiments::intermittent::{fig2, fig2_figures};
 
 fn main() -> anyhow::Result<()> {
     let args: Vec<String> = std::env::args().skip(1).collect();
@@ -25,11 +25,8 @@ fn main() -> anyhow::Result<()> {
         _ => anyhow::bail!("usage: intermittent_fig2 OUT_DIR [SEED [T]]"),
     };
     std::fs::create_dir_all(&dir)?;
-    let path = concat!(
-        env!("CARGO_MANIFEST_DIR"),
-        "/models/intermittent_estimation.hyb"
-    );
-    let src = SourceFile::read(path)?;
+    let path = hybsim_papers::model_path("intermittent_estimation.hyb");
+    let src = SourceFile::read(&path)?;
     let traces = fig2(&src, seed, horizon, 0.02)?;
     for tr in &traces {
         let (first, last) = (tr.enorm[0], tr.enorm[tr.enorm.len() - 1]);

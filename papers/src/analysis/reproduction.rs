@@ -29,7 +29,7 @@
 //! parallel.
 //!
 //! ```
-//! use hybsim::analysis::reproduction::{Row, Status, Table};
+//! use hybsim_papers::analysis::reproduction::{Row, Status, Table};
 //! let table = Table::new("example", "An example paper")
 //!     .row(Row::new("period of Example 1", "3", "3", Status::Reproduced));
 //! assert!(table.render().contains("| period of Example 1 | 3 | 3 | reproduced |  |"));
@@ -364,7 +364,7 @@ pub fn sync(table: &Table, path: &Path, mode: SyncMode) -> Result<SyncOutcome, R
                     (format!("{text}{sep}{fresh}"), SyncOutcome::Appended)
                 }
             };
-            crate::atomic_file::write(path, new_text.as_bytes()).map_err(io)?;
+            hybsim::atomic_file::write(path, new_text.as_bytes()).map_err(io)?;
             Ok(outcome)
         }
     }
@@ -378,7 +378,7 @@ pub fn sync_committed(table: &Table) -> Result<SyncOutcome, ReproductionError> {
 
 /// Path of the repository's `REPRODUCTION.md`.
 pub fn committed_path() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("REPRODUCTION.md")
+    crate::repo_path("REPRODUCTION.md")
 }
 
 /// The lines that differ between two texts, position by position.

@@ -3,21 +3,20 @@
 //! of `intermittent_estimation.rs` and against the paper's claims.
 
 use crate::util::simulate_arc;
-use hybsim::analysis::intermittent_estimation::{EdgeGains, Network, Scenario};
 use hybsim::arc::{HybridArc, HybridTime};
 use hybsim::diagnostics::render;
 use hybsim::engine::SimRng;
 use hybsim::lang::{self, CompiledModel, Override};
 use hybsim::source::SourceFile;
+use hybsim_papers::analysis::intermittent_estimation::{EdgeGains, Network, Scenario};
 use nalgebra::DMatrix;
 use serde_json::Value;
 
 use crate::intermittent_estimation::{Decay, Observer, Reset, decay_of};
 
-const MODEL: &str = concat!(
-    env!("CARGO_MANIFEST_DIR"),
-    "/models/intermittent_estimation.hyb"
-);
+fn model() -> std::path::PathBuf {
+    hybsim_papers::model_path("intermittent_estimation.hyb")
+}
 
 /// The `--set` overrides that select a scenario.
 pub fn scenario_overrides(s: Scenario) -> &'static [&'static str] {
@@ -30,7 +29,7 @@ pub fn scenario_overrides(s: Scenario) -> &'static [&'static str] {
 
 /// Compiles the model for scenario `s` with extra overrides.
 pub fn compile(s: Scenario, extra: &[&str]) -> CompiledModel {
-    let src = SourceFile::read(MODEL).expect("model file");
+    let src = SourceFile::read(model()).expect("model file");
     let overrides: Vec<Override> = scenario_overrides(s)
         .iter()
         .chain(extra)

@@ -3,8 +3,8 @@
 //! (used by `examples/intermittent_fig2.rs` and its test).
 
 use super::{ExperimentError, compile, simulate_seeded};
-use crate::sinks::plot::{Figure, Panel, Series};
-use crate::source::SourceFile;
+use hybsim::sinks::plot::{Figure, Panel, Series};
+use hybsim::source::SourceFile;
 
 /// The scenarios of Fig. 2: letter, `--set` override, title.
 pub const SCENARIOS: [(char, &str, &str); 3] = [

@@ -39,7 +39,7 @@
 //! the paper's `a⁴ g′(p̄ + δ)`.
 //!
 //! ```
-//! use hybsim::analysis::variance_trigger::VarianceIteration;
+//! use hybsim_papers::analysis::variance_trigger::VarianceIteration;
 //! let it = VarianceIteration::new(1.2, 1.0, 1.0, 1.0, 3.0).unwrap(); // Example 1
 //! let alg = it.algorithm1(1000);
 //! assert_eq!(alg.period(), Some(3));
@@ -679,7 +679,7 @@ impl Comparison {
 pub struct SweepRow {
     /// Algorithm 1, Assumption 2, bound and Theorem 2's cycle for this δ.
     pub analysis: Analysis,
-    /// Period of the simulated `p(k)` (see [`crate::analysis::periodicity`]).
+    /// Period of the simulated `p(k)` (see [`hybsim::analysis::periodicity`]).
     pub simulated_period: Option<usize>,
     /// Periodic points of the simulated `p(k)`, sorted, if periodic.
     pub simulated_points: Option<Vec<f64>>,
@@ -698,9 +698,9 @@ impl SweepRow {
         it: &VarianceIteration,
         max_points: usize,
         simulated_p: &[f64],
-        settings: &crate::analysis::periodicity::PeriodSettings,
+        settings: &hybsim::analysis::periodicity::PeriodSettings,
     ) -> Self {
-        use crate::analysis::periodicity::{PeriodOutcome, detect_period_scalar};
+        use hybsim::analysis::periodicity::{PeriodOutcome, detect_period_scalar};
         let analysis = it.analyze(max_points);
         let (simulated_period, simulated_points) = match detect_period_scalar(simulated_p, settings)
         {

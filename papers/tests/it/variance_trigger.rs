@@ -5,9 +5,9 @@
 use std::sync::OnceLock;
 
 use hybsim::analysis::periodicity::{PeriodOutcome, PeriodSettings, detect_period_scalar};
-use hybsim::analysis::reproduction::{Row, Status, Table, sync_committed};
-use hybsim::analysis::variance_trigger::{Comparison, SweepRow, VarianceIteration};
-use hybsim::experiments::variance_trigger::{
+use hybsim_papers::analysis::reproduction::{Row, Status, Table, sync_committed};
+use hybsim_papers::analysis::variance_trigger::{Comparison, SweepRow, VarianceIteration};
+use hybsim_papers::experiments::variance_trigger::{
     Fig4, MODEL_PATH, Noise, SweepSettings, VarianceRun, VarianceTriggerModel,
 };
 use proptest::prelude::*;
@@ -30,8 +30,7 @@ const TRACE_STEPS: usize = 60;
 fn model() -> &'static VarianceTriggerModel {
     static MODEL: OnceLock<VarianceTriggerModel> = OnceLock::new();
     MODEL.get_or_init(|| {
-        VarianceTriggerModel::read(format!("{}/{MODEL_PATH}", env!("CARGO_MANIFEST_DIR")))
-            .expect("model file")
+        VarianceTriggerModel::read(hybsim_papers::repo_path(MODEL_PATH)).expect("model file")
     })
 }
 

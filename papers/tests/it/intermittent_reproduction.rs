@@ -1,9 +1,11 @@
 //! Issue 8: the REPRODUCTION.md table of Phillips–Erwin–Sanfelice, computed
 //! through the `.hyb` model (parse → compile → simulate) and `design::lmi`.
 
-use hybsim::analysis::intermittent_estimation::{EdgeGains, Network, Prop35, Scenario, Vertices};
-use hybsim::analysis::reproduction::{Row, Status, Table, sync_committed};
 use hybsim::design::lmi::Outcome;
+use hybsim_papers::analysis::intermittent_estimation::{
+    EdgeGains, Network, Prop35, Scenario, Vertices,
+};
+use hybsim_papers::analysis::reproduction::{Row, Status, Table, sync_committed};
 use nalgebra::DMatrix;
 
 use crate::intermittent_certificate::EPS;

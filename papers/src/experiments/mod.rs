@@ -1,6 +1,6 @@
 //! Paper experiments run through the whole pipeline: a `.hyb` model is
 //! parsed, checked and compiled with `--set`-style overrides
-//! ([`crate::lang`]), simulated ([`crate::engine`]), and the logged arc is
+//! ([`hybsim::lang`]), simulated ([`hybsim::engine`]), and the logged arc is
 //! read back and analysed ([`crate::analysis`]).
 //!
 //! * [`StepTable`]: the per-step values (states and outputs) of a
@@ -25,11 +25,11 @@ pub mod variance_trigger;
 
 use thiserror::Error;
 
-use crate::arc::{ArcSink, HybridArc, Termination};
-use crate::diagnostics::Diagnostic;
-use crate::engine::{HybridSystem, SimError, simulate as engine_simulate, simulate_arc};
-use crate::lang::{self, CompiledModel, Override};
-use crate::source::SourceFile;
+use hybsim::arc::{ArcSink, HybridArc, Termination};
+use hybsim::diagnostics::Diagnostic;
+use hybsim::engine::{HybridSystem, SimError, simulate as engine_simulate, simulate_arc};
+use hybsim::lang::{self, CompiledModel, Override};
+use hybsim::source::SourceFile;
 
 /// Why an experiment could not be run.
 #[derive(Debug, Clone, Error)]
@@ -42,7 +42,7 @@ pub enum ExperimentError {
         /// The parser's diagnostic.
         diagnostic: Box<Diagnostic>,
     },
-    /// The model did not compile (render with [`crate::diagnostics::render`]).
+    /// The model did not compile (render with [`hybsim::diagnostics::render`]).
     #[error("model `{model}` does not compile ({} error(s)): {}", .diagnostics.len(),
             .diagnostics.first().map_or("", |d| d.message.as_str()))]
     Compile {

@@ -21,8 +21,8 @@ use std::error::Error;
 use std::fmt::Write as _;
 use std::time::Instant;
 
-use hybsim::experiments::platoon::{Platoon, Window, synthesis_overrides};
 use hybsim::sinks::plot::{Bar, BarChart};
+use hybsim_papers::experiments::platoon::{Platoon, Window, synthesis_overrides};
 
 fn main() -> Result<(), Box<dyn Error>> {
     let args: Vec<String> = std::env::args().skip(1).collect();
@@ -52,7 +52,7 @@ fn main() -> Result<(), Box<dyn Error>> {
             None => sets.push(a.clone()),
         }
     }
-    let path = format!("{}/models/platoon.hyb", env!("CARGO_MANIFEST_DIR"));
+    let path = hybsim_papers::model_path("platoon.hyb");
     let start = Instant::now();
     let platoon = Platoon::read(&path, &sets)?;
     let design_time = start.elapsed().as_secs_f64();

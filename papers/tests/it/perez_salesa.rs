@@ -6,14 +6,14 @@
 //! REPRODUCTION.md section `perez-salesa`. Seeds are fixed (1), so every
 //! rendered number is deterministic; tolerances are stated per row.
 
-use hybsim::analysis::reproduction::{Row, Status, Table, sync_committed};
-use hybsim::experiments::consensus_estimation::{
+use hybsim_papers::analysis::reproduction::{Row, Status, Table, sync_committed};
+use hybsim_papers::experiments::consensus_estimation::{
     ConsensusModel, MODEL_PATH, Prop1Bound, RunMetrics,
 };
 use rayon::prelude::*;
 
 fn model() -> ConsensusModel {
-    ConsensusModel::read(MODEL_PATH).expect("model file")
+    ConsensusModel::read(hybsim_papers::repo_path(MODEL_PATH)).expect("model file")
 }
 
 /// Time average of ‖x(t)‖ over [0, 10] for the trajectory (8) (midpoint rule).

@@ -6,11 +6,11 @@
 use hybsim::arc::HybridArc;
 use hybsim::design::control::{StateSpace, dlqr, h2_norm, hinf_norm};
 use hybsim::engine::HybridSystem;
-use hybsim::experiments::platoon::{EnsembleStats, Platoon, Window};
 use hybsim::lang::CompiledModel;
+use hybsim_papers::experiments::platoon::{EnsembleStats, Platoon, Window};
 use nalgebra::DMatrix;
 
-use crate::lang::{load, run};
+use crate::util::{load, run};
 
 /// Looks up flat state names (`x[2]`, `xh[1][3]`) in the model's layout.
 fn index(m: &CompiledModel) -> impl Fn(&str) -> usize {
@@ -546,7 +546,7 @@ fn appendix_f_p_identity_certifies_corollary_v2_through_the_design_layer() {
     assert!((t - 0.4).abs() < 1e-6, "margin {t}");
 }
 
-use hybsim::analysis::reproduction::{Row, Status, Table, sync_committed};
+use hybsim_papers::analysis::reproduction::{Row, Status, Table, sync_committed};
 
 #[test]
 fn muehlebach_trimpe_reproduction_table() {
@@ -692,7 +692,7 @@ fn muehlebach_trimpe_reproduction_table() {
 /// must be equal, the error power equal to rounding.
 #[test]
 fn platoon_runner_statistics_equal_those_of_the_recorded_arc() {
-    use hybsim::experiments::{StepTable, simulate_seeded};
+    use hybsim_papers::experiments::{StepTable, simulate_seeded};
     let m = load("platoon.hyb", &["T=200"]);
     let seed = 7;
     let table = StepTable::from_arc(&m, &simulate_seeded(&m, seed).unwrap());
@@ -759,17 +759,14 @@ fn platoon_runner_statistics_equal_those_of_the_recorded_arc() {
 /// (c* = 0.189124), step 2 for J_max = 35 c* by CSDP in balanced coordinates (H∞ checked by a
 /// frequency sweep). Returns (c*, J_max, `--set` overrides for L, cstar and Delta).
 fn m20_reference() -> (f64, f64, Vec<String>) {
-    let path = format!(
-        "{}/tests/data/platoon_m20_cor_v3.json",
-        env!("CARGO_MANIFEST_DIR")
-    );
+    let path = hybsim_papers::repo_path("tests/data/platoon_m20_cor_v3.json");
     let v: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
     assert!(
         (v["hinf_gamma1"].as_f64().unwrap() - 1.0).abs() < 1e-4,
         "step 2 reference is feasible"
     );
-    let sets = hybsim::experiments::platoon::synthesis_overrides(&path).unwrap();
+    let sets = hybsim_papers::experiments::platoon::synthesis_overrides(&path).unwrap();
     (
         v["cstar"].as_f64().unwrap(),
         v["jmax"].as_f64().unwrap(),

@@ -14,7 +14,7 @@
 use std::error::Error;
 use std::path::PathBuf;
 
-use hybsim::experiments::consensus_estimation::{
+use hybsim_papers::experiments::consensus_estimation::{
     ConsensusModel, MODEL_PATH, tradeoff_csv, tradeoff_figure,
 };
 
@@ -27,7 +27,7 @@ fn main() -> Result<(), Box<dyn Error>> {
         return Err("DELTA_STEP must be positive".into());
     }
     std::fs::create_dir_all(&out)?;
-    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join(MODEL_PATH);
+    let path = hybsim_papers::repo_path(MODEL_PATH);
     let model = ConsensusModel::read(&path).map_err(|e| format!("{}: {e}", path.display()))?;
     let deltas: Vec<f64> = (0..)
         .map(|k| k as f64 * step)

@@ -6,28 +6,27 @@
 
 use std::sync::OnceLock;
 
-use hybsim::analysis::reproduction::{Row, Status, Table, sync_committed};
 use hybsim::arc::HybridArc;
 use hybsim::design::control::{
     StateSpace, are_residual, detectable, hinf_norm, unobservable_modes,
 };
-use hybsim::experiments;
 use hybsim::lang::CompiledModel;
 use hybsim::source::SourceFile;
+use hybsim_papers::analysis::reproduction::{Row, Status, Table, sync_committed};
+use hybsim_papers::experiments;
 use nalgebra::DMatrix;
 use serde_json::Value;
 
-const MODEL: &str = concat!(
-    env!("CARGO_MANIFEST_DIR"),
-    "/models/cooperative_estimation.hyb"
-);
+fn model() -> std::path::PathBuf {
+    hybsim_papers::model_path("cooperative_estimation.hyb")
+}
 
 /// Number of agents and state dimension of the paper's example.
 const N: usize = 4;
 const NX: usize = 2;
 
 fn load(sets: &[&str]) -> CompiledModel {
-    let src = SourceFile::read(MODEL).expect("model file");
+    let src = SourceFile::read(model()).expect("model file");
     experiments::compile(&src, sets).unwrap_or_else(|e| panic!("{e}"))
 }
 
