@@ -2,7 +2,7 @@
 //! variance-based triggering", through the pipeline: `models/variance_triggering.hyb`
 //! is compiled with `--set` overrides for each δ (a = 1.2, c = q = r = 1) and
 //! simulated; the asymptotic period of p(k) is detected in the log and set
-//! against Algorithm 1 of the library.
+//! against Algorithm 1 (`hybsim_papers::analysis::variance_trigger`).
 //!
 //! Run: `cargo run --release --example fig4 -- OUT_DIR` (default `fig4-out`). Writes
 //! - `fig4.svg`: p(k) with the threshold p̄ + δ/c² and γ(k) for δ = 3 (Example 1) and the

@@ -8,8 +8,8 @@
 //! * [`consensus_estimation`]: `models/consensus_estimation.hyb` (Perez-Salesa
 //!   et al.), the metrics of Sec. 5 and the constants of Prop. 1.
 //! * [`variance_trigger`]: `models/variance_triggering.hyb` (Trimpe and
-//!   D'Andrea) for given parameters, and the Fig. 4 δ sweep against the
-//!   library's Algorithm 1.
+//!   D'Andrea) for given parameters, and the Fig. 4 δ sweep against
+//!   Algorithm 1 of [`crate::analysis::variance_trigger`].
 //! * [`intermittent`]: Fig. 2 of Phillips–Erwin–Sanfelice from
 //!   `models/intermittent_estimation.hyb`.
 //! * [`platoon`]: `models/platoon.hyb` (Muehlebach and Trimpe) compiled once,

@@ -1,12 +1,12 @@
 //! `models/variance_triggering.hyb` (Trimpe and D'Andrea, event-based state
 //! estimation with variance-based triggering) run through the pipeline, and
 //! the paper's Fig. 4 experiment: a δ sweep whose simulated periods are set
-//! against Algorithm 1 of the library
-//! ([`crate::analysis::variance_trigger`]), and the transmit sequences of
+//! against Algorithm 1 as implemented in
+//! [`crate::analysis::variance_trigger`], and the transmit sequences of
 //! three δ drawn like Fig. 4.
 //!
 //! The model computes `p̄` with its own `dare` and the filter in the form
-//! (13)–(17); the library computes `p̄` in closed form and iterates (1)
+//! (13)–(17); that module computes `p̄` in closed form and iterates (1)
 //! directly. The two agree to rounding, which is what the reproduction
 //! tests compare with stated tolerances.
 //!
@@ -195,8 +195,8 @@ impl VarianceTriggerModel {
     }
 
     /// One row of a period sweep: the model simulated `settings.steps`
-    /// steps from `p0 = p̄`, its period detected, and Algorithm 1 of the
-    /// library for the same parameters.
+    /// steps from `p0 = p̄`, its period detected, and Algorithm 1
+    /// ([`VarianceIteration::algorithm1`]) for the same parameters.
     pub fn sweep_row(
         &self,
         it: &VarianceIteration,

@@ -1,6 +1,6 @@
 //! Issue 8: Proposition 3.5 as the `check prop_3_5` block of
-//! models/intermittent_estimation.hyb — its matrices against the library's
-//! `Network`, its verdict against `Network::check_prop_3_5` over all 2^N
+//! models/intermittent_estimation.hyb — its matrices against
+//! `analysis::intermittent_estimation::Network`, its verdict against `Network::check_prop_3_5` over all 2^N
 //! vertices of the timer box, why all vertices are needed, and `hybsim
 //! design` on the model (`hybsim run` skipping the check: tests/it/models.rs
 //! of the library).
@@ -32,7 +32,7 @@ fn matrix(json: &serde_json::Value, name: &str) -> DMatrix<f64> {
 }
 
 #[test]
-fn the_models_closed_loop_matrix_is_the_librarys() {
+fn the_models_closed_loop_matrix_is_network_a_f() {
     // A_f of (19) built in the .hyb (graph, gains, Laplacian, K_theta, ...)
     // equals `Network::a_f` in each scenario (edges in the same order).
     let src = SourceFile::read(shipped()).unwrap();
@@ -102,9 +102,9 @@ fn m_is_affine_in_the_vertex_weights_so_all_corners_are_needed() {
 }
 
 #[test]
-fn the_check_block_agrees_with_the_library() {
+fn the_check_block_agrees_with_network_check_prop_3_5() {
     // The model's `check prop_3_5` solved as `hybsim design` solves it
-    // (lang::design_only) and the library's Prop. 3.5 over all 8 vertices,
+    // (lang::design_only) and `Network::check_prop_3_5` over all 8 vertices,
     // same sigma and eps: the same verdict.
     let src = SourceFile::read(shipped()).unwrap();
     let reports = hybsim::lang::design_only(&src, &[])
@@ -126,7 +126,7 @@ fn the_check_block_agrees_with_the_library() {
         .check_prop_3_5(1.0, &Vertices::Box, 1e-3)
         .expect("solves");
     println!(
-        "{}\nlibrary (8 vertices): certified = {}, margin t* = {:?}",
+        "{}\nNetwork::check_prop_3_5 (8 vertices): certified = {}, margin t* = {:?}",
         check.summary_line(),
         lib.certified(),
         lib.margin

@@ -290,7 +290,7 @@ fn trimpe_dandrea_reproduction_table() {
 /// The data behind `examples/fig4.rs` (computed by the same library call):
 /// the three transmit sequences have the periods of Fig. 4 (3, 5, 19), and
 /// each agrees with Algorithm 1 and with Theorem 2's fixed points of h^N;
-/// the drawn p(k) is the library's iteration (1) to rounding while it stays
+/// the drawn p(k) is `VarianceIteration`'s (1) to rounding while it stays
 /// away from the threshold; every δ of the sweep plot where Algorithm 1
 /// terminates and Assumption 2 holds shows the same period for the model
 /// and for Algorithm 1; the figures render.
@@ -318,7 +318,7 @@ fn fig4_data_match_algorithm1() {
         );
         assert_eq!(tr.p.len(), TRACE_STEPS + 1);
         assert!((tr.threshold - a.threshold).abs() <= 1e-12 * a.threshold);
-        // The drawn sequence against the library's (1) from the same p0,
+        // The drawn sequence against `VarianceIteration`'s (1) from the same p0,
         // step by step from the model's own p(k).
         let it = example1().with_delta(a.delta).unwrap();
         for k in 0..TRACE_STEPS {
@@ -513,7 +513,7 @@ proptest! {
     #![proptest_config(ProptestConfig::with_cases(200))]
 
     /// Proposition 1 (i), (ii): every solution enters [p1, p2] and stays
-    /// (the model's p(k); [p1, p2] from the library).
+    /// (the model's p(k); [p1, p2] from `VarianceIteration`).
     #[test]
     fn once_in_the_invariant_interval_p_stays((a, c, q, r, delta, p0) in params()) {
         let it = VarianceIteration::new(a, c, q, r, delta).unwrap();
