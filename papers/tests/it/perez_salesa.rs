@@ -390,3 +390,71 @@ fn perez_salesa_clock_guard_on_a_timer_instant_fires_there() {
     assert_eq!(jumps, want);
     assert_eq!(m.state_dim(), 4, "k, c, m and the timer of `every`");
 }
+
+/// Fig. 6 as the model's own declarations (`metric Es, Fs` and the
+/// `sweep { }` block, run by `hybsim sweep models/consensus_estimation.hyb`):
+/// the block is the figure's grid (δ = 0, 10, …, 80, S = 20), and every run
+/// of the sweep machinery gives the Rust experiment's 𝓔_s and normalised
+/// 𝓕_s ([`ConsensusModel::run`], the REPRODUCTION.md values) for the same
+/// seed. Short runs (T_f = 0.2, 2 per δ) keep it quick.
+#[test]
+fn perez_salesa_fig6_sweep_block_is_the_rust_experiment() {
+    use hybsim::lang::Override;
+    use hybsim::sinks::RunStatus;
+    use hybsim::sweep::{self, Axis, Shard, SweepSpec};
+
+    let model = model();
+    let base = model.compile::<&str>(&[]).expect("compiles");
+    assert_eq!(base.metrics().names(), ["Es", "Fs"]);
+    let block = base.sweep().expect("a sweep block").clone();
+    let deltas: Vec<f64> = (0..=8).map(|k| 10.0 * k as f64).collect();
+    assert_eq!(block.axes, [("delta".to_string(), deltas.clone())]);
+    assert_eq!((block.runs, block.seed), (Some(20), Some(1)));
+
+    let horizon = "Tf=0.2";
+    let fixed: Vec<Override> = vec![horizon.parse().unwrap()];
+    let axis = Axis {
+        name: "delta".into(),
+        values: deltas.clone(),
+    };
+    let spec = SweepSpec::new(vec![axis], 2, 1);
+    let rows = sweep::run(
+        model.source(),
+        &fixed,
+        &spec,
+        Shard::ALL,
+        &Default::default(),
+        Default::default(),
+    );
+    assert_eq!(rows.len(), 18);
+    let close = |a: f64, b: f64| (a - b).abs() <= 1e-12 * b.abs().max(1e-300);
+    let mut seeds = std::collections::BTreeSet::new();
+    for row in &rows {
+        assert_eq!(row.status, RunStatus::Completed, "{}", row.message);
+        seeds.insert(row.seed);
+        let sets = [horizon.to_string(), format!("delta={}", row.values[0])];
+        let rust = model.run(&sets, row.seed).expect("runs");
+        let (es, fs) = (row.metrics[0], row.metrics[1]);
+        assert!(
+            close(es, rust.error),
+            "delta = {}, seed {}: sweep Es = {es}, experiment 𝓔_s = {}",
+            row.values[0],
+            row.seed,
+            rust.error
+        );
+        assert!(
+            close(fs, rust.frequency_normalised),
+            "delta = {}, seed {}: sweep Fs = {fs}, experiment 𝓕_s h = {}",
+            row.values[0],
+            row.seed,
+            rust.frequency_normalised
+        );
+    }
+    assert_eq!(seeds.len(), rows.len(), "every run has its own seed");
+    // The figure's trend on the point means: 𝓕 falls from 1 (δ = 0: every
+    // node at every step) as δ grows.
+    let points = sweep::aggregate(&spec, &rows);
+    let f: Vec<f64> = points.iter().map(|p| p.stats[1].mean).collect();
+    assert_eq!(f[0], 1.0, "{f:?}");
+    assert!(f.windows(2).all(|w| w[1] <= w[0]), "{f:?}");
+}
