@@ -874,3 +874,63 @@ fn platoon_m20_corollary_v3_design_and_fig6() {
     let p = Platoon::new(m).unwrap();
     m20_fig6_checks(&p.ensemble(1..=4, &Window::default()).unwrap(), jmax);
 }
+
+/// Figs. 5–6 as the model's own declarations (`metric rate_ss[i]`,
+/// `rate_all` and the `sweep { }` block, run by `hybsim sweep
+/// models/platoon.hyb`): the block sweeps the J_max of Fig. 5 (right) with
+/// 20 runs, and every run of the sweep machinery gives the Rust
+/// experiment's steady-state rates ([`Platoon::run`], the REPRODUCTION.md
+/// values) for the same seed, exactly: both count the steps at t ≥ 100 s in
+/// which a vehicle sent. Short runs (T = 200 s, 2 per J_max, 3 of the 11
+/// J_max) keep it quick; the design blocks are solved per J_max on both sides.
+#[test]
+fn platoon_rates_sweep_block_is_the_rust_experiment() {
+    use hybsim::lang::Override;
+    use hybsim::sinks::RunStatus;
+    use hybsim::source::SourceFile;
+    use hybsim::sweep::{self, Axis, Shard, SweepSpec};
+
+    let base = load("platoon.hyb", &[]);
+    let names: Vec<&str> = base.metrics().names().iter().map(String::as_str).collect();
+    assert_eq!(
+        names,
+        ["rate_ss[1]", "rate_ss[2]", "rate_ss[3]", "rate_all"]
+    );
+    let block = base.sweep().expect("a sweep block").clone();
+    let jmax = [0.05, 0.1, 0.15, 0.2, 0.25, 0.3, 0.33, 0.36, 0.38, 0.42, 0.5];
+    assert_eq!(block.axes, [("Jmax".to_string(), jmax.to_vec())]);
+    assert_eq!((block.runs, block.seed), (Some(20), Some(1)));
+
+    let src = SourceFile::read(hybsim_papers::model_path("platoon.hyb")).unwrap();
+    let fixed: Vec<Override> = vec!["T=200".parse().unwrap()];
+    let axis = Axis {
+        name: "Jmax".into(),
+        values: vec![0.1, 0.3, 0.38],
+    };
+    let spec = SweepSpec::new(vec![axis], 2, 1);
+    let rows = sweep::run(
+        &src,
+        &fixed,
+        &spec,
+        Shard::ALL,
+        &Default::default(),
+        Default::default(),
+    );
+    assert_eq!(rows.len(), 6);
+    let window = Window::default();
+    let tss = base.parameter("tss").expect("param tss")[(0, 0)];
+    assert_eq!(window.t_ss, tss, "the same steady-state window");
+    for row in &rows {
+        assert_eq!(row.status, RunStatus::Completed, "{}", row.message);
+        let jmax = format!("Jmax={}", row.values[0]);
+        let p = Platoon::new(load("platoon.hyb", &["T=200", &jmax])).unwrap();
+        let rust = p.run(row.seed, &window).unwrap();
+        assert_eq!(row.metrics[..3], rust.rate[..], "{jmax}, seed {}", row.seed);
+        let mean = rust.rate.iter().sum::<f64>() / 3.0;
+        assert!((row.metrics[3] - mean).abs() <= 1e-15, "{jmax}: rate_all");
+    }
+    // Fig. 5 (right): the rates fall as J_max grows (more error allowed).
+    let points = sweep::aggregate(&spec, &rows);
+    let all: Vec<f64> = points.iter().map(|p| p.stats[3].mean).collect();
+    assert!(all[0] > all[1] && all[1] > all[2], "{all:?}");
+}
