@@ -581,3 +581,83 @@ proptest! {
         prop_assert!(back.is_some_and(|b| (b - p).abs() <= 1e-9 * p2), "{p} → {back:?}");
     }
 }
+
+/// Fig. 4's δ sweep as the model's own declarations (`metric steps_per_tx`
+/// and the `sweep { }` block, run by `hybsim sweep
+/// models/variance_triggering.hyb`): on every δ of the block whose simulated
+/// p(k) is N-periodic (the Rust experiment, [`VarianceTriggerModel::sweep_row`]),
+/// the sweep's mean transmit interval is N/m, m the points of the periodic
+/// orbit at or above the threshold, to within the window's resolution:
+/// the window of L = T − k_ss steps holds L·m/N transmissions to within m,
+/// so N/m to within a factor 1 ± N/L.
+#[test]
+fn fig4_sweep_block_gives_the_period_per_transmission() {
+    use hybsim::sinks::RunStatus;
+    use hybsim::source::SourceFile;
+    use hybsim::sweep::{self, Axis, Shard, SweepSpec};
+
+    let src = SourceFile::read(hybsim_papers::repo_path(MODEL_PATH)).unwrap();
+    let base = hybsim::lang::compile(&src, &[]).expect("compiles");
+    assert_eq!(base.metrics().names(), ["steps_per_tx"]);
+    let block = base.sweep().expect("a sweep block").clone();
+    let names: Vec<&str> = block.axes.iter().map(|(n, _)| n.as_str()).collect();
+    assert_eq!(names, ["delta", "T", "J", "noise_scale"]);
+    assert_eq!(block.axes[0].1.len(), 100);
+    assert_eq!(
+        &block.axes[1..],
+        [
+            ("T".to_string(), vec![4000.5]),
+            ("J".to_string(), vec![4000.0]),
+            ("noise_scale".to_string(), vec![0.0]),
+        ]
+    );
+    let axes: Vec<Axis> = block
+        .axes
+        .iter()
+        .map(|(name, values)| Axis {
+            name: name.clone(),
+            values: values.clone(),
+        })
+        .collect();
+    let spec = SweepSpec::new(axes, 1, 1);
+    let rows = sweep::run(
+        &src,
+        &[],
+        &spec,
+        Shard::ALL,
+        &Default::default(),
+        Default::default(),
+    );
+    assert_eq!(rows.len(), 100);
+    let settings = SweepSettings::default();
+    let window = 4000.0 - 20.0;
+    let mut checked = 0;
+    let mut several = 0;
+    for row in &rows {
+        assert_eq!(row.status, RunStatus::Completed, "{}", row.message);
+        let it = VarianceIteration::new(1.2, 1.0, 1.0, 1.0, row.values[0]).unwrap();
+        let rust = model().sweep_row(&it, &settings).unwrap();
+        let (Some(n), Some(points)) = (rust.simulated_period, &rust.simulated_points) else {
+            continue;
+        };
+        let m = points.iter().filter(|&&p| it.transmits(p)).count();
+        assert!(
+            m >= 1,
+            "delta = {}: no transmission in {points:?}",
+            it.delta()
+        );
+        let want = n as f64 / m as f64;
+        let got = row.metrics[0];
+        assert!(
+            (got - want).abs() <= want * n as f64 / window,
+            "delta = {}: steps_per_tx = {got}, N/m = {n}/{m}",
+            it.delta()
+        );
+        checked += 1;
+        several += usize::from(m > 1);
+    }
+    // Periodic on the whole grid, and some periods hold more than one
+    // transmission (so the metric is not the period itself).
+    assert_eq!(checked, rows.len(), "periodic deltas");
+    assert!(several > 0);
+}
