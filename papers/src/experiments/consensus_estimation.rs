@@ -33,7 +33,7 @@ use hybsim::engine::{HybridSystem, simulate};
 use hybsim::lang::CompiledModel;
 use hybsim::source::SourceFile;
 
-/// The model file, relative to the crate root.
+/// The model file, relative to the repository root ([`crate::repo_path`]).
 pub const MODEL_PATH: &str = "models/consensus_estimation.hyb";
 
 /// The consensus-estimation model (source kept; compiled per setting).

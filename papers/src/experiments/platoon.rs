@@ -35,7 +35,7 @@ use hybsim::lang::CompiledModel;
 use hybsim::layout::{Entry, Shape};
 use hybsim::source::SourceFile;
 
-/// The model file, relative to the crate root.
+/// The model file, relative to the repository root ([`crate::repo_path`]).
 pub const MODEL_PATH: &str = "models/platoon.hyb";
 
 /// Which part of a run the statistics cover, and which quantile.

@@ -31,7 +31,7 @@ use hybsim::lang::CompiledModel;
 use hybsim::sinks::plot::{Figure, Panel, Series};
 use hybsim::source::SourceFile;
 
-/// The model file, relative to the crate root.
+/// The model file, relative to the repository root ([`crate::repo_path`]).
 pub const MODEL_PATH: &str = "models/variance_triggering.hyb";
 
 /// The variance-triggering model (source kept; compiled per run with
