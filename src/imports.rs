@@ -20,8 +20,10 @@ use crate::syntax::{SyntaxError, parse_library};
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum ImportError {
     /// An absolute path, a URL, or a path leaving the model's folder.
-    #[error("import `{path}` is not allowed: {why}")]
+    #[error("{kind} `{path}` is not allowed: {why}")]
     NotAllowed {
+        /// What names the file: `import` or `table`.
+        kind: &'static str,
         /// The path as written.
         path: String,
         /// Why, in words.
@@ -60,9 +62,13 @@ impl ImportError {
     pub fn to_diagnostic(&self) -> Diagnostic {
         let d = |code| Diagnostic::error(code, self.to_string());
         match self {
-            ImportError::NotAllowed { span, .. } => d("E0801")
+            ImportError::NotAllowed { span, kind, .. } => d("E0801")
                 .primary(*span, "not allowed")
-                .help("import files by a relative path inside the model's folder, e.g. `import \"lib/zoh.hyb\"`"),
+                .help(if *kind == "table" {
+                    "name data files by a relative path inside the model's folder, e.g. `table(\"data/timers.csv\")`"
+                } else {
+                    "import files by a relative path inside the model's folder, e.g. `import \"lib/zoh.hyb\"`"
+                }),
             ImportError::Unreadable { span, .. } => d("E0802")
                 .primary(*span, "cannot be read")
                 .help("paths are relative to the importing file"),
@@ -79,10 +85,7 @@ impl ImportError {
 /// `src` is the model's source; its name is its path.
 pub fn resolve(src: &SourceFile, model: &mut Model) -> Result<SourceMap, Vec<Diagnostic>> {
     let mut r = Resolver {
-        root: Path::new(src.name())
-            .parent()
-            .map(Path::to_path_buf)
-            .unwrap_or_default(),
+        root: model_root(src),
         map: SourceMap::default(),
         model_len: src.text().len(),
         stack: vec![canonical(Path::new(src.name()))],
@@ -130,16 +133,16 @@ fn imports_of(items: &[Item]) -> Vec<(String, Span)> {
         .collect()
 }
 
-fn canonical(p: &Path) -> PathBuf {
-    std::fs::canonicalize(p).unwrap_or_else(|_| p.to_path_buf())
-}
-
 impl Resolver {
     /// Reads the imports of a file at `dir` (relative to the root).
     fn file(&mut self, dir: &Path, imports: &[(String, Span)]) {
         for (path, span) in imports {
-            let Some(rel) = self.check(dir, path, *span) else {
-                continue;
+            let rel = match relative_path(dir, path, *span, "import") {
+                Ok(rel) => rel,
+                Err(e) => {
+                    self.errors.push(e);
+                    continue;
+                }
             };
             let full = self.root.join(&rel);
             let canon = canonical(&full);
@@ -155,15 +158,8 @@ impl Resolver {
             if self.loaded.contains(&canon) {
                 continue;
             }
-            // A symbolic link may lead out of the folder.
-            if let (Ok(root), Ok(_)) = (std::fs::canonicalize(self.root_dir()), canon.metadata())
-                && !canon.starts_with(&root)
-            {
-                self.errors.push(ImportError::NotAllowed {
-                    path: path.clone(),
-                    why: "it leads out of the model's folder (through a link)".into(),
-                    span: *span,
-                });
+            if let Err(e) = inside_root(&self.root, &canon, path, *span, "import") {
+                self.errors.push(e);
                 continue;
             }
             let text = match std::fs::read_to_string(&full) {
@@ -204,56 +200,87 @@ impl Resolver {
             );
         }
     }
+}
 
-    fn root_dir(&self) -> &Path {
-        if self.root.as_os_str().is_empty() {
-            Path::new(".")
-        } else {
-            &self.root
-        }
+/// The path `path` (as written in a file at `dir`, relative to the model's
+/// folder) relative to the model's folder, or an error: absolute paths,
+/// URLs and paths above the folder are refused. `kind` names what uses the
+/// path (`import`, `table`) in the message.
+pub(crate) fn relative_path(
+    dir: &Path,
+    path: &str,
+    span: Span,
+    kind: &'static str,
+) -> Result<PathBuf, ImportError> {
+    let refuse = |why: &str| ImportError::NotAllowed {
+        kind,
+        path: path.to_string(),
+        why: why.to_string(),
+        span,
+    };
+    if path.contains("://") || path.starts_with("file:") {
+        return Err(refuse("a URL (only files beside the model)"));
     }
-
-    /// The path relative to the root, or an error: absolute paths, URLs and
-    /// paths above the root are refused.
-    fn check(&mut self, dir: &Path, path: &str, span: Span) -> Option<PathBuf> {
-        let refuse = |why: &str| ImportError::NotAllowed {
-            path: path.to_string(),
-            why: why.to_string(),
-            span,
-        };
-        if path.contains("://") || path.starts_with("file:") {
-            self.errors
-                .push(refuse("a URL (only files beside the model)"));
-            return None;
-        }
-        let p = Path::new(path);
-        if path.is_empty() {
-            self.errors.push(refuse("the path is empty"));
-            return None;
-        }
-        if p.is_absolute() || path.starts_with('/') || path.starts_with('\\') || p.has_root() {
-            self.errors
-                .push(refuse("an absolute path (write it relative to the model)"));
-            return None;
-        }
-        let mut rel = PathBuf::new();
-        for c in dir.join(p).components() {
-            match c {
-                Component::Normal(s) => rel.push(s),
-                Component::CurDir => {}
-                Component::ParentDir => {
-                    if !rel.pop() {
-                        self.errors
-                            .push(refuse("it leads out of the model's folder (`..`)"));
-                        return None;
-                    }
-                }
-                Component::RootDir | Component::Prefix(_) => {
-                    self.errors.push(refuse("an absolute path"));
-                    return None;
+    let p = Path::new(path);
+    if path.is_empty() {
+        return Err(refuse("the path is empty"));
+    }
+    if p.is_absolute() || path.starts_with('/') || path.starts_with('\\') || p.has_root() {
+        return Err(refuse("an absolute path (write it relative to the model)"));
+    }
+    let mut rel = PathBuf::new();
+    for c in dir.join(p).components() {
+        match c {
+            Component::Normal(s) => rel.push(s),
+            Component::CurDir => {}
+            Component::ParentDir => {
+                if !rel.pop() {
+                    return Err(refuse("it leads out of the model's folder (`..`)"));
                 }
             }
+            Component::RootDir | Component::Prefix(_) => return Err(refuse("an absolute path")),
         }
-        Some(rel)
     }
+    Ok(rel)
+}
+
+/// Refuses an existing file `canon` (canonical) outside the model's folder
+/// `root`: a symbolic link may lead out of it.
+pub(crate) fn inside_root(
+    root: &Path,
+    canon: &Path,
+    path: &str,
+    span: Span,
+    kind: &'static str,
+) -> Result<(), ImportError> {
+    let root = if root.as_os_str().is_empty() {
+        Path::new(".")
+    } else {
+        root
+    };
+    if let (Ok(root), Ok(_)) = (std::fs::canonicalize(root), canon.metadata())
+        && !canon.starts_with(&root)
+    {
+        return Err(ImportError::NotAllowed {
+            kind,
+            path: path.to_string(),
+            why: "it leads out of the model's folder (through a link)".into(),
+            span,
+        });
+    }
+    Ok(())
+}
+
+/// The model's folder (empty for a model named without a folder: the
+/// current one).
+pub(crate) fn model_root(src: &SourceFile) -> PathBuf {
+    Path::new(src.name())
+        .parent()
+        .map(Path::to_path_buf)
+        .unwrap_or_default()
+}
+
+/// The canonical form of `p` (itself if it cannot be resolved).
+pub(crate) fn canonical(p: &Path) -> PathBuf {
+    std::fs::canonicalize(p).unwrap_or_else(|_| p.to_path_buf())
 }

@@ -108,6 +108,7 @@ pub fn compile_with(
 fn parse(src: &SourceFile) -> Result<(syntax::ast::Model, SourceMap), Vec<Diagnostic>> {
     let mut model = syntax::parse_model(src.text()).map_err(|e| vec![e.to_diagnostic()])?;
     let map = crate::imports::resolve(src, &mut model)?;
+    crate::tables::resolve(src, &mut model)?;
     Ok((model, map))
 }
 

@@ -24,3 +24,4 @@ pub mod sinks;
 pub mod source;
 pub mod sweep;
 pub mod syntax;
+pub mod tables;

@@ -395,6 +395,9 @@ fn collect(
             Item::Param(defs) | Item::Output(defs) => defs.iter().for_each(|d| add(&d.target, out)),
             Item::Graph(d) | Item::RandomParam(d) => add(&d.target, out),
             Item::ParamTuple(ts, _) => ts.iter().for_each(|t| add(t, out)),
+            Item::Table(t) => {
+                out.entry(t.name.name.clone()).or_insert(false);
+            }
             Item::State(defs) => defs.iter().for_each(|d| add(&d.target, out)),
             Item::Input(defs) => defs.iter().for_each(|d| add(&d.target, out)),
             Item::Noise(n) => add(&n.target, out),
@@ -759,6 +762,7 @@ fn item_span(it: &Item) -> Span {
         Item::Sweep(s) => s.span,
         Item::Log(l) => l.span,
         Item::Import(i) => i.span,
+        Item::Table(t) => t.name.span,
         Item::Subsystem(s) => s.name.span,
         Item::Instance(i) => i.span,
         Item::Part(t, _) => t.span,

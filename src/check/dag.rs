@@ -9,6 +9,7 @@
 //! linear solve, matrix exponential, spectral norm) are [`Block`] nodes.
 
 use std::collections::HashMap;
+use std::sync::Arc;
 
 use nalgebra::DMatrix;
 
@@ -241,6 +242,99 @@ pub enum Node {
     Rand(Dist, NodeId, NodeId, u32),
     /// Output k of block b.
     BlockOut(u32, u32),
+    /// Entry `[row, col]` (1-based, evaluated at run time) of constant
+    /// table `table`; `origin` indexes the span table (the indexing
+    /// expression), named when the index is out of range or not an integer.
+    Lookup {
+        /// The table ([`Dag::table`]).
+        table: u32,
+        /// Row index node (1-based).
+        row: NodeId,
+        /// Column index node (1-based).
+        col: NodeId,
+        /// Span index of the indexing expression.
+        origin: u32,
+        /// The condition under which the entry is needed (the branch of an
+        /// `if`, the right operand of `&&`/`||`): an index that fails where
+        /// it is 0 is not an error (short-circuit semantics).
+        when: NodeId,
+    },
+    /// Piecewise-linear interpolation in table `table` (row 0 the strictly
+    /// increasing abscissae, row 1 the ordinates) at `x`, clamped at the
+    /// ends; with `slope`, its derivative in x instead (the segment's
+    /// slope, 0 outside the abscissae).
+    Interp {
+        /// The table ([`Dag::table`]).
+        table: u32,
+        /// The argument.
+        x: NodeId,
+        /// The derivative instead of the value.
+        slope: bool,
+    },
+}
+
+/// A constant matrix looked up at run time (`tk[k]` with a run-time `k`,
+/// `interp(xs, ys, x)`): row-major values, shared by the programs that use
+/// it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Table {
+    /// Rows.
+    pub rows: usize,
+    /// Columns.
+    pub cols: usize,
+    /// Entries, row-major.
+    pub data: Box<[f64]>,
+}
+
+/// Why a run-time index failed.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct BadIndex {
+    /// The row index as evaluated.
+    pub row: f64,
+    /// The column index as evaluated.
+    pub col: f64,
+}
+
+impl Table {
+    /// Entry `[row, col]` (1-based); an index that is not an integer in
+    /// range is an error (never rounded or clamped: a table index computed
+    /// wrongly must not silently read a neighbour).
+    #[inline]
+    pub fn lookup(&self, row: f64, col: f64) -> Result<f64, BadIndex> {
+        let ok = |i: f64, n: usize| i >= 1.0 && i <= n as f64 && i.fract() == 0.0;
+        if ok(row, self.rows) && ok(col, self.cols) {
+            Ok(self.data[(row as usize - 1) * self.cols + (col as usize - 1)])
+        } else {
+            Err(BadIndex { row, col })
+        }
+    }
+
+    /// Linear interpolation at `x` through the points (row 0, row 1),
+    /// clamped to the first and last ordinate outside the abscissae; NaN
+    /// for NaN. With `slope`, the derivative: the slope of the segment
+    /// `[xs[i], xs[i+1])` holding x (0 outside `[xs[0], xs[n-1])`, as the
+    /// right derivative at a breakpoint).
+    #[inline]
+    pub fn interp(&self, x: f64, slope: bool) -> f64 {
+        let n = self.cols;
+        let (xs, ys) = self.data.split_at(n);
+        if x.is_nan() {
+            return f64::NAN;
+        }
+        if n == 1 || x < xs[0] || x >= xs[n - 1] {
+            return if slope {
+                0.0
+            } else if n == 1 || x < xs[0] {
+                ys[0]
+            } else {
+                ys[n - 1]
+            };
+        }
+        // The segment i with xs[i] <= x < xs[i + 1].
+        let i = xs.partition_point(|&v| v <= x) - 1;
+        let s = (ys[i + 1] - ys[i]) / (xs[i + 1] - xs[i]);
+        if slope { s } else { ys[i] + (x - xs[i]) * s }
+    }
 }
 
 /// A block operation with its inputs.
@@ -261,6 +355,8 @@ pub struct Dag {
     memo: HashMap<Node, NodeId>,
     blocks: Vec<Block>,
     block_memo: HashMap<(BlockKind, Vec<NodeId>), u32>,
+    tables: Vec<Arc<Table>>,
+    table_memo: HashMap<(usize, Vec<NodeId>), u32>,
     draws: u32,
     /// Work done so far (nodes requested, loop iterations charged): the
     /// checker bounds it so that no input makes compilation hang.
@@ -548,14 +644,80 @@ impl Dag {
             .collect())
     }
 
+    /// The constant table with entries `entries` (constant nodes,
+    /// row-major, `rows` × `cols`), shared with an earlier one of the same
+    /// entries; `None` if an entry is not a constant.
+    pub fn table(&mut self, entries: &[NodeId], rows: usize, cols: usize) -> Option<u32> {
+        let key = (cols, entries.to_vec());
+        if let Some(&t) = self.table_memo.get(&key) {
+            return Some(t);
+        }
+        let data: Option<Box<[f64]>> = entries.iter().map(|&e| self.as_const(e)).collect();
+        let t = self.tables.len() as u32;
+        self.tables.push(Arc::new(Table {
+            rows,
+            cols,
+            data: data?,
+        }));
+        self.table_memo.insert(key, t);
+        Some(t)
+    }
+
+    /// The table with index `t`.
+    pub fn table_at(&self, t: u32) -> &Arc<Table> {
+        &self.tables[t as usize]
+    }
+
+    /// `table[row, col]` at run time (1-based); folded when both indices
+    /// are constants (`Err` then: out of range or not an integer).
+    pub fn lookup(
+        &mut self,
+        table: u32,
+        row: NodeId,
+        col: NodeId,
+        origin: u32,
+        when: NodeId,
+    ) -> Result<NodeId, BadIndex> {
+        if let (Some(r), Some(c)) = (self.as_const(row), self.as_const(col)) {
+            return match self.tables[table as usize].lookup(r, c) {
+                Ok(v) => Ok(self.konst(v)),
+                // Never needed: no error (and no value).
+                Err(_) if self.as_const(when) == Some(0.0) => Ok(self.konst(f64::NAN)),
+                Err(e) => Err(e),
+            };
+        }
+        Ok(self.intern(Node::Lookup {
+            table,
+            row,
+            col,
+            origin,
+            when,
+        }))
+    }
+
+    /// `interp` of table `table` at `x` (its `slope`), folded for a
+    /// constant `x`.
+    pub fn interp(&mut self, table: u32, x: NodeId, slope: bool) -> NodeId {
+        if let Some(v) = self.as_const(x) {
+            let y = self.tables[table as usize].interp(v, slope);
+            return self.konst(y);
+        }
+        self.intern(Node::Interp { table, x, slope })
+    }
+
     /// Visits the direct inputs of `id`.
     pub fn inputs(&self, id: NodeId, mut f: impl FnMut(NodeId)) {
         match self.nodes[id as usize] {
             Node::Const(_) | Node::State(_) | Node::Time | Node::Jumps | Node::Wiener(_) => {}
-            Node::Un(_, a) => f(a),
+            Node::Un(_, a) | Node::Interp { x: a, .. } => f(a),
             Node::Bin(_, a, b) | Node::Rand(_, a, b, _) => {
                 f(a);
                 f(b);
+            }
+            Node::Lookup { row, col, when, .. } => {
+                f(row);
+                f(col);
+                f(when);
             }
             Node::Select(c, a, b) => {
                 f(c);

@@ -298,6 +298,9 @@ pub enum CheckError {
     /// An error in a `design` block (E07xx).
     #[error(transparent)]
     Design(super::design::DesignError),
+    /// A `table("…")` that could not be read (E0801, E0802, E0804, E0307).
+    #[error(transparent)]
+    Table(crate::tables::TableError),
     /// A model whose compilation would exceed the work budget (huge
     /// matrices or loops).
     #[error("the model is too large to compile (more than {limit} scalar operations)")]
@@ -390,6 +393,7 @@ impl CheckError {
             | NonFiniteFlow { span, .. }
             | NoiseNotAffine { span, .. } => *span,
             Design(e) => e.span(),
+            Table(e) => e.span(),
             AlgebraicLoop { cycle } => cycle.first().map(|c| c.1).unwrap_or_default(),
             Override { .. } => Span::default(),
         }
@@ -430,6 +434,7 @@ impl CheckError {
             RecursiveSubsystem { .. } => "E0513",
             NonFiniteFlow { .. } => "E0514",
             Design(e) => e.code(),
+            Table(e) => e.code(),
         }
     }
 
@@ -573,6 +578,7 @@ impl CheckError {
                 .note("flows with noise are read as x' = f(x) + G(x) w, w white noise")
                 .help("write the noise term as a coefficient times the noise, e.g. `sigma * x * w`; the coefficient may depend on the state"),
             Design(e) => e.to_diagnostic(),
+            Table(e) => e.to_diagnostic(),
         }
     }
 }

@@ -88,6 +88,7 @@ pub(crate) const BUILTINS: &[&str] = &[
     "rem",
     "hypot",
     "clamp",
+    "interp",
     "rows",
     "cols",
     "length",
@@ -640,13 +641,27 @@ impl Checker {
             }
             ExprKind::Binary(op, a, b) => {
                 let l = self.expr(a, ctx);
-                let r = self.expr(b, ctx);
+                // `a && b` needs b only where a holds, `a || b` only where
+                // it does not (for run-time indices).
+                let cond = match (op, &l) {
+                    (BinOp::And, Some(v)) if v.is_scalar() => Some(v.e[0]),
+                    (BinOp::Or, Some(v)) if v.is_scalar() => Some(self.dag.un(UnFn::Not, v.e[0])),
+                    _ => None,
+                };
+                let r = self.under(cond, |this| this.expr(b, ctx));
                 self.binary(*op, l?, r?, e.span)
             }
             ExprKind::If(c, a, b) => {
                 let cv = self.expr(c, ctx);
-                let av = self.expr(a, ctx);
-                let bv = self.expr(b, ctx);
+                let (yes, no) = match &cv {
+                    Some(v) if v.is_scalar() => {
+                        let not = self.dag.un(UnFn::Not, v.e[0]);
+                        (Some(v.e[0]), Some(not))
+                    }
+                    _ => (None, None),
+                };
+                let av = self.under(yes, |this| this.expr(a, ctx));
+                let bv = self.under(no, |this| this.expr(b, ctx));
                 let (cv, av, bv) = (cv?, av?, bv?);
                 if !cv.is_scalar() {
                     self.err(CheckError::Expected {
@@ -704,7 +719,7 @@ impl Checker {
                     return self.family_member(n, e.span, args);
                 }
                 let v = self.expr(base, ctx)?;
-                self.index(&v, args, e.span)
+                self.index_in(&v, args, e.span, ctx)
             }
             ExprKind::Call(f, args) => self.call(&f.name, f.span, args, e.span, ctx),
         }
@@ -999,6 +1014,204 @@ impl Checker {
                 Some((l..=h).collect())
             }
         }
+    }
+
+    /// Runs `f` with the path condition narrowed by `cond` (see
+    /// [`Checker::path`]).
+    fn under<T>(&mut self, cond: Option<NodeId>, f: impl FnOnce(&mut Self) -> T) -> T {
+        let Some(c) = cond else { return f(self) };
+        let outer = self.path;
+        let c = match outer {
+            Some(p) => self.dag.bin(BinFn::And, p, c),
+            None => c,
+        };
+        self.path = Some(c);
+        let r = f(self);
+        self.path = outer;
+        r
+    }
+
+    /// `v[args]` where an index may be a run-time expression of the
+    /// context `ctx` (`tk[k]` with a state `k`): its entries are then
+    /// looked up when evaluated, from `v`'s constant values (a parameter
+    /// or table), checked to be an integer in range at run time (E0604).
+    /// Constant indices take the constant path ([`index`](Self::index)).
+    fn index_in(&mut self, v: &Val, args: &[IndexArg], span: Span, ctx: &Ctx) -> Option<Val> {
+        let mut dynamic: Vec<Option<NodeId>> = Vec::with_capacity(args.len());
+        for a in args {
+            let mut node = None;
+            if let IndexArg::One(e) = a {
+                let i = self.expr(e, ctx)?;
+                if i.is_scalar() && self.dag.as_const(i.e[0]).is_none() {
+                    node = Some(i.e[0]);
+                }
+            }
+            dynamic.push(node);
+        }
+        if dynamic.iter().all(Option::is_none) {
+            return self.index(v, args, span);
+        }
+        let vector = v.cols == 1 || v.rows == 1;
+        let (rows, cols) = match args.len() {
+            1 if vector => (v.e.len(), 1),
+            2 => (v.rows, v.cols),
+            _ => return self.index(v, args, span),
+        };
+        let Some(table) = self.dag.table(&v.e, rows, cols) else {
+            let at = args
+                .iter()
+                .zip(&dynamic)
+                .find_map(|(a, d)| match (a, d) {
+                    (IndexArg::One(e), Some(_)) => Some(e.span),
+                    _ => None,
+                })
+                .unwrap_or(span);
+            self.err(CheckError::NotConstant {
+                what: "an index into a vector or matrix that is not a parameter \
+                       (run-time indices read parameters and tables)"
+                    .into(),
+                span: at,
+            });
+            return None;
+        };
+        // Each dimension: the run-time index node, or the constant selection.
+        let mut sel: Vec<Result<NodeId, Vec<usize>>> = Vec::with_capacity(2);
+        for (k, (a, d)) in args.iter().zip(&dynamic).enumerate() {
+            let len = if k == 0 { rows } else { cols };
+            sel.push(match d {
+                Some(n) => Ok(*n),
+                None => Err(self.selection(a, len)?),
+            });
+        }
+        if sel.len() == 1 {
+            sel.push(Err(vec![0]));
+        }
+        let origin = self.block_spans.len() as u32;
+        self.block_spans.push(span);
+        let picks = |s: &Result<NodeId, Vec<usize>>| match s {
+            Ok(n) => vec![Ok(*n)],
+            Err(ks) => ks.iter().map(|&k| Err(k)).collect(),
+        };
+        let (rsel, csel) = (picks(&sel[0]), picks(&sel[1]));
+        let mut e = Vec::with_capacity(rsel.len() * csel.len());
+        for r in &rsel {
+            for c in &csel {
+                let mut node = |x: &Result<NodeId, usize>| match *x {
+                    Ok(n) => n,
+                    Err(k) => self.dag.konst((k + 1) as f64),
+                };
+                let (r, c) = (node(r), node(c));
+                let when = match self.path {
+                    Some(p) => p,
+                    None => self.dag.konst(1.0),
+                };
+                // At least one index is not a constant: nothing to fold.
+                let n = self
+                    .dag
+                    .lookup(table, r, c, origin, when)
+                    .unwrap_or_else(|_| unreachable!("a run-time index is not folded"));
+                e.push(n);
+            }
+        }
+        // One index: a scalar; two: rows × columns selected.
+        let (out_rows, out_cols) = (rsel.len(), csel.len());
+        Some(Val {
+            rows: out_rows,
+            cols: out_cols,
+            e,
+            boolean: v.boolean,
+        })
+    }
+
+    /// `interp(xs, ys, x)`: piecewise-linear interpolation through the
+    /// points (xs[k], ys[k]) (constant vectors of one length, xs strictly
+    /// increasing), clamped to the end values outside [xs[1], xs[n]];
+    /// elementwise in x.
+    fn interp_call(&mut self, args: &[Expr], ctx: &Ctx) -> Option<Val> {
+        let xs = self.expr(&args[0], ctx);
+        let ys = self.expr(&args[1], ctx);
+        let x = self.expr(&args[2], ctx);
+        let (xs, ys, x) = (xs?, ys?, x?);
+        let mut ok = true;
+        let mut points = Vec::with_capacity(2);
+        for (v, e, what) in [(&xs, &args[0], "xs"), (&ys, &args[1], "ys")] {
+            if (v.cols != 1 && v.rows != 1) || v.e.is_empty() {
+                self.err(CheckError::Expected {
+                    expected: format!("a vector for `interp`'s {what}"),
+                    found: dims_words(v.dims()),
+                    span: e.span,
+                });
+                ok = false;
+                continue;
+            }
+            match v
+                .e
+                .iter()
+                .map(|&n| self.dag.as_const(n))
+                .collect::<Option<Vec<f64>>>()
+            {
+                Some(vals) => points.push(vals),
+                None => {
+                    self.err(CheckError::NotConstant {
+                        what: format!("`interp`'s {what}"),
+                        span: e.span,
+                    });
+                    ok = false;
+                }
+            }
+        }
+        if !ok {
+            return None;
+        }
+        let (px, py) = (&points[0], &points[1]);
+        if px.len() != py.len() {
+            self.err(CheckError::ShapeMismatch {
+                op: "interp(xs, ys, x) (xs and ys of one length)".into(),
+                left: xs.dims(),
+                right: ys.dims(),
+                span: args[1].span,
+            });
+            return None;
+        }
+        if let Some(k) = px.iter().position(|v| !v.is_finite()) {
+            self.err(CheckError::Expected {
+                expected: "finite abscissae for `interp`".into(),
+                found: format!("xs[{}] = {}", k + 1, px[k]),
+                span: args[0].span,
+            });
+            return None;
+        }
+        if let Some(k) = px.windows(2).position(|w| w[1] <= w[0]) {
+            self.err(CheckError::Expected {
+                expected: "strictly increasing abscissae for `interp`".into(),
+                found: format!(
+                    "xs[{}] = {} after xs[{}] = {}",
+                    k + 2,
+                    px[k + 1],
+                    k + 1,
+                    px[k]
+                ),
+                span: args[0].span,
+            });
+            return None;
+        }
+        // Row 0 the abscissae, row 1 the ordinates.
+        let mut entries: Vec<NodeId> = xs.e.clone();
+        entries.extend_from_slice(&ys.e);
+        let table = self
+            .dag
+            .table(&entries, 2, px.len())
+            .expect("constant entries");
+        let e =
+            x.e.iter()
+                .map(|&n| self.dag.interp(table, n, false))
+                .collect();
+        Some(Val {
+            rows: x.rows,
+            cols: x.cols,
+            e,
+            boolean: false,
+        })
     }
 
     pub(crate) fn index(&mut self, v: &Val, args: &[IndexArg], span: Span) -> Option<Val> {
@@ -1326,6 +1539,10 @@ impl Checker {
                     boolean: false,
                     ..v
                 })
+            }
+            "interp" => {
+                arity(self, n == 3, "3 arguments")?;
+                self.interp_call(args, ctx)
             }
             "clamp" => {
                 // clamp(x, lo, hi) = min(max(x, lo), hi), elementwise with

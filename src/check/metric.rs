@@ -234,6 +234,8 @@ fn reads_run(dag: &Dag, n: NodeId, base: usize) -> bool {
             Node::Const(_) | Node::State(_) | Node::Time | Node::Rand(..) => {}
             Node::Un(_, a) => stack.push(a),
             Node::Bin(_, a, b) => stack.extend([a, b]),
+            Node::Lookup { row, col, when, .. } => stack.extend([row, col, when]),
+            Node::Interp { x, .. } => stack.push(x),
             Node::Select(s, a, b) => stack.extend([s, a, b]),
             Node::BlockOut(b, _) => stack.extend(dag.block(b).inputs.iter().copied()),
         }

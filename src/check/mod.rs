@@ -115,6 +115,10 @@ pub(crate) struct Checker {
     pub(crate) signals: signal::Signals,
     /// The resource limits in force.
     pub(crate) limits: limits::Limits,
+    /// The condition under which the expression being lowered is needed
+    /// (inside an `if` branch, the right operand of `&&`/`||`); `None`:
+    /// always. Run-time table indices fail only where it holds.
+    pub(crate) path: Option<dag::NodeId>,
 }
 
 /// Checks a parsed model with overrides; on success returns the checked

@@ -137,6 +137,8 @@ pub struct CheckedModel {
     pub sweep: Option<super::sweep::SweepDecl>,
     /// What `hybsim run` logs (the `log { … }` block, or the defaults).
     pub log: super::log::LogDecl,
+    /// The files read by `table("…")` (path and SHA-256).
+    pub tables: Vec<crate::tables::TableFile>,
 }
 
 const FLOW_CTX: Ctx = Ctx {
@@ -226,6 +228,8 @@ struct ModelChecker<'o> {
     /// What was not evaluated because a design block failed: (that block,
     /// what), reported as a note on the block's error.
     unavailable: Vec<(String, String)>,
+    /// The files read by `table("…")`.
+    tables: Vec<crate::tables::TableFile>,
 }
 
 pub(crate) fn check_model(
@@ -249,6 +253,7 @@ pub(crate) fn check_model(
             metric_frame: None,
             signals: Default::default(),
             limits: options.limits,
+            path: None,
         },
         overrides: overrides.iter().map(|o| (o.name.as_str(), o)).collect(),
         used: Vec::new(),
@@ -272,6 +277,7 @@ pub(crate) fn check_model(
         random_params: Vec::new(),
         solve_checks: options.solve_checks,
         unavailable: Vec::new(),
+        tables: Vec::new(),
     };
     // Subsystem instances are expanded into the flat model first.
     let flat = super::compose::elaborate(model, &mut m.c.errors);
@@ -391,6 +397,7 @@ pub(crate) fn check_model(
         random_params: m.random_params,
         sweep,
         log,
+        tables: m.tables,
     })
 }
 
@@ -486,6 +493,7 @@ impl ModelChecker<'_> {
             Item::Graph(d) => self.param(d, true),
             Item::RandomParam(d) => self.random_param(d),
             Item::ParamTuple(targets, value) => self.param_tuple(targets, value),
+            Item::Table(t) => self.table(t),
             Item::State(defs) => {
                 for sd in defs {
                     self.state(sd);
@@ -567,6 +575,7 @@ impl ModelChecker<'_> {
             | Item::Metric(_)
             | Item::Sweep(_)
             | Item::Import(_)
+            | Item::Table(_)
             | Item::Subsystem(_)
             | Item::Input(_)
             | Item::Instance(_)
@@ -725,6 +734,59 @@ impl ModelChecker<'_> {
         if let Some(display) = self.declare(&d.target, |_| Sym::Param { val: v, span }) {
             self.params.push((display, dims, vals));
         }
+    }
+
+    /// `param tk = table("file.csv")`: the file read (once, here, with the
+    /// size limit in force) into a constant matrix; `--set tk=[…]` replaces
+    /// it without reading the file.
+    fn table(&mut self, t: &TableParam) {
+        let target = Target {
+            name: t.name.clone(),
+            indices: Vec::new(),
+            span: t.name.span,
+        };
+        if self.overrides.contains_key(t.name.name.as_str()) {
+            let value = Expr {
+                kind: ExprKind::Num(0.0),
+                span: t.span,
+            };
+            self.param(&Definition { target, value }, false);
+            return;
+        }
+        let span = t.name.span;
+        let read = match &t.file {
+            Some(file) => {
+                crate::tables::read(file, &t.path, t.span, self.c.limits.get(Quantity::Elements))
+            }
+            // Checked without `lang` (no model folder): nothing to read from.
+            None => Err(crate::tables::TableError::Path(
+                crate::imports::ImportError::Unreadable {
+                    path: t.path.clone(),
+                    resolved: t.path.clone(),
+                    reason: "tables are read by `lang::compile` (the model's folder is unknown)"
+                        .into(),
+                    span: t.path_span,
+                },
+            )),
+        };
+        let val = match read {
+            Ok(data) => {
+                let e = data.data.iter().map(|&v| self.c.dag.konst(v)).collect();
+                self.tables.push(data.file);
+                Val {
+                    rows: data.rows,
+                    cols: data.cols,
+                    e,
+                    boolean: false,
+                }
+            }
+            Err(e) => {
+                self.c.err(CheckError::Table(e));
+                // Declared anyway (as 0) so that later uses do not cascade.
+                Val::scalar(self.c.dag.konst(0.0))
+            }
+        };
+        self.declare(&target, |_| Sym::Param { val, span });
     }
 
     /// `param g ~ DRAW`: random unless `--set` pins it (or replaces the

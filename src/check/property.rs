@@ -380,6 +380,23 @@ fn to_post(dag: &mut Dag, n: NodeId, dim: usize, memo: &mut HashMap<NodeId, Node
             let b = to_post(dag, b, dim, memo);
             dag.select(s, a, b)
         }
+        Node::Lookup {
+            table,
+            row,
+            col,
+            origin,
+            when,
+        } => {
+            let row = to_post(dag, row, dim, memo);
+            let col = to_post(dag, col, dim, memo);
+            let when = to_post(dag, when, dim, memo);
+            // A constant index out of range stays a run-time lookup.
+            dag.lookup(table, row, col, origin, when).unwrap_or(n)
+        }
+        Node::Interp { table, x, slope } => {
+            let x = to_post(dag, x, dim, memo);
+            dag.interp(table, x, slope)
+        }
         Node::BlockOut(b, k) => {
             let block = dag.block(b).clone();
             let inputs: Vec<NodeId> = block

@@ -669,6 +669,7 @@ pub fn execute(args: RunArgs) -> anyhow::Result<u8> {
             .files()
             .map(|(_, f)| (f.name().to_string(), f.text().to_string()))
             .collect(),
+        tables: model.table_files().to_vec(),
         seed,
         // The program's own path would make files depend on where it is installed.
         argv: std::iter::once("hybsim".to_string())

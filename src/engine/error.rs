@@ -73,6 +73,17 @@ pub enum SimError {
         /// Its name from `state_names()`.
         name: String,
     },
+    /// The system reported a failed evaluation
+    /// ([`HybridSystem::take_fault`](super::HybridSystem::take_fault)).
+    #[error("{what} at {at}")]
+    Fault {
+        /// Hybrid time of the evaluation.
+        at: HybridTime,
+        /// The system's index of what failed.
+        site: usize,
+        /// What failed.
+        what: String,
+    },
     /// The adaptive integrator detected stiffness.
     #[error("the flow became stiff at {at}; fastest-changing state: `{name}`")]
     Stiff {
@@ -106,6 +117,10 @@ impl SimError {
             SimError::StepSizeCollapse { .. } => {
                 "the flow may blow up or be discontinuous here: check the flow map, loosen \
                  `rtol`/`atol`, or make the discontinuity a jump"
+            }
+            SimError::Fault { .. } => {
+                "an expression of the model could not be evaluated here: check the index or \
+                 argument it names against the data it reads"
             }
             SimError::Stiff { .. } => {
                 "the flow is stiff: use the implicit solver (`solver = radau5`, `--solver radau5`, \

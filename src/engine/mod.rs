@@ -198,5 +198,5 @@ pub use run::{simulate, simulate_arc};
 pub use settings::{ExactAffine, Priority, SimSettings, Solver};
 pub use system::{
     Atom, Cmp, FlowStructure, GuardKind, HybridSystem, JumpRule, SetAtoms, SetExpr, SetRef, SimRng,
-    finite_difference_jacobian,
+    SystemFault, finite_difference_jacobian,
 };

@@ -8,7 +8,7 @@ use super::error::SimError;
 use super::events::{EventKind, FlowSetTest};
 use super::flow::{Affine, EndWhy, Flows, Method, Output, check_finite};
 use super::settings::{ExactAffine, Priority, SimSettings, Solver};
-use super::system::{FlowStructure, GuardKind, SimRng};
+use super::system::{FlowStructure, GuardKind, SimRng, SystemFault};
 use crate::arc::{
     ArcSink, HybridArc, HybridTime, SampleKind, Termination, TerminationCause, ZenoDetail,
 };
@@ -218,6 +218,8 @@ pub fn simulate<S: HybridSystem + ?Sized>(
 ) -> Result<Termination, SimError> {
     settings.validate()?;
     check_system(sys, x0)?;
+    // A fault left by an evaluation outside a run is not this run's.
+    let _ = sys.take_fault();
     let method = method_for(sys, settings)?;
     let n = x0.len();
     let rules = sys.jump_rules();
@@ -260,6 +262,10 @@ pub fn simulate<S: HybridSystem + ?Sized>(
         let term = Termination { at, cause };
         if term.cause != TerminationCause::StoppedBySink {
             let _ = out.sink.sample(at, x, SampleKind::Final);
+            // The final sample's outputs.
+            if let Some(f) = sys.take_fault() {
+                return Err(fault(f));
+            }
         }
         out.sink.finish(&term);
         Ok(term)
@@ -278,6 +284,11 @@ pub fn simulate<S: HybridSystem + ?Sized>(
         );
     }
     loop {
+        // What the last segment or jump (its guards, maps, samples'
+        // outputs) could not evaluate.
+        if let Some(f) = sys.take_fault() {
+            return Err(fault(f));
+        }
         let t = time.value();
         let at = HybridTime::new(t, j);
         if at_horizon || t >= settings.horizon_t {
@@ -342,6 +353,9 @@ pub fn simulate<S: HybridSystem + ?Sized>(
                     for &r in &firing {
                         x_rule.copy_from_slice(&x);
                         sys.jump_map(r, at, &x, rng, &mut x_rule);
+                        if let Some(f) = sys.take_fault() {
+                            return Err(fault(f));
+                        }
                         if let Some(e) = check_finite(sys, post, &x_rule, Some(r)) {
                             return Err(e);
                         }
@@ -353,6 +367,9 @@ pub fn simulate<S: HybridSystem + ?Sized>(
                 None => {
                     firing.push(rule);
                     sys.jump_map(rule, at, &x, rng, &mut x_plus);
+                    if let Some(f) = sys.take_fault() {
+                        return Err(fault(f));
+                    }
                     if let Some(e) = check_finite(sys, post, &x_plus, Some(rule)) {
                         return Err(e);
                     }
@@ -400,7 +417,11 @@ pub fn simulate<S: HybridSystem + ?Sized>(
                 horizon_bound = false;
             }
         }
-        let end = flows.segment(sys, &mut out, rng, t, j, &mut x, d_end)?;
+        // A failed evaluation in the flow map makes its NaN an integrator
+        // failure; the fault says why.
+        let end = flows
+            .segment(sys, &mut out, rng, t, j, &mut x, d_end)
+            .map_err(|e| sys.take_fault().map_or(e, fault))?;
         time.add(end.s);
         match end.why {
             EndWhy::Reached if horizon_bound => at_horizon = true,
@@ -433,6 +454,15 @@ pub fn simulate<S: HybridSystem + ?Sized>(
                 return finish(&mut out, at, &x, TerminationCause::StoppedBySink);
             }
         }
+    }
+}
+
+/// The error of a fault the system reported.
+fn fault(f: SystemFault) -> SimError {
+    SimError::Fault {
+        at: f.at,
+        site: f.site,
+        what: f.what,
     }
 }
 

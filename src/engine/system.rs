@@ -262,6 +262,18 @@ pub enum FlowStructure {
     },
 }
 
+/// A failed evaluation reported by [`HybridSystem::take_fault`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct SystemFault {
+    /// The hybrid time of the evaluation.
+    pub at: HybridTime,
+    /// The system's own index of what failed (a compiled model: the
+    /// expression), for its diagnostics.
+    pub site: usize,
+    /// What failed, in words.
+    pub what: String,
+}
+
 /// A hybrid system the engine can simulate. See the module docs for the
 /// mapping from the mathematics to the methods.
 ///
@@ -293,6 +305,15 @@ pub trait HybridSystem {
 
     /// The jump rules, in declaration order.
     fn jump_rules(&self) -> &[JumpRule];
+
+    /// A failure the system met while evaluating its maps, sets or outputs
+    /// that no value can carry (a table index out of range at run time: its
+    /// NaN would read as "false" in a guard), taken (and cleared) by the
+    /// engine after every flow segment and jump map; the run then stops
+    /// with [`SimError::Fault`](super::SimError::Fault). Default: none.
+    fn take_fault(&self) -> Option<SystemFault> {
+        None
+    }
 
     /// Membership of x in the jump set D_i of rule `rule` at hybrid time `at`.
     fn jump_set(&self, rule: usize, at: HybridTime, x: &[f64]) -> bool;

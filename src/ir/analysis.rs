@@ -158,6 +158,10 @@ impl Varying {
                 Node::Bin(_, a, b) => v[a as usize] || v[b as usize],
                 Node::Select(c, a, b) => v[c as usize] || v[a as usize] || v[b as usize],
                 Node::BlockOut(b, _) => dag.block(b).inputs.iter().any(|&i| v[i as usize]),
+                // A table entry varies only if its index does (whether it
+                // is needed does not change its value).
+                Node::Lookup { row, col, .. } => v[row as usize] || v[col as usize],
+                Node::Interp { x, .. } => v[x as usize],
             };
             self.v.push(varies);
         }
@@ -253,6 +257,8 @@ pub(crate) fn affine_in(dag: &Dag, roots: &[NodeId], vars: Vars) -> Vec<Option<L
                 Node::Select(c, a, b) => free[&c] && free[&a] && free[&b],
                 Node::BlockOut(b, _) => dag.block(b).inputs.iter().all(|i| free[i]),
                 Node::Rand(_, a, b, _) => free[&a] && free[&b],
+                Node::Lookup { row, col, when, .. } => free[&row] && free[&col] && free[&when],
+                Node::Interp { x, .. } => free[&x],
                 Node::Const(_) | Node::State(_) | Node::Time | Node::Jumps => true,
             };
             free.insert(id, is_free);
@@ -344,6 +350,24 @@ pub(crate) fn substitute_wiener(
             let a = substitute_wiener(dag, a, value, memo);
             let b = substitute_wiener(dag, b, value, memo);
             dag.select(c, a, b)
+        }
+        Node::Lookup {
+            table,
+            row,
+            col,
+            origin,
+            when,
+        } => {
+            let row = substitute_wiener(dag, row, value, memo);
+            let col = substitute_wiener(dag, col, value, memo);
+            let when = substitute_wiener(dag, when, value, memo);
+            // A constant index out of range stays a run-time lookup (its
+            // error is reported where it is evaluated).
+            dag.lookup(table, row, col, origin, when).unwrap_or(root)
+        }
+        Node::Interp { table, x, slope } => {
+            let x = substitute_wiener(dag, x, value, memo);
+            dag.interp(table, x, slope)
         }
     };
     memo.insert(root, r);

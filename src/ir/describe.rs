@@ -117,6 +117,8 @@ impl Writer<'_> {
             Node::Wiener(k) => self.push(&format!("w{k}")),
             Node::Rand(..) => self.push("<random draw>"),
             Node::BlockOut(..) => self.push("<matrix result>"),
+            Node::Lookup { .. } => self.push("<table entry>"),
+            Node::Interp { .. } => self.push("<interpolation>"),
             Node::Un(f, a) => match f {
                 UnFn::Neg => {
                     self.push("-");

@@ -9,7 +9,9 @@
 //! Functions that are piecewise constant (comparisons, logic, `sign`,
 //! `floor`, `ceil`, `round`) have derivative 0, as their finite
 //! differences away from their jumps; `abs`, `min`, `max`, `mod`, `rem`
-//! and `if … then … else` take the derivative of the active branch. A flow
+//! and `if … then … else` take the derivative of the active branch; a
+//! run-time table entry `tk[k]` has derivative 0 in its index, `interp`
+//! the slope of its segment (0 where clamped). A flow
 //! that reaches a matrix block (`inv`, `solve`, `expm`, `norm2`) of the
 //! state, or whose derivative would exceed a size budget, has no symbolic
 //! Jacobian: the engine then uses finite differences.
@@ -83,6 +85,16 @@ fn tangent(dag: &mut Dag, id: NodeId, c: u32, tan: &[NodeId], zero: NodeId) -> N
         Node::Const(_) | Node::Time | Node::Jumps | Node::Wiener(_) | Node::Rand(..) => zero,
         // Excluded by the caller.
         Node::BlockOut(..) => zero,
+        // Piecewise constant in its indices; a slope is constant per segment.
+        Node::Lookup { .. } | Node::Interp { slope: true, .. } => zero,
+        Node::Interp { table, x, .. } => {
+            let dx = t(x);
+            if dx == zero {
+                return zero;
+            }
+            let s = dag.interp(table, x, true);
+            dag.bin(Mul, dx, s)
+        }
         Node::Select(cond, a, b) => {
             let (da, db) = (t(a), t(b));
             dag.select(cond, da, db)

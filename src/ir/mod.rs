@@ -269,6 +269,8 @@ pub struct CompiledModel {
     structure: FlowStructure,
     flow_spans: Vec<Option<Span>>,
     block_spans: Vec<Span>,
+    /// The files read by `table("…")`.
+    tables: Vec<crate::tables::TableFile>,
     settings: SimSettings,
     seed: u64,
     params: Vec<(String, (usize, usize), Vec<f64>)>,
@@ -512,6 +514,7 @@ impl CompiledModel {
             structure,
             flow_spans: m.flow_spans,
             block_spans: m.block_spans,
+            tables: m.tables,
             settings: m.settings,
             seed: m.seed,
             params: m.params,
@@ -811,6 +814,11 @@ impl CompiledModel {
         self.runtime_diagnostic_here(err).locate(&self.imports)
     }
 
+    /// The files the model read with `table("…")`: path and SHA-256.
+    pub fn table_files(&self) -> &[crate::tables::TableFile] {
+        &self.tables
+    }
+
     /// The files the model imports (see [`crate::imports`]).
     pub fn imports(&self) -> &SourceMap {
         &self.imports
@@ -826,6 +834,16 @@ impl CompiledModel {
 
     fn runtime_diagnostic_here(&self, err: &SimError) -> Diagnostic {
         let mut d = Diagnostic::error("E0601", err.to_string()).help(err.help());
+        if let SimError::Fault { at, site, .. } = err {
+            d.code = "E0604";
+            if let Some(&span) = self.block_spans.get(*site) {
+                d = d.primary(
+                    span,
+                    format!("evaluated here at (t, j) = ({}, {})", at.t, at.j),
+                );
+            }
+            return d;
+        }
         if let Some(origin) = program::take_fault()
             && let Some(&span) = self.block_spans.get(origin as usize)
         {
@@ -1153,6 +1171,41 @@ impl HybridSystem for CompiledModel {
             }
         });
         true
+    }
+
+    fn take_fault(&self) -> Option<crate::engine::SystemFault> {
+        let f = program::take_index_fault()?;
+        let show = |v: f64| describe::number(v);
+        let why = |i: f64, n: usize| {
+            if i.fract() == 0.0 {
+                format!("{} is out of range 1..{n}", show(i))
+            } else {
+                format!("{} is not an integer", show(i))
+            }
+        };
+        let ok = |i: f64, n: usize| i >= 1.0 && i <= n as f64 && i.fract() == 0.0;
+        let what = if f.cols == 1 && f.bad.col == 1.0 {
+            format!("table index {}", why(f.bad.row, f.rows))
+        } else if !ok(f.bad.row, f.rows) {
+            format!(
+                "table row index {} ({}×{} table)",
+                why(f.bad.row, f.rows),
+                f.rows,
+                f.cols
+            )
+        } else {
+            format!(
+                "table column index {} ({}×{} table)",
+                why(f.bad.col, f.cols),
+                f.rows,
+                f.cols
+            )
+        };
+        Some(crate::engine::SystemFault {
+            at: HybridTime::new(f.t, f.j as u64),
+            site: f.origin as usize,
+            what,
+        })
     }
 
     fn jump_rules(&self) -> &[JumpRule] {

@@ -16,9 +16,12 @@
 //! bit-identical (see [`Program::compile`]).
 
 use std::cell::Cell;
+use std::sync::Arc;
 
 use crate::arc::HybridTime;
-use crate::check::dag::{BinFn, BlockKind, Dag, Dist, Node, NodeId, UnFn, eval_bin, eval_un};
+use crate::check::dag::{
+    BadIndex, BinFn, BlockKind, Dag, Dist, Node, NodeId, Table, UnFn, eval_bin, eval_un,
+};
 use crate::engine::SimRng;
 
 /// One instruction; `d` is the destination register.
@@ -107,6 +110,22 @@ pub(super) enum Op {
         t0: u32,
         len: u32,
     },
+    /// `d = tables[table][row, col]` (1-based, checked: see [`lookup`]).
+    Lookup {
+        d: u32,
+        table: u32,
+        row: u32,
+        col: u32,
+        origin: u32,
+        when: u32,
+    },
+    /// `d = interp(tables[table], x)` (or its slope).
+    Interp {
+        d: u32,
+        table: u32,
+        x: u32,
+        slope: bool,
+    },
     /// Copies `gather[g0..g0+len]` registers to `inp..inp+len`, applies
     /// `kind`, writes outputs to `out..`.
     Block {
@@ -130,12 +149,80 @@ pub(crate) fn take_fault() -> Option<u32> {
     FAULT.with(|f| f.take())
 }
 
+/// A run-time table index that was out of range or not an integer.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct IndexFault {
+    /// Span index of the indexing expression.
+    pub origin: u32,
+    /// The indices as evaluated.
+    pub bad: BadIndex,
+    /// The table's size.
+    pub rows: usize,
+    /// The table's size.
+    pub cols: usize,
+    /// The hybrid time of the evaluation (the program's `t` and `j`
+    /// registers).
+    pub t: f64,
+    /// As `t`.
+    pub j: f64,
+}
+
+thread_local! {
+    /// The first run-time index failure on this thread not yet taken: the
+    /// engine polls it (through `HybridSystem::take_fault`) after every
+    /// flow segment and jump map, so a bad index stops the run even where
+    /// its NaN would go unnoticed (a guard, an output).
+    static INDEX_FAULT: Cell<Option<IndexFault>> = const { Cell::new(None) };
+}
+
+/// Takes the first recorded index failure on this thread, if any.
+pub(crate) fn take_index_fault() -> Option<IndexFault> {
+    INDEX_FAULT.with(|f| f.take())
+}
+
+/// `table[row, col]`, or NaN with the failure recorded for
+/// [`take_index_fault`] (the first one is kept) if the entry is needed
+/// (`when` ≠ 0); `t`, `j` the evaluation's hybrid time. Shared by the
+/// interpreter and the machine code.
+#[inline]
+pub(super) fn lookup(
+    table: &Table,
+    row: f64,
+    col: f64,
+    origin: u32,
+    when: f64,
+    t: f64,
+    j: f64,
+) -> f64 {
+    match table.lookup(row, col) {
+        Ok(v) => v,
+        Err(_) if when == 0.0 => f64::NAN,
+        Err(bad) => {
+            INDEX_FAULT.with(|f| {
+                if f.get().is_none() {
+                    f.set(Some(IndexFault {
+                        origin,
+                        bad,
+                        rows: table.rows,
+                        cols: table.cols,
+                        t,
+                        j,
+                    }));
+                }
+            });
+            f64::NAN
+        }
+    }
+}
+
 /// A compiled program: evaluates a list of output nodes.
 #[derive(Debug, Clone, Default)]
 pub(crate) struct Program {
     pub(super) ops: Vec<Op>,
     /// Source registers of the [`Op::Block`] inputs.
     pub(super) gather: Vec<u32>,
+    /// The tables of the [`Op::Lookup`] and [`Op::Interp`] instructions.
+    pub(super) tables: Vec<Arc<Table>>,
     /// Terms of the [`Op::Lin`] instructions: (register or [`CONST_TERM`], coefficient).
     pub(super) lin: Vec<(u32, f64)>,
     /// Register of each output.
@@ -363,6 +450,19 @@ impl Program {
         let mut gather = Vec::new();
         let mut done_blocks: Vec<Option<u32>> = Vec::new();
         let mut lin = Vec::new();
+        let mut tables: Vec<Arc<Table>> = Vec::new();
+        let mut table_ids: Vec<u32> = Vec::new();
+        // The program's index of the graph's table `t`.
+        let mut local = |t: u32| -> u32 {
+            match table_ids.iter().position(|&u| u == t) {
+                Some(k) => k as u32,
+                None => {
+                    table_ids.push(t);
+                    tables.push(dag.table_at(t).clone());
+                    (tables.len() - 1) as u32
+                }
+            }
+        };
         if fuse {
             absorbed_nodes(dag, &order, outputs, uses, absorbed);
         }
@@ -462,6 +562,33 @@ impl Program {
                     let b = r(b, reg, &mut ops, &mut next);
                     ops.push(Op::Rand { d, dist, a, b });
                 }
+                Node::Lookup {
+                    table,
+                    row,
+                    col,
+                    origin,
+                    when,
+                } => {
+                    next += 1;
+                    let row = r(row, reg, &mut ops, &mut next);
+                    let col = r(col, reg, &mut ops, &mut next);
+                    let when = r(when, reg, &mut ops, &mut next);
+                    let table = local(table);
+                    ops.push(Op::Lookup {
+                        d,
+                        table,
+                        row,
+                        col,
+                        origin,
+                        when,
+                    });
+                }
+                Node::Interp { table, x, slope } => {
+                    next += 1;
+                    let x = r(x, reg, &mut ops, &mut next);
+                    let table = local(table);
+                    ops.push(Op::Interp { d, table, x, slope });
+                }
                 Node::BlockOut(bi, k) => {
                     let bi = bi as usize;
                     if done_blocks.len() <= bi {
@@ -508,6 +635,7 @@ impl Program {
         Program {
             ops,
             gather,
+            tables,
             lin,
             outs,
             nregs: next as usize,
@@ -593,6 +721,28 @@ impl Program {
                 Op::Rand { d, dist, a, b } => {
                     regs[d as usize] =
                         draw(rng.as_deref_mut(), dist, regs[a as usize], regs[b as usize])
+                }
+                Op::Lookup {
+                    d,
+                    table,
+                    row,
+                    col,
+                    origin,
+                    when,
+                } => {
+                    let n = self.state_regs;
+                    regs[d as usize] = lookup(
+                        &self.tables[table as usize],
+                        regs[row as usize],
+                        regs[col as usize],
+                        origin,
+                        regs[when as usize],
+                        regs[n],
+                        regs[n + 1],
+                    );
+                }
+                Op::Interp { d, table, x, slope } => {
+                    regs[d as usize] = self.tables[table as usize].interp(regs[x as usize], slope);
                 }
                 Op::Lin { d, t0, len } => {
                     let terms = &self.lin[t0 as usize..(t0 + len) as usize];

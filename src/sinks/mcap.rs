@@ -6,7 +6,7 @@
 //!
 //! | record | content |
 //! |---|---|
-//! | metadata `hybsim.run` | `version`, `model` (path), `model_name`, `model_sha256`, `imports` (JSON `[{path, sha256}]` of the imported files), `seed`, `state_names`, `output_names`, `rule_names`, `argv` (JSON arrays), `decimation`, `blas_threads` (OpenBLAS threads, 1), `threads` (rayon's worker threads) |
+//! | metadata `hybsim.run` | `version`, `model` (path), `model_name`, `model_sha256`, `imports` (JSON `[{path, sha256}]` of the imported files), `tables` (JSON `[{path, sha256}]` of the files read by `table("…")`), `seed`, `state_names`, `output_names`, `rule_names`, `argv` (JSON arrays), `decimation`, `blas_threads` (OpenBLAS threads, 1), `threads` (rayon's worker threads) |
 //! | metadata `hybsim.parameters` | one entry per resolved parameter (JSON value) |
 //! | metadata `hybsim.solver` | one entry per setting (JSON value) |
 //! | metadata `hybsim.design` | design results, when the model has design blocks |
@@ -205,6 +205,7 @@ impl<'a> McapSink<'a> {
                 "imports",
                 Value::String(json!(imports_json(info)).to_string()),
             ),
+            ("tables", Value::String(json!(info.tables).to_string())),
             ("seed", json!(info.seed.to_string())),
             ("state_names", Value::String(json!(state_names).to_string())),
             (
@@ -255,7 +256,7 @@ impl<'a> McapSink<'a> {
             "hybsim_version": env!("CARGO_PKG_VERSION"),
             "model": {"name": info.model_name, "path": info.model_path,
                       "sha256": info.source_sha256(), "attachment": source_name,
-                      "imports": imports_json(info)},
+                      "imports": imports_json(info), "tables": info.tables},
             "seed": info.seed,
             "argv": info.argv,
             "overrides": info.overrides,

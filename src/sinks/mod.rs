@@ -205,6 +205,9 @@ pub struct RunInfo {
     /// The files the model imports (`import "lib/zoh.hyb"`): path and text.
     #[serde(skip)]
     pub imports: Vec<(String, String)>,
+    /// The files the model read with `table("…")`: path and SHA-256.
+    #[serde(skip)]
+    pub tables: Vec<crate::tables::TableFile>,
     /// Seed of the run's random generator.
     pub seed: u64,
     /// Command line of the run (empty for library use).
@@ -251,6 +254,7 @@ impl RunInfo {
             model_path: String::new(),
             source: String::new(),
             imports: Vec::new(),
+            tables: Vec::new(),
             seed: 0,
             argv: Vec::new(),
             overrides: Vec::new(),

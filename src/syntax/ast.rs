@@ -62,6 +62,8 @@ pub enum Item {
     Sweep(SweepBlock),
     /// `import "lib/zoh.hyb"`: the subsystems of another file.
     Import(Import),
+    /// `param tk = table("timers.csv")`: a constant matrix from a CSV file.
+    Table(TableParam),
     /// `subsystem Name(params) { items }`: a reusable hybrid system.
     Subsystem(SubsystemDecl),
     /// `input u, w = 0` (in a subsystem): values the instance receives.
@@ -78,6 +80,22 @@ pub enum Item {
     /// `log { vars = [..]; rules = [..]; every = N; dt = DT }`: what
     /// `hybsim run` logs.
     Log(LogBlock),
+}
+
+/// `param NAME = table("path")`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TableParam {
+    /// The parameter.
+    pub name: Ident,
+    /// The path as written (between the quotes).
+    pub path: String,
+    /// The string literal.
+    pub path_span: Span,
+    /// The call `table("path")`.
+    pub span: Span,
+    /// The file the path names, once [`crate::tables::resolve`] has checked
+    /// it against the path rules of `import` (`None` before).
+    pub file: Option<std::path::PathBuf>,
 }
 
 /// `import "path"`.

@@ -221,6 +221,9 @@ fn describe(rule: Rule) -> Option<&'static str> {
         | Rule::prefix_op => "an expression",
         Rule::param_decl
         | Rule::param_tuple
+        | Rule::param_table
+        | Rule::table_call
+        | Rule::w_table
         | Rule::graph_decl
         | Rule::state_decl
         | Rule::noise_decl

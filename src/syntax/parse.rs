@@ -295,6 +295,22 @@ fn item(p: Pair<'_, Rule>) -> Res<Item> {
                 span: word,
             })
         }
+        Rule::param_table => {
+            let name = ident(first(&mut inner, span)?);
+            let call = first(&mut inner, span)?;
+            let call_span: Span = call.as_span().into();
+            let mut parts = call.into_inner();
+            let _word = first(&mut parts, call_span)?;
+            let lit = first(&mut parts, call_span)?;
+            let text = lit.as_str();
+            Item::Table(TableParam {
+                name,
+                path: text[1..text.len() - 1].to_string(),
+                path_span: lit.as_span().into(),
+                span: call_span,
+                file: None,
+            })
+        }
         Rule::import_decl => {
             let _word = first(&mut inner, span)?;
             let lit = first(&mut inner, span)?;

@@ -127,7 +127,7 @@ fn same_programs(name: &str, a: &CompiledModel, b: &CompiledModel, at: HybridTim
 /// `horizon` units of t, and compares the arcs (samples, jumps,
 /// termination) and, at up to `probes` samples spread over the arc, every
 /// program.
-fn assert_bit_identical(name: &str, src: &SourceFile, horizon: f64, probes: usize) {
+pub(crate) fn assert_bit_identical(name: &str, src: &SourceFile, horizon: f64, probes: usize) {
     let (native, interpreted) = (compile(src, "on"), compile(src, "off"));
     if hybsim::ir::jit::supported() {
         assert!(

@@ -30,5 +30,6 @@ mod slurm;
 mod stiff;
 mod subsystems;
 mod sweep;
+mod tables;
 mod util;
 mod variance_props;

@@ -34,6 +34,8 @@ struct Sigs {
     bin: SigRef,
     rand: SigRef,
     block: SigRef,
+    lookup: SigRef,
+    interp: SigRef,
 }
 
 /// State of the translation of one program.
@@ -96,6 +98,12 @@ impl Generator {
                 bin: b.import_signature(sig(module, &[f64t, f64t], Some(f64t))),
                 rand: b.import_signature(sig(module, &[ptr, types::I32, f64t, f64t], Some(f64t))),
                 block: b.import_signature(sig(module, &[ptr, ptr], None)),
+                lookup: b.import_signature(sig(
+                    module,
+                    &[ptr, f64t, f64t, types::I32, f64t, f64t, f64t],
+                    Some(f64t),
+                )),
+                interp: b.import_signature(sig(module, &[ptr, f64t, types::I32], Some(f64t))),
             };
             let mut e = Emit {
                 b: &mut b,
@@ -326,6 +334,37 @@ impl Emit<'_, '_> {
                     let (sig, rng) = (self.sigs.rand, self.rng);
                     let r = helpers::rand as helpers::Rand as *const u8;
                     let v = self.call(sig, r, &[rng, code, a, b]).expect("one result");
+                    self.set(d, v);
+                }
+                Op::Lookup {
+                    d,
+                    table,
+                    row,
+                    col,
+                    origin,
+                    when,
+                } => {
+                    let (row, col, when) = (self.get(row), self.get(col), self.get(when));
+                    // The time and jump registers follow the state ones.
+                    let (t, j) = (self.get(self.state_regs), self.get(self.state_regs + 1));
+                    let table =
+                        self.address(std::sync::Arc::as_ptr(&p.tables[table as usize]).cast());
+                    let origin = self.b.ins().iconst(types::I32, i64::from(origin));
+                    let h = helpers::table_lookup as helpers::Lookup as *const u8;
+                    let v = self
+                        .call(self.sigs.lookup, h, &[table, row, col, origin, when, t, j])
+                        .expect("one result");
+                    self.set(d, v);
+                }
+                Op::Interp { d, table, x, slope } => {
+                    let x = self.get(x);
+                    let table =
+                        self.address(std::sync::Arc::as_ptr(&p.tables[table as usize]).cast());
+                    let slope = self.b.ins().iconst(types::I32, i64::from(slope));
+                    let h = helpers::table_interp as helpers::Interp as *const u8;
+                    let v = self
+                        .call(self.sigs.interp, h, &[table, x, slope])
+                        .expect("one result");
                     self.set(d, v);
                 }
                 Op::Lin { d, t0, len } => {

@@ -2,9 +2,9 @@
 //! (through the interpreter's own `eval_un` / `eval_bin`, so both run the
 //! same libm code), random draws and matrix blocks.
 
-use crate::check::dag::{BinFn, BlockKind, Dist, UnFn, eval_bin, eval_un};
+use crate::check::dag::{BinFn, BlockKind, Dist, Table, UnFn, eval_bin, eval_un};
 use crate::engine::SimRng;
-use crate::ir::program::{Op, Program, apply_block, draw};
+use crate::ir::program::{Op, Program, apply_block, draw, lookup};
 
 /// A function of one argument called by the generated code.
 pub(super) type Un = extern "C" fn(f64) -> f64;
@@ -14,6 +14,32 @@ pub(super) type Bin = extern "C" fn(f64, f64) -> f64;
 pub(super) type Rand = extern "C" fn(*mut SimRng, u32, f64, f64) -> f64;
 /// `block(desc, regs)`.
 pub(super) type Block = extern "C" fn(*const BlockDesc, *mut f64);
+/// `table_lookup(table, row, col, origin, when, t, j)`.
+pub(super) type Lookup = extern "C" fn(*const Table, f64, f64, u32, f64, f64, f64) -> f64;
+/// `table_interp(table, x, slope)`.
+pub(super) type Interp = extern "C" fn(*const Table, f64, u32) -> f64;
+
+/// A run-time table index (the interpreter's [`lookup`]).
+pub(super) extern "C" fn table_lookup(
+    table: *const Table,
+    row: f64,
+    col: f64,
+    origin: u32,
+    when: f64,
+    t: f64,
+    j: f64,
+) -> f64 {
+    // SAFETY: the code addresses a table its program (and its `Code`) holds.
+    let table = unsafe { &*table };
+    lookup(table, row, col, origin, when, t, j)
+}
+
+/// `interp` (the interpreter's [`Table::interp`]).
+pub(super) extern "C" fn table_interp(table: *const Table, x: f64, slope: u32) -> f64 {
+    // SAFETY: as for [`table_lookup`].
+    let table = unsafe { &*table };
+    table.interp(x, slope != 0)
+}
 
 macro_rules! un_helpers {
     ($($name:ident = $f:ident),* $(,)?) => {

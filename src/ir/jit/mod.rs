@@ -68,6 +68,9 @@ struct Code {
     module: Option<JITModule>,
     /// Descriptors of the block operations, addressed by the code.
     _blocks: Vec<Box<[helpers::BlockDesc]>>,
+    /// The tables the code addresses (also held by the programs; kept
+    /// here so that the code never outlives them).
+    _tables: Vec<Arc<crate::check::dag::Table>>,
 }
 
 // SAFETY: after `finalize_definitions` the module's memory is read-only
@@ -239,7 +242,9 @@ fn build(programs: &[&Program], allocator: &str) -> Result<(Code, Vec<Entry>), J
     let mut generator = codegen::Generator::new(&module);
     let mut ids = Vec::with_capacity(programs.len());
     let mut blocks = Vec::new();
+    let mut tables = Vec::new();
     for p in programs {
+        tables.extend(p.tables.iter().cloned());
         let descs = helpers::block_descs(p);
         let id = generator.define(&mut module, p, &descs)?;
         blocks.push(descs);
@@ -261,6 +266,7 @@ fn build(programs: &[&Program], allocator: &str) -> Result<(Code, Vec<Entry>), J
         Code {
             module: Some(module),
             _blocks: blocks,
+            _tables: tables,
         },
         entries,
     ))
