@@ -1,7 +1,7 @@
 //! Checking `metric` declarations: scalar reductions of a run.
 //!
 //! A metric is an expression over *reductions* (`count(rule)`, `mean(e)`,
-//! `integral(e)`, `max(e)`, `min(e)`, `final(e)`, each with an optional
+//! `integral(e)`, `max(e)`, `min(e)`, `final(e)`, `period(e)`, each with an optional
 //! window condition as last argument), parameters, constants and `t` (the
 //! run's final time). The reduction arguments are lowered in the property
 //! frame (see [`super::property`]: states, `j`, `t`, outputs); the metric
@@ -34,6 +34,9 @@ pub enum ReductionKind {
     Min,
     /// Value at the last sample.
     Final,
+    /// Asymptotic period of the values at the jumps (pre-jump points in
+    /// the window), as [`crate::analysis::periodicity`] detects it.
+    Period,
 }
 
 impl ReductionKind {
@@ -46,6 +49,7 @@ impl ReductionKind {
             "max" => Self::Max,
             "min" => Self::Min,
             "final" => Self::Final,
+            "period" => Self::Period,
             _ => return None,
         })
     }

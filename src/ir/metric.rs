@@ -10,12 +10,15 @@
 //! between consecutive samples of one flow interval, so their accuracy is
 //! that of the sample grid (`dt_out`, or the integrator's steps); the
 //! window is evaluated at the samples, and a flow segment counts if both
-//! its end samples are in it.
+//! its end samples are in it. `period` keeps the last values at the jumps
+//! (a bounded buffer) and detects their period when the run ends.
 
+use std::collections::VecDeque;
 use std::ops::ControlFlow;
 
 use super::program::{Frame, Program};
 use super::with_regs;
+use crate::analysis::periodicity::{PeriodOutcome, PeriodSettings, detect_period_scalar};
 use crate::arc::{ArcSink, HybridTime, SampleKind, Termination};
 use crate::check::dag::Dag;
 use crate::check::metric::{CheckedMetrics, ReductionKind};
@@ -37,6 +40,8 @@ pub struct Metrics {
     specs: Vec<Spec>,
     /// Count reductions per rule index.
     by_rule: Vec<Vec<usize>>,
+    /// Reductions fed at every jump (`period`).
+    at_jumps: Vec<usize>,
     sample: Program,
     sample_regs: usize,
     n: usize,
@@ -72,6 +77,9 @@ impl Metrics {
                 window,
             });
         }
+        let at_jumps = (0..specs.len())
+            .filter(|&k| specs[k].kind == ReductionKind::Period)
+            .collect();
         let frame = Frame { n: 2 * n + 1, m: 0 };
         let sample = Program::compile(dag, frame, &outs);
         let sample_regs = sample.nregs.max(frame.fixed());
@@ -86,6 +94,7 @@ impl Metrics {
             names: m.metrics.iter().map(|x| x.name.clone()).collect(),
             specs,
             by_rule,
+            at_jumps,
             sample,
             sample_regs,
             n,
@@ -144,14 +153,32 @@ impl Metrics {
     }
 }
 
+/// The detector `period` uses: periods up to 500 steps, the last 4
+/// periods repeating the one before to 1e-9 (absolute and relative).
+fn period_settings() -> PeriodSettings {
+    PeriodSettings::default()
+}
+
+/// Values `period` keeps: enough for the longest period searched with its
+/// repeats, so the verdict is that of the whole sequence.
+fn period_capacity() -> usize {
+    let s = period_settings();
+    s.max_period * (s.repeats + 1)
+}
+
 /// One reduction's running value.
-#[derive(Debug, Clone, Copy)]
+#[derive(Debug, Clone)]
 enum Acc {
     Count(u64),
     Integral(f64),
-    Mean { num: f64, den: f64 },
+    Mean {
+        num: f64,
+        den: f64,
+    },
     Extreme(Option<f64>),
     Final(f64),
+    /// The last values at the jumps (oldest first).
+    Period(VecDeque<f64>),
 }
 
 impl Acc {
@@ -162,22 +189,30 @@ impl Acc {
             ReductionKind::Mean => Acc::Mean { num: 0.0, den: 0.0 },
             ReductionKind::Max | ReductionKind::Min => Acc::Extreme(None),
             ReductionKind::Final => Acc::Final(f64::NAN),
+            ReductionKind::Period => Acc::Period(VecDeque::new()),
         }
     }
 
     fn value(&self) -> f64 {
-        match *self {
-            Acc::Count(c) => c as f64,
-            Acc::Integral(s) => s,
+        match self {
+            Acc::Count(c) => *c as f64,
+            Acc::Integral(s) => *s,
             Acc::Mean { num, den } => {
-                if den > 0.0 {
+                if *den > 0.0 {
                     num / den
                 } else {
                     f64::NAN
                 }
             }
             Acc::Extreme(v) => v.unwrap_or(f64::NAN),
-            Acc::Final(v) => v,
+            Acc::Final(v) => *v,
+            Acc::Period(values) => {
+                let values: Vec<f64> = values.iter().copied().collect();
+                match detect_period_scalar(&values, &period_settings()) {
+                    PeriodOutcome::Periodic(orbit) => orbit.period as f64,
+                    _ => f64::NAN,
+                }
+            }
         }
     }
 }
@@ -262,6 +297,7 @@ impl ArcSink for MetricSink<'_> {
                     }
                 }
                 Acc::Final(v) => *v = value,
+                Acc::Period(_) => {}
             }
         }
         std::mem::swap(&mut self.vals, &mut self.prev_vals);
@@ -271,10 +307,8 @@ impl ArcSink for MetricSink<'_> {
     }
 
     fn jump(&mut self, at: HybridTime, rule: usize, pre: &[f64], _post: &[f64]) -> ControlFlow<()> {
-        let Some(list) = self.m.by_rule.get(rule) else {
-            return ControlFlow::Continue(());
-        };
-        if list.is_empty() {
+        let list = self.m.by_rule.get(rule).map_or(&[][..], Vec::as_slice);
+        if list.is_empty() && self.m.at_jumps.is_empty() {
             return ControlFlow::Continue(());
         }
         // The window at the pre-jump point: the previous sample's values
@@ -291,6 +325,17 @@ impl ArcSink for MetricSink<'_> {
                 && let Acc::Count(c) = &mut self.acc[k]
             {
                 *c += 1;
+            }
+        }
+        for &k in &self.m.at_jumps {
+            let spec = &self.m.specs[k];
+            if spec.window.is_none_or(|w| vals[w] != 0.0)
+                && let (Acc::Period(kept), Some(a)) = (&mut self.acc[k], spec.arg)
+            {
+                if kept.len() == period_capacity() {
+                    kept.pop_front();
+                }
+                kept.push_back(vals[a]);
             }
         }
         ControlFlow::Continue(())

@@ -88,6 +88,36 @@ sim { T = 12 }
 }
 
 #[test]
+fn period_is_the_asymptotic_period_of_the_values_at_the_jumps() {
+    // x cycles 0, 1, 2 from the start; z settles geometrically on the cycle
+    // 1, 4 (period 2 only once the transient is below the detector's 1e-9);
+    // y never repeats; w is constant (period 1).
+    let m = metrics_of(
+        "model cyc
+state x = 0, y = 0, z = 5, w = 7, s = 0
+every 1 {
+  x+ = if x >= 2 then 0 else x + 1
+  y+ = y + 1
+  z+ = if s == 0 then 1 + (z - 4) / 2 else 4 + (z - 1) / 2
+  s+ = 1 - s
+  w+ = w
+}
+metric px = period(x), py = period(y), pz = period(z), pw = period(w)
+metric late = period(x, t >= 50), early = period(x, t < 3), short = period(x, t > 199)
+sim { T = 200.5 }
+",
+    );
+    let get = |n: &str| m.iter().find(|(k, _)| k == n).unwrap().1;
+    assert_eq!(get("px"), 3.0, "{m:?}");
+    assert!(get("py").is_nan(), "{m:?}");
+    assert_eq!(get("pz"), 2.0, "{m:?}");
+    assert_eq!(get("pw"), 1.0, "{m:?}");
+    assert_eq!(get("late"), 3.0, "{m:?}");
+    // Too few values in the window to see 4 repeats: not periodic.
+    assert!(get("early").is_nan() && get("short").is_nan(), "{m:?}");
+}
+
+#[test]
 fn metric_errors_are_located() {
     let src = SourceFile::new(
         "bad.hyb",

@@ -582,23 +582,24 @@ proptest! {
     }
 }
 
-/// Fig. 4's δ sweep as the model's own declarations (`metric steps_per_tx`
-/// and the `sweep { }` block, run by `hybsim sweep
-/// models/variance_triggering.hyb`): on every δ of the block whose simulated
-/// p(k) is N-periodic (the Rust experiment, [`VarianceTriggerModel::sweep_row`]),
-/// the sweep's mean transmit interval is N/m, m the points of the periodic
-/// orbit at or above the threshold, to within the window's resolution:
+/// Fig. 4's δ sweep as the model's own declarations (`metric period_p`,
+/// `steps_per_tx` and the `sweep { }` block, run by `hybsim sweep
+/// models/variance_triggering.hyb`): on every δ of the block the sweep's
+/// period of p(k) is the Rust experiment's ([`VarianceTriggerModel::sweep_row`],
+/// the same detector on the logged p(k)); where it is N, the mean transmit
+/// interval is N/m, m the points of the periodic orbit at or above the
+/// threshold, to within the window's resolution:
 /// the window of L = T − k_ss steps holds L·m/N transmissions to within m,
 /// so N/m to within a factor 1 ± N/L.
 #[test]
-fn fig4_sweep_block_gives_the_period_per_transmission() {
+fn fig4_sweep_block_gives_the_period_and_the_transmit_interval() {
     use hybsim::sinks::RunStatus;
     use hybsim::source::SourceFile;
     use hybsim::sweep::{self, Axis, Shard, SweepSpec};
 
     let src = SourceFile::read(hybsim_papers::repo_path(MODEL_PATH)).unwrap();
     let base = hybsim::lang::compile(&src, &[]).expect("compiles");
-    assert_eq!(base.metrics().names(), ["steps_per_tx"]);
+    assert_eq!(base.metrics().names(), ["period_p", "steps_per_tx"]);
     let block = base.sweep().expect("a sweep block").clone();
     let names: Vec<&str> = block.axes.iter().map(|(n, _)| n.as_str()).collect();
     assert_eq!(names, ["delta", "T", "J", "noise_scale"]);
@@ -637,6 +638,13 @@ fn fig4_sweep_block_gives_the_period_per_transmission() {
         assert_eq!(row.status, RunStatus::Completed, "{}", row.message);
         let it = VarianceIteration::new(1.2, 1.0, 1.0, 1.0, row.values[0]).unwrap();
         let rust = model().sweep_row(&it, &settings).unwrap();
+        let period = row.metrics[0];
+        assert_eq!(
+            (!period.is_nan()).then_some(period as usize),
+            rust.simulated_period,
+            "delta = {}: period_p = {period}",
+            it.delta()
+        );
         let (Some(n), Some(points)) = (rust.simulated_period, &rust.simulated_points) else {
             continue;
         };
@@ -647,7 +655,7 @@ fn fig4_sweep_block_gives_the_period_per_transmission() {
             it.delta()
         );
         let want = n as f64 / m as f64;
-        let got = row.metrics[0];
+        let got = row.metrics[1];
         assert!(
             (got - want).abs() <= want * n as f64 / window,
             "delta = {}: steps_per_tx = {got}, N/m = {n}/{m}",
