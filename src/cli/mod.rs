@@ -237,20 +237,28 @@ pub struct GuardArgs {
 impl GuardArgs {
     /// `set` followed by the flags as `sim`-key overrides (`name=value`).
     pub fn with_overrides(&self, set: &[String]) -> Vec<String> {
-        // `{:e}` keeps every digit of a float; `inf` is the language's spelling.
-        let float = |x: f64| {
-            if x.is_infinite() && x > 0.0 {
-                "inf".to_string()
-            } else {
-                format!("{x:e}")
-            }
-        };
         let mut all = set.to_vec();
-        all.extend(self.set_tol.map(|x| format!("set_tol={}", float(x))));
-        all.extend(self.zeno_rate.map(|x| format!("zeno_rate={}", float(x))));
+        all.extend(
+            self.set_tol
+                .map(|x| format!("set_tol={}", float_override(x))),
+        );
+        all.extend(
+            self.zeno_rate
+                .map(|x| format!("zeno_rate={}", float_override(x))),
+        );
         all.extend(self.zeno_window.map(|n| format!("zeno_window={n}")));
         all.extend(self.max_total_jumps.map(|n| format!("max_total_jumps={n}")));
         all
+    }
+}
+
+/// A flag's float as the value of an override: `{:e}` keeps every digit, `inf` is the
+/// language's spelling of +∞.
+pub(crate) fn float_override(x: f64) -> String {
+    if x.is_infinite() && x > 0.0 {
+        "inf".to_string()
+    } else {
+        format!("{x:e}")
     }
 }
 

@@ -25,6 +25,7 @@ use serde_json::{Value, json};
 use super::progress::{Progress, interrupt_flag};
 use super::{
     EXIT_FAILED, EXIT_INTERRUPTED, EXIT_MODEL_ERROR, EXIT_OK, GuardArgs, JitMode, SdpKind,
+    float_override,
 };
 
 /// Arguments of `hybsim run`.
@@ -218,23 +219,28 @@ fn solver_from_flags(current: Solver, args: &RunArgs) -> Result<Solver, String> 
     }
 }
 
-/// The model's settings with the command-line overrides applied.
+impl RunArgs {
+    /// The user's `--set`s followed by the flags that are `sim` keys (`--T`, `--J`, `--dt-out`,
+    /// `--max-step` and the guard flags), so that a flag wins over a `--set` and the checker
+    /// validates it and applies the resource limits (output points, forced steps) as it does
+    /// for the model's own `sim` block.
+    fn overrides(&self) -> Vec<String> {
+        let mut all = self.guard.with_overrides(&self.set);
+        let float = |key: &str, x: Option<f64>| x.map(|x| format!("{key}={}", float_override(x)));
+        all.extend(float("T", self.horizon_t));
+        all.extend(self.horizon_j.map(|j| format!("J={j}")));
+        all.extend(float("dt_out", self.dt_out));
+        all.extend(float("max_step", self.max_step));
+        all
+    }
+}
+
+/// The model's settings with the command-line flags that are not `sim`-key overrides
+/// ([`RunArgs::overrides`]) applied.
 pub fn settings_from_flags(
     mut settings: SimSettings,
     args: &RunArgs,
 ) -> Result<SimSettings, String> {
-    if let Some(t) = args.horizon_t {
-        settings = settings.horizon_t(t);
-    }
-    if let Some(j) = args.horizon_j {
-        settings = settings.horizon_j(j);
-    }
-    if args.dt_out.is_some() {
-        settings = settings.dt_out(args.dt_out);
-    }
-    if let Some(h) = args.max_step {
-        settings = settings.max_step(h);
-    }
     if let Some(p) = args.priority {
         settings = settings.priority(match p {
             PriorityKind::Jumps => Priority::Jumps,
@@ -633,9 +639,7 @@ pub fn default_mcap_path(model: &Path) -> PathBuf {
 
 /// `hybsim run`.
 pub fn execute(args: RunArgs) -> anyhow::Result<u8> {
-    let Some((src, mut overrides)) =
-        super::load(&args.model, &args.guard.with_overrides(&args.set))?
-    else {
+    let Some((src, mut overrides)) = super::load(&args.model, &args.overrides())? else {
         return Ok(EXIT_MODEL_ERROR);
     };
     JitMode::apply(args.jit, &mut overrides);

@@ -597,6 +597,32 @@ fn sizes_over_their_limits_are_refused_before_allocating() {
             "scalar states",
             "fam.hyb:4:11".into(),
         ),
+        // The run flags that are `sim` keys are limited like the model's own values.
+        (
+            vec!["run", "fam.hyb", "--dt-out", "1e-300", "-q", "-o", "x.mcap"],
+            "output grid points",
+            "--set dt_out:1:8".into(),
+        ),
+        (
+            vec![
+                "run",
+                "fam.hyb",
+                "--max-step",
+                "1e-300",
+                "-q",
+                "-o",
+                "x.mcap",
+            ],
+            "integrator steps forced by max_step",
+            "--set max_step:1:10".into(),
+        ),
+        (
+            vec![
+                "run", "fam.hyb", "--T", "1e300", "--dt-out", "1", "-q", "-o", "x.mcap",
+            ],
+            "output grid points",
+            "--set dt_out:1:8".into(),
+        ),
     ];
     for (args, says, at) in &cases {
         let (code, err, took) = measured(d, args);
