@@ -80,7 +80,7 @@
 //!   that offers [`HybridSystem::all_atom_values`] gives all sets' atoms of
 //!   a checkpoint in one call, sharing what the sets have in common). Each sign
 //!   change is bracketed and shrunk to [`event_tol`](SimSettings::event_tol)
-//!   (default: 4 ulp of the local time) around the *first point where the
+//!   (default: 4 ulp of t) around the *first point where the
 //!   sign differs*. The candidates are examined in time order; at each one
 //!   the sets are re-evaluated on the final bracket `[a, b]`: inequality
 //!   atoms at `b` (the post-change end), equality atoms as *met* if

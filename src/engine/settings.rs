@@ -153,8 +153,9 @@ pub struct SimSettings {
     /// flows. Default ∞ (no limit).
     pub max_step: f64,
     /// Width in t below which an event bracket is accepted. Default 0: the
-    /// bracket is shrunk to 4 ulp of the local time, which keeps long
-    /// sequences of events accurate (≤ 1e-10 for any local time < 1e5).
+    /// bracket is shrunk to 4 ulp of t (9e-16 at t = 1, 9e-12 at t = 1e4),
+    /// the resolution t itself is stored with; finer brackets would only
+    /// chase rounding noise in the guards' values.
     pub event_tol: f64,
     /// Tolerance on the flow set's atoms when deciding whether a state may
     /// flow (at the start of each flow, typically just after a jump): an

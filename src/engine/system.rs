@@ -180,6 +180,10 @@ pub struct Atom {
     /// whose flow is not identically zero). Atoms with `flows = false` are
     /// evaluated once per flow segment.
     pub flows: bool,
+    /// An identity of the function `g`, if the system knows one: atoms (of
+    /// any sets) with the same `Some` value have the same `g`, so the engine
+    /// localizes their common zero once (`x >= 0` in C and `x <= 0` in D).
+    pub g_id: Option<u64>,
 }
 
 /// A monotone boolean combination of the atoms of one set.

@@ -99,6 +99,8 @@ impl SetCode {
             .map(|&(cmp, n)| Atom {
                 cmp,
                 flows: varying[n as usize],
+                // The graph is hash-consed: equal functions are one node.
+                g_id: Some(u64::from(n)),
             })
             .collect();
         let nodes: Vec<NodeId> = ca.atoms.iter().map(|&(_, n)| n).collect();
