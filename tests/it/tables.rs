@@ -563,3 +563,63 @@ fn fmt_keeps_tables_and_indices() {
     };
     assert_eq!(arc(&fsrc), arc(&src));
 }
+
+/// The agents benchmark of `../shared/limit` with its pre-drawn timer table
+/// (`benches/models/limit_agents_timers.csv`, params.json's `agents.draws`
+/// verbatim, checked against params.json where `../shared` is beside the
+/// repository): the reference's 7 458 jumps in [0, 1000] (per agent, the
+/// draws whose running sum stays below 1000, as the reference's accuracy
+/// check counts them), each agent's last jump at that running sum, and the
+/// plant at T on the exact rotation.
+#[test]
+fn the_agents_benchmark_replays_the_reference_draws() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let (rows, cols, flat) = hybsim::tables::parse(
+        &std::fs::read_to_string(root.join("benches/models/limit_agents_timers.csv")).unwrap(),
+    )
+    .unwrap();
+    assert_eq!((rows, cols), (4000, 3));
+    if let Ok(text) = std::fs::read_to_string(root.join("../shared/limit/params.json")) {
+        let params: serde_json::Value = serde_json::from_str(&text).unwrap();
+        let draws: Vec<Vec<f64>> =
+            serde_json::from_value(params["agents"]["draws"].clone()).unwrap();
+        let reference: Vec<f64> = draws.iter().flatten().copied().collect();
+        assert_eq!(flat, reference, "the table is params.json's draws");
+    }
+    let src = SourceFile::read(root.join("benches/models/limit_agents.hyb")).unwrap();
+    let m = compile(&src, &[]);
+    let (x0, mut rng) = m.start(m.seed());
+    let arc = simulate_arc(&m, &x0, &m.settings(), &mut rng).expect("runs");
+    let names = m.rule_names();
+    let mut total = 0;
+    for k in 0..3 {
+        // The reference's count and last jump: a plain running sum.
+        let (mut sum, mut last, mut count) = (0.0, 0.0, 0);
+        for row in flat.chunks(3) {
+            sum += row[k];
+            if sum >= 1000.0 {
+                break;
+            }
+            (last, count) = (sum, count + 1);
+        }
+        let jumps: Vec<f64> = arc
+            .jumps()
+            .iter()
+            .filter(|j| names[j.rule] == format!("transmit[{}]", k + 1))
+            .map(|j| j.at.t)
+            .collect();
+        assert_eq!(jumps.len(), count, "agent {}", k + 1);
+        let drift = (jumps.last().unwrap() - last).abs();
+        assert!(drift < 1e-9, "agent {}: {drift}", k + 1);
+        total += count;
+    }
+    assert_eq!(total, 7458);
+    assert_eq!(arc.jumps().len(), 7458);
+    let end = arc.samples().last().unwrap();
+    let t = end.at.t;
+    assert_eq!(t, 1000.0);
+    let exact = [t.cos() + t.sin(), t.sin() - t.cos(), 0.5];
+    for (r, e) in exact.iter().enumerate() {
+        assert!((end.x[r] - e).abs() < 1e-3, "x[{r}] = {} vs {e}", end.x[r]);
+    }
+}
