@@ -740,6 +740,22 @@ impl ModelChecker<'_> {
     /// size limit in force) into a constant matrix; `--set tk=[…]` replaces
     /// it without reading the file.
     fn table(&mut self, t: &TableParam) {
+        if !self.c.scopes.is_empty() {
+            // Once, not per iteration.
+            let seen = self
+                .c
+                .errors
+                .iter()
+                .any(|e| matches!(e, CheckError::Unsupported { span, .. } if *span == t.span));
+            if !seen {
+                self.c.err(CheckError::Unsupported {
+                    what: "`table(…)` inside `for` (declare the table once, at the top level)"
+                        .into(),
+                    span: t.span,
+                });
+            }
+            return;
+        }
         let target = Target {
             name: t.name.clone(),
             indices: Vec::new(),

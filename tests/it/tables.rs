@@ -623,3 +623,18 @@ fn the_agents_benchmark_replays_the_reference_draws() {
         assert!((end.x[r] - e).abs() < 1e-3, "x[{r}] = {} vs {e}", end.x[r]);
     }
 }
+
+/// A table is read once, at the top level: inside `for` it is E0507 (once).
+#[test]
+fn a_table_inside_a_loop_is_refused_once() {
+    let dir = tempfile::tempdir().unwrap();
+    let src = write(
+        dir.path(),
+        "model m\nfor i in 1..3 {\n    param d = table(\"d.csv\")\n}\nstate x = 0\nflow { x' = 1 }\n",
+        &[("d.csv", "1\n")],
+    );
+    let d = errors(&src);
+    assert_eq!(d.len(), 1, "{d:?}");
+    assert_eq!(d[0].code, "E0507");
+    assert_eq!(at(&d[0], &src), ("m.hyb".into(), 3, 15));
+}
