@@ -222,6 +222,10 @@ pub(crate) struct Watcher {
     /// Index of C in `sets`, if C is not the whole space.
     flow: Option<usize>,
     watched: Vec<WAtom>,
+    /// Per watched atom: the bracket `(a, b)` of its first change found in
+    /// the current [`Watcher::resolve`], with the class and relaxation it
+    /// was found for (`a` NaN: none).
+    found: Vec<(f64, f64, i8, f64)>,
     /// Per watched atom: an earlier one with the same function `g`
     /// ([`Atom::g_id`](super::system::Atom::g_id)).
     twin: Vec<Option<usize>>,
@@ -348,6 +352,7 @@ impl Watcher {
             flat_checks,
             cls: vec![0; watched.len()],
             cls_s: vec![0; watched.len()],
+            found: vec![(f64::NAN, f64::NAN, 0, 0.0); watched.len()],
             watched,
             twin,
             checks: settings.guard_checks as usize,
@@ -561,20 +566,42 @@ impl Watcher {
         mut cursor: f64,
         s: f64,
     ) -> Option<(f64, EventKind)> {
+        // Brackets found in earlier rounds of this call stay valid after the
+        // cursor passes a candidate before them (the atom keeps its class and
+        // relaxation up to their start): a guard that changes after another
+        // one on the same interval is localized once, not once per round.
+        for c in &mut self.found {
+            c.0 = f64::NAN;
+        }
         for _ in 0..MAX_CANDIDATES {
-            let mut best: Option<(f64, f64)> = None;
+            let mut best: Option<(f64, f64, bool)> = None;
             for w in 0..self.watched.len() {
-                if self.cls[w] == self.cls_s[w] || self.shares_zero(w) {
+                if !self.needs_localizing(w) || self.shares_zero(w) {
                     continue;
                 }
-                let (a, b) = self.localize(sys, w, t0, path, cursor, s);
-                if best.is_none_or(|(_, bb)| b < bb) {
-                    best = Some((a, b));
-                    self.best_a.copy_from_slice(&self.buf_a);
-                    self.event_state.copy_from_slice(&self.buf_b);
+                let WAtom { set, atom } = self.watched[w];
+                let relax = self.sets[set].relax[atom];
+                let (a, b, fresh) = match self.found[w] {
+                    (a, b, c, r) if a >= cursor && c == self.cls[w] && r == relax => (a, b, false),
+                    _ => {
+                        let (a, b) = self.localize(sys, w, t0, path, cursor, s);
+                        self.found[w] = (a, b, self.cls[w], relax);
+                        (a, b, true)
+                    }
+                };
+                if best.is_none_or(|(_, bb, _)| b < bb) {
+                    best = Some((a, b, fresh));
+                    if fresh {
+                        self.best_a.copy_from_slice(&self.buf_a);
+                        self.event_state.copy_from_slice(&self.buf_b);
+                    }
                 }
             }
-            let (a, b) = best?;
+            let (a, b, fresh) = best?;
+            if !fresh {
+                path.eval(a, &mut self.best_a);
+                path.eval(b, &mut self.event_state);
+            }
             self.evaluate_sets(sys, t0 + a, t0 + b);
 
             let jump = self
@@ -619,14 +646,50 @@ impl Watcher {
     }
 
     /// Whether watched atom `w` changes sign exactly where an earlier
-    /// watched atom does (same function, neither relaxed), so that its
-    /// localization would repeat that one's to the last bit.
+    /// watched atom that is localized does (same function, neither
+    /// relaxed), so that its localization would repeat that one's to the
+    /// last bit.
     fn shares_zero(&self, w: usize) -> bool {
         let unrelaxed = |w: usize| {
             let WAtom { set, atom } = self.watched[w];
             self.sets[set].relax[atom] == 0.0
         };
-        self.twin[w].is_some_and(|u| unrelaxed(u) && unrelaxed(w))
+        self.twin[w].is_some_and(|u| unrelaxed(u) && unrelaxed(w) && self.needs_localizing(u))
+    }
+
+    /// Whether watched atom `w` changed sign class between the cursor and
+    /// the checkpoint in a way that can change its set's value. It cannot
+    /// when the set's other atoms keep their class over the interval and
+    /// the set's value does not depend on `w` there: the ball's apex (`v`
+    /// crossing 0 while `h > 0` decides C = {h ≥ 0 ∨ v ≥ 0} and
+    /// D = {h ≤ 0 ∧ v < 0}) is then not localized at all.
+    fn needs_localizing(&self, w: usize) -> bool {
+        if self.cls[w] == self.cls_s[w] {
+            return false;
+        }
+        let WAtom { set, atom } = self.watched[w];
+        let others_change = self
+            .watched
+            .iter()
+            .enumerate()
+            .any(|(u, wu)| u != w && wu.set == set && self.cls[u] != self.cls_s[u]);
+        let ws = &self.sets[set];
+        let Some(spec) = ws.spec.as_ref().filter(|_| !others_change) else {
+            return true;
+        };
+        // The set's value with `w` true and false, the other atoms at their
+        // (unchanged) truth at the checkpoint.
+        let truth = |k: usize| {
+            if k == atom {
+                None
+            } else if !spec.atoms[k].flows {
+                Some(ws.start_truth[k])
+            } else {
+                Some(spec.atoms[k].cmp.holds_within(ws.vs[k], ws.relax[k]))
+            }
+        };
+        spec.expr.eval_with(&|k| truth(k).unwrap_or(true))
+            != spec.expr.eval_with(&|k| truth(k).unwrap_or(false))
     }
 
     /// Evaluates every set on the bracket `[ta, tb]` whose end states are
@@ -790,8 +853,9 @@ enum Buf {
 struct Itp {
     /// Truncation gain κ₁ (κ₂ = 2).
     k1: f64,
-    /// The width the schedule is made for.
-    tol: f64,
+    /// ε·2^(n_max − j), ε = tol / 2: the projection radius plus half the
+    /// width bisection would have left after j steps.
+    radius: f64,
     /// Evaluations allowed (bisection's count plus one) and done.
     n_max: i32,
     j: i32,
@@ -806,10 +870,11 @@ impl Itp {
     fn new(a: f64, b: f64, tol: f64) -> Self {
         let width = b - a;
         let n_half = (width / tol).log2().ceil().max(0.0) as i32;
+        let n_max = n_half + SLACK;
         Self {
             k1: 0.2 / width,
-            tol,
-            n_max: n_half + SLACK,
+            radius: 0.5 * tol * 2f64.powi(n_max),
+            n_max,
             j: 0,
         }
     }
@@ -825,7 +890,8 @@ impl Itp {
         }
         let half = 0.5 * (b - a);
         let mid = a + half;
-        let r = (0.5 * self.tol * 2f64.powi(self.n_max - self.j) - half).max(0.0);
+        let r = (self.radius - half).max(0.0);
+        self.radius *= 0.5;
         self.j += 1;
         let falsi = (b * fa - a * fb) / (fa - fb);
         if !interpolate || !falsi.is_finite() {

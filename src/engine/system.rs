@@ -202,11 +202,16 @@ pub enum SetExpr {
 impl SetExpr {
     /// The value of the combination given the truth of each atom.
     pub fn eval(&self, truth: &[bool]) -> bool {
+        self.eval_with(&|k| truth[k])
+    }
+
+    /// The combination's value when atom `k` has truth `truth(k)`.
+    pub fn eval_with(&self, truth: &impl Fn(usize) -> bool) -> bool {
         match self {
             SetExpr::Const(b) => *b,
-            SetExpr::Atom(k) => truth[*k],
-            SetExpr::And(v) => v.iter().all(|e| e.eval(truth)),
-            SetExpr::Or(v) => v.iter().any(|e| e.eval(truth)),
+            SetExpr::Atom(k) => truth(*k),
+            SetExpr::And(v) => v.iter().all(|e| e.eval_with(truth)),
+            SetExpr::Or(v) => v.iter().any(|e| e.eval_with(truth)),
         }
     }
 
