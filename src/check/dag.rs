@@ -199,7 +199,11 @@ impl BlockKind {
                     return true;
                 }
                 let a = DMatrix::from_row_slice(r as usize, c as usize, inputs);
-                let s = a.singular_values();
+                // None for a NaN/inf matrix: the block fails like a singular inverse.
+                let Some(s) = crate::linalg::singular_values(&a) else {
+                    out[0] = f64::NAN;
+                    return false;
+                };
                 out[0] = s.iter().copied().fold(0.0, f64::max);
                 out[0].is_finite()
             }

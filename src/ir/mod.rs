@@ -1068,7 +1068,9 @@ fn detect_timer(m: &CheckedModel, cond: crate::check::dag::NodeId) -> Option<Gua
         BinFn::Le => rate < 0.0,
         _ => false,
     };
-    (ok && m.wiener_dim == 0).then_some(GuardKind::Timer {
+    // A non-finite threshold (`tau >= 0/0`) is not a timer the engine can schedule: such a
+    // guard is evaluated as written (a comparison with NaN never holds).
+    (ok && m.wiener_dim == 0 && threshold.is_finite()).then_some(GuardKind::Timer {
         index: k as usize,
         threshold,
     })

@@ -17,6 +17,7 @@ mod jit;
 mod lang;
 mod logging;
 mod models;
+mod mutants;
 mod outputs;
 mod props;
 mod props_cli;

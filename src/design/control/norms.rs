@@ -147,17 +147,16 @@ fn max_singular_value_c(g: &DMatrix<Complex<f64>>) -> f64 {
     } else {
         g * g.adjoint()
     };
-    gram.symmetric_eigenvalues()
-        .iter()
-        .fold(0.0f64, |m, v| m.max(*v))
-        .sqrt()
+    // Non-finite: NaN, which the callers' finiteness checks refuse.
+    crate::linalg::symmetric_eigenvalues(&gram)
+        .map_or(f64::NAN, |e| e.iter().fold(0.0f64, |m, v| m.max(*v)).sqrt())
 }
 
 fn max_singular_value(g: &DMatrix<f64>) -> f64 {
     if g.is_empty() {
         return 0.0;
     }
-    g.singular_values().iter().fold(0.0f64, |m, v| m.max(*v))
+    crate::linalg::singular_values(g).map_or(f64::NAN, |s| s.iter().fold(0.0f64, |m, v| m.max(*v)))
 }
 
 /// The H2 norm: √tr(C W Cᵀ) (continuous, D must be 0) or √tr(C W Cᵀ + D Dᵀ) (discrete), with

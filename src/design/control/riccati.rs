@@ -342,8 +342,8 @@ fn hamiltonian_sign_solution(
         .copy_from(&(-(z.view((0, 0), (n, n)) + DMatrix::<f64>::identity(n, n))));
     rhs.view_mut((n, 0), (n, n))
         .copy_from(&(-z.view((n, 0), (n, n))));
-    let p0 = lhs
-        .svd(true, true)
+    let p0 = crate::linalg::svd(&lhs, true, true)
+        .ok_or_else(|| not_stab.clone())?
         .solve(&rhs, 1e-14)
         .map_err(|_| not_stab.clone())?;
     if !p0.iter().all(|v| v.is_finite()) {

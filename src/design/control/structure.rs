@@ -35,7 +35,10 @@ pub fn unobservable_modes(
     if !o.iter().all(|v| v.is_finite()) {
         return Err(ControlError::NonFinite { name: "A" });
     }
-    let svd = o.svd(false, true);
+    let svd = crate::linalg::svd(&o, false, true).ok_or(ControlError::NoConvergence {
+        method: "unobservable_modes (SVD)",
+        iterations: 0,
+    })?;
     let v_t = svd.v_t.ok_or(ControlError::NoConvergence {
         method: "unobservable_modes (SVD)",
         iterations: 0,

@@ -289,7 +289,11 @@ pub(crate) fn compress(fs: Vec<Factor>) -> Vec<Factor> {
         let lq = stack(&|f| &f.l).qr();
         let rq = stack(&|f| &f.r).qr();
         let core = lq.r() * rq.r().transpose();
-        let svd = core.svd(true, true);
+        // A non-finite or non-converging core: the terms stay as they are.
+        let Some(svd) = crate::linalg::svd(&core, true, true) else {
+            out.extend(g);
+            continue;
+        };
         let (Some(u), Some(vt)) = (svd.u.as_ref(), svd.v_t.as_ref()) else {
             out.extend(g);
             continue;

@@ -321,10 +321,11 @@ fn max_step(l: &DMatrix<f64>, dx: &DMatrix<f64>) -> f64 {
         return 0.0;
     };
     let b = (&b + b.transpose()) * 0.5;
-    let lmin = b
-        .symmetric_eigenvalues()
-        .iter()
-        .fold(f64::INFINITY, |m, v| m.min(*v));
+    // Non-finite: no step (as when L is singular).
+    let Some(eig) = crate::linalg::symmetric_eigenvalues(&b) else {
+        return 0.0;
+    };
+    let lmin = eig.iter().fold(f64::INFINITY, |m, v| m.min(*v));
     if lmin < 0.0 {
         -1.0 / lmin
     } else {

@@ -8,7 +8,7 @@ use clarabel::algebra::CscMatrix;
 use clarabel::solver::{
     DefaultSettingsBuilder, DefaultSolver, IPSolver, SolverStatus as ClStatus, SupportedConeT,
 };
-use nalgebra::DMatrix;
+use nalgebra::{DMatrix, DVector};
 
 use super::ipm::{self, IpmOptions};
 use super::kron::BlockTerm;
@@ -408,7 +408,9 @@ impl Problem {
                     }
                     (-worst, abs_scale.amax())
                 } else {
-                    let eig = g.symmetric_eigenvalues();
+                    // A non-finite value fails the check (min NaN).
+                    let eig = crate::linalg::symmetric_eigenvalues(&g)
+                        .unwrap_or_else(|| DVector::from_element(1, f64::NAN));
                     let min = eig.iter().fold(f64::INFINITY, |m, v| m.min(*v));
                     let norm = eig.iter().fold(0.0f64, |m, v| m.max(v.abs()));
                     (min, norm)

@@ -1,0 +1,558 @@
+//! Grammar-aware mutation test (issue 24): `CASES` token-level mutants of
+//! the shipped models (`models/`, `models/lib/`, `benches/models/`), the
+//! same ones on every run (fixed seed), each through `hybsim::fuzz::run`:
+//! check, compile and, for what compiles, a run cut to T ≤ 2 and J ≤ 200.
+//! Asserted: no panic, every error located inside its file, `check`
+//! accepts only what compiles, and no case takes longer than `CASE_LIMIT`
+//! (each case runs on a worker thread watched by the test thread).
+//!
+//! A mutant applies 1–3 edits to the model's tokens: delete, duplicate or
+//! swap tokens, replace a number by an edge value (0, -0, 1e308, 1e-320,
+//! 1e309, huge integers, 0/0, …), a name by another word of the model, an
+//! operator by another operator, empty a bracket's contents or insert
+//! empty brackets. Mutants of `models/lib/` files are compiled through a
+//! model that imports them, so their errors must point into the library
+//! file.
+//!
+//! `HYBSIM_MUTANTS=N` changes the number of cases (e.g. 100000 for a long
+//! local run); a failure prints the case number, the file and the mutant.
+
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::{Arc, Mutex, mpsc};
+use std::time::{Duration, Instant};
+
+use hybsim::fuzz::{self, Budget, Outcome, Violation};
+use hybsim::source::SourceFile;
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+/// Cases per run of the test (documented in README, "Fuzzing").
+const CASES: usize = 5000;
+/// The seed of the mutants.
+const SEED: u64 = 24;
+/// A case slower than this is a hang (typical cases take milliseconds).
+const CASE_LIMIT: Duration = Duration::from_secs(30);
+
+/// Numbers that have broken numeric code before: zeros of both signs,
+/// the largest and smallest doubles and beyond, integers past u32/u64/f64
+/// exactness, non-finite values spelled as expressions.
+const EDGE_NUMBERS: &[&str] = &[
+    "0",
+    "-0",
+    "0.0",
+    "1",
+    "-1",
+    "2",
+    "65",
+    "1e308",
+    "-1e308",
+    "1e309",
+    "-1e-308",
+    "1e-320",
+    "4294967297",
+    "18446744073709551617",
+    "9007199254740993",
+    "99999999999999999999999999999999999999",
+    "0/0",
+    "1/0",
+    "-1/0",
+    "(0/0)",
+    "inf",
+    "NaN",
+];
+
+/// Operators a mutant may put in place of another.
+const OPERATORS: &[&str] = &[
+    "+", "-", "*", "/", "^", ".*", "./", "'", "<", ">", "<=", ">=", "==", "!=", "&&", "||", "!",
+    "=", "~", ",", ";", ":", "..",
+];
+
+/// Longest first, as the formatter's lexer.
+const PUNCT: &[&str] = &[
+    "||", "&&", "<=", ">=", "==", "!=", ".*", "./", "..", "'", "+", "-", "*", "/", "^", "<", ">",
+    "!", "=", "~", "(", ")", "[", "]", "{", "}", ",", ";", ":",
+];
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Kind {
+    Word,
+    Number,
+    Str,
+    Op,
+}
+
+/// A token and the whitespace or comments before it.
+#[derive(Debug, Clone)]
+struct Token {
+    before: String,
+    text: String,
+    kind: Kind,
+}
+
+/// Splits `text` into tokens (comments and whitespace stay attached to the
+/// next token); the rest after the last token is returned too.
+fn lex(text: &str) -> (Vec<Token>, String) {
+    let mut tokens = Vec::new();
+    let mut before = String::new();
+    let mut rest = text;
+    while let Some(c) = rest.chars().next() {
+        let len = if c.is_whitespace() {
+            before.push(c);
+            rest = &rest[c.len_utf8()..];
+            continue;
+        } else if c == '#' {
+            let end = rest.find('\n').unwrap_or(rest.len());
+            before.push_str(&rest[..end]);
+            rest = &rest[end..];
+            continue;
+        } else if c == '"' {
+            rest[1..].find('"').map_or(rest.len(), |i| i + 2)
+        } else if c.is_ascii_alphabetic() || c == '_' {
+            rest.find(|ch: char| !(ch.is_ascii_alphanumeric() || ch == '_'))
+                .unwrap_or(rest.len())
+        } else if c.is_ascii_digit() {
+            number_len(rest)
+        } else {
+            PUNCT
+                .iter()
+                .find(|p| rest.starts_with(**p))
+                .map_or(c.len_utf8(), |p| p.len())
+        };
+        let kind = match c {
+            '"' => Kind::Str,
+            '0'..='9' => Kind::Number,
+            c if c.is_ascii_alphabetic() || c == '_' => Kind::Word,
+            _ => Kind::Op,
+        };
+        tokens.push(Token {
+            before: std::mem::take(&mut before),
+            text: rest[..len].to_string(),
+            kind,
+        });
+        rest = &rest[len..];
+    }
+    (tokens, before)
+}
+
+/// `digits ("." digits)? (e ("+"|"-")? digits)?`, so `1..N` is `1`, `..`, `N`.
+fn number_len(s: &str) -> usize {
+    let b = s.as_bytes();
+    let digits = |mut i: usize| {
+        while i < b.len() && b[i].is_ascii_digit() {
+            i += 1;
+        }
+        i
+    };
+    let mut i = digits(0);
+    if i + 1 < b.len() && b[i] == b'.' && b[i + 1].is_ascii_digit() {
+        i = digits(i + 1);
+    }
+    if i < b.len() && (b[i] == b'e' || b[i] == b'E') {
+        let mut j = i + 1;
+        if j < b.len() && (b[j] == b'+' || b[j] == b'-') {
+            j += 1;
+        }
+        if j < b.len() && b[j].is_ascii_digit() {
+            i = digits(j);
+        }
+    }
+    i
+}
+
+/// One shipped file and how to compile its mutants: `host` is the model
+/// that imports it (library files), else the file itself.
+struct Subject {
+    path: PathBuf,
+    tokens: Vec<Token>,
+    tail: String,
+    words: Vec<String>,
+    host: Option<String>,
+}
+
+fn subjects() -> Vec<Subject> {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let mut paths = Vec::new();
+    for dir in ["models", "models/lib", "benches/models"] {
+        let mut found: Vec<PathBuf> = std::fs::read_dir(root.join(dir))
+            .unwrap()
+            .map(|e| e.unwrap().path())
+            .filter(|p| p.extension().is_some_and(|e| e == "hyb"))
+            .collect();
+        found.sort();
+        paths.extend(found);
+    }
+    assert!(paths.len() >= 15, "shipped models not found: {paths:?}");
+    paths
+        .into_iter()
+        .map(|path| {
+            let text = std::fs::read_to_string(&path).unwrap();
+            let (tokens, tail) = lex(&text);
+            let mut words: Vec<String> = tokens
+                .iter()
+                .filter(|t| t.kind == Kind::Word)
+                .map(|t| t.text.clone())
+                .collect();
+            words.sort();
+            words.dedup();
+            let host = path
+                .parent()
+                .is_some_and(|d| d.ends_with("models/lib"))
+                .then(|| library_host(root, &path));
+            Subject {
+                path,
+                tokens,
+                tail,
+                words,
+                host,
+            }
+        })
+        .collect()
+}
+
+/// A model importing the library file `lib`: a shipped model that imports
+/// it, else one that only imports it (the subsystems are still parsed and
+/// checked).
+fn library_host(root: &Path, lib: &Path) -> String {
+    let import = format!(
+        "import \"lib/{}\"",
+        lib.file_name().unwrap().to_string_lossy()
+    );
+    for entry in std::fs::read_dir(root.join("models")).unwrap() {
+        let p = entry.unwrap().path();
+        if p.extension().is_some_and(|e| e == "hyb") {
+            let text = std::fs::read_to_string(&p).unwrap();
+            if text.contains(&import) {
+                return text;
+            }
+        }
+    }
+    format!("model host\n{import}\nstate x = 1\nflow {{ x' = -x }}\nsim {{ T = 1 }}\n")
+}
+
+fn pick<'a, T>(rng: &mut ChaCha8Rng, items: &'a [T]) -> &'a T {
+    &items[(rng.next_u64() % items.len() as u64) as usize]
+}
+
+fn below(rng: &mut ChaCha8Rng, n: usize) -> usize {
+    (rng.next_u64() % n.max(1) as u64) as usize
+}
+
+/// Applies one random edit to `tokens`; returns what it did.
+fn mutate(rng: &mut ChaCha8Rng, tokens: &mut Vec<Token>, words: &[String]) -> String {
+    if tokens.len() < 2 {
+        return "none".into();
+    }
+    let i = below(rng, tokens.len());
+    let token = |text: &str, kind: Kind| Token {
+        before: " ".into(),
+        text: text.into(),
+        kind,
+    };
+    match below(rng, 9) {
+        0 => {
+            let t = tokens.remove(i);
+            format!("delete `{}`", t.text)
+        }
+        1 => {
+            let t = tokens[i].clone();
+            tokens.insert(
+                i + 1,
+                Token {
+                    before: " ".into(),
+                    ..t.clone()
+                },
+            );
+            format!("duplicate `{}`", t.text)
+        }
+        2 => {
+            let j = if below(rng, 2) == 0 {
+                (i + 1).min(tokens.len() - 1)
+            } else {
+                below(rng, tokens.len())
+            };
+            let (a, b) = (tokens[i].text.clone(), tokens[j].text.clone());
+            tokens[i].text = b.clone();
+            tokens[i].kind = tokens[j].kind;
+            let kind = tokens[i].kind;
+            tokens[j].text = a.clone();
+            tokens[j].kind = if kind == tokens[j].kind {
+                kind
+            } else {
+                Kind::Op
+            };
+            format!("swap `{a}` and `{b}`")
+        }
+        3 | 4 => {
+            // Numbers are the most productive target: aim at one if any.
+            let numbers: Vec<usize> = (0..tokens.len())
+                .filter(|&k| tokens[k].kind == Kind::Number)
+                .collect();
+            let k = if numbers.is_empty() {
+                i
+            } else {
+                *pick(rng, &numbers)
+            };
+            let edge = *pick(rng, EDGE_NUMBERS);
+            let old = std::mem::replace(&mut tokens[k].text, edge.to_string());
+            format!("number `{old}` -> `{edge}`")
+        }
+        5 => {
+            let names: Vec<usize> = (0..tokens.len())
+                .filter(|&k| tokens[k].kind == Kind::Word)
+                .collect();
+            let k = if names.is_empty() {
+                i
+            } else {
+                *pick(rng, &names)
+            };
+            let new = pick(rng, words).clone();
+            let old = std::mem::replace(&mut tokens[k].text, new.clone());
+            tokens[k].kind = Kind::Word;
+            format!("name `{old}` -> `{new}`")
+        }
+        6 => {
+            let ops: Vec<usize> = (0..tokens.len())
+                .filter(|&k| tokens[k].kind == Kind::Op && !"()[]{}".contains(&tokens[k].text))
+                .collect();
+            let k = if ops.is_empty() { i } else { *pick(rng, &ops) };
+            let new = *pick(rng, OPERATORS);
+            let old = std::mem::replace(&mut tokens[k].text, new.to_string());
+            tokens[k].kind = Kind::Op;
+            format!("operator `{old}` -> `{new}`")
+        }
+        7 => {
+            // Empty the contents of a bracket pair.
+            let opens: Vec<usize> = (0..tokens.len())
+                .filter(|&k| matches!(tokens[k].text.as_str(), "(" | "[" | "{"))
+                .collect();
+            if opens.is_empty() {
+                return "none".into();
+            }
+            let k = *pick(rng, &opens);
+            let mut depth = 0usize;
+            let mut end = None;
+            for (m, t) in tokens.iter().enumerate().skip(k) {
+                match t.text.as_str() {
+                    "(" | "[" | "{" => depth += 1,
+                    ")" | "]" | "}" => {
+                        depth -= 1;
+                        if depth == 0 {
+                            end = Some(m);
+                            break;
+                        }
+                    }
+                    _ => {}
+                }
+            }
+            let Some(end) = end else {
+                return "none".into();
+            };
+            tokens.drain(k + 1..end);
+            format!("empty the brackets at token {k}")
+        }
+        _ => {
+            let (open, close) = *pick(rng, &[("[", "]"), ("(", ")"), ("{", "}")]);
+            tokens.insert(i, token(close, Kind::Op));
+            tokens.insert(i, token(open, Kind::Op));
+            format!("insert `{open}{close}`")
+        }
+    }
+}
+
+fn render(tokens: &[Token], tail: &str) -> String {
+    let mut s = String::new();
+    for t in tokens {
+        s.push_str(&t.before);
+        s.push_str(&t.text);
+    }
+    s.push_str(tail);
+    s
+}
+
+/// Case `case`: the subject (round robin over the files) and its mutant.
+struct Case {
+    subject: usize,
+    edits: Vec<String>,
+    text: String,
+}
+
+fn case(subjects: &[Subject], case: usize) -> Case {
+    let subject = case % subjects.len();
+    let s = &subjects[subject];
+    let mut rng =
+        ChaCha8Rng::seed_from_u64(SEED ^ (case as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15));
+    let mut tokens = s.tokens.clone();
+    let edits = (0..1 + below(&mut rng, 3))
+        .map(|_| mutate(&mut rng, &mut tokens, &s.words))
+        .collect();
+    Case {
+        subject,
+        edits,
+        text: render(&tokens, &s.tail),
+    }
+}
+
+/// Runs one case; library mutants are written beside a copy of their host
+/// in a temporary `lib/`, so that imports read the mutant.
+fn run_case(s: &Subject, text: &str) -> Result<Outcome, Violation> {
+    let budget = Budget::default();
+    match &s.host {
+        None => fuzz::run(&SourceFile::new(s.path.to_string_lossy(), text), &budget),
+        Some(host) => {
+            let dir = tempfile::tempdir().unwrap();
+            let lib = dir.path().join("lib");
+            std::fs::create_dir(&lib).unwrap();
+            let root = s.path.parent().unwrap();
+            for entry in std::fs::read_dir(root).unwrap() {
+                let p = entry.unwrap().path();
+                std::fs::copy(&p, lib.join(p.file_name().unwrap())).unwrap();
+            }
+            let mutant = lib.join(s.path.file_name().unwrap());
+            std::fs::write(&mutant, text).unwrap();
+            let host_path = dir.path().join("host.hyb");
+            fuzz::run(
+                &SourceFile::new(host_path.to_string_lossy(), host.as_str()),
+                &budget,
+            )
+        }
+    }
+}
+
+/// What a worker is doing: (case, since when).
+type Running = Option<(usize, Instant)>;
+
+#[test]
+fn mutants_of_the_shipped_models_never_panic_hang_or_lose_a_location() {
+    let cases: usize = std::env::var("HYBSIM_MUTANTS")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(CASES);
+    let subjects = Arc::new(subjects());
+    // Library hosts compile unmutated (so every error of a mutant is the mutant's).
+    for s in subjects.iter() {
+        if s.host.is_some() {
+            let r = run_case(s, &render(&s.tokens, &s.tail));
+            assert!(
+                matches!(r, Ok(Outcome::Ran { .. })),
+                "{}: {r:?}",
+                s.path.display()
+            );
+        }
+    }
+    let next = Arc::new(AtomicUsize::new(0));
+    let busy: Arc<Mutex<Vec<Running>>> = Arc::new(Mutex::new(vec![None; 2]));
+    let (tx, rx) = mpsc::channel();
+    for w in 0..2 {
+        let (subjects, next, busy, tx) = (subjects.clone(), next.clone(), busy.clone(), tx.clone());
+        std::thread::spawn(move || {
+            loop {
+                let k = next.fetch_add(1, Ordering::Relaxed);
+                if k >= cases {
+                    break;
+                }
+                busy.lock().unwrap()[w] = Some((k, Instant::now()));
+                let c = case(&subjects, k);
+                let r = run_case(&subjects[c.subject], &c.text);
+                busy.lock().unwrap()[w] = None;
+                if tx.send((k, r)).is_err() {
+                    break;
+                }
+            }
+        });
+    }
+    drop(tx);
+    let started = Instant::now();
+    let mut failures = Vec::new();
+    let (mut rejected, mut ran, mut failed) = (0, 0, 0);
+    let mut done = 0;
+    while done < cases {
+        match rx.recv_timeout(Duration::from_millis(200)) {
+            Ok((k, r)) => {
+                done += 1;
+                match r {
+                    Ok(Outcome::Rejected { .. }) => rejected += 1,
+                    Ok(Outcome::Ran { .. }) => ran += 1,
+                    Ok(Outcome::Failed { .. }) => failed += 1,
+                    Ok(Outcome::Accepted) => {}
+                    Err(v) => failures.push((k, v.to_string())),
+                }
+            }
+            Err(mpsc::RecvTimeoutError::Disconnected) => break,
+            Err(mpsc::RecvTimeoutError::Timeout) => {}
+        }
+        let hung = busy
+            .lock()
+            .unwrap()
+            .iter()
+            .flatten()
+            .find(|(_, since)| since.elapsed() > CASE_LIMIT)
+            .copied();
+        if let Some((k, _)) = hung {
+            // The worker cannot be stopped; report and fail now.
+            failures.push((k, format!("no result after {CASE_LIMIT:?}")));
+            break;
+        }
+    }
+    let report: Vec<String> = failures
+        .iter()
+        .take(20)
+        .map(|(k, why)| {
+            let c = case(&subjects, *k);
+            format!(
+                "case {k}: {} after {:?}\n{why}\n--- mutant ---\n{}\n",
+                subjects[c.subject].path.display(),
+                c.edits,
+                c.text
+            )
+        })
+        .collect();
+    eprintln!(
+        "{cases} mutants in {:.1} s: {rejected} rejected, {ran} ran, {failed} failed at run time, {} broke a promise",
+        started.elapsed().as_secs_f64(),
+        failures.len()
+    );
+    assert!(failures.is_empty(), "{}", report.join("\n"));
+    // The mutants reach every stage: not all refused by the parser.
+    assert!(
+        ran > cases / 20 && rejected > cases / 4,
+        "ran {ran}, rejected {rejected}"
+    );
+}
+
+/// The defects the mutation test found, each as its smallest model (see
+/// `hybsim::linalg`, `ir::detect_timer`): they hung or failed unlocated.
+#[test]
+fn defects_found_by_mutation_end_quickly_with_located_results() {
+    let t0 = Instant::now();
+    let run = |text: &str| fuzz::run(&SourceFile::new("m.hyb", text), &Budget::default());
+    // appendix_f with an LMI coefficient whose square overflows (nalgebra's SVD iterated forever
+    // in the LMI's factor compression): a located E0705, design not solved.
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("models/appendix_f.hyb");
+    let text = std::fs::read_to_string(path).unwrap();
+    let lmi = text.replace("param B = [0, 1; 1, 0]", "param B = [0, 1; 1, -1e300]");
+    assert_ne!(lmi, text);
+    let diags = hybsim::lang::check_only(&SourceFile::new("m.hyb", lmi.as_str()), &[]);
+    assert!(
+        diags
+            .iter()
+            .any(|d| d.code == "E0705" && d.primary_span().is_some()),
+        "{diags:?}"
+    );
+    // Norms of huge, tiny and non-finite matrices, folded at check time and evaluated in a run.
+    let norms = "model m\nparam a = norm([0, 1e-320; 0, -1e-308]) + norm([1e300, 1; 0, 1])\n\
+                 state x = 1\nflow { x' = -x }\noutput n = norm([x * 1e300, 1; 0, 0/0])\nsim { T = 1 }\n";
+    assert!(
+        matches!(run(norms), Ok(Outcome::Ran { .. })),
+        "{:?}",
+        run(norms)
+    );
+    // A timer guard against NaN never holds (it was an unlocated "invalid system" at run time).
+    let nan_timer = "model m\nstate tau = 0\nflow { tau' = 1 }\njump j when tau >= 0/0 { tau+ = 0 }\nsim { T = 1 }\n";
+    assert!(
+        matches!(run(nan_timer), Ok(Outcome::Ran { .. })),
+        "{:?}",
+        run(nan_timer)
+    );
+    assert!(t0.elapsed() < Duration::from_secs(2), "{:?}", t0.elapsed());
+}
