@@ -16,10 +16,12 @@
 //!
 //! Without the limit binary only hybsim's side is timed.
 
+mod common;
+use common::{cpu_now, median};
+
 use std::ops::ControlFlow;
 use std::path::{Path, PathBuf};
 use std::process::Command;
-use std::time::Instant;
 
 use hybsim::arc::{ArcSink, HybridTime, SampleKind, Termination};
 use hybsim::engine::{ExactAffine, simulate};
@@ -55,28 +57,6 @@ impl ArcSink for Tally {
     fn finish(&mut self, termination: &Termination) {
         self.end = Some(termination.clone());
     }
-}
-
-/// CPU time of this thread in seconds. `CLOCK_THREAD_CPUTIME_ID` adds the
-/// time since the last scheduler tick; `/proc/thread-self/schedstat` does
-/// not, and moves in 4 ms steps on some kernels (too coarse for runs of
-/// tens of µs).
-fn cpu_now() -> f64 {
-    let mut ts = libc::timespec {
-        tv_sec: 0,
-        tv_nsec: 0,
-    };
-    // SAFETY: `ts` is a valid timespec for clock_gettime to fill.
-    if unsafe { libc::clock_gettime(libc::CLOCK_THREAD_CPUTIME_ID, &mut ts) } == 0 {
-        return ts.tv_sec as f64 + ts.tv_nsec as f64 * 1e-9;
-    }
-    thread_local!(static T0: Instant = Instant::now());
-    T0.with(|t| t.elapsed().as_secs_f64())
-}
-
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    v[v.len() / 2]
 }
 
 /// One run of `m` with `mode`: its tally.

@@ -13,6 +13,9 @@
 //! time (`CLOCK_THREAD_CPUTIME_ID`); medians; the load average before and
 //! after.
 
+mod common;
+use common::{cpu_now, median};
+
 use std::hint::black_box;
 use std::ops::ControlFlow;
 use std::path::Path;
@@ -40,24 +43,6 @@ impl ArcSink for Tally {
     }
 
     fn finish(&mut self, _: &Termination) {}
-}
-
-/// CPU time of this thread in seconds.
-fn cpu_now() -> f64 {
-    let mut ts = libc::timespec {
-        tv_sec: 0,
-        tv_nsec: 0,
-    };
-    // SAFETY: `ts` is a valid timespec for clock_gettime to fill.
-    if unsafe { libc::clock_gettime(libc::CLOCK_THREAD_CPUTIME_ID, &mut ts) } == 0 {
-        return ts.tv_sec as f64 + ts.tv_nsec as f64 * 1e-9;
-    }
-    panic!("no thread CPU clock")
-}
-
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    v[v.len() / 2]
 }
 
 fn load() -> String {

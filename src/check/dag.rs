@@ -709,6 +709,59 @@ impl Dag {
         self.intern(Node::Interp { table, x, slope })
     }
 
+    /// `id` rebuilt with each input `c` replaced by `f(self, c)` (and folded
+    /// again), for the nodes computed from inputs by a function of the
+    /// graph; `None` for the others (leaves, random draws, block outputs),
+    /// which each rewrite treats in its own way.
+    pub fn map_inputs(
+        &mut self,
+        id: NodeId,
+        f: &mut dyn FnMut(&mut Dag, NodeId) -> NodeId,
+    ) -> Option<NodeId> {
+        Some(match self.nodes[id as usize] {
+            Node::Un(g, a) => {
+                let a = f(self, a);
+                self.un(g, a)
+            }
+            Node::Bin(g, a, b) => {
+                let a = f(self, a);
+                let b = f(self, b);
+                self.bin(g, a, b)
+            }
+            Node::Select(c, a, b) => {
+                let c = f(self, c);
+                let a = f(self, a);
+                let b = f(self, b);
+                self.select(c, a, b)
+            }
+            Node::Lookup {
+                table,
+                row,
+                col,
+                origin,
+                when,
+            } => {
+                let row = f(self, row);
+                let col = f(self, col);
+                let when = f(self, when);
+                // A constant index out of range stays a run-time lookup (its
+                // error is reported where it is evaluated).
+                self.lookup(table, row, col, origin, when).unwrap_or(id)
+            }
+            Node::Interp { table, x, slope } => {
+                let x = f(self, x);
+                self.interp(table, x, slope)
+            }
+            Node::Const(_)
+            | Node::State(_)
+            | Node::Time
+            | Node::Jumps
+            | Node::Wiener(_)
+            | Node::Rand(..)
+            | Node::BlockOut(..) => return None,
+        })
+    }
+
     /// Visits the direct inputs of `id`.
     pub fn inputs(&self, id: NodeId, mut f: impl FnMut(NodeId)) {
         match self.nodes[id as usize] {

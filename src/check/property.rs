@@ -359,44 +359,6 @@ fn to_post(dag: &mut Dag, n: NodeId, dim: usize, memo: &mut HashMap<NodeId, Node
     }
     let r = match dag.node(n) {
         Node::State(k) if (k as usize) < dim => dag.state(dim + 1 + k as usize),
-        Node::Const(_)
-        | Node::State(_)
-        | Node::Time
-        | Node::Jumps
-        | Node::Wiener(_)
-        | Node::Rand(..) => n,
-        Node::Un(f, a) => {
-            let a = to_post(dag, a, dim, memo);
-            dag.un(f, a)
-        }
-        Node::Bin(f, a, b) => {
-            let a = to_post(dag, a, dim, memo);
-            let b = to_post(dag, b, dim, memo);
-            dag.bin(f, a, b)
-        }
-        Node::Select(s, a, b) => {
-            let s = to_post(dag, s, dim, memo);
-            let a = to_post(dag, a, dim, memo);
-            let b = to_post(dag, b, dim, memo);
-            dag.select(s, a, b)
-        }
-        Node::Lookup {
-            table,
-            row,
-            col,
-            origin,
-            when,
-        } => {
-            let row = to_post(dag, row, dim, memo);
-            let col = to_post(dag, col, dim, memo);
-            let when = to_post(dag, when, dim, memo);
-            // A constant index out of range stays a run-time lookup.
-            dag.lookup(table, row, col, origin, when).unwrap_or(n)
-        }
-        Node::Interp { table, x, slope } => {
-            let x = to_post(dag, x, dim, memo);
-            dag.interp(table, x, slope)
-        }
         Node::BlockOut(b, k) => {
             let block = dag.block(b).clone();
             let inputs: Vec<NodeId> = block
@@ -410,6 +372,10 @@ fn to_post(dag: &mut Dag, n: NodeId, dim: usize, memo: &mut HashMap<NodeId, Node
                 Err(_) => n,
             }
         }
+        // Other leaves and draws stay as they are.
+        _ => dag
+            .map_inputs(n, &mut |dag, c| to_post(dag, c, dim, memo))
+            .unwrap_or(n),
     };
     memo.insert(n, r);
     r

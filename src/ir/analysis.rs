@@ -330,45 +330,11 @@ pub(crate) fn substitute_wiener(
     }
     let r = match dag.node(root) {
         Node::Wiener(k) => dag.konst(value(k)),
-        Node::Const(_)
-        | Node::State(_)
-        | Node::Time
-        | Node::Jumps
-        | Node::Rand(..)
-        | Node::BlockOut(..) => root,
-        Node::Un(f, a) => {
-            let a = substitute_wiener(dag, a, value, memo);
-            dag.un(f, a)
-        }
-        Node::Bin(f, a, b) => {
-            let a = substitute_wiener(dag, a, value, memo);
-            let b = substitute_wiener(dag, b, value, memo);
-            dag.bin(f, a, b)
-        }
-        Node::Select(c, a, b) => {
-            let c = substitute_wiener(dag, c, value, memo);
-            let a = substitute_wiener(dag, a, value, memo);
-            let b = substitute_wiener(dag, b, value, memo);
-            dag.select(c, a, b)
-        }
-        Node::Lookup {
-            table,
-            row,
-            col,
-            origin,
-            when,
-        } => {
-            let row = substitute_wiener(dag, row, value, memo);
-            let col = substitute_wiener(dag, col, value, memo);
-            let when = substitute_wiener(dag, when, value, memo);
-            // A constant index out of range stays a run-time lookup (its
-            // error is reported where it is evaluated).
-            dag.lookup(table, row, col, origin, when).unwrap_or(root)
-        }
-        Node::Interp { table, x, slope } => {
-            let x = substitute_wiener(dag, x, value, memo);
-            dag.interp(table, x, slope)
-        }
+        // Leaves, draws and block outputs (matrix operations, never on
+        // noise) stay as they are.
+        _ => dag
+            .map_inputs(root, &mut |dag, c| substitute_wiener(dag, c, value, memo))
+            .unwrap_or(root),
     };
     memo.insert(root, r);
     r
