@@ -13,6 +13,7 @@
 //! constant condition. Anything else that mentions a variable is not affine.
 
 use std::collections::HashMap;
+use std::rc::Rc;
 
 use nalgebra::DMatrix;
 
@@ -563,8 +564,13 @@ impl Checker {
             };
             match &v.member {
                 None => {
-                    self.syms
-                        .insert(v.name.clone(), Sym::Param { val, span: v.span });
+                    self.syms.insert(
+                        v.name.clone(),
+                        Sym::Param {
+                            val: Rc::new(val),
+                            span: v.span,
+                        },
+                    );
                 }
                 Some(index) => {
                     let entry =

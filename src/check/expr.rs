@@ -7,6 +7,7 @@ use super::limits::Quantity;
 use super::{Checker, Sym};
 use crate::source::Span;
 use crate::syntax::ast::{BinOp, Binder, Expr, ExprKind, IndexArg, IndexSet, UnOp};
+use std::rc::Rc;
 
 /// A checked value: a rows × cols matrix of scalar nodes (row-major).
 #[derive(Debug, Clone, PartialEq)]
@@ -482,7 +483,7 @@ impl Checker {
             }
         }
         match self.syms.get(name) {
-            Some(Sym::Param { val, .. }) | Some(Sym::Output { val, .. }) => Some(val.clone()),
+            Some(Sym::Param { val, .. }) | Some(Sym::Output { val, .. }) => Some(Val::clone(val)),
             Some(Sym::State { field, .. }) => Some(self.field_val(*field)),
             Some(Sym::Wiener { val, .. }) => {
                 let val = val.clone();
@@ -717,6 +718,17 @@ impl Checker {
                     && self.is_family(n)
                 {
                     return self.family_member(n, e.span, args);
+                }
+                // A named matrix is indexed where it is stored: copying it
+                // for each `E[:, i]` made loops over its columns quadratic.
+                if let ExprKind::Name(n) = &base.kind
+                    && self.scope_lookup(n).is_none()
+                    && !self.is_poisoned(n)
+                    && let Some(Sym::Param { val, .. } | Sym::Output { val, .. }) =
+                        self.syms.get(n.as_str())
+                {
+                    let v = Rc::clone(val);
+                    return self.index_in(&v, args, e.span, ctx);
                 }
                 let v = self.expr(base, ctx)?;
                 self.index_in(&v, args, e.span, ctx)

@@ -125,7 +125,7 @@ impl MetricCollector {
             c.syms.insert(
                 "j".into(),
                 super::Sym::Output {
-                    val,
+                    val: val.into(),
                     span: Span::default(),
                 },
             );

@@ -24,6 +24,7 @@ pub mod sweep;
 mod tests;
 
 use std::collections::{BTreeMap, HashMap};
+use std::rc::Rc;
 
 pub use crate::design::lmi::Backend;
 pub use design::{DesignError, DesignReport, SolveSummary};
@@ -39,7 +40,7 @@ use dag::Dag;
 #[derive(Debug, Clone)]
 pub(crate) enum Sym {
     /// A parameter with its constant value.
-    Param { val: Val, span: Span },
+    Param { val: Rc<Val>, span: Span },
     /// A family of parameters.
     ParamFamily {
         members: BTreeMap<Vec<i64>, Val>,
@@ -55,7 +56,7 @@ pub(crate) enum Sym {
     /// A white-noise input.
     Wiener { val: Val, span: Span },
     /// A named output.
-    Output { val: Val, span: Span },
+    Output { val: Rc<Val>, span: Span },
     /// A family of outputs (`for i in 1..N { output e[i] = ... }`).
     OutputFamily {
         members: BTreeMap<Vec<i64>, Val>,

@@ -2,6 +2,7 @@
 //! outputs and simulation settings.
 
 use std::collections::HashMap;
+use std::rc::Rc;
 
 use super::dag::{BinFn, Dag, Node, NodeId};
 use super::design::Solved;
@@ -708,7 +709,7 @@ impl ModelChecker<'_> {
             let z = self.c.dag.konst(0.0);
             let span = d.target.name.span;
             self.declare(&d.target, |_| Sym::Param {
-                val: Val::scalar(z),
+                val: Rc::new(Val::scalar(z)),
                 span,
             });
             return;
@@ -731,7 +732,10 @@ impl ModelChecker<'_> {
         }
         let dims = v.dims();
         let span = d.target.name.span;
-        if let Some(display) = self.declare(&d.target, |_| Sym::Param { val: v, span }) {
+        if let Some(display) = self.declare(&d.target, |_| Sym::Param {
+            val: Rc::new(v),
+            span,
+        }) {
             self.params.push((display, dims, vals));
         }
     }
@@ -802,7 +806,10 @@ impl ModelChecker<'_> {
                 Val::scalar(self.c.dag.konst(0.0))
             }
         };
-        self.declare(&target, |_| Sym::Param { val, span });
+        self.declare(&target, |_| Sym::Param {
+            val: Rc::new(val),
+            span,
+        });
     }
 
     /// `param g ~ DRAW`: random unless `--set` pins it (or replaces the
@@ -832,7 +839,13 @@ impl ModelChecker<'_> {
         let dist = self.draw(draw);
         let nominal = dist.map_or(0.0, |d| d.centre());
         let val = Val::scalar(self.c.dag.konst(nominal));
-        if self.declare(target, |_| Sym::Param { val, span }).is_some() {
+        if self
+            .declare(target, |_| Sym::Param {
+                val: Rc::new(val),
+                span,
+            })
+            .is_some()
+        {
             self.params.push((name.clone(), (1, 1), vec![nominal]));
             if let Some(dist) = dist {
                 self.random_params
@@ -999,7 +1012,7 @@ impl ModelChecker<'_> {
         let z = self.c.dag.konst(0.0);
         let span = t.name.span;
         let shown = self.declare(t, |_| Sym::Param {
-            val: Val::scalar(z),
+            val: Rc::new(Val::scalar(z)),
             span,
         });
         self.c
@@ -1048,7 +1061,10 @@ impl ModelChecker<'_> {
             let vals: Vec<f64> = v.e.iter().filter_map(|&n| self.c.dag.as_const(n)).collect();
             let dims = v.dims();
             let span = t.name.span;
-            if let Some(display) = self.declare(t, |_| Sym::Param { val: v, span }) {
+            if let Some(display) = self.declare(t, |_| Sym::Param {
+                val: Rc::new(v),
+                span,
+            }) {
                 self.params.push((display, dims, vals));
             }
         }

@@ -104,7 +104,7 @@ pub(crate) fn check_properties(
         c.syms.insert(
             "j".into(),
             Sym::Output {
-                val,
+                val: val.into(),
                 span: Span::default(),
             },
         );

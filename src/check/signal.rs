@@ -11,6 +11,7 @@
 //! acyclic graph is not a loop.
 
 use std::collections::{BTreeMap, HashMap};
+use std::rc::Rc;
 
 use super::error::CheckError;
 use super::model::{OUTPUT_CTX, OutputField};
@@ -228,7 +229,10 @@ impl Checker {
         };
         let span = d.target.name.span;
         let val = v.clone();
-        let Some(name) = self.declare(&d.target, |_| Sym::Output { val, span }) else {
+        let Some(name) = self.declare(&d.target, |_| Sym::Output {
+            val: Rc::new(val),
+            span,
+        }) else {
             return false;
         };
         if sig.logged {
@@ -288,13 +292,13 @@ impl Checker {
                 match (self.syms.get_mut(name), s) {
                     (None, Sym::Param { val, span: sp }) => {
                         let mut members = BTreeMap::new();
-                        members.insert(key, val);
+                        members.insert(key, Rc::unwrap_or_clone(val));
                         self.syms
                             .insert(name.clone(), Sym::ParamFamily { members, span: sp });
                     }
                     (None, Sym::Output { val, span: sp }) => {
                         let mut members = BTreeMap::new();
-                        members.insert(key, val);
+                        members.insert(key, Rc::unwrap_or_clone(val));
                         self.syms
                             .insert(name.clone(), Sym::OutputFamily { members, span: sp });
                     }
@@ -316,7 +320,7 @@ impl Checker {
                             self.err(e);
                             return None;
                         }
-                        members.insert(key, val);
+                        members.insert(key, Rc::unwrap_or_clone(val));
                     }
                     (
                         Some(Sym::OutputFamily {
@@ -330,7 +334,7 @@ impl Checker {
                             self.err(e);
                             return None;
                         }
-                        members.insert(key, val);
+                        members.insert(key, Rc::unwrap_or_clone(val));
                     }
                     (
                         Some(Sym::StateFamily {
