@@ -259,6 +259,50 @@ pub fn run(src: &SourceFile, budget: &Budget) -> Result<Outcome, Violation> {
     }
 }
 
+/// The cargo-fuzz targets (`fuzz/fuzz_targets/*.rs`), one per stage.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Target {
+    /// [`parse`].
+    Parse,
+    /// [`check`].
+    Check,
+    /// [`compile`].
+    Compile,
+    /// [`run`] with the default [`Budget`].
+    Run,
+}
+
+impl Target {
+    /// Every target, in pipeline order.
+    pub const ALL: [Target; 4] = [Target::Parse, Target::Check, Target::Compile, Target::Run];
+
+    /// The target's name (its file in `fuzz/fuzz_targets/`).
+    pub fn name(self) -> &'static str {
+        match self {
+            Target::Parse => "parse",
+            Target::Check => "check",
+            Target::Compile => "compile",
+            Target::Run => "run",
+        }
+    }
+
+    /// The body of the fuzz target: `data` as the text of a model file
+    /// `fuzz.hyb` in the current folder (what `hybsim` does with a file that
+    /// is not UTF-8 is the CLI's business: such inputs are skipped).
+    pub fn exercise(self, data: &[u8]) -> Result<Outcome, Violation> {
+        let Ok(text) = std::str::from_utf8(data) else {
+            return Ok(Outcome::Rejected { errors: 0 });
+        };
+        let src = SourceFile::new("fuzz.hyb", text);
+        match self {
+            Target::Parse => parse(&src),
+            Target::Check => check(&src),
+            Target::Compile => compile(&src).map(|(o, _)| o),
+            Target::Run => run(&src, &Budget::default()),
+        }
+    }
+}
+
 /// The sink of a bounded run: evaluates the outputs at each sample (as the
 /// file sinks do) and stops the run when the budget is spent.
 struct Bounded<'a> {

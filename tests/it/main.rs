@@ -12,6 +12,7 @@ mod engine;
 mod engine_lang;
 mod features;
 mod format;
+mod fuzz_corpus;
 mod imports;
 mod jit;
 mod lang;

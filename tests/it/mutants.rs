@@ -249,7 +249,9 @@ fn mutate(rng: &mut ChaCha8Rng, tokens: &mut Vec<Token>, words: &[String]) -> St
         text: text.into(),
         kind,
     };
-    match below(rng, 9) {
+    // Weighted towards edits that keep the text parsing (numbers, names), so that most mutants
+    // reach the checker and many the run.
+    match below(rng, 12) {
         0 => {
             let t = tokens.remove(i);
             format!("delete `{}`", t.text)
@@ -283,7 +285,7 @@ fn mutate(rng: &mut ChaCha8Rng, tokens: &mut Vec<Token>, words: &[String]) -> St
             };
             format!("swap `{a}` and `{b}`")
         }
-        3 | 4 => {
+        3..=6 => {
             // Numbers are the most productive target: aim at one if any.
             let numbers: Vec<usize> = (0..tokens.len())
                 .filter(|&k| tokens[k].kind == Kind::Number)
@@ -297,7 +299,7 @@ fn mutate(rng: &mut ChaCha8Rng, tokens: &mut Vec<Token>, words: &[String]) -> St
             let old = std::mem::replace(&mut tokens[k].text, edge.to_string());
             format!("number `{old}` -> `{edge}`")
         }
-        5 => {
+        7 | 8 => {
             let names: Vec<usize> = (0..tokens.len())
                 .filter(|&k| tokens[k].kind == Kind::Word)
                 .collect();
@@ -311,7 +313,7 @@ fn mutate(rng: &mut ChaCha8Rng, tokens: &mut Vec<Token>, words: &[String]) -> St
             tokens[k].kind = Kind::Word;
             format!("name `{old}` -> `{new}`")
         }
-        6 => {
+        9 => {
             let ops: Vec<usize> = (0..tokens.len())
                 .filter(|&k| tokens[k].kind == Kind::Op && !"()[]{}".contains(&tokens[k].text))
                 .collect();
@@ -321,7 +323,7 @@ fn mutate(rng: &mut ChaCha8Rng, tokens: &mut Vec<Token>, words: &[String]) -> St
             tokens[k].kind = Kind::Op;
             format!("operator `{old}` -> `{new}`")
         }
-        7 => {
+        10 => {
             // Empty the contents of a bracket pair.
             let opens: Vec<usize> = (0..tokens.len())
                 .filter(|&k| matches!(tokens[k].text.as_str(), "(" | "[" | "{"))

@@ -1,0 +1,9 @@
+//! Fuzz target `compile`: the input as a model file through `hybsim::fuzz::Target::Compile`
+//! (the body the seed-corpus test in tests/it/fuzz_corpus.rs runs on stable).
+#![no_main]
+
+libfuzzer_sys::fuzz_target!(|data: &[u8]| {
+    if let Err(v) = hybsim::fuzz::Target::Compile.exercise(data) {
+        panic!("{v}");
+    }
+});
