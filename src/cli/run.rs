@@ -552,8 +552,9 @@ pub fn panic_message(payload: &(dyn std::any::Any + Send)) -> String {
 }
 
 /// The summary: one line with the final (t, j), jumps per rule, cause and
-/// wall time, then one line per metric (`  metric NAME = VALUE`).
-pub fn summary_line(model: &str, report: &Report, rule_names: &[String]) -> String {
+/// wall time, and `note` (e.g. the compile time), then one line per metric
+/// (`  metric NAME = VALUE`).
+pub fn summary_line(model: &str, report: &Report, rule_names: &[String], note: &str) -> String {
     let end = match report.tally.end {
         Some(at) => format!("(t = {}, j = {})", at.t, at.j),
         None => "(no sample)".to_string(),
@@ -572,7 +573,7 @@ pub fn summary_line(model: &str, report: &Report, rule_names: &[String]) -> Stri
         jumps.join(", ")
     };
     let mut line = format!(
-        "{model}: ended at {end}; jumps: {jumps}; {}; {} samples; wall {:.3} s",
+        "{model}: ended at {end}; jumps: {jumps}; {}; {} samples; wall {:.3} s{note}",
         report.outcome.message,
         report.tally.samples,
         report.wall.as_secs_f64()
@@ -810,11 +811,16 @@ pub fn execute(args: RunArgs) -> anyhow::Result<u8> {
         );
         return Ok(exit_code(&report));
     }
-    let mut line = summary_line(model.name(), &report, &info.rule_names);
-    if compile_time.as_secs_f64() > 0.1 {
-        line += &compile_note(compile_time, model.jit());
-    }
-    println!("{line}");
+    // The compile time belongs to the run's line, not after the last metric.
+    let note = if compile_time.as_secs_f64() > 0.1 {
+        compile_note(compile_time, model.jit())
+    } else {
+        String::new()
+    };
+    println!(
+        "{}",
+        summary_line(model.name(), &report, &info.rule_names, &note)
+    );
     for path in &report.written {
         eprintln!("wrote {}", path.display());
     }
@@ -953,11 +959,18 @@ mod tests {
         assert_eq!(report.tally.jumps, [5]);
         assert_eq!(report.written.len(), 3);
         assert_eq!(exit_code(&report), EXIT_OK);
-        let line = summary_line("ball", &report, &info.rule_names);
+        let line = summary_line("ball", &report, &info.rule_names, "");
         assert!(
             line.contains("j = 5") && line.contains("impact 5"),
             "{line}"
         );
+        // The note (compile time) ends the run's line, before the metrics.
+        let mut report = report;
+        report.metrics = vec![("rate".to_string(), 0.5)];
+        let line = summary_line("ball", &report, &info.rule_names, "; compile 0.200 s");
+        let lines: Vec<&str> = line.lines().collect();
+        assert!(lines[0].ends_with(" s; compile 0.200 s"), "{line}");
+        assert_eq!(lines[1..], ["  metric rate = 0.5"], "{line}");
         for f in &report.written {
             assert!(f.exists());
         }

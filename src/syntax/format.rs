@@ -19,7 +19,8 @@
 //!   sweep ranges) has no space before it and keeps the user's choice after;
 //! - a name directly followed by `(` stays a call (`f(x)`); whether a space
 //!   separates a keyword from `(` is kept, since `in (…)` (a flow set) and
-//!   `in(G, i)` (a neighbour set) read differently;
+//!   `in(G, i)` (a neighbour set) read differently; the same holds for the
+//!   contextual words of properties (`always (…)`);
 //! - a trailing comment keeps its column when the code leaves room for it,
 //!   else it follows the code after two spaces; a comment line is indented
 //!   like the code around it.
@@ -66,6 +67,27 @@ const OPS: &[&str] = &[
 const KEYWORDS: &[&str] = &[
     "model", "param", "graph", "state", "noise", "flow", "jump", "when", "every", "output", "sim",
     "design", "for", "in", "if", "then", "else", "sum", "true", "false", "out", "edges",
+];
+
+/// The contextual words of `property` declarations (`always (…)`, `eventually
+/// within 3 (…)`): never called, so a `(` after one keeps the user's spacing as
+/// after a keyword. Not in [`KEYWORDS`]: `alpha`, `tol`, … may also be names,
+/// after which `-` is binary.
+const PROPERTY_WORDS: &[&str] = &[
+    "always",
+    "after",
+    "during",
+    "flows",
+    "at",
+    "jumps",
+    "eventually",
+    "within",
+    "decreasing",
+    "nonincreasing",
+    "exponential",
+    "kappa",
+    "alpha",
+    "tol",
 ];
 
 /// Splits `text` into tokens. `text` has parsed, so every character belongs
@@ -244,8 +266,8 @@ fn space_between(p: &Token<'_>, rp: Role, c: &Token<'_>, rc: Role) -> bool {
             "." | ".." | "^" => return false,
             "(" => {
                 return match p.kind {
-                    Kind::Word if !is_keyword(p) => false, // a call
-                    Kind::Word => c.spaced,                // a keyword: `in (…)` is not `in(…)`
+                    Kind::Word if !is_keyword(p) && !PROPERTY_WORDS.contains(&p.text) => false, // a call
+                    Kind::Word => c.spaced, // a keyword: `in (…)` is not `in(…)`
                     _ => !(p_op && (matches!(pt, "(" | "[") || rp == Role::Unary)),
                 };
             }

@@ -83,3 +83,24 @@ fn fmt_rewrites_checks_and_refuses_broken_files() {
     );
     assert_eq!(code(&hybsim(dir.path(), &["fmt"])), 2);
 }
+
+#[test]
+fn a_parenthesis_after_a_property_word_keeps_its_space_as_after_a_keyword() {
+    let model = |prop: &str| {
+        format!("model m\nstate x = 1, j = 0\nflow {{ x' = -x }}\nproperty p: {prop}\n")
+    };
+    for prop in [
+        "always (j / 3 - 1) >= -1",
+        "always(j / 3 - 1) >= -1",
+        "eventually within (2) x <= 1",
+        "decreasing (x) during flows",
+    ] {
+        let text = model(prop);
+        assert_eq!(format_source(&text).unwrap(), text, "{prop}");
+    }
+    // A name before `(` is a call, written without the space.
+    assert_eq!(
+        format_source(&model("always abs (x) >= 0")).unwrap(),
+        model("always abs(x) >= 0")
+    );
+}
