@@ -227,7 +227,7 @@ pub struct Singular;
 pub enum Node {
     /// A constant (f64 bits).
     Const(u64),
-    /// State component x[k].
+    /// State component `x[k]`.
     State(u32),
     /// Ordinary time t.
     Time,

@@ -14,7 +14,7 @@
 //! path (flow map, guards) neither allocates nor looks anything up by name.
 //! Unless the model says `jit = off`, every program (and every property
 //! predicate) is also compiled to machine code ([`jit`]), which
-//! [`Program::run`] then executes instead of interpreting.
+//! `Program::run` then executes instead of interpreting.
 
 mod analysis;
 mod describe;

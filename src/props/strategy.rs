@@ -1,4 +1,4 @@
-//! [`proptest`] integration: cases of a [`Subject`] as a proptest
+//! `proptest` integration: cases of a [`Subject`] as a proptest
 //! strategy, and a check that turns a violation into a test failure, so
 //! that a `cargo test` can state properties of a `.hyb` model or a Rust
 //! system next to its other tests.

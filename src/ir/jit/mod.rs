@@ -1,16 +1,16 @@
 //! Machine code for register programs, generated with Cranelift.
 //!
-//! [`compile`] turns [`Program`]s into native functions
+//! `compile` turns `Program`s (`ir::program`) into native functions
 //! `fn(regs: *mut f64, rng: *mut SimRng)` with the interpreter's contract:
 //! the fixed registers (`x`, `t`, `w`) are read from the register file and
 //! every output register is written back to it, so a compiled program is a
-//! drop-in replacement for [`Program::run`]'s interpreter, which stays the
+//! drop-in replacement for `Program::run`'s interpreter, which stays the
 //! reference and the fallback.
 //!
 //! **Bit-identical results.** Each instruction becomes the IEEE operation
 //! the interpreter performs, in the same order: `+ − · /`, `√`, `|a|`,
 //! `⌊a⌋` and comparisons inline (Cranelift neither fuses multiply–adds nor
-//! reassociates), [`Op::Lin`](super::program) sums left to right as the
+//! reassociates), `Op::Lin` sums left to right as the
 //! interpreter does, and every other function (`exp`, `sin`, `pow`, `min`,
 //! …) is a call into Rust code that runs the interpreter's own
 //! [`eval_un`](crate::check::dag::eval_un) / [`eval_bin`](crate::check::dag::eval_bin),
@@ -18,7 +18,7 @@
 //! call the interpreter's own helpers too.
 //!
 //! **Safety.** Generated code addresses only the register file, at offsets
-//! below the program's register count fixed at compile time; [`Native::run`]
+//! below the program's register count fixed at compile time; `Native::run`
 //! checks that the file it is given is that long. Code memory lives as long
 //! as any program compiled with it ([`Arc`]). A program with more than
 //! [`MAX_OPS`] instructions is not compiled (it stays interpreted), which
