@@ -10,7 +10,7 @@
 //! - each line is indented by four spaces per block (`{ … }`) and per
 //!   bracket (`( … )`, `[ … ]`) opened on an earlier line (brackets opened on
 //!   one line count once), one more if it continues an expression (starts
-//!   with a binary operator); a line starting with closing delimiters is
+//!   with `then`, `else` or a binary operator); a line starting with closing delimiters is
 //!   indented as the line that opened them;
 //! - one space around binary operators, `=` and `~`, after `,` and `;` and
 //!   inside `{ … }`; none inside `( … )` and `[ … ]`, after unary `-`/`!`,
@@ -361,11 +361,13 @@ pub fn format_source(text: &str) -> Result<String, SyntaxError> {
             seen_line = Some(l);
         }
         let first = &tokens[i];
-        let continues = first.kind == Kind::Op
+        // `then`/`else` on a line of their own continue an `if` expression too.
+        let continues = (first.kind == Kind::Op
             && roles[i] == Role::Plain
             && is_spaced_binary(first.text)
-            && first.text != "="
-            && prev_code.is_some_and(|p| ends_operand(&tokens[p]));
+            && first.text != "=")
+            && prev_code.is_some_and(|p| ends_operand(&tokens[p]))
+            || first.kind == Kind::Word && matches!(first.text, "then" | "else");
         if continues {
             depth += 1;
         }

@@ -85,6 +85,31 @@ fn fmt_rewrites_checks_and_refuses_broken_files() {
 }
 
 #[test]
+fn every_shipped_model_is_fmt_clean() {
+    // `hybsim fmt --check` passes on what the repository ships (the arcs of formatted models are
+    // those of the originals: `formatted_shipped_models_give_the_same_arcs`).
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let mut n = 0;
+    for dir in ["models", "models/lib", "benches/models", "tests/models"] {
+        for entry in std::fs::read_dir(root.join(dir)).unwrap() {
+            let path = entry.unwrap().path();
+            if path.extension().is_none_or(|e| e != "hyb") {
+                continue;
+            }
+            let text = std::fs::read_to_string(&path).unwrap();
+            let formatted = format_source(&text).unwrap();
+            assert!(
+                formatted == text,
+                "{} is not fmt-clean:\n{formatted}",
+                path.display()
+            );
+            n += 1;
+        }
+    }
+    assert!(n >= 20, "only {n} models");
+}
+
+#[test]
 fn a_parenthesis_after_a_property_word_keeps_its_space_as_after_a_keyword() {
     let model = |prop: &str| {
         format!("model m\nstate x = 1, j = 0\nflow {{ x' = -x }}\nproperty p: {prop}\n")
@@ -98,6 +123,12 @@ fn a_parenthesis_after_a_property_word_keeps_its_space_as_after_a_keyword() {
         let text = model(prop);
         assert_eq!(format_source(&text).unwrap(), text, "{prop}");
     }
+    // `then`/`else` starting a line continue the `if`: indented one step.
+    let text = model("always if x > 0\nthen x <= 1\n        else x >= -1");
+    assert_eq!(
+        format_source(&text).unwrap(),
+        model("always if x > 0\n    then x <= 1\n    else x >= -1")
+    );
     // A name before `(` is a call, written without the space.
     assert_eq!(
         format_source(&model("always abs (x) >= 0")).unwrap(),
