@@ -289,66 +289,33 @@ impl Checker {
                     span,
                     first: prev,
                 };
-                match (self.syms.get_mut(name), s) {
+                let added = match (self.syms.get_mut(name), s) {
                     (None, Sym::Param { val, span: sp }) => {
-                        let mut members = BTreeMap::new();
-                        members.insert(key, Rc::unwrap_or_clone(val));
+                        let members = BTreeMap::from([(key, Rc::unwrap_or_clone(val))]);
                         self.syms
                             .insert(name.clone(), Sym::ParamFamily { members, span: sp });
+                        Ok(())
                     }
                     (None, Sym::Output { val, span: sp }) => {
-                        let mut members = BTreeMap::new();
-                        members.insert(key, Rc::unwrap_or_clone(val));
+                        let members = BTreeMap::from([(key, Rc::unwrap_or_clone(val))]);
                         self.syms
                             .insert(name.clone(), Sym::OutputFamily { members, span: sp });
+                        Ok(())
                     }
                     (None, Sym::State { field, span: sp }) => {
-                        let mut members = BTreeMap::new();
-                        members.insert(key, field);
+                        let members = BTreeMap::from([(key, field)]);
                         self.syms
                             .insert(name.clone(), Sym::StateFamily { members, span: sp });
+                        Ok(())
                     }
-                    (
-                        Some(Sym::ParamFamily {
-                            members,
-                            span: first,
-                        }),
-                        Sym::Param { val, .. },
-                    ) => {
-                        if members.contains_key(&key) {
-                            let e = dup(*first);
-                            self.err(e);
-                            return None;
-                        }
-                        members.insert(key, Rc::unwrap_or_clone(val));
+                    (Some(Sym::ParamFamily { members, span }), Sym::Param { val, .. }) => {
+                        add_member(members, key, Rc::unwrap_or_clone(val), *span)
                     }
-                    (
-                        Some(Sym::OutputFamily {
-                            members,
-                            span: first,
-                        }),
-                        Sym::Output { val, .. },
-                    ) => {
-                        if members.contains_key(&key) {
-                            let e = dup(*first);
-                            self.err(e);
-                            return None;
-                        }
-                        members.insert(key, Rc::unwrap_or_clone(val));
+                    (Some(Sym::OutputFamily { members, span }), Sym::Output { val, .. }) => {
+                        add_member(members, key, Rc::unwrap_or_clone(val), *span)
                     }
-                    (
-                        Some(Sym::StateFamily {
-                            members,
-                            span: first,
-                        }),
-                        Sym::State { field, .. },
-                    ) => {
-                        if members.contains_key(&key) {
-                            let e = dup(*first);
-                            self.err(e);
-                            return None;
-                        }
-                        members.insert(key, field);
+                    (Some(Sym::StateFamily { members, span }), Sym::State { field, .. }) => {
+                        add_member(members, key, field, *span)
                     }
                     (Some(prev), _) => {
                         let first = prev.span();
@@ -366,6 +333,10 @@ impl Checker {
                         });
                         return None;
                     }
+                };
+                if let Err(first) = added {
+                    self.err(dup(first));
+                    return None;
                 }
                 Some(display)
             }
@@ -379,4 +350,18 @@ impl Checker {
             }
         }
     }
+}
+
+/// Adds member `key` to a family whose declaration is at `first`; `Err(first)` if it exists.
+fn add_member<V>(
+    members: &mut BTreeMap<Vec<i64>, V>,
+    key: Vec<i64>,
+    value: V,
+    first: Span,
+) -> Result<(), Span> {
+    if members.contains_key(&key) {
+        return Err(first);
+    }
+    members.insert(key, value);
+    Ok(())
 }
