@@ -22,7 +22,7 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex, mpsc};
 use std::time::{Duration, Instant};
 
-use hybsim::fuzz::{self, Budget, Outcome, Violation};
+use hybsim::fuzz::{self, Budget, Outcome};
 use hybsim::source::SourceFile;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -397,10 +397,11 @@ fn case(subjects: &[Subject], case: usize) -> Case {
 
 /// Runs one case; library mutants are written beside a copy of their host
 /// in a temporary `lib/`, so that imports read the mutant.
-fn run_case(s: &Subject, text: &str) -> Result<Outcome, Violation> {
+fn run_case(s: &Subject, text: &str) -> Result<Outcome, String> {
     let budget = Budget::default();
     match &s.host {
-        None => fuzz::run(&SourceFile::new(s.path.to_string_lossy(), text), &budget),
+        None => fuzz::run(&SourceFile::new(s.path.to_string_lossy(), text), &budget)
+            .map_err(|v| v.to_string()),
         Some(host) => {
             let dir = tempfile::tempdir().unwrap();
             let lib = dir.path().join("lib");
@@ -412,11 +413,25 @@ fn run_case(s: &Subject, text: &str) -> Result<Outcome, Violation> {
             }
             let mutant = lib.join(s.path.file_name().unwrap());
             std::fs::write(&mutant, text).unwrap();
-            let host_path = dir.path().join("host.hyb");
-            fuzz::run(
-                &SourceFile::new(host_path.to_string_lossy(), host.as_str()),
-                &budget,
-            )
+            let src = SourceFile::new(dir.path().join("host.hyb").to_string_lossy(), host.as_str());
+            let outcome = fuzz::run(&src, &budget).map_err(|v| v.to_string())?;
+            if let Outcome::Rejected { .. } = outcome {
+                // The host is valid: a syntax error (E01xx) can only be the library file's, and
+                // must be shown in it, not at the same offsets of the host.
+                for d in hybsim::lang::check_only(&src, &[]) {
+                    let file = d.primary_file(&src);
+                    if d.code.starts_with("E01")
+                        && !mutant.ends_with(file)
+                        && file != mutant.to_string_lossy()
+                    {
+                        return Err(format!(
+                            "{} located in {file}, not in the library file: {d:?}",
+                            d.code
+                        ));
+                    }
+                }
+            }
+            Ok(outcome)
         }
     }
 }
@@ -477,7 +492,7 @@ fn mutants_of_the_shipped_models_never_panic_hang_or_lose_a_location() {
                     Ok(Outcome::Ran { .. }) => ran += 1,
                     Ok(Outcome::Failed { .. }) => failed += 1,
                     Ok(Outcome::Accepted) => {}
-                    Err(v) => failures.push((k, v.to_string())),
+                    Err(why) => failures.push((k, why)),
                 }
             }
             Err(mpsc::RecvTimeoutError::Disconnected) => break,
