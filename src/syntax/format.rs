@@ -27,41 +27,8 @@
 //!
 //! Only a file that parses is formatted.
 
+use crate::syntax::lex::{Token, TokenKind as Kind, tokens as lex};
 use crate::syntax::{SyntaxError, parse_model};
-
-/// What kind of token (the formatter needs no more than this).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-enum Kind {
-    /// A name or keyword.
-    Word,
-    /// A number literal.
-    Number,
-    /// A string literal (`"…"`).
-    Str,
-    /// An operator or punctuation character sequence.
-    Op,
-    /// `#` to the end of the line.
-    Comment,
-}
-
-/// One token of the source.
-#[derive(Debug, Clone)]
-struct Token<'a> {
-    kind: Kind,
-    text: &'a str,
-    /// Line of the source (from 0).
-    line: usize,
-    /// Column in characters (from 0).
-    col: usize,
-    /// Whitespace separates it from the previous token on its line.
-    spaced: bool,
-}
-
-/// Operators, longest first so that `<=` wins over `<`.
-const OPS: &[&str] = &[
-    "||", "&&", "<=", ">=", "==", "!=", ".*", "./", "..", "'", "+", "-", "*", "/", "^", "<", ">",
-    "!", "=", "~", "(", ")", "[", "]", "{", "}", ",", ";", ":",
-];
 
 /// Words of the grammar that are keywords (never called like functions).
 const KEYWORDS: &[&str] = &[
@@ -89,78 +56,6 @@ const PROPERTY_WORDS: &[&str] = &[
     "alpha",
     "tol",
 ];
-
-/// Splits `text` into tokens. `text` has parsed, so every character belongs
-/// to a token, whitespace or a comment.
-fn lex(text: &str) -> Vec<Token<'_>> {
-    let mut tokens = Vec::new();
-    for (line, src) in text.split('\n').enumerate() {
-        let src = src.strip_suffix('\r').unwrap_or(src);
-        let mut rest = src;
-        let mut spaced = false;
-        while let Some(c) = rest.chars().next() {
-            let col = src[..src.len() - rest.len()].chars().count();
-            if c.is_whitespace() || c == '\u{feff}' {
-                rest = &rest[c.len_utf8()..];
-                spaced = true;
-                continue;
-            }
-            let (kind, len) = if c == '#' {
-                (Kind::Comment, rest.len())
-            } else if c == '"' {
-                let end = rest[1..].find('"').map_or(rest.len(), |i| i + 2);
-                (Kind::Str, end)
-            } else if c.is_ascii_alphabetic() || c == '_' {
-                let end = rest
-                    .find(|ch: char| !(ch.is_ascii_alphanumeric() || ch == '_'))
-                    .unwrap_or(rest.len());
-                (Kind::Word, end)
-            } else if c.is_ascii_digit() {
-                (Kind::Number, number_len(rest))
-            } else if let Some(op) = OPS.iter().find(|op| rest.starts_with(**op)) {
-                (Kind::Op, op.len())
-            } else {
-                (Kind::Op, c.len_utf8())
-            };
-            tokens.push(Token {
-                kind,
-                text: &rest[..len],
-                line,
-                col,
-                spaced,
-            });
-            rest = &rest[len..];
-            spaced = false;
-        }
-    }
-    tokens
-}
-
-/// Length of the number literal at the start of `s` (the grammar's
-/// `digits ("." digits)? (e ("+"|"-")? digits)?`; `1..N` is `1`, `..`, `N`).
-fn number_len(s: &str) -> usize {
-    let b = s.as_bytes();
-    let digits = |mut i: usize| {
-        while i < b.len() && b[i].is_ascii_digit() {
-            i += 1;
-        }
-        i
-    };
-    let mut i = digits(0);
-    if i + 1 < b.len() && b[i] == b'.' && b[i + 1].is_ascii_digit() {
-        i = digits(i + 1);
-    }
-    if i < b.len() && (b[i] == b'e' || b[i] == b'E') {
-        let mut k = i + 1;
-        if k < b.len() && (b[k] == b'+' || b[k] == b'-') {
-            k += 1;
-        }
-        if k < b.len() && b[k].is_ascii_digit() {
-            i = digits(k);
-        }
-    }
-    i
-}
 
 fn is_keyword(t: &Token<'_>) -> bool {
     t.kind == Kind::Word && KEYWORDS.contains(&t.text)

@@ -5,6 +5,7 @@ pub mod ast;
 mod design;
 mod error;
 mod format;
+pub mod lex;
 mod parse;
 mod property;
 #[cfg(test)]
