@@ -24,6 +24,7 @@ use std::time::{Duration, Instant};
 
 use hybsim::fuzz::{self, Budget, Outcome};
 use hybsim::source::SourceFile;
+use hybsim::syntax::lex::{self, TokenKind as Kind};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
@@ -68,20 +69,6 @@ const OPERATORS: &[&str] = &[
     "=", "~", ",", ";", ":", "..",
 ];
 
-/// Longest first, as the formatter's lexer.
-const PUNCT: &[&str] = &[
-    "||", "&&", "<=", ">=", "==", "!=", ".*", "./", "..", "'", "+", "-", "*", "/", "^", "<", ">",
-    "!", "=", "~", "(", ")", "[", "]", "{", "}", ",", ";", ":",
-];
-
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-enum Kind {
-    Word,
-    Number,
-    Str,
-    Op,
-}
-
 /// A token and the whitespace or comments before it.
 #[derive(Debug, Clone)]
 struct Token {
@@ -90,74 +77,24 @@ struct Token {
     kind: Kind,
 }
 
-/// Splits `text` into tokens (comments and whitespace stay attached to the
-/// next token); the rest after the last token is returned too.
+/// Splits `text` into the language's tokens (`hybsim::syntax::lex`), with
+/// whitespace and comments attached to the next token; the rest after the
+/// last token is returned too.
 fn lex(text: &str) -> (Vec<Token>, String) {
     let mut tokens = Vec::new();
-    let mut before = String::new();
-    let mut rest = text;
-    while let Some(c) = rest.chars().next() {
-        let len = if c.is_whitespace() {
-            before.push(c);
-            rest = &rest[c.len_utf8()..];
+    let mut end = 0;
+    for t in lex::tokens(text) {
+        if t.kind == Kind::Comment {
             continue;
-        } else if c == '#' {
-            let end = rest.find('\n').unwrap_or(rest.len());
-            before.push_str(&rest[..end]);
-            rest = &rest[end..];
-            continue;
-        } else if c == '"' {
-            rest[1..].find('"').map_or(rest.len(), |i| i + 2)
-        } else if c.is_ascii_alphabetic() || c == '_' {
-            rest.find(|ch: char| !(ch.is_ascii_alphanumeric() || ch == '_'))
-                .unwrap_or(rest.len())
-        } else if c.is_ascii_digit() {
-            number_len(rest)
-        } else {
-            PUNCT
-                .iter()
-                .find(|p| rest.starts_with(**p))
-                .map_or(c.len_utf8(), |p| p.len())
-        };
-        let kind = match c {
-            '"' => Kind::Str,
-            '0'..='9' => Kind::Number,
-            c if c.is_ascii_alphabetic() || c == '_' => Kind::Word,
-            _ => Kind::Op,
-        };
+        }
         tokens.push(Token {
-            before: std::mem::take(&mut before),
-            text: rest[..len].to_string(),
-            kind,
+            before: text[end..t.offset].to_string(),
+            text: t.text.to_string(),
+            kind: t.kind,
         });
-        rest = &rest[len..];
+        end = t.offset + t.text.len();
     }
-    (tokens, before)
-}
-
-/// `digits ("." digits)? (e ("+"|"-")? digits)?`, so `1..N` is `1`, `..`, `N`.
-fn number_len(s: &str) -> usize {
-    let b = s.as_bytes();
-    let digits = |mut i: usize| {
-        while i < b.len() && b[i].is_ascii_digit() {
-            i += 1;
-        }
-        i
-    };
-    let mut i = digits(0);
-    if i + 1 < b.len() && b[i] == b'.' && b[i + 1].is_ascii_digit() {
-        i = digits(i + 1);
-    }
-    if i < b.len() && (b[i] == b'e' || b[i] == b'E') {
-        let mut j = i + 1;
-        if j < b.len() && (b[j] == b'+' || b[j] == b'-') {
-            j += 1;
-        }
-        if j < b.len() && b[j].is_ascii_digit() {
-            i = digits(j);
-        }
-    }
-    i
+    (tokens, text[end..].to_string())
 }
 
 /// One shipped file and how to compile its mutants: `host` is the model
