@@ -12,6 +12,7 @@
 //! | metadata `hybsim.design` | design results, when the model has design blocks |
 //! | attachment `<model file name>` | the model source (`text/plain`) |
 //! | attachment `run.json` | the resolved run description (`application/json`) |
+//! | attachment `<path>` | each imported file, under its path relative to the model's folder (`text/plain`) |
 //! | channel `/hybsim/state` | one message per logged sample: `{t, j, <states>}` |
 //! | channel `/hybsim/outputs` | one message per logged sample: `{t, j, <outputs>}` (if the model has outputs) |
 //! | channel `/hybsim/jumps` | one message per jump: `{t, j, rule, rule_id, index?, pre, post}` |
@@ -271,10 +272,25 @@ impl<'a> McapSink<'a> {
         });
         let description =
             serde_json::to_vec_pretty(&description).expect("a JSON value always serializes");
+        // Imported files are attached under their path relative to the
+        // model's folder (`lib/zoh.hyb`), so that the file alone rebuilds
+        // the model.
+        let folder = Path::new(&info.model_path)
+            .parent()
+            .unwrap_or(Path::new(""));
+        let imports = info.imports.iter().map(|(path, text)| {
+            let name = Path::new(path)
+                .strip_prefix(folder)
+                .map_or_else(|_| path.clone(), |p| p.to_string_lossy().into_owned());
+            (name, "text/plain", text.as_bytes().to_vec())
+        });
         for (name, media_type, data) in [
             (source_name, "text/plain", info.source.as_bytes().to_vec()),
             ("run.json".to_string(), "application/json", description),
-        ] {
+        ]
+        .into_iter()
+        .chain(imports)
+        {
             writer
                 .attach(&Attachment {
                     log_time: 0,

@@ -280,4 +280,17 @@ fn mcap_metadata_records_the_imported_files() {
             .collect();
         assert_eq!(entry["sha256"], sha, "{file}");
     }
+    // Each imported file is attached, so that the file alone rebuilds the model.
+    for file in ["linear.hyb", "adc.hyb", "zoh.hyb"] {
+        let name = format!("lib/{file}");
+        let index = summary
+            .attachment_indexes
+            .iter()
+            .find(|a| a.name == name)
+            .unwrap_or_else(|| panic!("no attachment {name}"));
+        let attached = mcap::read::attachment(&bytes, index).unwrap();
+        let text = std::fs::read(root.join("models/lib").join(file)).unwrap();
+        assert_eq!(&attached.data[..], &text[..], "{name}");
+        assert_eq!(attached.media_type, "text/plain");
+    }
 }
