@@ -255,32 +255,22 @@ fn refused_imports_are_located_errors() {
 /// model's.
 #[test]
 fn mcap_metadata_records_the_imported_files() {
-    use sha2::Digest;
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
     let dir = tempfile::tempdir().unwrap();
     let model = root.join("models/sampled_loop.hyb");
     let bytes = super::outputs::short_run(dir.path(), &model, "l.mcap", &[]);
-    let summary = mcap::read::Summary::read(&bytes).unwrap().unwrap();
-    let run = summary
-        .metadata_indexes
-        .iter()
-        .map(|i| mcap::read::metadata(&bytes, i).unwrap())
-        .find(|m| m.name == "hybsim.run")
-        .unwrap();
-    let imports: serde_json::Value = serde_json::from_str(&run.metadata["imports"]).unwrap();
+    let run = super::util::mcap_metadata(&bytes, "hybsim.run");
+    let imports: serde_json::Value = serde_json::from_str(&run["imports"]).unwrap();
     let list = imports.as_array().unwrap();
     assert_eq!(list.len(), 3, "{imports}");
     for (entry, file) in list.iter().zip(["linear.hyb", "adc.hyb", "zoh.hyb"]) {
         let path = entry["path"].as_str().unwrap();
         assert!(path.ends_with(&format!("lib/{file}")), "{path}");
         let text = std::fs::read(root.join("models/lib").join(file)).unwrap();
-        let sha: String = sha2::Sha256::digest(&text)
-            .iter()
-            .map(|b| format!("{b:02x}"))
-            .collect();
-        assert_eq!(entry["sha256"], sha, "{file}");
+        assert_eq!(entry["sha256"], super::util::sha256_hex(&text), "{file}");
     }
     // Each imported file is attached, so that the file alone rebuilds the model.
+    let summary = mcap::read::Summary::read(&bytes).unwrap().unwrap();
     for file in ["linear.hyb", "adc.hyb", "zoh.hyb"] {
         let name = format!("lib/{file}");
         let index = summary

@@ -506,7 +506,6 @@ fn interp_refuses_bad_abscissae() {
 /// `hybsim run` records each table's path and SHA-256 next to the model's.
 #[test]
 fn mcap_metadata_records_the_tables() {
-    use sha2::Digest;
     let dir = tempfile::tempdir().unwrap();
     let text = "0.5\n0.25\n1\n";
     write(
@@ -515,22 +514,12 @@ fn mcap_metadata_records_the_tables() {
         &[("data/d.csv", text)],
     );
     let bytes = super::outputs::short_run(dir.path(), &dir.path().join("m.hyb"), "m.mcap", &[]);
-    let summary = mcap::read::Summary::read(&bytes).unwrap().unwrap();
-    let run = summary
-        .metadata_indexes
-        .iter()
-        .map(|i| mcap::read::metadata(&bytes, i).unwrap())
-        .find(|m| m.name == "hybsim.run")
-        .unwrap();
-    let tables: serde_json::Value = serde_json::from_str(&run.metadata["tables"]).unwrap();
+    let run = super::util::mcap_metadata(&bytes, "hybsim.run");
+    let tables: serde_json::Value = serde_json::from_str(&run["tables"]).unwrap();
     let list = tables.as_array().unwrap();
     assert_eq!(list.len(), 1, "{tables}");
     assert!(list[0]["path"].as_str().unwrap().ends_with("data/d.csv"));
-    let sha: String = sha2::Sha256::digest(text.as_bytes())
-        .iter()
-        .map(|b| format!("{b:02x}"))
-        .collect();
-    assert_eq!(list[0]["sha256"], sha);
+    assert_eq!(list[0]["sha256"], super::util::sha256_hex(text.as_bytes()));
 }
 
 /// `hybsim fmt` leaves a model with tables, run-time indices and `interp`

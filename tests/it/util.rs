@@ -228,3 +228,26 @@ pub fn simulate_arc<S: hybsim::engine::HybridSystem + ?Sized>(
     }
     Ok(arc)
 }
+
+/// The metadata record `name` of an MCAP file's bytes (its key-value map).
+pub fn mcap_metadata(bytes: &[u8], name: &str) -> std::collections::BTreeMap<String, String> {
+    let summary = mcap::read::Summary::read(bytes)
+        .unwrap()
+        .expect("an indexed MCAP file");
+    summary
+        .metadata_indexes
+        .iter()
+        .map(|i| mcap::read::metadata(bytes, i).unwrap())
+        .find(|m| m.name == name)
+        .unwrap_or_else(|| panic!("no metadata record {name}"))
+        .metadata
+}
+
+/// Hex SHA-256 of `bytes`, as the MCAP metadata writes it.
+pub fn sha256_hex(bytes: &[u8]) -> String {
+    use sha2::Digest;
+    sha2::Sha256::digest(bytes)
+        .iter()
+        .map(|b| format!("{b:02x}"))
+        .collect()
+}
