@@ -5,10 +5,10 @@
 //! structured records (e.g. `/hybsim/state.agent[2].xhat` in Foxglove) and
 //! readable column names (`agent[2].xhat[1]`) in CSV.
 
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 /// Shape of one named field.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 pub enum Shape {
     /// One number.
     Scalar,
@@ -40,7 +40,7 @@ impl Shape {
 }
 
 /// A named field occupying `shape.len()` components from `offset`.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Field {
     /// Name as written in the model.
     pub name: String,
@@ -54,7 +54,7 @@ pub struct Field {
 /// agent or edge, e.g. `agent[i].xhat`). A family whose members have one
 /// field with an empty name is an array of values (`x[1]`, `x[2]`, … for the
 /// `.hyb` family `state x[i]`).
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub enum Entry {
     /// A plain field.
     Field(Field),
@@ -71,7 +71,7 @@ pub enum Entry {
 }
 
 /// The structure of a flat vector.
-#[derive(Debug, Clone, Default, PartialEq, Serialize)]
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 pub struct Layout {
     /// Top-level entries, in declaration order.
     pub entries: Vec<Entry>,

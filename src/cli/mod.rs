@@ -6,6 +6,7 @@ mod check;
 mod design;
 mod fmt;
 mod info;
+mod plot;
 mod progress;
 mod run;
 mod sweep;
@@ -37,6 +38,7 @@ Examples:
   hybsim run models/bouncing_ball.hyb -o ball.mcap --T 5 --J 30 --seed 1
   hybsim run models/bouncing_ball.hyb --set lambda=0.5 --csv ball.csv --plot ball.svg
   hybsim run models/bouncing_ball.hyb --no-mcap --plot ball.svg --plot-vars h,v
+  hybsim plot ball.mcap --kind hybrid --vars h -o ball.png   plot a logged run
   hybsim check models/bouncing_ball.hyb               check the model only
   hybsim design models/platoon.hyb                    solve the design blocks, print the results
   hybsim test models/bouncing_ball.hyb --cases 500    check its `property` declarations
@@ -110,6 +112,9 @@ pub enum Command {
     /// Rewrite `.hyb` files in the canonical layout (`--check`: only list
     /// those that would change, exit 1 if any).
     Fmt(fmt::FmtArgs),
+    /// Draw a run's MCAP file: HyEQ's plots (flows, jumps, hybrid, phase,
+    /// domain) of the logged states and outputs, as SVG or PNG.
+    Plot(plot::PlotArgs),
     /// Describe a run's MCAP file: model, parameters, seed, solver,
     /// channels and message counts, how the run ended, the command that
     /// reproduces it.
@@ -176,6 +181,7 @@ where
         Command::Sweep(args) => sweep::execute(args),
         Command::Fmt(args) => fmt::execute(args),
         Command::Info(args) => info::execute(args),
+        Command::Plot(args) => plot::execute(args),
         Command::Completions { shell } => {
             use clap::CommandFactory;
             clap_complete::generate(shell, &mut Cli::command(), "hybsim", &mut std::io::stdout());

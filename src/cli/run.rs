@@ -16,7 +16,8 @@ use hybsim::ir::metric::Metrics;
 use hybsim::lang;
 use hybsim::sinks::csv::CsvSink;
 use hybsim::sinks::mcap::{McapOptions, McapSink};
-use hybsim::sinks::plot::{PlotKind, PlotSink};
+use hybsim::sinks::parquet::ParquetSink;
+use hybsim::sinks::plot::{ImageFormat, PlotKind, PlotSink};
 use hybsim::sinks::{
     Decimation, Fanout, OutputFn, RunInfo, RunOutcome, RunStatus, Tally, rule_name,
 };
@@ -91,15 +92,21 @@ pub struct RunArgs {
     /// Also write the logged samples as CSV.
     #[arg(long, value_name = "OUT.csv")]
     pub csv: Option<PathBuf>,
-    /// Also draw the states (or `--plot-vars`) against t as SVG.
-    #[arg(long, value_name = "OUT.svg")]
+    /// Also write the logged samples as Parquet (the CSV's rows and
+    /// columns, typed), and the jumps to OUT.jumps.parquet beside it.
+    #[arg(long, value_name = "OUT.parquet")]
+    pub parquet: Option<PathBuf>,
+    /// Also draw the states (or `--plot-vars`) against t (or `--plot-kind`),
+    /// SVG or PNG by the file's extension.
+    #[arg(long, value_name = "OUT.svg|OUT.png")]
     pub plot: Option<PathBuf>,
     /// States or outputs to plot, by name (comma-separated). Default: the states.
     #[arg(long, value_name = "NAMES", value_delimiter = ',', requires = "plot")]
     pub plot_vars: Vec<String>,
     /// What the plot draws (HyEQ's kinds): each component against t
-    /// (`flows`) or against j (`jumps`), the second selected component
-    /// against the first (`phase`), or the hybrid time domain (`domain`).
+    /// (`flows`) or against j (`jumps`), over (t, j) in 3-D (`hybrid`), the
+    /// second selected component against the first (`phase`), or the hybrid
+    /// time domain (`domain`).
     #[arg(long, value_enum, default_value_t = PlotKindArg::Flows, requires = "plot")]
     pub plot_kind: PlotKindArg,
     /// Log every N-th flow sample (samples of logged jumps and the first and
@@ -263,13 +270,15 @@ pub fn settings_from_flags(
     Ok(settings)
 }
 
-/// `--plot-kind`.
+/// `--plot-kind` (and `hybsim plot --kind`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 pub enum PlotKindArg {
     /// Components against t.
     Flows,
     /// Components against j.
     Jumps,
+    /// Components over (t, j), in 3-D.
+    Hybrid,
     /// The second selected component against the first.
     Phase,
     /// j against t.
@@ -283,6 +292,7 @@ impl From<PlotKindArg> for PlotKind {
             PlotKindArg::Jumps => PlotKind::Jumps,
             PlotKindArg::Phase => PlotKind::Phase,
             PlotKindArg::Domain => PlotKind::Domain,
+            PlotKindArg::Hybrid => PlotKind::Hybrid,
         }
     }
 }
@@ -294,7 +304,9 @@ pub struct Outputs {
     pub mcap: Option<PathBuf>,
     /// CSV file, if any.
     pub csv: Option<PathBuf>,
-    /// SVG file, if any.
+    /// Parquet file of the samples (the jumps beside it), if any.
+    pub parquet: Option<PathBuf>,
+    /// SVG or PNG file, if any.
     pub plot: Option<PathBuf>,
     /// Entries to plot.
     pub plot_vars: Vec<String>,
@@ -420,6 +432,15 @@ pub fn simulate_to_files<S: HybridSystem + ?Sized>(
         )?),
         None => None,
     };
+    let mut parquet = match &outputs.parquet {
+        Some(path) => Some(ParquetSink::create(
+            path,
+            logged,
+            output_fn,
+            outputs.decimation,
+        )?),
+        None => None,
+    };
     let mut plot = match &outputs.plot {
         Some(path) => Some(
             PlotSink::new(
@@ -451,6 +472,9 @@ pub fn simulate_to_files<S: HybridSystem + ?Sized>(
             sinks.push(s);
         }
         if let Some(s) = csv.as_mut() {
+            sinks.push(s);
+        }
+        if let Some(s) = parquet.as_mut() {
             sinks.push(s);
         }
         if let Some(s) = plot.as_mut() {
@@ -501,6 +525,14 @@ pub fn simulate_to_files<S: HybridSystem + ?Sized>(
     if let Some(sink) = csv {
         match sink.finish() {
             Ok(path) => written.push(path),
+            Err(e) => {
+                first_error.get_or_insert(e.into());
+            }
+        }
+    }
+    if let Some(sink) = parquet {
+        match sink.finish() {
+            Ok(paths) => written.extend(paths),
             Err(e) => {
                 first_error.get_or_insert(e.into());
             }
@@ -611,9 +643,15 @@ pub fn exit_code(report: &Report) -> u8 {
 /// Why the outputs of a run cannot be written as asked: an output path
 /// that is the model file or another output of the same run.
 pub fn output_path_clash(model: &Path, outputs: &Outputs) -> Option<String> {
+    let jumps = outputs
+        .parquet
+        .as_deref()
+        .and_then(hybsim::sinks::parquet::jumps_path);
     let named: Vec<(&str, &Path)> = [
         ("-o", outputs.mcap.as_deref()),
         ("--csv", outputs.csv.as_deref()),
+        ("--parquet", outputs.parquet.as_deref()),
+        ("--parquet (its jumps table)", jumps.as_deref()),
         ("--plot", outputs.plot.as_deref()),
     ]
     .into_iter()
@@ -700,21 +738,18 @@ pub fn execute(args: RunArgs) -> anyhow::Result<u8> {
     };
     // An unknown `--plot-vars` name is a usage error (exit 2), found before the run.
     for name in &args.plot_vars {
-        if info.state_layout.find(name).is_none() && info.output_layout.find(name).is_none() {
-            let mut known = hybsim::sinks::entry_names(&info.state_layout);
-            known.extend(hybsim::sinks::entry_names(&info.output_layout));
-            eprintln!(
-                "error: `--plot-vars {name}`: neither a state nor an output of the model (known: {}; a family member is `name[i]`)",
-                known.join(", ")
-            );
+        if let Some(message) = unknown_plot_var("--plot-vars", name, &info) {
+            eprintln!("error: {message}");
             return Ok(EXIT_MODEL_ERROR);
         }
     }
-    if args.plot.is_some()
-        && let Err(e) = PlotSink::check_selection(&info, &args.plot_vars, args.plot_kind.into())
-    {
-        eprintln!("error: {e}");
-        return Ok(EXIT_MODEL_ERROR);
+    if let Some(path) = &args.plot {
+        let checked = ImageFormat::of(path)
+            .and_then(|_| PlotSink::check_selection(&info, &args.plot_vars, args.plot_kind.into()));
+        if let Err(e) = checked {
+            eprintln!("error: {e}");
+            return Ok(EXIT_MODEL_ERROR);
+        }
     }
     // Unknown `--log-vars`/`--log-rules` names are usage errors (exit 2),
     // found before the run; the model's `log` block was checked with it.
@@ -766,6 +801,7 @@ pub fn execute(args: RunArgs) -> anyhow::Result<u8> {
             )
         },
         csv: args.csv.clone(),
+        parquet: args.parquet.clone(),
         plot: args.plot.clone(),
         plot_vars: args.plot_vars.clone(),
         plot_kind: args.plot_kind.into(),
@@ -804,11 +840,20 @@ pub fn execute(args: RunArgs) -> anyhow::Result<u8> {
     {
         eprint!("{}", render(&[d], &src, super::color()));
     }
+    // An output on standard output (`-o -`, `--csv -`, …) owns it: the
+    // summary then goes to stderr, after the data, not into it.
+    let to_stdout = [&outputs.mcap, &outputs.csv, &outputs.parquet, &outputs.plot]
+        .iter()
+        .any(|p| p.as_deref() == Some(Path::new(atomic_file::STDOUT)));
+    let say = |text: String| {
+        if to_stdout {
+            eprintln!("{text}");
+        } else {
+            println!("{text}");
+        }
+    };
     if args.json {
-        println!(
-            "{}",
-            summary_json(model.name(), &report, &info.rule_names, compile_time)
-        );
+        say(summary_json(model.name(), &report, &info.rule_names, compile_time).to_string());
         return Ok(exit_code(&report));
     }
     // The compile time belongs to the run's line, not after the last metric.
@@ -817,10 +862,7 @@ pub fn execute(args: RunArgs) -> anyhow::Result<u8> {
     } else {
         String::new()
     };
-    println!(
-        "{}",
-        summary_line(model.name(), &report, &info.rule_names, &note)
-    );
+    say(summary_line(model.name(), &report, &info.rule_names, &note));
     for path in &report.written {
         eprintln!("wrote {}", path.display());
     }
@@ -869,6 +911,20 @@ pub fn summary_json(
         "compile_s": compile_time.as_secs_f64(),
         "metrics": metrics,
     })
+}
+
+/// The message for `flag name` if `name` is neither a state nor an output
+/// of `info` (an entry, a family or a member such as `xhat[2]`).
+pub fn unknown_plot_var(flag: &str, name: &str, info: &RunInfo) -> Option<String> {
+    if info.state_layout.find(name).is_some() || info.output_layout.find(name).is_some() {
+        return None;
+    }
+    let mut known = hybsim::sinks::entry_names(&info.state_layout);
+    known.extend(hybsim::sinks::entry_names(&info.output_layout));
+    Some(format!(
+        "`{flag} {name}`: neither a state nor an output of the model (known: {}; a family member is `name[i]`)",
+        known.join(", ")
+    ))
 }
 
 /// Splits a comma-separated list of names, keeping commas inside brackets

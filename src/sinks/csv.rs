@@ -16,7 +16,7 @@ use std::path::{Path, PathBuf};
 
 use crate::atomic_file::OutputFile;
 
-use super::{Decimation, Decimator, JumpFilter, OutputFn, PostJump, RunInfo, SinkError, Tally};
+use super::{Decimation, Decimator, JumpFilter, OutputFn, RunInfo, SinkError, Tally};
 use crate::arc::{ArcSink, HybridTime, SampleKind};
 use crate::atomic_file;
 
@@ -203,20 +203,10 @@ impl ArcSink for CsvSink<'_> {
             return ControlFlow::Break(());
         }
         self.tally.sample(at);
-        let r = match kind {
-            SampleKind::PreJump if self.filter.hold(at, x) => Ok(()),
-            SampleKind::PostJump => match self.filter.post_jump() {
-                PostJump::Write => self.keep_and_write(at, x, kind),
-                PostJump::HeldAsFlow(pre) => {
-                    let held = self.filter.take_held_values();
-                    let r = self.keep_and_write(pre, &held, SampleKind::Flow);
-                    self.filter.restore_held_values(held);
-                    r
-                }
-            },
-            _ => self.keep_and_write(at, x, kind),
-        };
-        self.settle(r)
+        let mut filter = std::mem::take(&mut self.filter);
+        let r = filter.route_sample(at, x, kind, |at, x, kind| self.keep_and_write(at, x, kind));
+        self.filter = filter;
+        self.settle(r.unwrap_or(Ok(())))
     }
 
     fn jump(
@@ -230,13 +220,11 @@ impl ArcSink for CsvSink<'_> {
             return ControlFlow::Break(());
         }
         self.tally.jump(rule);
-        let (_, flush) = self.filter.jump(rule);
-        if flush && let Some((pre_at, _)) = self.filter.held() {
-            let held = self.filter.take_held_values();
-            let r = self.keep_and_write(pre_at, &held, SampleKind::PreJump);
-            self.filter.restore_held_values(held);
-            return self.settle(r);
-        }
-        ControlFlow::Continue(())
+        let mut filter = std::mem::take(&mut self.filter);
+        let (_, flushed) = filter.route_jump(rule, |at, x| {
+            self.keep_and_write(at, x, SampleKind::PreJump)
+        });
+        self.filter = filter;
+        self.settle(flushed.unwrap_or(Ok(())))
     }
 }

@@ -522,6 +522,110 @@ impl Template {
     }
 }
 
+/// Reads the values of sample records of one layout back into a flat
+/// vector: the inverse of [`Template::write`] (and of
+/// [`RecordWriter::sample`]), for JSON of any spacing and key order.
+///
+/// Where each component sits is learnt from the template itself: its
+/// record written with component k replaced by −(k + 1) (the template's
+/// own literal numbers, the `rows` and `cols` of matrices, are never
+/// negative), so the reader follows the writer's shapes without a second
+/// description of them.
+///
+/// ```
+/// use hybsim::layout::Layout;
+/// use hybsim::sinks::json::RecordReader;
+/// let layout = Layout::scalars(&["h", "v"]);
+/// let record = serde_json::json!({"t": 0.5, "j": 2, "v": -1.5, "h": 3.0});
+/// let mut x = [0.0; 2];
+/// RecordReader::new(&layout, 2).read(&record, &mut x).unwrap();
+/// assert_eq!(x, [3.0, -1.5]);
+/// ```
+#[derive(Debug, Clone)]
+pub struct RecordReader {
+    probe: Value,
+}
+
+impl RecordReader {
+    /// A reader of records of `layout` over vectors of dimension `dim`.
+    pub fn new(layout: &Layout, dim: usize) -> Self {
+        let marks: Vec<f64> = (0..dim).map(|k| -((k + 1) as f64)).collect();
+        let mut text = b"{".to_vec();
+        Template::new(layout).write(&mut text, &marks);
+        text.push(b'}');
+        let probe = serde_json::from_slice(&text).expect("a template writes valid JSON");
+        Self { probe }
+    }
+
+    /// Writes the values of `record` (an object with the layout's entries;
+    /// other keys such as `t` and `j` are ignored) into `x`; components the
+    /// layout does not cover are left as they are. The error names the
+    /// first entry that is missing, of another shape or not a number.
+    pub fn read(&self, record: &Value, x: &mut [f64]) -> Result<(), String> {
+        fill(&self.probe, record, x, &mut String::new())
+    }
+}
+
+fn fill(probe: &Value, value: &Value, x: &mut [f64], path: &mut String) -> Result<(), String> {
+    let shown = |path: &str| {
+        if path.is_empty() {
+            "the record".to_string()
+        } else {
+            format!("`{path}`")
+        }
+    };
+    match probe {
+        Value::Number(n) => {
+            let mark = n.as_f64().expect("probe numbers are finite");
+            let v = value
+                .as_f64()
+                .ok_or_else(|| format!("{} is not a number", shown(path)))?;
+            if mark < 0.0 {
+                let k = (-mark) as usize - 1;
+                if let Some(slot) = x.get_mut(k) {
+                    *slot = v;
+                }
+            } else if v != mark {
+                return Err(format!("{} is {v}, expected {mark}", shown(path)));
+            }
+            Ok(())
+        }
+        Value::Array(items) => {
+            let values = value
+                .as_array()
+                .filter(|a| a.len() == items.len())
+                .ok_or_else(|| format!("{} is not an array of {}", shown(path), items.len()))?;
+            let len = path.len();
+            for (k, (p, v)) in items.iter().zip(values).enumerate() {
+                path.push_str(&format!("[{k}]"));
+                fill(p, v, x, path)?;
+                path.truncate(len);
+            }
+            Ok(())
+        }
+        Value::Object(fields) => {
+            let object = value
+                .as_object()
+                .ok_or_else(|| format!("{} is not an object", shown(path)))?;
+            let len = path.len();
+            for (key, p) in fields {
+                if len > 0 {
+                    path.push('.');
+                }
+                path.push_str(key);
+                let v = object
+                    .get(key)
+                    .ok_or_else(|| format!("{} is missing", shown(path)))?;
+                fill(p, v, x, path)?;
+                path.truncate(len);
+            }
+            Ok(())
+        }
+        // A template writes only numbers, arrays and objects.
+        _ => Ok(()),
+    }
+}
+
 /// Writes the records of one run: sample records `{t, j, <values>}` and jump
 /// records `{t, j, rule, rule_id, index?, pre{..}, post{..}}`, as compact
 /// JSON into a caller's buffer.

@@ -42,8 +42,8 @@ use super::json::{
     LogLevel, LogRecord, LogTimestamp, RecordWriter, jump_schema, log_schema, sample_schema,
 };
 use super::{
-    Decimation, Decimator, JumpFilter, OutputFn, PostJump, RunInfo, RunOutcome, RunStatus,
-    SinkError, Tally, first_non_finite, rule_name,
+    Decimation, Decimator, JumpFilter, OutputFn, RunInfo, RunOutcome, RunStatus, SinkError, Tally,
+    first_non_finite, rule_name,
 };
 use crate::arc::{ArcSink, HybridTime, SampleKind};
 use crate::atomic_file;
@@ -655,20 +655,10 @@ impl ArcSink for McapSink<'_> {
             return ControlFlow::Break(());
         }
         self.tally.sample(at);
-        let r = match kind {
-            SampleKind::PreJump if self.filter.hold(at, x) => Ok(ControlFlow::Continue(())),
-            SampleKind::PostJump => match self.filter.post_jump() {
-                PostJump::Write => self.keep_and_write(at, x, kind),
-                PostJump::HeldAsFlow(pre) => {
-                    let held = self.filter.take_held_values();
-                    let r = self.keep_and_write(pre, &held, SampleKind::Flow);
-                    self.filter.restore_held_values(held);
-                    r
-                }
-            },
-            _ => self.keep_and_write(at, x, kind),
-        };
-        self.settle(r)
+        let mut filter = std::mem::take(&mut self.filter);
+        let r = filter.route_sample(at, x, kind, |at, x, kind| self.keep_and_write(at, x, kind));
+        self.filter = filter;
+        self.settle(r.unwrap_or(Ok(ControlFlow::Continue(()))))
     }
 
     fn jump(&mut self, at: HybridTime, rule: usize, pre: &[f64], post: &[f64]) -> ControlFlow<()> {
@@ -676,13 +666,12 @@ impl ArcSink for McapSink<'_> {
             return ControlFlow::Break(());
         }
         self.tally.jump(rule);
-        let (record, flush) = self.filter.jump(rule);
-        let mut r = Ok(ControlFlow::Continue(()));
-        if flush && let Some((pre_at, _)) = self.filter.held() {
-            let held = self.filter.take_held_values();
-            r = self.keep_and_write(pre_at, &held, SampleKind::PreJump);
-            self.filter.restore_held_values(held);
-        }
+        let mut filter = std::mem::take(&mut self.filter);
+        let (record, flushed) = filter.route_jump(rule, |at, x| {
+            self.keep_and_write(at, x, SampleKind::PreJump)
+        });
+        self.filter = filter;
+        let mut r = flushed.unwrap_or(Ok(ControlFlow::Continue(())));
         if record && matches!(r, Ok(ControlFlow::Continue(()))) {
             r = self.write_jump(at, rule, pre, post);
         }

@@ -1,10 +1,19 @@
 //! Reading back what [`McapSink`](super::mcap::McapSink) wrote: the
 //! summary of a run's MCAP file (metadata records, channels and their
-//! message counts, attachments), for `hybsim info` and other readers.
+//! message counts, attachments), for `hybsim info` and other readers
+//! ([`RunSummary`]); and its samples, state and outputs as flat vectors
+//! structured by the layouts recorded in the file, for `hybsim plot`
+//! ([`RunLog`]).
 
 use std::collections::BTreeMap;
 
 use serde_json::Value;
+
+use super::RunInfo;
+use super::json::RecordReader;
+use super::mcap::{OUTPUTS_TOPIC, STATE_TOPIC};
+use crate::arc::{HybridTime, SampleKind};
+use crate::layout::Layout;
 
 /// Why a file is not a readable hybsim MCAP log.
 #[derive(Debug, thiserror::Error)]
@@ -21,6 +30,9 @@ pub enum ReadError {
     /// An MCAP file, but not written by hybsim (no `hybsim.run` metadata).
     #[error("an MCAP file, but not a hybsim run: it has no `hybsim.run` metadata")]
     Foreign,
+    /// A hybsim run whose description or messages cannot be read back.
+    #[error("a hybsim run that cannot be read back: {0}")]
+    Damaged(String),
 }
 
 /// One channel of the file.
@@ -137,4 +149,205 @@ impl RunSummary {
             })).collect::<Vec<_>>(),
         })
     }
+}
+
+/// A run's MCAP file read back: what the sinks knew about the run (model
+/// name, layouts of the logged states and outputs, rule names; from the
+/// `run.json` attachment) and its samples ([`replay`](Self::replay)).
+///
+/// ```no_run
+/// use hybsim::sinks::mcap_read::RunLog;
+/// let bytes = std::fs::read("ball.mcap").unwrap();
+/// let log = RunLog::read(&bytes).unwrap();
+/// let mut heights = Vec::new();
+/// log.replay(&bytes, |at, _kind, x, _y| heights.push((at.t, x[0]))).unwrap();
+/// ```
+#[derive(Debug, Clone)]
+pub struct RunLog {
+    /// The run as the sinks described it, restricted to what was logged:
+    /// `state_layout` and `output_layout` are the logged entries (over the
+    /// full dimensions), `parameters`, `solver` and the rest as recorded.
+    pub info: RunInfo,
+    /// The file's summary.
+    pub summary: RunSummary,
+}
+
+impl RunLog {
+    /// Reads the summary and the run description of the MCAP file `bytes`.
+    pub fn read(bytes: &[u8]) -> Result<Self, ReadError> {
+        let summary = RunSummary::read(bytes)?;
+        let index = ::mcap::read::Summary::read(bytes)
+            .ok()
+            .flatten()
+            .and_then(|s| {
+                s.attachment_indexes
+                    .into_iter()
+                    .find(|a| a.name == "run.json")
+            })
+            .ok_or_else(|| ReadError::Damaged("it has no `run.json` attachment".into()))?;
+        let attachment = ::mcap::read::attachment(bytes, &index)
+            .map_err(|e| ReadError::Damaged(format!("`run.json`: {e}")))?;
+        let run: Value = serde_json::from_slice(&attachment.data)
+            .map_err(|e| ReadError::Damaged(format!("`run.json`: {e}")))?;
+        let info = run_info(&run).map_err(|e| ReadError::Damaged(format!("`run.json`: {e}")))?;
+        info.validate()
+            .map_err(|e| ReadError::Damaged(format!("`run.json`: {e}")))?;
+        Ok(Self { info, summary })
+    }
+
+    /// Whether the file has an outputs channel.
+    fn has_outputs(&self) -> bool {
+        self.summary
+            .channels
+            .iter()
+            .any(|c| c.topic == OUTPUTS_TOPIC)
+    }
+
+    /// Calls `visit(at, kind, x, y)` for every logged sample in the order of
+    /// the run, with `x` the state and `y` the outputs (flat vectors of the
+    /// run's dimensions; components that were not logged are NaN), and
+    /// returns the number of samples. The kind is not stored in the file:
+    /// it is read from the hybrid times (the first sample is `Initial`, the
+    /// last `Final`, a sample followed by a larger j `PreJump`, one after a
+    /// smaller j `PostJump`, the others `Flow`).
+    pub fn replay(
+        &self,
+        bytes: &[u8],
+        mut visit: impl FnMut(HybridTime, SampleKind, &[f64], &[f64]),
+    ) -> Result<u64, ReadError> {
+        let info = &self.info;
+        let states = RecordReader::new(&info.state_layout, info.state_dim);
+        let outputs = RecordReader::new(&info.output_layout, info.output_dim);
+        let with_outputs = self.has_outputs();
+        let stream =
+            ::mcap::MessageStream::new(bytes).map_err(|e| ReadError::Damaged(e.to_string()))?;
+        // The sample being completed (its outputs follow its state), the one
+        // before it (its kind needs the next j) and the j before that.
+        let mut building: Option<(HybridTime, Vec<f64>)> = None;
+        let mut held: Option<(HybridTime, Vec<f64>, Vec<f64>)> = None;
+        let mut before: Option<u64> = None;
+        let mut count = 0u64;
+        let mut emit = |sample: (HybridTime, Vec<f64>, Vec<f64>),
+                        held: &mut Option<(HybridTime, Vec<f64>, Vec<f64>)>,
+                        before: &mut Option<u64>| {
+            if let Some((at, x, y)) = held.take() {
+                let kind = if before.is_none() {
+                    SampleKind::Initial
+                } else if sample.0.j > at.j {
+                    SampleKind::PreJump
+                } else if before.is_some_and(|b| b < at.j) {
+                    SampleKind::PostJump
+                } else {
+                    SampleKind::Flow
+                };
+                visit(at, kind, &x, &y);
+                *before = Some(at.j);
+            }
+            *held = Some(sample);
+        };
+        for message in stream {
+            let message = message.map_err(|e| ReadError::Damaged(e.to_string()))?;
+            let topic = message.channel.topic.as_str();
+            if topic != STATE_TOPIC && topic != OUTPUTS_TOPIC {
+                continue;
+            }
+            let record: Value = serde_json::from_slice(&message.data).map_err(|e| {
+                ReadError::Damaged(format!("a message on `{topic}` is not JSON: {e}"))
+            })?;
+            let at = record_time(&record).ok_or_else(|| {
+                ReadError::Damaged(format!(
+                    "a message on `{topic}` has no number `t` and integer `j`"
+                ))
+            })?;
+            let bad = |e: String| ReadError::Damaged(format!("message on `{topic}` at {at}: {e}"));
+            if topic == STATE_TOPIC {
+                if building.is_some() {
+                    return Err(bad(
+                        "the previous state sample has no outputs message".into()
+                    ));
+                }
+                let mut x = vec![f64::NAN; info.state_dim];
+                states.read(&record, &mut x).map_err(bad)?;
+                if with_outputs {
+                    building = Some((at, x));
+                } else {
+                    count += 1;
+                    emit((at, x, Vec::new()), &mut held, &mut before);
+                }
+            } else {
+                let (state_at, x) = building
+                    .take()
+                    .ok_or_else(|| bad("an outputs message without its state message".into()))?;
+                if state_at != at {
+                    return Err(bad(format!("the state message before it is at {state_at}")));
+                }
+                let mut y = vec![f64::NAN; info.output_dim];
+                outputs.read(&record, &mut y).map_err(bad)?;
+                count += 1;
+                emit((at, x, y), &mut held, &mut before);
+            }
+        }
+        if let Some((at, _)) = building {
+            return Err(ReadError::Damaged(format!(
+                "the last state sample (at {at}) has no outputs message"
+            )));
+        }
+        if let Some((at, x, y)) = held {
+            let kind = if before.is_none() {
+                SampleKind::Initial
+            } else {
+                SampleKind::Final
+            };
+            visit(at, kind, &x, &y);
+        }
+        Ok(count)
+    }
+}
+
+/// `t` and `j` of a sample record.
+fn record_time(record: &Value) -> Option<HybridTime> {
+    Some(HybridTime::new(
+        record.get("t")?.as_f64()?,
+        record.get("j")?.as_u64()?,
+    ))
+}
+
+/// The [`RunInfo`] described by `run.json` (see [`super::mcap`]).
+fn run_info(run: &Value) -> Result<RunInfo, String> {
+    let text = |v: &Value, what: &str| -> Result<String, String> {
+        v.as_str()
+            .map(str::to_string)
+            .ok_or_else(|| format!("`{what}` is not text"))
+    };
+    let part = |name: &str| -> Result<(Layout, usize), String> {
+        let p = &run[name];
+        let layout: Layout = serde_json::from_value(p["layout"].clone())
+            .map_err(|e| format!("`{name}.layout`: {e}"))?;
+        let dim = p["dim"]
+            .as_u64()
+            .ok_or_else(|| format!("`{name}.dim` is not a count"))? as usize;
+        Ok((layout, dim))
+    };
+    let (state_layout, state_dim) = part("state")?;
+    let (output_layout, output_dim) = part("outputs")?;
+    let rules: Vec<String> =
+        serde_json::from_value(run["rules"].clone()).map_err(|e| format!("`rules`: {e}"))?;
+    let logged: Vec<String> =
+        serde_json::from_value(run["logged_rules"].clone()).unwrap_or_else(|_| rules.clone());
+    let mut info = RunInfo::new(
+        &text(&run["model"]["name"], "model.name")?,
+        &[] as &[String],
+        &rules,
+    );
+    info.model_path = text(&run["model"]["path"], "model.path").unwrap_or_default();
+    info.seed = run["seed"].as_u64().unwrap_or(0);
+    info.state_layout = state_layout;
+    info.state_dim = state_dim;
+    info.output_layout = output_layout;
+    info.output_dim = output_dim;
+    info.logged_rules = rules.iter().map(|r| logged.contains(r)).collect();
+    info.parameters = run["parameters"].clone();
+    info.solver = run["solver"].clone();
+    info.argv = serde_json::from_value(run["argv"].clone()).unwrap_or_default();
+    Ok(info)
 }

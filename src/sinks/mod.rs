@@ -5,7 +5,8 @@
 //! |---|---|---|
 //! | [`mcap::McapSink`] | `.mcap` (JSON messages, zstd chunks) | Foxglove, the MCAP readers, archiving a run with everything needed to reproduce it |
 //! | [`csv::CsvSink`] | `.csv`, one row per logged sample | spreadsheets, pandas |
-//! | [`plot::PlotSink`] | `.svg`, one panel per state entry | a first look at a run |
+//! | [`plot::PlotSink`] | `.svg` or `.png`, one panel per state entry (HyEQ's plot kinds) | a first look at a run |
+//! | [`parquet::ParquetSink`] | `.parquet`, one row per logged sample, and `.jumps.parquet`, one row per jump | pandas, polars, DuckDB, Arrow |
 //!
 //! The engine pushes every sample and jump; each sink decides what to keep
 //! through a [`Decimation`] that always keeps the initial, pre-jump,
@@ -63,6 +64,14 @@ pub enum SinkError {
         /// The underlying error.
         source: ::csv::Error,
     },
+    /// The Parquet writer failed.
+    #[error("cannot write Parquet file `{path}`: {source}")]
+    Table {
+        /// The file concerned.
+        path: PathBuf,
+        /// The underlying error.
+        source: parquet::TableError,
+    },
     /// Plotting failed.
     #[error("cannot draw plot `{path}`: {message}")]
     Plot {
@@ -103,6 +112,28 @@ pub enum SinkError {
         option: &'static str,
         /// What to change.
         message: String,
+    },
+    /// A plot file's extension names no image format hybsim writes.
+    #[error(
+        "cannot draw plot `{path}`: `.{extension}` is not an image format hybsim writes (use `.svg` or `.png`)"
+    )]
+    ImageFormat {
+        /// The file asked for.
+        path: PathBuf,
+        /// Its extension.
+        extension: String,
+    },
+    /// A plot kind needs more components than were selected.
+    #[error(
+        "a {kind} plot needs {needed} components, {selected} selected: name them (e.g. `--plot-vars h,v`, `hybsim plot --vars h,v`)"
+    )]
+    TooFewComponents {
+        /// The plot kind (`phase`).
+        kind: &'static str,
+        /// Components it draws, in words (`two`).
+        needed: &'static str,
+        /// Components selected.
+        selected: usize,
     },
     /// A plot selection names something that is neither a state nor an output.
     #[error("`{name}` is neither a state nor an output of the model (known: {known})")]
@@ -536,18 +567,47 @@ impl JumpFilter {
         self.held_at.map(|at| (at, self.held.as_slice()))
     }
 
-    /// Moves the held values out (to write them while the sink is borrowed
-    /// mutably); give them back with
-    /// [`restore_held_values`](Self::restore_held_values) to reuse the buffer.
-    /// After [`post_jump`](Self::post_jump) returned
-    /// [`PostJump::HeldAsFlow`], these are that sample's values.
-    pub fn take_held_values(&mut self) -> Vec<f64> {
-        std::mem::take(&mut self.held)
+    /// Routes one sample of the run to the log: calls `write(at, x, kind)`
+    /// for what the log gets now. Nothing while a pre-jump sample is held;
+    /// in place of the post-jump sample of a jump that is not logged, the
+    /// held pre-jump sample as a flow sample; otherwise the sample itself.
+    /// Returns `write`'s result, `None` if it was not called.
+    ///
+    /// A sink keeps its filter in a field; move it out
+    /// (`std::mem::take`) around the call, so that `write` can borrow the
+    /// sink.
+    pub fn route_sample<R>(
+        &mut self,
+        at: HybridTime,
+        x: &[f64],
+        kind: SampleKind,
+        write: impl FnOnce(HybridTime, &[f64], SampleKind) -> R,
+    ) -> Option<R> {
+        match kind {
+            SampleKind::PreJump if self.hold(at, x) => None,
+            SampleKind::PostJump => match self.post_jump() {
+                PostJump::Write => Some(write(at, x, kind)),
+                PostJump::HeldAsFlow(pre) => Some(write(pre, &self.held, SampleKind::Flow)),
+            },
+            _ => Some(write(at, x, kind)),
+        }
     }
 
-    /// Gives the buffer of [`take_held_values`](Self::take_held_values) back.
-    pub fn restore_held_values(&mut self, held: Vec<f64>) {
-        self.held = held;
+    /// Routes one jump record of rule `rule`: whether the record is logged,
+    /// and, when the held pre-jump sample must be written first (the first
+    /// logged rule of this jump), the result of `write_pre(at, x)` for it
+    /// (a pre-jump sample).
+    pub fn route_jump<R>(
+        &mut self,
+        rule: usize,
+        write_pre: impl FnOnce(HybridTime, &[f64]) -> R,
+    ) -> (bool, Option<R>) {
+        let (record, flush) = self.jump(rule);
+        let flushed = match (flush, self.held_at) {
+            (true, Some(at)) => Some(write_pre(at, &self.held)),
+            _ => None,
+        };
+        (record, flushed)
     }
 
     /// Takes the held pre-jump sample of a run that ended before its jump

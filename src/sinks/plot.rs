@@ -1,5 +1,8 @@
-//! SVG plots with plotters' SVG backend (no fonts or system libraries
-//! needed).
+//! Plots as SVG or PNG (chosen by the file's extension, [`ImageFormat`]),
+//! drawn with plotters: its SVG backend, or its bitmap backend into a
+//! buffer encoded by `png`. Text is laid out (and, in PNG, drawn) with
+//! DejaVu Sans embedded in the binary, so no system font or library is
+//! needed.
 //!
 //! Two levels:
 //! - a small plotting API for any line data: [`Figure`] (panels stacked
@@ -19,7 +22,11 @@
 //!   ```
 //! - [`PlotSink`], an [`ArcSink`] that keeps the selected states/outputs of
 //!   a run and draws one panel per model entry against t, each flow
-//!   interval a solid piece and each jump a dashed vertical segment.
+//!   interval a solid piece and each jump a dashed vertical segment (or
+//!   another of HyEQ's plots, [`PlotKind`]). `hybsim plot run.mcap` feeds
+//!   the same sink from a logged file ([`PlotSink::for_log`],
+//!   [`super::mcap_read::RunLog`]), so a plot from a file is the plot of
+//!   the run.
 
 use std::ops::ControlFlow;
 use std::path::{Path, PathBuf};
@@ -28,6 +35,7 @@ use plotters::coord::Shift;
 use plotters::coord::ranged1d::{AsRangedCoord, ValueFormatter};
 use plotters::element::DashedPathElement;
 use plotters::prelude::*;
+use plotters::style::FontStyle;
 
 use super::{Decimation, Decimator, OutputFn, RunInfo, SinkError, entry_names};
 use crate::arc::{ArcSink, HybridTime, SampleKind};
@@ -106,26 +114,7 @@ impl Series {
     /// bloat the file: the pieces are then joined into one polyline (the
     /// jumps drawn solid).
     pub fn hybrid_points(name: impl Into<String>, points: &[(HybridTime, (f64, f64))]) -> Self {
-        let mut pieces: Vec<Vec<(f64, f64)>> = Vec::new();
-        let mut connectors = Vec::new();
-        let mut last: Option<(HybridTime, (f64, f64))> = None;
-        for &(at, p) in points {
-            match last {
-                Some((prev, _)) if prev.j == at.j => {
-                    pieces.last_mut().expect("a piece exists").push(p)
-                }
-                Some((_, pp)) => {
-                    connectors.push([pp, p]);
-                    pieces.push(vec![p]);
-                }
-                None => pieces.push(vec![p]),
-            }
-            last = Some((at, p));
-        }
-        if connectors.len() > MAX_DASHED_JUMPS {
-            pieces = vec![points.iter().map(|&(_, p)| p).collect()];
-            connectors.clear();
-        }
+        let (pieces, connectors) = split_at_jumps(points);
         Self {
             name: name.into(),
             pieces,
@@ -160,6 +149,75 @@ impl Series {
     }
 }
 
+/// Splits points in domain order into flow pieces (constant j) and jump
+/// connectors (from a pre- to its post-jump point). Above
+/// [`MAX_DASHED_JUMPS`] jumps the dashes would only blacken the plot and
+/// bloat the file: the pieces are then joined into one polyline (the jumps
+/// drawn solid).
+#[allow(clippy::type_complexity)] // (pieces, connectors)
+fn split_at_jumps<P: Copy>(points: &[(HybridTime, P)]) -> (Vec<Vec<P>>, Vec<[P; 2]>) {
+    let mut pieces: Vec<Vec<P>> = Vec::new();
+    let mut connectors = Vec::new();
+    let mut last: Option<(HybridTime, P)> = None;
+    for &(at, p) in points {
+        match last {
+            Some((prev, _)) if prev.j == at.j => pieces.last_mut().expect("a piece exists").push(p),
+            Some((_, pp)) => {
+                connectors.push([pp, p]);
+                pieces.push(vec![p]);
+            }
+            None => pieces.push(vec![p]),
+        }
+        last = Some((at, p));
+    }
+    if connectors.len() > MAX_DASHED_JUMPS {
+        pieces = vec![points.iter().map(|&(_, p)| p).collect()];
+        connectors.clear();
+    }
+    (pieces, connectors)
+}
+
+/// A point of a 3-D panel: (t, j, value).
+pub type Point3 = (f64, f64, f64);
+
+/// One named line over the hybrid time domain, drawn in a 3-D panel (HyEQ's
+/// `plotHybrid`): each flow interval a solid piece in its plane j, each
+/// jump a dashed segment from (t, j, pre) to (t, j + 1, post).
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct Series3 {
+    /// Legend text.
+    pub name: String,
+    /// Solid polylines of (t, j, value).
+    pub pieces: Vec<Vec<Point3>>,
+    /// Dashed segments (the jumps).
+    pub connectors: Vec<[Point3; 2]>,
+}
+
+impl Series3 {
+    /// A hybrid arc of one scalar: `samples[k] = ((t, j), value)` in domain
+    /// order.
+    pub fn hybrid(name: impl Into<String>, samples: &[(HybridTime, f64)]) -> Self {
+        let points: Vec<(HybridTime, Point3)> = samples
+            .iter()
+            .map(|&(at, v)| (at, (at.t, at.j as f64, v)))
+            .collect();
+        let (pieces, connectors) = split_at_jumps(&points);
+        Self {
+            name: name.into(),
+            pieces,
+            connectors,
+        }
+    }
+
+    fn all_points(&self) -> impl Iterator<Item = Point3> + '_ {
+        self.pieces
+            .iter()
+            .flatten()
+            .copied()
+            .chain(self.connectors.iter().flatten().copied())
+    }
+}
+
 /// One set of axes.
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct Panel {
@@ -167,12 +225,17 @@ pub struct Panel {
     pub title: String,
     /// x-axis label.
     pub x_label: String,
-    /// y-axis label.
+    /// y-axis label (in a 3-D panel: the depth axis, j).
     pub y_label: String,
+    /// Vertical axis label of a 3-D panel (the value).
+    pub z_label: String,
     /// The lines.
     pub series: Vec<Series>,
     /// Logarithmic y axis; points with y ≤ 0 are left out (breaking the line).
     pub log_y: bool,
+    /// Lines over the hybrid time domain: a panel with any is drawn as 3-D
+    /// axes t, j and `y_label` (its 2-D `series` are then not drawn).
+    pub series_3d: Vec<Series3>,
 }
 
 impl Panel {
@@ -200,6 +263,14 @@ impl Panel {
         }
     }
 
+    /// Sets the vertical axis label of a 3-D panel.
+    pub fn z_label(self, z_label: impl Into<String>) -> Self {
+        Self {
+            z_label: z_label.into(),
+            ..self
+        }
+    }
+
     /// Logarithmic y axis.
     pub fn log_y(self, log_y: bool) -> Self {
         Self { log_y, ..self }
@@ -208,6 +279,12 @@ impl Panel {
     /// Adds a series.
     pub fn series(mut self, series: Series) -> Self {
         self.series.push(series);
+        self
+    }
+
+    /// Adds a line over the hybrid time domain (the panel becomes 3-D).
+    pub fn series_3d(mut self, series: Series3) -> Self {
+        self.series_3d.push(series);
         self
     }
 }
@@ -279,8 +356,149 @@ pub struct PlotError(pub String);
 
 type DrawResult<T> = Result<T, PlotError>;
 
-fn draw_panel<Y>(
-    area: &DrawingArea<SVGBackend<'_>, Shift>,
+fn err(e: &dyn std::fmt::Display) -> PlotError {
+    PlotError(e.to_string())
+}
+
+/// The image format of a plot file.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ImageFormat {
+    /// Scalable vector graphics (text stays text).
+    Svg,
+    /// A bitmap (8-bit RGB PNG) of the same pixel size.
+    Png,
+}
+
+impl ImageFormat {
+    /// The format of `path` by its extension: `.png` is PNG, `.svg`, no
+    /// extension and `-` (standard output) are SVG; anything else is an
+    /// error.
+    pub fn of(path: &Path) -> Result<Self, SinkError> {
+        match path
+            .extension()
+            .map(|e| e.to_string_lossy().to_ascii_lowercase())
+        {
+            Some(e) if e == "png" => Ok(ImageFormat::Png),
+            Some(e) if e == "svg" => Ok(ImageFormat::Svg),
+            None => Ok(ImageFormat::Svg),
+            Some(e) => Err(SinkError::ImageFormat {
+                path: path.to_path_buf(),
+                extension: e,
+            }),
+        }
+    }
+}
+
+/// DejaVu Sans as plotters' `sans-serif` (every text of the plots uses it),
+/// registered once per process before anything is drawn.
+fn register_fonts() {
+    static ONCE: std::sync::Once = std::sync::Once::new();
+    ONCE.call_once(|| {
+        // The embedded font is a valid TrueType file; a failure would show
+        // as a drawing error naming the missing font.
+        let _ = plotters::style::register_font(
+            "sans-serif",
+            FontStyle::Normal,
+            dejavu::sans::regular(),
+        );
+    });
+}
+
+/// Something drawn on one canvas: a [`Figure`] or a [`BarChart`].
+trait Drawing {
+    /// Width and height in pixels.
+    fn pixels(&self) -> (u32, u32);
+
+    /// Draws on `root` (white, of [`pixels`](Self::pixels)).
+    fn draw_on<DB: DrawingBackend>(&self, root: &DrawingArea<DB, Shift>) -> DrawResult<()>;
+
+    fn svg(&self) -> DrawResult<String> {
+        register_fonts();
+        let mut svg = String::new();
+        {
+            let root = SVGBackend::with_string(&mut svg, self.pixels()).into_drawing_area();
+            root.fill(&WHITE).map_err(|e| err(&e))?;
+            self.draw_on(&root)?;
+            root.present().map_err(|e| err(&e))?;
+        }
+        Ok(svg)
+    }
+
+    fn png(&self) -> DrawResult<Vec<u8>> {
+        register_fonts();
+        let (w, h) = self.pixels();
+        let mut rgb = vec![0u8; w as usize * h as usize * 3];
+        {
+            let root = BitMapBackend::with_buffer(&mut rgb, (w, h)).into_drawing_area();
+            root.fill(&WHITE).map_err(|e| err(&e))?;
+            self.draw_on(&root)?;
+            root.present().map_err(|e| err(&e))?;
+        }
+        let mut bytes = Vec::new();
+        let mut encoder = png::Encoder::new(&mut bytes, w, h);
+        encoder.set_color(png::ColorType::Rgb);
+        encoder.set_depth(png::BitDepth::Eight);
+        let mut writer = encoder.write_header().map_err(|e| err(&e))?;
+        writer.write_image_data(&rgb).map_err(|e| err(&e))?;
+        writer.finish().map_err(|e| err(&e))?;
+        Ok(bytes)
+    }
+
+    /// Renders to `path` in the format of its extension (through a
+    /// temporary file, renamed when complete).
+    fn save_as(&self, path: &Path) -> Result<(), SinkError> {
+        let plot_err = |e: PlotError| SinkError::Plot {
+            path: path.to_path_buf(),
+            message: e.0,
+        };
+        let bytes = match ImageFormat::of(path)? {
+            ImageFormat::Svg => self.svg().map_err(plot_err)?.into_bytes(),
+            ImageFormat::Png => self.png().map_err(plot_err)?,
+        };
+        atomic_file::write(path, &bytes).map_err(|e| SinkError::io(path, e))
+    }
+}
+
+/// Splits `area` into the axes and, if there are series, a legend column
+/// right of them, so that the legend never covers data.
+fn with_legend_column<DB: DrawingBackend>(
+    area: &DrawingArea<DB, Shift>,
+    series: usize,
+) -> (DrawingArea<DB, Shift>, DrawingArea<DB, Shift>) {
+    let (w, _) = area.dim_in_pixel();
+    if series > 0 {
+        area.split_horizontally(w.saturating_sub(LEGEND_WIDTH))
+    } else {
+        area.split_horizontally(w)
+    }
+}
+
+/// Legend entry `k`: a line sample in its colour and the name.
+fn draw_legend_entry<DB: DrawingBackend>(
+    legend: &DrawingArea<DB, Shift>,
+    k: usize,
+    name: &str,
+) -> DrawResult<()> {
+    let color = COLORS[k % COLORS.len()];
+    let y = 40 + 20 * k as i32;
+    legend
+        .draw(&PathElement::new(
+            vec![(8, y), (30, y)],
+            color.stroke_width(2),
+        ))
+        .map_err(|e| err(&e))?;
+    legend
+        .draw(&Text::new(
+            name.to_string(),
+            (36, y - 7),
+            ("sans-serif", 13).into_font(),
+        ))
+        .map_err(|e| err(&e))?;
+    Ok(())
+}
+
+fn draw_panel<DB: DrawingBackend, Y>(
+    area: &DrawingArea<DB, Shift>,
     panel: &Panel,
     x_range: (f64, f64),
     y_range: Y,
@@ -289,15 +507,8 @@ where
     Y: AsRangedCoord<Value = f64>,
     Y::CoordDescType: ValueFormatter<f64>,
 {
-    let err = |e: &dyn std::fmt::Display| PlotError(e.to_string());
     let shown = panel.series.len().min(MAX_SERIES_PER_PANEL);
-    // The legend gets its own column right of the axes, so it never covers data.
-    let (plot_area, legend_area) = if shown > 0 {
-        let (w, _) = area.dim_in_pixel();
-        area.split_horizontally(w.saturating_sub(LEGEND_WIDTH))
-    } else {
-        area.split_horizontally(area.dim_in_pixel().0)
-    };
+    let (plot_area, legend_area) = with_legend_column(area, shown);
     let mut chart = ChartBuilder::on(&plot_area)
         .caption(&panel.title, ("sans-serif", 16))
         .margin(10)
@@ -337,23 +548,145 @@ where
                 jumps.map(|r| DashedPathElement::new(r, 4, 3, color.mix(0.7).stroke_width(1))),
             )
             .map_err(|e| err(&e))?;
-        // Legend entry: a line sample and the name, top to bottom.
-        let y = 40 + 20 * k as i32;
-        legend_area
-            .draw(&PathElement::new(
-                vec![(8, y), (30, y)],
-                color.stroke_width(2),
-            ))
-            .map_err(|e| err(&e))?;
-        legend_area
-            .draw(&Text::new(
-                s.name.clone(),
-                (36, y - 7),
-                ("sans-serif", 13).into_font(),
-            ))
-            .map_err(|e| err(&e))?;
+        draw_legend_entry(&legend_area, k, &s.name)?;
     }
     Ok(())
+}
+
+/// Splits a 3-D piece where a point is not finite.
+fn finite_runs_3d(piece: &[Point3]) -> Vec<Vec<Point3>> {
+    let mut runs = vec![Vec::new()];
+    for &p in piece {
+        if p.0.is_finite() && p.1.is_finite() && p.2.is_finite() {
+            runs.last_mut().expect("a run exists").push(p);
+        } else if !runs.last().expect("a run exists").is_empty() {
+            runs.push(Vec::new());
+        }
+    }
+    runs.retain(|r| !r.is_empty());
+    runs
+}
+
+/// A 3-D panel: t to the right, j into the depth, the value up (HyEQ's
+/// `plotHybrid`), axis names written at the ends of the axes.
+fn draw_panel_3d<DB: DrawingBackend>(
+    area: &DrawingArea<DB, Shift>,
+    panel: &Panel,
+) -> DrawResult<()> {
+    let shown = &panel.series_3d[..panel.series_3d.len().min(MAX_SERIES_PER_PANEL)];
+    let (plot_area, legend_area) = with_legend_column(area, shown.len());
+    let points = || shown.iter().flat_map(|s| s.all_points());
+    let t = bounds(points().map(|p| p.0), false);
+    let j = bounds(points().map(|p| p.1), false);
+    let v = bounds(points().map(|p| p.2), false);
+    // plotters' 3-D axes: x to the right, y up, z into the depth.
+    let mut chart = ChartBuilder::on(&plot_area)
+        .caption(&panel.title, ("sans-serif", 16))
+        .margin(10)
+        .build_cartesian_3d(t.0..t.1, v.0..v.1, j.0..j.1)
+        .map_err(|e| err(&e))?;
+    chart.with_projection(|mut p| {
+        p.yaw = 0.6;
+        p.pitch = 0.25;
+        p.scale = 0.8;
+        p.into_matrix()
+    });
+    chart
+        .configure_axes()
+        .light_grid_style(RGBColor(235, 235, 235))
+        .max_light_lines(4)
+        .draw()
+        .map_err(|e| err(&e))?;
+    let font = ("sans-serif", 14).into_font();
+    let names = [
+        (panel.x_label.as_str(), (t.1, v.0, j.0)),
+        (panel.y_label.as_str(), (t.0, v.0, j.1)),
+        (panel.z_label_or_value(), (t.0, v.1, j.0)),
+    ];
+    for (name, at) in names {
+        chart
+            .draw_series(std::iter::once(Text::new(
+                name.to_string(),
+                at,
+                font.clone(),
+            )))
+            .map_err(|e| err(&e))?;
+    }
+    for (k, s) in shown.iter().enumerate() {
+        let color = COLORS[k % COLORS.len()];
+        for piece in &s.pieces {
+            for run in finite_runs_3d(piece) {
+                chart
+                    .draw_series(LineSeries::new(
+                        run.iter().map(|&(t, j, v)| (t, v, j)),
+                        color.stroke_width(2),
+                    ))
+                    .map_err(|e| err(&e))?;
+            }
+        }
+        let jumps = s
+            .connectors
+            .iter()
+            .flat_map(|c| finite_runs_3d(c))
+            .filter(|r| r.len() == 2);
+        chart
+            .draw_series(jumps.map(|r| {
+                DashedPathElement::new(
+                    r.into_iter().map(|(t, j, v)| (t, v, j)),
+                    4,
+                    3,
+                    color.mix(0.7).stroke_width(1),
+                )
+            }))
+            .map_err(|e| err(&e))?;
+        draw_legend_entry(&legend_area, k, &s.name)?;
+    }
+    Ok(())
+}
+
+impl Panel {
+    /// The vertical axis's name of a 3-D panel.
+    fn z_label_or_value(&self) -> &str {
+        if self.z_label.is_empty() {
+            "value"
+        } else {
+            &self.z_label
+        }
+    }
+}
+
+impl Drawing for Figure {
+    fn pixels(&self) -> (u32, u32) {
+        (
+            self.width,
+            self.panel_height * (self.panels.len().max(1) as u32),
+        )
+    }
+
+    fn draw_on<DB: DrawingBackend>(&self, root: &DrawingArea<DB, Shift>) -> DrawResult<()> {
+        let areas = root.split_evenly((self.panels.len().max(1), 1));
+        for (panel, area) in self.panels.iter().zip(&areas) {
+            if !panel.series_3d.is_empty() {
+                draw_panel_3d(area, panel)?;
+                continue;
+            }
+            let shown = &panel.series[..panel.series.len().min(MAX_SERIES_PER_PANEL)];
+            let x_range = bounds(
+                shown.iter().flat_map(|s| s.all_points().map(|p| p.0)),
+                false,
+            );
+            let y_range = bounds(
+                shown.iter().flat_map(|s| s.all_points().map(|p| p.1)),
+                panel.log_y,
+            );
+            if panel.log_y {
+                draw_panel(area, panel, x_range, (y_range.0..y_range.1).log_scale())?;
+            } else {
+                draw_panel(area, panel, x_range, y_range.0..y_range.1)?;
+            }
+        }
+        Ok(())
+    }
 }
 
 impl Figure {
@@ -377,44 +710,27 @@ impl Figure {
         }
     }
 
-    /// Renders the figure as an SVG document.
-    pub fn to_svg_string(&self) -> Result<String, PlotError> {
-        let mut svg = String::new();
-        let height = self.panel_height * (self.panels.len().max(1) as u32);
-        {
-            let root = SVGBackend::with_string(&mut svg, (self.width, height)).into_drawing_area();
-            root.fill(&WHITE).map_err(|e| PlotError(e.to_string()))?;
-            let areas = root.split_evenly((self.panels.len().max(1), 1));
-            for (panel, area) in self.panels.iter().zip(&areas) {
-                let shown = &panel.series[..panel.series.len().min(MAX_SERIES_PER_PANEL)];
-                let x_range = bounds(
-                    shown.iter().flat_map(|s| s.all_points().map(|p| p.0)),
-                    false,
-                );
-                let y_range = bounds(
-                    shown.iter().flat_map(|s| s.all_points().map(|p| p.1)),
-                    panel.log_y,
-                );
-                if panel.log_y {
-                    draw_panel(area, panel, x_range, (y_range.0..y_range.1).log_scale())?;
-                } else {
-                    draw_panel(area, panel, x_range, y_range.0..y_range.1)?;
-                }
-            }
-            root.present().map_err(|e| PlotError(e.to_string()))?;
-        }
-        Ok(svg)
+    /// Width and height of the whole figure in pixels.
+    pub fn pixel_size(&self) -> (u32, u32) {
+        self.pixels()
     }
 
-    /// Renders the figure to `path` (through a temporary file, renamed when
-    /// complete).
+    /// Renders the figure as an SVG document.
+    pub fn to_svg_string(&self) -> Result<String, PlotError> {
+        self.svg()
+    }
+
+    /// Renders the figure as the bytes of a PNG file (8-bit RGB, of
+    /// [`pixel_size`](Self::pixel_size)).
+    pub fn to_png(&self) -> Result<Vec<u8>, PlotError> {
+        self.png()
+    }
+
+    /// Renders the figure to `path`, SVG or PNG by its extension
+    /// ([`ImageFormat::of`]), through a temporary file renamed when
+    /// complete.
     pub fn save(&self, path: impl AsRef<Path>) -> Result<(), SinkError> {
-        let path = path.as_ref();
-        let svg = self.to_svg_string().map_err(|e| SinkError::Plot {
-            path: path.to_path_buf(),
-            message: e.0,
-        })?;
-        atomic_file::write(path, svg.as_bytes()).map_err(|e| SinkError::io(path, e))
+        self.save_as(path.as_ref())
     }
 }
 
@@ -507,6 +823,10 @@ pub enum PlotKind {
     Phase,
     /// The hybrid time domain: j against t, flows horizontal, jumps dashed.
     Domain,
+    /// Each component over the hybrid time domain (`plotHybrid`): 3-D axes
+    /// t, j and the value, one panel per entry, flows solid in their plane
+    /// j, jumps dashed from (t, j) to (t, j + 1).
+    Hybrid,
 }
 
 impl PlotKind {
@@ -517,6 +837,7 @@ impl PlotKind {
             PlotKind::Jumps => "jumps",
             PlotKind::Phase => "phase",
             PlotKind::Domain => "domain",
+            PlotKind::Hybrid => "hybrid",
         }
     }
 }
@@ -524,11 +845,10 @@ impl PlotKind {
 /// [`PlotKind::Phase`] needs two components.
 fn check_kind(kind: PlotKind, components: usize) -> Result<(), SinkError> {
     if kind == PlotKind::Phase && components < 2 {
-        return Err(SinkError::Option {
-            option: "--plot-kind phase",
-            message: format!(
-                "a phase plot needs two components (select them with --plot-vars); {components} selected"
-            ),
+        return Err(SinkError::TooFewComponents {
+            kind: kind.name(),
+            needed: "two",
+            selected: components,
         });
     }
     Ok(())
@@ -539,6 +859,8 @@ fn check_kind(kind: PlotKind, components: usize) -> Result<(), SinkError> {
 pub struct PlotSink<'a> {
     kind: PlotKind,
     path: PathBuf,
+    /// Evaluates the outputs of a live run (`None` when fed from a log,
+    /// whose samples carry their outputs).
     outputs: Option<OutputFn<'a>>,
     panels: Vec<PanelSpec>,
     model_name: String,
@@ -572,6 +894,32 @@ impl<'a> PlotSink<'a> {
         select: &[String],
         decimation: Decimation,
     ) -> Result<Self, SinkError> {
+        let with_outputs = outputs.is_some();
+        Self::build(path, info, outputs, with_outputs, select, decimation)
+    }
+
+    /// A plot fed from a logged run ([`push_logged`](Self::push_logged),
+    /// e.g. by [`super::mcap_read::RunLog::replay`]): `info` describes the
+    /// log (its layouts are those of the logged states and outputs), each
+    /// sample comes with its outputs, and every sample is kept (the log was
+    /// decimated when it was written). Selection as in [`new`](Self::new).
+    pub fn for_log(
+        path: impl AsRef<Path>,
+        info: &RunInfo,
+        select: &[String],
+    ) -> Result<PlotSink<'static>, SinkError> {
+        PlotSink::build(path, info, None, true, select, Decimation::all())
+    }
+
+    fn build(
+        path: impl AsRef<Path>,
+        info: &RunInfo,
+        outputs: Option<OutputFn<'a>>,
+        with_outputs: bool,
+        select: &[String],
+        decimation: Decimation,
+    ) -> Result<Self, SinkError> {
+        ImageFormat::of(path.as_ref())?;
         info.validate()?;
         decimation.validate()?;
         let mut panels = Vec::new();
@@ -585,7 +933,7 @@ impl<'a> PlotSink<'a> {
                 panels.extend(entry_panels(&e, Source::State));
             } else if let (Some(e), true) = (
                 info.output_layout.find(name),
-                info.output_dim > 0 && outputs.is_some(),
+                info.output_dim > 0 && with_outputs,
             ) {
                 panels.extend(entry_panels(&e, Source::Output));
             } else {
@@ -654,6 +1002,30 @@ impl<'a> PlotSink<'a> {
         check_kind(kind, components)
     }
 
+    /// Keeps one sample: `x` the state, `y` the outputs (read only if an
+    /// output is plotted).
+    fn store(&mut self, at: HybridTime, kind: SampleKind, x: &[f64], y: &[f64]) {
+        if self.times.len() >= 2 * MAX_PLOT_SAMPLES {
+            self.thin();
+        }
+        self.times.push(at);
+        self.thinnable.push(kind == SampleKind::Flow);
+        for &(source, k) in &self.columns {
+            self.values.push(match source {
+                Source::State => x[k],
+                Source::Output => y[k],
+            });
+        }
+    }
+
+    /// A logged sample: state `x` and outputs `y` (as long as the log's
+    /// state and output dimensions) at `at`, of kind `kind`.
+    pub fn push_logged(&mut self, at: HybridTime, kind: SampleKind, x: &[f64], y: &[f64]) {
+        if self.decimator.keep(at, kind) {
+            self.store(at, kind, x, y);
+        }
+    }
+
     /// Drops every other flow sample; when jump samples are most of what is
     /// kept (a discrete-time system), every other sample of any kind but the
     /// first, so that drawing stays bounded for any number of jumps.
@@ -706,6 +1078,7 @@ impl<'a> PlotSink<'a> {
     pub fn figure(&self) -> Figure {
         match self.kind {
             PlotKind::Flows | PlotKind::Jumps => self.component_figure(),
+            PlotKind::Hybrid => self.hybrid_figure(),
             PlotKind::Phase => {
                 let labels: Vec<&String> = self
                     .panels
@@ -772,6 +1145,25 @@ impl<'a> PlotSink<'a> {
         figure
     }
 
+    /// One 3-D panel per selected entry, each component over (t, j).
+    fn hybrid_figure(&self) -> Figure {
+        let mut col = 0;
+        let mut figure = Figure::new().size(900, 460);
+        for spec in &self.panels {
+            let mut panel = Panel::new(format!("{}: {}", self.model_name, spec.title))
+                .x_label("t")
+                .y_label("j")
+                .z_label(spec.title.as_str());
+            for (label, _, _) in &spec.series {
+                let samples: Vec<(HybridTime, f64)> = self.column(col).collect();
+                panel = panel.series_3d(Series3::hybrid(label.clone(), &samples));
+                col += 1;
+            }
+            figure = figure.panel(panel);
+        }
+        figure
+    }
+
     /// Draws the figure to the file.
     pub fn finish(self) -> Result<PathBuf, SinkError> {
         self.figure().save(&self.path)?;
@@ -784,22 +1176,14 @@ impl ArcSink for PlotSink<'_> {
         if !self.decimator.keep(at, kind) {
             return ControlFlow::Continue(());
         }
+        let mut y = std::mem::take(&mut self.y);
         if let Some(outputs) = self.outputs
             && self.columns.iter().any(|c| c.0 == Source::Output)
         {
-            outputs(at, x, &mut self.y);
+            outputs(at, x, &mut y);
         }
-        if self.times.len() >= 2 * MAX_PLOT_SAMPLES {
-            self.thin();
-        }
-        self.times.push(at);
-        self.thinnable.push(kind == SampleKind::Flow);
-        for &(source, k) in &self.columns {
-            self.values.push(match source {
-                Source::State => x[k],
-                Source::Output => self.y[k],
-            });
-        }
+        self.store(at, kind, x, &y);
+        self.y = y;
         ControlFlow::Continue(())
     }
 
@@ -874,7 +1258,27 @@ impl BarChart {
     /// Renders the chart as an SVG document. Bars with a non-finite value
     /// are left out (their label stays).
     pub fn to_svg_string(&self) -> Result<String, PlotError> {
-        let err = |e: &dyn std::fmt::Display| PlotError(e.to_string());
+        self.svg()
+    }
+
+    /// Renders the chart as the bytes of a PNG file.
+    pub fn to_png(&self) -> Result<Vec<u8>, PlotError> {
+        self.png()
+    }
+
+    /// Renders the chart to `path`, SVG or PNG by its extension (through a
+    /// temporary file).
+    pub fn save(&self, path: impl AsRef<Path>) -> Result<(), SinkError> {
+        self.save_as(path.as_ref())
+    }
+}
+
+impl Drawing for BarChart {
+    fn pixels(&self) -> (u32, u32) {
+        self.size
+    }
+
+    fn draw_on<DB: DrawingBackend>(&self, root: &DrawingArea<DB, Shift>) -> DrawResult<()> {
         let finite = |b: &&Bar| b.value.is_finite();
         let top = self
             .bars
@@ -892,10 +1296,7 @@ impl BarChart {
         // Bars at x = 1, 2, …, n; the y axis starts at 0 unless values are negative.
         let lo = if bottom >= 0.0 { 0.0 } else { lo };
         let n = self.bars.len();
-        let mut svg = String::new();
         {
-            let root = SVGBackend::with_string(&mut svg, self.size).into_drawing_area();
-            root.fill(&WHITE).map_err(|e| err(&e))?;
             let labels: Vec<String> = self.bars.iter().map(|b| b.label.clone()).collect();
             let label_of = move |x: &f64| {
                 let k = x.round();
@@ -905,7 +1306,7 @@ impl BarChart {
                     String::new()
                 }
             };
-            let mut chart = ChartBuilder::on(&root)
+            let mut chart = ChartBuilder::on(root)
                 .caption(&self.title, ("sans-serif", 16))
                 .margin(10)
                 .x_label_area_size(36)
@@ -943,18 +1344,7 @@ impl BarChart {
                     .draw_series(paths.into_iter().map(|p| PathElement::new(p, whisker)))
                     .map_err(|e| err(&e))?;
             }
-            root.present().map_err(|e| err(&e))?;
         }
-        Ok(svg)
-    }
-
-    /// Renders the chart to `path` (through a temporary file).
-    pub fn save(&self, path: impl AsRef<Path>) -> Result<(), SinkError> {
-        let path = path.as_ref();
-        let svg = self.to_svg_string().map_err(|e| SinkError::Plot {
-            path: path.to_path_buf(),
-            message: e.0,
-        })?;
-        atomic_file::write(path, svg.as_bytes()).map_err(|e| SinkError::io(path, e))
+        Ok(())
     }
 }

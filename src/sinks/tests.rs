@@ -175,7 +175,7 @@ fn jump_filter_hides_jumps_of_unlogged_rules() {
     assert!(f.hold(at, &[1.0, 2.0]));
     assert_eq!(f.jump(1), (false, false));
     assert_eq!(f.post_jump(), PostJump::HeldAsFlow(at));
-    assert_eq!(f.take_held_values(), [1.0, 2.0]);
+    assert_eq!(f.held(), None, "the held sample is given to the post-jump sample");
     // Rules 1 and 0 in one jump: the pre-jump sample is written before the
     // first logged record, once; the post-jump sample is written.
     assert!(f.hold(at, &[3.0, 4.0]));
@@ -191,6 +191,28 @@ fn jump_filter_hides_jumps_of_unlogged_rules() {
     assert!(!all.hold(at, &[1.0]));
     assert_eq!(all.jump(1), (true, false));
     assert_eq!(all.post_jump(), PostJump::Write);
+    // Routing: what a sink writes for the same jumps.
+    let mut f = JumpFilter::new(&[true, false]);
+    let mut log = Vec::new();
+    let route = |f: &mut JumpFilter, at: HybridTime, x: &[f64], kind| {
+        f.route_sample(at, x, kind, |at, x, kind| (at, x.to_vec(), kind))
+    };
+    let post = HybridTime::new(1.0, 1);
+    assert_eq!(route(&mut f, at, &[1.0], SampleKind::PreJump), None);
+    assert_eq!(
+        f.route_jump(1, |_, _| unreachable!("rule 1 is not logged")),
+        (false, None::<()>)
+    );
+    log.extend(route(&mut f, post, &[2.0], SampleKind::PostJump));
+    assert_eq!(log, [(at, vec![1.0], SampleKind::Flow)]);
+    assert_eq!(route(&mut f, at, &[3.0], SampleKind::PreJump), None);
+    let (record, flushed) = f.route_jump(0, |at, x| (at, x.to_vec()));
+    assert!(record);
+    assert_eq!(flushed, Some((at, vec![3.0])));
+    assert_eq!(
+        route(&mut f, post, &[4.0], SampleKind::PostJump),
+        Some((post, vec![4.0], SampleKind::PostJump))
+    );
 }
 
 /// Schemas use no `$ref`, no unions and no arrays of arrays (what Foxglove

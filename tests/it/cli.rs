@@ -539,9 +539,16 @@ fn dash_is_stdin_for_models_and_stdout_for_outputs() {
         "{}",
         &text[..text.len().min(80)]
     );
+    assert!(!text.contains("ended at"), "the summary is not in the CSV");
     let mcap = pipe(&["run", "-", "-o", "-", "-q"], &source);
     assert_eq!(code(&mcap), 0, "{}", stderr(&mcap));
-    assert!(mcap.stdout.starts_with(b"\x89MCAP0\r\n"));
+    // The file alone: the summary goes to stderr when stdout holds an output.
+    assert!(mcap.stdout.starts_with(b"\x89MCAP0\r\n") && mcap.stdout.ends_with(b"\x89MCAP0\r\n"));
+    assert!(
+        stderr(&mcap).contains("bouncing_ball: ended at"),
+        "{}",
+        stderr(&mcap)
+    );
     assert!(!dir.path().join("-").exists());
     let check = pipe(&["check", "-"], "model m\nstate x = y\n");
     assert_eq!(code(&check), 2);

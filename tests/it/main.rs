@@ -20,6 +20,8 @@ mod logging;
 mod models;
 mod mutants;
 mod outputs;
+mod parquet_run;
+mod plots;
 mod props;
 mod props_cli;
 mod props_model;

@@ -1,0 +1,294 @@
+//! `hybsim plot run.mcap`: HyEQ's plots from a logged file, by the same
+//! sink as `hybsim run --plot` (the same figure, byte for byte, when the
+//! file holds what the run's plot saw); the `hybrid` kind in 3-D; PNG by
+//! the file extension; unreadable files and unknown names exit 2.
+
+use std::path::{Path, PathBuf};
+
+use super::util::{code, hybsim, stderr};
+
+fn model(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("models")
+        .join(name)
+}
+
+/// The texts of an SVG's `<text>` elements.
+fn texts(svg: &str) -> Vec<String> {
+    svg.split("<text")
+        .skip(1)
+        .filter_map(|s| {
+            let body = &s[s.find('>')? + 1..];
+            Some(body[..body.find("</text>")?].trim().to_string())
+        })
+        .collect()
+}
+
+/// Runs `hybsim ARGS` in `dir` and asserts it succeeded.
+fn ok(dir: &Path, args: &[&str]) {
+    let out = hybsim(dir, args);
+    assert_eq!(code(&out), 0, "{args:?}: {}", stderr(&out));
+}
+
+/// Width and height of a PNG file, after decoding all of it.
+fn png_size(path: &Path) -> (u32, u32) {
+    let decoder = png::Decoder::new(std::io::BufReader::new(std::fs::File::open(path).unwrap()));
+    let mut reader = decoder.read_info().unwrap();
+    let mut buf = vec![0; reader.output_buffer_size().unwrap()];
+    let frame = reader.next_frame(&mut buf).unwrap();
+    // A drawing, not a blank canvas: more than one colour.
+    let first = &buf[..3];
+    assert!(
+        buf[..frame.buffer_size()].chunks(3).any(|p| p != first),
+        "{} is blank",
+        path.display()
+    );
+    (frame.width, frame.height)
+}
+
+#[test]
+fn plots_from_a_file_are_the_plots_of_the_run() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let ball = model("bouncing_ball.hyb");
+    let ball = ball.to_str().unwrap();
+    for (kind, vars) in [
+        ("flows", "h,v"),
+        ("jumps", "h"),
+        ("hybrid", "h,v"),
+        ("phase", "h,v"),
+        ("domain", "h"),
+    ] {
+        let live = format!("live-{kind}.svg");
+        let mcap = format!("{kind}.mcap");
+        ok(
+            d,
+            &[
+                "run",
+                ball,
+                "-q",
+                "-o",
+                &mcap,
+                "--plot",
+                &live,
+                "--plot-kind",
+                kind,
+                "--plot-vars",
+                vars,
+            ],
+        );
+        let file = format!("file-{kind}.svg");
+        ok(
+            d,
+            &["plot", &mcap, "--kind", kind, "--vars", vars, "-o", &file],
+        );
+        let (live, file) = (
+            std::fs::read_to_string(d.join(live)).unwrap(),
+            std::fs::read_to_string(d.join(file)).unwrap(),
+        );
+        assert!(
+            live == file,
+            "{kind}: the plot of the file differs from the run's"
+        );
+    }
+    // A paper model: a family member and an output, read back from the file.
+    let m = model("intermittent_estimation.hyb");
+    ok(
+        d,
+        &[
+            "run",
+            m.to_str().unwrap(),
+            "-q",
+            "--T",
+            "1",
+            "-o",
+            "ie.mcap",
+            "--plot",
+            "live.svg",
+            "--plot-vars",
+            "xhat[2],enorm",
+        ],
+    );
+    ok(
+        d,
+        &["plot", "ie.mcap", "--vars", "xhat[2],enorm", "-o", "ie.svg"],
+    );
+    let svg = std::fs::read_to_string(d.join("ie.svg")).unwrap();
+    let labels = texts(&svg);
+    for name in ["xhat[2][1]", "enorm", "t"] {
+        assert!(
+            labels.iter().any(|l| l == name),
+            "no `{name}` in {labels:?}"
+        );
+    }
+    assert!(!labels.iter().any(|l| l == "xhat[1][1]"), "one member only");
+    assert_eq!(svg, std::fs::read_to_string(d.join("live.svg")).unwrap());
+}
+
+/// HyEQ's `plotHybrid`: one 3-D panel per entry, axes t, j and the entry,
+/// flows solid, jumps dashed; from a run and from a file, ball and a paper
+/// model.
+#[test]
+fn the_hybrid_kind_draws_components_over_t_and_j() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let ball = model("bouncing_ball.hyb");
+    ok(
+        d,
+        &[
+            "run",
+            ball.to_str().unwrap(),
+            "-q",
+            "--no-mcap",
+            "--plot",
+            "h.svg",
+            "--plot-kind",
+            "hybrid",
+        ],
+    );
+    let svg = std::fs::read_to_string(d.join("h.svg")).unwrap();
+    let labels = texts(&svg);
+    for s in ["t", "j", "h", "v", "bouncing_ball: h", "bouncing_ball: v"] {
+        assert!(labels.iter().any(|l| l == s), "no text `{s}` in {labels:?}");
+    }
+    // 20 jumps of h and of v, each a dashed segment (several dashes).
+    assert!(svg.matches("<polyline").count() > 40, "jumps not drawn");
+    let m = model("consensus_estimation.hyb");
+    ok(
+        d,
+        &[
+            "run",
+            m.to_str().unwrap(),
+            "-q",
+            "--T",
+            "0.5",
+            "-o",
+            "c.mcap",
+        ],
+    );
+    ok(
+        d,
+        &[
+            "plot", "c.mcap", "--kind", "hybrid", "--vars", "err", "-o", "c.svg",
+        ],
+    );
+    let labels = texts(&std::fs::read_to_string(d.join("c.svg")).unwrap());
+    for s in ["t", "j", "err"] {
+        assert!(labels.iter().any(|l| l == s), "no text `{s}` in {labels:?}");
+    }
+}
+
+/// PNG by the extension, for `--plot` and `hybsim plot`: a decodable image
+/// of the figure's size (900 wide, 260 per panel; 460 per 3-D panel).
+#[test]
+fn png_plots_decode_with_the_figure_size() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let ball = model("bouncing_ball.hyb");
+    ok(
+        d,
+        &[
+            "run",
+            ball.to_str().unwrap(),
+            "-q",
+            "-o",
+            "b.mcap",
+            "--plot",
+            "b.png",
+            "--plot-vars",
+            "h,v",
+        ],
+    );
+    assert_eq!(png_size(&d.join("b.png")), (900, 2 * 260));
+    ok(
+        d,
+        &[
+            "plot", "b.mcap", "--kind", "hybrid", "--vars", "h", "-o", "B.PNG",
+        ],
+    );
+    assert_eq!(png_size(&d.join("B.PNG")), (900, 460));
+    // An extension that is no image format: exit 2 before anything runs.
+    let out = hybsim(
+        d,
+        &[
+            "run",
+            ball.to_str().unwrap(),
+            "-q",
+            "--no-mcap",
+            "--plot",
+            "b.pdf",
+        ],
+    );
+    assert_eq!(code(&out), 2, "{}", stderr(&out));
+    assert!(stderr(&out).contains("`.pdf`"), "{}", stderr(&out));
+    let out = hybsim(d, &["plot", "b.mcap", "-o", "b.jpg"]);
+    assert_eq!(code(&out), 2, "{}", stderr(&out));
+    assert!(!d.join("b.jpg").exists() && !d.join("b.pdf").exists());
+}
+
+/// Truncated, empty, foreign and non-MCAP files, unknown names and kinds
+/// that cannot draw the selection: a clear error and exit 2, no image.
+#[test]
+fn unreadable_files_and_unknown_names_exit_2() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let ball = model("bouncing_ball.hyb");
+    ok(d, &["run", ball.to_str().unwrap(), "-q", "-o", "b.mcap"]);
+    let bytes = std::fs::read(d.join("b.mcap")).unwrap();
+    std::fs::write(d.join("cut.mcap"), &bytes[..bytes.len() / 2]).unwrap();
+    std::fs::write(d.join("empty.mcap"), b"").unwrap();
+    std::fs::write(d.join("text.mcap"), b"t,j\n0,0\n").unwrap();
+    // An MCAP file that is not a hybsim run.
+    {
+        let file = std::io::BufWriter::new(std::fs::File::create(d.join("foreign.mcap")).unwrap());
+        let mut w = mcap::Writer::new(file).unwrap();
+        w.finish().unwrap();
+    }
+    for (file, says) in [
+        ("cut.mcap", "cut short"),
+        ("empty.mcap", "not an MCAP file"),
+        ("text.mcap", "not an MCAP file"),
+        ("foreign.mcap", "not a hybsim run"),
+        ("missing.mcap", "cannot read"),
+    ] {
+        let out = hybsim(d, &["plot", file, "-o", "x.svg"]);
+        assert_eq!(code(&out), 2, "{file}: {}", stderr(&out));
+        assert!(stderr(&out).contains(says), "{file}: {}", stderr(&out));
+        assert!(!stderr(&out).contains("panicked"), "{}", stderr(&out));
+    }
+    let out = hybsim(d, &["plot", "b.mcap", "--vars", "h,nope", "-o", "x.svg"]);
+    assert_eq!(code(&out), 2, "{}", stderr(&out));
+    assert!(stderr(&out).contains("`--vars nope`"), "{}", stderr(&out));
+    let out = hybsim(
+        d,
+        &[
+            "plot", "b.mcap", "--kind", "phase", "--vars", "h", "-o", "x.svg",
+        ],
+    );
+    assert_eq!(code(&out), 2, "{}", stderr(&out));
+    assert!(stderr(&out).contains("two components"), "{}", stderr(&out));
+    // The input itself is never the output.
+    let out = hybsim(d, &["plot", "b.mcap", "-o", "b.mcap"]);
+    assert_eq!(code(&out), 2, "{}", stderr(&out));
+    assert!(!d.join("x.svg").exists());
+    assert_eq!(std::fs::read(d.join("b.mcap")).unwrap(), bytes);
+    // A state left out of the log is not in the file: named as unknown.
+    ok(
+        d,
+        &[
+            "run",
+            ball.to_str().unwrap(),
+            "-q",
+            "-o",
+            "h.mcap",
+            "--log-vars",
+            "h",
+        ],
+    );
+    let out = hybsim(d, &["plot", "h.mcap", "--vars", "v"]);
+    assert_eq!(code(&out), 2, "{}", stderr(&out));
+    assert!(stderr(&out).contains("known: h;"), "{}", stderr(&out));
+    // The default image is the file's name with .svg.
+    ok(d, &["plot", "h.mcap"]);
+    assert!(d.join("h.svg").exists());
+}
