@@ -585,8 +585,10 @@ fn draw_panel_3d<DB: DrawingBackend>(
         .margin(10)
         .build_cartesian_3d(t.0..t.1, v.0..v.1, j.0..j.1)
         .map_err(|e| err(&e))?;
+    // Seen from the front left: t runs to the right along the front edge,
+    // j into the depth along the left edge, the value up the right edge.
     chart.with_projection(|mut p| {
-        p.yaw = 0.6;
+        p.yaw = -0.6;
         p.pitch = 0.25;
         p.scale = 0.8;
         p.into_matrix()
@@ -598,18 +600,18 @@ fn draw_panel_3d<DB: DrawingBackend>(
         .draw()
         .map_err(|e| err(&e))?;
     let font = ("sans-serif", 14).into_font();
+    let mid = |r: (f64, f64)| (r.0 + r.1) / 2.0;
+    // Axis names beside the middle of the edges that carry the tick labels.
     let names = [
-        (panel.x_label.as_str(), (t.1, v.0, j.0)),
-        (panel.y_label.as_str(), (t.0, v.0, j.1)),
-        (panel.z_label_or_value(), (t.0, v.1, j.0)),
+        (panel.x_label.as_str(), (mid(t), v.0, j.1), (0, 28)),
+        (panel.y_label.as_str(), (t.0, v.0, mid(j)), (-40, 12)),
+        (panel.z_label_or_value(), (t.1, v.1, j.1), (8, -26)),
     ];
-    for (name, at) in names {
+    for (name, at, offset) in names {
         chart
-            .draw_series(std::iter::once(Text::new(
-                name.to_string(),
-                at,
-                font.clone(),
-            )))
+            .draw_series(std::iter::once(
+                EmptyElement::at(at) + Text::new(name.to_string(), offset, font.clone()),
+            ))
             .map_err(|e| err(&e))?;
     }
     for (k, s) in shown.iter().enumerate() {

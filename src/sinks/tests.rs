@@ -175,7 +175,11 @@ fn jump_filter_hides_jumps_of_unlogged_rules() {
     assert!(f.hold(at, &[1.0, 2.0]));
     assert_eq!(f.jump(1), (false, false));
     assert_eq!(f.post_jump(), PostJump::HeldAsFlow(at));
-    assert_eq!(f.held(), None, "the held sample is given to the post-jump sample");
+    assert_eq!(
+        f.held(),
+        None,
+        "the held sample is given to the post-jump sample"
+    );
     // Rules 1 and 0 in one jump: the pre-jump sample is written before the
     // first logged record, once; the post-jump sample is written.
     assert!(f.hold(at, &[3.0, 4.0]));
