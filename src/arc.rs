@@ -80,6 +80,24 @@ pub trait ArcSink {
     /// Called once when the run ends, with where and why (after the `Final`
     /// sample). Default: nothing. Sinks that write files may record it.
     fn finish(&mut self, _termination: &Termination) {}
+
+    /// The integrator changed (`Solver::Auto` switching between its
+    /// explicit and implicit method): flows from `switch.at` on are
+    /// advanced by `switch.to`. Default: nothing. Sinks that write files
+    /// or summaries record it.
+    fn solver_switch(&mut self, _switch: &SolverSwitch) {}
+}
+
+/// A change of the integrator during a run (`Solver::Auto`): from hybrid
+/// time `at` on, flows are advanced by the method named `to` (`"radau5"`
+/// when the explicit method found the flow stiff, `"dopri5"` when it no
+/// longer is).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct SolverSwitch {
+    /// Where the new method takes over.
+    pub at: HybridTime,
+    /// Its name, as `solver = …` spells it.
+    pub to: &'static str,
 }
 
 /// Why a solution ended. Reaching a horizon, suspecting Zeno behaviour and
@@ -249,6 +267,7 @@ pub struct HybridArc {
     jumps: Vec<JumpRecord>,
     rule_names: Vec<String>,
     termination: Option<Termination>,
+    switches: Vec<SolverSwitch>,
 }
 
 impl HybridArc {
@@ -323,6 +342,11 @@ impl HybridArc {
             .filter(|r| r.rule == rule)
             .map(|r| r.at.t)
             .collect()
+    }
+
+    /// The integrator changes of the run (`Solver::Auto`), in order.
+    pub fn solver_switches(&self) -> &[SolverSwitch] {
+        &self.switches
     }
 
     /// Where and why the solution ended (set by `engine::simulate_arc`).
@@ -426,5 +450,9 @@ impl ArcSink for HybridArc {
 
     fn finish(&mut self, termination: &Termination) {
         self.termination = Some(termination.clone());
+    }
+
+    fn solver_switch(&mut self, switch: &SolverSwitch) {
+        self.switches.push(*switch);
     }
 }

@@ -9,7 +9,7 @@ use std::ops::ControlFlow;
 
 use hybsim::arc::{ArcSink, HybridTime, SampleKind};
 use hybsim::engine::models::{BouncingBall, RandomTimers, SampleAndHold};
-use hybsim::engine::{ExactAffine, HybridSystem, SimRng, SimSettings, simulate};
+use hybsim::engine::{ExactAffine, HybridSystem, SimRng, SimSettings, Solver, simulate};
 use nalgebra::DMatrix;
 
 struct Counting;
@@ -124,6 +124,25 @@ fn hot_path_allocates_nothing_per_step_segment_or_jump() {
         .exact_affine(ExactAffine::Off)
         .dt_out(Some(0.03));
     check("sample-and-hold, dopri5, dt_out", &sh, &x0, &s, 5.0);
+    // The implicit solvers and auto (on a stiff plant, where auto turns
+    // to Radau5), with the system's own Jacobian.
+    let a = DMatrix::from_row_slice(2, 2, &[-1000.0, 1.0, 0.0, -1.0]);
+    let b = DMatrix::from_row_slice(2, 1, &[0.0, 1.0]);
+    let k = DMatrix::from_row_slice(1, 2, &[0.5, 2.0]);
+    let stiff = SampleAndHold::new(a, b, k, 0.1);
+    let x0 = stiff.initial_state(&[1.0, -1.0]);
+    for solver in ["radau5", "bdf", "auto"] {
+        let s = SimSettings::default()
+            .exact_affine(ExactAffine::Off)
+            .solver(Solver::adaptive(solver, 1e-6, 1e-9).expect("a solver"));
+        check(
+            &format!("stiff sample-and-hold, {solver}"),
+            &stiff,
+            &x0,
+            &s,
+            3.0,
+        );
+    }
     // Timers with random resets.
     let timers = RandomTimers::new(3, 0.1, 0.7);
     check(

@@ -275,7 +275,8 @@ class Model:
         and initial values are drawn from it exactly as ``hybsim run --seed``
         does). Further keywords override the ``sim`` block as ``hybsim run``'s
         flags do: ``dt_out``, ``solver`` (``"dopri5"``, ``"dop853"``,
-        ``"rk4"``, ``"euler_maruyama"``), ``rtol``, ``atol``, ``step``,
+        ``"radau5"``, ``"bdf"``, ``"auto"``, ``"rk4"``, ``"euler_maruyama"``),
+        ``rtol``, ``atol``, ``step``,
         ``max_step``, ``priority`` (``"jumps"``, ``"flows"``, ``"random"``),
         ``event_tol``, ``guard_checks``, ``zeno_max_rate``, ``zeno_window``,
         ``max_total_jumps``, ``exact_affine``.

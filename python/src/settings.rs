@@ -114,21 +114,13 @@ fn solver(
     step: Option<f64>,
 ) -> PyResult<Solver> {
     let (rtol0, atol0, h0) = match current {
-        Solver::Dopri5 { rtol, atol }
-        | Solver::Dop853 { rtol, atol }
-        | Solver::Radau5 { rtol, atol } => (rtol, atol, None),
         Solver::Rk4 { h } | Solver::EulerMaruyama { h } => (1e-6, 1e-9, Some(h)),
-    };
-    let name = name.unwrap_or_else(|| {
-        match current {
-            Solver::Dopri5 { .. } => "dopri5",
-            Solver::Dop853 { .. } => "dop853",
-            Solver::Radau5 { .. } => "radau5",
-            Solver::Rk4 { .. } => "rk4",
-            Solver::EulerMaruyama { .. } => "euler_maruyama",
+        adaptive => {
+            let (rtol, atol) = adaptive.tolerances().expect("an adaptive solver");
+            (rtol, atol, None)
         }
-        .to_string()
-    });
+    };
+    let name = name.unwrap_or_else(|| current.name().to_string());
     let adaptive = |make: fn(f64, f64) -> Solver| {
         if step.is_some() {
             return Err(PyValueError::new_err(
@@ -140,7 +132,7 @@ fn solver(
     let fixed = |make: fn(f64) -> Solver| {
         if rtol.is_some() || atol.is_some() {
             return Err(PyValueError::new_err(
-                "`rtol`/`atol` apply to the adaptive solvers \"dopri5\", \"dop853\" and \"radau5\"",
+                "`rtol`/`atol` apply to the adaptive solvers \"dopri5\", \"dop853\", \"radau5\", \"bdf\" and \"auto\"",
             ));
         }
         step.or(h0)
@@ -151,10 +143,12 @@ fn solver(
         "dopri5" => adaptive(|rtol, atol| Solver::Dopri5 { rtol, atol }),
         "dop853" => adaptive(|rtol, atol| Solver::Dop853 { rtol, atol }),
         "radau5" => adaptive(|rtol, atol| Solver::Radau5 { rtol, atol }),
+        "bdf" => adaptive(|rtol, atol| Solver::Bdf { rtol, atol }),
+        "auto" => adaptive(|rtol, atol| Solver::Auto { rtol, atol }),
         "rk4" => fixed(|h| Solver::Rk4 { h }),
         "euler_maruyama" => fixed(|h| Solver::EulerMaruyama { h }),
         other => Err(PyValueError::new_err(format!(
-            "solver `{other}`: use \"dopri5\", \"dop853\", \"radau5\", \"rk4\" or \"euler_maruyama\""
+            "solver `{other}`: use \"dopri5\", \"dop853\", \"radau5\", \"bdf\", \"auto\", \"rk4\" or \"euler_maruyama\""
         ))),
     }
 }

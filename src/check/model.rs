@@ -169,6 +169,9 @@ pub(crate) const OUTPUT_CTX: Ctx = Ctx {
 };
 
 /// Known `sim` keys.
+/// The `solver` names, for the errors that list them.
+const SOLVER_NAMES: &str = "dopri5, dop853, radau5, bdf, auto, rk4, euler_maruyama";
+
 const SIM_KEYS: &[&str] = &[
     "T",
     "J",
@@ -1717,10 +1720,7 @@ impl ModelChecker<'_> {
                         }
                         match word(self) {
                             Some(w) => solver_name = Some((w, e.span)),
-                            None => bad(
-                                self,
-                                "write one of dopri5, dop853, radau5, rk4, euler_maruyama".into(),
-                            ),
+                            None => bad(self, format!("write one of {}", SOLVER_NAMES)),
                         }
                     }
                     "priority" => {
@@ -1818,6 +1818,8 @@ impl ModelChecker<'_> {
             "dopri5" => Solver::Dopri5 { rtol, atol },
             "dop853" => Solver::Dop853 { rtol, atol },
             "radau5" => Solver::Radau5 { rtol, atol },
+            "bdf" => Solver::Bdf { rtol, atol },
+            "auto" => Solver::Auto { rtol, atol },
             "rk4" => Solver::Rk4 {
                 h: h.unwrap_or(1e-3),
             },
@@ -1827,7 +1829,7 @@ impl ModelChecker<'_> {
             other => {
                 self.c.err(CheckError::BadSetting {
                     key: "solver".into(),
-                    reason: format!("`{other}` is not a solver; write one of dopri5, dop853, radau5, rk4, euler_maruyama"),
+                    reason: format!("`{other}` is not a solver; write one of {SOLVER_NAMES}"),
                     span,
                 });
                 s.solver

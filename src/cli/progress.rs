@@ -5,7 +5,7 @@ use std::ops::ControlFlow;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 
-use hybsim::arc::{ArcSink, HybridTime, SampleKind};
+use hybsim::arc::{ArcSink, HybridTime, SampleKind, SolverSwitch};
 use hybsim::sinks::Tally;
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 
@@ -121,5 +121,9 @@ impl ArcSink for Progress {
     ) -> ControlFlow<()> {
         self.tally.jump(rule);
         ControlFlow::Continue(())
+    }
+
+    fn solver_switch(&mut self, switch: &SolverSwitch) {
+        self.tally.solver_switch(switch);
     }
 }

@@ -148,6 +148,10 @@ pub enum SolverKind {
     Dop853,
     /// Radau IIA order 5, implicit, adaptive: for stiff flows.
     Radau5,
+    /// Variable-order BDF (1–5), implicit, adaptive: for stiff flows.
+    Bdf,
+    /// Dopri5, switching to Radau5 while the flow is stiff.
+    Auto,
     /// Runge–Kutta 4, fixed step (`--step`).
     Rk4,
     /// Euler–Maruyama, fixed step (`--step`), for noise-driven flows.
@@ -182,17 +186,24 @@ fn solver_from_flags(current: Solver, args: &RunArgs) -> Result<Solver, String> 
         Solver::Dopri5 { .. } => SolverKind::Dopri5,
         Solver::Dop853 { .. } => SolverKind::Dop853,
         Solver::Radau5 { .. } => SolverKind::Radau5,
+        Solver::Bdf { .. } => SolverKind::Bdf,
+        Solver::Auto { .. } => SolverKind::Auto,
         Solver::Rk4 { .. } => SolverKind::Rk4,
         Solver::EulerMaruyama { .. } => SolverKind::EulerMaruyama,
     });
     let (rtol0, atol0, h0) = match current {
-        Solver::Dopri5 { rtol, atol }
-        | Solver::Dop853 { rtol, atol }
-        | Solver::Radau5 { rtol, atol } => (rtol, atol, None),
         Solver::Rk4 { h } | Solver::EulerMaruyama { h } => (1e-6, 1e-9, Some(h)),
+        adaptive => {
+            let (rtol, atol) = adaptive.tolerances().expect("an adaptive solver");
+            (rtol, atol, None)
+        }
     };
     match kind {
-        SolverKind::Dopri5 | SolverKind::Dop853 | SolverKind::Radau5 => {
+        SolverKind::Dopri5
+        | SolverKind::Dop853
+        | SolverKind::Radau5
+        | SolverKind::Bdf
+        | SolverKind::Auto => {
             if args.step.is_some() {
                 return Err(
                     "`--step` applies to the fixed-step solvers; use `--solver rk4` or `--max-step`"
@@ -203,13 +214,15 @@ fn solver_from_flags(current: Solver, args: &RunArgs) -> Result<Solver, String> 
             Ok(match kind {
                 SolverKind::Dopri5 => Solver::Dopri5 { rtol, atol },
                 SolverKind::Dop853 => Solver::Dop853 { rtol, atol },
-                _ => Solver::Radau5 { rtol, atol },
+                SolverKind::Radau5 => Solver::Radau5 { rtol, atol },
+                SolverKind::Bdf => Solver::Bdf { rtol, atol },
+                _ => Solver::Auto { rtol, atol },
             })
         }
         SolverKind::Rk4 | SolverKind::EulerMaruyama => {
             if args.rtol.is_some() || args.atol.is_some() {
                 return Err(
-                    "`--rtol`/`--atol` apply to the adaptive solvers dopri5, dop853 and radau5"
+                    "`--rtol`/`--atol` apply to the adaptive solvers dopri5, dop853, radau5, bdf and auto"
                         .into(),
                 );
             }
@@ -337,6 +350,9 @@ pub struct Report {
     pub interrupted: bool,
     /// The model's metrics (name, value), in declaration order.
     pub metrics: Vec<(String, f64)>,
+    /// The solver of the run (its switches, under `solver = auto`, are in
+    /// the tally).
+    pub solver: Solver,
 }
 
 /// The outcome of a run for the logs.
@@ -361,12 +377,13 @@ pub fn settings_json(s: &SimSettings) -> Value {
             json!(x.to_string())
         }
     };
+    let method = s.solver.name();
     let solver = match s.solver {
-        Solver::Dopri5 { rtol, atol } => json!({"method": "dopri5", "rtol": rtol, "atol": atol}),
-        Solver::Dop853 { rtol, atol } => json!({"method": "dop853", "rtol": rtol, "atol": atol}),
-        Solver::Radau5 { rtol, atol } => json!({"method": "radau5", "rtol": rtol, "atol": atol}),
-        Solver::Rk4 { h } => json!({"method": "rk4", "h": h}),
-        Solver::EulerMaruyama { h } => json!({"method": "euler_maruyama", "h": h}),
+        Solver::Rk4 { h } | Solver::EulerMaruyama { h } => json!({"method": method, "h": h}),
+        adaptive => {
+            let (rtol, atol) = adaptive.tolerances().expect("an adaptive solver");
+            json!({"method": method, "rtol": rtol, "atol": atol})
+        }
     };
     let priority = match s.priority {
         Priority::Jumps => "jumps",
@@ -568,6 +585,7 @@ pub fn simulate_to_files<S: HybridSystem + ?Sized>(
         wall,
         interrupted,
         metrics: metric_values,
+        solver: settings.solver,
     };
     Ok((report, error))
 }
@@ -605,15 +623,45 @@ pub fn summary_line(model: &str, report: &Report, rule_names: &[String], note: &
         jumps.join(", ")
     };
     let mut line = format!(
-        "{model}: ended at {end}; jumps: {jumps}; {}; {} samples; wall {:.3} s{note}",
+        "{model}: ended at {end}; jumps: {jumps}; {}; {} samples{}; wall {:.3} s{note}",
         report.outcome.message,
         report.tally.samples,
+        switches_note(report),
         report.wall.as_secs_f64()
     );
     for (name, value) in &report.metrics {
         line.push_str(&format!("\n  metric {name} = {}", hybsim::num::Num(*value)));
     }
     line
+}
+
+/// `; solver auto: …` for the summary line: the method throughout, or the
+/// number of switches and the first three (method and where it took over).
+fn switches_note(report: &Report) -> String {
+    if !matches!(report.solver, Solver::Auto { .. }) {
+        return String::new();
+    }
+    let tally = &report.tally;
+    if tally.solver_switches_total == 0 {
+        return "; solver auto: dopri5 throughout".into();
+    }
+    let shown: Vec<String> = tally
+        .solver_switches
+        .iter()
+        .take(3)
+        .map(|s| format!("{} at {}", s.to, s.at))
+        .collect();
+    let more = if tally.solver_switches_total > 3 {
+        ", …"
+    } else {
+        ""
+    };
+    let n = tally.solver_switches_total;
+    format!(
+        "; solver auto: {n} switch{} ({}{more})",
+        if n == 1 { "" } else { "es" },
+        shown.join(", ")
+    )
 }
 
 /// `; compile T s (jit T s)`: the time from source to runnable model
@@ -910,6 +958,9 @@ pub fn summary_json(
         "wall_s": report.wall.as_secs_f64(),
         "compile_s": compile_time.as_secs_f64(),
         "metrics": metrics,
+        "solver": report.solver.name(),
+        "solver_switches": report.tally.solver_switches,
+        "solver_switches_total": report.tally.solver_switches_total,
     })
 }
 

@@ -81,7 +81,8 @@ pub(crate) struct Dopri5 {
     /// the first step.
     h_next: f64,
     facold: f64,
-    /// Stiffness test state.
+    /// Stiffness test: every how many accepted steps it runs, and its state.
+    stiff_every: u32,
     accepted: u32,
     stiff_hits: u32,
     nonstiff_hits: u32,
@@ -107,6 +108,7 @@ impl Dopri5 {
             atol,
             h_next: 0.0,
             facold: 1e-4,
+            stiff_every: STIFF_EVERY,
             accepted: 0,
             stiff_hits: 0,
             nonstiff_hits: 0,
@@ -118,6 +120,20 @@ impl Dopri5 {
             h_old: 0.0,
             fevals: 0,
         }
+    }
+
+    /// The same stepper with the stiffness test run every `every` accepted
+    /// steps (≥ 1; default 1000, Hairer's): `Solver::Auto` tests every
+    /// step, to hand a stiff flow to the implicit method early.
+    pub fn stiffness_test_every(mut self, every: u32) -> Self {
+        self.stiff_every = every.max(1);
+        self
+    }
+
+    /// Sets the proposal for the next step (a method taking over from
+    /// another starts from that one's step).
+    pub fn set_proposal(&mut self, h: f64) {
+        self.h_next = h;
     }
 
     /// Starts a segment at local time 0 from `y` with `f0 = f(0, y)`; the
@@ -276,7 +292,7 @@ impl Dopri5 {
     /// from the last two stages, every [`STIFF_EVERY`] steps.
     fn stiffness(&mut self, h: f64, n: usize) -> Result<(), Failure> {
         self.accepted += 1;
-        if !self.accepted.is_multiple_of(STIFF_EVERY) && self.stiff_hits == 0 {
+        if !self.accepted.is_multiple_of(self.stiff_every) && self.stiff_hits == 0 {
             return Ok(());
         }
         let (mut num, mut den) = (0.0, 0.0);
@@ -288,6 +304,9 @@ impl Dopri5 {
             self.nonstiff_hits = 0;
             self.stiff_hits += 1;
             if self.stiff_hits == STIFF_COUNT {
+                // A stepper that goes on (under `Solver::Auto`) tests afresh.
+                self.stiff_hits = 0;
+                self.nonstiff_hits = 0;
                 return Err(Failure::Stiff);
             }
         } else {

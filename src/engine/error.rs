@@ -123,8 +123,9 @@ impl SimError {
                  argument it names against the data it reads"
             }
             SimError::Stiff { .. } => {
-                "the flow is stiff: use the implicit solver (`solver = radau5`, `--solver radau5`, \
-                 `Solver::Radau5`)"
+                "the flow is stiff: use an implicit solver (`solver = radau5` or `bdf`, \
+                 `--solver radau5`, `Solver::Radau5`), or `solver = auto` to switch to Radau5 \
+                 where the flow is stiff"
             }
         }
     }

@@ -17,6 +17,7 @@ use nalgebra::{DMatrix, DVector, DVectorView, DVectorViewMut};
 use ode_solvers::{Dop853, Dopri5, OutputType, Rk4, System, dop_shared::IntegrationError};
 
 use super::HybridSystem;
+use super::bdf::{Bdf, BdfPath};
 use super::dopri5::{Dopri5 as OwnDopri5, DopriPath, Failure};
 use super::error::SimError;
 use super::events::{EventKind, Hermite, Linear, StepPath, Watcher};
@@ -24,7 +25,7 @@ use super::radau5::{Radau5, RadauPath};
 use super::settings::{SimSettings, Solver};
 use super::stepper::OwnStepper;
 use super::system::SimRng;
-use crate::arc::{ArcSink, HybridTime, SampleKind};
+use crate::arc::{ArcSink, HybridTime, SampleKind, SolverSwitch};
 
 /// Steps per ode_solvers stepper before it is restarted from its last state
 /// (bounds the memory of its sparse output and of `Rk4`'s preallocation).
@@ -82,6 +83,7 @@ pub(crate) trait DensePath: StepPath {
 impl DensePath for Hermite<'_> {}
 impl DensePath for DopriPath<'_> {}
 impl DensePath for RadauPath<'_> {}
+impl DensePath for BdfPath<'_> {}
 impl DensePath for Linear<'_> {}
 
 /// Output of flow samples to the sink: a fixed grid (`dt_out`), or dense
@@ -532,7 +534,26 @@ pub(crate) struct Flows {
     /// The Radau IIA stepper, if the solver is Radau5 (kept across
     /// segments: buffers, step proposal, Jacobian and factorizations).
     radau: Option<Radau5>,
+    /// The BDF stepper, if the solver is Bdf (kept across segments:
+    /// buffers, step proposal, Jacobian and factorization).
+    bdf: Option<Bdf>,
+    /// `Solver::Auto`: whether Radau5 (rather than Dopri5) advances the
+    /// flow now (kept across segments and jumps).
+    auto_implicit: Option<bool>,
 }
+
+/// How a run of steps on one of the engine's own steppers ended.
+enum Stepped {
+    End(SegmentEnd),
+    /// `Solver::Auto`: the stepper's method no longer suits the flow from
+    /// local time `s` on (the state there is in `y_prev`).
+    Switch(f64),
+}
+
+/// `Solver::Auto` tests whether the flow is still stiff after every step
+/// on which the implicit method evaluated its Jacobian anyway, and at the
+/// latest after this many steps (then with a Jacobian of its own).
+const NONSTIFF_EVERY: u32 = 25;
 
 /// End of a flow segment: local time reached and why; the state is written
 /// back into the caller's vector.
@@ -561,12 +582,7 @@ pub(crate) fn check_finite<S: HybridSystem + ?Sized>(
 
 /// (rtol, atol) of an adaptive solver; (0, 1) (plain |ẋᵢ|) for the others.
 fn tolerances(solver: Solver) -> (f64, f64) {
-    match solver {
-        Solver::Dopri5 { rtol, atol }
-        | Solver::Dop853 { rtol, atol }
-        | Solver::Radau5 { rtol, atol } => (rtol, atol),
-        _ => (0.0, 1.0),
-    }
+    solver.tolerances().unwrap_or((0.0, 1.0))
 }
 
 /// The component of the flow at (`t`, `x`) that changes fastest relative
@@ -624,12 +640,22 @@ impl Flows {
             fevals: 0,
             dopri: match settings.solver {
                 Solver::Dopri5 { rtol, atol } => Some(OwnDopri5::new(n, rtol, atol)),
+                Solver::Auto { rtol, atol } => {
+                    Some(OwnDopri5::new(n, rtol, atol).stiffness_test_every(1))
+                }
                 _ => None,
             },
             radau: match settings.solver {
-                Solver::Radau5 { rtol, atol } => Some(Radau5::new(n, rtol, atol)),
+                Solver::Radau5 { rtol, atol } | Solver::Auto { rtol, atol } => {
+                    Some(Radau5::new(n, rtol, atol))
+                }
                 _ => None,
             },
+            bdf: match settings.solver {
+                Solver::Bdf { rtol, atol } => Some(Bdf::new(n, rtol, atol)),
+                _ => None,
+            },
+            auto_implicit: matches!(settings.solver, Solver::Auto { .. }).then_some(false),
         }
     }
 
@@ -709,8 +735,9 @@ impl Flows {
         Ok(end)
     }
 
-    /// A segment on the solver: the engine's Dopri5 or Radau5, or
-    /// ode_solvers' others.
+    /// A segment on the solver: the engine's Dopri5, Radau5 or Bdf (or
+    /// Dopri5 and Radau5 in turn for `Solver::Auto`), or ode_solvers'
+    /// others.
     fn solver_segment<S: HybridSystem + ?Sized>(
         &mut self,
         sys: &S,
@@ -720,22 +747,86 @@ impl Flows {
         j: u64,
         d_end: f64,
     ) -> Result<SegmentEnd, SimError> {
-        if let Some(mut st) = self.dopri.take() {
-            let result = self.own_segment(sys, out, &mut st, solver, t0, j, d_end);
+        if self.auto_implicit.is_some() {
+            return self.auto_segment(sys, out, solver, t0, j, d_end);
+        }
+        let stepped = if let Some(mut st) = self.dopri.take() {
+            let result = self.own_segment(sys, out, &mut st, solver, (t0, j), 0.0, d_end);
             self.dopri = Some(st);
             result
         } else if let Some(mut st) = self.radau.take() {
-            let result = self.own_segment(sys, out, &mut st, solver, t0, j, d_end);
+            let result = self.own_segment(sys, out, &mut st, solver, (t0, j), 0.0, d_end);
             self.radau = Some(st);
             result
+        } else if let Some(mut st) = self.bdf.take() {
+            let result = self.own_segment(sys, out, &mut st, solver, (t0, j), 0.0, d_end);
+            self.bdf = Some(st);
+            result
         } else {
-            self.ode_segment(sys, out, solver, t0, j, d_end)
+            return self.ode_segment(sys, out, solver, t0, j, d_end);
+        };
+        match stepped? {
+            Stepped::End(end) => Ok(end),
+            Stepped::Switch(_) => unreachable!("only Solver::Auto switches methods"),
         }
     }
 
-    /// A segment on one of the engine's own steppers: f at the start from
-    /// [`start`](Self::start), the carried step proposal, events and
-    /// output on each step's dense output; no allocation.
+    /// A segment under `Solver::Auto`: the active method (kept from the
+    /// previous segment) until it hands over, then the other one from the
+    /// same point, starting from the step the first one had reached; each
+    /// switch is reported to the sink.
+    fn auto_segment<S: HybridSystem + ?Sized>(
+        &mut self,
+        sys: &S,
+        out: &mut Output<'_>,
+        solver: Solver,
+        t0: f64,
+        j: u64,
+        d_end: f64,
+    ) -> Result<SegmentEnd, SimError> {
+        let (Some(mut explicit), Some(mut implicit)) = (self.dopri.take(), self.radau.take())
+        else {
+            unreachable!("Solver::Auto has both steppers")
+        };
+        let mut s0 = 0.0;
+        let result = loop {
+            let on_implicit = self.auto_implicit == Some(true);
+            let (stepped, h) = if on_implicit {
+                let r = self.own_segment(sys, out, &mut implicit, solver, (t0, j), s0, d_end);
+                (r, implicit.proposal())
+            } else {
+                let r = self.own_segment(sys, out, &mut explicit, solver, (t0, j), s0, d_end);
+                (r, explicit.proposal())
+            };
+            match stepped {
+                Ok(Stepped::Switch(s)) => {
+                    s0 = s;
+                    self.auto_implicit = Some(!on_implicit);
+                    let to = if on_implicit {
+                        explicit.set_proposal(h);
+                        "dopri5"
+                    } else {
+                        implicit.set_proposal(h);
+                        "radau5"
+                    };
+                    sys.flow_map(HybridTime::new(t0 + s, j), &self.y_prev, &mut self.f_prev);
+                    out.sink.solver_switch(&SolverSwitch {
+                        at: HybridTime::new(t0 + s, j),
+                        to,
+                    });
+                }
+                Ok(Stepped::End(end)) => break Ok(end),
+                Err(e) => break Err(e),
+            }
+        };
+        self.dopri = Some(explicit);
+        self.radau = Some(implicit);
+        result
+    }
+
+    /// Steps on one of the engine's own steppers from local time `s0`
+    /// (the state in `y_prev`, f there in `f_prev`) to the segment's end,
+    /// counting the evaluations of f.
     #[allow(clippy::too_many_arguments)]
     fn own_segment<S: HybridSystem + ?Sized, St: OwnStepper>(
         &mut self,
@@ -743,16 +834,22 @@ impl Flows {
         out: &mut Output<'_>,
         st: &mut St,
         solver: Solver,
-        t0: f64,
-        j: u64,
+        (t0, j): (f64, u64),
+        s0: f64,
         d_end: f64,
-    ) -> Result<SegmentEnd, SimError> {
+    ) -> Result<Stepped, SimError> {
         let fevals0 = st.fevals();
-        let result = self.own_steps(sys, out, st, solver, t0, j, d_end);
+        let result = self.own_steps(sys, out, st, solver, (t0, j), s0, d_end);
         self.fevals += st.fevals() - fevals0 + 1;
         result
     }
 
+    /// The steps of [`own_segment`](Self::own_segment): f at the start
+    /// from the caller, the carried step proposal, events and output on
+    /// each step's dense output; no allocation. Under `Solver::Auto` a
+    /// stiffness failure of the explicit method, or the implicit method's
+    /// test that the flow is no longer stiff, ends the run of steps with
+    /// [`Stepped::Switch`].
     #[allow(clippy::too_many_arguments)]
     fn own_steps<S: HybridSystem + ?Sized, St: OwnStepper>(
         &mut self,
@@ -760,16 +857,22 @@ impl Flows {
         out: &mut Output<'_>,
         st: &mut St,
         solver: Solver,
-        t0: f64,
-        j: u64,
+        (t0, j): (f64, u64),
+        s0: f64,
         d_end: f64,
-    ) -> Result<SegmentEnd, SimError> {
+    ) -> Result<Stepped, SimError> {
+        let auto = self.auto_implicit.is_some();
         let mut f =
             |s: f64, y: &[f64], dy: &mut [f64]| sys.flow_map(HybridTime::new(t0 + s, j), y, dy);
         let mut jac =
             |s: f64, y: &[f64], jm: &mut [f64]| sys.jacobian(HybridTime::new(t0 + s, j), y, jm);
-        st.start(&self.y_prev, &self.f_prev, &mut f);
-        let mut s = 0.0;
+        // The stepper starts in its own local time 0.
+        let mut f_start = |s: f64, y: &[f64], dy: &mut [f64]| {
+            sys.flow_map(HybridTime::new(t0 + s0 + s, j), y, dy);
+        };
+        st.start(&self.y_prev, &self.f_prev, &mut f_start);
+        let mut s = s0;
+        let mut since_test = 0;
         loop {
             let remaining = d_end - s;
             let h = match st.step(
@@ -780,6 +883,7 @@ impl Flows {
                 &mut jac,
             ) {
                 Ok(h) => h,
+                Err(Failure::Stiff) if auto => return Ok(Stepped::Switch(s)),
                 Err(failure) => {
                     let (component, name) = fastest_component(
                         sys,
@@ -820,11 +924,22 @@ impl Flows {
                 st.y_new(),
                 last.then_some(EndWhy::Reached),
             ) {
-                return Ok(end);
+                return Ok(Stepped::End(end));
             }
+            drop(path);
             self.last_h = h;
             self.y_prev.copy_from_slice(st.y_new());
             s = s1;
+            if auto {
+                since_test += 1;
+                let fresh_only = since_test < NONSTIFF_EVERY;
+                if let Some(nonstiff) = st.nonstiff(&mut jac, fresh_only) {
+                    since_test = 0;
+                    if nonstiff {
+                        return Ok(Stepped::Switch(s));
+                    }
+                }
+            }
         }
     }
 
@@ -923,7 +1038,9 @@ impl Flows {
                 );
                 st.integrate().map(|_| ())
             }
-            Solver::Radau5 { .. } => unreachable!("Radau5 runs on the engine's own stepper"),
+            Solver::Radau5 { .. } | Solver::Bdf { .. } | Solver::Auto { .. } => {
+                unreachable!("the implicit and automatic solvers run on the engine's own steppers")
+            }
             Solver::Rk4 { .. } | Solver::EulerMaruyama { .. } => {
                 let mut st = Rk4::new(&mut step, 0.0, y0, d_stop, h_fixed);
                 st.integrate().map(|_| ())

@@ -112,7 +112,12 @@
 //! stepper, events on its order-4 interpolant), [`Solver::Radau5`] (the
 //! engine's implicit stepper for stiff flows, events on each step's
 //! collocation polynomial; Newton iterations on
-//! [`HybridSystem::jacobian`]), [`Solver::Dop853`] or [`Solver::Rk4`] from
+//! [`HybridSystem::jacobian`]), [`Solver::Bdf`] (the engine's variable-order
+//! BDF, events on the polynomial through its back values; restarted at
+//! order 1 after each jump), [`Solver::Auto`] (Dopri5, switching to Radau5
+//! while the flow is stiff; each switch reported to the sink,
+//! [`ArcSink::solver_switch`](crate::arc::ArcSink::solver_switch)),
+//! [`Solver::Dop853`] or [`Solver::Rk4`] from
 //! `ode_solvers` (events on the cubic Hermite interpolant of the step ends:
 //! exact for polynomial flows such as free fall; O(h⁴) otherwise), each
 //! segment integrated in local time `[0, d]` while t is kept as a
@@ -179,10 +184,12 @@
 //! assert!(matches!(arc.termination().unwrap().cause, TerminationCause::ZenoSuspected { .. }));
 //! ```
 
+mod bdf;
 mod dopri5;
 mod error;
 mod events;
 mod flow;
+mod implicit;
 mod invariants;
 pub mod models;
 mod radau5;

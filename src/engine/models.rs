@@ -293,6 +293,21 @@ impl HybridSystem for SampleAndHold {
     fn flow_map(&self, _at: HybridTime, x: &[f64], dx: &mut [f64]) {
         self.flow(x, dx);
     }
+    /// The constant ∂f/∂x = `[[A, B, 0], [0, 0, 0], [0, 0, 0]]`, for the
+    /// implicit solvers.
+    fn jacobian(&self, _at: HybridTime, _x: &[f64], jac: &mut [f64]) {
+        let (n, m) = (self.n(), self.m());
+        let d = n + m + 1;
+        jac.fill(0.0);
+        for r in 0..n {
+            for c in 0..n {
+                jac[r * d + c] = self.a[(r, c)];
+            }
+            for c in 0..m {
+                jac[r * d + n + c] = self.b[(r, c)];
+            }
+        }
+    }
     fn jump_rules(&self) -> &[JumpRule] {
         &self.rules
     }

@@ -13,8 +13,8 @@
 //! jumps (they are only refreshed when the Newton iteration stops
 //! converging), gives each step's collocation polynomial (cubic) as dense
 //! output, and allocates nothing after construction: the LU factorizations
-//! are done in place (nalgebra's `LU` consumes its matrix and allocates a
-//! permutation per factorization).
+//! are done in place ([`DenseLu`], shared with the BDF stepper in
+//! [`implicit`](super::implicit)).
 //!
 //! No crate offers this step-level control: `ode_solvers` has no implicit
 //! method; `russell_ode`'s Radau5 integrates whole intervals through
@@ -27,14 +27,11 @@
 // Stage and component indices are written as in the method's formulas.
 #![allow(clippy::needless_range_loop)]
 
-use nalgebra::{Complex, ComplexField, DMatrix};
+use nalgebra::{Complex, ComplexField};
 
 use super::dopri5::{Failure, Rhs};
 use super::events::StepPath;
-
-/// The Jacobian in local time: `jac(s, y, j)` writes ∂f/∂y at (s, y) into
-/// `j`, row-major n×n.
-pub(crate) type Jac<'a> = dyn FnMut(f64, &[f64], &mut [f64]) + 'a;
+use super::implicit::{DenseLu, Jac, Jacobian, initial_step, newton_tol};
 
 const S6: f64 = 2.449_489_742_783_178;
 /// Nodes of the collocation points.
@@ -109,86 +106,12 @@ fn mu_complex() -> Complex<f64> {
 }
 
 const NEWTON_MAXITER: u32 = 6;
+/// The largest h·‖J‖ at which the flow counts as no longer stiff for
+/// `Solver::Auto`: well inside Dopri5's stability interval (−3.3, 0), whose
+/// stiffness test fires above 3.25.
+pub(crate) const NONSTIFF_HLAMB: f64 = 1.0;
 const MIN_FACTOR: f64 = 0.2;
 const MAX_FACTOR: f64 = 10.0;
-
-/// An in-place LU factorization with partial pivoting of a square matrix,
-/// reused across factorizations (no allocation after construction).
-struct DenseLu<T: ComplexField<RealField = f64> + Copy> {
-    m: DMatrix<T>,
-    piv: Vec<usize>,
-}
-
-impl<T: ComplexField<RealField = f64> + Copy> DenseLu<T> {
-    fn new(n: usize) -> Self {
-        Self {
-            m: DMatrix::from_element(n, n, T::zero()),
-            piv: vec![0; n],
-        }
-    }
-
-    /// Factorizes the matrix in `self.m`; `false` if it is singular.
-    fn factor(&mut self) -> bool {
-        let n = self.piv.len();
-        let m = &mut self.m;
-        for k in 0..n {
-            let (mut p, mut best) = (k, -1.0);
-            for r in k..n {
-                let v = m[(r, k)].norm1();
-                if v > best {
-                    (p, best) = (r, v);
-                }
-            }
-            if !(best > 0.0 && best.is_finite()) {
-                return false;
-            }
-            self.piv[k] = p;
-            if p != k {
-                m.swap_rows(k, p);
-            }
-            let inv = T::one() / m[(k, k)];
-            for r in k + 1..n {
-                m[(r, k)] *= inv;
-            }
-            for c in k + 1..n {
-                let u = m[(k, c)];
-                if u != T::zero() {
-                    for r in k + 1..n {
-                        let l = m[(r, k)];
-                        m[(r, c)] -= l * u;
-                    }
-                }
-            }
-        }
-        true
-    }
-
-    /// Solves `M x = b` in place.
-    fn solve(&self, b: &mut [T]) {
-        let n = self.piv.len();
-        let m = &self.m;
-        for k in 0..n {
-            b.swap(k, self.piv[k]);
-        }
-        for c in 0..n {
-            let v = b[c];
-            if v != T::zero() {
-                for r in c + 1..n {
-                    b[r] -= m[(r, c)] * v;
-                }
-            }
-        }
-        for c in (0..n).rev() {
-            b[c] /= m[(c, c)];
-            let v = b[c];
-            if v != T::zero() {
-                for r in 0..c {
-                    b[r] -= m[(r, c)] * v;
-                }
-            }
-        }
-    }
-}
 
 /// Radau IIA (order 5) state: tolerances, controller memory, the Jacobian
 /// and its factorizations, stage buffers and the collocation polynomial of
@@ -203,10 +126,8 @@ pub(crate) struct Radau5 {
     /// (the predictive controller); `err_prev = 0`: none.
     h_prev: f64,
     err_prev: f64,
-    /// ∂f/∂y, row-major; `jac_fresh`: evaluated at the current step start.
-    jac: Vec<f64>,
-    jac_any: bool,
-    jac_fresh: bool,
+    /// ∂f/∂y (fresh: evaluated at the current step start).
+    jac: Jacobian,
     /// `μ_real/h·I − J` and `μ_complex/h·I − J`, factorized for step `lu_h`
     /// (0: not factorized for the current Jacobian).
     lu_re: DenseLu<f64>,
@@ -236,7 +157,6 @@ pub(crate) struct Radau5 {
     q_valid: bool,
     /// Evaluations of f and of the Jacobian, LU factorization pairs.
     pub fevals: u64,
-    pub jevals: u64,
     pub factorizations: u64,
 }
 
@@ -246,13 +166,11 @@ impl Radau5 {
         Self {
             rtol,
             atol,
-            newton_tol: (10.0 * f64::EPSILON / rtol).max(rtol.sqrt().min(0.03)),
+            newton_tol: newton_tol(rtol),
             h_next: 0.0,
             h_prev: 0.0,
             err_prev: 0.0,
-            jac: vec![0.0; n * n],
-            jac_any: false,
-            jac_fresh: false,
+            jac: Jacobian::new(n),
             lu_re: DenseLu::new(n),
             lu_cx: DenseLu::new(n),
             lu_h: 0.0,
@@ -272,7 +190,6 @@ impl Radau5 {
             h_old: 0.0,
             q_valid: false,
             fevals: 0,
-            jevals: 0,
             factorizations: 0,
         }
     }
@@ -283,44 +200,21 @@ impl Radau5 {
     pub fn start(&mut self, y: &[f64], f0: &[f64], f: &mut Rhs<'_>) {
         self.f0.copy_from_slice(f0);
         self.q_valid = false;
-        self.jac_fresh = false;
+        self.jac.fresh = false;
         self.err_prev = 0.0;
         if self.h_next <= 0.0 {
-            self.h_next = self.initial_step(y, f);
+            self.h_next = initial_step(
+                y,
+                f0,
+                f,
+                self.rtol,
+                self.atol,
+                3,
+                &mut self.y_stage,
+                &mut self.f_new,
+            );
+            self.fevals += 1;
         }
-    }
-
-    /// Hairer's initial step estimate for an order-3 error estimate, with
-    /// one evaluation of f.
-    fn initial_step(&mut self, y: &[f64], f: &mut Rhs<'_>) -> f64 {
-        let n = y.len();
-        if n == 0 {
-            return 1.0;
-        }
-        let sk = |i: usize| self.atol + self.rtol * y[i].abs();
-        let rms = |g: &dyn Fn(usize) -> f64| {
-            ((0..n).map(|i| g(i).powi(2)).sum::<f64>() / n as f64).sqrt()
-        };
-        let d0 = rms(&|i| y[i] / sk(i));
-        let d1 = rms(&|i| self.f0[i] / sk(i));
-        let h0 = if d0 < 1e-5 || d1 < 1e-5 {
-            1e-6
-        } else {
-            0.01 * d0 / d1
-        };
-        for i in 0..n {
-            self.y_stage[i] = y[i] + h0 * self.f0[i];
-        }
-        f(h0, &self.y_stage, &mut self.f_new);
-        self.fevals += 1;
-        let d2 = rms(&|i| (self.f_new[i] - self.f0[i]) / sk(i)) / h0;
-        let h1 = if d1 <= 1e-15 && d2 <= 1e-15 {
-            (h0 * 1e-3).max(1e-6)
-        } else {
-            (0.01 / d1.max(d2)).powf(0.25)
-        };
-        let h = (100.0 * h0).min(h1);
-        if h.is_finite() && h > 0.0 { h } else { 1e-6 }
     }
 
     /// The proposal for the next step.
@@ -328,30 +222,51 @@ impl Radau5 {
         self.h_next
     }
 
+    /// Sets the proposal for the next step (a method taking over from
+    /// another starts from that one's step).
+    pub fn set_proposal(&mut self, h: f64) {
+        self.h_next = h;
+    }
+
+    /// Whether the flow at the end of the last accepted step has stopped
+    /// being stiff for it: its step h times the weighted norm of the
+    /// Jacobian there (an upper bound of the spectral radius, evaluated
+    /// afresh unless `fresh_only` and it is stale) is at most
+    /// [`NONSTIFF_HLAMB`], so an explicit method of the same order takes
+    /// the same steps well inside its stability region. `None`: not tested
+    /// (`fresh_only` and the Jacobian there was not evaluated).
+    pub fn nonstiff(&mut self, jac: &mut Jac<'_>, fresh_only: bool) -> Option<bool> {
+        if !self.jac.fresh {
+            if fresh_only {
+                return None;
+            }
+            self.jac.refresh(self.s_old + self.h_old, &self.y_new, jac);
+            self.lu_h = 0.0;
+        }
+        for (sc, y) in self.scale.iter_mut().zip(&self.y_new) {
+            *sc = self.atol + self.rtol * y.abs();
+        }
+        Some(self.h_old * self.jac.weighted_norm(&self.scale) <= NONSTIFF_HLAMB)
+    }
+
     /// Evaluates the Jacobian at (`s`, `y`).
     fn refresh_jacobian(&mut self, s: f64, y: &[f64], jac: &mut Jac<'_>) {
-        jac(s, y, &mut self.jac);
-        self.jevals += 1;
-        self.jac_any = true;
-        self.jac_fresh = true;
+        self.jac.refresh(s, y, jac);
         self.lu_h = 0.0;
+    }
+
+    /// Evaluations of the Jacobian so far.
+    #[cfg(test)]
+    pub fn jevals(&self) -> u64 {
+        self.jac.evals
     }
 
     /// Factorizes the two Newton matrices for step `h`; `false` if one is
     /// singular.
     fn factor(&mut self, h: f64) -> bool {
-        let n = self.y_new.len();
-        let (mr, mc) = (mu_real() / h, mu_complex() / h);
-        for r in 0..n {
-            for c in 0..n {
-                let jv = self.jac[r * n + c];
-                let d = if r == c { 1.0 } else { 0.0 };
-                self.lu_re.m[(r, c)] = d * mr - jv;
-                self.lu_cx.m[(r, c)] = mc * d - Complex::new(jv, 0.0);
-            }
-        }
         self.factorizations += 1;
-        let ok = self.lu_re.factor() && self.lu_cx.factor();
+        let ok = self.lu_re.factor_shifted(mu_real() / h, &self.jac.m)
+            && self.lu_cx.factor_shifted(mu_complex() / h, &self.jac.m);
         self.lu_h = if ok { h } else { 0.0 };
         ok
     }
@@ -458,8 +373,8 @@ impl Radau5 {
         jac: &mut Jac<'_>,
     ) -> Result<f64, Failure> {
         let n = y.len();
-        if !self.jac_any {
-            self.refresh_jacobian(s, y, jac);
+        if self.jac.ensure(s, y, jac) {
+            self.lu_h = 0.0;
         }
         for i in 0..n {
             self.scale[i] = self.atol + self.rtol * y[i].abs();
@@ -476,7 +391,7 @@ impl Radau5 {
             }
             if self.lu_h != h && !self.factor(h) {
                 // A singular Newton matrix: a fresh Jacobian, then smaller steps.
-                if !self.jac_fresh {
+                if !self.jac.fresh {
                     self.refresh_jacobian(s, y, jac);
                 } else {
                     self.h_next = 0.5 * h;
@@ -499,7 +414,7 @@ impl Radau5 {
             }
             let (converged, iters, rate) = self.newton(s, y, h, f);
             if !converged {
-                if !self.jac_fresh {
+                if !self.jac.fresh {
                     self.refresh_jacobian(s, y, jac);
                 } else {
                     self.h_next = 0.5 * h;
@@ -560,12 +475,10 @@ impl Radau5 {
             self.q_valid = true;
             std::mem::swap(&mut self.f0, &mut self.f_new);
             if recompute {
-                jac(s_new, &self.y_new, &mut self.jac);
-                self.jevals += 1;
-                self.jac_fresh = true;
+                self.jac.refresh(s_new, &self.y_new, jac);
                 self.lu_h = 0.0;
             } else {
-                self.jac_fresh = false;
+                self.jac.fresh = false;
             }
             return Ok(h);
         }
@@ -653,6 +566,7 @@ impl StepPath for RadauPath<'_> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use nalgebra::DMatrix;
 
     /// The constants are the eigen-decomposition of the inverse of Radau
     /// IIA's matrix: `T⁻¹ A⁻¹ T` has the real eigenvalue in its first
@@ -692,46 +606,6 @@ mod tests {
             let sum: f64 = row.iter().sum();
             assert!((sum - if k == 2 { 1.0 } else { 0.0 }).abs() < 1e-13);
         }
-    }
-
-    #[test]
-    fn dense_lu_solves_real_and_complex_systems() {
-        let mut lu = DenseLu::<f64>::new(3);
-        let m = [[0.0, 2.0, 1.0], [1.0, -1.0, 0.5], [4.0, 0.0, -2.0]];
-        for r in 0..3 {
-            for c in 0..3 {
-                lu.m[(r, c)] = m[r][c];
-            }
-        }
-        assert!(lu.factor());
-        let x = [1.0, -2.0, 0.5];
-        let mut b: Vec<f64> = (0..3)
-            .map(|r| (0..3).map(|c| m[r][c] * x[c]).sum())
-            .collect();
-        lu.solve(&mut b);
-        for i in 0..3 {
-            assert!((b[i] - x[i]).abs() < 1e-14);
-        }
-        let mut cx = DenseLu::<Complex<f64>>::new(2);
-        let i1 = Complex::new(0.0, 1.0);
-        let mm = [
-            [Complex::new(2.0, 1.0), i1],
-            [Complex::new(1.0, 0.0), Complex::new(0.0, -3.0)],
-        ];
-        for r in 0..2 {
-            for c in 0..2 {
-                cx.m[(r, c)] = mm[r][c];
-            }
-        }
-        assert!(cx.factor());
-        let xs = [Complex::new(1.0, -1.0), Complex::new(0.5, 2.0)];
-        let mut bs: Vec<Complex<f64>> = (0..2)
-            .map(|r| mm[r][0] * xs[0] + mm[r][1] * xs[1])
-            .collect();
-        cx.solve(&mut bs);
-        assert!((bs[0] - xs[0]).norm() < 1e-14 && (bs[1] - xs[1]).norm() < 1e-14);
-        let mut sing = DenseLu::<f64>::new(2);
-        assert!(!sing.factor(), "the zero matrix is singular");
     }
 
     /// A stiff linear problem with a closed form, y' = −λ (y − cos s) −
@@ -776,9 +650,9 @@ mod tests {
         // An explicit method needs ≥ λ·10/3.3 ≈ 3·10⁴ steps here.
         assert!(steps < 400, "{steps} steps");
         assert!(
-            st.jevals <= 2,
+            st.jevals() <= 2,
             "a constant Jacobian is evaluated {} times",
-            st.jevals
+            st.jevals()
         );
     }
 }

@@ -36,6 +36,34 @@ pub enum Solver {
         /// Absolute tolerance of the local error (state units).
         atol: f64,
     },
+    /// Variable-order BDF (orders 1–5, the NDF variant of Shampine &
+    /// Reichelt, as MATLAB's ode15s and scipy's `BDF`), adaptive step and
+    /// order: for stiff flows, cheaper per step than Radau5 (one real LU,
+    /// one f per Newton iteration) but restarting at order 1 after each
+    /// jump. Newton iterations use the system's
+    /// [`jacobian`](super::HybridSystem::jacobian); dense output is the
+    /// interpolating polynomial through the last back values.
+    Bdf {
+        /// Relative tolerance of the local error (dimensionless).
+        rtol: f64,
+        /// Absolute tolerance of the local error (state units).
+        atol: f64,
+    },
+    /// Dopri5 while the flow is not stiff, Radau5 while it is, as LSODA
+    /// switches between Adams and BDF: Dopri5's stiffness test (Hairer's,
+    /// run at every step here) hands the flow to Radau5 after 15 steps at
+    /// its stability limit; Radau5 hands it back when its step times the
+    /// norm of the Jacobian falls to 1 (the explicit method is then stable
+    /// at the same step). The switches are reported to the sink
+    /// ([`ArcSink::solver_switch`](crate::arc::ArcSink::solver_switch)).
+    /// On a flow that never turns stiff the solution is Dopri5's, bit for
+    /// bit.
+    Auto {
+        /// Relative tolerance of the local error (dimensionless).
+        rtol: f64,
+        /// Absolute tolerance of the local error (state units).
+        atol: f64,
+    },
     /// Classic fourth-order Runge–Kutta with fixed step (ode_solvers `Rk4`).
     /// Each flow segment is divided into equal steps of at most `h`.
     Rk4 {
@@ -49,6 +77,64 @@ pub enum Solver {
         /// Largest step, in units of t.
         h: f64,
     },
+}
+
+impl Solver {
+    /// The names of the adaptive solvers, as `.hyb` files and the command
+    /// line spell them.
+    pub const ADAPTIVE: [&'static str; 5] = ["dopri5", "dop853", "radau5", "bdf", "auto"];
+
+    /// The name used in `.hyb` files, on the command line and in the logs.
+    ///
+    /// ```
+    /// use hybsim::engine::Solver;
+    /// assert_eq!(Solver::Bdf { rtol: 1e-6, atol: 1e-9 }.name(), "bdf");
+    /// ```
+    pub fn name(&self) -> &'static str {
+        match self {
+            Solver::Dopri5 { .. } => "dopri5",
+            Solver::Dop853 { .. } => "dop853",
+            Solver::Radau5 { .. } => "radau5",
+            Solver::Bdf { .. } => "bdf",
+            Solver::Auto { .. } => "auto",
+            Solver::Rk4 { .. } => "rk4",
+            Solver::EulerMaruyama { .. } => "euler_maruyama",
+        }
+    }
+
+    /// `(rtol, atol)` of an adaptive solver; `None` for the fixed-step ones.
+    pub fn tolerances(&self) -> Option<(f64, f64)> {
+        match *self {
+            Solver::Dopri5 { rtol, atol }
+            | Solver::Dop853 { rtol, atol }
+            | Solver::Radau5 { rtol, atol }
+            | Solver::Bdf { rtol, atol }
+            | Solver::Auto { rtol, atol } => Some((rtol, atol)),
+            Solver::Rk4 { .. } | Solver::EulerMaruyama { .. } => None,
+        }
+    }
+
+    /// The adaptive solver called `name` (one of [`Solver::ADAPTIVE`]) with
+    /// these tolerances.
+    ///
+    /// ```
+    /// use hybsim::engine::Solver;
+    /// assert_eq!(
+    ///     Solver::adaptive("radau5", 1e-8, 1e-10),
+    ///     Some(Solver::Radau5 { rtol: 1e-8, atol: 1e-10 })
+    /// );
+    /// assert_eq!(Solver::adaptive("rk4", 1e-8, 1e-10), None);
+    /// ```
+    pub fn adaptive(name: &str, rtol: f64, atol: f64) -> Option<Solver> {
+        Some(match name {
+            "dopri5" => Solver::Dopri5 { rtol, atol },
+            "dop853" => Solver::Dop853 { rtol, atol },
+            "radau5" => Solver::Radau5 { rtol, atol },
+            "bdf" => Solver::Bdf { rtol, atol },
+            "auto" => Solver::Auto { rtol, atol },
+            _ => return None,
+        })
+    }
 }
 
 impl Default for Solver {
@@ -272,7 +358,9 @@ impl SimSettings {
         match self.solver {
             Solver::Dopri5 { rtol, atol }
             | Solver::Dop853 { rtol, atol }
-            | Solver::Radau5 { rtol, atol } => {
+            | Solver::Radau5 { rtol, atol }
+            | Solver::Bdf { rtol, atol }
+            | Solver::Auto { rtol, atol } => {
                 if !positive(rtol) {
                     return bad("solver.rtol", format!("must be finite and > 0, got {rtol}"));
                 }

@@ -1,11 +1,13 @@
 //! The engine's own one-step integrators behind one interface, so that
 //! flow segments drive them alike (events and output on each accepted
 //! step's dense output, step carry across segments): the explicit
-//! [`Dopri5`] and the implicit [`Radau5`] for stiff flows.
+//! [`Dopri5`] and the implicit [`Radau5`] and [`Bdf`] for stiff flows.
 
+use super::bdf::{Bdf, BdfPath};
 use super::dopri5::{Dopri5, DopriPath, Failure, Rhs};
 use super::flow::DensePath;
-use super::radau5::{Jac, Radau5, RadauPath};
+use super::implicit::Jac;
+use super::radau5::{Radau5, RadauPath};
 
 /// A stepper that advances one accepted step at a time.
 pub(crate) trait OwnStepper {
@@ -39,6 +41,14 @@ pub(crate) trait OwnStepper {
 
     /// Evaluations of f so far.
     fn fevals(&self) -> u64;
+
+    /// `Solver::Auto`'s test after an accepted step of an implicit method:
+    /// `Some(true)` if the flow is no longer stiff there; `None` if not
+    /// tested (with `fresh_only`, when that needs a new Jacobian). Explicit
+    /// methods: `None`.
+    fn nonstiff(&mut self, _jac: &mut Jac<'_>, _fresh_only: bool) -> Option<bool> {
+        None
+    }
 }
 
 impl OwnStepper for Dopri5 {
@@ -104,6 +114,45 @@ impl OwnStepper for Radau5 {
 
     fn proposal(&self) -> f64 {
         Radau5::proposal(self)
+    }
+
+    fn fevals(&self) -> u64 {
+        self.fevals
+    }
+
+    fn nonstiff(&mut self, jac: &mut Jac<'_>, fresh_only: bool) -> Option<bool> {
+        Radau5::nonstiff(self, jac, fresh_only)
+    }
+}
+
+impl OwnStepper for Bdf {
+    type Path<'a> = BdfPath<'a>;
+
+    fn start(&mut self, y: &[f64], f0: &[f64], f: &mut Rhs<'_>) {
+        Bdf::start(self, y, f0, f);
+    }
+
+    fn step(
+        &mut self,
+        s: f64,
+        y: &[f64],
+        h_max: f64,
+        f: &mut Rhs<'_>,
+        jac: &mut Jac<'_>,
+    ) -> Result<f64, Failure> {
+        Bdf::step(self, s, y, h_max, f, jac)
+    }
+
+    fn y_new(&self) -> &[f64] {
+        &self.y_new
+    }
+
+    fn path(&self, s1: f64) -> BdfPath<'_> {
+        Bdf::path(self, s1)
+    }
+
+    fn proposal(&self) -> f64 {
+        Bdf::proposal(self)
     }
 
     fn fevals(&self) -> u64 {

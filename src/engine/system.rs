@@ -367,7 +367,8 @@ pub trait HybridSystem {
 
     /// The Jacobian ∂f/∂x of the flow map at (`at`, `x`): writes the n×n
     /// matrix row-major into `jac` (`jac[r·n + c] = ∂f_r/∂x_c`). Used by the
-    /// implicit solver ([`Solver::Radau5`](super::Solver::Radau5)). The
+    /// implicit solvers ([`Solver::Radau5`](super::Solver::Radau5),
+    /// [`Solver::Bdf`](super::Solver::Bdf), [`Solver::Auto`](super::Solver::Auto)). The
     /// default takes forward differences of [`flow_map`](Self::flow_map)
     /// ([`finite_difference_jacobian`]: n + 1 evaluations, about half the
     /// digits); override it with the exact derivative where known.

@@ -16,8 +16,8 @@
 //! | channel `/hybsim/state` | one message per logged sample: `{t, j, <states>}` |
 //! | channel `/hybsim/outputs` | one message per logged sample: `{t, j, <outputs>}` (if the model has outputs) |
 //! | channel `/hybsim/jumps` | one message per jump: `{t, j, rule, rule_id, index?, pre, post}` |
-//! | channel `/hybsim/log` | run start and end (`foxglove.Log`) |
-//! | metadata `hybsim.result` | `termination`, `message`, `status` (`completed`, `ended`, `failed`), `t_end`, `j_end`, `jumps` (per rule), `samples_logged` |
+//! | channel `/hybsim/log` | run start and end, and each change of integrator of `solver = auto` (`foxglove.Log`) |
+//! | metadata `hybsim.result` | `termination`, `message`, `status` (`completed`, `ended`, `failed`), `t_end`, `j_end`, `jumps` (per rule), `samples_logged`; with `solver = auto` also `solver_switches` (JSON `[{t, j, to}]`, the first 1000) and `solver_switches_total` |
 //! | metadata `hybsim.metrics` | one entry per `metric` of the model (its value), when it has any ([`McapSink::set_metrics`]) |
 //!
 //! `log_time = publish_time = round((t − t0)·10⁹)` ns, with t0 the time of
@@ -45,7 +45,7 @@ use super::{
     Decimation, Decimator, JumpFilter, OutputFn, RunInfo, RunOutcome, RunStatus, SinkError, Tally,
     first_non_finite, rule_name,
 };
-use crate::arc::{ArcSink, HybridTime, SampleKind};
+use crate::arc::{ArcSink, HybridTime, SampleKind, SolverSwitch};
 use crate::atomic_file;
 
 /// Topic of state samples.
@@ -577,7 +577,7 @@ impl<'a> McapSink<'a> {
         };
         self.write_log(level, &message, log_time)?;
         let jumps = self.tally.per_rule(&self.info.rule_names);
-        let result = meta_entries([
+        let mut result = meta_entries([
             ("termination", json!(outcome.cause)),
             ("message", json!(outcome.message)),
             (
@@ -596,6 +596,18 @@ impl<'a> McapSink<'a> {
             ("jumps_total", json!(self.tally.total_jumps().to_string())),
             ("samples", json!(self.tally.samples.to_string())),
         ]);
+        if self.info.solver["solver"]["method"] == "auto" {
+            result.extend(meta_entries([
+                (
+                    "solver_switches",
+                    Value::String(json!(self.tally.solver_switches).to_string()),
+                ),
+                (
+                    "solver_switches_total",
+                    json!(self.tally.solver_switches_total.to_string()),
+                ),
+            ]));
+        }
         let path = self.path.clone();
         let mcap_err = |source| SinkError::Mcap {
             path: path.clone(),
@@ -650,6 +662,18 @@ impl<'a> McapSink<'a> {
 }
 
 impl ArcSink for McapSink<'_> {
+    fn solver_switch(&mut self, switch: &SolverSwitch) {
+        self.tally.solver_switch(switch);
+        if self.error.is_some() || self.tally.solver_switches_total > Tally::SWITCHES_KEPT as u64 {
+            return;
+        }
+        let log_time = self.log_time(switch.at.t);
+        let message = format!("solver switched to {} at {}", switch.to, switch.at);
+        if let Err(e) = self.write_log(LogLevel::Info, &message, log_time) {
+            self.error = Some(e);
+        }
+    }
+
     fn sample(&mut self, at: HybridTime, x: &[f64], kind: SampleKind) -> ControlFlow<()> {
         if self.error.is_some() {
             return ControlFlow::Break(());

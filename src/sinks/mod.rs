@@ -34,7 +34,9 @@ use std::path::{Path, PathBuf};
 
 use serde::Serialize;
 
-use crate::arc::{ArcSink, HybridArc, HybridTime, SampleKind, Termination, TerminationCause};
+use crate::arc::{
+    ArcSink, HybridArc, HybridTime, SampleKind, SolverSwitch, Termination, TerminationCause,
+};
 use crate::layout::{Entry, Field, Layout};
 
 /// Errors of the output sinks.
@@ -629,9 +631,26 @@ pub struct Tally {
     pub samples: u64,
     /// Jumps per rule index.
     pub jumps: Vec<u64>,
+    /// Integrator changes (`Solver::Auto`), the first
+    /// [`Tally::SWITCHES_KEPT`] of them.
+    pub solver_switches: Vec<SolverSwitch>,
+    /// How many integrator changes in all.
+    pub solver_switches_total: u64,
 }
 
 impl Tally {
+    /// How many integrator changes a tally keeps (a run that switches more
+    /// often only counts the others).
+    pub const SWITCHES_KEPT: usize = 1000;
+
+    /// Records an integrator change.
+    pub fn solver_switch(&mut self, switch: &SolverSwitch) {
+        if self.solver_switches.len() < Self::SWITCHES_KEPT {
+            self.solver_switches.push(*switch);
+        }
+        self.solver_switches_total += 1;
+    }
+
     /// A tally for a system with `rules` jump rules.
     pub fn new(rules: usize) -> Self {
         Self {
@@ -763,6 +782,12 @@ impl ArcSink for Fanout<'_> {
     fn finish(&mut self, termination: &Termination) {
         for s in &mut self.sinks {
             s.finish(termination);
+        }
+    }
+
+    fn solver_switch(&mut self, switch: &SolverSwitch) {
+        for s in &mut self.sinks {
+            s.solver_switch(switch);
         }
     }
 }

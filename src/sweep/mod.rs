@@ -42,7 +42,7 @@ use rayon::prelude::*;
 pub use grid::{Axis, Shard, run_seed};
 pub use table::{PointRow, RunRow, Stats};
 
-use crate::arc::{ArcSink, HybridTime, SampleKind, Termination, TerminationCause};
+use crate::arc::{ArcSink, HybridTime, SampleKind, SolverSwitch, Termination, TerminationCause};
 use crate::engine::simulate;
 use crate::lang::{self, CheckOptions, CompiledModel, Override};
 use crate::num::Num;
@@ -418,6 +418,10 @@ impl<S: ArcSink> ArcSink for Stoppable<'_, S> {
 
     fn finish(&mut self, termination: &Termination) {
         self.inner.finish(termination);
+    }
+
+    fn solver_switch(&mut self, switch: &SolverSwitch) {
+        self.inner.solver_switch(switch);
     }
 }
 

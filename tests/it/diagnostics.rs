@@ -352,7 +352,7 @@ const CASES: &[Case] = &[
         "model m\nstate x = 0\nsim { solver = rk5 }\n",
         "E0506",
         "3:16",
-        "invalid `solver`: `rk5` is not a solver; write one of dopri5, dop853, radau5, rk4, euler_maruyama",
+        "invalid `solver`: `rk5` is not a solver; write one of dopri5, dop853, radau5, bdf, auto, rk4, euler_maruyama",
     ),
     case(
         "white noise without a stochastic solver",
