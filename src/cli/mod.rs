@@ -419,7 +419,10 @@ mod tests {
         assert_eq!(a.horizon_j, Some(30));
         assert_eq!(a.seed, Some(3));
         assert_eq!(a.set, ["g=9.8", "K=[1, 2]"]);
-        assert_eq!(a.plot_vars, ["h", "v"]);
+        assert_eq!(
+            run::split_names(a.plot_vars.as_deref().unwrap()),
+            ["h", "v"]
+        );
         assert_eq!(a.log_every, Some(10));
         assert!(Cli::try_parse_from(["hybsim", "run", "m.hyb", "--log-every", "0"]).is_err());
     }

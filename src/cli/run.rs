@@ -100,9 +100,10 @@ pub struct RunArgs {
     /// SVG or PNG by the file's extension.
     #[arg(long, value_name = "OUT.svg|OUT.png")]
     pub plot: Option<PathBuf>,
-    /// States or outputs to plot, by name (comma-separated). Default: the states.
-    #[arg(long, value_name = "NAMES", value_delimiter = ',', requires = "plot")]
-    pub plot_vars: Vec<String>,
+    /// States or outputs to plot, comma-separated: entries (`h`), families
+    /// (`xhat`) or members (`xhat[2]`, `theta[1,2]`). Default: the states.
+    #[arg(long, value_name = "NAMES", requires = "plot")]
+    pub plot_vars: Option<String>,
     /// What the plot draws (HyEQ's kinds): each component against t
     /// (`flows`) or against j (`jumps`), over (t, j) in 3-D (`hybrid`), the
     /// second selected component against the first (`phase`), or the hybrid
@@ -785,7 +786,12 @@ pub fn execute(args: RunArgs) -> anyhow::Result<u8> {
         design: model.design_json(),
     };
     // An unknown `--plot-vars` name is a usage error (exit 2), found before the run.
-    for name in &args.plot_vars {
+    let plot_vars = args
+        .plot_vars
+        .as_deref()
+        .map(split_names)
+        .unwrap_or_default();
+    for name in &plot_vars {
         if let Some(message) = unknown_plot_var("--plot-vars", name, &info) {
             eprintln!("error: {message}");
             return Ok(EXIT_MODEL_ERROR);
@@ -793,7 +799,7 @@ pub fn execute(args: RunArgs) -> anyhow::Result<u8> {
     }
     if let Some(path) = &args.plot {
         let checked = ImageFormat::of(path)
-            .and_then(|_| PlotSink::check_selection(&info, &args.plot_vars, args.plot_kind.into()));
+            .and_then(|_| PlotSink::check_selection(&info, &plot_vars, args.plot_kind.into()));
         if let Err(e) = checked {
             eprintln!("error: {e}");
             return Ok(EXIT_MODEL_ERROR);
@@ -851,7 +857,7 @@ pub fn execute(args: RunArgs) -> anyhow::Result<u8> {
         csv: args.csv.clone(),
         parquet: args.parquet.clone(),
         plot: args.plot.clone(),
-        plot_vars: args.plot_vars.clone(),
+        plot_vars,
         plot_kind: args.plot_kind.into(),
         log_vars,
         decimation: Decimation::all()

@@ -229,7 +229,7 @@ impl<'a> McapSink<'a> {
             // The threads the design layer ran on: BLAS is pinned (design::blas), rayon's
             // pool follows the machine (the designs' numbers do not).
             ("blas_threads", json!(crate::design::blas::threads())),
-            ("threads", json!(rayon::current_num_threads())),
+            ("threads", json!(rayon_threads())),
         ]);
         let mut records = vec![
             ("hybsim.run", run),
@@ -701,6 +701,21 @@ impl ArcSink for McapSink<'_> {
         }
         self.settle(r)
     }
+}
+
+/// The worker threads of rayon's global pool, without starting it: asking
+/// rayon (`current_num_threads`) starts the pool, whose two idle workers
+/// then spin on `sched_yield` for milliseconds, a quarter of the CPU time
+/// of a short logged run that never uses them. rayon's documented default:
+/// `RAYON_NUM_THREADS` if it is a positive integer, else the available
+/// parallelism (what `hybsim run` uses: it never configures the pool).
+fn rayon_threads() -> usize {
+    std::env::var("RAYON_NUM_THREADS")
+        .ok()
+        .and_then(|v| v.trim().parse::<usize>().ok())
+        .filter(|&n| n > 0)
+        .or_else(|| std::thread::available_parallelism().ok().map(|n| n.get()))
+        .unwrap_or(1)
 }
 
 /// The imported files of the run as `[{path, sha256}]`.

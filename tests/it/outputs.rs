@@ -199,7 +199,7 @@ fn plot_vars_select_family_members_and_unknown_names_exit_2() {
             "--plot",
             "p.svg",
             "--plot-vars",
-            "xhat[2],x",
+            "xhat[2],x,theta[1,2]",
         ],
     );
     assert_eq!(code(&o), 0, "{}", stderr(&o));
@@ -207,6 +207,11 @@ fn plot_vars_select_family_members_and_unknown_names_exit_2() {
     assert!(
         svg.contains("xhat[2][1]") && !svg.contains("xhat[1][1]"),
         "one member"
+    );
+    // A member of a family with two indices (the comma inside brackets is no separator).
+    assert!(
+        svg.contains("theta[1,2][1]") && !svg.contains("theta[2,1][1]"),
+        "theta[1,2]"
     );
     let o = hybsim(
         dir.path(),
