@@ -106,8 +106,8 @@ pub struct RunArgs {
     pub plot_vars: Option<String>,
     /// What the plot draws (HyEQ's kinds): each component against t
     /// (`flows`) or against j (`jumps`), over (t, j) in 3-D (`hybrid`), the
-    /// second selected component against the first (`phase`), or the hybrid
-    /// time domain (`domain`).
+    /// second selected component against the first (`phase`; the first three
+    /// in 3-D when three are selected), or the hybrid time domain (`domain`).
     #[arg(long, value_enum, default_value_t = PlotKindArg::Flows, requires = "plot")]
     pub plot_kind: PlotKindArg,
     /// Log every N-th flow sample (samples of logged jumps and the first and
@@ -293,7 +293,7 @@ pub enum PlotKindArg {
     Jumps,
     /// Components over (t, j), in 3-D.
     Hybrid,
-    /// The second selected component against the first.
+    /// The second selected component against the first (three or more: the first three in 3-D).
     Phase,
     /// j against t.
     Domain,

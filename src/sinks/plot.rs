@@ -201,7 +201,15 @@ impl Series3 {
             .iter()
             .map(|&(at, v)| (at, (at.t, at.j as f64, v)))
             .collect();
-        let (pieces, connectors) = split_at_jumps(&points);
+        Self::hybrid_points(name, &points)
+    }
+
+    /// A hybrid arc drawn in any 3-D space: `points[k] = ((t, j), (x, y,
+    /// z))` in domain order, x to the right, y into the depth, z up (a
+    /// phase plot of three components). Each flow interval is one piece,
+    /// each jump a dashed segment.
+    pub fn hybrid_points(name: impl Into<String>, points: &[(HybridTime, Point3)]) -> Self {
+        let (pieces, connectors) = split_at_jumps(points);
         Self {
             name: name.into(),
             pieces,
@@ -820,8 +828,10 @@ pub enum PlotKind {
     /// Each component against j (`plotJumps`): the values of the flow at
     /// each j on the vertical through j, jumps dashed from j to j + 1.
     Jumps,
-    /// The second selected component against the first (`plotHarc` in a
-    /// plane): flows solid, jumps dashed.
+    /// A phase plot (`plotHarc`): of two selected components, the second
+    /// against the first; of three or more, the first three in 3-D (the
+    /// first to the right, the second into the depth, the third up). Flows
+    /// solid, jumps dashed.
     Phase,
     /// The hybrid time domain: j against t, flows horizontal, jumps dashed.
     Domain,
@@ -1087,6 +1097,22 @@ impl<'a> PlotSink<'a> {
                     .iter()
                     .flat_map(|p| p.series.iter().map(|(l, _, _)| l))
                     .collect();
+                if labels.len() >= 3 {
+                    let points: Vec<(HybridTime, Point3)> = self
+                        .column(0)
+                        .zip(self.column(1))
+                        .zip(self.column(2))
+                        .map(|(((at, a), (_, b)), (_, c))| (at, (a, b, c)))
+                        .collect();
+                    let name = format!("({}, {}, {})", labels[0], labels[1], labels[2]);
+                    return Figure::new().size(900, 600).panel(
+                        Panel::new(format!("{}: {name}", self.model_name))
+                            .x_label(labels[0].as_str())
+                            .y_label(labels[1].as_str())
+                            .z_label(labels[2].as_str())
+                            .series_3d(Series3::hybrid_points(name, &points)),
+                    );
+                }
                 let points: Vec<(HybridTime, (f64, f64))> = self
                     .column(0)
                     .zip(self.column(1))

@@ -338,6 +338,9 @@ fn every_shipped_model_plots_from_its_file() {
             read += 1;
         })
         .unwrap();
-        assert!(read >= 2 && rows.records().next().is_none(), "{name}: {read} samples");
+        assert!(
+            read >= 2 && rows.records().next().is_none(),
+            "{name}: {read} samples"
+        );
     }
 }
