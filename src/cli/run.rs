@@ -797,13 +797,11 @@ pub fn execute(args: RunArgs) -> anyhow::Result<u8> {
             return Ok(EXIT_MODEL_ERROR);
         }
     }
-    if let Some(path) = &args.plot {
-        let checked = ImageFormat::of(path)
-            .and_then(|_| PlotSink::check_selection(&info, &plot_vars, args.plot_kind.into()));
-        if let Err(e) = checked {
-            eprintln!("error: {e}");
-            return Ok(EXIT_MODEL_ERROR);
-        }
+    if args.plot.is_some()
+        && let Err(e) = PlotSink::check_selection(&info, &plot_vars, args.plot_kind.into())
+    {
+        eprintln!("error: {e}");
+        return Ok(EXIT_MODEL_ERROR);
     }
     // Unknown `--log-vars`/`--log-rules` names are usage errors (exit 2),
     // found before the run; the model's `log` block was checked with it.
@@ -867,6 +865,12 @@ pub fn execute(args: RunArgs) -> anyhow::Result<u8> {
     };
     if let Some(message) = output_path_clash(&args.model, &outputs) {
         eprintln!("error: {message}");
+        return Ok(EXIT_MODEL_ERROR);
+    }
+    // The plot's format by its extension, after the clash check (a plot
+    // path that is the model is named as such).
+    if let Some(Err(e)) = outputs.plot.as_deref().map(ImageFormat::of) {
+        eprintln!("error: {e}");
         return Ok(EXIT_MODEL_ERROR);
     }
     let output_fn = |at: HybridTime, x: &[f64], y: &mut [f64]| model.outputs(at, x, y);
