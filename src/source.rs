@@ -163,6 +163,16 @@ impl SourceMap {
     }
 }
 
+/// The SHA-256 of `bytes` as 64 lowercase hex digits: how run files and
+/// sweep manifests identify a model, an imported file or a table.
+pub fn sha256_hex(bytes: &[u8]) -> String {
+    use sha2::Digest;
+    sha2::Sha256::digest(bytes)
+        .iter()
+        .map(|b| format!("{b:02x}"))
+        .collect()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

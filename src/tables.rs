@@ -20,8 +20,6 @@ use std::io::Read;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
-use sha2::Digest;
-
 use crate::diagnostics::Diagnostic;
 use crate::imports::{self, ImportError};
 use crate::source::{SourceFile, Span};
@@ -252,10 +250,7 @@ pub fn read(
         });
     }
     let raw = std::fs::read(file).map_err(unreadable)?;
-    let sha256 = sha2::Sha256::digest(&raw)
-        .iter()
-        .map(|b| format!("{b:02x}"))
-        .collect();
+    let sha256 = crate::source::sha256_hex(&raw);
     let name = file.display().to_string();
     let text = match String::from_utf8(raw) {
         Ok(t) => t,

@@ -14,6 +14,8 @@ systems written in the `.hyb` language, with results as numpy arrays.
   ``to_pandas``/``to_polars``);
 - :meth:`Model.design` -> the design blocks' results and reports;
 - :meth:`Model.test` -> :class:`TestReport` with the shrunk counterexample;
+- :meth:`Model.sweep` / :func:`sweep` -> :class:`Sweep` (tables ``runs``
+  and ``points`` of a grid × Monte Carlo, as ``hybsim sweep``);
 - :mod:`hybsim.plot` -> ``flows``, ``jumps``, ``hybrid``, ``phase``.
 """
 
@@ -26,8 +28,10 @@ from .model import (
     TestReport,
     load,
     run,
+    sweep,
 )
 from .solution import SAMPLE_KINDS, Jumps, Solution, Termination
+from .sweep import Sweep, Table
 
 __all__ = [
     "Counterexample",
@@ -37,11 +41,14 @@ __all__ = [
     "SAMPLE_KINDS",
     "SimulationError",
     "Solution",
+    "Sweep",
+    "Table",
     "Termination",
     "TestReport",
     "load",
     "plot",
     "run",
+    "sweep",
 ]
 
 __version__ = "0.1.0"

@@ -67,3 +67,15 @@ class OutputMap:
 
 def compile(name: str, text: str, set: List[Tuple[str, str]], path: Optional[str] = None) -> Model:
     """Parses, checks and compiles `text`; raises ModelError."""
+
+def parse_axis(text: str) -> Tuple[str, List[float]]:
+    """``name=values`` as ``hybsim sweep --grid`` reads it; ValueError if malformed."""
+
+def sweep(
+    model: Model,
+    grid: Optional[List[Tuple[str, List[float]]]] = None,
+    runs: Optional[int] = None,
+    seed: Optional[int] = None,
+    threads: Optional[int] = None,
+) -> Dict[str, Any]:
+    """A sweep as ``hybsim sweep`` runs it: ``runs`` and ``points`` as dicts of columns, ``axes``, ``metrics``, ``seed``, ``runs_per_point``."""

@@ -12,6 +12,7 @@ import numpy as np
 
 from . import _hybsim
 from .solution import Solution
+from .sweep import Grid, Sweep, sweep_model
 
 ModelError = _hybsim.ModelError
 SimulationError = _hybsim.SimulationError
@@ -92,6 +93,15 @@ def run(
 ) -> Solution:
     """``load(model, set).run(**kwargs)``: one call from a file to arrays."""
     return load(model, set).run(**kwargs)
+
+
+def sweep(
+    model: PathOrSource,
+    set: Optional[Mapping[str, Any]] = None,  # noqa: A002
+    **kwargs: Any,
+) -> Sweep:
+    """``load(model, set).sweep(**kwargs)``: a sweep from a file in one call."""
+    return load(model, set).sweep(**kwargs)
 
 
 @dataclass(frozen=True)
@@ -304,6 +314,42 @@ class Model:
                 e.partial = Solution(partial)
             raise
         return Solution(data)
+
+    def sweep(
+        self,
+        grid: Optional[Grid] = None,
+        runs: Optional[int] = None,
+        seed: Optional[int] = None,
+        threads: Optional[int] = None,
+    ) -> Sweep:
+        """Runs a sweep and Monte Carlo of the model, as ``hybsim sweep``
+        does: every grid point × ``runs`` seeded runs, each reduced to the
+        model's ``metric`` values while it streams, on ``threads`` threads
+        (default: all cores) with the GIL released.
+
+        ``grid``: ``{"lambda": [0.5, 0.8], "g": "9:0.5:10"}`` (values, or a
+        range ``a:step:b`` or list as ``--grid`` writes it) or
+        ``["lambda=0.5:0.1:0.9"]``; the first axis varies slowest. Any of
+        ``grid``, ``runs``, ``seed`` left out comes from the model's
+        ``sweep { }`` block, else no axis, one run and the model's seed. Run
+        ``r`` of a point has the same seed as in ``hybsim sweep``, so a row's
+        ``command`` replays it.
+
+        Returns a :class:`Sweep` with the tables ``runs`` and ``points``
+        (``to_pandas()``/``to_polars()``). A run that fails is a row
+        (``status``, ``cause``, ``message``), not an exception; Ctrl-C stops
+        the sweep with KeyboardInterrupt.
+
+        Raises
+        ------
+        ModelError
+            If the model does not compile as loaded, or an axis names
+            nothing the model can be set by.
+        ValueError
+            For an axis set twice (or also in ``set``), a malformed axis, or
+            more runs than a sweep allows.
+        """
+        return sweep_model(self._native, grid, runs, seed, threads)
 
     def design(self) -> Dict[str, Dict[str, Any]]:
         """Solves the model's ``design`` and ``check`` blocks (as ``hybsim

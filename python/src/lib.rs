@@ -2,8 +2,8 @@
 //!
 //! It wraps the library's one-call front end ([`hybsim::lang`]), the engine
 //! ([`hybsim::engine::simulate`]), the design layer
-//! ([`hybsim::lang::design_only`]) and the property tests
-//! ([`hybsim::props::run_tests`]). Results cross into Python once, as numpy
+//! ([`hybsim::lang::design_only`]), the property tests
+//! ([`hybsim::props::run_tests`]) and sweeps ([`hybsim::sweep`]). Results cross into Python once, as numpy
 //! arrays that take over the Rust buffers the run filled (no per-sample
 //! Python objects); everything friendlier (the `Solution` class, pandas,
 //! plots) lives in the pure-Python half `python/hybsim/`.
@@ -16,6 +16,7 @@ mod convert;
 mod model;
 mod record;
 mod settings;
+mod sweep;
 
 create_exception!(
     hybsim,
@@ -44,6 +45,8 @@ fn _hybsim(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<model::Model>()?;
     m.add_class::<model::OutputMap>()?;
     m.add_function(wrap_pyfunction!(model::compile, m)?)?;
+    m.add_function(wrap_pyfunction!(sweep::sweep, m)?)?;
+    m.add_function(wrap_pyfunction!(sweep::parse_axis, m)?)?;
     m.add("SAMPLE_KINDS", record::SAMPLE_KINDS.to_vec())?;
     Ok(())
 }

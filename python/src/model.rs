@@ -23,11 +23,11 @@ use crate::{ModelError, SimulationError, settings};
 /// A compiled `.hyb` model (see `hybsim.load`).
 #[pyclass(frozen, module = "hybsim._hybsim")]
 pub struct Model {
-    source: SourceFile,
-    overrides: Vec<Override>,
+    pub(crate) source: SourceFile,
+    pub(crate) overrides: Vec<Override>,
     model: Arc<CompiledModel>,
     /// The file it was read from, for replay commands.
-    path: Option<String>,
+    pub(crate) path: Option<String>,
 }
 
 /// Parses, checks and compiles the model `text` named `name` (its file

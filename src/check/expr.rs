@@ -157,6 +157,15 @@ impl Checker {
         self.errors.push(e);
     }
 
+    /// E0506: the value of setting `key` at `span` is invalid, because `reason`.
+    pub(crate) fn bad_setting(&mut self, key: &str, reason: impl Into<String>, span: Span) {
+        self.err(CheckError::BadSetting {
+            key: key.to_string(),
+            reason: reason.into(),
+            span,
+        });
+    }
+
     fn konst_val(&mut self, rows: usize, cols: usize, f: impl Fn(usize, usize) -> f64) -> Val {
         let mut e = Vec::with_capacity(rows * cols);
         for r in 0..rows {

@@ -114,13 +114,7 @@ fn check_block(c: &mut Checker, b: &LogBlock, rules: &[CheckedRule], decl: &mut 
     }
     for s in &b.settings {
         let key = s.key.name.as_str();
-        let bad = |c: &mut Checker, reason: &str| {
-            c.err(CheckError::BadSetting {
-                key: key.to_string(),
-                reason: reason.to_string(),
-                span: s.value.span,
-            })
-        };
+        let bad = |c: &mut Checker, reason: &str| c.bad_setting(key, reason, s.value.span);
         match key {
             "every" => match c.const_int(&s.value, "`every`") {
                 Some(n) if n >= 1 => decl.every = Some(n as u64),

@@ -1625,13 +1625,11 @@ impl ModelChecker<'_> {
             let before = self.c.errors.len();
             match value {
                 Some(v) => self.c.limits.set(q, v),
-                None => self.c.err(CheckError::BadSetting {
-                    key: key.to_string(),
-                    reason:
-                        "a limit is a positive integer written as a number (e.g. 100000 or 1e5)"
-                            .into(),
-                    span: e.span,
-                }),
+                None => self.c.bad_setting(
+                    key,
+                    "a limit is a positive integer written as a number (e.g. 100000 or 1e5)",
+                    e.span,
+                ),
             }
             if is_override && let Some(o) = self.overrides.get(key).copied() {
                 self.locate_in_override(before, o, true);

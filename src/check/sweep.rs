@@ -88,13 +88,6 @@ fn check_block(c: &mut Checker, b: &SweepBlock, settable: &[String]) -> SweepDec
             });
             continue;
         }
-        let bad = |c: &mut Checker, reason: String, span: Span| {
-            c.err(CheckError::BadSetting {
-                key: name.to_string(),
-                reason,
-                span,
-            })
-        };
         let values = match &axis.values {
             AxisValues::Range(a, step, stop) => {
                 let what = "a sweep range";
@@ -110,7 +103,7 @@ fn check_block(c: &mut Checker, b: &SweepBlock, settable: &[String]) -> SweepDec
                 match crate::sweep::grid::range_values(a, step, stop) {
                     Ok(v) => v,
                     Err(reason) => {
-                        bad(c, reason, whole);
+                        c.bad_setting(name, reason, whole);
                         continue;
                     }
                 }
@@ -128,11 +121,11 @@ fn check_block(c: &mut Checker, b: &SweepBlock, settable: &[String]) -> SweepDec
                     continue;
                 }
                 if xs.is_empty() {
-                    bad(c, "no values".into(), e.span);
+                    c.bad_setting(name, "no values", e.span);
                     continue;
                 }
                 if xs.iter().any(|x| !x.is_finite()) {
-                    bad(c, "the values must be finite".into(), e.span);
+                    c.bad_setting(name, "the values must be finite", e.span);
                     continue;
                 }
                 xs
@@ -152,13 +145,7 @@ fn check_block(c: &mut Checker, b: &SweepBlock, settable: &[String]) -> SweepDec
             continue;
         }
         keys.insert(key, s.key.span);
-        let bad = |c: &mut Checker, reason: &str| {
-            c.err(CheckError::BadSetting {
-                key: key.to_string(),
-                reason: reason.to_string(),
-                span: s.value.span,
-            })
-        };
+        let bad = |c: &mut Checker, reason: &str| c.bad_setting(key, reason, s.value.span);
         match key {
             "runs" => match c.const_int(&s.value, "`runs`") {
                 Some(n) if n >= 1 => d.runs = Some(n as u64),

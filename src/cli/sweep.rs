@@ -7,7 +7,7 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use clap::Args;
-use hybsim::sweep::{self, Axis, Shard, SweepSpec, table};
+use hybsim::sweep::{self, Axis, Shard, table};
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 
 use super::{EXIT_FAILED, EXIT_INTERRUPTED, EXIT_MODEL_ERROR, EXIT_OK, SdpKind};
@@ -97,68 +97,39 @@ pub fn execute(args: SweepArgs) -> anyhow::Result<u8> {
         Ok(s) => s,
         Err(e) => return usage(&e),
     };
-    // The model must compile as given (errors located in the file); grid
-    // points that fail later are rows.
+    // The model must compile as given and the axes must name what it can be
+    // set by (errors located in the file); grid points that fail later are rows.
     let options = args.sdp.options();
-    let base = match hybsim::lang::compile_with(&src, &fixed, &options) {
-        Ok(m) => m,
-        Err(diags) => {
+    let axes = (!args.grid.is_empty()).then_some(axes);
+    let plan = match sweep::plan(&src, &fixed, axes, args.runs, args.seed, &options) {
+        Ok(plan) => plan,
+        Err(sweep::PlanError::Model(diags)) => {
             let color = super::color();
             eprint!("{}", hybsim::diagnostics::render(&diags, &src, color));
             return Ok(EXIT_MODEL_ERROR);
         }
+        Err(sweep::PlanError::Spec(e)) => return usage(&e),
     };
-    if base.metrics().is_empty() {
+    if plan.metrics.is_empty() {
         eprintln!(
             "note: {} declares no `metric`; the rows hold only how each run ended",
             model_path.display()
         );
     }
-    // The model's `sweep { … }` block gives what the command line does not.
-    let block = base.sweep().cloned().unwrap_or_default();
-    if args.grid.is_empty() {
-        axes = block
-            .axes
-            .into_iter()
-            .map(|(name, values)| Axis { name, values })
-            .collect();
-    }
-    let spec = SweepSpec::new(
-        axes,
-        args.runs.or(block.runs).unwrap_or(1),
-        args.seed.or(block.seed).unwrap_or(base.seed()),
-    );
-    if let Err(e) = spec.validate(&fixed) {
-        return usage(&e);
-    }
-    // A grid name the model does not know (or a value that is not an
-    // override) is an error before anything runs; other failures of a grid
-    // point are its rows.
-    if let Err(diags) = sweep::check_point(&src, &fixed, &spec, 0, &options) {
-        let unknown: Vec<_> = diags
-            .into_iter()
-            .filter(|d| d.code == "E0204" || d.code == "E0508")
-            .collect();
-        if !unknown.is_empty() {
-            let color = super::color();
-            eprint!("{}", hybsim::diagnostics::render(&unknown, &src, color));
-            return Ok(EXIT_MODEL_ERROR);
-        }
-    }
+    let spec = plan.spec;
     let mut manifest = table::Manifest {
         hybsim: env!("CARGO_PKG_VERSION").to_string(),
         model: model_path.display().to_string(),
-        model_sha256: sha256_hex(src.text()),
+        model_sha256: hybsim::source::sha256_hex(src.text().as_bytes()),
         sets: fixed
             .iter()
             .map(|o| format!("{}={}", o.name, o.value))
             .collect(),
         spec: spec.clone(),
-        metrics: base.metrics().names().to_vec(),
+        metrics: plan.metrics,
         shard,
         interrupted: false,
     };
-    drop(base);
     // The runs an interrupted sweep in the output directory already holds.
     let kept = if args.resume {
         match resumed_rows(&args.output, &manifest) {
@@ -269,14 +240,6 @@ fn resumed_rows(
         )));
     }
     Ok(rows)
-}
-
-fn sha256_hex(text: &str) -> String {
-    use sha2::Digest;
-    sha2::Sha256::digest(text.as_bytes())
-        .iter()
-        .map(|b| format!("{b:02x}"))
-        .collect()
 }
 
 /// A bar with ETA on stderr, only if it is a terminal and `show`.

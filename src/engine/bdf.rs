@@ -175,6 +175,11 @@ impl Bdf {
         self.h_next
     }
 
+    /// Lowers the step proposal to at most `h`.
+    pub fn limit_proposal(&mut self, h: f64) {
+        self.h_next = self.h_next.min(h);
+    }
+
     /// Evaluations of the Jacobian so far.
     #[cfg(test)]
     pub fn jevals(&self) -> u64 {

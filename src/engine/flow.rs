@@ -52,6 +52,9 @@ pub(crate) enum EndWhy {
 const DENSE_REL: f64 = 1e-3;
 /// Most samples per accepted step in dense output.
 const DENSE_MAX: usize = 64;
+/// A segment ended by an event carries at most this many times its length
+/// as the next segment's first step proposal.
+const EVENT_CARRY: f64 = 10.0;
 
 /// A step path that can also give dense output: its midpoint, and the
 /// points of a uniform grid on the step. Defaults evaluate the path.
@@ -913,7 +916,7 @@ impl Flows {
                 return Err(e);
             }
             let mut path = st.path(s1);
-            if let Some(end) = close_step(
+            let end = close_step(
                 sys,
                 &mut self.watcher,
                 &mut self.y_end,
@@ -923,7 +926,17 @@ impl Flows {
                 (s, s1),
                 st.y_new(),
                 last.then_some(EndWhy::Reached),
-            ) {
+            );
+            if let Some(end) = end {
+                drop(path);
+                // An event inside the step: the step carried into the next
+                // segment grows from this segment's length, not from a step
+                // far past the event (on a flow integrated exactly the
+                // controller's steps would grow without bound, and with them
+                // the rounding error of the interpolant at the events).
+                if end.s > 0.0 && end.s < s1 {
+                    st.limit_proposal(EVENT_CARRY * end.s);
+                }
                 return Ok(Stepped::End(end));
             }
             drop(path);

@@ -249,6 +249,11 @@ impl Radau5 {
         Some(self.h_old * self.jac.weighted_norm(&self.scale) <= NONSTIFF_HLAMB)
     }
 
+    /// Lowers the step proposal to at most `h`.
+    pub fn limit_proposal(&mut self, h: f64) {
+        self.h_next = self.h_next.min(h);
+    }
+
     /// Evaluates the Jacobian at (`s`, `y`).
     fn refresh_jacobian(&mut self, s: f64, y: &[f64], jac: &mut Jac<'_>) {
         self.jac.refresh(s, y, jac);

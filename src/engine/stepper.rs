@@ -39,6 +39,9 @@ pub(crate) trait OwnStepper {
     /// The step proposal.
     fn proposal(&self) -> f64;
 
+    /// Lowers the step proposal to at most `h` (> 0).
+    fn limit_proposal(&mut self, h: f64);
+
     /// Evaluations of f so far.
     fn fevals(&self) -> u64;
 
@@ -81,6 +84,10 @@ impl OwnStepper for Dopri5 {
         Dopri5::proposal(self)
     }
 
+    fn limit_proposal(&mut self, h: f64) {
+        Dopri5::limit_proposal(self, h);
+    }
+
     fn fevals(&self) -> u64 {
         self.fevals
     }
@@ -114,6 +121,10 @@ impl OwnStepper for Radau5 {
 
     fn proposal(&self) -> f64 {
         Radau5::proposal(self)
+    }
+
+    fn limit_proposal(&mut self, h: f64) {
+        Radau5::limit_proposal(self, h);
     }
 
     fn fevals(&self) -> u64 {
@@ -153,6 +164,10 @@ impl OwnStepper for Bdf {
 
     fn proposal(&self) -> f64 {
         Bdf::proposal(self)
+    }
+
+    fn limit_proposal(&mut self, h: f64) {
+        Bdf::limit_proposal(self, h);
     }
 
     fn fevals(&self) -> u64 {

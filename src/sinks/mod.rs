@@ -271,12 +271,6 @@ pub struct RunInfo {
     pub design: Option<serde_json::Value>,
 }
 
-fn sha256_hex(text: &str) -> String {
-    use sha2::Digest;
-    let digest = sha2::Sha256::digest(text.as_bytes());
-    digest.iter().map(|b| format!("{b:02x}")).collect()
-}
-
 impl RunInfo {
     /// Run information for a system with scalar states `state_names`, no
     /// outputs, and jump rules `rule_names`; fill in the other fields as
@@ -339,14 +333,14 @@ impl RunInfo {
 
     /// Hex SHA-256 of the model source.
     pub fn source_sha256(&self) -> String {
-        sha256_hex(&self.source)
+        crate::source::sha256_hex(self.source.as_bytes())
     }
 
     /// Path and hex SHA-256 of each imported file.
     pub fn imports_sha256(&self) -> Vec<(String, String)> {
         self.imports
             .iter()
-            .map(|(path, text)| (path.clone(), sha256_hex(text)))
+            .map(|(path, text)| (path.clone(), crate::source::sha256_hex(text.as_bytes())))
             .collect()
     }
 

@@ -95,6 +95,16 @@ impl Table {
         self
     }
 
+    /// The columns, in order.
+    pub fn columns(&self) -> &[(String, Column)] {
+        &self.columns
+    }
+
+    /// The columns, in order, taken out of the table.
+    pub fn into_columns(self) -> Vec<(String, Column)> {
+        self.columns
+    }
+
     /// The Arrow schema and record batch of the table.
     fn batch(&self) -> Result<(SchemaRef, RecordBatch), TableError> {
         let first = self.columns.first().map_or(0, |(_, c)| c.len());

@@ -70,6 +70,9 @@ pub enum SweepError {
     /// Too many runs.
     #[error("{0} runs in total: at most {MAX_RUNS} per sweep (split it)")]
     TooMany(u128),
+    /// No run per grid point.
+    #[error("runs per grid point must be at least 1")]
+    NoRuns,
     /// A file could not be read or written.
     #[error("{path}: {source}")]
     Io {
@@ -114,6 +117,9 @@ impl SweepSpec {
 
     /// Checks names (no axis twice, none also in `fixed`) and the size.
     pub fn validate(&self, fixed: &[Override]) -> Result<(), SweepError> {
+        if self.runs == 0 {
+            return Err(SweepError::NoRuns);
+        }
         for (k, a) in self.axes.iter().enumerate() {
             if self.axes[..k].iter().any(|b| b.name == a.name)
                 || fixed.iter().any(|o| o.name == a.name)
@@ -197,6 +203,68 @@ impl Default for Control<'_> {
             skip: &|_| false,
         }
     }
+}
+
+/// A sweep ready to run: its spec and the model's metric names.
+#[derive(Debug, Clone)]
+pub struct Plan {
+    /// The grid, runs per point and base seed.
+    pub spec: SweepSpec,
+    /// The model's `metric` names, in declaration order (a row's metrics).
+    pub metrics: Vec<String>,
+}
+
+/// Why a sweep cannot start.
+#[derive(Debug)]
+pub enum PlanError {
+    /// The model as given does not compile, or an axis names nothing the
+    /// model can be set by (E0204, E0508): diagnostics located in `src`.
+    Model(Vec<crate::diagnostics::Diagnostic>),
+    /// An axis set twice, or too many runs.
+    Spec(SweepError),
+}
+
+/// Plans a sweep of `src` with the overrides `fixed`: `axes`, `runs` and
+/// `seed` as given, each else from the model's `sweep { }` block, else no
+/// axis, one run and the model's seed. The model must compile as given and
+/// every axis must name something it can be set by; other failures of a
+/// grid point (a value that makes it invalid) are its rows, not errors.
+pub fn plan(
+    src: &SourceFile,
+    fixed: &[Override],
+    axes: Option<Vec<Axis>>,
+    runs: Option<u64>,
+    seed: Option<u64>,
+    options: &CheckOptions,
+) -> Result<Plan, PlanError> {
+    let base = lang::compile_with(src, fixed, options).map_err(PlanError::Model)?;
+    let block = base.sweep().cloned().unwrap_or_default();
+    let axes = axes.unwrap_or_else(|| {
+        block
+            .axes
+            .into_iter()
+            .map(|(name, values)| Axis { name, values })
+            .collect()
+    });
+    let spec = SweepSpec::new(
+        axes,
+        runs.or(block.runs).unwrap_or(1),
+        seed.or(block.seed).unwrap_or(base.seed()),
+    );
+    spec.validate(fixed).map_err(PlanError::Spec)?;
+    if let Err(diags) = check_point(src, fixed, &spec, 0, options) {
+        let unknown: Vec<_> = diags
+            .into_iter()
+            .filter(|d| d.code == "E0204" || d.code == "E0508")
+            .collect();
+        if !unknown.is_empty() {
+            return Err(PlanError::Model(unknown));
+        }
+    }
+    Ok(Plan {
+        spec,
+        metrics: base.metrics().names().to_vec(),
+    })
 }
 
 /// Runs the part `shard` of `spec` on the model `src` with the fixed

@@ -260,10 +260,15 @@ pub fn points_csv(m: &Manifest, points: &[PointRow]) -> Vec<u8> {
     )
 }
 
-/// `runs.parquet` of `rows`: the columns of `runs.csv`, typed (`point`,
-/// `run`, `seed` unsigned; axes and metrics floats, metrics null unless
-/// the run completed; the rest text).
+/// `runs.parquet` of `rows`: [`runs_table`] as Parquet.
 pub fn runs_parquet(m: &Manifest, rows: &[RunRow]) -> Result<Vec<u8>, TableError> {
+    runs_table(m, rows).to_parquet()
+}
+
+/// The table of `rows`: the columns of `runs.csv`, typed (`point`, `run`,
+/// `seed` unsigned; axes and metrics floats, metrics null unless the run
+/// completed; the rest text).
+pub fn runs_table(m: &Manifest, rows: &[RunRow]) -> Table {
     let mut t = Table::new()
         .column(
             "point",
@@ -285,13 +290,17 @@ pub fn runs_parquet(m: &Manifest, rows: &[RunRow]) -> Result<Vec<u8>, TableError
             "command",
             Column::Text(rows.iter().map(|r| m.command(r)).collect()),
         )
-        .to_parquet()
 }
 
-/// `points.parquet` of `points`: the columns of `points.csv`, typed
-/// (`point`, `runs`, `completed`, `<metric>_count` unsigned; the rest
-/// floats, NaN where `points.csv` has NaN).
+/// `points.parquet` of `points`: [`points_table`] as Parquet.
 pub fn points_parquet(m: &Manifest, points: &[PointRow]) -> Result<Vec<u8>, TableError> {
+    points_table(m, points).to_parquet()
+}
+
+/// The table of `points`: the columns of `points.csv`, typed (`point`,
+/// `runs`, `completed`, `<metric>_count` unsigned; the rest floats, NaN
+/// where `points.csv` has NaN).
+pub fn points_table(m: &Manifest, points: &[PointRow]) -> Table {
     let mut t = Table::new().column(
         "point",
         Column::U64(points.iter().map(|p| p.point as u64).collect()),
@@ -321,7 +330,7 @@ pub fn points_parquet(m: &Manifest, points: &[PointRow]) -> Result<Vec<u8>, Tabl
                 Column::U64(stats.iter().map(|s| s.count).collect()),
             );
     }
-    t.to_parquet()
+    t
 }
 
 fn floats(v: impl Iterator<Item = Option<f64>>) -> Column {

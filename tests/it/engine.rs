@@ -592,3 +592,24 @@ mod semantics {
         }
     }
 }
+
+/// A lossless ball integrates exactly (constant acceleration), so with a far
+/// horizon the controller's steps grow far past each flight; Hairer's
+/// estimate of h·λ then reads the Jacobian's norm (1) times a long step as
+/// stiffness. Such error-free steps do not count: the run reaches its jump
+/// horizon (it stopped with "the flow became stiff" at j = 17 031 before).
+#[test]
+fn an_exactly_integrated_flow_is_not_stiff() {
+    let ball = BouncingBall::new(9.81, 1.0);
+    let settings = SimSettings::default()
+        .horizon_t(1e9)
+        .horizon_j(25_000)
+        .dt_out(Some(100.0));
+    let arc = run(&ball, &[1.0, 0.0], &settings, 0);
+    assert_eq!(arc.termination().unwrap().cause, TerminationCause::HorizonJ);
+    assert_eq!(arc.jumps().len(), 25_000);
+    // Energy is kept: every impact at the speed of the first, √(2 g).
+    let v = (2.0 * 9.81f64).sqrt();
+    let last = arc.jumps().last().expect("it bounces");
+    assert!((last.pre[1] + v).abs() < 1e-6 * v, "v = {}", last.pre[1]);
+}

@@ -1,0 +1,121 @@
+"""Sweeps and Monte Carlo from Python: :meth:`Model.sweep` runs a grid of
+parameter values × seeded runs on all cores exactly as ``hybsim sweep`` does
+(same seeds, same metrics, same tables) and returns the tables as columns."""
+
+from __future__ import annotations
+
+from typing import Any, Dict, Iterator, List, Mapping, Optional, Sequence, Tuple, Union
+
+import numpy as np
+
+from . import _hybsim
+
+#: A grid: ``{"lambda": [0.5, 0.8], "g": "9:0.5:10"}`` (values, or a range
+#: ``a:step:b`` / list as ``--grid`` writes it), or ``["lambda=0.5:0.1:0.9"]``.
+Grid = Union[Mapping[str, Any], Sequence[str]]
+
+
+def _axes(grid: Grid) -> List[Tuple[str, List[float]]]:
+    """``grid`` as ``(name, values)`` pairs, in order."""
+    if isinstance(grid, str):
+        grid = [grid]
+    if isinstance(grid, Mapping):
+        axes = []
+        for name, values in grid.items():
+            if isinstance(values, str):
+                axes.append(_hybsim.parse_axis(f"{name}={values}"))
+            else:
+                arr = np.asarray(values, dtype=np.float64).reshape(-1)
+                if arr.size == 0:
+                    raise ValueError(f"grid axis `{name}` has no value")
+                axes.append((str(name), [float(v) for v in arr]))
+        return axes
+    return [_hybsim.parse_axis(str(text)) for text in grid]
+
+
+class Table(Mapping[str, Any]):
+    """A result table: named columns of equal length, in order. Numbers are
+    numpy arrays (``uint64`` indices, counts and seeds; ``float64`` values,
+    NaN where missing), text columns lists of str. ``len(table)`` is the
+    number of rows; ``table["rate"]`` a column."""
+
+    def __init__(self, columns: Dict[str, Any]):
+        self._columns = columns
+
+    def __getitem__(self, name: str) -> Any:
+        try:
+            return self._columns[name]
+        except KeyError:
+            known = ", ".join(self._columns)
+            raise KeyError(f"no column `{name}` (columns: {known})") from None
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._columns)
+
+    def __len__(self) -> int:
+        first = next(iter(self._columns.values()), [])
+        return len(first)
+
+    @property
+    def columns(self) -> List[str]:
+        """The column names, in order."""
+        return list(self._columns)
+
+    def to_pandas(self):
+        """The table as a pandas DataFrame (needs pandas)."""
+        import pandas as pd
+
+        return pd.DataFrame(self._columns)
+
+    def to_polars(self):
+        """The table as a polars DataFrame (needs polars)."""
+        import polars as pl
+
+        return pl.DataFrame(self._columns)
+
+    def __repr__(self) -> str:
+        return f"<hybsim.Table: {len(self)} rows × {len(self._columns)} columns>"
+
+
+class Sweep:
+    """The results of :meth:`Model.sweep`, as ``hybsim sweep`` writes them.
+
+    ``runs``: one row per run (``point``, ``run``, ``seed``, the axes,
+    ``status``, ``cause``, the metrics (NaN unless the run completed),
+    ``message``, ``command``: the ``hybsim run`` line that replays it).
+    ``points``: one row per grid point (``point``, the axes, ``runs``,
+    ``completed``, then ``<metric>_mean``, ``_std``, ``_min``, ``_max``,
+    ``_count`` over the completed runs). ``axes`` and ``metrics`` name
+    them; ``seed`` is the base seed, ``runs_per_point`` the runs per point.
+    """
+
+    def __init__(self, data: Dict[str, Any]):
+        self.runs = Table(data["runs"])
+        self.points = Table(data["points"])
+        self.axes: List[str] = list(data["axes"])
+        self.metrics: List[str] = list(data["metrics"])
+        self.seed: int = data["seed"]
+        self.runs_per_point: int = data["runs_per_point"]
+
+    @property
+    def failed(self) -> List[int]:
+        """The indices (into ``runs``) of the runs that did not complete."""
+        return [i for i, s in enumerate(self.runs["status"]) if s != "completed"]
+
+    def __repr__(self) -> str:
+        return (
+            f"<hybsim.Sweep: {len(self.points)} grid points × {self.runs_per_point} runs, "
+            f"metrics {', '.join(self.metrics) or '(none)'}>"
+        )
+
+
+def sweep_model(
+    native: "_hybsim.Model",
+    grid: Optional[Grid],
+    runs: Optional[int],
+    seed: Optional[int],
+    threads: Optional[int],
+) -> Sweep:
+    """The body of :meth:`Model.sweep`."""
+    axes = None if grid is None else _axes(grid)
+    return Sweep(_hybsim.sweep(native, axes, runs, seed, threads))
