@@ -3,7 +3,10 @@
 //! limit's README and params.json), run as `hybsim run --no-mcap` runs them
 //! (compiled model, every sample pushed to a sink that keeps nothing), on
 //! the default settings and with `exact_affine` on and off, interleaved with
-//! the limit's variants in the same minutes. Prints CPU times (this
+//! the limit's variants in the same minutes; the last column times the
+//! default path with `solver = auto` instead of Dopri5 (the same arc on
+//! these non-stiff flows, checked), to tell whether auto may be the
+//! default. Prints CPU times (this
 //! thread's, from /proc), the work done (jumps, end time, accuracy) and the
 //! ratios. Results and the machine are in BENCHMARKS.md.
 //!
@@ -24,7 +27,7 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use hybsim::arc::{ArcSink, HybridTime, SampleKind, Termination};
-use hybsim::engine::{ExactAffine, simulate};
+use hybsim::engine::{ExactAffine, Solver, simulate};
 use hybsim::ir::CompiledModel;
 use hybsim::lang;
 use hybsim::source::SourceFile;
@@ -59,10 +62,14 @@ impl ArcSink for Tally {
     }
 }
 
-/// One run of `m` with `mode`: its tally.
-fn run(m: &CompiledModel, mode: ExactAffine) -> Tally {
+/// One run of `m` with `mode` (and `solver = auto` instead of the model's
+/// Dopri5 if `auto_solver`): its tally.
+fn run(m: &CompiledModel, mode: ExactAffine, auto_solver: bool) -> Tally {
     let (x0, mut rng) = m.start(m.seed());
-    let s = m.settings().exact_affine(mode);
+    let mut s = m.settings().exact_affine(mode);
+    if auto_solver && let Some((rtol, atol)) = s.solver.tolerances() {
+        s = s.solver(Solver::Auto { rtol, atol });
+    }
     let mut tally = Tally::default();
     simulate(m, &x0, &s, &mut rng, &mut tally).expect("simulation");
     tally
@@ -71,13 +78,13 @@ fn run(m: &CompiledModel, mode: ExactAffine) -> Tally {
 /// CPU seconds per run: the median over 5 batches of the mean of runs
 /// filling about `budget / 5` seconds each (batches average out the
 /// clock's granularity on runs of tens of µs).
-fn time(m: &CompiledModel, mode: ExactAffine, budget: f64) -> f64 {
+fn time(m: &CompiledModel, mode: ExactAffine, auto_solver: bool, budget: f64) -> f64 {
     let mut batches = Vec::new();
     for _ in 0..5 {
         let start = cpu_now();
         let mut n = 0u32;
         while n == 0 || (cpu_now() - start < budget / 5.0 && n < 10_000) {
-            let _ = std::hint::black_box(run(m, mode));
+            let _ = std::hint::black_box(run(m, mode, auto_solver));
             n += 1;
         }
         batches.push((cpu_now() - start) / f64::from(n));
@@ -119,16 +126,23 @@ fn main() {
     .unwrap_or(Value::Null);
     let modes = [ExactAffine::Auto, ExactAffine::On, ExactAffine::Off];
     println!(
-        "| benchmark | hybsim auto | hybsim on | hybsim off | limit-Dopri5 | limit-expm | auto / Dopri5 | off / Dopri5 | on / expm | jumps (hybsim / limit) |"
+        "| benchmark | hybsim auto | hybsim on | hybsim off | limit-Dopri5 | limit-expm | auto / Dopri5 | off / Dopri5 | on / expm | jumps (hybsim / limit) | hybsim auto, `solver = auto` / Dopri5 |"
     );
-    println!("|---|---|---|---|---|---|---|---|---|---|");
+    println!("|---|---|---|---|---|---|---|---|---|---|---|");
     for bench in ["bb", "sh", "agents"] {
         let path = root.join(format!("benches/models/limit_{bench}.hyb"));
         let src = SourceFile::read(&path).expect("benchmark model");
         let m = lang::compile(&src, &[])
             .unwrap_or_else(|d| panic!("{}", hybsim::diagnostics::render(&d, &src, false)));
         // Same work on every path: jumps and the end state.
-        let tallies: Vec<Tally> = modes.iter().map(|&mode| run(&m, mode)).collect();
+        let tallies: Vec<Tally> = modes.iter().map(|&mode| run(&m, mode, false)).collect();
+        // `solver = auto` on these non-stiff flows: Dopri5's arc, at what cost.
+        let auto_solver = run(&m, ExactAffine::Auto, true);
+        assert_eq!(
+            (auto_solver.jumps, auto_solver.samples, &auto_solver.last),
+            (tallies[0].jumps, tallies[0].samples, &tallies[0].last),
+            "{bench}: solver = auto must give Dopri5's arc"
+        );
         for (mode, t) in modes.iter().zip(&tallies) {
             let end = t.end.as_ref().map(|e| e.to_string()).unwrap_or_default();
             eprintln!(
@@ -149,6 +163,7 @@ fn main() {
             }
         }
         let mut ours = vec![Vec::new(); modes.len()];
+        let mut ours_auto_solver = Vec::new();
         let mut dopri = Vec::new();
         let mut expm = Vec::new();
         let mut limit_jumps = None;
@@ -158,8 +173,9 @@ fn main() {
                 if bench == "agents" && mode == ExactAffine::On {
                     continue;
                 }
-                ours[k].push(time(&m, mode, 0.5));
+                ours[k].push(time(&m, mode, false, 0.5));
             }
+            ours_auto_solver.push(time(&m, ExactAffine::Auto, true, 0.5));
             if have_limit {
                 for line in limit(&limit_bin, bench) {
                     let cpu = line["cpu_median_s"].as_f64().unwrap_or(f64::NAN);
@@ -186,13 +202,15 @@ fn main() {
         };
         let (auto, on, off) = (ms(&ours[0]), ms(&ours[1]), ms(&ours[2]));
         let (d, e) = (ms(&dopri), ms(&expm));
+        let auto_solver = ms(&ours_auto_solver);
         println!(
-            "| {bench} | {auto:.3} ms | {on:.3} ms | {off:.3} ms | {d:.3} ms | {e:.3} ms | {:.2} | {:.2} | {:.2} | {} / {} |",
+            "| {bench} | {auto:.3} ms | {on:.3} ms | {off:.3} ms | {d:.3} ms | {e:.3} ms | {:.2} | {:.2} | {:.2} | {} / {} | {auto_solver:.3} ms, {:.3} |",
             auto / d,
             off / d,
             on / e,
             tallies[0].jumps,
-            limit_jumps.map_or("?".into(), |j| j.to_string())
+            limit_jumps.map_or("?".into(), |j| j.to_string()),
+            auto_solver / auto
         );
     }
 }

@@ -78,6 +78,8 @@ impl Jacobian {
 pub(crate) struct DenseLu<T: ComplexField<RealField = f64> + Copy> {
     pub m: DMatrix<T>,
     piv: Vec<usize>,
+    /// The rows below the pivot with a nonzero multiplier (scratch).
+    rows: Vec<usize>,
 }
 
 impl<T: ComplexField<RealField = f64> + Copy> DenseLu<T> {
@@ -85,6 +87,7 @@ impl<T: ComplexField<RealField = f64> + Copy> DenseLu<T> {
         Self {
             m: DMatrix::from_element(n, n, T::zero()),
             piv: vec![0; n],
+            rows: Vec::with_capacity(n),
         }
     }
 
@@ -121,13 +124,33 @@ impl<T: ComplexField<RealField = f64> + Copy> DenseLu<T> {
                 m.swap_rows(k, p);
             }
             let inv = T::one() / m[(k, k)];
+            // Only rows with a nonzero multiplier are updated: the Newton
+            // matrices of models with families (each state coupled to a
+            // few others) are mostly structural zeros, and so are their
+            // factors away from the fill-in.
+            self.rows.clear();
             for r in k + 1..n {
-                m[(r, k)] *= inv;
+                if m[(r, k)] != T::zero() {
+                    m[(r, k)] *= inv;
+                    self.rows.push(r);
+                }
             }
+            if self.rows.is_empty() {
+                continue;
+            }
+            let dense = self.rows.len() == n - k - 1;
             for c in k + 1..n {
                 let u = m[(k, c)];
-                if u != T::zero() {
+                if u == T::zero() {
+                    continue;
+                }
+                if dense {
                     for r in k + 1..n {
+                        let l = m[(r, k)];
+                        m[(r, c)] -= l * u;
+                    }
+                } else {
+                    for &r in &self.rows {
                         let l = m[(r, k)];
                         m[(r, c)] -= l * u;
                     }
@@ -265,6 +288,41 @@ mod tests {
         assert!((bs[0] - xs[0]).norm() < 1e-14 && (bs[1] - xs[1]).norm() < 1e-14);
         let mut sing = DenseLu::<f64>::new(2);
         assert!(!sing.factor(), "the zero matrix is singular");
+    }
+
+    /// A sparse matrix (a chain of couplings plus one dense row and
+    /// column, with fill-in) and a permuted one solve exactly like their
+    /// dense definition.
+    #[test]
+    fn dense_lu_solves_sparse_systems() {
+        let n = 9;
+        let mut a = vec![0.0; n * n];
+        for i in 0..n {
+            a[i * n + i] = 4.0 + i as f64;
+            if i + 1 < n {
+                a[i * n + i + 1] = -1.0;
+                a[(i + 1) * n + i] = 0.5 * (i as f64 - 3.0);
+            }
+            a[i * n + n - 1] += 0.3;
+            a[(n - 1) * n + i] += 0.7;
+        }
+        // A zero first pivot: the factorization swaps rows.
+        a.swap(0, 2 * n);
+        let x: Vec<f64> = (0..n).map(|i| (i as f64).sin() + 1.0).collect();
+        let mut lu = DenseLu::<f64>::new(n);
+        for r in 0..n {
+            for c in 0..n {
+                lu.m[(r, c)] = a[r * n + c];
+            }
+        }
+        assert!(lu.factor());
+        let mut b: Vec<f64> = (0..n)
+            .map(|r| (0..n).map(|c| a[r * n + c] * x[c]).sum())
+            .collect();
+        lu.solve(&mut b);
+        for i in 0..n {
+            assert!((b[i] - x[i]).abs() < 1e-13, "x[{i}] = {} vs {}", b[i], x[i]);
+        }
     }
 
     /// `factor_shifted` factorizes μI − J: solving with it inverts that
