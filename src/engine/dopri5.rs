@@ -123,8 +123,9 @@ impl Dopri5 {
     }
 
     /// The same stepper with the stiffness test run every `every` accepted
-    /// steps (≥ 1; default 1000, Hairer's): `Solver::Auto` tests every
-    /// step, to hand a stiff flow to the implicit method early.
+    /// steps (≥ 1; default 1000, Hairer's; at every step once it fired):
+    /// `Solver::Auto` tests every 10, to hand a stiff flow to the implicit
+    /// method early.
     pub fn stiffness_test_every(mut self, every: u32) -> Self {
         self.stiff_every = every.max(1);
         self

@@ -558,6 +558,11 @@ enum Stepped {
 /// latest after this many steps (then with a Jacobian of its own).
 const NONSTIFF_EVERY: u32 = 25;
 
+/// `Solver::Auto` runs Dopri5's stiffness test every this many steps (and
+/// at every step once it found the step at its stability limit), so a
+/// stiff flow is handed over after about 10 + 15 steps.
+const AUTO_STIFF_EVERY: u32 = 10;
+
 /// End of a flow segment: local time reached and why; the state is written
 /// back into the caller's vector.
 pub(crate) struct SegmentEnd {
@@ -644,14 +649,14 @@ impl Flows {
             dopri: match settings.solver {
                 Solver::Dopri5 { rtol, atol } => Some(OwnDopri5::new(n, rtol, atol)),
                 Solver::Auto { rtol, atol } => {
-                    Some(OwnDopri5::new(n, rtol, atol).stiffness_test_every(1))
+                    Some(OwnDopri5::new(n, rtol, atol).stiffness_test_every(AUTO_STIFF_EVERY))
                 }
                 _ => None,
             },
+            // `Solver::Auto` makes its Radau5 at its first switch: runs
+            // that never turn stiff do not pay for its n×n matrices.
             radau: match settings.solver {
-                Solver::Radau5 { rtol, atol } | Solver::Auto { rtol, atol } => {
-                    Some(Radau5::new(n, rtol, atol))
-                }
+                Solver::Radau5 { rtol, atol } => Some(Radau5::new(n, rtol, atol)),
                 _ => None,
             },
             bdf: match settings.solver {
@@ -787,16 +792,18 @@ impl Flows {
         j: u64,
         d_end: f64,
     ) -> Result<SegmentEnd, SimError> {
-        let (Some(mut explicit), Some(mut implicit)) = (self.dopri.take(), self.radau.take())
-        else {
-            unreachable!("Solver::Auto has both steppers")
+        let Some(mut explicit) = self.dopri.take() else {
+            unreachable!("Solver::Auto has its Dopri5")
         };
+        let mut implicit = self.radau.take();
+        let (n, (rtol, atol)) = (self.y_prev.len(), tolerances(solver));
         let mut s0 = 0.0;
         let result = loop {
             let on_implicit = self.auto_implicit == Some(true);
             let (stepped, h) = if on_implicit {
-                let r = self.own_segment(sys, out, &mut implicit, solver, (t0, j), s0, d_end);
-                (r, implicit.proposal())
+                let st = implicit.get_or_insert_with(|| Radau5::new(n, rtol, atol));
+                let r = self.own_segment(sys, out, st, solver, (t0, j), s0, d_end);
+                (r, st.proposal())
             } else {
                 let r = self.own_segment(sys, out, &mut explicit, solver, (t0, j), s0, d_end);
                 (r, explicit.proposal())
@@ -809,7 +816,9 @@ impl Flows {
                         explicit.set_proposal(h);
                         "dopri5"
                     } else {
-                        implicit.set_proposal(h);
+                        implicit
+                            .get_or_insert_with(|| Radau5::new(n, rtol, atol))
+                            .set_proposal(h);
                         "radau5"
                     };
                     sys.flow_map(HybridTime::new(t0 + s, j), &self.y_prev, &mut self.f_prev);
@@ -823,7 +832,7 @@ impl Flows {
             }
         };
         self.dopri = Some(explicit);
-        self.radau = Some(implicit);
+        self.radau = implicit;
         result
     }
 

@@ -51,8 +51,8 @@ pub enum Solver {
     },
     /// Dopri5 while the flow is not stiff, Radau5 while it is, as LSODA
     /// switches between Adams and BDF: Dopri5's stiffness test (Hairer's,
-    /// run at every step here) hands the flow to Radau5 after 15 steps at
-    /// its stability limit; Radau5 hands it back when its step times the
+    /// run every 10 steps here, and at every step once it fired) hands the
+    /// flow to Radau5 after 15 steps at its stability limit; Radau5 hands it back when its step times the
     /// norm of the Jacobian falls to 1 (the explicit method is then stable
     /// at the same step). The switches are reported to the sink
     /// ([`ArcSink::solver_switch`](crate::arc::ArcSink::solver_switch)).
