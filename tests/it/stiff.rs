@@ -387,6 +387,62 @@ fn auto_switches_are_in_the_summary_and_the_mcap_metadata() {
     assert!(line.contains("solver auto: dopri5 throughout"), "{line}");
 }
 
+/// `bdf` and `auto` are `solver` values of the `sim` block (tolerances
+/// kept) and of `--solver` (which keeps the model's tolerances and takes
+/// `--rtol`), named in the logs' settings.
+#[test]
+fn bdf_and_auto_are_sim_keys_and_flags() {
+    use crate::util::{code, hybsim, stderr, stdout};
+    for (name, want) in [
+        (
+            "bdf",
+            Solver::Bdf {
+                rtol: 1e-7,
+                atol: 1e-11,
+            },
+        ),
+        (
+            "auto",
+            Solver::Auto {
+                rtol: 1e-7,
+                atol: 1e-11,
+            },
+        ),
+    ] {
+        let src = VAN_DER_POL.replace(
+            "solver = radau5",
+            &format!("solver = {name}; rtol = 1e-7; atol = 1e-11"),
+        );
+        assert_eq!(compile(&src).settings().solver, want);
+    }
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::write(
+        dir.path().join("vdp.hyb"),
+        VAN_DER_POL.replace("T = 3000", "T = 10"),
+    )
+    .unwrap();
+    for name in ["bdf", "auto"] {
+        let out = hybsim(
+            dir.path(),
+            &[
+                "run",
+                "vdp.hyb",
+                "--solver",
+                name,
+                "--rtol",
+                "1e-7",
+                "-q",
+                "--no-mcap",
+                "--json",
+            ],
+        );
+        assert_eq!(code(&out), 0, "{}", stderr(&out));
+        let v: Value = serde_json::from_str(&stdout(&out)).unwrap();
+        assert_eq!(v["solver"], name);
+        assert_eq!(v["cause"], "horizon_t", "{v}");
+    }
+}
+
 /// Rust systems without a `jacobian` (finite differences by default; the
 /// ball, the overlap demo) and with one (the sample-and-hold loop) on both
 /// implicit solvers keep the hybrid semantics: the bouncing ball's
