@@ -110,12 +110,23 @@ impl Diagnostic {
     /// Points the labels into the override `--set name=value` instead of the model: `spans` are
     /// byte ranges of `value` (the override's expression was parsed from it alone). Renders as
     /// `┌─ --set name:1:col` with the caret under the value.
-    pub fn in_override(mut self, name: &str, value: &str) -> Self {
-        let shift = name.len() + 1;
+    pub fn in_override(self, name: &str, value: &str) -> Self {
+        self.in_set_argument(name, &format!("{name}={value}"), name.len() + 1)
+    }
+
+    /// Points the labels into the `--set` argument `text` (as typed, or
+    /// `name=value` rebuilt), named `--set name`: `spans` are byte ranges of
+    /// `text` from byte `shift` on (0: the whole argument, e.g. to point at
+    /// the name).
+    pub fn in_set_argument(mut self, name: &str, text: &str, shift: usize) -> Self {
         // Named after the override, so that two overrides are two files when rendered.
         let origin = std::sync::Arc::new(SourceFile::new(
-            format!("--set {name}"),
-            format!("{name}={value}"),
+            if name.is_empty() {
+                "--set".to_string()
+            } else {
+                format!("--set {name}")
+            },
+            text,
         ));
         for l in &mut self.labels {
             l.span = Span::new(l.span.start + shift, l.span.end + shift);

@@ -15,6 +15,22 @@
 //! assert!(matches!(fuzz::check(&bad), Ok(Outcome::Rejected { errors: 1 })));
 //! ```
 //!
+//! A case may also carry `--set` overrides and the CSV files its
+//! `table("…")` calls read ([`Input`]); an override's errors must point into
+//! the override (`--set name:1:col`), a table's into its file (`line:col`).
+//!
+//! ```
+//! use hybsim::fuzz::{Budget, Input, Outcome};
+//!
+//! let input = Input::from_bytes(b"model m\nparam k = table(\"k.csv\")\nstate x = k[2]\nflow { x' = -x }\n\
+//!     %%set T=0.5\n%%table k.csv\n1\n2\n").unwrap();
+//! assert_eq!((input.overrides.len(), input.tables.len()), (1, 1));
+//! assert!(matches!(input.run(&Budget::default()), Ok(Outcome::Ran { .. })));
+//! let ragged = Input::from_bytes(b"model m\nparam k = table(\"k.csv\")\nstate x = k[1]\nflow { x' = -x }\n\
+//!     %%set nosuch=1e308\n%%table k.csv\n1,2\n3\n").unwrap();
+//! assert!(matches!(ragged.check(), Ok(Outcome::Rejected { .. })));
+//! ```
+//!
 //! A hang is the one failure these functions cannot see: callers bound the
 //! time (the mutation test runs each case on a thread with a deadline,
 //! libFuzzer has `-timeout`).
@@ -25,7 +41,7 @@ use std::time::{Duration, Instant};
 
 use crate::arc::{ArcSink, HybridTime, SampleKind};
 use crate::diagnostics::{Diagnostic, Severity};
-use crate::lang;
+use crate::lang::{self, Override};
 use crate::source::SourceFile;
 
 /// How far a compiled input is simulated: the model's own horizons, cut to
@@ -161,6 +177,13 @@ pub fn located(stage: Stage, src: &SourceFile, diags: &[Diagnostic]) -> Result<(
                 (!inside).then_some("label outside its file")
             })
         };
+        // An override's error is shown in the override, a table's contents error in the file.
+        let file = d.primary_file(src);
+        let why = why.or(match d.code {
+            "E0508" if !file.starts_with("--set") => Some("override error not in its --set"),
+            "E0804" if file == src.name() => Some("table error not in its file"),
+            _ => None,
+        });
         if let Some(why) = why {
             return Err(Violation::Unlocated {
                 stage,
@@ -193,7 +216,12 @@ pub fn parse(src: &SourceFile) -> Result<Outcome, Violation> {
 
 /// Checks `src` as `hybsim check` does (the fuzz target `check`).
 pub fn check(src: &SourceFile) -> Result<Outcome, Violation> {
-    let diags = guarded(Stage::Check, || lang::check_only(src, &[]))?;
+    check_with(src, &[])
+}
+
+/// [`check`] with `--set` overrides.
+pub fn check_with(src: &SourceFile, overrides: &[Override]) -> Result<Outcome, Violation> {
+    let diags = guarded(Stage::Check, || lang::check_only(src, overrides))?;
     located(Stage::Check, src, &diags)?;
     Ok(match errors(&diags) {
         0 => Outcome::Accepted,
@@ -204,8 +232,16 @@ pub fn check(src: &SourceFile) -> Result<Outcome, Violation> {
 /// Checks and compiles `src` (the fuzz target `compile`); an input `check`
 /// accepts must compile.
 pub fn compile(src: &SourceFile) -> Result<(Outcome, Option<lang::CompiledModel>), Violation> {
-    let checked = check(src)?;
-    let compiled = guarded(Stage::Compile, || lang::compile(src, &[]))?;
+    compile_with(src, &[])
+}
+
+/// [`compile`] with `--set` overrides.
+pub fn compile_with(
+    src: &SourceFile,
+    overrides: &[Override],
+) -> Result<(Outcome, Option<lang::CompiledModel>), Violation> {
+    let checked = check_with(src, overrides)?;
+    let compiled = guarded(Stage::Compile, || lang::compile(src, overrides))?;
     match compiled {
         Ok(model) => Ok((checked, Some(model))),
         Err(diags) => {
@@ -229,7 +265,16 @@ pub fn compile(src: &SourceFile) -> Result<(Outcome, Option<lang::CompiledModel>
 /// outputs at every sample (the fuzz target `run`); a run-time error must be
 /// located as `hybsim run` renders it.
 pub fn run(src: &SourceFile, budget: &Budget) -> Result<Outcome, Violation> {
-    let (outcome, model) = compile(src)?;
+    run_with(src, &[], budget)
+}
+
+/// [`run`] with `--set` overrides.
+pub fn run_with(
+    src: &SourceFile,
+    overrides: &[Override],
+    budget: &Budget,
+) -> Result<Outcome, Violation> {
+    let (outcome, model) = compile_with(src, overrides)?;
     let Some(model) = model else {
         return Ok(outcome);
     };
@@ -286,19 +331,171 @@ impl Target {
         }
     }
 
-    /// The body of the fuzz target: `data` as the text of a model file
-    /// `fuzz.hyb` in the current folder (what `hybsim` does with a file that
-    /// is not UTF-8 is the CLI's business: such inputs are skipped).
+    /// The body of the fuzz target: `data` as an [`Input`] (a model's
+    /// text, possibly followed by `%%set` overrides and `%%table` files;
+    /// what `hybsim` does with a model or override that is not UTF-8 is the
+    /// CLI's business: such inputs are skipped).
     pub fn exercise(self, data: &[u8]) -> Result<Outcome, Violation> {
-        let Ok(text) = std::str::from_utf8(data) else {
+        let Some(input) = Input::from_bytes(data) else {
             return Ok(Outcome::Rejected { errors: 0 });
         };
-        let src = SourceFile::new("fuzz.hyb", text);
-        match self {
-            Target::Parse => parse(&src),
-            Target::Check => check(&src),
-            Target::Compile => compile(&src).map(|(o, _)| o),
-            Target::Run => run(&src, &Budget::default()),
+        input.exercise(self)
+    }
+}
+
+/// One fuzz case: a model's text, the `--set` overrides given with it (as
+/// typed: `name=value`) and the files its `table("…")` calls may read
+/// (name, bytes), written beside the model in a temporary folder.
+///
+/// As bytes ([`Input::from_bytes`], the fuzz targets' input and the seed
+/// files): the model, then any number of sections, each from a line
+/// starting with `%%`: `%%set name=value` (the rest of the line is one
+/// override) or `%%table NAME` (the lines up to the next `%%` line are
+/// the file `NAME`). Text without such lines is a model alone.
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct Input {
+    /// The model's text.
+    pub model: String,
+    /// `--set` arguments, as typed.
+    pub overrides: Vec<String>,
+    /// Table files: a plain file name (letters, digits, `_`, `-`, `.`; not
+    /// starting with `.`) and its bytes.
+    pub tables: Vec<(String, Vec<u8>)>,
+}
+
+impl Input {
+    /// A model without overrides or tables.
+    pub fn model(text: impl Into<String>) -> Self {
+        Self {
+            model: text.into(),
+            ..Self::default()
+        }
+    }
+
+    /// Reads the framed form (see [`Input`]); `None` when the model or an
+    /// override is not UTF-8. A table section with an unusable name is
+    /// dropped (the model then finds no such file).
+    pub fn from_bytes(data: &[u8]) -> Option<Self> {
+        let mut input = Input::default();
+        let mut lines = data.split_inclusive(|&b| b == b'\n').peekable();
+        let mut model = Vec::new();
+        while let Some(line) = lines.next_if(|l| !l.starts_with(b"%%")) {
+            model.extend_from_slice(line);
+        }
+        input.model = String::from_utf8(model).ok()?;
+        while let Some(header) = lines.next() {
+            let header = std::str::from_utf8(&header[2..]).ok()?;
+            let header = header.strip_suffix('\n').unwrap_or(header);
+            let header = header.strip_suffix('\r').unwrap_or(header);
+            if let Some(set) = header.strip_prefix("set ") {
+                input.overrides.push(set.to_string());
+            } else if let Some(name) = header.strip_prefix("table ") {
+                let mut bytes = Vec::new();
+                while let Some(line) = lines.next_if(|l| !l.starts_with(b"%%")) {
+                    bytes.extend_from_slice(line);
+                }
+                let plain = !name.is_empty()
+                    && !name.starts_with('.')
+                    && name
+                        .bytes()
+                        .all(|b| b.is_ascii_alphanumeric() || matches!(b, b'_' | b'-' | b'.'));
+                if plain {
+                    input.tables.push((name.to_string(), bytes));
+                }
+            }
+        }
+        Some(input)
+    }
+
+    /// The framed form, read back by [`Input::from_bytes`] (a model line
+    /// starting with `%%` would be read as a section).
+    pub fn to_bytes(&self) -> Vec<u8> {
+        let mut out = self.model.clone().into_bytes();
+        if !out.is_empty() && !out.ends_with(b"\n") && !(self.overrides.is_empty() && self.tables.is_empty()) {
+            out.push(b'\n');
+        }
+        for o in &self.overrides {
+            out.extend_from_slice(format!("%%set {o}\n").as_bytes());
+        }
+        for (name, bytes) in &self.tables {
+            out.extend_from_slice(format!("%%table {name}\n").as_bytes());
+            out.extend_from_slice(bytes);
+            if !bytes.is_empty() && !bytes.ends_with(b"\n") {
+                out.push(b'\n');
+            }
+        }
+        out
+    }
+
+    /// Runs `target` on this case.
+    pub fn exercise(&self, target: Target) -> Result<Outcome, Violation> {
+        match target {
+            Target::Parse => self.parse(),
+            Target::Check => self.check(),
+            Target::Compile => self.with_model(|src, ov| compile_with(src, ov).map(|(o, _)| o)),
+            Target::Run => self.run(&Budget::default()),
+        }
+    }
+
+    /// [`parse`] of the model, and each override parsed as the CLI does.
+    pub fn parse(&self) -> Result<Outcome, Violation> {
+        let src = SourceFile::new("fuzz.hyb", self.model.as_str());
+        let model = parse(&src)?;
+        match self.overrides(&src)? {
+            Ok(_) => Ok(model),
+            Err(errors) => Ok(Outcome::Rejected { errors }),
+        }
+    }
+
+    /// [`check_with`] on this case.
+    pub fn check(&self) -> Result<Outcome, Violation> {
+        self.with_model(check_with)
+    }
+
+    /// [`run_with`] on this case.
+    pub fn run(&self, budget: &Budget) -> Result<Outcome, Violation> {
+        self.with_model(|src, ov| run_with(src, ov, budget))
+    }
+
+    /// The overrides parsed as `hybsim` parses `--set`: all of them, or
+    /// the number of those refused (each refusal located in its override).
+    fn overrides(&self, src: &SourceFile) -> Result<Result<Vec<Override>, usize>, Violation> {
+        let mut parsed = Vec::new();
+        let mut refused = Vec::new();
+        for o in &self.overrides {
+            match guarded(Stage::Parse, || o.parse::<Override>())? {
+                Ok(o) => parsed.push(o),
+                Err(d) => refused.push(d),
+            }
+        }
+        located(Stage::Parse, src, &refused)?;
+        Ok(if refused.is_empty() {
+            Ok(parsed)
+        } else {
+            Err(refused.len())
+        })
+    }
+
+    /// Calls `f` with the model (in a temporary folder holding the
+    /// tables, if any) and the parsed overrides; refused overrides end the
+    /// case as `hybsim` does, before the model is read.
+    fn with_model(
+        &self,
+        f: impl FnOnce(&SourceFile, &[Override]) -> Result<Outcome, Violation>,
+    ) -> Result<Outcome, Violation> {
+        let dir;
+        let src = if self.tables.is_empty() {
+            SourceFile::new("fuzz.hyb", self.model.as_str())
+        } else {
+            dir = tempfile::tempdir().expect("a temporary folder for the tables");
+            for (name, bytes) in &self.tables {
+                std::fs::write(dir.path().join(name), bytes).expect("a table file written");
+            }
+            SourceFile::new(dir.path().join("fuzz.hyb").to_string_lossy(), self.model.as_str())
+        };
+        match self.overrides(&src)? {
+            Ok(overrides) => f(&src, &overrides),
+            Err(errors) => Ok(Outcome::Rejected { errors }),
         }
     }
 }

@@ -23,7 +23,7 @@ use std::str::FromStr;
 
 use crate::check;
 use crate::diagnostics::Diagnostic;
-use crate::source::{SourceFile, SourceMap};
+use crate::source::{SourceFile, SourceMap, Span};
 use crate::syntax;
 
 pub use crate::check::{Backend, CheckOptions, DesignReport, Override, SolveSummary};
@@ -32,28 +32,33 @@ pub use crate::ir::{CompiledModel, JitStatus};
 impl FromStr for Override {
     type Err = Diagnostic;
 
-    /// Parses `name=value`; the value is any `.hyb` expression.
+    /// Parses `name=value`; the value is any `.hyb` expression. A refusal
+    /// points into the argument (rendered as `--set name:1:col`).
     fn from_str(s: &str) -> Result<Self, Diagnostic> {
         let Some((name, value)) = s.split_once('=') else {
             return Err(Diagnostic::error(
                 "E0508",
                 format!("override `{s}` is not of the form name=value"),
             )
-            .help("write e.g. --set g=9.81"));
+            .primary(Span::new(0, s.len()), "no `=` here")
+            .help("write e.g. --set g=9.81")
+            .in_set_argument("", s, 0));
         };
         let name = name.trim().to_string();
         let value = value.trim().to_string();
         let expr = syntax::parse_expr(&value).map_err(|e| {
-            // Long values are shortened, and the column says where in the value.
+            // Long values are shortened in the message; the label says where in the value.
             let shown: String = value.chars().take(60).collect();
-            let message = if shown.len() < value.len() {
-                let col = value[..e.span().start.min(value.len())].chars().count() + 1;
-                format!("in override `{name}={shown}…`: {e} (column {col} of the value)")
-            } else {
-                format!("in override `{name}={value}`: {e}")
-            };
-            Diagnostic::error("E0508", message)
-                .help("the value must be an expression such as 2.5, -1e-3 or [1, 2; 3, 4]")
+            let ellipsis = if shown.len() < value.len() { "…" } else { "" };
+            let at = e.span();
+            let at = Span::new(at.start.min(value.len()), at.end.min(value.len()));
+            Diagnostic::error(
+                "E0508",
+                format!("in override `{name}={shown}{ellipsis}`: {e}"),
+            )
+            .primary(at, "here")
+            .help("the value must be an expression such as 2.5, -1e-3 or [1, 2; 3, 4]")
+            .in_override(&name, &value)
         })?;
         Ok(Override { name, value, expr })
     }

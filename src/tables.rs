@@ -252,7 +252,10 @@ pub fn read(
     let raw = std::fs::read(file).map_err(unreadable)?;
     let sha256 = crate::source::sha256_hex(&raw);
     let name = file.display().to_string();
-    let text = match String::from_utf8(raw) {
+    // Spans are offsets in the text without its byte-order mark, as `SourceFile` (which shows
+    // the error) holds it.
+    let bom = if raw.starts_with("\u{feff}".as_bytes()) { 3 } else { 0 };
+    let text = match String::from_utf8(raw[bom..].to_vec()) {
         Ok(t) => t,
         Err(e) => {
             let valid = e.utf8_error().valid_up_to();

@@ -88,6 +88,17 @@ pub enum CheckError {
         /// The closest known key.
         suggestion: Option<String>,
     },
+    /// A `--set name=value` whose name is no parameter, state or `sim`
+    /// key of the model (located in the override).
+    #[error("unknown setting `{name}` in override `{name}={value}`")]
+    UnknownOverride {
+        /// The name.
+        name: String,
+        /// The value as given.
+        value: String,
+        /// The closest known name.
+        suggestion: Option<String>,
+    },
     /// Operands of incompatible shapes.
     #[error("shape mismatch in `{op}`: {} and {}", shape(*left), shape(*right))]
     ShapeMismatch {
@@ -395,7 +406,7 @@ impl CheckError {
             Design(e) => e.span(),
             Table(e) => e.span(),
             AlgebraicLoop { cycle } => cycle.first().map(|c| c.1).unwrap_or_default(),
-            Override { .. } => Span::default(),
+            Override { .. } | UnknownOverride { .. } => Span::default(),
         }
     }
 
@@ -407,7 +418,7 @@ impl CheckError {
             UnknownName { .. } => "E0201",
             Duplicate { .. } => "E0202",
             UnknownFunction { .. } => "E0203",
-            UnknownSetting { .. } => "E0204",
+            UnknownSetting { .. } | UnknownOverride { .. } => "E0204",
             NotAFunction { .. } => "E0205",
             ShapeMismatch { .. } => "E0301",
             AssignShape { .. } => "E0302",
@@ -461,6 +472,18 @@ impl CheckError {
                     Some(h) => d.help(h),
                     None => d,
                 }
+            }
+            UnknownOverride {
+                name,
+                value,
+                suggestion,
+            } => {
+                let d = d.primary(Span::new(0, name.len()), "not in the model");
+                let d = match did_you_mean(suggestion) {
+                    Some(h) => d.help(h),
+                    None => d.help("--set names a parameter, a state (its initial value) or a `sim` key"),
+                };
+                d.in_set_argument(name, &format!("{name}={value}"), 0)
             }
             NotAFunction { span, name } => d
                 .primary(*span, "indexed with parentheses")

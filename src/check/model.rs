@@ -325,9 +325,9 @@ pub(crate) fn check_model(
             let mut cands: Vec<String> = m.c.syms.keys().cloned().collect();
             cands.extend(SIM_KEYS.iter().map(|s| s.to_string()));
             let suggestion = suggest(&o.name, cands.iter().map(|s| s.as_str()));
-            m.c.err(CheckError::UnknownSetting {
+            m.c.err(CheckError::UnknownOverride {
                 name: o.name.clone(),
-                span: Span::default(),
+                value: o.value.clone(),
                 suggestion,
             });
         }

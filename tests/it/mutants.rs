@@ -22,7 +22,7 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex, mpsc};
 use std::time::{Duration, Instant};
 
-use hybsim::fuzz::{self, Budget, Outcome};
+use hybsim::fuzz::{self, Budget, Input, Outcome};
 use hybsim::source::SourceFile;
 use hybsim::syntax::lex::{self, TokenKind as Kind};
 use rand::{Rng, SeedableRng};
@@ -509,4 +509,344 @@ fn defects_found_by_mutation_end_quickly_with_located_results() {
         run(nan_timer)
     );
     assert!(t0.elapsed() < Duration::from_secs(2), "{:?}", t0.elapsed());
+}
+
+/// Cases per run of the override and table test (README, "Hostile input").
+const INPUT_CASES: usize = 1200;
+
+/// `sim` keys an override may name (besides the model's own words and
+/// unknown names).
+const SIM_KEYS: &[&str] = &[
+    "T",
+    "J",
+    "dt_out",
+    "max_step",
+    "rtol",
+    "atol",
+    "event_tol",
+    "zeno_rate",
+    "zeno_max_rate",
+    "max_total_jumps",
+    "max_matrix_elements",
+    "seed",
+    "solver",
+    "jit",
+    "nosuch",
+];
+
+/// Override values beyond the edge numbers: huge matrices, non-finite and
+/// overflowing entries, ragged and empty matrices, syntax errors, byte-order
+/// marks and control characters.
+const HOSTILE_VALUES: &[&str] = &[
+    "eye(100000)",
+    "zeros(100000, 100000)",
+    "ones(1e9, 1)",
+    "zeros(0, 0)",
+    "[]",
+    "[1, 2; 3]",
+    "[0/0, 1; 1, 0/0]",
+    "[1e308, 1e308; 1e308, 1e308] * 1e308",
+    "1e308 * 10",
+    "-(0/0)",
+    "1 +",
+    "(",
+    "[1, 2",
+    "1 1",
+    "",
+    "=",
+    "@",
+    "x'",
+    "1e",
+    "\u{feff}1",
+    "1\u{0}",
+    "\"s\"",
+    "rk4",
+    "dopri5",
+    "off",
+    "true",
+];
+
+/// One override argument: `name=value`, or a malformed argument.
+fn override_arg(rng: &mut ChaCha8Rng, words: &[String]) -> String {
+    let name = match below(rng, 3) {
+        0 => pick(rng, SIM_KEYS).to_string(),
+        _ => pick(rng, words).clone(),
+    };
+    let value = match below(rng, 10) {
+        0..=3 => pick(rng, EDGE_NUMBERS).to_string(),
+        4..=6 => pick(rng, HOSTILE_VALUES).to_string(),
+        7 => pick(rng, words).clone(),
+        8 => match below(rng, 3) {
+            // Long flat chains (the parser's depth limits), inside the CLI's argument size.
+            0 => format!("1{}", "+1".repeat(20_000)),
+            1 => format!("{}1", "-".repeat(10_000)),
+            _ => format!("{}1{}", "(".repeat(300), ")".repeat(300)),
+        },
+        _ => format!("[{}]", vec!["1e308"; 1 + below(rng, 50)].join(", ")),
+    };
+    match below(rng, 20) {
+        0 => name,
+        1 => format!("={value}"),
+        2 => format!("{name} {name}={value}"),
+        3 => format!("{name}=={value}"),
+        _ => format!("{name}={value}"),
+    }
+}
+
+/// Data models whose table files the table cases mutate: (model, table
+/// name, table), the model reading it with constant and run-time indices,
+/// slices, `rows`/`cols`/`length` and `interp`.
+fn table_hosts() -> Vec<(String, &'static str, String)> {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let bench = |f: &str| std::fs::read_to_string(root.join("benches/models").join(f)).unwrap();
+    let timers = bench("limit_agents_timers.csv");
+    // The benchmark's table cut to 60 rows, so a case stays cheap.
+    let timers: String = timers.split_inclusive('\n').take(60).collect();
+    vec![
+        (
+            "model tab\nparam tk = table(\"t.csv\")\nstate x = tk[1], n = 1\n\
+             flow { x' = -1; n' = 0 }\njump next when x <= 0 { x+ = tk[n + 1]; n+ = n + 1 }\n\
+             output r = rows(tk), c = cols(tk), v = tk[n], s = length(tk)\nsim { T = 2 }\n"
+                .to_string(),
+            "t.csv",
+            "# delays\n0.3\n0.25\n0.2\n0.4\n0.1\n0.3\n0.5\n0.2\n0.1\n0.2\n".to_string(),
+        ),
+        (
+            "model gain\nparam M = table(\"m.csv\")\nstate y = M[1, 2]\n\
+             flow { y' = -interp(M[:, 1], M[:, 2], t) * y }\noutput a = M[2, 1], g = interp(M[:, 1], M[:, 2], y)\n\
+             sim { T = 2 }\n"
+                .to_string(),
+            "m.csv",
+            "time, gain\r\n0, 2\r\n0.5, 4\r\n1.5, 1e-3\r\n3, 0\r\n".to_string(),
+        ),
+        (bench("limit_agents.hyb"), "limit_agents_timers.csv", timers),
+    ]
+}
+
+/// Fields that have broken CSV readers: non-finite and overflowing
+/// numbers, other syntaxes, empty, quoted, full-width and control text.
+const HOSTILE_FIELDS: &[&str] = &[
+    "nan", "NaN", "inf", "-inf", "1e309", "-1e-320", "0x10", "abc", "", " ", "\"1\"", "1e", "--1",
+    "+", ".", "1_000", "１", "1;2", "\u{0}", "1e308", "-0", "\t",
+];
+
+/// Applies one edit to a CSV file's bytes; returns what it did.
+fn mutate_csv(rng: &mut ChaCha8Rng, bytes: &mut Vec<u8>) -> String {
+    let text = String::from_utf8_lossy(bytes).into_owned();
+    let mut lines: Vec<String> = text.split_inclusive('\n').map(str::to_string).collect();
+    if lines.is_empty() {
+        lines.push("1\n".into());
+    }
+    let i = below(rng, lines.len());
+    let what = match below(rng, 14) {
+        0..=3 => {
+            // A field replaced by a hostile one.
+            let eol = lines[i].len() - lines[i].trim_end_matches(['\r', '\n']).len();
+            let (body, end) = lines[i].split_at(lines[i].len() - eol);
+            let mut fields: Vec<String> = body.split(',').map(str::to_string).collect();
+            let k = below(rng, fields.len());
+            let new = *pick(rng, HOSTILE_FIELDS);
+            fields[k] = new.to_string();
+            lines[i] = format!("{}{end}", fields.join(","));
+            format!("field {k} of line {i} -> {new:?}")
+        }
+        4 => {
+            // Ragged: a field dropped or added.
+            let body = lines[i].trim_end_matches(['\r', '\n']).to_string();
+            lines[i] = if below(rng, 2) == 0 {
+                match body.rsplit_once(',') {
+                    Some((a, _)) => format!("{a}\n"),
+                    None => "\n".into(),
+                }
+            } else {
+                format!("{body},1\n")
+            };
+            format!("line {i} made ragged")
+        }
+        5 => {
+            lines.remove(i);
+            format!("delete line {i}")
+        }
+        6 => {
+            let new = pick(rng, &["a,b\n", "# c\n", "\n", "\r\n", ",\n", "x\n"]).to_string();
+            lines.insert(i, new.clone());
+            format!("insert {new:?} at line {i}")
+        }
+        7 => {
+            let k = if below(rng, 2) == 0 { 0 } else { i };
+            lines.insert(k, "\u{feff}".into());
+            format!("byte-order mark at line {k}")
+        }
+        8 => {
+            let n = [1000, 100_000, 1_100_000][below(rng, 3)];
+            // A short line (not one an earlier edit made huge).
+            let line = if lines[i].len() <= 64 { lines[i].clone() } else { "1\n".into() };
+            lines.insert(i, line.repeat(n));
+            format!("line {i} repeated {n} times")
+        }
+        9 => {
+            let n = [1000, 100_000][below(rng, 2)];
+            lines.insert(i, format!("{}\n", vec!["1"; n].join(",")));
+            format!("a row of {n} fields at line {i}")
+        }
+        10 => {
+            lines.clear();
+            "empty the file".into()
+        }
+        11 => {
+            for l in &mut lines {
+                *l = l.replace('\n', "\r\n").replace("\r\r", "\r");
+            }
+            "CRLF".into()
+        }
+        12 => {
+            let mut b = lines.concat().into_bytes();
+            let k = below(rng, b.len() + 1);
+            b.insert(k, [0xFF, 0x80, 0xC3][below(rng, 3)]);
+            *bytes = b;
+            return format!("a byte that is not UTF-8 at {k}");
+        }
+        _ => {
+            let b = lines.concat().into_bytes();
+            let k = below(rng, b.len() + 1);
+            *bytes = b[..k].to_vec();
+            return format!("truncated at byte {k}");
+        }
+    };
+    *bytes = lines.concat().into_bytes();
+    what
+}
+
+/// Input case `case`: even cases a shipped model with mutated overrides,
+/// odd cases a data model with a mutated table (and at times an override).
+fn input_case(subjects: &[Subject], hosts: &[(String, &str, String)], case: usize) -> (Input, Vec<String>) {
+    let mut rng =
+        ChaCha8Rng::seed_from_u64(!SEED ^ (case as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15));
+    let mut edits = Vec::new();
+    let mut input;
+    let words;
+    if case % 2 == 0 {
+        let models: Vec<&Subject> = subjects.iter().filter(|s| s.host.is_none()).collect();
+        let s = models[(case / 2) % models.len()];
+        input = Input::model(render(&s.tokens, &s.tail));
+        edits.push(s.path.display().to_string());
+        words = s.words.clone();
+    } else {
+        let (model, name, table) = &hosts[(case / 2) % hosts.len()];
+        let mut bytes = table.clone().into_bytes();
+        for _ in 0..1 + below(&mut rng, 3) {
+            edits.push(mutate_csv(&mut rng, &mut bytes));
+        }
+        input = Input::model(model.as_str());
+        input.tables.push((name.to_string(), bytes));
+        let (tokens, _) = lex(model);
+        words = tokens
+            .into_iter()
+            .filter(|t| t.kind == Kind::Word)
+            .map(|t| t.text)
+            .collect();
+    }
+    let n = if case % 2 == 0 {
+        1 + below(&mut rng, 3)
+    } else {
+        below(&mut rng, 4) / 3
+    };
+    for _ in 0..n {
+        input.overrides.push(override_arg(&mut rng, &words));
+    }
+    (input, edits)
+}
+
+#[test]
+fn overrides_and_tables_never_panic_hang_or_lose_a_location() {
+    let cases: usize = std::env::var("HYBSIM_INPUT_MUTANTS")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(INPUT_CASES);
+    let subjects = Arc::new(subjects());
+    let hosts = Arc::new(table_hosts());
+    // The data models run unmutated (so every error of a case is its mutation's).
+    for (model, name, table) in hosts.iter() {
+        let mut input = Input::model(model.as_str());
+        input.tables.push((name.to_string(), table.clone().into_bytes()));
+        let r = input.run(&Budget::default());
+        assert!(matches!(r, Ok(Outcome::Ran { .. })), "{model}: {r:?}");
+    }
+    let next = Arc::new(AtomicUsize::new(0));
+    let busy: Arc<Mutex<Vec<Running>>> = Arc::new(Mutex::new(vec![None; 2]));
+    let (tx, rx) = mpsc::channel();
+    for w in 0..2 {
+        let (subjects, hosts, next, busy, tx) =
+            (subjects.clone(), hosts.clone(), next.clone(), busy.clone(), tx.clone());
+        std::thread::spawn(move || {
+            loop {
+                let k = next.fetch_add(1, Ordering::Relaxed);
+                if k >= cases {
+                    break;
+                }
+                busy.lock().unwrap()[w] = Some((k, Instant::now()));
+                let (input, _) = input_case(&subjects, &hosts, k);
+                let r = input.run(&Budget::default()).map_err(|v| v.to_string());
+                busy.lock().unwrap()[w] = None;
+                if tx.send((k, r)).is_err() {
+                    break;
+                }
+            }
+        });
+    }
+    drop(tx);
+    let started = Instant::now();
+    let mut failures = Vec::new();
+    let (mut rejected, mut ran, mut failed, mut done) = (0, 0, 0, 0);
+    while done < cases {
+        match rx.recv_timeout(Duration::from_millis(200)) {
+            Ok((k, r)) => {
+                done += 1;
+                match r {
+                    Ok(Outcome::Rejected { .. }) => rejected += 1,
+                    Ok(Outcome::Ran { .. }) => ran += 1,
+                    Ok(Outcome::Failed { .. }) => failed += 1,
+                    Ok(Outcome::Accepted) => {}
+                    Err(why) => failures.push((k, why)),
+                }
+            }
+            Err(mpsc::RecvTimeoutError::Disconnected) => break,
+            Err(mpsc::RecvTimeoutError::Timeout) => {}
+        }
+        let hung = busy
+            .lock()
+            .unwrap()
+            .iter()
+            .flatten()
+            .find(|(_, since)| since.elapsed() > CASE_LIMIT)
+            .copied();
+        if let Some((k, _)) = hung {
+            failures.push((k, format!("no result after {CASE_LIMIT:?}")));
+            break;
+        }
+    }
+    let report: Vec<String> = failures
+        .iter()
+        .take(20)
+        .map(|(k, why)| {
+            let (input, edits) = input_case(&subjects, &hosts, *k);
+            let shown: Vec<String> = input.overrides.iter().map(|o| o.chars().take(120).collect()).collect();
+            let tables: Vec<String> = input
+                .tables
+                .iter()
+                .map(|(n, b)| format!("{n}: {:?}", String::from_utf8_lossy(&b[..b.len().min(300)])))
+                .collect();
+            format!("case {k}: {edits:?}\n{why}\n--set {shown:?}\ntables {tables:?}\n")
+        })
+        .collect();
+    eprintln!(
+        "{cases} override and table cases in {:.1} s: {rejected} rejected, {ran} ran, {failed} failed at run time, {} broke a promise",
+        started.elapsed().as_secs_f64(),
+        failures.len()
+    );
+    assert!(failures.is_empty(), "{}", report.join("\n"));
+    assert!(
+        ran > cases / 20 && rejected > cases / 4,
+        "ran {ran}, rejected {rejected}"
+    );
 }

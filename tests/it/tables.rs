@@ -112,6 +112,10 @@ fn refused_tables_are_located() {
         ("v.csv", "1\n  1e999\n", "E0804", ("v.csv", 2, 3)),
         ("v.csv", "1,,2\n", "E0804", ("v.csv", 1, 3)),
         ("v.csv", "a, b\n", "E0804", ("v.csv", 2, 1)),
+        // A byte-order mark is not counted in the columns (found by the mutation test: the
+        // label was 3 bytes off, past the end of the file).
+        ("v.csv", "\u{feff}1,x\n", "E0804", ("v.csv", 1, 3)),
+        ("v.csv", "\u{feff}time, g", "E0804", ("v.csv", 1, 8)),
         (
             "v.csv",
             "1\n2\n3\n4\n5\n6\n7\n8\n9\n10\n",
@@ -143,6 +147,10 @@ fn refused_tables_are_located() {
             d[0].message
         );
         if *want == "E0804" {
+            let primary = d[0].labels.iter().find(|l| l.primary).unwrap();
+            let file = primary.file.as_deref().unwrap();
+            let shown = file.text().get(primary.span.start..primary.span.end);
+            assert!(shown.is_some(), "{text:?}: {:?} outside the file", primary.span);
             let call = d[0].labels.iter().find(|l| !l.primary).expect("the call");
             assert_eq!(src.slice(call.span), format!("table(\"{path}\")"));
         }
