@@ -34,6 +34,10 @@ pub struct Label {
     pub file: Option<std::sync::Arc<SourceFile>>,
 }
 
+/// Bytes of a `--set` argument shown whole in a diagnostic; a longer one
+/// is shown around the error (see [`Diagnostic::in_set_argument`]).
+pub const LONG_ARGUMENT: usize = 160;
+
 /// One diagnostic: a stable code (e.g. `E0201`), a message, labelled source
 /// locations, notes and an optional help sentence saying what to change.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -118,18 +122,53 @@ impl Diagnostic {
     /// `name=value` rebuilt), named `--set name`: `spans` are byte ranges of
     /// `text` from byte `shift` on (0: the whole argument, e.g. to point at
     /// the name).
+    ///
+    /// An argument longer than [`LONG_ARGUMENT`] bytes is shown as a window
+    /// around the primary label, its file named with the window's columns
+    /// (`--set x (columns 1961–2081 of 40002)`), so that a 100 kB value
+    /// does not flood the terminal.
     pub fn in_set_argument(mut self, name: &str, text: &str, shift: usize) -> Self {
         // Named after the override, so that two overrides are two files when rendered.
-        let origin = std::sync::Arc::new(SourceFile::new(
-            if name.is_empty() {
-                "--set".to_string()
-            } else {
-                format!("--set {name}")
-            },
-            text,
-        ));
+        let mut file = if name.is_empty() {
+            "--set".to_string()
+        } else {
+            format!("--set {name}")
+        };
+        let mut shown = text.to_string();
+        // (start, end, bytes of the leading ellipsis) of the part shown.
+        let mut window = None;
+        if text.len() > LONG_ARGUMENT {
+            let at = self.primary_span().or(self.labels.first().map(|l| l.span));
+            let at = at.map_or(0, |s| (s.start + shift).min(text.len()));
+            let floor = |mut i: usize| {
+                while !text.is_char_boundary(i) {
+                    i -= 1;
+                }
+                i
+            };
+            let a = floor(at.saturating_sub(40));
+            let b = floor((at + 80).min(text.len()));
+            let (lead, trail) = (
+                if a > 0 { "…" } else { "" },
+                if b < text.len() { "…" } else { "" },
+            );
+            shown = format!("{lead}{}{trail}", &text[a..b]);
+            let cols = |i: usize| text[..i].chars().count();
+            file = format!(
+                "{file} (columns {}–{} of {})",
+                cols(a) + 1,
+                cols(b),
+                cols(text.len())
+            );
+            window = Some((a, b, lead.len()));
+        }
+        let moved = |s: usize| match window {
+            Some((a, b, lead)) => (s + shift).clamp(a, b) - a + lead,
+            None => s + shift,
+        };
+        let origin = std::sync::Arc::new(SourceFile::new(file, shown));
         for l in &mut self.labels {
-            l.span = Span::new(l.span.start + shift, l.span.end + shift);
+            l.span = Span::new(moved(l.span.start), moved(l.span.end));
             l.file = Some(origin.clone());
         }
         self

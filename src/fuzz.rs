@@ -411,7 +411,8 @@ impl Input {
     /// starting with `%%` would be read as a section).
     pub fn to_bytes(&self) -> Vec<u8> {
         let mut out = self.model.clone().into_bytes();
-        if !out.is_empty() && !out.ends_with(b"\n") && !(self.overrides.is_empty() && self.tables.is_empty()) {
+        let sections = !(self.overrides.is_empty() && self.tables.is_empty());
+        if sections && !out.is_empty() && !out.ends_with(b"\n") {
             out.push(b'\n');
         }
         for o in &self.overrides {
@@ -491,7 +492,10 @@ impl Input {
             for (name, bytes) in &self.tables {
                 std::fs::write(dir.path().join(name), bytes).expect("a table file written");
             }
-            SourceFile::new(dir.path().join("fuzz.hyb").to_string_lossy(), self.model.as_str())
+            SourceFile::new(
+                dir.path().join("fuzz.hyb").to_string_lossy(),
+                self.model.as_str(),
+            )
         };
         match self.overrides(&src)? {
             Ok(overrides) => f(&src, &overrides),

@@ -254,7 +254,11 @@ pub fn read(
     let name = file.display().to_string();
     // Spans are offsets in the text without its byte-order mark, as `SourceFile` (which shows
     // the error) holds it.
-    let bom = if raw.starts_with("\u{feff}".as_bytes()) { 3 } else { 0 };
+    let bom = if raw.starts_with("\u{feff}".as_bytes()) {
+        3
+    } else {
+        0
+    };
     let text = match String::from_utf8(raw[bom..].to_vec()) {
         Ok(t) => t,
         Err(e) => {

@@ -367,10 +367,23 @@ pub enum CheckError {
         /// The underlying error's code when it is kept (a bad `sim` value stays E0506);
         /// `None`: E0508.
         inner_code: Option<&'static str>,
+        /// The underlying error was a size over its limit (see
+        /// [`CheckError::is_size_limit`]).
+        size_limit: bool,
     },
 }
 
 impl CheckError {
+    /// A size over its limit (E0307), also inside an override: the checker
+    /// stopped short, so later errors are its echoes and are dropped.
+    pub fn is_size_limit(&self) -> bool {
+        match self {
+            CheckError::Limit { .. } | CheckError::TooLarge { .. } => true,
+            CheckError::Override { size_limit, .. } => *size_limit,
+            _ => false,
+        }
+    }
+
     /// The primary span.
     pub fn span(&self) -> Span {
         use CheckError::*;

@@ -113,11 +113,7 @@ impl Checker {
         if self.dag.ops().saturating_add(cost) <= limit {
             return true;
         }
-        if !self
-            .errors
-            .iter()
-            .any(|e| matches!(e, CheckError::TooLarge { .. } | CheckError::Limit { .. }))
-        {
+        if !self.errors.iter().any(CheckError::is_size_limit) {
             self.err(CheckError::TooLarge { limit, span });
         }
         // Stay over the budget so that every later check fails fast.

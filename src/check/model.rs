@@ -350,11 +350,7 @@ pub(crate) fn check_model(
     }
     // After a size over its limit the checker stopped short: what follows are its echoes
     // (names never declared, members never made).
-    if let Some(k) =
-        m.c.errors
-            .iter()
-            .position(|e| matches!(e, CheckError::Limit { .. } | CheckError::TooLarge { .. }))
-    {
+    if let Some(k) = m.c.errors.iter().position(CheckError::is_size_limit) {
         m.c.errors.truncate(k + 1);
     }
     if !m.c.errors.is_empty() {
@@ -450,6 +446,7 @@ impl ModelChecker<'_> {
                 at: (at.end <= o.value.len() && at != Span::default()).then_some(at),
                 advice: err.to_diagnostic().help,
                 inner_code,
+                size_limit: err.is_size_limit(),
             });
         }
     }

@@ -373,15 +373,15 @@ const CASES: &[Case] = &[
         src: "model m\nparam lambda = 0.8\nstate x = 0\n",
         overrides: &["lamda=0.5"],
         code: "E0204",
-        at: "",
-        message: "unknown setting `lamda`",
+        at: "1:1", // of `--set lamda`
+        message: "unknown setting `lamda` in override `lamda=0.5`",
     },
     Case {
         name: "override that is not an expression",
         src: "model m\nparam g = 1\nstate x = 0\n",
         overrides: &["g=[1,"],
         code: "E0508",
-        at: "",
+        at: "1:6", // of `--set g`
         message: "in override `g=[1,`: unexpected end of file; expected an expression",
     },
     Case {

@@ -7,7 +7,7 @@
 
 use std::path::{Path, PathBuf};
 
-use hybsim::fuzz::Target;
+use hybsim::fuzz::{Budget, Input, Outcome, Target};
 
 fn seeds() -> Vec<PathBuf> {
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
@@ -44,6 +44,39 @@ fn every_seed_passes_every_fuzz_target() {
         }
     }
     assert!(failures.is_empty(), "{}", failures.join("\n"));
+}
+
+#[test]
+fn seeds_carry_overrides_and_tables() {
+    // The framed seeds (`%%set`, `%%table`; hybsim::fuzz::Input) reach the override and table
+    // paths: a valid table runs, the hostile ones are refused with located errors.
+    let inputs: Vec<(PathBuf, Input)> = seeds()
+        .into_iter()
+        .filter_map(|p| Input::from_bytes(&std::fs::read(&p).unwrap()).map(|i| (p, i)))
+        .collect();
+    assert!(
+        inputs.iter().any(|(_, i)| i.overrides.len() >= 5),
+        "no seed with overrides"
+    );
+    let tables: Vec<&(PathBuf, Input)> = inputs
+        .iter()
+        .filter(|(_, i)| !i.tables.is_empty())
+        .collect();
+    assert!(tables.len() >= 3, "{tables:?}");
+    for (path, input) in tables {
+        let r = input.run(&Budget::default());
+        let ok = path.file_name().unwrap().to_string_lossy().contains("_ok");
+        assert_eq!(
+            matches!(r, Ok(Outcome::Ran { .. })),
+            ok,
+            "{}: {r:?}",
+            path.display()
+        );
+        assert!(r.is_ok(), "{}: {r:?}", path.display());
+    }
+    // The framing reads back.
+    let (_, i) = inputs.iter().find(|(_, i)| !i.tables.is_empty()).unwrap();
+    assert_eq!(Input::from_bytes(&i.to_bytes()).as_ref(), Some(i));
 }
 
 #[test]

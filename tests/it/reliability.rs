@@ -733,6 +733,32 @@ fn check_rejects_what_run_would_with_located_errors() {
         );
         assert!(!err.contains(&format!("{model}:1:1")), "{set}: {err}");
     }
+    // Found by the override mutation test (tests/it/mutants.rs): an unknown name, a value that
+    // does not parse and an argument without `=` had no location at all, and a size over its limit
+    // inside an override was echoed by a bogus E0307 "too large to compile" in the model.
+    for (set, at, says) in [
+        ("nosuch=1", "--set nosuch:1:1", "unknown setting `nosuch`"),
+        (
+            "lambda=1 +",
+            "--set lambda:1:11",
+            "in override `lambda=1 +`",
+        ),
+        (
+            "lambda",
+            "--set:1:1",
+            "`lambda` is not of the form name=value",
+        ),
+        (
+            "lambda=eye(100000)",
+            "--set lambda:1:8",
+            "over the limit of 1000000",
+        ),
+    ] {
+        let err = refused(d, &["check", model, "--set", set], 2);
+        assert!(err.contains(at) && err.contains(says), "{set}: {err}");
+        assert!(!err.contains(&format!("┌─ {model}")), "{set}: {err}");
+        assert!(!err.contains("E0307"), "{set}: {err}");
+    }
 }
 
 /// Issue 24, the small ones: a byte-order mark, matrix powers explained, `--cases 0`, and

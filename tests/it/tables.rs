@@ -150,7 +150,11 @@ fn refused_tables_are_located() {
             let primary = d[0].labels.iter().find(|l| l.primary).unwrap();
             let file = primary.file.as_deref().unwrap();
             let shown = file.text().get(primary.span.start..primary.span.end);
-            assert!(shown.is_some(), "{text:?}: {:?} outside the file", primary.span);
+            assert!(
+                shown.is_some(),
+                "{text:?}: {:?} outside the file",
+                primary.span
+            );
             let call = d[0].labels.iter().find(|l| !l.primary).expect("the call");
             assert_eq!(src.slice(call.span), format!("table(\"{path}\")"));
         }
