@@ -1,5 +1,6 @@
-//! Fuzz target `parse`: the input as a model file through `hybsim::fuzz::Target::Parse`
-//! (the body the seed-corpus test in tests/it/fuzz_corpus.rs runs on stable).
+//! Fuzz target `parse`: the input (a model, `%%set` overrides, `%%table` files: `hybsim::fuzz::Input`)
+//! through `hybsim::fuzz::Target::Parse` (the body the seed-corpus test in tests/it/fuzz_corpus.rs
+//! runs on stable; this file is that test's template, so it holds nothing else to lint).
 #![no_main]
 
 libfuzzer_sys::fuzz_target!(|data: &[u8]| {
