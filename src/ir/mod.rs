@@ -755,9 +755,34 @@ impl CompiledModel {
 
     /// A warning for a run that ended because it could neither flow nor
     /// jump (W0603): which case holds, the flow set's source with the atoms
-    /// that fail there and their values, and the state. `None` for other
-    /// endings.
+    /// that fail there and their values, and the state; or for a run that
+    /// spent its jump budget `max_total_jumps` (W0605): the rule about to
+    /// fire. `None` for other endings.
     pub fn termination_diagnostic(&self, term: &Termination) -> Option<Diagnostic> {
+        if let TerminationCause::ZenoSuspected {
+            rule,
+            rule_name,
+            detail: crate::arc::ZenoDetail::TotalJumps { limit },
+        } = &term.cause
+        {
+            // The jump budget ran out (a model chattering under the Zeno rate): say where.
+            let d = Diagnostic::warning(
+                "W0605",
+                format!(
+                    "the run stopped at {}: {limit} jumps in total, the budget \
+                     `max_total_jumps`; rule `{rule_name}` was about to fire again",
+                    term.at
+                ),
+            )
+            .help(
+                "if the model is meant to jump this often, raise `max_total_jumps` (or set `J`); \
+                 otherwise check this rule's guard and reset",
+            );
+            return Some(match self.rule_span(*rule) {
+                Some(span) => d.primary(span, "this rule").locate(&self.imports),
+                None => d,
+            });
+        }
         let TerminationCause::CannotFlowOrJump {
             leaving,
             failed,

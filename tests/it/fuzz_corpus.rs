@@ -106,7 +106,9 @@ fn the_fuzz_crate_has_one_target_per_stage() {
     // each target is the template.
     let fuzz = Path::new(env!("CARGO_MANIFEST_DIR")).join("fuzz");
     let manifest = std::fs::read_to_string(fuzz.join("Cargo.toml")).unwrap();
-    let files = std::fs::read_dir(fuzz.join("fuzz_targets")).unwrap().count();
+    let files = std::fs::read_dir(fuzz.join("fuzz_targets"))
+        .unwrap()
+        .count();
     assert_eq!(files, Target::ALL.len());
     for target in Target::ALL {
         let name = target.name();

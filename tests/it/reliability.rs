@@ -829,3 +829,29 @@ fn bom_matrix_powers_zero_cases_and_thread_independent_summaries() {
         assert_eq!(one, summary(threads), "{threads} threads");
     }
 }
+
+/// A model chattering just under the Zeno guard's rate runs until the jump budget
+/// `max_total_jumps`, and then says so with the rule's source line (W0605), not only in the
+/// summary's words.
+#[test]
+fn a_spent_jump_budget_is_a_located_warning() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    // 5e5 jumps per unit t, under the default rate 1e6.
+    std::fs::write(
+        d.join("chat.hyb"),
+        "model chat\nstate tau = 0\nflow { tau' = 1 }\n\
+         jump tick when tau >= 2e-6 { tau+ = 0 }\nsim { T = 1e9; max_total_jumps = 2000 }\n",
+    )
+    .unwrap();
+    let out = hybsim(d, &["run", "chat.hyb", "--no-mcap"]);
+    let err = stderr(&out);
+    assert_eq!(code(&out), 0, "{err}");
+    assert!(
+        err.contains("W0605")
+            && err.contains("chat.hyb:4:1")
+            && err.contains("2000 jumps in total"),
+        "{err}"
+    );
+    assert!(err.contains("raise `max_total_jumps`"), "{err}");
+}
