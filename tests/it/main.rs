@@ -7,6 +7,7 @@ mod design_backend;
 mod design_check;
 mod design_failure;
 mod diagnostics;
+mod docs;
 mod editor;
 mod engine;
 mod engine_lang;
