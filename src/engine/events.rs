@@ -143,8 +143,9 @@ impl WSet {
         self.spec.as_ref().map_or(Cmp::Ge, |s| s.atoms[k].cmp)
     }
 
-    fn flows(&self, k: usize) -> bool {
-        self.spec.as_ref().is_none_or(|s| s.atoms[k].flows)
+    /// Whether atom `k` is watched ([`Atom::watched`](super::system::Atom::watched)).
+    fn watched(&self, k: usize) -> bool {
+        self.spec.as_ref().is_none_or(|s| s.atoms[k].watched())
     }
 }
 
@@ -204,6 +205,18 @@ struct WAtom {
     atom: usize,
 }
 
+/// A timer atom `x[index] − threshold ⋈ 0` (`⋈` is `<=` or `>=`) of set
+/// `set`: when it reaches zero is computed at each segment's start (`d`,
+/// local time; ∞: not in this segment), not watched.
+#[derive(Debug, Clone, Copy)]
+struct TimerAtom {
+    set: usize,
+    atom: usize,
+    index: usize,
+    threshold: f64,
+    d: f64,
+}
+
 /// At most this many candidates are examined between two checkpoints (an
 /// atom chattering around zero on the interpolant cannot stall the scan).
 const MAX_CANDIDATES: usize = 64;
@@ -222,6 +235,8 @@ pub(crate) struct Watcher {
     /// Index of C in `sets`, if C is not the whole space.
     flow: Option<usize>,
     watched: Vec<WAtom>,
+    /// The event sources' timer atoms ([`Atom::timer`](super::system::Atom::timer)).
+    timers: Vec<TimerAtom>,
     /// Per watched atom: the bracket `(a, b)` of its first change found in
     /// the current [`Watcher::resolve`], with the class and relaxation it
     /// was found for (`a` NaN: none).
@@ -307,8 +322,25 @@ impl Watcher {
         for (i, ws) in sets.iter().enumerate() {
             if ws.source {
                 for k in 0..ws.atom_count() {
-                    if ws.flows(k) {
+                    if ws.watched(k) {
                         watched.push(WAtom { set: i, atom: k });
+                    }
+                }
+            }
+        }
+        // The timer atoms of the event sources: scheduled, not watched.
+        let mut timers = Vec::new();
+        for (i, ws) in sets.iter().enumerate() {
+            if let (true, Some(spec)) = (ws.source, &ws.spec) {
+                for (k, a) in spec.atoms.iter().enumerate() {
+                    if let (true, Some((index, threshold))) = (a.flows, a.timer) {
+                        timers.push(TimerAtom {
+                            set: i,
+                            atom: k,
+                            index,
+                            threshold,
+                            d: f64::INFINITY,
+                        });
                     }
                 }
             }
@@ -337,7 +369,7 @@ impl Watcher {
             if let Some(spec) = &ws.spec {
                 flat_off[i] = Some(total);
                 total += spec.atoms.len();
-                flowing += spec.atoms.iter().filter(|a| a.flows).count();
+                flowing += spec.atoms.iter().filter(|a| a.watched()).count();
                 watched_sets += usize::from(ws.source);
             }
         }
@@ -354,6 +386,7 @@ impl Watcher {
             cls_s: vec![0; watched.len()],
             found: vec![(f64::NAN, f64::NAN, 0, 0.0); watched.len()],
             watched,
+            timers,
             twin,
             checks: settings.guard_checks as usize,
             event_tol: settings.event_tol,
@@ -388,6 +421,68 @@ impl Watcher {
     /// flowing atom).
     pub fn is_empty(&self) -> bool {
         self.watched.is_empty()
+    }
+
+    /// The state components that are timers of the sets' timer atoms.
+    pub fn timer_indices(&self) -> impl Iterator<Item = usize> + '_ {
+        self.timers.iter().map(|a| a.index)
+    }
+
+    /// Schedules the timer atoms of the segment started by
+    /// [`start`](Self::start) from `x`, whose flow there is `f` (at least
+    /// at the timer components): returns the local time at which the first
+    /// of them reaches its threshold (∞: none does), or `None` if C is left
+    /// at once (a timer atom of C on its threshold, or beyond it within
+    /// `set_tol`, moving away from C, and C fails with it). A timer atom
+    /// that becomes false at once keeps that truth for the segment.
+    pub fn schedule(&mut self, x: &[f64], f: &[f64]) -> Option<f64> {
+        let mut first = f64::INFINITY;
+        let mut changed = false;
+        for ta in &mut self.timers {
+            let (v, rate, thr) = (x[ta.index], f[ta.index], ta.threshold);
+            let ws = &mut self.sets[ta.set];
+            let cmp = ws.cmp(ta.atom);
+            ta.d = if (rate > 0.0 && v < thr) || (rate < 0.0 && v > thr) {
+                (thr - v) / rate
+            } else {
+                f64::INFINITY
+            };
+            first = first.min(ta.d);
+            // On (or past) the threshold and moving away from it: the truth
+            // just after the start is that of `g` with the rate's sign.
+            let away = (rate > 0.0 && v >= thr) || (rate < 0.0 && v <= thr);
+            if away {
+                let after = cmp.holds(rate);
+                if ws.start_truth[ta.atom] != after {
+                    ws.start_truth[ta.atom] = after;
+                    changed = true;
+                }
+            }
+        }
+        if changed {
+            for (i, ws) in self.sets.iter_mut().enumerate() {
+                if let Some(spec) = &ws.spec {
+                    let value = spec.expr.eval(&ws.start_truth);
+                    if self.flow == Some(i) {
+                        if !value {
+                            return None;
+                        }
+                    } else {
+                        ws.cur = value;
+                    }
+                }
+            }
+        }
+        Some(first)
+    }
+
+    /// The timer atoms due at the end `d_end` of a segment reached by the
+    /// flow: `(index, threshold)` of each, to be set exactly.
+    pub fn timers_due(&self, d_end: f64) -> impl Iterator<Item = (usize, f64)> + '_ {
+        self.timers
+            .iter()
+            .filter(move |a| a.d == d_end)
+            .map(|a| (a.index, a.threshold))
     }
 
     /// Records the state at the start of a flow segment (local time 0,
@@ -450,7 +545,7 @@ impl Watcher {
             match self.flat_off[i] {
                 Some(off) if flat => {
                     for k in 0..ws.vs.len() {
-                        if ws.flows(k) {
+                        if ws.watched(k) {
                             ws.vs[k] = self.flat[off + k];
                         }
                     }
@@ -682,7 +777,7 @@ impl Watcher {
         let truth = |k: usize| {
             if k == atom {
                 None
-            } else if !spec.atoms[k].flows {
+            } else if !spec.atoms[k].watched() {
                 Some(ws.start_truth[k])
             } else {
                 Some(spec.atoms[k].cmp.holds_within(ws.vs[k], ws.relax[k]))
@@ -706,7 +801,7 @@ impl Watcher {
                 (Some(spec), _) => {
                     for k in 0..vb.len() {
                         let atom = spec.atoms[k];
-                        ws.truth[k] = if !atom.flows {
+                        ws.truth[k] = if !atom.watched() {
                             ws.start_truth[k]
                         } else if ws.relax[k] > 0.0 {
                             atom.cmp.holds_within(vb[k], ws.relax[k])
@@ -1064,6 +1159,7 @@ mod tests {
                 cmp,
                 flows: true,
                 g_id: self.ids.then_some(id),
+                timer: None,
             };
             Some(match set {
                 SetRef::Flow => SetAtoms {

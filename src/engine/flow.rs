@@ -625,14 +625,17 @@ impl Flows {
         let n = x0.len();
         let watcher = Watcher::new(sys, settings, x0);
         let m = sys.noise_dim();
-        let timer_rows: Vec<usize> = sys
+        let mut timer_rows: Vec<usize> = sys
             .jump_rules()
             .iter()
             .filter_map(|r| match r.guard {
                 super::GuardKind::Timer { index, .. } => Some(index),
                 super::GuardKind::General => None,
             })
+            .chain(watcher.timer_indices())
             .collect();
+        timer_rows.sort_unstable();
+        timer_rows.dedup();
         Self {
             method,
             watcher,
@@ -697,6 +700,12 @@ impl Flows {
         }
         self.watcher.start(sys, at, x);
         &self.f_prev
+    }
+
+    /// Schedules the sets' timer atoms of the segment [`start`](Self::start)ed
+    /// from `x` ([`Watcher::schedule`]).
+    pub fn schedule_timers(&mut self, x: &[f64]) -> Option<f64> {
+        self.watcher.schedule(x, &self.f_prev)
     }
 
     /// Advances `x` (at global time `t0`, jump count `j`) by at most `d_end`.

@@ -417,6 +417,19 @@ pub fn simulate<S: HybridSystem + ?Sized>(
                 horizon_bound = false;
             }
         }
+        // The sets' timer atoms: when the first reaches its threshold, or
+        // C left at once.
+        match flows.schedule_timers(&x) {
+            None => {
+                cannot_flow = true;
+                continue;
+            }
+            Some(d) if d < d_end => {
+                d_end = d;
+                horizon_bound = false;
+            }
+            Some(_) => {}
+        }
         // A failed evaluation in the flow map makes its NaN an integrator
         // failure; the fault says why.
         let end = flows
@@ -437,6 +450,9 @@ pub fn simulate<S: HybridSystem + ?Sized>(
                     if timer_d[k] == d_end || grouped {
                         x[index] = threshold;
                     }
+                }
+                for (index, threshold) in flows.watcher.timers_due(d_end) {
+                    x[index] = threshold;
                 }
             }
             EndWhy::Partial => {}

@@ -172,7 +172,7 @@ impl Cmp {
 }
 
 /// One atom `g(t, x) ⋈ 0` of a set.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+#[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Atom {
     /// The comparison with zero.
     pub cmp: Cmp,
@@ -184,6 +184,21 @@ pub struct Atom {
     /// any sets) with the same `Some` value have the same `g`, so the engine
     /// localizes their common zero once (`x >= 0` in C and `x <= 0` in D).
     pub g_id: Option<u64>,
+    /// `Some((index, threshold))`: `g = x[index] − threshold` exactly, the
+    /// comparison is `<=` or `>=`, and state `index` has a constant rate
+    /// along every flow (a timer). The engine then computes when `g`
+    /// reaches zero instead of watching it: a flow segment ends there, with
+    /// `x[index]` set to `threshold`, as for [`GuardKind::Timer`] rules.
+    pub timer: Option<(usize, f64)>,
+}
+
+impl Atom {
+    /// Whether the engine watches the atom along flows (at checkpoints,
+    /// localizing its sign changes): it can change along a flow and is not
+    /// a [`timer`](Self::timer).
+    pub fn watched(&self) -> bool {
+        self.flows && self.timer.is_none()
+    }
 }
 
 /// A monotone boolean combination of the atoms of one set.
@@ -353,8 +368,9 @@ pub trait HybridSystem {
 
     /// Writes the value `g_k(t, j, x)` of each atom of `set` into `out`
     /// (length: the number of atoms of [`set_atoms`](Self::set_atoms)).
-    /// With `flowing_only`, only the atoms with `flows = true` need be
-    /// written. Called only for sets that have atoms.
+    /// With `flowing_only`, only the atoms the engine watches
+    /// ([`Atom::watched`]) need be written. Called only for sets that have
+    /// atoms.
     fn atom_values(
         &self,
         _set: SetRef,
@@ -380,7 +396,7 @@ pub trait HybridSystem {
     /// C, D_0, D_1, … (sets without atoms left out), each set's atoms as
     /// [`atom_values`](Self::atom_values) writes them, one set after the
     /// other into `out` (length: the total number of atoms; with
-    /// `flowing_only`, only the flowing atoms need be written). Returns
+    /// `flowing_only`, only the watched atoms need be written). Returns
     /// `false` (the default) if the system does not offer this; the engine
     /// then evaluates the sets one by one. A system whose sets share
     /// subexpressions evaluates them once here (the compiled model runs one

@@ -125,6 +125,71 @@ fn nnf(dag: &mut Dag, cond: NodeId, neg: bool, atoms: &mut Vec<(Cmp, NodeId)>) -
     }
 }
 
+/// Atom `g ⋈ 0` as a timer atom if it is one: `⋈` is `<=` or `>=` and `g`
+/// is `±x[k] + c` (sums and differences of one such state and constants,
+/// in any order) for a state `k` with `timers[k]` (a constant nonzero rate
+/// along every flow). Returns the atom written as `x[k] − θ ⋈' 0` (the
+/// comparison flipped with the sign: the same set up to the rounding of
+/// `g`), with `k` and `θ`: at `x[k] = θ` its `g` is exactly zero.
+pub(crate) fn timer_atom(
+    dag: &mut Dag,
+    cmp: Cmp,
+    g: NodeId,
+    timers: &[bool],
+) -> Option<(Cmp, NodeId, usize, f64)> {
+    if !matches!(cmp, Cmp::Le | Cmp::Ge) {
+        return None;
+    }
+    let (k, sign, offset) = match one_state_sum(dag, g, 0)? {
+        (Some(k), sign, offset) if timers.get(k) == Some(&true) => (k, sign, offset),
+        _ => return None,
+    };
+    let threshold = -sign * offset;
+    if !threshold.is_finite() {
+        return None;
+    }
+    let cmp = match (sign > 0.0, cmp) {
+        (true, c) => c,
+        (false, Cmp::Le) => Cmp::Ge,
+        (false, _) => Cmp::Le,
+    };
+    let (x, c) = (dag.state(k), dag.konst(threshold));
+    Some((cmp, dag.bin(BinFn::Sub, x, c), k, threshold))
+}
+
+/// `n` as `sign · x[k] + offset` (`sign` ±1, `k` `None` for a constant) if
+/// it is a sum or difference of at most one state and constants; `depth`
+/// bounds the recursion.
+fn one_state_sum(dag: &Dag, n: NodeId, depth: u32) -> Option<(Option<usize>, f64, f64)> {
+    if depth > 16 {
+        return None;
+    }
+    if let Some(c) = dag.as_const(n) {
+        return Some((None, 1.0, c));
+    }
+    let both = |a, b, minus: bool| {
+        let (ka, sa, oa) = one_state_sum(dag, a, depth + 1)?;
+        let (kb, sb, ob) = one_state_sum(dag, b, depth + 1)?;
+        let m = if minus { -1.0 } else { 1.0 };
+        match (ka, kb) {
+            (Some(_), Some(_)) => None,
+            (Some(k), None) => Some((Some(k), sa, oa + m * ob)),
+            (None, Some(k)) => Some((Some(k), m * sb, oa + m * ob)),
+            (None, None) => Some((None, 1.0, oa + m * ob)),
+        }
+    };
+    match dag.node(n) {
+        Node::State(k) => Some((Some(k as usize), 1.0, 0.0)),
+        Node::Un(UnFn::Neg, a) => {
+            let (k, s, o) = one_state_sum(dag, a, depth + 1)?;
+            Some((k, -s, -o))
+        }
+        Node::Bin(BinFn::Add, a, b) => both(a, b, false),
+        Node::Bin(BinFn::Sub, a, b) => both(a, b, true),
+        _ => None,
+    }
+}
+
 /// Which nodes of a graph can change along a flow: time (not the jump
 /// count), noise, random draws, states not in `still` (the states whose
 /// flow is identically zero), and everything computed from them. Kept up to

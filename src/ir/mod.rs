@@ -83,28 +83,44 @@ struct SetCode {
 impl SetCode {
     /// The code of the set `cond`; with `names` (state names), the text of
     /// each atom too, for messages.
+    /// `timers[k]`: state `k` has a constant nonzero rate along every flow
+    /// (its atoms `x[k] <= c`, `x[k] >= c` are timer atoms).
     fn new(
         dag: &mut Dag,
         frame: Frame,
         cond: NodeId,
         varying: &mut analysis::Varying,
+        timers: &[bool],
         names: Option<&[String]>,
     ) -> Self {
         let g = analysis::guard_of(dag, cond);
-        let ca = analysis::atoms_of(dag, cond);
+        let mut ca = analysis::atoms_of(dag, cond);
+        // Timer atoms written as `x − c`, so that the engine can schedule them.
+        let timer: Vec<Option<(usize, f64)>> = ca
+            .atoms
+            .iter_mut()
+            .map(|a| {
+                let (cmp, node, index, threshold) = analysis::timer_atom(dag, a.0, a.1, timers)?;
+                *a = (cmp, node);
+                Some((index, threshold))
+            })
+            .collect();
         let varying = varying.of(dag);
         let atoms: Vec<Atom> = ca
             .atoms
             .iter()
-            .map(|&(cmp, n)| Atom {
+            .zip(timer)
+            .map(|(&(cmp, n), timer)| Atom {
                 cmp,
                 flows: varying[n as usize],
                 // The graph is hash-consed: equal functions are one node.
                 g_id: Some(u64::from(n)),
+                timer,
             })
             .collect();
         let nodes: Vec<NodeId> = ca.atoms.iter().map(|&(_, n)| n).collect();
-        let flowing_idx: Vec<usize> = (0..atoms.len()).filter(|&k| atoms[k].flows).collect();
+        // What the engine evaluates along flows: the atoms it watches.
+        let flowing_idx: Vec<usize> = (0..atoms.len()).filter(|&k| atoms[k].watched()).collect();
         let fnodes: Vec<NodeId> = flowing_idx.iter().map(|&k| nodes[k]).collect();
         let atom_text = names.map_or_else(Vec::new, |names| {
             ca.atoms
@@ -372,10 +388,28 @@ impl CompiledModel {
                         .all(|&d| m.dag.as_const(d) == Some(0.0))
             })
             .collect();
+        // States with a constant nonzero rate along every flow: timers.
+        let timer_states: Vec<bool> = (0..m.dim)
+            .map(|k| {
+                m.dag
+                    .as_const(drift[k])
+                    .is_some_and(|r| r != 0.0 && r.is_finite())
+                    && diff[k * m.wiener_dim..(k + 1) * m.wiener_dim]
+                        .iter()
+                        .all(|&d| m.dag.as_const(d) == Some(0.0))
+            })
+            .collect();
         let mut varying = analysis::Varying::new(still);
         let names = self::state_layout(&m.fields, true).flat_names(m.dim);
         let flow_set = m.flow_set.map(|(cond, span)| {
-            let code = SetCode::new(&mut m.dag, frame, cond, &mut varying, Some(&names));
+            let code = SetCode::new(
+                &mut m.dag,
+                frame,
+                cond,
+                &mut varying,
+                &timer_states,
+                Some(&names),
+            );
             (code, span)
         });
         let mut rules = Vec::new();
@@ -394,7 +428,14 @@ impl CompiledModel {
             });
             let values: Vec<_> = r.resets.iter().map(|&(_, n)| n).collect();
             rule_code.push(RuleCode {
-                set: SetCode::new(&mut m.dag, frame, r.guard, &mut varying, None),
+                set: SetCode::new(
+                    &mut m.dag,
+                    frame,
+                    r.guard,
+                    &mut varying,
+                    &timer_states,
+                    None,
+                ),
                 map: Program::compile(&m.dag, frame, &values),
                 targets: r.resets.iter().map(|&(k, _)| k).collect(),
                 span: r.span,

@@ -98,7 +98,7 @@ fn same_programs(name: &str, a: &CompiledModel, b: &CompiledModel, at: HybridTim
     for &set in &sets {
         if let Some(spec) = a.set_atoms(set) {
             for atom in &spec.atoms {
-                if atom.flows {
+                if atom.watched() {
                     assert_eq!(
                         bits(&[flowing[k]]),
                         bits(&[fa[k]]),

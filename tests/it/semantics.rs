@@ -903,3 +903,74 @@ pub(crate) mod reference {
         );
     }
 }
+
+/// Timer atoms of C and D (`tau <= Ts` with `tau' = 1`, in any spelling) are
+/// scheduled, not watched: the flow ends exactly where the timer reaches its
+/// threshold, with the timer set to it, and the arc is the one of the same
+/// model without the flow set.
+#[test]
+fn timer_atoms_of_the_sets_are_scheduled_exactly() {
+    let model = |c: &str| {
+        format!(
+            "model m\nparam Ts = 0.1\nstate x = 1, u = 0, tau = 0\n\
+             flow {{ x' = -x + u; u' = 0; tau' = 1 }}{c}\n\
+             jump sample when tau >= Ts {{ u+ = -0.5 * x; tau+ = 0 }}\nsim {{ T = 1.05 }}\n"
+        )
+    };
+    let free = run(&compile(&model("")));
+    assert_eq!(free.jumps().len(), 10);
+    for c in [
+        " in tau <= Ts",
+        " in Ts >= tau",
+        " in tau - Ts <= 0",
+        " in -tau >= -Ts",
+        " in tau <= Ts && x > -100",
+        " in tau <= Ts || x > 100",
+    ] {
+        let arc = run(&compile(&model(c)));
+        assert_eq!(jump_times(&arc), jump_times(&free), "{c}");
+        // Beside a watched atom the flow takes the solver, not the exact
+        // path: the same arc within its tolerance; alone, bit for bit.
+        let watched = c.contains('x');
+        for (a, b) in arc.jumps().iter().zip(free.jumps()) {
+            if watched {
+                assert!((a.pre[0] - b.pre[0]).abs() < 1e-8, "{c}: {:?}", a.pre);
+            } else {
+                assert_eq!(a.pre, b.pre, "{c}");
+            }
+            // The timer lands on its threshold exactly.
+            assert_eq!(a.pre[2], 0.1, "{c}");
+        }
+    }
+    // A falling timer leaves C = {tau >= 0} at t = 0.75 exactly, with no
+    // jump enabled: the solution ends there, in C, leaving it.
+    let src = "model m\nstate tau = 0.75, y = 0\nflow { tau' = -1; y' = 2 } in tau >= 0\n\
+               jump never when y >= 10 { y+ = 0 }\nsim { T = 5 }\n";
+    let arc = run(&compile(src));
+    let end = arc.termination().unwrap();
+    assert_eq!(end.at.t, 0.75);
+    assert!(
+        matches!(&end.cause, TerminationCause::CannotFlowOrJump { leaving: true, state, .. } if state[0] == 0.0),
+        "{end:?}"
+    );
+    // On the threshold and moving out of C at the start: no flow at all.
+    let src = "model m\nstate tau = 1\nflow { tau' = 1 } in tau <= 1\nsim { T = 5 }\n";
+    let end = run(&compile(src)).termination().unwrap().clone();
+    assert_eq!(end.at.t, 0.0);
+    assert!(
+        matches!(
+            end.cause,
+            TerminationCause::CannotFlowOrJump { leaving: true, .. }
+        ),
+        "{end:?}"
+    );
+    // A timer atom beside a watched atom in D: the jump needs both.
+    let src = "model m\nstate tau = 0, h = 1, v = 0\n\
+               flow { tau' = 1; h' = v; v' = -9.81 }\n\
+               jump late when tau >= 2 && h <= 0 { h+ = 1; v+ = 0; tau+ = 0 }\nsim { T = 2.5 }\n";
+    let arc = run(&compile(src));
+    // h reaches 0 at t = 0.4515 while tau < 2, then falls below it: the jump
+    // is at tau = 2 exactly.
+    assert_times(&arc, &[2.0], "tau >= 2 && h <= 0");
+    assert_eq!(arc.jumps()[0].pre[0], 2.0);
+}
