@@ -10,6 +10,7 @@ Prints rows of the table of `benches/stiff.rs`.
 Run: python benches/stiff_scipy.py tests/data/stiff_reference.json"""
 import json
 import math
+import pathlib
 import sys
 import time
 
@@ -17,32 +18,9 @@ import numpy as np
 import scipy
 from scipy.integrate import solve_ivp
 
-MU = 1000.0
-
-
-def vdp(t, y):
-    return [y[1], MU * (1 - y[0] ** 2) * y[1] - y[0]]
-
-
-def vdp_jac(t, y):
-    return [[0.0, 1.0], [-2 * MU * y[0] * y[1] - 1, MU * (1 - y[0] ** 2)]]
-
-
-def rob(t, y):
-    return [
-        -0.04 * y[0] + 1e4 * y[1] * y[2],
-        0.04 * y[0] - 1e4 * y[1] * y[2] - 3e7 * y[1] ** 2,
-        3e7 * y[1] ** 2,
-    ]
-
-
-def rob_jac(t, y):
-    return [
-        [-0.04, 1e4 * y[2], 1e4 * y[1]],
-        [0.04, -1e4 * y[2] - 6e7 * y[1], -1e4 * y[1]],
-        [0.0, 6e7 * y[1], 0.0],
-    ]
-
+# The problems as the references were computed (tests/data/stiff_reference.py).
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1] / "tests" / "data"))
+from stiff_reference import rob, rob_jac, vdp, vdp_jac  # noqa: E402
 
 # The relay (benches/models/stiff_relay.hyb): x' = -a (x - xa) + p q, z' = (x - z) / tau, q flips
 # when z reaches xhi (q = 1) or xlo (q = 0).
