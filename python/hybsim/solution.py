@@ -139,6 +139,10 @@ class Solution:
         One row per jump: rule, t, j, pre, post.
     termination : Termination or None
         Where and why the solution ended.
+    solver_switches : list of dict
+        Under ``solver="auto"``: each change of integrator, in order, as
+        ``{"t", "j", "to"}`` (``to``: ``"radau5"`` where the flow became
+        stiff, ``"dopri5"`` where it no longer is); empty otherwise.
 
     ``sol["h"]`` is the column of state (or output) component ``h``;
     ``len(sol)`` the number of samples.
@@ -157,6 +161,7 @@ class Solution:
         self.output_names: List[str] = list(data["output_names"])
         self.rule_names: List[str] = list(data["rule_names"])
         self.parameters: Dict[str, Any] = data.get("parameters", {})
+        self.solver_switches: List[Dict[str, Any]] = list(data.get("solver_switches", []))
         jumps = data["jumps"]
         if isinstance(jumps, Jumps):
             self.jumps = jumps
@@ -293,6 +298,7 @@ class Solution:
                 "parameters": self.parameters,
                 "jumps": self.jumps._select(jump_mask),
                 "termination": self.termination,
+                "solver_switches": self.solver_switches,
             }
         )
 
@@ -414,5 +420,6 @@ class Solution:
                 "parameters": self.parameters,
                 "jumps": self.jumps._select((self.jumps.t >= lo) & (self.jumps.t <= hi)),
                 "termination": self.termination,
+                "solver_switches": self.solver_switches,
             }
         )

@@ -14,7 +14,7 @@ use hybsim::source::SourceFile;
 use numpy::{PyArray1, PyReadonlyArray1, PyReadonlyArray2};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
-use pyo3::types::PyDict;
+use pyo3::types::{PyDict, PyList};
 
 use crate::convert::{columns, diagnostics_error, json, matrix};
 use crate::record::Recorder;
@@ -133,6 +133,15 @@ fn solution_dict<'py>(
         Some(term) => out.set_item("termination", termination(py, term)?)?,
         None => out.set_item("termination", py.None())?,
     }
+    let switches = PyList::empty(py);
+    for sw in &rec.switches {
+        let d = PyDict::new(py);
+        d.set_item("t", sw.at.t)?;
+        d.set_item("j", sw.at.j)?;
+        d.set_item("to", sw.to)?;
+        switches.append(d)?;
+    }
+    out.set_item("solver_switches", switches)?;
     out.set_item("parameters", json(py, &model.parameters_json())?)?;
     Ok(out)
 }

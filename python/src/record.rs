@@ -4,7 +4,7 @@
 use std::ops::ControlFlow;
 use std::time::{Duration, Instant};
 
-use hybsim::arc::{ArcSink, HybridTime, SampleKind, Termination};
+use hybsim::arc::{ArcSink, HybridTime, SampleKind, SolverSwitch, Termination};
 use pyo3::prelude::*;
 
 /// Names of the sample kinds, indexed by the codes of [`kind_code`] (the
@@ -79,6 +79,8 @@ pub struct Recorder {
     pub jump_pre: Vec<f64>,
     pub jump_post: Vec<f64>,
     pub termination: Option<Termination>,
+    /// The integrator changes of `solver = auto`, in order.
+    pub switches: Vec<SolverSwitch>,
     pub interrupt: Interrupt,
 }
 
@@ -96,6 +98,7 @@ impl Recorder {
             jump_pre: Vec::new(),
             jump_post: Vec::new(),
             termination: None,
+            switches: Vec::new(),
             interrupt: Interrupt::new(),
         }
     }
@@ -127,5 +130,9 @@ impl ArcSink for Recorder {
 
     fn finish(&mut self, termination: &Termination) {
         self.termination = Some(termination.clone());
+    }
+
+    fn solver_switch(&mut self, switch: &SolverSwitch) {
+        self.switches.push(*switch);
     }
 }

@@ -132,3 +132,24 @@ def test_outputs_are_evaluated_on_first_use(sol):
     np.testing.assert_array_equal(part.y[:, 0], fresh.y[(fresh.t >= 0.5) & (fresh.t <= 1.0), 0])
     with pytest.raises(ValueError, match="outputs need"):
         fresh._output_map(fresh.t[:3], fresh.x[:2])
+
+
+VDP = """model vdp
+param mu = 1000
+state x = 2, y = 0
+flow { x' = y; y' = mu * (1 - x^2) * y - x }
+sim { T = 3 }
+"""
+
+
+def test_auto_solver_switches_are_reported():
+    sol = hybsim.load(VDP).run(solver="auto")
+    switches = sol.solver_switches
+    # Stiff from the start: Dopri5 hands over to Radau5 within the first time unit.
+    assert switches and switches[0]["to"] == "radau5"
+    assert 0 <= switches[0]["t"] < 1 and switches[0]["j"] == 0
+    assert all(s["to"] in ("radau5", "dopri5") for s in switches)
+    assert sol.restrict_t(0, 1).solver_switches == switches
+    # Without auto, or on a non-stiff flow, nothing switches.
+    assert hybsim.load(VDP).run(solver="radau5").solver_switches == []
+    assert hybsim.load(VDP, set={"mu": 0.5}).run(solver="auto").solver_switches == []
