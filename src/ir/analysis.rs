@@ -144,7 +144,8 @@ pub(crate) fn timer_atom(
         (Some(k), sign, offset) if timers.get(k) == Some(&true) => (k, sign, offset),
         _ => return None,
     };
-    let threshold = -sign * offset;
+    // `+ 0.0`: a zero threshold is +0 (the timer is set to it, and shown).
+    let threshold = -sign * offset + 0.0;
     if !threshold.is_finite() {
         return None;
     }

@@ -973,4 +973,14 @@ fn timer_atoms_of_the_sets_are_scheduled_exactly() {
     // is at tau = 2 exactly.
     assert_times(&arc, &[2.0], "tau >= 2 && h <= 0");
     assert_eq!(arc.jumps()[0].pre[0], 2.0);
+    // A falling timer written `tau + 1 <= 1` lands on +0, not −0.
+    let src = "model m\nstate tau = 0.5\nflow { tau' = -1 }\n\
+               jump z when tau + 1 <= 1 { tau+ = 0.5 }\nsim { T = 1 }\n";
+    let arc = run(&compile(src));
+    assert_times(&arc, &[0.5], "tau + 1 <= 1");
+    assert!(
+        arc.jumps()[0].pre[0].to_bits() == 0,
+        "{}",
+        arc.jumps()[0].pre[0]
+    );
 }
