@@ -114,10 +114,10 @@ pub fn sweep<'py>(
     };
     let points = aggregate(spec, &rows);
     let out = PyDict::new(py);
-    out.set_item("runs", columns(py, table::runs_table(&manifest, &rows))?)?;
+    out.set_item("runs", table_dict(py, table::runs_table(&manifest, &rows))?)?;
     out.set_item(
         "points",
-        columns(py, table::points_table(&manifest, &points))?,
+        table_dict(py, table::points_table(&manifest, &points))?,
     )?;
     out.set_item(
         "axes",
@@ -131,7 +131,7 @@ pub fn sweep<'py>(
 
 /// A table as a dict of columns, in order: unsigned integers and floats as
 /// numpy arrays (a missing float is NaN), text as a list of str.
-fn columns<'py>(py: Python<'py>, table: Table) -> PyResult<Bound<'py, PyDict>> {
+fn table_dict<'py>(py: Python<'py>, table: Table) -> PyResult<Bound<'py, PyDict>> {
     let out = PyDict::new(py);
     for (name, column) in table.into_columns() {
         match column {
