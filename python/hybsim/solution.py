@@ -57,6 +57,20 @@ class Termination:
         return self.message
 
 
+class _Rows:
+    """Rows ``rows`` of a states array ``x``, gathered only when read."""
+
+    def __init__(self, x: np.ndarray, rows: np.ndarray):
+        self.x = x
+        self.rows = rows
+
+    def __getitem__(self, mask: np.ndarray) -> "_Rows":
+        return _Rows(self.x, self.rows[mask])
+
+    def gather(self) -> np.ndarray:
+        return self.x[self.rows]
+
+
 class Jumps:
     """The jumps of a solution, one row per jump, in order.
 
@@ -70,18 +84,35 @@ class Jumps:
         rule: np.ndarray,
         t: np.ndarray,
         j: np.ndarray,
-        pre: np.ndarray,
-        post: np.ndarray,
+        pre: Union[np.ndarray, "_Rows"],
+        post: Union[np.ndarray, "_Rows"],
         rule_names: Sequence[str],
         names: Sequence[str],
     ):
         self.rule = rule
         self.t = t
         self.j = j
-        self.pre = pre
-        self.post = post
+        # Either arrays, or rows of the solution's `x` gathered on first use:
+        # a run's jump states are its pre- and post-jump samples, so they are
+        # not copied unless asked for.
+        self._pre = pre
+        self._post = post
         self.rule_names = list(rule_names)
         self.names = list(names)
+
+    @property
+    def pre(self) -> np.ndarray:
+        """The pre-jump states, ``(k, n)``."""
+        if isinstance(self._pre, _Rows):
+            self._pre = self._pre.gather()
+        return self._pre
+
+    @property
+    def post(self) -> np.ndarray:
+        """The post-jump states, ``(k, n)``."""
+        if isinstance(self._post, _Rows):
+            self._post = self._post.gather()
+        return self._post
 
     @property
     def rule_name(self) -> np.ndarray:
@@ -97,8 +128,8 @@ class Jumps:
             self.rule[mask],
             self.t[mask],
             self.j[mask],
-            self.pre[mask],
-            self.post[mask],
+            self._pre[mask],
+            self._post[mask],
             self.rule_names,
             self.names,
         )
@@ -170,8 +201,11 @@ class Solution:
                 jumps["rule"],
                 jumps["t"],
                 jumps["j"],
-                jumps["pre"],
-                jumps["post"],
+                *(
+                    (jumps["pre"], jumps["post"])
+                    if "pre" in jumps
+                    else (_Rows(self.x, jumps["row"]), _Rows(self.x, jumps["row"] + 1))
+                ),
                 self.rule_names,
                 self.names,
             )

@@ -121,13 +121,11 @@ fn solution_dict<'py>(
     out.set_item("names", model.state_names())?;
     out.set_item("output_names", model.output_names())?;
     out.set_item("rule_names", model.rule_names())?;
-    let k = rec.jump_t.len();
     let jumps = PyDict::new(py);
     jumps.set_item("rule", PyArray1::from_vec(py, rec.jump_rule))?;
     jumps.set_item("t", PyArray1::from_vec(py, rec.jump_t))?;
     jumps.set_item("j", PyArray1::from_vec(py, rec.jump_j))?;
-    jumps.set_item("pre", columns(py, rec.jump_pre, k, dim)?)?;
-    jumps.set_item("post", columns(py, rec.jump_post, k, dim)?)?;
+    jumps.set_item("row", PyArray1::from_vec(py, rec.jump_row))?;
     out.set_item("jumps", jumps)?;
     match &rec.termination {
         Some(term) => out.set_item("termination", termination(py, term)?)?,

@@ -76,8 +76,12 @@ pub struct Recorder {
     pub jump_rule: Vec<i64>,
     pub jump_t: Vec<f64>,
     pub jump_j: Vec<i64>,
-    pub jump_pre: Vec<f64>,
-    pub jump_post: Vec<f64>,
+    /// Row (sample index) of each jump's pre-jump sample; its post-jump
+    /// sample is the next row. The engine sends `PreJump`, the jumps, then
+    /// `PostJump`, with the jumps' pre and post states equal to those
+    /// samples, so the states are not stored twice (on the 10-s consensus
+    /// run that copy was half a gigabyte).
+    pub jump_row: Vec<i64>,
     pub termination: Option<Termination>,
     /// The integrator changes of `solver = auto`, in order.
     pub switches: Vec<SolverSwitch>,
@@ -95,8 +99,7 @@ impl Recorder {
             jump_rule: Vec::new(),
             jump_t: Vec::new(),
             jump_j: Vec::new(),
-            jump_pre: Vec::new(),
-            jump_post: Vec::new(),
+            jump_row: Vec::new(),
             termination: None,
             switches: Vec::new(),
             interrupt: Interrupt::new(),
@@ -119,12 +122,19 @@ impl ArcSink for Recorder {
         self.interrupt.poll()
     }
 
-    fn jump(&mut self, at: HybridTime, rule: usize, pre: &[f64], post: &[f64]) -> ControlFlow<()> {
+    fn jump(&mut self, at: HybridTime, rule: usize, pre: &[f64], _post: &[f64]) -> ControlFlow<()> {
         self.jump_rule.push(rule as i64);
         self.jump_t.push(at.t);
         self.jump_j.push(at.j as i64);
-        self.jump_pre.extend_from_slice(pre);
-        self.jump_post.extend_from_slice(post);
+        // The pre-jump sample is the last row; the post-jump sample comes next.
+        let row = self.t.len().saturating_sub(1);
+        debug_assert!(
+            self.x[row * self.dim..]
+                .iter()
+                .zip(pre)
+                .all(|(a, b)| a.to_bits() == b.to_bits())
+        );
+        self.jump_row.push(row as i64);
         ControlFlow::Continue(())
     }
 

@@ -96,6 +96,14 @@ def test_jumps_table_matches_the_samples(models):
     np.testing.assert_allclose(sol.jumps.post[:, 1], -0.8 * sol.jumps.pre[:, 1])
     df = sol.jumps.to_pandas()
     assert list(df.columns) == ["rule", "t", "j", "pre.h", "pre.v", "post.h", "post.v"]
+    # The jump states are gathered from the samples on first use; a
+    # restriction keeps them paired with their jumps.
+    part = sol.restrict_t(0.5, 3.0)
+    keep = (sol.jumps.t >= 0.5) & (sol.jumps.t <= 3.0)
+    assert 0 < keep.sum() < len(sol.jumps)
+    np.testing.assert_array_equal(part.jumps.pre, sol.jumps.pre[keep])
+    np.testing.assert_array_equal(part.jumps.post, sol.jumps.post[keep])
+    np.testing.assert_array_equal(part.jumps.pre, part.x[part.kind == "pre_jump"])
 
 
 def test_to_pandas_has_the_csv_columns(hybsim_bin, models, tmp_path):
