@@ -8,7 +8,9 @@
 //! [`Priority::Flows`]) are watched individually: on each step `[s0, s1]`
 //! their sign (−, 0, + or NaN) is evaluated at `guard_checks` interior
 //! points and at `s1` on a [`StepPath`] (cubic Hermite interpolant of the
-//! step ends, or the exact solution of an affine flow). Each sign change
+//! step ends, or the exact solution of an affine flow; an Euler–Maruyama
+//! step, a straight line between points of a sampled path, only at its
+//! ends). Each sign change
 //! is bracketed and shrunk (the ITP method, with bisection where the values
 //! are down to rounding noise) to the first point where the sign differs
 //! from the bracket's start, within the event tolerance (default 4 ulp of
@@ -35,12 +37,19 @@
 //! tolerance (`g + set_tol` for `g ≥ 0`) until they hold exactly.
 
 use super::HybridSystem;
+use super::clock::TimeSum;
 use super::settings::{Priority, SimSettings};
 use super::system::{Cmp, GuardKind, SetAtoms, SetRef};
 use crate::arc::{FailedAtom, HybridTime};
 
 /// x(s) on one step `[s0, s1]`.
 pub(crate) trait StepPath {
+    /// Whether the path is the straight line between the step's ends (an
+    /// Euler–Maruyama step, which has no interpolant): dense output then
+    /// adds no point, and the sets are checked at the step's ends only,
+    /// since the line between them is not the solution's path.
+    const STRAIGHT: bool = false;
+
     /// Writes x(s) into `out`, for `s` in `[s0, s1]`.
     fn eval(&mut self, s: f64, out: &mut [f64]);
 }
@@ -90,6 +99,8 @@ pub(crate) struct Linear<'a> {
 }
 
 impl StepPath for Linear<'_> {
+    const STRAIGHT: bool = true;
+
     fn eval(&mut self, s: f64, out: &mut [f64]) {
         if s == self.s1 {
             out.copy_from_slice(self.y1);
@@ -250,6 +261,9 @@ pub(crate) struct Watcher {
     checks: usize,
     event_tol: f64,
     set_tol: f64,
+    /// The segment's start time (global time of local time `s`:
+    /// `clock.at(s)`, the time the engine records an event at).
+    clock: TimeSum,
     /// The jump count of the segment being watched (constant along it).
     j: u64,
     /// Whether a watched atom started the segment within `set_tol` of its
@@ -391,6 +405,7 @@ impl Watcher {
             checks: settings.guard_checks as usize,
             event_tol: settings.event_tol,
             set_tol: settings.set_tol,
+            clock: TimeSum::default(),
             j: 0,
             near_start: false,
             buf_s: vec![0.0; n],
@@ -488,8 +503,10 @@ impl Watcher {
     /// Records the state at the start of a flow segment (local time 0,
     /// global hybrid time `at`): constant atoms' truth, relaxations of C's
     /// atoms on its boundary, each set's value and each watched atom's sign.
-    pub fn start<S: HybridSystem + ?Sized>(&mut self, sys: &S, at: HybridTime, x: &[f64]) {
-        self.j = at.j;
+    pub fn start<S: HybridSystem + ?Sized>(&mut self, sys: &S, clock: TimeSum, j: u64, x: &[f64]) {
+        let at = HybridTime::new(clock.value(), j);
+        self.clock = clock;
+        self.j = j;
         let set_tol = self.set_tol;
         self.flat_ok = sys.all_atom_values(at, x, false, &mut self.flat);
         for (i, ws) in self.sets.iter_mut().enumerate() {
@@ -593,19 +610,18 @@ impl Watcher {
     }
 
     /// Looks for the first event on the step `[s0, s1]` (local times; global
-    /// time is `t0 + s`) whose end state is `y1`. On success the state at
+    /// time `clock.at(s)`) whose end state is `y1`. On success the state at
     /// the event is in [`event_state`](Self::event_state) and the local time
     /// and kind are returned.
     pub fn scan<S: HybridSystem + ?Sized, P: StepPath>(
         &mut self,
         sys: &S,
-        t0: f64,
         path: &mut P,
         s0: f64,
         s1: f64,
         y1: &[f64],
     ) -> Option<(f64, EventKind)> {
-        let m = self.checks;
+        let m = if P::STRAIGHT { 0 } else { self.checks };
         // A segment that starts on a boundary (a post-jump state, a few ulp
         // on either side of an atom's zero) may cross it right away and
         // come back within the first interval: look early in the first
@@ -635,10 +651,10 @@ impl Watcher {
             } else {
                 path.eval(s, &mut xs);
             }
-            self.classes_at(sys, t0 + s, &xs);
+            self.classes_at(sys, self.clock.at(s), &xs);
             self.buf_s = xs;
             if self.cls != self.cls_s
-                && let Some(found) = self.resolve(sys, t0, path, prev, s)
+                && let Some(found) = self.resolve(sys, path, prev, s)
             {
                 return Some(found);
             }
@@ -656,7 +672,6 @@ impl Watcher {
     fn resolve<S: HybridSystem + ?Sized, P: StepPath>(
         &mut self,
         sys: &S,
-        t0: f64,
         path: &mut P,
         mut cursor: f64,
         s: f64,
@@ -679,7 +694,7 @@ impl Watcher {
                 let (a, b, fresh) = match self.found[w] {
                     (a, b, c, r) if a >= cursor && c == self.cls[w] && r == relax => (a, b, false),
                     _ => {
-                        let (a, b) = self.localize(sys, w, t0, path, cursor, s);
+                        let (a, b) = self.localize(sys, w, path, cursor, s);
                         self.found[w] = (a, b, self.cls[w], relax);
                         (a, b, true)
                     }
@@ -697,7 +712,7 @@ impl Watcher {
                 path.eval(a, &mut self.best_a);
                 path.eval(b, &mut self.event_state);
             }
-            self.evaluate_sets(sys, t0 + a, t0 + b);
+            self.evaluate_sets(sys, self.clock.at(a), self.clock.at(b));
 
             let jump = self
                 .sets
@@ -830,7 +845,6 @@ impl Watcher {
         &mut self,
         sys: &S,
         w: usize,
-        t0: f64,
         path: &mut P,
         s: f64,
         which: Buf,
@@ -844,7 +858,14 @@ impl Watcher {
         path.eval(s, buf);
         let ws = &mut self.sets[set];
         let mut vt = std::mem::take(&mut ws.vt);
-        atom_values(sys, ws, HybridTime::new(t0 + s, self.j), buf, true, &mut vt);
+        atom_values(
+            sys,
+            ws,
+            HybridTime::new(self.clock.at(s), self.j),
+            buf,
+            true,
+            &mut vt,
+        );
         let v = watched_value(ws.cmp(atom), vt[atom], ws.relax[atom]);
         ws.vt = vt;
         v
@@ -857,14 +878,13 @@ impl Watcher {
         &mut self,
         sys: &S,
         w: usize,
-        t0: f64,
         path: &mut P,
         mut a: f64,
         mut b: f64,
     ) -> (f64, f64) {
         let c0 = self.cls[w];
-        let mut fa = self.watched_at(sys, w, t0, path, a, Buf::A);
-        let mut fb = self.watched_at(sys, w, t0, path, b, Buf::B);
+        let mut fa = self.watched_at(sys, w, path, a, Buf::A);
+        let mut fb = self.watched_at(sys, w, path, b, Buf::B);
         if fb == 0.0 && c0 != 0 {
             // b is an exact root (a clock reaching its threshold at a step
             // end): the change is at b. Secant and bisection would only
@@ -875,7 +895,8 @@ impl Watcher {
         let event_tol = self.event_tol;
         // A few ulp of t: finer than t itself can hold would only chase
         // rounding noise in the atom's values.
-        let tol_at = |b: f64| event_tol.max(4.0 * f64::EPSILON * (t0 + b).abs());
+        let clock = self.clock;
+        let tol_at = |b: f64| event_tol.max(4.0 * f64::EPSILON * clock.at(b).abs());
         let mut itp = Itp::new(a, b, tol_at(b));
         let mut widths = [f64::INFINITY; 2];
         // Leaving an exact zero: the change is almost always right after a.
@@ -911,7 +932,7 @@ impl Watcher {
                     break; // a and b are adjacent floats
                 }
             }
-            let v = self.watched_at(sys, w, t0, path, s, Buf::T);
+            let v = self.watched_at(sys, w, path, s, Buf::T);
             if class(v) != c0 {
                 b = s;
                 fb = v;

@@ -18,6 +18,7 @@ use ode_solvers::{Dop853, Dopri5, OutputType, Rk4, System, dop_shared::Integrati
 
 use super::HybridSystem;
 use super::bdf::{Bdf, BdfPath};
+use super::clock::TimeSum;
 use super::dopri5::{Dopri5 as OwnDopri5, DopriPath, Failure};
 use super::error::SimError;
 use super::events::{EventKind, Hermite, Linear, StepPath, Watcher};
@@ -177,7 +178,7 @@ impl<'a> Output<'a> {
                 // Dense points only on the part of the step the solution
                 // takes (up to an event inside it).
                 let s_end = s_hi.min(limit);
-                let parts = if s_end > s_lo {
+                let parts = if !P::STRAIGHT && s_end > s_lo {
                     let mut y_end = std::mem::take(&mut self.buf_hi);
                     if s_end < s_hi {
                         path.eval(s_end, &mut y_end);
@@ -578,6 +579,14 @@ pub(crate) fn check_finite<S: HybridSystem + ?Sized>(
     x: &[f64],
     rule: Option<usize>,
 ) -> Option<SimError> {
+    // A branch-free integer pass first (it vectorizes; this runs at every
+    // step): the exponent field is all ones exactly for ±∞ and NaN.
+    let all_ones = x.iter().fold(0u64, |acc, v| {
+        acc | ((((v.to_bits() >> 52) & 0x7ff) + 1) >> 11)
+    });
+    if all_ones == 0 {
+        return None;
+    }
     let i = x.iter().position(|v| !v.is_finite())?;
     Some(SimError::NonFinite {
         at,
@@ -670,15 +679,17 @@ impl Flows {
         }
     }
 
-    /// Prepares a segment starting at global hybrid time `at` from `x`;
-    /// returns f(x, t, j) (on the exact path only its timer components),
-    /// which give the timers' constant rates.
+    /// Prepares a segment starting from `x` at ordinary time `clock` and
+    /// jump count `j`; returns f(x, t, j) (on the exact path only its timer
+    /// components), which give the timers' constant rates.
     pub fn start<S: HybridSystem + ?Sized>(
         &mut self,
         sys: &S,
-        at: HybridTime,
+        clock: TimeSum,
+        j: u64,
         x: &[f64],
     ) -> &[f64] {
+        let at = HybridTime::new(clock.value(), j);
         match &self.method {
             // Exact flows need no interpolant: only the timers' rates, one
             // row of [A, b] each.
@@ -698,7 +709,7 @@ impl Flows {
             // Timer rates and the Hermite interpolant (guards, output).
             _ => sys.flow_map(at, x, &mut self.f_prev),
         }
-        self.watcher.start(sys, at, x);
+        self.watcher.start(sys, clock, j, x);
         &self.f_prev
     }
 
@@ -1272,7 +1283,7 @@ fn close_step<S: HybridSystem + ?Sized, P: DensePath>(
     reach: Option<EndWhy>,
 ) -> Option<SegmentEnd> {
     if !watcher.is_empty()
-        && let Some((se, kind)) = watcher.scan(sys, t0, path, s0, s1, y1)
+        && let Some((se, kind)) = watcher.scan(sys, path, s0, s1, y1)
         && !(reach.is_some() && se >= s1)
     {
         y_end.copy_from_slice(&watcher.event_state);

@@ -75,8 +75,10 @@
 //!   D_i (not watched under [`Priority::Flows`]) has its sign (−, 0, +)
 //!   evaluated at each step end and at
 //!   [`guard_checks`](SimSettings::guard_checks) interior points of the
-//!   step (on the interpolant; plus three early points in the first step
-//!   when the segment starts within `set_tol` of an atom's zero; a system
+//!   step (on the interpolant; Euler–Maruyama steps, a straight line
+//!   between points of a sampled path, at their ends only; plus three
+//!   early points in the first step when the segment starts within
+//!   `set_tol` of an atom's zero; a system
 //!   that offers [`HybridSystem::all_atom_values`] gives all sets' atoms of
 //!   a checkpoint in one call, sharing what the sets have in common). Each sign
 //!   change is bracketed and shrunk to [`event_tol`](SimSettings::event_tol)
@@ -185,6 +187,7 @@
 //! ```
 
 mod bdf;
+mod clock;
 mod dopri5;
 mod error;
 mod events;

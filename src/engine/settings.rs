@@ -255,7 +255,8 @@ pub struct SimSettings {
     pub set_tol: f64,
     /// Number of interior points per step at which guards are evaluated in
     /// addition to the step ends, to catch a guard that crosses and
-    /// re-crosses inside one step. Default 3.
+    /// re-crosses inside one step. Default 3. Euler–Maruyama steps are
+    /// checked at their ends only (the line between them is not the path).
     pub guard_checks: u32,
     /// Zeno guard: the largest number of jumps per unit of ordinary time,
     /// measured over the last `zeno_window` jumps and the next one. Default
