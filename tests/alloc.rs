@@ -8,8 +8,10 @@ use std::cell::Cell;
 use std::ops::ControlFlow;
 
 use hybsim::arc::{ArcSink, HybridTime, SampleKind};
-use hybsim::engine::models::{BouncingBall, RandomTimers, SampleAndHold};
-use hybsim::engine::{ExactAffine, HybridSystem, SimRng, SimSettings, Solver, simulate};
+use hybsim::engine::models::{BouncingBall, HeatChain, RandomTimers, SampleAndHold};
+use hybsim::engine::{
+    ExactAffine, HybridSystem, LinearSolver, SimRng, SimSettings, Solver, simulate,
+};
 use nalgebra::DMatrix;
 
 struct Counting;
@@ -142,6 +144,44 @@ fn hot_path_allocates_nothing_per_step_segment_or_jump() {
             &s,
             3.0,
         );
+    }
+    // The sparse path: faer's LU of the Newton matrices (its factors and
+    // workspace are allocated at the first factorization and reused), the
+    // Jacobian as the entries of its pattern, exact or by grouped
+    // differences (buffers kept).
+    let mut chain = HeatChain::new(40);
+    chain.pattern = true;
+    let x0 = chain.initial_state();
+    for exact in [false, true] {
+        chain.exact = exact;
+        for solver in ["radau5", "bdf"] {
+            let s = SimSettings::default()
+                .linear_solver(LinearSolver::Sparse)
+                .solver(Solver::adaptive(solver, 1e-6, 1e-9).expect("a solver"));
+            check(
+                &format!("heat chain, {solver}, sparse, exact {exact}"),
+                &chain,
+                &x0,
+                &s,
+                8.0,
+            );
+        }
+    }
+    // The compiled heat chain: its symbolic Jacobian's program on the
+    // pattern derived from the expression graph, sparse LU by default.
+    let src = std::fs::read_to_string(
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("benches/models/heat_chain.hyb"),
+    )
+    .expect("benches/models/heat_chain.hyb")
+    .replace("param N = 200", "param N = 40");
+    let file = hybsim::source::SourceFile::new("heat_chain.hyb", src.as_str());
+    let m = hybsim::lang::compile(&file, &[]).expect("the heat chain compiles");
+    let (x0, _) = m.start(m.seed());
+    for solver in ["radau5", "bdf"] {
+        let s = m
+            .settings()
+            .solver(Solver::adaptive(solver, 1e-6, 1e-9).expect("a solver"));
+        check(&format!("compiled heat chain, {solver}"), &m, &x0, &s, 8.0);
     }
     // Timers with random resets.
     let timers = RandomTimers::new(3, 0.1, 0.7);

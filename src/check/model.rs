@@ -10,7 +10,7 @@ use super::error::{CheckError, Dims};
 use super::expr::{CONST_CTX, Ctx, Val, dims_words, suggest};
 use super::limits::{Limits, Quantity};
 use super::{Checker, DesignReport, Sym};
-use crate::engine::{ExactAffine, Priority, SimError, SimSettings, Solver};
+use crate::engine::{ExactAffine, LinearSolver, Priority, SimError, SimSettings, Solver};
 use crate::source::Span;
 use crate::syntax::ast::*;
 
@@ -192,6 +192,7 @@ const SIM_KEYS: &[&str] = &[
     "horizon_t",
     "horizon_j",
     "exact_affine",
+    "linear_solver",
     "jit",
 ];
 
@@ -1738,6 +1739,15 @@ impl ModelChecker<'_> {
                             Some("on") => s.exact_affine = ExactAffine::On,
                             Some("off") => s.exact_affine = ExactAffine::Off,
                             _ => bad(self, "write one of auto, on, off".into()),
+                        }
+                    }
+                    "linear_solver" => {
+                        if self.overrides.contains_key("linear_solver") {
+                            self.used.push("linear_solver".into());
+                        }
+                        match word(self).as_deref().and_then(LinearSolver::from_name) {
+                            Some(l) => s.linear_solver = l,
+                            None => bad(self, "write one of auto, dense, sparse".into()),
                         }
                     }
                     "jit" => {

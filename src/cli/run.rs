@@ -10,7 +10,8 @@ use hybsim::arc::{ArcSink, HybridTime, Termination, TerminationCause};
 use hybsim::atomic_file;
 use hybsim::diagnostics::render;
 use hybsim::engine::{
-    ExactAffine, HybridSystem, Priority, SimError, SimRng, SimSettings, Solver, simulate,
+    ExactAffine, HybridSystem, LinearSolver, Priority, SimError, SimRng, SimSettings, Solver,
+    simulate,
 };
 use hybsim::ir::metric::Metrics;
 use hybsim::lang;
@@ -75,6 +76,10 @@ pub struct RunArgs {
     /// per segment), `on` or `off` (overrides the model's).
     #[arg(long, value_enum, value_name = "WHEN")]
     pub exact_affine: Option<ExactAffineKind>,
+    /// LU of the implicit solvers' Newton matrices: `auto` (sparse for
+    /// large sparse Jacobians), `dense` or `sparse` (overrides the model's).
+    #[arg(long, value_enum, value_name = "KIND")]
+    pub linear_solver: Option<LinearSolverKind>,
     /// Interior-point method of the model's design blocks.
     #[arg(long, value_enum, default_value_t = SdpKind::Auto)]
     pub sdp: SdpKind,
@@ -168,6 +173,17 @@ pub enum ExactAffineKind {
     On,
     /// Always the solver.
     Off,
+}
+
+/// `--linear-solver` values.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum LinearSolverKind {
+    /// Sparse for large systems with a sparse Jacobian, dense otherwise.
+    Auto,
+    /// Always dense.
+    Dense,
+    /// Sparse whenever the Jacobian has a pattern.
+    Sparse,
 }
 
 /// Priority names on the command line.
@@ -267,6 +283,13 @@ pub fn settings_from_flags(
             PriorityKind::Jumps => Priority::Jumps,
             PriorityKind::Flows => Priority::Flows,
             PriorityKind::Random => Priority::Random,
+        });
+    }
+    if let Some(l) = args.linear_solver {
+        settings = settings.linear_solver(match l {
+            LinearSolverKind::Auto => LinearSolver::Auto,
+            LinearSolverKind::Dense => LinearSolver::Dense,
+            LinearSolverKind::Sparse => LinearSolver::Sparse,
         });
     }
     if let Some(e) = args.exact_affine {
@@ -405,6 +428,7 @@ pub fn settings_json(s: &SimSettings) -> Value {
         "zeno_window": s.zeno_window,
         "max_total_jumps": s.max_total_jumps,
         "exact_affine": s.exact_affine.name(),
+        "linear_solver": s.linear_solver.name(),
     })
 }
 

@@ -22,8 +22,10 @@ use super::clock::TimeSum;
 use super::dopri5::{Dopri5 as OwnDopri5, DopriPath, Failure};
 use super::error::SimError;
 use super::events::{EventKind, Hermite, Linear, StepPath, Watcher};
+use super::implicit::LinearAlgebra;
 use super::radau5::{Radau5, RadauPath};
-use super::settings::{SimSettings, Solver};
+use super::settings::{LinearSolver, SimSettings, Solver};
+use super::sparsity::{JacobianEval, system_pattern, use_sparse_lu};
 use super::stepper::OwnStepper;
 use super::system::SimRng;
 use crate::arc::{ArcSink, HybridTime, SampleKind, SolverSwitch};
@@ -544,6 +546,13 @@ pub(crate) struct Flows {
     /// `Solver::Auto`: whether Radau5 (rather than Dopri5) advances the
     /// flow now (kept across segments and jumps).
     auto_implicit: Option<bool>,
+    /// The implicit steppers' Jacobian storage and LU (dense or sparse),
+    /// decided when the first implicit stepper is made.
+    linear: Option<LinearAlgebra>,
+    linear_mode: LinearSolver,
+    /// How the Jacobian is evaluated (the system's dense one, or the
+    /// entries of its pattern).
+    jac_eval: JacobianEval,
 }
 
 /// How a run of steps on one of the engine's own steppers ended.
@@ -630,7 +639,7 @@ impl Flows {
         settings: &SimSettings,
         method: Method,
         x0: &[f64],
-    ) -> Self {
+    ) -> Result<Self, SimError> {
         let n = x0.len();
         let watcher = Watcher::new(sys, settings, x0);
         let m = sys.noise_dim();
@@ -645,7 +654,7 @@ impl Flows {
             .collect();
         timer_rows.sort_unstable();
         timer_rows.dedup();
-        Self {
+        let mut flows = Self {
             method,
             watcher,
             timer_rows,
@@ -665,18 +674,44 @@ impl Flows {
                 }
                 _ => None,
             },
-            // `Solver::Auto` makes its Radau5 at its first switch: runs
-            // that never turn stiff do not pay for its n×n matrices.
-            radau: match settings.solver {
-                Solver::Radau5 { rtol, atol } => Some(Radau5::new(n, rtol, atol)),
-                _ => None,
-            },
-            bdf: match settings.solver {
-                Solver::Bdf { rtol, atol } => Some(Bdf::new(n, rtol, atol)),
-                _ => None,
-            },
+            radau: None,
+            bdf: None,
             auto_implicit: matches!(settings.solver, Solver::Auto { .. }).then_some(false),
+            linear: None,
+            linear_mode: settings.linear_solver,
+            jac_eval: JacobianEval::Dense,
+        };
+        // `Solver::Auto` makes its Radau5 at its first switch: runs that
+        // never turn stiff do not pay for its matrices.
+        match settings.solver {
+            Solver::Radau5 { rtol, atol } => {
+                let la = flows.linear_algebra(sys)?;
+                flows.radau = Some(Radau5::new(n, rtol, atol, &la));
+            }
+            Solver::Bdf { rtol, atol } => {
+                let la = flows.linear_algebra(sys)?;
+                flows.bdf = Some(Bdf::new(n, rtol, atol, &la));
+            }
+            _ => {}
         }
+        Ok(flows)
+    }
+
+    /// The implicit steppers' linear algebra, decided on first use from
+    /// the system's pattern and [`SimSettings::linear_solver`].
+    fn linear_algebra<S: HybridSystem + ?Sized>(
+        &mut self,
+        sys: &S,
+    ) -> Result<LinearAlgebra, SimError> {
+        if let Some(la) = &self.linear {
+            return Ok(la.clone());
+        }
+        let pattern = system_pattern(sys)?;
+        let sparse = use_sparse_lu(pattern.as_deref(), self.linear_mode);
+        let la = LinearAlgebra::new(sys.state_dim(), pattern.clone(), sparse);
+        self.jac_eval = JacobianEval::new(pattern);
+        self.linear = Some(la.clone());
+        Ok(la)
     }
 
     /// Prepares a segment starting from `x` at ordinary time `clock` and
@@ -821,7 +856,13 @@ impl Flows {
         let result = loop {
             let on_implicit = self.auto_implicit == Some(true);
             let (stepped, h) = if on_implicit {
-                let st = implicit.get_or_insert_with(|| Radau5::new(n, rtol, atol));
+                let st = match implicit.as_mut() {
+                    Some(st) => st,
+                    None => match self.linear_algebra(sys) {
+                        Ok(la) => implicit.insert(Radau5::new(n, rtol, atol, &la)),
+                        Err(e) => break Err(e),
+                    },
+                };
                 let r = self.own_segment(sys, out, st, solver, (t0, j), s0, d_end);
                 (r, st.proposal())
             } else {
@@ -836,9 +877,15 @@ impl Flows {
                         explicit.set_proposal(h);
                         "dopri5"
                     } else {
-                        implicit
-                            .get_or_insert_with(|| Radau5::new(n, rtol, atol))
-                            .set_proposal(h);
+                        if implicit.is_none() {
+                            match self.linear_algebra(sys) {
+                                Ok(la) => implicit = Some(Radau5::new(n, rtol, atol, &la)),
+                                Err(e) => break Err(e),
+                            }
+                        }
+                        if let Some(st) = implicit.as_mut() {
+                            st.set_proposal(h);
+                        }
                         "radau5"
                     };
                     sys.flow_map(HybridTime::new(t0 + s, j), &self.y_prev, &mut self.f_prev);
@@ -896,8 +943,9 @@ impl Flows {
         let auto = self.auto_implicit.is_some();
         let mut f =
             |s: f64, y: &[f64], dy: &mut [f64]| sys.flow_map(HybridTime::new(t0 + s, j), y, dy);
-        let mut jac =
-            |s: f64, y: &[f64], jm: &mut [f64]| sys.jacobian(HybridTime::new(t0 + s, j), y, jm);
+        let mut jac = |s: f64, y: &[f64], jm: &mut [f64]| {
+            self.jac_eval.eval(sys, HybridTime::new(t0 + s, j), y, jm);
+        };
         // The stepper starts in its own local time 0.
         let mut f_start = |s: f64, y: &[f64], dy: &mut [f64]| {
             sys.flow_map(HybridTime::new(t0 + s0 + s, j), y, dy);

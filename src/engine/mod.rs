@@ -114,7 +114,9 @@
 //! stepper, events on its order-4 interpolant), [`Solver::Radau5`] (the
 //! engine's implicit stepper for stiff flows, events on each step's
 //! collocation polynomial; Newton iterations on
-//! [`HybridSystem::jacobian`]), [`Solver::Bdf`] (the engine's variable-order
+//! [`HybridSystem::jacobian`], or on the entries of
+//! [`HybridSystem::jacobian_pattern`] with a sparse LU for large sparse
+//! systems, [`SimSettings::linear_solver`]), [`Solver::Bdf`] (the engine's variable-order
 //! BDF, events on the polynomial through its back values; restarted at
 //! order 1 after each jump), [`Solver::Auto`] (Dopri5, switching to Radau5
 //! while the flow is stiff; each switch reported to the sink,
@@ -198,6 +200,7 @@ pub mod models;
 mod radau5;
 mod run;
 mod settings;
+mod sparsity;
 mod stepper;
 pub mod system;
 
@@ -205,7 +208,10 @@ pub use crate::arc::{Termination, TerminationCause, ZenoDetail};
 pub use error::SimError;
 pub use invariants::{ArcViolation, check_arc};
 pub use run::{simulate, simulate_arc};
-pub use settings::{ExactAffine, Priority, SimSettings, Solver};
+pub use settings::{ExactAffine, LinearSolver, Priority, SimSettings, Solver};
+pub use sparsity::{
+    PatternError, SPARSE_MAX_FACTOR_DENSITY, SPARSE_MIN_STATES, SparsityPattern, use_sparse_lu,
+};
 pub use system::{
     Atom, Cmp, FlowStructure, GuardKind, HybridSystem, JumpRule, SetAtoms, SetExpr, SetRef, SimRng,
     SystemFault, finite_difference_jacobian,

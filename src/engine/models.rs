@@ -407,3 +407,166 @@ impl HybridSystem for OverlapDemo {
         xp[0] = 0.0;
     }
 }
+
+/// A rod in `n` cells (the method of lines: `u̇ᵢ = k (uᵢ₋₁ − 2uᵢ + uᵢ₊₁) −
+/// loss·uᵢ`, insulated ends) heated in cell 0 with power `power·n` while the
+/// heater `q` (the last state) is on; a thermostat with hysteresis on cell
+/// n/2 (counted from 1, as `benches/models/heat_chain.hyb`) switches it off at `hi` (rule `off`) and on at `lo` (rule `on`).
+/// Stiff for a large conduction `k` (the fastest mode decays at ≈ 4k) and
+/// sparse (tridiagonal plus the heater's column): the reference system of
+/// the sparse Jacobian path. With `pattern` it declares its
+/// [`jacobian_pattern`](HybridSystem::jacobian_pattern), with `exact` also
+/// its entries ([`jacobian_values`](HybridSystem::jacobian_values), or the
+/// dense [`jacobian`](HybridSystem::jacobian) without a pattern).
+#[derive(Debug, Clone)]
+pub struct HeatChain {
+    /// Cells (≥ 2).
+    pub n: usize,
+    /// Conduction between neighbouring cells.
+    pub k: f64,
+    /// Heat loss to the ambient.
+    pub loss: f64,
+    /// Heater power per unit length.
+    pub power: f64,
+    /// The thermostat's thresholds.
+    pub lo: f64,
+    /// See `lo`.
+    pub hi: f64,
+    /// Declare the sparsity pattern.
+    pub pattern: bool,
+    /// Give the exact Jacobian.
+    pub exact: bool,
+    rules: Vec<JumpRule>,
+}
+
+impl HeatChain {
+    /// `n` cells with conduction `n²` (a unit rod), loss 0.5, power 4,
+    /// thresholds 0.3 and 0.5; no pattern, no exact Jacobian.
+    pub fn new(n: usize) -> Self {
+        let rule = |name: &str| JumpRule {
+            name: name.into(),
+            group: None,
+            part: None,
+            writes: Vec::new(),
+            guard: GuardKind::General,
+        };
+        Self {
+            n,
+            k: (n * n) as f64,
+            loss: 0.5,
+            power: 4.0,
+            lo: 0.3,
+            hi: 0.5,
+            pattern: false,
+            exact: false,
+            rules: vec![rule("off"), rule("on")],
+        }
+    }
+
+    /// The initial state: a cold rod, the heater on.
+    pub fn initial_state(&self) -> Vec<f64> {
+        let mut x = vec![0.0; self.n + 1];
+        x[self.n] = 1.0;
+        x
+    }
+
+    /// The thermostat's cell (0-based; cell n/2 counted from 1).
+    fn sensor(&self) -> usize {
+        self.n / 2 - 1
+    }
+
+    /// The entries of ∂f/∂x, (row, column, value), column by column.
+    fn entries(&self) -> impl Iterator<Item = (usize, usize, f64)> + '_ {
+        let n = self.n;
+        (0..n)
+            .flat_map(move |c| {
+                let diag = if c == 0 || c == n - 1 {
+                    -self.k
+                } else {
+                    -2.0 * self.k
+                } - self.loss;
+                [
+                    (c > 0).then(|| (c - 1, c, self.k)),
+                    Some((c, c, diag)),
+                    (c + 1 < n).then(|| (c + 1, c, self.k)),
+                ]
+                .into_iter()
+                .flatten()
+            })
+            .chain(std::iter::once((0, n, self.power * n as f64)))
+    }
+}
+
+impl HybridSystem for HeatChain {
+    fn state_dim(&self) -> usize {
+        self.n + 1
+    }
+    fn state_names(&self) -> Vec<String> {
+        (0..self.n)
+            .map(|i| format!("u[{}]", i + 1))
+            .chain(std::iter::once("q".into()))
+            .collect()
+    }
+    fn flow_map(&self, _at: HybridTime, x: &[f64], dx: &mut [f64]) {
+        let n = self.n;
+        for i in 0..n {
+            let left = if i > 0 { x[i - 1] - x[i] } else { 0.0 };
+            let right = if i + 1 < n { x[i + 1] - x[i] } else { 0.0 };
+            dx[i] = self.k * (left + right) - self.loss * x[i];
+        }
+        dx[0] += self.power * n as f64 * x[n];
+        dx[n] = 0.0;
+    }
+    fn jump_rules(&self) -> &[JumpRule] {
+        &self.rules
+    }
+    fn jump_set(&self, rule: usize, at: HybridTime, x: &[f64]) -> bool {
+        self.jump_guard(rule, at, x) >= 0.0
+    }
+    fn jump_guard(&self, rule: usize, _at: HybridTime, x: &[f64]) -> f64 {
+        let (u, on) = (x[self.sensor()], x[self.n] > 0.5);
+        match (rule, on) {
+            (0, true) => u - self.hi,
+            (1, false) => self.lo - u,
+            _ => -1.0,
+        }
+    }
+    fn jump_map(
+        &self,
+        _rule: usize,
+        _at: HybridTime,
+        x: &[f64],
+        _rng: &mut SimRng,
+        xp: &mut [f64],
+    ) {
+        xp.copy_from_slice(x);
+        xp[self.n] = 1.0 - x[self.n];
+    }
+    fn jacobian(&self, at: HybridTime, x: &[f64], jac: &mut [f64]) {
+        if !self.exact {
+            super::finite_difference_jacobian(self, at, x, jac);
+            return;
+        }
+        let m = self.n + 1;
+        jac.fill(0.0);
+        for (r, c, v) in self.entries() {
+            jac[r * m + c] = v;
+        }
+    }
+    fn jacobian_pattern(&self) -> Option<super::SparsityPattern> {
+        self.pattern.then(|| {
+            super::SparsityPattern::new(self.n + 1, self.entries().map(|(r, c, _)| (r, c)))
+                .expect("entries in range")
+        })
+    }
+    fn jacobian_values(&self, _at: HybridTime, _x: &[f64], values: &mut [f64]) -> bool {
+        if !self.exact {
+            return false;
+        }
+        // `entries` is column by column with rows ascending: the pattern's order.
+        for (v, (_, _, e)) in values.iter_mut().zip(self.entries()) {
+            *v = e;
+        }
+        true
+    }
+}

@@ -13,8 +13,8 @@
 //! jumps (they are only refreshed when the Newton iteration stops
 //! converging), gives each step's collocation polynomial (cubic) as dense
 //! output, and allocates nothing after construction: the LU factorizations
-//! are done in place ([`DenseLu`], shared with the BDF stepper in
-//! [`implicit`](super::implicit)).
+//! are done in place, dense or sparse ([`NewtonLu`], shared with the BDF
+//! stepper in [`implicit`](super::implicit)).
 //!
 //! No crate offers this step-level control: `ode_solvers` has no implicit
 //! method; `russell_ode`'s Radau5 integrates whole intervals through
@@ -31,7 +31,7 @@ use nalgebra::{Complex, ComplexField};
 
 use super::dopri5::{Failure, Rhs};
 use super::events::StepPath;
-use super::implicit::{DenseLu, Jac, Jacobian, initial_step, newton_tol};
+use super::implicit::{Jac, Jacobian, LinearAlgebra, NewtonLu, initial_step, newton_tol};
 
 const S6: f64 = 2.449_489_742_783_178;
 /// Nodes of the collocation points.
@@ -130,8 +130,8 @@ pub(crate) struct Radau5 {
     jac: Jacobian,
     /// `μ_real/h·I − J` and `μ_complex/h·I − J`, factorized for step `lu_h`
     /// (0: not factorized for the current Jacobian).
-    lu_re: DenseLu<f64>,
-    lu_cx: DenseLu<Complex<f64>>,
+    lu_re: NewtonLu<f64>,
+    lu_cx: NewtonLu<Complex<f64>>,
     lu_h: f64,
     /// Stage increments z_i = Y_i − y, their transforms w = T⁻¹ z, stage
     /// derivatives.
@@ -161,7 +161,7 @@ pub(crate) struct Radau5 {
 }
 
 impl Radau5 {
-    pub fn new(n: usize, rtol: f64, atol: f64) -> Self {
+    pub fn new(n: usize, rtol: f64, atol: f64, la: &LinearAlgebra) -> Self {
         let v = || vec![0.0; n];
         Self {
             rtol,
@@ -170,9 +170,9 @@ impl Radau5 {
             h_next: 0.0,
             h_prev: 0.0,
             err_prev: 0.0,
-            jac: Jacobian::new(n),
-            lu_re: DenseLu::new(n),
-            lu_cx: DenseLu::new(n),
+            jac: Jacobian::new(la),
+            lu_re: NewtonLu::new(la),
+            lu_cx: NewtonLu::new(la),
             lu_h: 0.0,
             z: [v(), v(), v()],
             w: [v(), v(), v()],
@@ -212,7 +212,8 @@ impl Radau5 {
                 3,
                 &mut self.y_stage,
                 &mut self.f_new,
-            );
+            )
+            .0;
             self.fevals += 1;
         }
     }
@@ -270,8 +271,8 @@ impl Radau5 {
     /// singular.
     fn factor(&mut self, h: f64) -> bool {
         self.factorizations += 1;
-        let ok = self.lu_re.factor_shifted(mu_real() / h, &self.jac.m)
-            && self.lu_cx.factor_shifted(mu_complex() / h, &self.jac.m);
+        let ok = self.lu_re.factor_shifted(mu_real() / h, &self.jac)
+            && self.lu_cx.factor_shifted(mu_complex() / h, &self.jac);
         self.lu_h = if ok { h } else { 0.0 };
         ok
     }
@@ -622,7 +623,7 @@ mod tests {
         let exact = |s: f64| s.cos() + (-lam * s).exp();
         let mut f = |s: f64, y: &[f64], dy: &mut [f64]| dy[0] = -lam * (y[0] - s.cos()) - s.sin();
         let mut jac = |_s: f64, _y: &[f64], j: &mut [f64]| j[0] = -lam;
-        let mut st = Radau5::new(1, 1e-8, 1e-10);
+        let mut st = Radau5::new(1, 1e-8, 1e-10, &LinearAlgebra::dense(1));
         let mut y = vec![2.0];
         let mut f0 = vec![0.0];
         f(0.0, &y, &mut f0);

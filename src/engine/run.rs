@@ -215,7 +215,7 @@ pub fn simulate<S: HybridSystem + ?Sized>(
     };
     let groups = Groups::new(rules);
     let mut flow_set = FlowSetTest::new(sys);
-    let mut flows = Flows::new(sys, settings, method, x0);
+    let mut flows = Flows::new(sys, settings, method, x0)?;
     let mut out = Output::new(sink, settings.dt_out, x0);
     let mut zeno = ZenoWatch::new(settings);
     let mut x = x0.to_vec();

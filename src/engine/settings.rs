@@ -190,6 +190,46 @@ impl ExactAffine {
     }
 }
 
+/// How the implicit solvers ([`Solver::Radau5`], [`Solver::Bdf`],
+/// [`Solver::Auto`]) factorize their Newton matrices `μI − J`. Both give
+/// the same solution within the solver's tolerance; only the cost differs.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum LinearSolver {
+    /// Sparse when the system declares a sparsity pattern
+    /// ([`HybridSystem::jacobian_pattern`](super::HybridSystem::jacobian_pattern);
+    /// a compiled model always does), n ≥ 32 and the LU factors' estimated
+    /// density is at most 0.2 ([`use_sparse_lu`](super::use_sparse_lu));
+    /// dense otherwise.
+    #[default]
+    Auto,
+    /// Dense LU (in place, skipping zero multipliers).
+    Dense,
+    /// Sparse LU (faer's, with a fill-reducing column ordering computed
+    /// once per run) whenever the system declares a pattern.
+    Sparse,
+}
+
+impl LinearSolver {
+    /// The name used in `.hyb` files and on the command line.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Auto => "auto",
+            Self::Dense => "dense",
+            Self::Sparse => "sparse",
+        }
+    }
+
+    /// The variant named `name` (`auto`, `dense`, `sparse`).
+    pub fn from_name(name: &str) -> Option<Self> {
+        match name {
+            "auto" => Some(Self::Auto),
+            "dense" => Some(Self::Dense),
+            "sparse" => Some(Self::Sparse),
+            _ => None,
+        }
+    }
+}
+
 /// What happens when the state is in both C and D.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum Priority {
@@ -275,6 +315,10 @@ pub struct SimSettings {
     /// are advanced exactly instead of by the solver. Default
     /// [`ExactAffine::Auto`] (by cost, per segment).
     pub exact_affine: ExactAffine,
+    /// How the implicit solvers factorize their Newton matrices. Default
+    /// [`LinearSolver::Auto`] (sparse for large systems with a sparse
+    /// Jacobian pattern).
+    pub linear_solver: LinearSolver,
 }
 
 impl Default for SimSettings {
@@ -293,6 +337,7 @@ impl Default for SimSettings {
             zeno_window: 10,
             max_total_jumps: 10_000_000,
             exact_affine: ExactAffine::Auto,
+            linear_solver: LinearSolver::Auto,
         }
     }
 }
@@ -333,6 +378,8 @@ impl SimSettings {
         zeno_window: u32);
     setter!(/// Sets [`max_total_jumps`](Self::max_total_jumps).
         max_total_jumps: u64);
+    setter!(/// Sets [`linear_solver`](Self::linear_solver).
+        linear_solver: LinearSolver);
     /// Sets [`exact_affine`](Self::exact_affine) (`true`/`false` mean
     /// [`ExactAffine::On`]/[`ExactAffine::Off`]).
     #[must_use]

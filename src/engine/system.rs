@@ -392,6 +392,28 @@ pub trait HybridSystem {
         finite_difference_jacobian(self, at, x, jac);
     }
 
+    /// The structural sparsity of ∂f/∂x: the entries that can be nonzero
+    /// at some state and time (`None`, the default: dense). With a pattern
+    /// the implicit solvers take the Jacobian from
+    /// [`jacobian_values`](Self::jacobian_values), or by finite
+    /// differences of grouped columns (columns that share no row are
+    /// perturbed together: a chain needs 4 evaluations of f, not n + 1),
+    /// and never call [`jacobian`](Self::jacobian); large sparse systems
+    /// get a sparse LU ([`SimSettings::linear_solver`](super::SimSettings::linear_solver)).
+    /// Called once per run.
+    fn jacobian_pattern(&self) -> Option<super::SparsityPattern> {
+        None
+    }
+
+    /// Writes the entries of ∂f/∂x at (`at`, `x`) in the order of
+    /// [`jacobian_pattern`](Self::jacobian_pattern)'s values (column by
+    /// column, rows ascending) and returns `true`; or returns `false` (the
+    /// default) to have the engine take finite differences on the pattern.
+    /// Called only when there is a pattern.
+    fn jacobian_values(&self, _at: HybridTime, _x: &[f64], _values: &mut [f64]) -> bool {
+        false
+    }
+
     /// Writes the atoms of every set that has atoms at once, in the order
     /// C, D_0, D_1, … (sets without atoms left out), each set's atoms as
     /// [`atom_values`](Self::atom_values) writes them, one set after the

@@ -1,9 +1,10 @@
 //! The exact Jacobian ∂f/∂x of a compiled flow, derived symbolically from
 //! the scalar graph by forward-mode differentiation: for each state x_c,
-//! the tangent of every node reachable from the flow's outputs is built as
-//! new nodes of the same graph (hash-consed and folded, so terms that do
-//! not depend on x_c vanish and shared subexpressions stay shared), in the
-//! graph's topological order. The n×n entries are then compiled into one
+//! the tangent of every node through which x_c reaches the flow's outputs
+//! (its cone) is built as new nodes of the same graph (hash-consed and
+//! folded, so terms that do not depend on x_c vanish and shared
+//! subexpressions stay shared), in the graph's topological order. The
+//! nonzero entries, with their sparsity pattern, are then compiled into one
 //! register program, like the flow map.
 //!
 //! Functions that are piecewise constant (comparisons, logic, `sign`,
@@ -14,60 +15,182 @@
 //! the slope of its segment (0 where clamped). A flow
 //! that reaches a matrix block (`inv`, `solve`, `expm`, `norm2`) of the
 //! state, or whose derivative would exceed a size budget, has no symbolic
-//! Jacobian: the engine then uses finite differences.
+//! Jacobian: the engine then takes finite differences on its structural
+//! pattern (which states reach which outputs through differentiable
+//! operations), by groups of columns.
+
+// Node ids and states index several arrays at once.
+#![allow(clippy::needless_range_loop)]
 
 use crate::check::dag::{BinFn, Dag, Node, NodeId, UnFn};
+use crate::engine::SparsityPattern;
 
-/// Largest (flow graph nodes × states) worked through: beyond it the
+/// Largest work (Σ over states of the nodes whose derivative in that state
+/// can be nonzero) spent on the symbolic derivative: beyond it the
 /// derivative is left to finite differences (compile time stays bounded).
 const BUDGET: u64 = 4_000_000;
 
-/// The nodes of ∂f_r/∂x_c (row-major, `roots.len()` × `n`) for the flow
-/// outputs `roots` over states `0..n`, added to `dag`; `None` if the flow
-/// reaches a matrix block of the state or the work would exceed the budget.
-pub(crate) fn derivative_nodes(dag: &mut Dag, roots: &[NodeId], n: usize) -> Option<Vec<NodeId>> {
-    let reach = dag.reachable(roots);
-    let order: Vec<NodeId> = reach
-        .iter()
-        .enumerate()
-        .filter(|&(_, &r)| r)
-        .map(|(i, _)| i as NodeId)
-        .collect();
-    if (order.len() as u64).saturating_mul(n as u64) > BUDGET {
-        return None;
+/// Largest work spent on the structural pattern alone (no new nodes).
+const PATTERN_BUDGET: u64 = 50_000_000;
+
+/// The structure of ∂f/∂x for flow outputs `roots` (one per row) over
+/// states `0..n`.
+pub(crate) struct Derivative {
+    /// The entries that can be nonzero.
+    pub pattern: SparsityPattern,
+    /// The node of each of `pattern`'s entries, in its order (added to the
+    /// graph); `None` if the flow reaches a matrix block of the state or
+    /// the work would exceed the budget.
+    pub nodes: Option<Vec<NodeId>>,
+}
+
+/// Whether the derivative flows from input `i` into node `id` (the rules of
+/// [`tangent`]: piecewise-constant functions, conditions, table indices and
+/// draws carry none; a block's outputs depend on all its inputs).
+fn carries(dag: &Dag, id: NodeId, mut f: impl FnMut(NodeId)) {
+    use BinFn::*;
+    match dag.node(id) {
+        Node::Un(UnFn::Sign | UnFn::Floor | UnFn::Ceil | UnFn::Round | UnFn::Not, _) => {}
+        Node::Un(_, a) => f(a),
+        Node::Bin(Lt | Le | Gt | Ge | Eq | Ne | And | Or, ..) => {}
+        Node::Bin(_, a, b) => {
+            f(a);
+            f(b);
+        }
+        Node::Select(_, a, b) => {
+            f(a);
+            f(b);
+        }
+        Node::Interp {
+            x, slope: false, ..
+        } => f(x),
+        Node::BlockOut(..) => dag.inputs(id, f),
+        Node::Interp { slope: true, .. }
+        | Node::Lookup { .. }
+        | Node::Rand(..)
+        | Node::Const(_)
+        | Node::State(_)
+        | Node::Time
+        | Node::Jumps
+        | Node::Wiener(_) => {}
     }
-    // Which nodes depend on the state at all (ids are topological).
-    let mut dep = vec![false; dag.len()];
-    for &id in &order {
-        let d = match dag.node(id) {
-            Node::State(_) => true,
-            _ => {
-                let mut any = false;
-                dag.inputs(id, |i| any |= dep[i as usize]);
-                any
+}
+
+/// ∂f/∂x of the flow outputs `roots` (row r: `roots[r]`) over states
+/// `0..n`: its pattern from the nodes through which each state reaches
+/// each output (the state's *cone*), and, unless a block or the budget
+/// prevents it, its entries as new nodes of `dag`, derived in forward mode
+/// over each state's cone only, so that a family model (each state in a
+/// few outputs) costs in proportion to its nonzeros, not to n².
+/// `None` if even the pattern exceeds its budget.
+pub(crate) fn derivative(dag: &mut Dag, roots: &[NodeId], n: usize) -> Option<Derivative> {
+    let reach = dag.reachable(roots);
+    let len = dag.len();
+    // Consumers along derivative-carrying edges, CSR over node ids.
+    let mut ptr = vec![0usize; len + 1];
+    let mut state_node = vec![None; n];
+    for id in 0..len {
+        if !reach[id] {
+            continue;
+        }
+        if let Node::State(k) = dag.node(id as NodeId)
+            && (k as usize) < n
+        {
+            state_node[k as usize] = Some(id as NodeId);
+        }
+        carries(dag, id as NodeId, |i| ptr[i as usize + 1] += 1);
+    }
+    for i in 0..len {
+        ptr[i + 1] += ptr[i];
+    }
+    let mut fill = ptr.clone();
+    let mut consumers = vec![0 as NodeId; ptr[len]];
+    for id in 0..len {
+        if reach[id] {
+            carries(dag, id as NodeId, |i| {
+                consumers[fill[i as usize]] = id as NodeId;
+                fill[i as usize] += 1;
+            });
+        }
+    }
+    // Rows of each root node (several rows may share one node).
+    let mut rows_of: Vec<Vec<usize>> = vec![Vec::new(); len];
+    for (r, &root) in roots.iter().enumerate() {
+        rows_of[root as usize].push(r);
+    }
+    // Each state's cone, in topological (id) order.
+    let mut stamp = vec![usize::MAX; len];
+    let mut cones: Vec<Vec<NodeId>> = Vec::with_capacity(n);
+    let mut work: u64 = 0;
+    let mut blocks = false;
+    let mut stack = Vec::new();
+    for c in 0..n {
+        let mut cone = Vec::new();
+        if let Some(s) = state_node[c] {
+            stack.push(s);
+            stamp[s as usize] = c;
+            while let Some(id) = stack.pop() {
+                cone.push(id);
+                for &k in &consumers[ptr[id as usize]..ptr[id as usize + 1]] {
+                    if stamp[k as usize] != c {
+                        stamp[k as usize] = c;
+                        stack.push(k);
+                    }
+                }
             }
-        };
-        if d && matches!(dag.node(id), Node::BlockOut(..)) {
+            cone.sort_unstable();
+        }
+        work += cone.len() as u64;
+        if work > PATTERN_BUDGET {
             return None;
         }
-        dep[id as usize] = d;
+        blocks |= cone
+            .iter()
+            .any(|&id| matches!(dag.node(id), Node::BlockOut(..)));
+        cones.push(cone);
+    }
+    let rows_of = &rows_of;
+    let structural = || {
+        SparsityPattern::new(
+            n,
+            cones.iter().enumerate().flat_map(|(c, cone)| {
+                cone.iter()
+                    .flat_map(move |&id| rows_of[id as usize].iter().map(move |&r| (r, c)))
+            }),
+        )
+        .expect("rows and states are in range")
+    };
+    if blocks || work > BUDGET {
+        return Some(Derivative {
+            pattern: structural(),
+            nodes: None,
+        });
     }
     let zero = dag.konst(0.0);
-    let mut jac = vec![zero; roots.len() * n];
-    let mut tan = vec![zero; dag.len()];
-    for c in 0..n {
-        for &id in &order {
-            tan[id as usize] = if dep[id as usize] {
-                tangent(dag, id, c as u32, &tan, zero)
-            } else {
-                zero
-            };
+    let mut tan = vec![zero; len];
+    let mut entries: Vec<(usize, usize, NodeId)> = Vec::new();
+    for (c, cone) in cones.iter().enumerate() {
+        for &id in cone {
+            tan[id as usize] = tangent(dag, id, c as u32, &tan, zero);
         }
-        for (r, &root) in roots.iter().enumerate() {
-            jac[r * n + c] = tan[root as usize];
+        for &id in cone {
+            let t = tan[id as usize];
+            if t != zero {
+                entries.extend(rows_of[id as usize].iter().map(|&r| (r, c, t)));
+            }
+        }
+        for &id in cone {
+            tan[id as usize] = zero;
         }
     }
-    Some(jac)
+    // Column by column, rows ascending: the pattern's order.
+    entries.sort_unstable_by_key(|&(r, c, _)| (c, r));
+    let pattern = SparsityPattern::new(n, entries.iter().map(|&(r, c, _)| (r, c)))
+        .expect("rows and states are in range");
+    Some(Derivative {
+        pattern,
+        nodes: Some(entries.into_iter().map(|(_, _, t)| t).collect()),
+    })
 }
 
 /// The tangent of node `id` with respect to x_c, from its inputs' tangents.

@@ -38,7 +38,7 @@ use crate::check::{CheckedModel, StateField};
 use crate::diagnostics::Diagnostic;
 use crate::engine::{
     Atom, FlowStructure, GuardKind, HybridSystem, JumpRule, SetAtoms, SetRef, SimError, SimRng,
-    SimSettings, finite_difference_jacobian,
+    SimSettings, SparsityPattern, finite_difference_jacobian,
 };
 use crate::layout::{Declared, Layout, Shape};
 use crate::source::{SourceFile, SourceMap, Span};
@@ -204,14 +204,21 @@ struct RuleCode {
 }
 
 /// The exact Jacobian of the flow: a program computing its entries that
-/// are not constant, and the constant ones.
+/// are not constant, and the constant ones, in the order of its pattern.
 #[derive(Debug)]
 struct JacobianCode {
     program: Program,
-    /// Row-major entry (r·n + c) of each output of `program`.
+    /// Position among the pattern's values of each output of `program`.
     entries: Vec<usize>,
-    /// All n² entries with the constant ones filled in.
+    /// The pattern's values with the constant ones filled in.
     constants: Vec<f64>,
+}
+
+/// The flow's Jacobian: its sparsity pattern and, where derived, its code.
+#[derive(Debug)]
+struct JacobianInfo {
+    pattern: SparsityPattern,
+    code: Option<JacobianCode>,
 }
 
 /// The flow's graph, kept to derive the Jacobian on first use (only the
@@ -224,17 +231,25 @@ struct JacobianSource {
     /// Whether the model's programs run as machine code (then so does the
     /// Jacobian's).
     jit: bool,
-    code: OnceLock<Option<JacobianCode>>,
+    info: OnceLock<Option<JacobianInfo>>,
 }
 
 impl JacobianSource {
-    fn code(&self, frame: Frame) -> Option<&JacobianCode> {
-        self.code
+    /// The pattern and code (`None`: the graph is too large even for the
+    /// pattern; the Jacobian is then dense by finite differences).
+    fn info(&self, frame: Frame) -> Option<&JacobianInfo> {
+        self.info
             .get_or_init(|| {
                 let n = self.drift.len();
                 let mut dag = self.dag.clone();
-                let nodes = jacobian::derivative_nodes(&mut dag, &self.drift, n)?;
-                let mut constants = vec![0.0; n * n];
+                let d = jacobian::derivative(&mut dag, &self.drift, n)?;
+                let Some(nodes) = d.nodes else {
+                    return Some(JacobianInfo {
+                        pattern: d.pattern,
+                        code: None,
+                    });
+                };
+                let mut constants = vec![0.0; nodes.len()];
                 let mut entries = Vec::new();
                 let mut outputs = Vec::new();
                 for (e, &node) in nodes.iter().enumerate() {
@@ -251,13 +266,20 @@ impl JacobianSource {
                     // Interpreted if the JIT declines (size, machine).
                     let _ = jit::compile(&mut [&mut program], 1);
                 }
-                Some(JacobianCode {
-                    program,
-                    entries,
-                    constants,
+                Some(JacobianInfo {
+                    pattern: d.pattern,
+                    code: Some(JacobianCode {
+                        program,
+                        entries,
+                        constants,
+                    }),
                 })
             })
             .as_ref()
+    }
+
+    fn code(&self, frame: Frame) -> Option<&JacobianCode> {
+        self.info(frame)?.code.as_ref()
     }
 }
 
@@ -533,7 +555,7 @@ impl CompiledModel {
             dag: std::mem::take(&mut m.dag),
             drift: flow_nodes,
             jit: matches!(jit, JitStatus::Native { .. }),
-            code: OnceLock::new(),
+            info: OnceLock::new(),
         });
         CompiledModel {
             name: m.name,
@@ -577,7 +599,8 @@ impl CompiledModel {
     /// Whether ∂f/∂x is derived symbolically (compiled on first call):
     /// false when the flow reaches a matrix block (`inv`, `solve`, `expm`,
     /// `norm2`) of the state or is too large, in which case
-    /// [`HybridSystem::jacobian`] takes finite differences.
+    /// [`HybridSystem::jacobian`] takes finite differences (the engine:
+    /// on the pattern, by column groups).
     pub fn has_exact_jacobian(&self) -> bool {
         self.jacobian.code(self.frame).is_some()
     }
@@ -1163,17 +1186,53 @@ impl HybridSystem for CompiledModel {
     /// The symbolic Jacobian (see [`CompiledModel::has_exact_jacobian`]),
     /// or finite differences.
     fn jacobian(&self, at: HybridTime, x: &[f64], jac: &mut [f64]) {
-        let Some(code) = self.jacobian.code(self.frame) else {
+        let Some(info) = self.jacobian.info(self.frame) else {
             finite_difference_jacobian(self, at, x, jac);
             return;
         };
-        jac.copy_from_slice(&code.constants);
+        let Some(code) = &info.code else {
+            finite_difference_jacobian(self, at, x, jac);
+            return;
+        };
+        let n = info.pattern.n();
+        jac.fill(0.0);
+        for ((r, c), &v) in info.pattern.entries().zip(&code.constants) {
+            jac[r * n + c] = v;
+        }
+        let (rows, ptr) = (info.pattern.row_idx(), info.pattern.col_ptr());
+        with_regs(self.nregs.max(code.program.nregs), |regs| {
+            code.program.run_at(regs, at, x, None);
+            for (&e, &reg) in code.entries.iter().zip(&code.program.outs) {
+                // The entry's column: the last pointer at or before it.
+                let c = ptr.partition_point(|&p| p <= e) - 1;
+                jac[rows[e] * n + c] = regs[reg as usize];
+            }
+        });
+    }
+
+    /// The structural pattern of ∂f/∂x from the flow's expression graph
+    /// (which states reach which flow equations through differentiable
+    /// operations; `None` only for graphs too large to analyze).
+    fn jacobian_pattern(&self) -> Option<SparsityPattern> {
+        self.jacobian
+            .info(self.frame)
+            .map(|info| info.pattern.clone())
+    }
+
+    /// The symbolic Jacobian's entries, or `false` (finite differences on
+    /// the pattern) where it has none.
+    fn jacobian_values(&self, at: HybridTime, x: &[f64], values: &mut [f64]) -> bool {
+        let Some(code) = self.jacobian.code(self.frame) else {
+            return false;
+        };
+        values.copy_from_slice(&code.constants);
         with_regs(self.nregs.max(code.program.nregs), |regs| {
             code.program.run_at(regs, at, x, None);
             for (&e, &r) in code.entries.iter().zip(&code.program.outs) {
-                jac[e] = regs[r as usize];
+                values[e] = regs[r as usize];
             }
         });
+        true
     }
 
     fn flow_set(&self, at: HybridTime, x: &[f64]) -> bool {

@@ -15,8 +15,11 @@
 
 use crate::util::simulate_arc;
 use hybsim::arc::{HybridArc, HybridTime, SampleKind, TerminationCause};
-use hybsim::engine::models::{BouncingBall, OverlapDemo, SampleAndHold};
-use hybsim::engine::{HybridSystem, Priority, SimError, SimRng, SimSettings, Solver, check_arc};
+use hybsim::engine::models::{BouncingBall, HeatChain, OverlapDemo, SampleAndHold};
+use hybsim::engine::{
+    HybridSystem, LinearSolver, Priority, SimError, SimRng, SimSettings, Solver, check_arc,
+    use_sparse_lu,
+};
 use hybsim::ir::CompiledModel;
 use hybsim::lang;
 use hybsim::source::SourceFile;
@@ -447,9 +450,8 @@ fn bdf_and_auto_are_sim_keys_and_flags() {
 /// ball, the overlap demo) and with one (the sample-and-hold loop) on both
 /// implicit solvers keep the hybrid semantics: the bouncing ball's
 /// impacts at the closed-form times and values (its flow is quadratic in t,
-/// which both dense outputs follow) and the Zeno guard (at 10⁵ jumps per
-/// unit of t, before the flights shrink to where the height is rounding
-/// noise) ending the run at the Zeno time; the priorities on overlapping sets (jumps first resets at
+/// which both dense outputs follow) and the Zeno guard (at its default
+/// rate) ending the run at the Zeno time; the priorities on overlapping sets (jumps first resets at
 /// t = 1, 2, 3, …, flows first at 2, 4, 6, …); and timers on a stiff
 /// sampled-data loop (plant eigenvalues −1000 and −1), whose samples land
 /// exactly on the sampling instants and match the exact discretization.
@@ -461,7 +463,7 @@ fn implicit_solvers_keep_the_hybrid_semantics_of_rust_systems() {
             .exact_affine(false)
             .solver(implicit(name, 1e-10, 1e-12));
         let ball = BouncingBall::new(9.81, 0.8);
-        let ball_settings = settings.clone().zeno_max_rate(1e5);
+        let ball_settings = settings.clone();
         let arc = simulate_arc(
             &ball,
             &[1.0, 0.0],
@@ -576,7 +578,9 @@ fn central_differences(m: &CompiledModel, at: HybridTime, x: &[f64]) -> Vec<f64>
 /// The symbolic Jacobian equals central differences of the flow map to
 /// 1e-7 (relative to the row's largest entry, at least 1) at 20 random
 /// states (the initial state moved by up to 20 % plus ±1, seeded) of every
-/// shipped model and of a model using every differentiable function.
+/// shipped model, of the heat chain and of a model using every
+/// differentiable function; its sparsity pattern holds every entry whose
+/// differences do not vanish, and its values there are the dense ones.
 #[test]
 fn symbolic_jacobian_matches_finite_differences() {
     let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("models");
@@ -593,6 +597,7 @@ fn symbolic_jacobian_matches_finite_differences() {
         .collect();
     sources.sort();
     assert!(sources.len() >= 5);
+    sources.push(("heat chain".into(), heat_chain_source(12)));
     sources.push((
         "every function".into(),
         "model every_function
@@ -616,6 +621,9 @@ sim { T = 1 }
         let (x0, _) = m.start(m.seed());
         let n = x0.len();
         let mut jac = vec![0.0; n * n];
+        let pattern = m.jacobian_pattern().expect("a pattern");
+        assert_eq!(pattern.n(), n);
+        let mut values = vec![0.0; pattern.nnz()];
         for _ in 0..20 {
             let x: Vec<f64> = x0
                 .iter()
@@ -624,6 +632,23 @@ sim { T = 1 }
             let at = HybridTime::new(rng.uniform(0.0, 5.0), 0);
             m.jacobian(at, &x, &mut jac);
             let fd = central_differences(&m, at, &x);
+            // The entries of the pattern are the dense Jacobian's there;
+            // outside it the finite differences vanish.
+            assert!(m.jacobian_values(at, &x, &mut values), "{name}: no values");
+            for r in 0..n {
+                let row = &fd[r * n..(r + 1) * n];
+                let scale = row.iter().fold(1.0f64, |s, v| s.max(v.abs()));
+                for c in 0..n {
+                    match pattern.position(r, c) {
+                        Some(k) => assert_eq!(values[k], jac[r * n + c], "{name}: ({r}, {c})"),
+                        None => assert!(
+                            jac[r * n + c] == 0.0 && fd[r * n + c].abs() <= 1e-7 * scale,
+                            "{name}: ∂f{r}/∂x{c} = {} outside the pattern",
+                            fd[r * n + c]
+                        ),
+                    }
+                }
+            }
             for r in 0..n {
                 let row = &fd[r * n..(r + 1) * n];
                 let scale = row.iter().fold(1.0f64, |s, v| s.max(v.abs()));
@@ -637,4 +662,198 @@ sim { T = 1 }
             }
         }
     }
+}
+
+/// The heat chain of `benches/models/heat_chain.hyb` with `n` cells.
+fn heat_chain_source(n: usize) -> String {
+    std::fs::read_to_string(
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("benches/models/heat_chain.hyb"),
+    )
+    .expect("benches/models/heat_chain.hyb")
+    .replace("param N = 200", &format!("param N = {n}"))
+}
+
+/// Jump times and final states of two runs agree: the same jumps by the
+/// same rules, each time within `tol_t`, the final states within
+/// `tol·(1 + |x|)`.
+fn assert_same_solution(what: &str, a: &HybridArc, b: &HybridArc, tol_t: f64, tol: f64) {
+    assert_eq!(a.jumps().len(), b.jumps().len(), "{what}: jumps");
+    assert!(a.jumps().len() >= 5, "{what}: {} jumps", a.jumps().len());
+    for (ja, jb) in a.jumps().iter().zip(b.jumps()) {
+        assert_eq!(ja.rule, jb.rule, "{what}");
+        assert!(
+            (ja.at.t - jb.at.t).abs() <= tol_t,
+            "{what}: jump at {} vs {}",
+            ja.at.t,
+            jb.at.t
+        );
+    }
+    let (xa, xb) = (final_state(a), final_state(b));
+    for (i, (u, v)) in xa.iter().zip(&xb).enumerate() {
+        assert!(
+            (u - v).abs() <= tol * (1.0 + v.abs()),
+            "{what}: final x[{i}] = {u} vs {v}"
+        );
+    }
+}
+
+/// The sparse path (the Jacobian as the entries of its pattern, faer's LU
+/// of the Newton matrices) gives the dense path's solution within the
+/// tolerance, on both implicit solvers: on the compiled heat chain (its
+/// symbolic Jacobian on the pattern derived from the expression graph), and
+/// on the Rust `HeatChain` with a declared pattern and exact entries, with
+/// a pattern and finite differences by column groups, and with neither
+/// (the dense reference). `linear_solver = auto` takes the sparse LU for
+/// the 60-cell chain (n = 61, tridiagonal) and the dense one for Van der
+/// Pol (n = 2).
+#[test]
+fn sparse_and_dense_linear_algebra_give_the_same_solution() {
+    let m = compile(&heat_chain_source(60));
+    let pattern = m
+        .jacobian_pattern()
+        .expect("a compiled model has a pattern");
+    assert_eq!(pattern.n(), 61);
+    // Tridiagonal (3·60 − 2) plus the heater's entry.
+    assert_eq!(pattern.nnz(), 3 * 60 - 2 + 1);
+    assert!(use_sparse_lu(Some(&pattern), LinearSolver::Auto));
+    let vdp = compile(VAN_DER_POL);
+    assert!(!use_sparse_lu(
+        vdp.jacobian_pattern().as_ref(),
+        LinearSolver::Auto
+    ));
+    let (rtol, atol) = (1e-8, 1e-10);
+    for name in IMPLICIT {
+        let base = m
+            .settings()
+            .horizon_t(4.0)
+            .solver(implicit(name, rtol, atol));
+        let dense = run_with(&m, &base.clone().linear_solver(LinearSolver::Dense)).unwrap();
+        for mode in [LinearSolver::Sparse, LinearSolver::Auto] {
+            let arc = run_with(&m, &base.clone().linear_solver(mode)).unwrap();
+            assert_same_solution(&format!("{name} {mode:?}"), &arc, &dense, 1e-7, 1e-6);
+        }
+        // The Rust system: exact entries, finite differences on the
+        // pattern, and the dense finite-difference Jacobian.
+        let mut chain = HeatChain::new(60);
+        let x0 = chain.initial_state();
+        let settings = SimSettings::default()
+            .horizon_t(4.0)
+            .solver(implicit(name, rtol, atol));
+        let run = |sys: &HeatChain, mode: LinearSolver| {
+            let s = settings.clone().linear_solver(mode);
+            let arc = simulate_arc(sys, &x0, &s, &mut SimRng::seed_from(0)).expect("runs");
+            if let Err(v) = check_arc(sys, &arc, &s) {
+                panic!("{v}");
+            }
+            arc
+        };
+        let reference = run(&chain, LinearSolver::Dense);
+        assert_same_solution(
+            &format!("{name}: compiled vs Rust"),
+            &dense,
+            &reference,
+            1e-7,
+            1e-6,
+        );
+        chain.pattern = true;
+        let grouped = run(&chain, LinearSolver::Sparse);
+        assert_same_solution(
+            &format!("{name} grouped differences"),
+            &grouped,
+            &reference,
+            1e-7,
+            1e-6,
+        );
+        chain.exact = true;
+        for mode in [LinearSolver::Sparse, LinearSolver::Dense] {
+            let arc = run(&chain, mode);
+            assert_same_solution(
+                &format!("{name} exact {mode:?}"),
+                &arc,
+                &reference,
+                1e-7,
+                1e-6,
+            );
+        }
+    }
+}
+
+/// A pattern of the wrong size is an error naming it, not a panic.
+#[test]
+fn a_pattern_of_the_wrong_size_is_an_invalid_system() {
+    struct Wrong(HeatChain);
+    impl HybridSystem for Wrong {
+        fn state_dim(&self) -> usize {
+            self.0.state_dim()
+        }
+        fn state_names(&self) -> Vec<String> {
+            self.0.state_names()
+        }
+        fn flow_map(&self, at: HybridTime, x: &[f64], dx: &mut [f64]) {
+            self.0.flow_map(at, x, dx);
+        }
+        fn jump_rules(&self) -> &[hybsim::engine::JumpRule] {
+            self.0.jump_rules()
+        }
+        fn jump_set(&self, rule: usize, at: HybridTime, x: &[f64]) -> bool {
+            self.0.jump_set(rule, at, x)
+        }
+        fn jump_guard(&self, rule: usize, at: HybridTime, x: &[f64]) -> f64 {
+            self.0.jump_guard(rule, at, x)
+        }
+        fn jump_map(&self, r: usize, at: HybridTime, x: &[f64], rng: &mut SimRng, xp: &mut [f64]) {
+            self.0.jump_map(r, at, x, rng, xp);
+        }
+        fn jacobian_pattern(&self) -> Option<hybsim::engine::SparsityPattern> {
+            Some(hybsim::engine::SparsityPattern::dense(3))
+        }
+    }
+    let sys = Wrong(HeatChain::new(8));
+    let s = SimSettings::default().solver(implicit("bdf", 1e-6, 1e-9));
+    match simulate_arc(&sys, &sys.0.initial_state(), &s, &mut SimRng::seed_from(0)) {
+        Err(SimError::InvalidSystem { what }) => {
+            assert!(what.contains("jacobian_pattern"), "{what}")
+        }
+        other => panic!("{other:?}"),
+    }
+}
+
+/// At the default settings (Zeno rate 10⁶, tolerances 1e-6 and 1e-9) every
+/// adaptive solver follows the bouncing ball to its Zeno time and ends at
+/// the Zeno guard after the same number of impacts, BDF included: its
+/// segments start at order 2 and follow the parabolas exactly (a start at
+/// order 1 lost energy at every bounce until the ball sank through the
+/// floor: "cannot flow" at j = 55).
+#[test]
+fn every_solver_reaches_the_zeno_guard_of_the_bouncing_ball_at_the_defaults() {
+    let ball = BouncingBall::new(9.81, 0.8);
+    let zeno = ball.zeno_time(1.0);
+    let mut counts = Vec::new();
+    for name in ["dopri5", "radau5", "bdf", "auto"] {
+        let settings = SimSettings::default()
+            .horizon_t(10.0)
+            .exact_affine(false)
+            .solver(Solver::adaptive(name, 1e-6, 1e-9).expect("a solver"));
+        let arc = simulate_arc(&ball, &[1.0, 0.0], &settings, &mut SimRng::seed_from(0))
+            .expect("simulation runs");
+        if let Err(v) = check_arc(&ball, &arc, &settings) {
+            panic!("{name}: {v}");
+        }
+        let term = arc.termination().expect("terminated");
+        assert!(
+            matches!(term.cause, TerminationCause::ZenoSuspected { .. }),
+            "{name}: {term}"
+        );
+        assert!((term.at.t - zeno).abs() < 1e-5, "{name}: {term}");
+        let exact = ball.impacts(1.0, 30);
+        for (k, (jump, (t, _))) in arc.jumps().iter().zip(&exact).enumerate() {
+            assert!(
+                (jump.at.t - t).abs() <= 1e-9,
+                "{name}: impact {k} at {} vs {t}",
+                jump.at.t
+            );
+        }
+        counts.push(arc.jumps().len());
+    }
+    assert!(counts.iter().all(|&c| c == counts[0]), "{counts:?}");
 }
