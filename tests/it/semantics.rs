@@ -984,3 +984,25 @@ fn timer_atoms_of_the_sets_are_scheduled_exactly() {
         arc.jumps()[0].pre[0]
     );
 }
+
+/// An event of a guard that depends on `t` is recorded at exactly the time
+/// its set was evaluated at. Ordinary time is a compensated sum of segment
+/// lengths; a localization that evaluated the guard at the naive `t0 + s`
+/// put the recorded pre-jump point up to an ulp of t away, where a guard
+/// with a steep `t` term could already be false (`run` checks every jump's
+/// pre-jump point against its set).
+#[test]
+fn events_are_recorded_at_the_time_their_guard_was_evaluated() {
+    for solver in ["dopri5", "euler_maruyama"] {
+        // Many short segments (a redraw every 1e-4) grow the compensation
+        // term; the guard's t term moves 20 units per unit of t.
+        let m = compile(&format!(
+            "model m\nstate x = 0\nnoise v ~ normal(0, 1) every 1e-4\nflow {{ x' = 1 }}\n\
+             jump hit when x >= 0.05 + 0.001 * sin(20000 * t) {{ x+ = 0 }}\n\
+             sim {{ T = 20; solver = {solver}; h = 1e-4 }}\n"
+        ));
+        let arc = run(&m);
+        let hits = arc.jumps().iter().filter(|r| r.rule == 1).count();
+        assert!(hits > 300, "{solver}: {hits} events");
+    }
+}
