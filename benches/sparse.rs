@@ -14,38 +14,14 @@
 //! ```
 
 mod common;
-use common::{cpu_now, median};
+use common::{Keep, cpu_now, median};
 
-use std::ops::ControlFlow;
 use std::path::PathBuf;
 
-use hybsim::arc::{ArcSink, HybridTime, SampleKind};
 use hybsim::engine::{HybridSystem, LinearSolver, Solver, simulate, use_sparse_lu};
 use hybsim::ir::CompiledModel;
 use hybsim::lang;
 use hybsim::source::SourceFile;
-
-/// The final state and the jump times.
-#[derive(Default)]
-struct Keep {
-    last: Vec<f64>,
-    jumps: Vec<f64>,
-}
-
-impl ArcSink for Keep {
-    fn sample(&mut self, _: HybridTime, x: &[f64], kind: SampleKind) -> ControlFlow<()> {
-        if kind == SampleKind::Final {
-            self.last.clear();
-            self.last.extend_from_slice(x);
-        }
-        ControlFlow::Continue(())
-    }
-
-    fn jump(&mut self, at: HybridTime, _: usize, _: &[f64], _: &[f64]) -> ControlFlow<()> {
-        self.jumps.push(at.t);
-        ControlFlow::Continue(())
-    }
-}
 
 fn run(m: &CompiledModel, solver: Solver, linear: LinearSolver) -> Keep {
     let (x0, mut rng) = m.start(m.seed());

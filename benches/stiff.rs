@@ -17,45 +17,16 @@
 //! ```
 
 mod common;
-use common::{cpu_now, median};
+use common::{Keep, cpu_now, median};
 
-use std::ops::ControlFlow;
 use std::path::PathBuf;
 use std::process::Command;
 
-use hybsim::arc::{ArcSink, HybridTime, SampleKind, SolverSwitch};
 use hybsim::engine::{Solver, simulate};
 use hybsim::ir::CompiledModel;
 use hybsim::lang;
 use hybsim::source::SourceFile;
 use serde_json::Value;
-
-/// The final state, the jump times and the solver switches.
-#[derive(Default)]
-struct Keep {
-    last: Vec<f64>,
-    jumps: Vec<f64>,
-    switches: usize,
-}
-
-impl ArcSink for Keep {
-    fn sample(&mut self, _: HybridTime, x: &[f64], kind: SampleKind) -> ControlFlow<()> {
-        if kind == SampleKind::Final {
-            self.last.clear();
-            self.last.extend_from_slice(x);
-        }
-        ControlFlow::Continue(())
-    }
-
-    fn jump(&mut self, at: HybridTime, _: usize, _: &[f64], _: &[f64]) -> ControlFlow<()> {
-        self.jumps.push(at.t);
-        ControlFlow::Continue(())
-    }
-
-    fn solver_switch(&mut self, _: &SolverSwitch) {
-        self.switches += 1;
-    }
-}
 
 fn run(m: &CompiledModel, solver: Solver) -> Keep {
     let (x0, mut rng) = m.start(m.seed());

@@ -1,7 +1,10 @@
-//! Timing helpers shared by the benches that compare CPU time with a
-//! reference in the same minutes (`limit`, `tables`).
+//! Helpers shared by the benches that compare CPU time with a reference in
+//! the same minutes (`limit`, `tables`, `stiff`, `sparse`).
 
+use std::ops::ControlFlow;
 use std::time::Instant;
+
+use hybsim::arc::{ArcSink, HybridTime, SampleKind, SolverSwitch};
 
 /// CPU time of this thread in seconds. `CLOCK_THREAD_CPUTIME_ID` adds the
 /// time since the last scheduler tick; `/proc/thread-self/schedstat` does
@@ -24,4 +27,32 @@ pub fn cpu_now() -> f64 {
 pub fn median(mut v: Vec<f64>) -> f64 {
     v.sort_by(f64::total_cmp);
     v[v.len() / 2]
+}
+
+/// The final state, the jump times and the solver switches.
+#[derive(Default)]
+#[allow(dead_code)] // each bench compiles this module; `limit` and `tables` keep their own tallies
+pub struct Keep {
+    pub last: Vec<f64>,
+    pub jumps: Vec<f64>,
+    pub switches: usize,
+}
+
+impl ArcSink for Keep {
+    fn sample(&mut self, _: HybridTime, x: &[f64], kind: SampleKind) -> ControlFlow<()> {
+        if kind == SampleKind::Final {
+            self.last.clear();
+            self.last.extend_from_slice(x);
+        }
+        ControlFlow::Continue(())
+    }
+
+    fn jump(&mut self, at: HybridTime, _: usize, _: &[f64], _: &[f64]) -> ControlFlow<()> {
+        self.jumps.push(at.t);
+        ControlFlow::Continue(())
+    }
+
+    fn solver_switch(&mut self, _: &SolverSwitch) {
+        self.switches += 1;
+    }
 }
