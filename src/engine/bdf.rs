@@ -34,6 +34,7 @@ use super::events::StepPath;
 use super::implicit::{
     Jac, Jacobian, LinearAlgebra, NewtonLu, initial_step, newton_tol, rms_scaled,
 };
+use super::radau5::NONSTIFF_HLAMB;
 
 const MAX_ORDER: usize = 5;
 const NEWTON_MAXITER: u32 = 4;
@@ -140,23 +141,31 @@ impl Bdf {
         }
     }
 
-    /// Starts a segment at local time 0 from `y` with `f0 = f(0, y)`: order
-    /// 2 with the history of the Taylor polynomial `y + s·f0 + s²/2·y''` on
-    /// the grid of the smaller of the carried proposal and the first-step
-    /// estimate, y'' the difference quotient of f along the flow from the
-    /// estimate's probe (no further evaluation of f); order 1 (the history
-    /// of the straight line) if that quotient is not finite. The Jacobian
-    /// and its factorization are kept (marked stale).
+    /// Starts a segment at local time 0 from `y` with `f0 = f(0, y)` on the
+    /// grid of the smaller of the carried proposal and the first-step
+    /// estimate (one evaluation of f). The history is that of the Taylor
+    /// polynomial `y + s·f0 + s²/2·y''` (order 2), y'' the difference
+    /// quotient of f along the flow from the estimate's probe, where the
+    /// flow is not stiff at the segment's step scale: the carried proposal
+    /// (the first step for the first segment) times the weighted norm of
+    /// the Jacobian (kept, or evaluated here for the first segment; the
+    /// same test as `Solver::Auto`'s) is at most 1. Elsewhere, or if the
+    /// quotient is not finite, the history of the straight line (order 1),
+    /// as scipy's and ode15s's restarts. The Jacobian and its
+    /// factorization are kept (marked stale).
     ///
-    /// Why order 2: a start at order 1, as scipy's and ode15s's, is not
-    /// exact on a quadratic path, so a flow cut short by frequent jumps
-    /// keeps an error of the order of the tolerance in every segment. On
-    /// the bouncing ball near its Zeno time, where the bounces shrink below
-    /// `atol`, that error compounds from bounce to bounce into lost energy
-    /// until the ball sinks through the floor (the run ended with "cannot
-    /// flow" instead of at the Zeno guard); a start at order 2 follows the
-    /// ball's parabolas exactly, as Dopri5 and Radau5 do.
-    pub fn start(&mut self, y: &[f64], f0: &[f64], f: &mut Rhs<'_>) {
+    /// Why order 2: an order-1 start is not exact on a quadratic path, so
+    /// a flow cut short by frequent jumps keeps an error of the order of
+    /// the tolerance in every segment. On the bouncing ball near its Zeno
+    /// time, where the bounces shrink below `atol`, that error compounded
+    /// from bounce to bounce into lost energy until the ball sank through
+    /// the floor (the run ended with "cannot flow" instead of at the Zeno
+    /// guard); the order-2 start follows the parabolas exactly, as Dopri5
+    /// and Radau5 do. Why not where stiff: the Taylor history stands for
+    /// the past of a smooth solution; after a jump into a stiff transient
+    /// (the stiff relay's sensor) the L-stable order-1 start is the more
+    /// accurate (order 2 there: switching times 10× further off).
+    pub fn start(&mut self, y: &[f64], f0: &[f64], f: &mut Rhs<'_>, jac: &mut Jac<'_>) {
         let (est, probe) = initial_step(
             y,
             f0,
@@ -168,11 +177,8 @@ impl Bdf {
             &mut self.f_iter,
         );
         self.fevals += 1;
-        let h = if self.h_next > 0.0 {
-            self.h_next.min(est)
-        } else {
-            est
-        };
+        let carried = self.h_next;
+        let h = if carried > 0.0 { carried.min(est) } else { est };
         self.h_next = h;
         self.h_d = h;
         self.n_equal = 0;
@@ -180,15 +186,24 @@ impl Bdf {
         for d in &mut self.d[2..] {
             d.fill(0.0);
         }
-        // ∇y = h·f0 − h²/2·y'', ∇²y = h²·y'' (the Taylor polynomial's
-        // backward differences on the grid of spacing h).
+        let evaluated = self.jac.ensure(0.0, y, jac);
+        if evaluated {
+            self.lu_c = 0.0;
+        }
+        for (sc, v) in self.scale.iter_mut().zip(y) {
+            *sc = self.atol + self.rtol * v.abs();
+        }
+        let scale = if carried > 0.0 { carried } else { h };
+        let nonstiff = scale * self.jac.weighted_norm(&self.scale) <= NONSTIFF_HLAMB;
         let curvature_known = probe > 0.0
             && self
                 .f_iter
                 .iter()
                 .zip(f0)
                 .all(|(f1, f0)| ((f1 - f0) / probe).is_finite());
-        if curvature_known {
+        if nonstiff && curvature_known {
+            // ∇y = h·f0 − h²/2·y'', ∇²y = h²·y'' (the Taylor polynomial's
+            // backward differences on the grid of spacing h).
             self.order = 2;
             for i in 0..y.len() {
                 let ydd = (self.f_iter[i] - f0[i]) / probe;
@@ -201,7 +216,7 @@ impl Bdf {
                 *d1 = h * f;
             }
         }
-        self.jac.fresh = false;
+        self.jac.fresh = evaluated;
     }
 
     /// The proposal for the next step.
@@ -553,7 +568,7 @@ mod tests {
         let mut y = vec![2.0];
         let mut f0 = vec![0.0];
         f(0.0, &y, &mut f0);
-        st.start(&y, &f0, &mut f);
+        st.start(&y, &f0, &mut f, &mut jac);
         let (mut s, end) = (0.0, 10.0);
         let mut steps = 0;
         let mut top_order = 0;

@@ -943,14 +943,20 @@ impl Flows {
         let auto = self.auto_implicit.is_some();
         let mut f =
             |s: f64, y: &[f64], dy: &mut [f64]| sys.flow_map(HybridTime::new(t0 + s, j), y, dy);
+        // The stepper starts in its own local time 0.
+        {
+            let mut f_start = |s: f64, y: &[f64], dy: &mut [f64]| {
+                sys.flow_map(HybridTime::new(t0 + s0 + s, j), y, dy);
+            };
+            let mut jac_start = |s: f64, y: &[f64], jm: &mut [f64]| {
+                self.jac_eval
+                    .eval(sys, HybridTime::new(t0 + s0 + s, j), y, jm);
+            };
+            st.start(&self.y_prev, &self.f_prev, &mut f_start, &mut jac_start);
+        }
         let mut jac = |s: f64, y: &[f64], jm: &mut [f64]| {
             self.jac_eval.eval(sys, HybridTime::new(t0 + s, j), y, jm);
         };
-        // The stepper starts in its own local time 0.
-        let mut f_start = |s: f64, y: &[f64], dy: &mut [f64]| {
-            sys.flow_map(HybridTime::new(t0 + s0 + s, j), y, dy);
-        };
-        st.start(&self.y_prev, &self.f_prev, &mut f_start);
         let mut s = s0;
         let mut since_test = 0;
         loop {

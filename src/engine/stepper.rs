@@ -16,8 +16,9 @@ pub(crate) trait OwnStepper {
     where
         Self: 'a;
 
-    /// Starts a segment at local time 0 from `y` with `f0 = f(0, y)`.
-    fn start(&mut self, y: &[f64], f0: &[f64], f: &mut Rhs<'_>);
+    /// Starts a segment at local time 0 from `y` with `f0 = f(0, y)` (`jac`:
+    /// ∂f/∂y in the same local time, for implicit methods).
+    fn start(&mut self, y: &[f64], f0: &[f64], f: &mut Rhs<'_>, jac: &mut Jac<'_>);
 
     /// One accepted step from (`s`, `y`) of at most `h_max`; returns its
     /// length. `jac` gives ∂f/∂y to implicit methods.
@@ -57,7 +58,7 @@ pub(crate) trait OwnStepper {
 impl OwnStepper for Dopri5 {
     type Path<'a> = DopriPath<'a>;
 
-    fn start(&mut self, y: &[f64], f0: &[f64], f: &mut Rhs<'_>) {
+    fn start(&mut self, y: &[f64], f0: &[f64], f: &mut Rhs<'_>, _jac: &mut Jac<'_>) {
         Dopri5::start(self, y, f0, f);
     }
 
@@ -96,7 +97,7 @@ impl OwnStepper for Dopri5 {
 impl OwnStepper for Radau5 {
     type Path<'a> = RadauPath<'a>;
 
-    fn start(&mut self, y: &[f64], f0: &[f64], f: &mut Rhs<'_>) {
+    fn start(&mut self, y: &[f64], f0: &[f64], f: &mut Rhs<'_>, _jac: &mut Jac<'_>) {
         Radau5::start(self, y, f0, f);
     }
 
@@ -139,8 +140,8 @@ impl OwnStepper for Radau5 {
 impl OwnStepper for Bdf {
     type Path<'a> = BdfPath<'a>;
 
-    fn start(&mut self, y: &[f64], f0: &[f64], f: &mut Rhs<'_>) {
-        Bdf::start(self, y, f0, f);
+    fn start(&mut self, y: &[f64], f0: &[f64], f: &mut Rhs<'_>, jac: &mut Jac<'_>) {
+        Bdf::start(self, y, f0, f, jac);
     }
 
     fn step(

@@ -820,10 +820,10 @@ fn a_pattern_of_the_wrong_size_is_an_invalid_system() {
 
 /// At the default settings (Zeno rate 10⁶, tolerances 1e-6 and 1e-9) every
 /// adaptive solver follows the bouncing ball to its Zeno time and ends at
-/// the Zeno guard after the same number of impacts, BDF included: its
-/// segments start at order 2 and follow the parabolas exactly (a start at
-/// order 1 lost energy at every bounce until the ball sank through the
-/// floor: "cannot flow" at j = 55).
+/// the Zeno guard after the same number of impacts, BDF included: once the
+/// bounces are short its segments start at order 2 and follow the
+/// parabolas exactly (a start at order 1 lost energy at every bounce until
+/// the ball sank through the floor: "cannot flow" at j = 55).
 #[test]
 fn every_solver_reaches_the_zeno_guard_of_the_bouncing_ball_at_the_defaults() {
     let ball = BouncingBall::new(9.81, 0.8);
@@ -845,10 +845,14 @@ fn every_solver_reaches_the_zeno_guard_of_the_bouncing_ball_at_the_defaults() {
             "{name}: {term}"
         );
         assert!((term.at.t - zeno).abs() < 1e-5, "{name}: {term}");
+        // BDF starts its early flights at order 1 (the weighted norm of
+        // the ball's Jacobian times the step is above 1 there): errors of
+        // the tolerance's order, not exact parabolas.
+        let tol = if name == "bdf" { 1e-5 } else { 1e-9 };
         let exact = ball.impacts(1.0, 30);
         for (k, (jump, (t, _))) in arc.jumps().iter().zip(&exact).enumerate() {
             assert!(
-                (jump.at.t - t).abs() <= 1e-9,
+                (jump.at.t - t).abs() <= tol,
                 "{name}: impact {k} at {} vs {t}",
                 jump.at.t
             );
