@@ -80,7 +80,9 @@ pub fn sweep<'py>(
     let (rows, raised) = py.detach(|| {
         std::thread::scope(|scope| {
             let work = scope.spawn(|| {
-                pool.install(|| hybsim::sweep::run(src, fixed, spec, Shard::ALL, &options, control))
+                pool.install(|| {
+                    hybsim::sweep::run_plan(src, fixed, &plan, Shard::ALL, &options, control)
+                })
             });
             let mut raised = None;
             while !work.is_finished() {

@@ -32,7 +32,7 @@ pub enum ReductionKind {
     Max,
     /// Smallest value at a sample.
     Min,
-    /// Value at the last sample.
+    /// Value at the last sample (in the window).
     Final,
     /// Asymptotic period of the values at the jumps (pre-jump points in
     /// the window), as [`crate::analysis::periodicity`] detects it.
@@ -259,15 +259,10 @@ impl Checker {
     /// reduction's register of the metric frame.
     pub(crate) fn reduction_call(&mut self, name: &str, args: &[Expr], span: Span) -> Option<Val> {
         let kind = ReductionKind::from_name(name)?;
-        let max_args = if kind == ReductionKind::Final { 1 } else { 2 };
-        if args.is_empty() || args.len() > max_args {
+        if args.is_empty() || args.len() > 2 {
             self.err(CheckError::Arity {
                 func: name.to_string(),
-                expected: if max_args == 1 {
-                    "1 argument".into()
-                } else {
-                    "1 or 2 arguments (the value, and a window condition)".into()
-                },
+                expected: "1 or 2 arguments (the value, and a window condition)".into(),
                 found: args.len(),
                 span,
             });

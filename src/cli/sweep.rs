@@ -116,7 +116,7 @@ pub fn execute(args: SweepArgs) -> anyhow::Result<u8> {
             model_path.display()
         );
     }
-    let spec = plan.spec;
+    let spec = plan.spec.clone();
     let mut manifest = table::Manifest {
         hybsim: env!("CARGO_PKG_VERSION").to_string(),
         model: model_path.display().to_string(),
@@ -126,7 +126,7 @@ pub fn execute(args: SweepArgs) -> anyhow::Result<u8> {
             .map(|o| format!("{}={}", o.name, o.value))
             .collect(),
         spec: spec.clone(),
-        metrics: plan.metrics,
+        metrics: plan.metrics.clone(),
         shard,
         interrupted: false,
     };
@@ -161,7 +161,7 @@ pub fn execute(args: SweepArgs) -> anyhow::Result<u8> {
         stop: &stop,
         skip: &|i| kept_index.binary_search(&i).is_ok(),
     };
-    let run = || sweep::run(&src, &fixed, &spec, shard, &options, control);
+    let run = || sweep::run_plan(&src, &fixed, &plan, shard, &options, control);
     let new_rows = match args.threads {
         Some(n) => rayon::ThreadPoolBuilder::new()
             .num_threads(n as usize)

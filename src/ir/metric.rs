@@ -296,7 +296,8 @@ impl ArcSink for MetricSink<'_> {
                         }
                     }
                 }
-                Acc::Final(v) => *v = value,
+                Acc::Final(v) if now_in => *v = value,
+                Acc::Final(_) => {}
                 Acc::Period(_) => {}
             }
         }

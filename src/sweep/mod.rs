@@ -34,8 +34,8 @@ pub mod grid;
 pub mod table;
 
 use std::ops::ControlFlow;
-use std::sync::Mutex;
 use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex};
 
 use rayon::prelude::*;
 
@@ -212,6 +212,9 @@ pub struct Plan {
     pub spec: SweepSpec,
     /// The model's `metric` names, in declaration order (a row's metrics).
     pub metrics: Vec<String>,
+    /// Grid point 0 as compiled while planning ([`run_plan`] reuses it: a
+    /// compile solves the `design` blocks), if it compiled.
+    first: Option<Arc<CompiledModel>>,
 }
 
 /// Why a sweep cannot start.
@@ -237,7 +240,19 @@ pub fn plan(
     seed: Option<u64>,
     options: &CheckOptions,
 ) -> Result<Plan, PlanError> {
-    let base = lang::compile_with(src, fixed, options).map_err(PlanError::Model)?;
+    let compile_base = || lang::compile_with(src, fixed, options).map_err(PlanError::Model);
+    // With the axes given, point 0 (their first values) compiles beside the
+    // model as given; else the axes come from the model's block.
+    let (base, given_first) = match &axes {
+        Some(axes) if !axes.is_empty() => {
+            let first = SweepSpec::new(axes.clone(), 1, 0);
+            let (base, point) = rayon::join(compile_base, || {
+                compile_point(src, fixed, &first, 0, options, None)
+            });
+            (base?, Some(point))
+        }
+        _ => (compile_base()?, None),
+    };
     let block = base.sweep().cloned().unwrap_or_default();
     let axes = axes.unwrap_or_else(|| {
         block
@@ -252,19 +267,51 @@ pub fn plan(
         seed.or(block.seed).unwrap_or(base.seed()),
     );
     spec.validate(fixed).map_err(PlanError::Spec)?;
-    if let Err(diags) = check_point(src, fixed, &spec, 0, options) {
-        let unknown: Vec<_> = diags
-            .into_iter()
-            .filter(|d| d.code == "E0204" || d.code == "E0508")
-            .collect();
-        if !unknown.is_empty() {
-            return Err(PlanError::Model(unknown));
+    let metrics = base.metrics().names().to_vec();
+    let first = match given_first {
+        _ if spec.axes.is_empty() => Ok(base),
+        Some(point) => point,
+        None => compile_point(src, fixed, &spec, 0, options, None),
+    };
+    let first = match first {
+        Ok(m) => Some(Arc::new(m)),
+        Err(diags) => {
+            let unknown: Vec<_> = diags
+                .into_iter()
+                .filter(|d| d.code == "E0204" || d.code == "E0508")
+                .collect();
+            if !unknown.is_empty() {
+                return Err(PlanError::Model(unknown));
+            }
+            None
         }
-    }
+    };
     Ok(Plan {
         spec,
-        metrics: base.metrics().names().to_vec(),
+        metrics,
+        first,
     })
+}
+
+/// Runs the part `shard` of a planned sweep as [`run`] does, reusing the
+/// grid point the plan compiled.
+pub fn run_plan(
+    src: &SourceFile,
+    fixed: &[Override],
+    plan: &Plan,
+    shard: Shard,
+    options: &CheckOptions,
+    control: Control<'_>,
+) -> Vec<RunRow> {
+    run_with(
+        src,
+        fixed,
+        &plan.spec,
+        shard,
+        options,
+        control,
+        plan.first.as_ref(),
+    )
 }
 
 /// Runs the part `shard` of `spec` on the model `src` with the fixed
@@ -282,20 +329,37 @@ pub fn run(
     options: &CheckOptions,
     control: Control<'_>,
 ) -> Vec<RunRow> {
+    run_with(src, fixed, spec, shard, options, control, None)
+}
+
+/// [`run`] with grid point 0 already compiled (`first`).
+fn run_with(
+    src: &SourceFile,
+    fixed: &[Override],
+    spec: &SweepSpec,
+    shard: Shard,
+    options: &CheckOptions,
+    control: Control<'_>,
+    first: Option<&Arc<CompiledModel>>,
+) -> Vec<RunRow> {
     let runs = spec.runs;
     let jobs: Vec<u64> = (0..spec.total_runs())
         .filter(|&i| shard.contains(i) && !(control.skip)(i))
         .collect();
     let mut points: Vec<usize> = jobs.iter().map(|&i| (i / runs) as usize).collect();
     points.dedup();
-    // One compiled model per grid point (design blocks solved once).
-    let compiled: Vec<(usize, Result<CompiledModel, String>)> = points
+    // One compiled model per grid point (design blocks solved once), the
+    // points in parallel.
+    let compiled: Vec<(usize, Result<Arc<CompiledModel>, String>)> = points
         .par_iter()
         .map(|&p| {
-            (
-                p,
-                compile_point(src, fixed, spec, p, options, None).map(|m| m.0),
-            )
+            let model = match first {
+                Some(m) if p == 0 => Ok(Arc::clone(m)),
+                _ => compile_point(src, fixed, spec, p, options, None)
+                    .map(Arc::new)
+                    .map_err(|diags| render_diagnostics(&diags, src)),
+            };
+            (p, model)
         })
         .collect();
     let rows = Mutex::new(Vec::with_capacity(jobs.len()));
@@ -337,11 +401,7 @@ pub fn check_point(
     p: usize,
     options: &CheckOptions,
 ) -> Result<(), Vec<crate::diagnostics::Diagnostic>> {
-    let mut overrides = fixed.to_vec();
-    for s in spec.point_sets(p) {
-        overrides.push(s.parse().map_err(|d| vec![d])?);
-    }
-    lang::compile_with(src, &overrides, options).map(|_| ())
+    compile_point(src, fixed, spec, p, options, None).map(|_| ())
 }
 
 /// The overrides of grid point `p`: `fixed`, then the axes.
@@ -349,18 +409,15 @@ fn point_overrides(
     fixed: &[Override],
     spec: &SweepSpec,
     p: usize,
-) -> Result<Vec<Override>, String> {
+) -> Result<Vec<Override>, Vec<crate::diagnostics::Diagnostic>> {
     let mut all = fixed.to_vec();
     for s in spec.point_sets(p) {
-        all.push(
-            s.parse()
-                .map_err(|d: crate::diagnostics::Diagnostic| d.message)?,
-        );
+        all.push(s.parse().map_err(|d| vec![d])?);
     }
     Ok(all)
 }
 
-/// Compiles grid point `p` (with seed `seed`: as `hybsim run --seed`).
+/// Compiles grid point `p` (with run seed `seed`: as `hybsim run --seed`).
 fn compile_point(
     src: &SourceFile,
     fixed: &[Override],
@@ -368,16 +425,17 @@ fn compile_point(
     p: usize,
     options: &CheckOptions,
     seed: Option<u64>,
-) -> Result<(CompiledModel, u64), String> {
+) -> Result<CompiledModel, Vec<crate::diagnostics::Diagnostic>> {
     let overrides = point_overrides(fixed, spec, p)?;
-    let compiled = match seed {
-        Some(_) => lang::compile_run_with(src, &overrides, seed, options),
-        None => lang::compile_with(src, &overrides, options).map(|m| {
-            let s = m.seed();
-            (m, s)
-        }),
-    };
-    compiled.map_err(|diags| crate::diagnostics::render(&diags, src, false))
+    match seed {
+        Some(_) => lang::compile_run_with(src, &overrides, seed, options).map(|m| m.0),
+        None => lang::compile_with(src, &overrides, options),
+    }
+}
+
+/// A row's message for a grid point that does not compile.
+fn render_diagnostics(diags: &[crate::diagnostics::Diagnostic], src: &SourceFile) -> String {
+    crate::diagnostics::render(diags, src, false)
 }
 
 /// Run `r` of grid point `p`; `None` if `stop` stopped it.
@@ -388,7 +446,7 @@ fn run_one(
     spec: &SweepSpec,
     p: usize,
     r: u64,
-    compiled: &Result<CompiledModel, String>,
+    compiled: &Result<Arc<CompiledModel>, String>,
     options: &CheckOptions,
     stop: &AtomicBool,
 ) -> Option<RunRow> {
@@ -409,7 +467,7 @@ fn run_one(
             row.message = message.trim_end().to_string();
             return Some(row);
         }
-        Ok(m) => m,
+        Ok(m) => &**m,
     };
     // Random parameters are drawn from the run's seed, as `hybsim run` does.
     let redrawn;
@@ -417,11 +475,12 @@ fn run_one(
         model
     } else {
         match compile_point(src, fixed, spec, p, options, Some(seed)) {
-            Ok((m, _)) => {
+            Ok(m) => {
                 redrawn = m;
                 &redrawn
             }
-            Err(message) => {
+            Err(diags) => {
+                let message = render_diagnostics(&diags, src);
                 row.cause = "model_error".into();
                 row.message = message.trim_end().to_string();
                 return Some(row);

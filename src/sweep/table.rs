@@ -12,8 +12,10 @@
 //! interrupted sweep writes the runs that finished (marked `interrupted`
 //! in `sweep.json`); [`merge`] refuses it until it is completed.
 //!
-//! A shard's directory holds `sweep.json` and its part of `runs.csv`;
-//! [`merge`] checks that the shards belong to one sweep and cover it once,
+//! A shard's directory holds `sweep.json` and its part of `runs.csv` and
+//! `runs.parquet` (its runs, typed as in the whole sweep's; no point
+//! statistics, since a shard holds only some runs of each grid point);
+//! [`merge`] reads the shards' `runs.csv` and checks that the shards belong to one sweep and cover it once,
 //! and writes exactly the files of an unsharded run. Numbers are written as
 //! shortest round-trip decimals, so they read back bit for bit.
 
@@ -455,8 +457,9 @@ pub fn plot_file(name: &str) -> String {
 }
 
 /// Writes the results of the runs `rows` of manifest `m` into `dir`: a
-/// shard's part (`m.shard` set: `sweep.json`, `runs.csv`) or the whole
-/// sweep (also `points.csv` and the plots). Returns the files written.
+/// shard's part (`m.shard` set: `sweep.json`, `runs.csv`, `runs.parquet`)
+/// or the whole sweep (also `points.csv`, `points.parquet` and the plots).
+/// Returns the files written.
 pub fn write(dir: &Path, m: &Manifest, rows: &[RunRow]) -> Result<Vec<PathBuf>, SweepError> {
     std::fs::create_dir_all(dir).map_err(io_err(dir))?;
     let mut written = Vec::new();
@@ -469,20 +472,21 @@ pub fn write(dir: &Path, m: &Manifest, rows: &[RunRow]) -> Result<Vec<PathBuf>, 
     let mut json = serde_json::to_vec_pretty(m).expect("a manifest serializes");
     json.push(b'\n');
     put("sweep.json", &json)?;
+    let parquet = |name: &str, bytes: Result<Vec<u8>, TableError>| {
+        bytes.map_err(|e| SweepError::Format {
+            path: dir.join(name),
+            message: e.to_string(),
+        })
+    };
     put("runs.csv", &runs_csv(m, rows))?;
+    put(
+        "runs.parquet",
+        &parquet("runs.parquet", runs_parquet(m, rows))?,
+    )?;
+    // A shard holds only some runs of each grid point: no point statistics.
     if m.shard.is_none() {
         let points = super::aggregate(&m.spec, rows);
         put("points.csv", &points_csv(m, &points))?;
-        let parquet = |name: &str, bytes: Result<Vec<u8>, TableError>| {
-            bytes.map_err(|e| SweepError::Format {
-                path: dir.join(name),
-                message: e.to_string(),
-            })
-        };
-        put(
-            "runs.parquet",
-            &parquet("runs.parquet", runs_parquet(m, rows))?,
-        )?;
         put(
             "points.parquet",
             &parquet("points.parquet", points_parquet(m, &points))?,

@@ -21,6 +21,7 @@ metric area = integral(x), avg = mean(x), late = mean(x, t >= 5)
 metric top = max(x), bottom = min(x - 3), last = final(x), ticks = count(step)
 metric late_ticks = count(step, t > 4.5), per_time = count(step) / t
 metric area_sq = integral(sq, t <= 3), scaled = 2 * final(x) + mean(x)
+metric at_2 = final(x, t <= 2.05), never = final(x, t > 100)
 sim { T = 10; dt_out = 0.1 }
 ";
 
@@ -57,6 +58,9 @@ fn metrics_match_closed_forms() {
         get("area_sq")
     );
     assert!(close(get("scaled"), 25.0));
+    // The last sample in the window (t = 2.0000000000000004), NaN if none.
+    assert!(close(get("at_2"), 2.0), "{}", get("at_2"));
+    assert!(get("never").is_nan());
     let names: Vec<&str> = m.iter().map(|(k, _)| k.as_str()).collect();
     assert_eq!(names[..3], ["area", "avg", "late"]);
 }
@@ -129,7 +133,7 @@ metric a = h + 1
 metric b = count(impakt)
 metric c = mean([h; v])
 metric d = mean(h, 3)
-metric e = final(h, t > 1)
+metric e = final(h, t > 1, 2)
 metric f = max()
 ",
     );
@@ -178,7 +182,7 @@ fn run_prints_metrics_and_stores_them_in_the_mcap() {
         .find(|m| m.name == "hybsim.metrics")
         .expect("a hybsim.metrics record");
     assert_eq!(metrics.metadata["ticks"], "9");
-    assert_eq!(metrics.metadata.len(), 11);
+    assert_eq!(metrics.metadata.len(), 13);
 }
 
 const BALL: &str = "model ball
@@ -252,6 +256,13 @@ fn sweeps_are_deterministic_over_threads_and_shards() {
         ]
     );
     assert_eq!(all, files(&d.join("one")), "1 thread vs 2 threads");
+    // A shard writes its runs as CSV and Parquet (the same table), and no
+    // point statistics: its points are incomplete.
+    let shard = files(&d.join("s2"));
+    let names: Vec<&str> = shard.iter().map(|(n, _)| n.as_str()).collect();
+    assert_eq!(names, ["runs.csv", "runs.parquet", "sweep.json"]);
+    assert_eq!(csv_rows(&shard[0].1), parquet_as_csv(&shard[1].1));
+    assert_eq!(csv_rows(&shard[0].1).len(), 1 + 8, "runs 1, 4, …, 22 of 24");
     let out = hybsim(d, &["sweep", "--merge", "s3", "s1", "s2", "-o", "merged"]);
     assert_eq!(code(&out), 0, "{}", stderr(&out));
     assert_eq!(
@@ -666,4 +677,50 @@ fn parquet_tables_hold_the_values_of_the_csv_tables() {
     }
     let runs = String::from_utf8(read("runs.csv")).unwrap();
     assert!(runs.contains("zeno_suspected"), "{runs}");
+}
+
+/// A planned sweep reuses the grid point it compiled while planning (a
+/// compile solves the design blocks): the rows are those of a sweep that
+/// compiles every point itself, with the axes given, from the model's
+/// block, and without axes; a grid point that does not compile is a row.
+#[test]
+fn a_planned_sweep_gives_the_rows_of_an_unplanned_one() {
+    use hybsim::sweep::{self, Axis, Shard};
+    let src = SourceFile::new(
+        "ball.hyb",
+        format!("{BALL}sweep {{ lambda in [0.6, 0.9]; runs = 2 }}\n"),
+    );
+    let grids: [Option<Vec<Axis>>; 4] = [
+        Some(vec!["lambda=[0.5, 0.7]".parse().unwrap()]),
+        None,
+        Some(Vec::new()),
+        // T = -1 is refused (E0506): point 0's rows are failed.
+        Some(vec!["T=[-1, 2]".parse().unwrap()]),
+    ];
+    for axes in grids {
+        let plan = sweep::plan(&src, &[], axes.clone(), None, Some(3), &Default::default())
+            .unwrap_or_else(|_| panic!("{axes:?} plans"));
+        let planned = sweep::run_plan(
+            &src,
+            &[],
+            &plan,
+            Shard::ALL,
+            &Default::default(),
+            Default::default(),
+        );
+        let unplanned = sweep::run(
+            &src,
+            &[],
+            &plan.spec,
+            Shard::ALL,
+            &Default::default(),
+            Default::default(),
+        );
+        assert_eq!(planned, unplanned, "{axes:?}");
+        assert_eq!(planned.len() as u64, plan.spec.total_runs());
+        if plan.spec.axes.first().is_some_and(|a| a.name == "T") {
+            assert_eq!(planned[0].cause, "model_error", "{:?}", planned[0]);
+            assert_ne!(planned[2].cause, "model_error", "{:?}", planned[2]);
+        }
+    }
 }

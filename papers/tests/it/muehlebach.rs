@@ -7,10 +7,10 @@ use hybsim::arc::HybridArc;
 use hybsim::design::control::{StateSpace, dlqr, h2_norm, hinf_norm};
 use hybsim::engine::HybridSystem;
 use hybsim::lang::CompiledModel;
-use hybsim_papers::experiments::platoon::{EnsembleStats, Platoon, Window};
+use hybsim_papers::experiments::platoon::{Platoon, Window};
 use nalgebra::DMatrix;
 
-use crate::util::{load, run};
+use crate::util::{ModelSweep, load, model_sweep, run};
 
 /// Looks up flat state names (`x[2]`, `xh[1][3]`) in the model's layout.
 fn index(m: &CompiledModel) -> impl Fn(&str) -> usize {
@@ -247,41 +247,52 @@ fn platoon_feedback_is_dlqr_of_the_zoh_model() {
     assert!(diff < 1e-7, "F + K = {diff}");
 }
 
-/// Closed-loop statistics over 20 seeds × 1000 s, t ≥ 100 s (experiments::platoon): mean and
-/// standard deviation of each vehicle's rate, and the 99.9 % quantile and the maximum of |d_i|
-/// pooled over both distances and all seeds.
-type Stats = (Vec<f64>, Vec<f64>, f64, f64);
+/// Closed-loop statistics of the M = 3 platoon at J_max = 0.38, as
+/// `hybsim sweep models/platoon.hyb --grid Jmax=0.38 --runs 20 [--set …]`
+/// gives them: 20 noise realizations × 1000 s, the model's metrics over
+/// t ≥ 100 s (`rate_ss[i]`, `dmax`, `epow[i]`).
+fn platoon_sweep(sets: &[&str]) -> ModelSweep {
+    let s = model_sweep("platoon.hyb", sets, &["Jmax=0.38"], Some(20));
+    assert_eq!(s.incomplete(), 0, "every run reaches T");
+    s
+}
 
-/// The model is compiled (and designed) once; the seeds only change the run.
-fn platoon_stats(overrides: &[&str]) -> Stats {
-    let p = Platoon::new(load("platoon.hyb", overrides)).unwrap();
-    let e = p.ensemble(1..=20, &Window::default()).unwrap();
-    for r in &e.runs {
-        assert!(r.steps > 40_000, "{} steady-state steps", r.steps);
-    }
-    let max = e.distance_max_all();
-    (e.rate_mean, e.rate_std, e.distance_quantile_all, max)
+/// Per-vehicle means and standard deviations (n − 1) of the steady-state
+/// rates over the runs of grid point 0.
+fn rates(s: &ModelSweep) -> (Vec<f64>, Vec<f64>) {
+    let m = s
+        .metrics
+        .iter()
+        .filter(|n| n.starts_with("rate_ss["))
+        .count();
+    (1..=m)
+        .map(|i| {
+            let st = s.stats(0, &format!("rate_ss[{i}]"));
+            (st.mean, st.std)
+        })
+        .unzip()
 }
 
 /// The paper's Δ as a `--set` override of the design result.
 const PAPER_DELTA_SET: &str = "Delta=[0.107; 0.092; 0.106]";
 
-fn designed_stats() -> &'static Stats {
-    static S: std::sync::OnceLock<Stats> = std::sync::OnceLock::new();
-    S.get_or_init(|| platoon_stats(&[]))
+fn designed_stats() -> &'static ModelSweep {
+    static S: std::sync::OnceLock<ModelSweep> = std::sync::OnceLock::new();
+    S.get_or_init(|| platoon_sweep(&[]))
 }
 
-fn paper_stats() -> &'static Stats {
-    static S: std::sync::OnceLock<Stats> = std::sync::OnceLock::new();
-    S.get_or_init(|| platoon_stats(&[PAPER_DELTA_SET]))
+fn paper_stats() -> &'static ModelSweep {
+    static S: std::sync::OnceLock<ModelSweep> = std::sync::OnceLock::new();
+    S.get_or_init(|| platoon_sweep(&[PAPER_DELTA_SET]))
 }
 
 #[test]
 fn platoon_closed_loop_with_designed_thresholds() {
-    let (mean, std, q999, max) = designed_stats().clone();
-    println!("designed Δ: rates {mean:?} ± {std:?}; |d| 99.9 % {q999:.4}, max {max:.4}");
+    let s = designed_stats();
+    let (mean, std) = rates(s);
+    let max = s.stats(0, "dmax").max;
+    println!("designed Δ: rates {mean:?} ± {std:?}; max |d| {max:.4}");
     // Paper: distance errors within ±0.1 m in steady state.
-    assert!(q999 < 0.1, "99.9 % quantile of |d| = {q999}");
     assert!(max < 0.15, "max |d| = {max}");
     // Our thresholds (J_max = 0.38 as printed) lie above the noise amplitude 0.1 for all three
     // vehicles, so all rates stay low (paper: 8 % for vehicle 2, see the next test).
@@ -293,9 +304,11 @@ fn platoon_closed_loop_with_designed_thresholds() {
 
 #[test]
 fn platoon_closed_loop_with_paper_thresholds_matches_fig5() {
-    let (mean, std, q999, max) = paper_stats().clone();
-    println!("paper Δ: rates {mean:?} ± {std:?}; |d| 99.9 % {q999:.4}, max {max:.4}");
-    assert!(q999 < 0.1 && max < 0.1, "|d| 99.9 % {q999}, max {max}");
+    let s = paper_stats();
+    let (mean, std) = rates(s);
+    let max = s.stats(0, "dmax").max;
+    println!("paper Δ: rates {mean:?} ± {std:?}; max |d| {max:.4}");
+    assert!(max < 0.1, "max |d| {max}");
     // Paper: vehicle 2 "around 8 %", vehicles 1 and 3 "below 4 %".
     assert!(
         (0.07..0.09).contains(&mean[1]),
@@ -303,7 +316,7 @@ fn platoon_closed_loop_with_paper_thresholds_matches_fig5() {
         mean[1]
     );
     assert!(mean[0] < 0.04 && mean[2] < 0.04, "rates {mean:?}");
-    assert!(std.iter().all(|s| *s < 0.005), "spread over seeds {std:?}");
+    assert!(std.iter().all(|s| *s < 0.005), "spread over runs {std:?}");
 }
 
 /// Independent cross-check of the model's `design` blocks: step 1 of Sec. VI-B with Cor. V.2 written
@@ -554,9 +567,18 @@ fn muehlebach_trimpe_reproduction_table() {
     let delta: Vec<f64> = param_matrix(&m, "Delta").iter().copied().collect();
     let cstar_design = param_matrix(&m, "cstar")[(0, 0)];
     let (cstar, hinf) = platoon_norms(&m, &delta);
-    let (mean_d, std_d, q_d, max_d) = designed_stats().clone();
-    let (mean_p, std_p, _, max_p) = paper_stats().clone();
+    let (mean_d, std_d) = rates(designed_stats());
+    let (mean_p, std_p) = rates(paper_stats());
+    let max_d = designed_stats().stats(0, "dmax").max;
+    let max_p = paper_stats().stats(0, "dmax").max;
     let (m20, m20_jmax) = m20_reference_stats();
+    let (m20_rate, _) = rates(m20);
+    let m20_mean_of = |v: std::ops::RangeInclusive<usize>| {
+        v.clone().map(|i| m20_rate[i - 1]).sum::<f64>() / v.count() as f64
+    };
+    let m20_epow = (1..=20)
+        .map(|i| m20.stats(0, &format!("epow[{i}]")).max)
+        .fold(0.0, f64::max);
     let ratio: Vec<f64> = PAPER_DELTA.iter().zip(&delta).map(|(p, d)| p / d).collect();
     let mean_ratio = ratio.iter().sum::<f64>() / 3.0;
     let pct = |v: &[f64], s: &[f64]| {
@@ -573,8 +595,10 @@ fn muehlebach_trimpe_reproduction_table() {
     .preamble(
         "Regenerate: `HYBSIM_BLESS=1 cargo test --release muehlebach`. Platoon M = 3 (models/platoon.hyb): ZOH 20 ms, \
          dlqr Q = I, R = 100 I, noise variances a²/3, V^½ = a_u/√3·B; L and Δ from the model's `design` blocks \
-         (step 1 (39) with Cor. V.2, step 2 (40)), `hybsim design models/platoon.hyb`. Closed loop: 20 seeds × 1000 s, \
-         10 % drops per transmission and receiver, statistics over t ≥ 100 s.",
+         (step 1 (39) with Cor. V.2, step 2 (40)), `hybsim design models/platoon.hyb`. Closed loop: 20 runs × 1000 s, \
+         10 % drops per transmission and receiver, statistics over t ≥ 100 s: the model's metrics `rate_ss[i]`, `dmax`, \
+         `epow[i]` reduced by the sweep machinery of `hybsim sweep models/platoon.hyb --grid Jmax=0.38 --runs 20` (each \
+         run's seed derived from seed 1, the grid point and the run; mean ± std with n − 1 over the runs).",
     )
     .row(
         Row::new(
@@ -624,12 +648,19 @@ fn muehlebach_trimpe_reproduction_table() {
             ratio[0], ratio[1], ratio[2]
         )),
     )
-    .row(Row::new(
-        "steady-state distance errors within ±0.1 m",
-        "±0.1 m",
-        format!("99.9 % {q_d:.3} m, max {max_d:.3} m (paper Δ: max {max_p:.3} m)"),
-        Status::Reproduced,
-    ))
+    .row(
+        Row::new(
+            "steady-state distance errors within ±0.1 m",
+            "±0.1 m",
+            format!("max {max_d:.4} m (paper Δ: max {max_p:.4} m)"),
+            if max_d <= 0.1 && max_p <= 0.1 {
+                Status::Reproduced
+            } else {
+                Status::Differs
+            },
+        )
+        .note("largest |d_i| over t ≥ 100 s and the 20 runs (metric `dmax`)"),
+    )
     .row(
         Row::new(
             "rates: vehicle 2 ≈ 8 %, vehicles 1, 3 < 4 % (Fig. 5)",
@@ -641,7 +672,7 @@ fn muehlebach_trimpe_reproduction_table() {
             ),
             Status::Differs,
         )
-        .note("reproduced with the printed Δ (`--set Delta=[0.107; 0.092; 0.106]`); with our Δ₂ = 0.106 > 0.1 (noise amplitude) vehicle 2 sends 2 %"),
+        .note("reproduced with the printed Δ (`--set 'Delta=[0.107; 0.092; 0.106]'`); with our Δ₂ = 0.106 > 0.1 (noise amplitude) vehicle 2 sends 2 %"),
     )
     .row(
         Row::new("M = 20, Cor. V.3: 1973 variables", "1973", "2380 (P, U, X)", Status::NotReproduced)
@@ -653,19 +684,21 @@ fn muehlebach_trimpe_reproduction_table() {
             "higher for the leading vehicles",
             format!(
                 "vehicle 1 {:.1} %, vehicles 2–20 {:.1}–{:.1} %; mean of 1–5 {:.1} %, of 16–20 {:.1} %",
-                100.0 * m20.rate_mean[0],
-                100.0 * m20.rate_mean[1..].iter().copied().fold(f64::INFINITY, f64::min),
-                100.0 * m20.rate_mean[1..].iter().copied().fold(0.0, f64::max),
-                100.0 * m20.mean_rate_of(1..=5),
-                100.0 * m20.mean_rate_of(16..=20)
+                100.0 * m20_rate[0],
+                100.0 * m20_rate[1..].iter().copied().fold(f64::INFINITY, f64::min),
+                100.0 * m20_rate[1..].iter().copied().fold(0.0, f64::max),
+                100.0 * m20_mean_of(1..=5),
+                100.0 * m20_mean_of(16..=20)
             ),
             Status::Reproduced,
         )
         .note(format!(
             "J_max = 35 c* (not printed for M = 20; the M = 3 rule); L, Δ: tests/data/platoon_m20_cor_v3.json (CSDP); \
-             4 seeds × 1000 s. Driven by vehicle 1 (Δ₁ = 0.014 < noise 0.1); among 2–20 the rate peaks at vehicle {}",
-            (1..m20.rate_mean.len())
-                .max_by(|&a, &b| m20.rate_mean[a].total_cmp(&m20.rate_mean[b]))
+             `hybsim sweep models/platoon.hyb --set M=20 --set corollary=3 --set L=… --set cstar=… --set Delta=… \
+             --grid Jmax={m20_jmax} --runs {M20_RUNS}`: sized down for CI from the paper's 20 runs to {M20_RUNS} × 1000 s. \
+             Driven by vehicle 1 (Δ₁ = 0.014 < noise 0.1); among 2–20 the rate peaks at vehicle {}",
+            (1..m20_rate.len())
+                .max_by(|&a, &b| m20_rate[a].total_cmp(&m20_rate[b]))
                 .map_or(0, |i| i + 1)
         )),
     )
@@ -674,28 +707,30 @@ fn muehlebach_trimpe_reproduction_table() {
             "M = 20: steady-state distance errors below 0.2 m",
             "< 0.2 m",
             format!(
-                "max {:.2} m, 99.9 % {:.2} m; ‖e_i‖_P ≤ {:.2} (J_max {:.2})",
-                m20.distance_max_all(),
-                m20.distance_quantile_all,
-                m20.error_power.iter().copied().fold(0.0, f64::max),
+                "max {:.2} m; ‖e_i‖ ≤ {:.2} (J_max {:.2})",
+                m20.stats(0, "dmax").max,
+                m20_epow,
                 m20_jmax
             ),
             Status::NotReproduced,
         )
-        .note("c* = √tr X = 0.189 is a conservative bound under Cor. V.3 (H₂ of the designed observer 0.033), so J_max = 35 c* = 6.6 and Δ₂…Δ₂₀ = 0.69–1.35 ≫ the 0.1 m noise; the guarantee ‖e_i‖_P ≤ J_max holds"),
+        .note("c* = √tr X = 0.189 is a conservative bound under Cor. V.3 (H₂ of the designed observer 0.033), so J_max = 35 c* = 6.6 and Δ₂…Δ₂₀ = 0.69–1.35 ≫ the 0.1 m noise; the guarantee ‖e_i‖ ≤ J_max holds (metric `epow[i]`: (mean over t ≥ 100 s of ‖x − x̂_i‖²)^½, largest over agents and runs)"),
     );
     sync_committed(&table).unwrap();
 }
 
-/// The streaming statistics of `experiments::platoon` against the same statistics computed from
+/// The streaming statistics of `experiments::platoon` (the figure programs) and the model's
+/// metrics (`hybsim sweep`, the REPRODUCTION.md rows) against the same statistics computed from
 /// the recorded arc of one run (M = 3, 200 s, t ≥ 100 s): counts, maxima and the pooled quantile
-/// must be equal, the error power equal to rounding.
+/// must be equal, the error power equal to rounding (the metric's time average to 1e-3: it
+/// weighs the last step by its flow time up to T).
 #[test]
 fn platoon_runner_statistics_equal_those_of_the_recorded_arc() {
     use hybsim_papers::experiments::{StepTable, simulate_seeded};
     let m = load("platoon.hyb", &["T=200"]);
     let seed = 7;
-    let table = StepTable::from_arc(&m, &simulate_seeded(&m, seed).unwrap());
+    let arc = simulate_seeded(&m, seed).unwrap();
+    let table = StepTable::from_arc(&m, &arc);
     let col = |name: &str| {
         table
             .column(name)
@@ -740,7 +775,7 @@ fn platoon_runner_statistics_equal_those_of_the_recorded_arc() {
             (s / steps).sqrt()
         })
         .collect();
-    let p = Platoon::new(m).unwrap();
+    let p = Platoon::new(m.clone()).unwrap();
     let e = p.ensemble([seed], &Window::default()).unwrap();
     let r = &e.runs[0];
     println!("rates {rate:?}, max |d| {dmax:?}, q99.9 {q}, ‖e_i‖ {power:?}");
@@ -753,6 +788,37 @@ fn platoon_runner_statistics_equal_those_of_the_recorded_arc() {
     for (a, b) in r.error_power.iter().zip(&power) {
         assert!((a / b - 1.0).abs() < 1e-12, "‖e‖ {a} vs {b}");
     }
+
+    // The model's metrics of the same run.
+    let (x0, mut rng) = m.start(seed);
+    let mut sink = m.metrics().sink();
+    hybsim::engine::simulate(&m, &x0, &m.settings(), &mut rng, &mut sink).unwrap();
+    let metrics = sink.named_values();
+    let metric = |name: &str| {
+        metrics
+            .iter()
+            .find(|(n, _)| n == name)
+            .unwrap_or_else(|| panic!("no metric {name}"))
+            .1
+    };
+    for i in 1..=3 {
+        assert_eq!(metric(&format!("rate_ss[{i}]")), rate[i - 1], "rate {i}");
+        let p = metric(&format!("epow[{i}]"));
+        assert!(
+            (p / power[i - 1] - 1.0).abs() < 1e-3,
+            "epow[{i}] {p} vs {power:?}"
+        );
+    }
+    // `dmax` is the largest |d_i| at every sample at t ≥ 100 s, pre-jump samples included.
+    let ix = index(&m);
+    let (d1, d2) = (ix("x[4]"), ix("x[5]"));
+    let at_samples = arc
+        .samples()
+        .filter(|s| s.at.t >= 100.0)
+        .map(|s| s.x[d1].abs().max(s.x[d2].abs()))
+        .fold(0.0, f64::max);
+    assert_eq!(metric("dmax"), at_samples);
+    assert!(metric("dmax") >= dmax[0].max(dmax[1]));
 }
 
 /// The M = 20 Cor. V.3 reference synthesis (tests/data/platoon_m20_cor_v3.json): step 1 by CSDP
@@ -774,53 +840,56 @@ fn m20_reference() -> (f64, f64, Vec<String>) {
     )
 }
 
-/// Fig. 6 closed loop at M = 20 (Cor. V.3, J_max = 35 c*), reduced from the paper's 20 seeds ×
-/// 1000 s to 4 seeds × 1000 s (t ≥ 100 s) to stay CI-sized (~13 s per run on one core; a 400-s
-/// horizon is too short: the observer's slowest mode has a time constant of ~56 s).
-/// Checked: the design guarantee ‖e_i‖_P ≤ J_max, and the paper's "communication rates are higher
-/// for the leading vehicles" as a robust statistic: the mean rate of vehicles 1–5 exceeds that of
-/// vehicles 16–20 in every seed, and on average by more than three standard errors of the
-/// per-seed difference. NOT reproduced (printed, recorded in the report): "the distance error
-/// remains below 0.2 m" — with our synthesis c* = 0.189 is a conservative bound (the true
-/// full-communication H₂ norm is 0.033), J_max = 35 c* = 6.6 gives Δ₂…Δ₂₀ ≈ 0.7–1.35 ≫ the noise
-/// amplitude 0.1, and |d| reaches ~2.3 m (‖e_i‖_P ≈ 4.3).
-fn m20_fig6_checks(e: &EnsembleStats, jmax: f64) {
+/// Runs of the M = 20 closed loop in the tests (the paper: 20).
+const M20_RUNS: u64 = 4;
+
+/// Fig. 6 closed loop at M = 20 (Cor. V.3, J_max = 35 c*), reduced from the paper's 20 runs ×
+/// 1000 s to 4 runs × 1000 s (t ≥ 100 s) to stay CI-sized (~13 s per run on one core; a 400-s
+/// horizon is too short: the observer's slowest mode has a time constant of ~56 s), through the
+/// sweep machinery (`hybsim sweep models/platoon.hyb --set M=20 --set corollary=3 … --runs 4`).
+/// Checked: the design guarantee ‖e_i‖ ≤ J_max (metric `epow[i]`), and the paper's
+/// "communication rates are higher for the leading vehicles" as a robust statistic: the mean
+/// rate of vehicles 1–5 exceeds that of vehicles 16–20 in every run, and on average by more
+/// than three standard errors of the per-run difference. NOT reproduced (printed, recorded in
+/// the report): "the distance error remains below 0.2 m" — with our synthesis c* = 0.189 is a
+/// conservative bound (the true full-communication H₂ norm is 0.033), J_max = 35 c* = 6.6 gives
+/// Δ₂…Δ₂₀ ≈ 0.7–1.35 ≫ the noise amplitude 0.1, and |d| reaches ~2.3 m.
+fn m20_fig6_checks(s: &ModelSweep, jmax: f64) {
+    assert_eq!(s.incomplete(), 0, "every run reaches T");
+    assert_eq!(s.rows.len() as u64, M20_RUNS);
+    let (mean, std) = rates(s);
     let pct = |v: &[f64]| v.iter().map(|r| 100.0 * r).collect::<Vec<_>>();
     println!(
-        "rates (%): {:.3?}\n± {:.3?}\nmax |d| {:.3?} (all {:.3}, 99.9 % {:.3})\n‖e_i‖ {:.4?}",
-        pct(&e.rate_mean),
-        pct(&e.rate_std),
-        e.distance_max,
-        e.distance_max_all(),
-        e.distance_quantile_all,
-        e.error_power
+        "rates (%): {:.3?}\n± {:.3?}\nmax |d| {:.3}",
+        pct(&mean),
+        pct(&std),
+        s.stats(0, "dmax").max,
     );
-    assert!(
-        e.error_power.iter().all(|p| *p <= jmax),
-        "‖e_i‖ {:?} vs J_max {jmax}",
-        e.error_power
-    );
-    let diffs: Vec<f64> = e
-        .runs
-        .iter()
-        .map(|r| r.rate[..5].iter().sum::<f64>() / 5.0 - r.rate[15..].iter().sum::<f64>() / 5.0)
+    for i in 1..=20 {
+        let p = s.stats(0, &format!("epow[{i}]"));
+        assert!(p.max <= jmax, "‖e_{i}‖ up to {} vs J_max {jmax}", p.max);
+    }
+    let run_rates: Vec<Vec<f64>> = (1..=20)
+        .map(|i| s.values(0, &format!("rate_ss[{i}]")))
         .collect();
-    let s = diffs.len() as f64;
-    let mean = diffs.iter().sum::<f64>() / s;
-    let sd = (diffs.iter().map(|d| (d - mean).powi(2)).sum::<f64>() / (s - 1.0)).sqrt();
-    println!(
-        "vehicles 1–5: {:.3} %, 16–20: {:.3} %; per-seed differences {diffs:.5?}",
-        100.0 * e.mean_rate_of(1..=5),
-        100.0 * e.mean_rate_of(16..=20)
-    );
+    let diffs: Vec<f64> = (0..s.rows.len())
+        .map(|r| {
+            let avg = |v: std::ops::Range<usize>| v.map(|i| run_rates[i][r]).sum::<f64>() / 5.0;
+            avg(0..5) - avg(15..20)
+        })
+        .collect();
+    let n = diffs.len() as f64;
+    let m = diffs.iter().sum::<f64>() / n;
+    let sd = (diffs.iter().map(|d| (d - m).powi(2)).sum::<f64>() / (n - 1.0)).sqrt();
+    println!("per-run differences of the mean rates of vehicles 1–5 and 16–20: {diffs:.5?}");
     assert!(diffs.iter().all(|d| *d > 0.0), "differences {diffs:?}");
-    assert!(mean > 3.0 * sd / s.sqrt(), "mean {mean}, sd {sd}");
+    assert!(m > 3.0 * sd / n.sqrt(), "mean {m}, sd {sd}");
 }
 
-/// The reference synthesis' closed loop, 4 seeds × 1000 s (computed once; also used by the
-/// reproduction table).
-fn m20_reference_stats() -> &'static (EnsembleStats, f64) {
-    static S: std::sync::OnceLock<(EnsembleStats, f64)> = std::sync::OnceLock::new();
+/// The reference synthesis' closed loop, 4 runs × 1000 s (computed once; also used by the
+/// reproduction table), and its J_max.
+fn m20_reference_stats() -> &'static (ModelSweep, f64) {
+    static S: std::sync::OnceLock<(ModelSweep, f64)> = std::sync::OnceLock::new();
     S.get_or_init(|| {
         let (_, jmax, sets) = m20_reference();
         let mut all: Vec<&str> = vec!["M=20", "corollary=3"];
@@ -830,15 +899,18 @@ fn m20_reference_stats() -> &'static (EnsembleStats, f64) {
         assert!(m.design_reports().iter().all(|r| r.solve.is_none()));
         let delta: Vec<f64> = param_matrix(&m, "Delta").iter().copied().collect();
         println!("Δ = {delta:.4?}");
-        let p = Platoon::new(m).unwrap();
-        (p.ensemble(1..=4, &Window::default()).unwrap(), jmax)
+        let grid = format!("Jmax={jmax}");
+        (
+            model_sweep("platoon.hyb", &all, &[&grid], Some(M20_RUNS)),
+            jmax,
+        )
     })
 }
 
 #[test]
 fn platoon_m20_fig6_with_the_reference_synthesis() {
-    let (e, jmax) = m20_reference_stats();
-    m20_fig6_checks(e, *jmax);
+    let (s, jmax) = m20_reference_stats();
+    m20_fig6_checks(s, *jmax);
 }
 
 /// The same with the model's own `design` blocks: step 1 must reach the reference c* (CSDP
@@ -871,8 +943,36 @@ fn platoon_m20_corollary_v3_design_and_fig6() {
             "Δ {delta:?} vs reference {ref_delta:?}"
         );
     }
-    let p = Platoon::new(m).unwrap();
-    m20_fig6_checks(&p.ensemble(1..=4, &Window::default()).unwrap(), jmax);
+    // The closed loop with this design's results as `--set` values (as the reference's), so
+    // that the sweep's compiles do not solve the design blocks again.
+    let sets = design_sets(&m);
+    let mut all: Vec<&str> = vec!["M=20", "corollary=3"];
+    all.extend(sets.iter().map(String::as_str));
+    let grid = format!("Jmax={jmax}");
+    m20_fig6_checks(
+        &model_sweep("platoon.hyb", &all, &[&grid], Some(M20_RUNS)),
+        jmax,
+    );
+}
+
+/// `--set` overrides `L=[..]`, `cstar=..`, `Delta=[..]` with the design results of `m`
+/// (shortest round-trip numbers: the same values).
+fn design_sets(m: &CompiledModel) -> Vec<String> {
+    let matrix = |name: &str| {
+        let a = param_matrix(m, name);
+        let rows: Vec<String> = a
+            .row_iter()
+            .map(|r| {
+                r.iter()
+                    .map(|x| hybsim::num::Num(*x).to_string())
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            })
+            .collect();
+        format!("{name}=[{}]", rows.join("; "))
+    };
+    let cstar = hybsim::num::Num(param_matrix(m, "cstar")[(0, 0)]);
+    vec![matrix("L"), format!("cstar={cstar}"), matrix("Delta")]
 }
 
 /// Figs. 5–6 as the model's own declarations (`metric rate_ss[i]`,
@@ -894,7 +994,16 @@ fn platoon_rates_sweep_block_is_the_rust_experiment() {
     let names: Vec<&str> = base.metrics().names().iter().map(String::as_str).collect();
     assert_eq!(
         names,
-        ["rate_ss[1]", "rate_ss[2]", "rate_ss[3]", "rate_all"]
+        [
+            "rate_ss[1]",
+            "rate_ss[2]",
+            "rate_ss[3]",
+            "rate_all",
+            "dmax",
+            "epow[1]",
+            "epow[2]",
+            "epow[3]"
+        ]
     );
     let block = base.sweep().expect("a sweep block").clone();
     let jmax = [0.05, 0.1, 0.15, 0.2, 0.25, 0.3, 0.33, 0.36, 0.38, 0.42, 0.5];
