@@ -55,12 +55,6 @@ pub fn sweep<'py>(
             .map(|(name, values)| Axis { name, values })
             .collect()
     });
-    let plan = py
-        .detach(|| plan(src, fixed, axes, runs, seed, &options))
-        .map_err(|e| match e {
-            PlanError::Model(diags) => diagnostics_error::<ModelError>(py, &diags, src),
-            PlanError::Spec(e) => PyValueError::new_err(e.to_string()),
-        })?;
     if threads == Some(0) {
         return Err(PyValueError::new_err("threads must be at least 1"));
     }
@@ -68,6 +62,13 @@ pub fn sweep<'py>(
         .num_threads(threads.unwrap_or(0))
         .build()
         .map_err(|e| PyValueError::new_err(e.to_string()))?;
+    // Planning compiles the model and grid point 0 on the same threads.
+    let plan = py
+        .detach(|| pool.install(|| plan(src, fixed, axes, runs, seed, &options)))
+        .map_err(|e| match e {
+            PlanError::Model(diags) => diagnostics_error::<ModelError>(py, &diags, src),
+            PlanError::Spec(e) => PyValueError::new_err(e.to_string()),
+        })?;
     let spec = &plan.spec;
     let stop = AtomicBool::new(false);
     let control = hybsim::sweep::Control {

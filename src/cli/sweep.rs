@@ -101,7 +101,18 @@ pub fn execute(args: SweepArgs) -> anyhow::Result<u8> {
     // set by (errors located in the file); grid points that fail later are rows.
     let options = args.sdp.options();
     let axes = (!args.grid.is_empty()).then_some(axes);
-    let plan = match sweep::plan(&src, &fixed, axes, args.runs, args.seed, &options) {
+    // `--threads` bounds the planning's compiles as well as the runs.
+    let pool = match args.threads {
+        Some(n) => Some(
+            rayon::ThreadPoolBuilder::new()
+                .num_threads(n as usize)
+                .build()?,
+        ),
+        None => None,
+    };
+    let plan = match on_pool(pool.as_ref(), || {
+        sweep::plan(&src, &fixed, axes, args.runs, args.seed, &options)
+    }) {
         Ok(plan) => plan,
         Err(sweep::PlanError::Model(diags)) => {
             let color = super::color();
@@ -161,14 +172,9 @@ pub fn execute(args: SweepArgs) -> anyhow::Result<u8> {
         stop: &stop,
         skip: &|i| kept_index.binary_search(&i).is_ok(),
     };
-    let run = || sweep::run_plan(&src, &fixed, &plan, shard, &options, control);
-    let new_rows = match args.threads {
-        Some(n) => rayon::ThreadPoolBuilder::new()
-            .num_threads(n as usize)
-            .build()?
-            .install(run),
-        None => run(),
-    };
+    let new_rows = on_pool(pool.as_ref(), || {
+        sweep::run_plan(&src, &fixed, &plan, shard, &options, control)
+    });
     bar.finish_and_clear();
     let ran = new_rows.len();
     let mut rows = kept;
@@ -216,6 +222,14 @@ pub fn execute(args: SweepArgs) -> anyhow::Result<u8> {
         return Ok(EXIT_INTERRUPTED);
     }
     Ok(EXIT_OK)
+}
+
+/// Runs `f` on the pool of `--threads`, else on rayon's global pool.
+fn on_pool<R: Send>(pool: Option<&rayon::ThreadPool>, f: impl FnOnce() -> R + Send) -> R {
+    match pool {
+        Some(pool) => pool.install(f),
+        None => f(),
+    }
 }
 
 /// The rows of the sweep in `dir` if it is the sweep `m` (interrupted or
