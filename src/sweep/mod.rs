@@ -294,7 +294,10 @@ pub fn plan(
 }
 
 /// Runs the part `shard` of a planned sweep as [`run`] does, reusing the
-/// grid point the plan compiled.
+/// grid point the plan compiled. A grid point whose metrics are not the
+/// plan's (an axis changes the size of a metric family, e.g. `N` in
+/// `for i in 1..N { metric r[i] = … }`) gives failed rows (cause
+/// `model_error`): the tables have one column per metric of the plan.
 pub fn run_plan(
     src: &SourceFile,
     fixed: &[Override],
@@ -303,15 +306,19 @@ pub fn run_plan(
     options: &CheckOptions,
     control: Control<'_>,
 ) -> Vec<RunRow> {
-    run_with(
-        src,
-        fixed,
-        &plan.spec,
-        shard,
-        options,
-        control,
-        plan.first.as_ref(),
-    )
+    let given = Given {
+        first: plan.first.as_ref(),
+        metrics: Some(&plan.metrics),
+    };
+    run_with(src, fixed, &plan.spec, shard, options, control, given)
+}
+
+/// What a planned sweep already knows: grid point 0 compiled, and the
+/// metric names every grid point must have.
+#[derive(Clone, Copy, Default)]
+struct Given<'a> {
+    first: Option<&'a Arc<CompiledModel>>,
+    metrics: Option<&'a [String]>,
 }
 
 /// Runs the part `shard` of `spec` on the model `src` with the fixed
@@ -329,10 +336,10 @@ pub fn run(
     options: &CheckOptions,
     control: Control<'_>,
 ) -> Vec<RunRow> {
-    run_with(src, fixed, spec, shard, options, control, None)
+    run_with(src, fixed, spec, shard, options, control, Given::default())
 }
 
-/// [`run`] with grid point 0 already compiled (`first`).
+/// [`run`] with what the plan knows.
 fn run_with(
     src: &SourceFile,
     fixed: &[Override],
@@ -340,7 +347,7 @@ fn run_with(
     shard: Shard,
     options: &CheckOptions,
     control: Control<'_>,
-    first: Option<&Arc<CompiledModel>>,
+    given: Given<'_>,
 ) -> Vec<RunRow> {
     let runs = spec.runs;
     let jobs: Vec<u64> = (0..spec.total_runs())
@@ -353,12 +360,21 @@ fn run_with(
     let compiled: Vec<(usize, Result<Arc<CompiledModel>, String>)> = points
         .par_iter()
         .map(|&p| {
-            let model = match first {
+            let model = match given.first {
                 Some(m) if p == 0 => Ok(Arc::clone(m)),
                 _ => compile_point(src, fixed, spec, p, options, None)
                     .map(Arc::new)
                     .map_err(|diags| render_diagnostics(&diags, src)),
             };
+            let model = model.and_then(|m| match given.metrics {
+                Some(names) if m.metrics().names() != names => Err(format!(
+                    "the metrics of this grid point ({}) are not the sweep's ({}): an axis \
+                     changes the size of a metric family; sweep its values separately",
+                    m.metrics().names().join(", "),
+                    names.join(", ")
+                )),
+                _ => Ok(m),
+            });
             (p, model)
         })
         .collect();

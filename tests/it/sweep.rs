@@ -724,3 +724,40 @@ fn a_planned_sweep_gives_the_rows_of_an_unplanned_one() {
         }
     }
 }
+
+/// An axis that changes the size of a metric family (`N` here) gives the
+/// grid points whose metrics are not the sweep's failed rows, and the
+/// tables are written (they have one column per metric of the model as
+/// given).
+#[test]
+fn an_axis_that_resizes_a_metric_family_fails_those_points() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    std::fs::write(
+        d.join("fam.hyb"),
+        "model fam
+param N = 2
+for i in 1..N {
+  state x[i] = i
+  flow { x[i]' = 1 }
+  metric last[i] = final(x[i])
+}
+sim { T = 1 }
+",
+    )
+    .unwrap();
+    let out = hybsim(
+        d,
+        &["sweep", "fam.hyb", "--grid", "N=[2, 3]", "-q", "-o", "out"],
+    );
+    assert_eq!(code(&out), 0, "{}", stderr(&out));
+    let runs = std::fs::read_to_string(d.join("out/runs.csv")).unwrap();
+    let rows: Vec<&str> = runs.lines().collect();
+    assert!(rows[0].starts_with("point,run,seed,N,status,cause,last[1],last[2],message"));
+    assert!(rows[1].contains(",completed,"), "{runs}");
+    assert!(
+        rows[2].contains(",failed,model_error,")
+            && rows[2].contains("an axis changes the size of a metric family"),
+        "{runs}"
+    );
+}
