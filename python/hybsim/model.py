@@ -289,7 +289,8 @@ class Model:
         ``rtol``, ``atol``, ``step``,
         ``max_step``, ``priority`` (``"jumps"``, ``"flows"``, ``"random"``),
         ``event_tol``, ``guard_checks``, ``zeno_max_rate``, ``zeno_window``,
-        ``max_total_jumps``, ``exact_affine``.
+        ``max_total_jumps``, ``exact_affine``, ``linear_solver`` (``"auto"``,
+        ``"dense"``, ``"sparse"``: the implicit solvers' LU).
 
         The run releases the GIL; Ctrl-C stops it with KeyboardInterrupt.
 

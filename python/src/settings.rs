@@ -1,13 +1,13 @@
 //! `Model.run(**sim)`: simulation settings from Python keywords, over the
 //! model's `sim` block (the keywords of `hybsim run`'s flags).
 
-use hybsim::engine::{Priority, SimSettings, Solver};
+use hybsim::engine::{LinearSolver, Priority, SimSettings, Solver};
 use pyo3::exceptions::{PyTypeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
 /// The keywords `Model.run` accepts besides `T`, `J` and `seed`.
-pub const KEYS: [&str; 15] = [
+pub const KEYS: [&str; 16] = [
     "T",
     "J",
     "dt_out",
@@ -23,6 +23,7 @@ pub const KEYS: [&str; 15] = [
     "zeno_window",
     "max_total_jumps",
     "exact_affine",
+    "linear_solver",
 ];
 
 fn get<'py, T: FromPyObjectOwned<'py>>(sim: &Bound<'py, PyDict>, key: &str) -> PyResult<Option<T>> {
@@ -76,6 +77,13 @@ pub fn apply(mut settings: SimSettings, sim: &Bound<'_, PyDict>) -> PyResult<Sim
     }
     if let Some(b) = get::<bool>(sim, "exact_affine")? {
         settings = settings.exact_affine(b);
+    }
+    if let Some(name) = get::<String>(sim, "linear_solver")? {
+        settings = settings.linear_solver(LinearSolver::from_name(&name).ok_or_else(|| {
+            PyValueError::new_err(format!(
+                "linear_solver `{name}`: use \"auto\", \"dense\" or \"sparse\""
+            ))
+        })?);
     }
     if let Some(p) = get::<String>(sim, "priority")? {
         settings = settings.priority(match p.as_str() {

@@ -73,6 +73,8 @@ def test_bad_settings():
         m.run(solver="rk4")
     with pytest.raises(TypeError, match="`J`"):
         m.run(J="many")
+    with pytest.raises(ValueError, match="linear_solver `lu`"):
+        m.run(linear_solver="lu")
 
 
 def test_runtime_failure_points_at_the_flow_equation():

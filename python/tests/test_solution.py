@@ -1,5 +1,7 @@
 """Solution helpers: columns, restrict_t, restrict_j, interpolate."""
 
+import pathlib
+
 import numpy as np
 import pytest
 
@@ -153,3 +155,18 @@ def test_auto_solver_switches_are_reported():
     # Without auto, or on a non-stiff flow, nothing switches.
     assert hybsim.load(VDP).run(solver="radau5").solver_switches == []
     assert hybsim.load(VDP, set={"mu": 0.5}).run(solver="auto").solver_switches == []
+
+
+def test_linear_solver_keyword_chooses_the_implicit_solvers_lu():
+    # The stiff heat chain (N = 40 cells, tridiagonal Jacobian) on radau5: the
+    # sparse and the dense LU give the same switching times within tolerance.
+    root = pathlib.Path(__file__).resolve().parents[2]
+    model = hybsim.load(root / "benches" / "models" / "heat_chain.hyb", set={"N": 40})
+    runs = {
+        ls: model.run(T=3.0, solver="radau5", linear_solver=ls) for ls in ("dense", "sparse", "auto")
+    }
+    times = {ls: sol.jumps.t for ls, sol in runs.items()}
+    assert len(times["dense"]) > 0
+    for ls in ("sparse", "auto"):
+        assert len(times[ls]) == len(times["dense"])
+        np.testing.assert_allclose(times[ls], times["dense"], atol=1e-6)
