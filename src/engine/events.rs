@@ -418,6 +418,11 @@ impl Watcher {
         }
     }
 
+    /// The start time of the segment being watched ([`start`](Self::start)).
+    pub fn clock(&self) -> TimeSum {
+        self.clock
+    }
+
     /// The first rule whose jump set holds at the last event found.
     pub fn rule_at_event(&self) -> Option<usize> {
         self.rule_at_event

@@ -163,11 +163,12 @@ impl<'a> Output<'a> {
     }
 
     /// Pushes the flow samples of the step `(s_lo, s_hi]` (local times,
-    /// global `t0 + s`) that lie strictly before `limit`.
+    /// global `clock.at(s)`, the times events are recorded at) that lie
+    /// strictly before `limit`.
     #[allow(clippy::too_many_arguments)]
     fn step<P: DensePath>(
         &mut self,
-        t0: f64,
+        clock: TimeSum,
         j: u64,
         path: &mut P,
         s_lo: f64,
@@ -200,7 +201,8 @@ impl<'a> Output<'a> {
                         if s >= limit {
                             return ControlFlow::Break(());
                         }
-                        let flow = sink.sample(HybridTime::new(t0 + s, j), y, SampleKind::Flow);
+                        let flow =
+                            sink.sample(HybridTime::new(clock.at(s), j), y, SampleKind::Flow);
                         stopped = flow.is_break();
                         flow
                     };
@@ -212,12 +214,12 @@ impl<'a> Output<'a> {
                 }
                 if s_hi < limit {
                     self.sink
-                        .sample(HybridTime::new(t0 + s_hi, j), y_hi, SampleKind::Flow)?;
+                        .sample(HybridTime::new(clock.at(s_hi), j), y_hi, SampleKind::Flow)?;
                 }
             }
             Some(dt) => loop {
                 let tg = self.next_k as f64 * dt;
-                let sg = tg - t0;
+                let sg = tg - clock.value();
                 if sg > s_hi || sg >= limit {
                     break;
                 }
@@ -1005,7 +1007,7 @@ impl Flows {
                 &mut self.y_end,
                 out,
                 &mut path,
-                (t0, j),
+                j,
                 (s, s1),
                 st.y_new(),
                 last.then_some(EndWhy::Reached),
@@ -1234,7 +1236,7 @@ impl Flows {
                 &mut self.y_end,
                 out,
                 &mut path,
-                (t0, j),
+                j,
                 (s, s1),
                 &self.f_cur,
                 reach,
@@ -1304,7 +1306,7 @@ impl Flows {
                 &mut self.y_end,
                 out,
                 &mut path,
-                (t0, j),
+                j,
                 (s, s1),
                 &y1,
                 reach,
@@ -1331,17 +1333,18 @@ fn close_step<S: HybridSystem + ?Sized, P: DensePath>(
     y_end: &mut [f64],
     out: &mut Output<'_>,
     path: &mut P,
-    (t0, j): (f64, u64),
+    j: u64,
     (s0, s1): (f64, f64),
     y1: &[f64],
     reach: Option<EndWhy>,
 ) -> Option<SegmentEnd> {
+    let clock = watcher.clock();
     if !watcher.is_empty()
         && let Some((se, kind)) = watcher.scan(sys, path, s0, s1, y1)
         && !(reach.is_some() && se >= s1)
     {
         y_end.copy_from_slice(&watcher.event_state);
-        let why = if out.step(t0, j, path, s0, s1, y1, se).is_break() {
+        let why = if out.step(clock, j, path, s0, s1, y1, se).is_break() {
             EndWhy::Stopped
         } else {
             EndWhy::Event(kind)
@@ -1349,7 +1352,7 @@ fn close_step<S: HybridSystem + ?Sized, P: DensePath>(
         return Some(SegmentEnd { s: se, why });
     }
     let limit = if reach.is_some() { s1 } else { f64::INFINITY };
-    if out.step(t0, j, path, s0, s1, y1, limit).is_break() {
+    if out.step(clock, j, path, s0, s1, y1, limit).is_break() {
         y_end.copy_from_slice(y1);
         return Some(SegmentEnd {
             s: s1,
@@ -1417,7 +1420,7 @@ impl<S: HybridSystem + ?Sized> Stepper<'_, '_, S> {
             &mut fl.y_end,
             self.out,
             &mut path,
-            (self.t0, self.j),
+            self.j,
             (self.s_prev, s1),
             y,
             reach,
