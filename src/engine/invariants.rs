@@ -5,6 +5,7 @@
 //!   inequality atom holds exactly at the pre-jump state; an equality atom
 //!   `g = 0`, which the engine meets by a sign change inside an event
 //!   bracket of width `event_tol` in t, is accepted when `|g| ≤ set_tol`;
+//! - samples come in hybrid-time order (t and j nondecreasing);
 //! - each flow starts in C within [`set_tol`](super::SimSettings::set_tol)
 //!   on C's atoms (a flow starts at the initial point or after a jump when
 //!   the next sample is later in t at the same j).
@@ -34,6 +35,15 @@ pub enum ArcViolation {
         at: HybridTime,
         /// Pre-jump state.
         x: Vec<f64>,
+    },
+    /// A sample's hybrid time precedes the one before it (t or j
+    /// decreasing along the arc).
+    #[error("the sample at {at} comes after one at {before}: hybrid time runs backwards")]
+    TimeBackwards {
+        /// The earlier sample's hybrid time.
+        before: HybridTime,
+        /// The sample's hybrid time.
+        at: HybridTime,
     },
     /// A flow started from a point outside C (beyond `set_tol`).
     #[error("a flow starts outside the flow set at {at}: x = {x:?}")]
@@ -71,6 +81,12 @@ pub fn check_arc<S: HybridSystem + ?Sized>(
     let samples: Vec<_> = arc.samples().collect();
     for w in samples.windows(2) {
         let (a, b) = (&w[0], &w[1]);
+        if b.at.t < a.at.t || b.at.j < a.at.j {
+            return Err(ArcViolation::TimeBackwards {
+                before: a.at,
+                at: b.at,
+            });
+        }
         let starts_flow = matches!(a.kind, SampleKind::Initial | SampleKind::PostJump)
             && b.at.j == a.at.j
             && b.at.t > a.at.t;

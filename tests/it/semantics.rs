@@ -1006,3 +1006,24 @@ fn events_are_recorded_at_the_time_their_guard_was_evaluated() {
         assert!(hits > 300, "{solver}: {hits} events");
     }
 }
+
+/// `check_arc` refuses an arc whose hybrid time runs backwards (every arc
+/// the integration tests simulate passes through it).
+#[test]
+fn check_arc_refuses_time_running_backwards() {
+    use hybsim::arc::{ArcSink, HybridTime, SampleKind};
+    let m = compile("model m\nstate x = 0\nflow { x' = 1 }\nsim { T = 1 }\n");
+    let settings = m.settings();
+    let ordered = run(&m);
+    assert!(check_arc(&m, &ordered, &settings).is_ok());
+    let mut arc = HybridArc::new(1, Vec::new());
+    for (t, kind) in [
+        (0.0, SampleKind::Initial),
+        (0.5, SampleKind::Flow),
+        (0.25, SampleKind::Final),
+    ] {
+        let _ = arc.sample(HybridTime::new(t, 0), &[t], kind);
+    }
+    let err = check_arc(&m, &arc, &settings).expect_err("t decreases");
+    assert!(err.to_string().contains("runs backwards"), "{err}");
+}
