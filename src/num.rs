@@ -1,6 +1,29 @@
-//! Compact, lossless formatting of numbers for reports and messages.
+//! Numbers: compact, lossless formatting for reports and messages, and the
+//! finiteness scan of state vectors.
 
 use std::fmt;
+
+/// The first non-finite component of `x`, if any.
+///
+/// A branch-free integer pass first (it vectorizes; the engine runs this on
+/// every step's state and the sinks on every logged sample): the exponent
+/// field is all ones exactly for ±∞ and NaN.
+///
+/// ```
+/// use hybsim::num::first_non_finite;
+/// assert_eq!(first_non_finite(&[1.0, f64::MAX, -0.0]), None);
+/// assert_eq!(first_non_finite(&[1.0, f64::NAN, f64::INFINITY]), Some(1));
+/// ```
+#[inline]
+pub fn first_non_finite(x: &[f64]) -> Option<usize> {
+    let all_ones = x.iter().fold(0u64, |acc, v| {
+        acc | ((((v.to_bits() >> 52) & 0x7ff) + 1) >> 11)
+    });
+    if all_ones == 0 {
+        return None;
+    }
+    x.iter().position(|v| !v.is_finite())
+}
 
 /// Displays an `f64` compactly without losing precision: the shortest
 /// decimal that reads back as the same number, in positional form for

@@ -1,7 +1,8 @@
 //! Checking a model's `log { … }` block: which states and outputs (`vars`),
 //! which jump rules (`rules`) and which flow samples (`every`, `dt`)
-//! `hybsim run` logs. Without a block every state and output is logged, and
-//! every rule but the noise redraws.
+//! `hybsim run` logs, and how the MCAP file encodes and compresses it
+//! (`encoding`, `compression`). Without a block every state and output is
+//! logged, and every rule but the noise redraws.
 
 use std::collections::HashMap;
 
@@ -9,8 +10,9 @@ use super::error::CheckError;
 use super::expr::suggest;
 use super::model::CheckedRule;
 use super::{Checker, Sym};
+use crate::sinks::mcap::{Compression, Encoding};
 use crate::source::Span;
-use crate::syntax::ast::{Item, LogBlock, LogName};
+use crate::syntax::ast::{Expr, ExprKind, Item, LogBlock, LogName};
 
 /// A model's logging choices after checking (the defaults without a `log`
 /// block).
@@ -26,10 +28,14 @@ pub struct LogDecl {
     pub every: Option<u64>,
     /// `dt = DT`: flow samples at least DT apart.
     pub dt: Option<f64>,
+    /// `encoding = protobuf | json`: the MCAP messages' encoding.
+    pub encoding: Option<Encoding>,
+    /// `compression = lz4 | zstd | none`: the MCAP chunks' compression.
+    pub compression: Option<Compression>,
 }
 
 /// The keys a `log` block knows.
-const KEYS: &[&str] = &["vars", "rules", "every", "dt"];
+const KEYS: &[&str] = &["vars", "rules", "every", "dt", "encoding", "compression"];
 
 /// Checks the `log` block among the top-level `items` (at most one; none
 /// inside `for`) against the model's rules.
@@ -125,6 +131,14 @@ fn check_block(c: &mut Checker, b: &LogBlock, rules: &[CheckedRule], decl: &mut 
                 Some(dt) if dt.is_finite() && dt >= 0.0 => decl.dt = Some(dt),
                 Some(_) => bad(c, "a number of time units ≥ 0"),
                 None => {}
+            },
+            "encoding" => match word(&s.value).and_then(Encoding::parse) {
+                Some(e) => decl.encoding = Some(e),
+                None => bad(c, "write protobuf or json"),
+            },
+            "compression" => match word(&s.value).and_then(Compression::parse) {
+                Some(k) => decl.compression = Some(k),
+                None => bad(c, "write lz4, zstd or none"),
             },
             "vars" | "rules" => c.err(CheckError::Expected {
                 expected: format!("a list of names `{key} = [a, b[2]]`"),
@@ -350,6 +364,14 @@ impl std::fmt::Display for RuleSelection<'_> {
             write!(f, ".{s}")?;
         }
         Ok(())
+    }
+}
+
+/// The name a setting's value is, if it is a bare name (`json`).
+fn word(e: &Expr) -> Option<&str> {
+    match &e.kind {
+        ExprKind::Name(n) => Some(n.as_str()),
+        _ => None,
     }
 }
 

@@ -16,7 +16,7 @@ use hybsim::engine::{
 use hybsim::ir::metric::Metrics;
 use hybsim::lang;
 use hybsim::sinks::csv::CsvSink;
-use hybsim::sinks::mcap::{McapOptions, McapSink};
+use hybsim::sinks::mcap::{Compression, Encoding, McapOptions, McapSink};
 use hybsim::sinks::parquet::ParquetSink;
 use hybsim::sinks::plot::{ImageFormat, PlotKind, PlotSink};
 use hybsim::sinks::{
@@ -135,6 +135,15 @@ pub struct RunArgs {
     /// noise redraws.
     #[arg(long, value_name = "RULES")]
     pub log_rules: Option<String>,
+    /// Encoding of the MCAP messages: protobuf (default; Foxglove decodes it
+    /// natively) or json. Overrides `log { encoding }`.
+    #[arg(long, value_enum, value_name = "ENCODING")]
+    pub log_encoding: Option<LogEncodingArg>,
+    /// Compression of the MCAP chunks: lz4 (default, the fastest), zstd
+    /// (level 1: ~10 % smaller files, slower) or none. Overrides
+    /// `log { compression }`.
+    #[arg(long, value_enum, value_name = "COMPRESSION")]
+    pub log_compression: Option<LogCompressionArg>,
     /// No progress bar.
     #[arg(short, long)]
     pub quiet: bool,
@@ -143,6 +152,26 @@ pub struct RunArgs {
     /// metrics) instead of the summary line.
     #[arg(long)]
     pub json: bool,
+}
+
+/// `--log-encoding` values.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum LogEncodingArg {
+    /// Protobuf messages, descriptor-set schemas.
+    Protobuf,
+    /// JSON messages, JSON Schemas.
+    Json,
+}
+
+/// `--log-compression` values.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum LogCompressionArg {
+    /// LZ4 frames.
+    Lz4,
+    /// zstd, level 1.
+    Zstd,
+    /// Uncompressed chunks.
+    None,
 }
 
 /// Solver names on the command line.
@@ -353,6 +382,8 @@ pub struct Outputs {
     pub log_vars: Option<Vec<String>>,
     /// Which samples to write.
     pub decimation: Decimation,
+    /// How the MCAP file encodes and compresses its messages.
+    pub mcap_options: McapOptions,
     /// Show a progress bar (if stderr is a terminal).
     pub progress: bool,
 }
@@ -461,7 +492,7 @@ pub fn simulate_to_files<S: HybridSystem + ?Sized>(
             path,
             logged,
             output_fn,
-            McapOptions::default().decimation(outputs.decimation),
+            outputs.mcap_options.decimation(outputs.decimation),
         )?),
         None => None,
     };
@@ -885,6 +916,7 @@ pub fn execute(args: RunArgs) -> anyhow::Result<u8> {
         decimation: Decimation::all()
             .every(args.log_every.or(model.log_decl().every).unwrap_or(1))
             .dt(args.log_dt.or(model.log_decl().dt)),
+        mcap_options: mcap_options(&args, model.log_decl()),
         progress: !args.quiet,
     };
     if let Some(message) = output_path_clash(&args.model, &outputs) {
@@ -1057,6 +1089,24 @@ pub fn select_rules(names: &[String], rules: &[String]) -> Result<Vec<bool>, Str
         }
     }
     Ok(logged)
+}
+
+/// The MCAP encoding and compression: the flags, else the model's `log`
+/// block, else the defaults.
+fn mcap_options(args: &RunArgs, decl: &hybsim::check::LogDecl) -> McapOptions {
+    let defaults = McapOptions::default();
+    let encoding = match args.log_encoding {
+        Some(LogEncodingArg::Protobuf) => Encoding::Protobuf,
+        Some(LogEncodingArg::Json) => Encoding::Json,
+        None => decl.encoding.unwrap_or(defaults.encoding),
+    };
+    let compression = match args.log_compression {
+        Some(LogCompressionArg::Lz4) => Compression::Lz4,
+        Some(LogCompressionArg::Zstd) => Compression::Zstd(1),
+        Some(LogCompressionArg::None) => Compression::None,
+        None => decl.compression.unwrap_or(defaults.compression),
+    };
+    defaults.encoding(encoding).compression(compression)
 }
 
 #[cfg(test)]

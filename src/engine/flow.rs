@@ -590,15 +590,7 @@ pub(crate) fn check_finite<S: HybridSystem + ?Sized>(
     x: &[f64],
     rule: Option<usize>,
 ) -> Option<SimError> {
-    // A branch-free integer pass first (it vectorizes; this runs at every
-    // step): the exponent field is all ones exactly for ±∞ and NaN.
-    let all_ones = x.iter().fold(0u64, |acc, v| {
-        acc | ((((v.to_bits() >> 52) & 0x7ff) + 1) >> 11)
-    });
-    if all_ones == 0 {
-        return None;
-    }
-    let i = x.iter().position(|v| !v.is_finite())?;
+    let i = crate::num::first_non_finite(x)?;
     Some(SimError::NonFinite {
         at,
         component: i,

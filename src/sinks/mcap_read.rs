@@ -221,6 +221,7 @@ impl RunLog {
         let with_outputs = self.has_outputs();
         let stream =
             ::mcap::MessageStream::new(bytes).map_err(|e| ReadError::Damaged(e.to_string()))?;
+        let mut decoders = MessageDecoder::default();
         // The sample being completed (its outputs follow its state), the one
         // before it (its kind needs the next j) and the j before that.
         let mut building: Option<(HybridTime, Vec<f64>)> = None;
@@ -251,9 +252,7 @@ impl RunLog {
             if topic != STATE_TOPIC && topic != OUTPUTS_TOPIC {
                 continue;
             }
-            let record: Value = serde_json::from_slice(&message.data).map_err(|e| {
-                ReadError::Damaged(format!("a message on `{topic}` is not JSON: {e}"))
-            })?;
+            let record = decoders.decode(&message)?;
             let at = record_time(&record).ok_or_else(|| {
                 ReadError::Damaged(format!(
                     "a message on `{topic}` has no number `t` and integer `j`"
@@ -301,6 +300,56 @@ impl RunLog {
             visit(at, kind, &x, &y);
         }
         Ok(count)
+    }
+}
+
+/// Decodes the messages of a hybsim MCAP file to JSON records, whatever
+/// their encoding: `json` messages are parsed; `protobuf` messages are
+/// decoded with their channel's descriptor set into the same JSON (see
+/// [`super::protobuf`]). Decoders are built once per schema.
+///
+/// ```no_run
+/// use hybsim::sinks::mcap_read::MessageDecoder;
+/// let bytes = std::fs::read("ball.mcap").unwrap();
+/// let mut decoder = MessageDecoder::default();
+/// for message in mcap::MessageStream::new(&bytes).unwrap() {
+///     let record = decoder.decode(&message.unwrap()).unwrap();
+///     println!("{}", record["t"]);
+/// }
+/// ```
+#[derive(Debug, Default)]
+pub struct MessageDecoder {
+    protobuf: BTreeMap<u16, super::protobuf::Decoder>,
+}
+
+impl MessageDecoder {
+    /// The JSON record of `message`.
+    pub fn decode(&mut self, message: &::mcap::Message<'_>) -> Result<Value, ReadError> {
+        let channel = &message.channel;
+        let topic = &channel.topic;
+        match channel.message_encoding.as_str() {
+            "json" => serde_json::from_slice(&message.data).map_err(|e| {
+                ReadError::Damaged(format!("a message on `{topic}` is not JSON: {e}"))
+            }),
+            "protobuf" => {
+                let schema = channel.schema.as_ref().ok_or_else(|| {
+                    ReadError::Damaged(format!("the protobuf channel `{topic}` has no schema"))
+                })?;
+                let decoder = match self.protobuf.entry(schema.id) {
+                    std::collections::btree_map::Entry::Occupied(e) => e.into_mut(),
+                    std::collections::btree_map::Entry::Vacant(e) => e.insert(
+                        super::protobuf::Decoder::new(&schema.data, &schema.name)
+                            .map_err(|e| ReadError::Damaged(format!("channel `{topic}`: {e}")))?,
+                    ),
+                };
+                decoder
+                    .to_json(&message.data)
+                    .map_err(|e| ReadError::Damaged(format!("a message on `{topic}`: {e}")))
+            }
+            other => Err(ReadError::Damaged(format!(
+                "channel `{topic}` has the message encoding `{other}` (hybsim writes `protobuf` or `json`)"
+            ))),
+        }
     }
 }
 

@@ -25,8 +25,11 @@ pub mod foxglove;
 pub mod json;
 pub mod mcap;
 pub mod mcap_read;
+pub mod mcap_writer;
 pub mod parquet;
 pub mod plot;
+pub mod protobuf;
+mod record_shape;
 
 use std::collections::BTreeMap;
 use std::ops::ControlFlow;
@@ -56,7 +59,7 @@ pub enum SinkError {
         /// The file concerned.
         path: PathBuf,
         /// The underlying error.
-        source: ::mcap::McapError,
+        source: std::io::Error,
     },
     /// The CSV writer failed.
     #[error("cannot write CSV file `{path}`: {source}")]
@@ -808,7 +811,7 @@ pub fn replay(arc: &HybridArc, sink: &mut dyn ArcSink) -> ControlFlow<()> {
 
 /// Returns the first non-finite component of `x`, as (index, value).
 pub(crate) fn first_non_finite(x: &[f64]) -> Option<(usize, f64)> {
-    x.iter().position(|v| !v.is_finite()).map(|k| (k, x[k]))
+    crate::num::first_non_finite(x).map(|k| (k, x[k]))
 }
 
 #[cfg(test)]

@@ -74,10 +74,11 @@ fn run_writes_mcap_csv_and_svg_and_prints_a_summary() {
     // Impact times in the file against the closed form (g = 9.81, λ = 0.8, h0 = 1).
     let bytes = std::fs::read(dir.path().join("bouncing_ball.mcap")).unwrap();
     let mut impacts = Vec::new();
+    let mut decoder = hybsim::sinks::mcap_read::MessageDecoder::default();
     for m in mcap::MessageStream::new(&bytes).unwrap() {
         let m = m.unwrap();
         if m.channel.topic == "/hybsim/jumps" {
-            let body: Value = serde_json::from_slice(&m.data).unwrap();
+            let body: Value = decoder.decode(&m).unwrap();
             impacts.push(body["t"].as_f64().unwrap());
         }
     }

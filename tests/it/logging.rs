@@ -55,20 +55,26 @@ fn run(dir: &Path, model: &str, args: &[&str]) -> (Vec<u8>, String) {
     (mcap, csv)
 }
 
-/// Messages per topic, as JSON, and each topic's schema.
+/// Messages per topic, as JSON records (either encoding), and each topic's
+/// JSON Schema (`null` for protobuf channels).
 fn messages(bytes: &[u8]) -> (BTreeMap<String, Vec<Value>>, BTreeMap<String, Value>) {
     let mut topics: BTreeMap<String, Vec<Value>> = BTreeMap::new();
     let mut schemas = BTreeMap::new();
+    let mut decoder = hybsim::sinks::mcap_read::MessageDecoder::default();
     for m in mcap::MessageStream::new(bytes).unwrap() {
         let m = m.unwrap();
         let schema = m.channel.schema.as_ref().unwrap();
-        schemas
-            .entry(m.channel.topic.clone())
-            .or_insert_with(|| serde_json::from_slice(&schema.data).unwrap());
+        schemas.entry(m.channel.topic.clone()).or_insert_with(|| {
+            if schema.encoding == "jsonschema" {
+                serde_json::from_slice(&schema.data).unwrap()
+            } else {
+                Value::Null
+            }
+        });
         topics
             .entry(m.channel.topic.clone())
             .or_default()
-            .push(serde_json::from_slice(&m.data).unwrap());
+            .push(decoder.decode(&m).unwrap());
     }
     (topics, schemas)
 }
@@ -155,7 +161,7 @@ fn log_block_and_flags_select_states_outputs_and_rules() {
     let dir = tempfile::tempdir().unwrap();
     let model = write_model(
         dir.path(),
-        "log { vars = [xh[2], total]; rules = [fire[1]]; every = 2 }\n",
+        "log { vars = [xh[2], total]; rules = [fire[1]]; every = 2; encoding = json }\n",
     );
     let (bytes, csv) = run(dir.path(), &model, &[]);
     let (topics, schemas) = messages(&bytes);
@@ -225,6 +231,8 @@ fn unknown_names_are_located_errors_in_the_block_and_usage_errors_in_flags() {
             "unknown setting `rulez`",
             "E0204",
         ),
+        ("log { encoding = yaml }\n", "protobuf or json", "E0506"),
+        ("log { compression = 3 }\n", "lz4, zstd or none", "E0506"),
     ];
     for (block, message, detail) in cases {
         let model = write_model(dir.path(), block);
@@ -298,24 +306,36 @@ fn numbers(text: &str) -> Vec<String> {
     out
 }
 
+/// The JSON encoding's numbers are the CSV's, bit for bit; the protobuf
+/// encoding's messages decode to exactly the JSON encoding's records.
 #[test]
 fn csv_values_equal_the_mcap_values_bit_for_bit() {
     let dir = tempfile::tempdir().unwrap();
     let model = Path::new(env!("CARGO_MANIFEST_DIR")).join("models/consensus_estimation.hyb");
-    let (bytes, csv) = run(
-        dir.path(),
-        model.to_str().unwrap(),
-        &[
-            "--T",
-            "0.02",
-            "--log-vars",
-            "*",
-            "--log-rules",
-            "event,v.redraw",
-            "--log-dt",
-            "0",
-        ],
-    );
+    let args = [
+        "--T",
+        "0.02",
+        "--log-vars",
+        "*",
+        "--log-rules",
+        "event,v.redraw",
+        "--log-dt",
+        "0",
+    ];
+    let (binary, _) = run(dir.path(), model.to_str().unwrap(), &args);
+    let json_args = [&args[..], &["--log-encoding", "json"]].concat();
+    let (bytes, csv) = run(dir.path(), model.to_str().unwrap(), &json_args);
+    let (mut from_protobuf, _) = messages(&binary);
+    let (from_json, _) = messages(&bytes);
+    // JSON leaves out the index of a rule without one; protobuf writes every field.
+    for jump in from_protobuf.get_mut("/hybsim/jumps").unwrap() {
+        if jump["index"] == serde_json::json!([]) {
+            jump.as_object_mut().unwrap().remove("index");
+        }
+    }
+    assert!(from_json["/hybsim/jumps"].len() > 10);
+    assert_eq!(from_protobuf, from_json);
+
     let mut states = Vec::new();
     let mut outputs = Vec::new();
     for m in mcap::MessageStream::new(&bytes).unwrap() {
@@ -347,4 +367,62 @@ fn csv_values_equal_the_mcap_values_bit_for_bit() {
         // exponent, never tens of positional zeros.
         assert!(row.iter().all(|c| c.len() <= 24), "{row:?}");
     }
+}
+
+/// The file's encoding and compression: protobuf and LZ4 by default, the
+/// `log` block's choice, and the flags over the block; the same records
+/// whatever the choice.
+#[test]
+fn log_block_and_flags_choose_encoding_and_compression() {
+    let dir = tempfile::tempdir().unwrap();
+    let encodings = |bytes: &[u8]| {
+        let summary = mcap::read::Summary::read(bytes).unwrap().unwrap();
+        let state = summary
+            .channels
+            .values()
+            .find(|c| c.topic == "/hybsim/state")
+            .unwrap()
+            .clone();
+        let compressions: std::collections::BTreeSet<String> = summary
+            .chunk_indexes
+            .iter()
+            .map(|c| c.compression.clone())
+            .collect();
+        (
+            state.message_encoding.clone(),
+            compressions.into_iter().collect::<Vec<_>>(),
+        )
+    };
+    let model = write_model(dir.path(), "");
+    let (default, _) = run(dir.path(), &model, &[]);
+    assert_eq!(
+        encodings(&default),
+        ("protobuf".to_string(), vec!["lz4".to_string()])
+    );
+    let model = write_model(dir.path(), "log { encoding = json; compression = zstd }\n");
+    let (block, _) = run(dir.path(), &model, &[]);
+    assert_eq!(
+        encodings(&block),
+        ("json".to_string(), vec!["zstd".to_string()])
+    );
+    let (flags, _) = run(
+        dir.path(),
+        &model,
+        &["--log-encoding", "protobuf", "--log-compression", "none"],
+    );
+    assert_eq!(
+        encodings(&flags),
+        ("protobuf".to_string(), vec![String::new()])
+    );
+    let strip = |bytes: &[u8]| {
+        let (mut topics, _) = messages(bytes);
+        for jump in topics.get_mut("/hybsim/jumps").into_iter().flatten() {
+            if jump["index"] == serde_json::json!([]) {
+                jump.as_object_mut().unwrap().remove("index");
+            }
+        }
+        topics
+    };
+    assert_eq!(strip(&default), strip(&block));
+    assert_eq!(strip(&default), strip(&flags));
 }

@@ -63,7 +63,30 @@ fn every_model_writes_foxglove_valid_mcap_that_python_decodes() {
     for model in shipped_models() {
         let name = model.file_stem().unwrap().to_str().unwrap().to_string();
         let out = format!("{name}.mcap");
-        let bytes = short_run(dir.path(), &model, &out, &[]);
+        let bytes = short_run(dir.path(), &model, &out, &["--log-encoding", "json"]);
+        // The default (protobuf) encoding of the same run decodes to the same records.
+        let binary_out = format!("{name}.protobuf.mcap");
+        let binary = short_run(dir.path(), &model, &binary_out, &[]);
+        let mut decoder = hybsim::sinks::mcap_read::MessageDecoder::default();
+        let stream = |b| mcap::MessageStream::new(b).unwrap().map(Result::unwrap);
+        let mut decoded = 0;
+        for (p, j) in stream(&binary).zip(stream(&bytes)) {
+            assert_eq!(p.channel.topic, j.channel.topic, "{name}");
+            let mut record = decoder.decode(&p).unwrap();
+            if record.get("index") == Some(&Value::Array(vec![])) {
+                record.as_object_mut().unwrap().remove("index");
+            }
+            assert_eq!(
+                record,
+                decoder.decode(&j).unwrap(),
+                "{name}: {}",
+                p.channel.topic
+            );
+            decoded += 1;
+        }
+        assert_eq!(decoded, stream(&bytes).count(), "{name}");
+        assert_eq!(decoded, stream(&binary).count(), "{name}");
+        files.push(dir.path().join(binary_out));
         let mut schemas: BTreeMap<String, Value> = BTreeMap::new();
         let mut counts: BTreeMap<String, u64> = BTreeMap::new();
         for m in mcap::MessageStream::new(&bytes).unwrap() {
@@ -142,7 +165,18 @@ fn families_of_vectors_and_outputs_are_arrays_of_objects() {
         sim { T = 1 }
     ";
     std::fs::write(dir.path().join("fam.hyb"), src).unwrap();
-    let o = hybsim(dir.path(), &["run", "fam.hyb", "-o", "fam.mcap", "--quiet"]);
+    let o = hybsim(
+        dir.path(),
+        &[
+            "run",
+            "fam.hyb",
+            "-o",
+            "fam.mcap",
+            "--quiet",
+            "--log-encoding",
+            "json",
+        ],
+    );
     assert_eq!(code(&o), 0, "{}", stderr(&o));
     let bytes = std::fs::read(dir.path().join("fam.mcap")).unwrap();
     let mut seen = BTreeMap::new();

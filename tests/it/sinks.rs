@@ -6,7 +6,8 @@ use std::path::Path;
 use hybsim::arc::{ArcSink, HybridTime, SampleKind};
 use hybsim::layout::Layout;
 use hybsim::sinks::csv::CsvSink;
-use hybsim::sinks::mcap::{McapOptions, McapSink};
+use hybsim::sinks::mcap::{Encoding, McapOptions, McapSink};
+use hybsim::sinks::mcap_read::MessageDecoder;
 use hybsim::sinks::plot::PlotSink;
 use hybsim::sinks::{Decimation, Fanout, RunInfo, RunOutcome, RunStatus, SinkError};
 use mcap::records::Record;
@@ -59,6 +60,7 @@ struct Message {
 }
 
 fn messages(bytes: &[u8]) -> Vec<Message> {
+    let mut decoder = MessageDecoder::default();
     mcap::MessageStream::new(bytes)
         .unwrap()
         .map(|m| {
@@ -67,7 +69,7 @@ fn messages(bytes: &[u8]) -> Vec<Message> {
                 topic: m.channel.topic.clone(),
                 log_time: m.log_time,
                 publish_time: m.publish_time,
-                body: serde_json::from_slice(&m.data).unwrap(),
+                body: decoder.decode(&m).unwrap(),
             }
         })
         .collect()
@@ -85,10 +87,77 @@ fn metadata(bytes: &[u8]) -> BTreeMap<String, BTreeMap<String, String>> {
         .collect()
 }
 
+/// The default encoding: protobuf channels whose descriptor sets decode
+/// every message into the records the JSON encoding writes.
+#[test]
+fn mcap_has_protobuf_channels_that_decode_to_the_json_records() {
+    let dir = tempfile::tempdir().unwrap();
+    let bytes = write_ball(&dir.path().join("ball.mcap"), 5, McapOptions::default());
+    let json = write_ball(
+        &dir.path().join("json.mcap"),
+        5,
+        McapOptions::default().encoding(Encoding::Json),
+    );
+    let summary = mcap::read::Summary::read(&bytes).unwrap().unwrap();
+    let mut topics = BTreeMap::new();
+    for ch in summary.channels.values() {
+        let schema = ch.schema.as_ref().expect("every channel has a schema");
+        topics.insert(
+            ch.topic.as_str(),
+            (
+                ch.message_encoding.as_str(),
+                schema.encoding.as_str(),
+                schema.name.as_str(),
+            ),
+        );
+    }
+    assert_eq!(
+        topics,
+        BTreeMap::from([
+            (
+                "/hybsim/jumps",
+                ("protobuf", "protobuf", "hybsim.ball.Jump")
+            ),
+            ("/hybsim/log", ("json", "jsonschema", "foxglove.Log")),
+            (
+                "/hybsim/outputs",
+                ("protobuf", "protobuf", "hybsim.ball.Outputs")
+            ),
+            (
+                "/hybsim/state",
+                ("protobuf", "protobuf", "hybsim.ball.State")
+            ),
+        ])
+    );
+    let (binary, text) = (messages(&bytes), messages(&json));
+    assert_eq!(binary.len(), text.len());
+    for (b, t) in binary.iter().zip(&text) {
+        let mut record = b.body.clone();
+        if record.get("index") == Some(&json!([])) {
+            record.as_object_mut().unwrap().remove("index");
+        }
+        assert_eq!(
+            (b.topic.as_str(), b.log_time, &record),
+            (t.topic.as_str(), t.log_time, &t.body)
+        );
+    }
+    // Protobuf is the smaller file (8 bytes a number).
+    assert!(
+        bytes.len() < json.len(),
+        "{} vs {}",
+        bytes.len(),
+        json.len()
+    );
+}
+
 #[test]
 fn mcap_has_channels_with_json_schemas() {
     let dir = tempfile::tempdir().unwrap();
-    let bytes = write_ball(&dir.path().join("ball.mcap"), 5, McapOptions::default());
+    let bytes = write_ball(
+        &dir.path().join("ball.mcap"),
+        5,
+        McapOptions::default().encoding(Encoding::Json),
+    );
     let summary = mcap::read::Summary::read(&bytes).unwrap().unwrap();
     let mut topics: BTreeMap<String, (String, String, String)> = BTreeMap::new();
     for ch in summary.channels.values() {
@@ -154,7 +223,8 @@ fn mcap_orders_pre_jump_record_post_and_times_match_closed_form() {
         let jump = &msgs[k].body;
         assert_eq!(jump["rule"], "impact");
         assert_eq!(jump["rule_id"], 0);
-        assert!(jump.get("index").is_none());
+        // JSON leaves the index of a plain rule out; protobuf writes it empty.
+        assert!(jump.get("index").is_none_or(|i| *i == json!([])), "{jump}");
         assert_eq!(jump["j"], i as u64);
         let t = jump["t"].as_f64().unwrap();
         assert!((t - impacts[i]).abs() < 1e-12, "impact {i}: {t}");

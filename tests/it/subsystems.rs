@@ -433,7 +433,8 @@ for i in 1..2 {{ c[i] = Cell(r = i) }}
         ),
     )
     .unwrap();
-    let bytes = super::outputs::short_run(dir.path(), &model, "m.mcap", &[]);
+    let bytes =
+        super::outputs::short_run(dir.path(), &model, "m.mcap", &["--log-encoding", "json"]);
     let mut seen = std::collections::BTreeMap::new();
     for m in mcap::MessageStream::new(&bytes).unwrap() {
         let m = m.unwrap();

@@ -1,0 +1,755 @@
+//! An MCAP writer that buffers each chunk's records in memory and
+//! compresses the whole chunk in one call.
+//!
+//! Why not the `mcap` crate's writer (which hybsim still uses to read): it
+//! streams every message through the chunk's CRC and compressor as about
+//! seven small writes (opcode, length, four header fields, payload). A run
+//! logs hundreds of thousands of small messages, and those calls cost
+//! ~0.6 µs per message before any compression, as much as the simulation
+//! itself on the paper models (BENCHMARKS.md, issue 19). Here a message is
+//! appended to a `Vec` in place (its payload encoded directly behind its
+//! header, no copy) and its index entry pushed; compression, the chunk CRC
+//! and the indexes are paid once per chunk (1 MiB uncompressed, the `mcap`
+//! crate's default).
+//!
+//! The file follows the MCAP specification (<https://mcap.dev/spec>): header;
+//! a data section of schemas and channels (written when added, outside
+//! chunks), metadata, attachments and chunks each followed by their message
+//! indexes; `DataEnd` with the data section's CRC; a summary section
+//! (schemas, channels, statistics, chunk, attachment and metadata indexes),
+//! summary offsets and the footer with the summary's CRC. The output is
+//! never sought, so it can be a pipe. The same calls give the same bytes.
+
+use std::collections::BTreeMap;
+use std::io::{self, Write};
+
+/// Chunk compression.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Compression {
+    /// Uncompressed chunks.
+    None,
+    /// LZ4 frames: about 1.2 GB/s on a run's floats, files ~10 % larger than zstd's.
+    Lz4,
+    /// zstd at the given level (negative levels are zstd's fast modes).
+    Zstd(i32),
+}
+
+impl Compression {
+    /// The compression named `name`: `lz4`, `zstd` (level 1) or `none`.
+    pub fn parse(name: &str) -> Option<Self> {
+        match name {
+            "lz4" => Some(Self::Lz4),
+            "zstd" => Some(Self::Zstd(1)),
+            "none" => Some(Self::None),
+            _ => None,
+        }
+    }
+
+    /// The name MCAP records carry (`""`, `lz4`, `zstd`).
+    fn name(self) -> &'static str {
+        match self {
+            Compression::None => "",
+            Compression::Lz4 => "lz4",
+            Compression::Zstd(_) => "zstd",
+        }
+    }
+}
+
+/// Target uncompressed size of a chunk: a chunk closes once its records
+/// exceed it.
+pub const CHUNK_SIZE: usize = 1 << 20;
+
+const MAGIC: &[u8] = &[0x89, b'M', b'C', b'A', b'P', 0x30, b'\r', b'\n'];
+
+/// Record opcodes of the MCAP specification.
+mod op {
+    pub const HEADER: u8 = 0x01;
+    pub const FOOTER: u8 = 0x02;
+    pub const SCHEMA: u8 = 0x03;
+    pub const CHANNEL: u8 = 0x04;
+    pub const MESSAGE: u8 = 0x05;
+    pub const CHUNK: u8 = 0x06;
+    pub const MESSAGE_INDEX: u8 = 0x07;
+    pub const CHUNK_INDEX: u8 = 0x08;
+    pub const ATTACHMENT: u8 = 0x09;
+    pub const ATTACHMENT_INDEX: u8 = 0x0A;
+    pub const STATISTICS: u8 = 0x0B;
+    pub const METADATA: u8 = 0x0C;
+    pub const METADATA_INDEX: u8 = 0x0D;
+    pub const SUMMARY_OFFSET: u8 = 0x0E;
+    pub const DATA_END: u8 = 0x0F;
+}
+
+/// Little-endian field encoders of the specification's primitive types.
+trait Put {
+    fn u8(&mut self, v: u8);
+    fn u16(&mut self, v: u16);
+    fn u32(&mut self, v: u32);
+    fn u64(&mut self, v: u64);
+    /// `String`: u32 byte length, then UTF-8.
+    fn str(&mut self, s: &str);
+    /// A u32 byte length in front of what `body` appends (`Map`, `Array`, `Bytes`).
+    fn prefixed32(&mut self, body: impl FnOnce(&mut Vec<u8>));
+}
+
+impl Put for Vec<u8> {
+    fn u8(&mut self, v: u8) {
+        self.push(v);
+    }
+    fn u16(&mut self, v: u16) {
+        self.extend_from_slice(&v.to_le_bytes());
+    }
+    fn u32(&mut self, v: u32) {
+        self.extend_from_slice(&v.to_le_bytes());
+    }
+    fn u64(&mut self, v: u64) {
+        self.extend_from_slice(&v.to_le_bytes());
+    }
+    fn str(&mut self, s: &str) {
+        self.u32(s.len() as u32);
+        self.extend_from_slice(s.as_bytes());
+    }
+    fn prefixed32(&mut self, body: impl FnOnce(&mut Vec<u8>)) {
+        let at = self.len();
+        self.u32(0);
+        body(self);
+        let len = (self.len() - at - 4) as u32;
+        self[at..at + 4].copy_from_slice(&len.to_le_bytes());
+    }
+}
+
+/// Appends a whole record: opcode, u64 content length, content.
+fn record(out: &mut Vec<u8>, opcode: u8, content: impl FnOnce(&mut Vec<u8>)) {
+    out.u8(opcode);
+    let at = out.len();
+    out.u64(0);
+    content(out);
+    let len = (out.len() - at - 8) as u64;
+    out[at..at + 8].copy_from_slice(&len.to_le_bytes());
+}
+
+fn string_map(out: &mut Vec<u8>, map: &BTreeMap<String, String>) {
+    out.prefixed32(|out| {
+        for (k, v) in map {
+            out.str(k);
+            out.str(v);
+        }
+    });
+}
+
+/// The output with its position and the CRC of everything written so far.
+struct Counted<W> {
+    inner: W,
+    position: u64,
+    crc: crc32fast::Hasher,
+}
+
+impl<W: Write> Counted<W> {
+    fn put(&mut self, bytes: &[u8]) -> io::Result<()> {
+        self.inner.write_all(bytes)?;
+        self.position += bytes.len() as u64;
+        self.crc.update(bytes);
+        Ok(())
+    }
+}
+
+/// The compressor of chunks, with state reused across chunks.
+enum Compressor {
+    None,
+    Lz4,
+    Zstd(Box<zstd::bulk::Compressor<'static>>),
+}
+
+impl Compressor {
+    fn new(compression: Compression) -> io::Result<Self> {
+        Ok(match compression {
+            Compression::None => Compressor::None,
+            Compression::Lz4 => Compressor::Lz4,
+            Compression::Zstd(level) => {
+                Compressor::Zstd(Box::new(zstd::bulk::Compressor::new(level)?))
+            }
+        })
+    }
+
+    /// Appends the compressed form of `data` to `out`.
+    fn compress(&mut self, data: &[u8], out: &mut Vec<u8>) -> io::Result<()> {
+        match self {
+            Compressor::None => out.extend_from_slice(data),
+            Compressor::Lz4 => {
+                // 64 KiB blocks compressed as they come (`auto_flush`): the
+                // encoder's buffer is one block, and the input is not first
+                // copied into it, as it is for a frame's last partial block.
+                let mut encoder = lz4::EncoderBuilder::new()
+                    .level(1)
+                    .block_size(lz4::BlockSize::Max64KB)
+                    .auto_flush(true)
+                    .checksum(lz4::ContentChecksum::NoChecksum)
+                    .build(std::mem::take(out))?;
+                encoder.write_all(data)?;
+                let (buf, result) = encoder.finish();
+                *out = buf;
+                result?;
+            }
+            Compressor::Zstd(z) => {
+                out.reserve(zstd::zstd_safe::compress_bound(data.len()));
+                z.compress_to_buffer(data, out)?;
+            }
+        }
+        Ok(())
+    }
+}
+
+#[derive(Clone)]
+struct SchemaRecord {
+    name: String,
+    encoding: String,
+    data: Vec<u8>,
+}
+
+#[derive(Clone)]
+struct ChannelRecord {
+    schema_id: u16,
+    topic: String,
+    encoding: String,
+    metadata: BTreeMap<String, String>,
+}
+
+struct ChunkIndex {
+    start_time: u64,
+    end_time: u64,
+    offset: u64,
+    length: u64,
+    message_index_offsets: BTreeMap<u16, u64>,
+    message_index_length: u64,
+    compressed_size: u64,
+    uncompressed_size: u64,
+}
+
+struct AttachmentIndex {
+    offset: u64,
+    length: u64,
+    log_time: u64,
+    create_time: u64,
+    data_size: u64,
+    name: String,
+    media_type: String,
+}
+
+/// What [`McapWriter::finish`] wrote.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct WrittenSummary {
+    /// Messages per channel topic (channels with messages).
+    pub messages: BTreeMap<String, u64>,
+    /// Chunks written.
+    pub chunks: u32,
+}
+
+/// Writes one MCAP file; see the module documentation.
+///
+/// ```
+/// use std::collections::BTreeMap;
+/// use hybsim::sinks::mcap_writer::{Compression, McapWriter};
+/// let mut w = McapWriter::new(Vec::new(), "", "example", Compression::Lz4).unwrap();
+/// let schema = w.add_schema("Point", "jsonschema", br#"{"type":"object"}"#).unwrap();
+/// let channel = w.add_channel(schema, "/points", "json", &BTreeMap::new()).unwrap();
+/// w.message(channel, 1, 0, |out| out.extend_from_slice(br#"{"x":1}"#)).unwrap();
+/// let (bytes, summary) = w.finish().unwrap();
+/// let messages: Vec<_> = mcap::MessageStream::new(&bytes).unwrap().collect();
+/// assert_eq!(messages.len(), 1);
+/// assert_eq!(summary.messages["/points"], 1);
+/// ```
+pub struct McapWriter<W: Write> {
+    out: Counted<W>,
+    compressor: Compressor,
+    compression: Compression,
+    /// Records of the open chunk, uncompressed.
+    chunk: Vec<u8>,
+    /// Per channel: (log time, offset in `chunk`) of the open chunk's messages.
+    chunk_messages: Vec<Vec<(u64, u64)>>,
+    chunk_times: Option<(u64, u64)>,
+    /// A reused buffer for records written outside chunks and for compressed chunks.
+    scratch: Vec<u8>,
+    schemas: Vec<SchemaRecord>,
+    channels: Vec<ChannelRecord>,
+    channel_counts: Vec<u64>,
+    message_times: Option<(u64, u64)>,
+    chunk_indexes: Vec<ChunkIndex>,
+    attachment_indexes: Vec<AttachmentIndex>,
+    metadata_indexes: Vec<(u64, u64, String)>,
+}
+
+impl<W: Write> McapWriter<W> {
+    /// Writes the magic bytes and the header record.
+    pub fn new(out: W, profile: &str, library: &str, compression: Compression) -> io::Result<Self> {
+        let mut w = Self {
+            out: Counted {
+                inner: out,
+                position: 0,
+                crc: crc32fast::Hasher::new(),
+            },
+            compressor: Compressor::new(compression)?,
+            compression,
+            chunk: Vec::with_capacity(CHUNK_SIZE + CHUNK_SIZE / 4),
+            chunk_messages: Vec::new(),
+            chunk_times: None,
+            scratch: Vec::new(),
+            schemas: Vec::new(),
+            channels: Vec::new(),
+            channel_counts: Vec::new(),
+            message_times: None,
+            chunk_indexes: Vec::new(),
+            attachment_indexes: Vec::new(),
+            metadata_indexes: Vec::new(),
+        };
+        w.out.put(MAGIC)?;
+        w.outside_chunk(|out| {
+            record(out, op::HEADER, |out| {
+                out.str(profile);
+                out.str(library);
+            })
+        })?;
+        Ok(w)
+    }
+
+    /// Closes the open chunk, then writes what `build` appends as records
+    /// of the data section; returns the offset of the first.
+    fn outside_chunk(&mut self, build: impl FnOnce(&mut Vec<u8>)) -> io::Result<u64> {
+        self.close_chunk()?;
+        self.scratch.clear();
+        build(&mut self.scratch);
+        let at = self.out.position;
+        self.out.put(&self.scratch)?;
+        Ok(at)
+    }
+
+    /// Adds a schema (ids from 1); written to the data section at once.
+    pub fn add_schema(&mut self, name: &str, encoding: &str, data: &[u8]) -> io::Result<u16> {
+        let schema = SchemaRecord {
+            name: name.into(),
+            encoding: encoding.into(),
+            data: data.to_vec(),
+        };
+        let id = u16::try_from(self.schemas.len() + 1).map_err(|_| too_many("schemas"))?;
+        self.outside_chunk(|out| schema_record(out, id, &schema))?;
+        self.schemas.push(schema);
+        Ok(id)
+    }
+
+    /// Adds a channel (ids from 0) of the schema `schema_id`.
+    pub fn add_channel(
+        &mut self,
+        schema_id: u16,
+        topic: &str,
+        message_encoding: &str,
+        metadata: &BTreeMap<String, String>,
+    ) -> io::Result<u16> {
+        if usize::from(schema_id) > self.schemas.len() {
+            return Err(io::Error::new(
+                io::ErrorKind::InvalidInput,
+                format!("MCAP channel `{topic}`: unknown schema {schema_id}"),
+            ));
+        }
+        let channel = ChannelRecord {
+            schema_id,
+            topic: topic.into(),
+            encoding: message_encoding.into(),
+            metadata: metadata.clone(),
+        };
+        let id = u16::try_from(self.channels.len()).map_err(|_| too_many("channels"))?;
+        self.outside_chunk(|out| channel_record(out, id, &channel))?;
+        self.channels.push(channel);
+        self.channel_counts.push(0);
+        self.chunk_messages.push(Vec::new());
+        Ok(id)
+    }
+
+    /// Writes a metadata record (closing the open chunk).
+    pub fn write_metadata(
+        &mut self,
+        name: &str,
+        metadata: &BTreeMap<String, String>,
+    ) -> io::Result<()> {
+        let offset = self.outside_chunk(|out| {
+            record(out, op::METADATA, |out| {
+                out.str(name);
+                string_map(out, metadata);
+            })
+        })?;
+        let length = self.out.position - offset;
+        self.metadata_indexes.push((offset, length, name.into()));
+        Ok(())
+    }
+
+    /// Writes an attachment record (closing the open chunk).
+    pub fn attach(
+        &mut self,
+        log_time: u64,
+        create_time: u64,
+        name: &str,
+        media_type: &str,
+        data: &[u8],
+    ) -> io::Result<()> {
+        let offset = self.outside_chunk(|out| {
+            record(out, op::ATTACHMENT, |out| {
+                let fields = out.len();
+                out.u64(log_time);
+                out.u64(create_time);
+                out.str(name);
+                out.str(media_type);
+                out.u64(data.len() as u64);
+                out.extend_from_slice(data);
+                // The CRC covers every field before it.
+                let crc = crc32fast::hash(&out[fields..]);
+                out.u32(crc);
+            })
+        })?;
+        self.attachment_indexes.push(AttachmentIndex {
+            offset,
+            length: self.out.position - offset,
+            log_time,
+            create_time,
+            data_size: data.len() as u64,
+            name: name.into(),
+            media_type: media_type.into(),
+        });
+        Ok(())
+    }
+
+    /// Appends a message on `channel` to the open chunk; `payload` appends
+    /// the message's bytes to the buffer it is given (in place, behind the
+    /// record header). Closes the chunk once it exceeds [`CHUNK_SIZE`].
+    #[inline]
+    pub fn message(
+        &mut self,
+        channel: u16,
+        sequence: u32,
+        log_time: u64,
+        payload: impl FnOnce(&mut Vec<u8>),
+    ) -> io::Result<()> {
+        let index = self
+            .chunk_messages
+            .get_mut(usize::from(channel))
+            .ok_or_else(|| {
+                io::Error::new(
+                    io::ErrorKind::InvalidInput,
+                    format!("MCAP message on unknown channel {channel}"),
+                )
+            })?;
+        let offset = self.chunk.len() as u64;
+        index.push((log_time, offset));
+        record(&mut self.chunk, op::MESSAGE, |out| {
+            out.u16(channel);
+            out.u32(sequence);
+            out.u64(log_time);
+            out.u64(log_time);
+            payload(out);
+        });
+        self.channel_counts[usize::from(channel)] += 1;
+        let widen = |b: Option<(u64, u64)>| match b {
+            None => Some((log_time, log_time)),
+            Some((s, e)) => Some((s.min(log_time), e.max(log_time))),
+        };
+        self.chunk_times = widen(self.chunk_times);
+        self.message_times = widen(self.message_times);
+        if self.chunk.len() >= CHUNK_SIZE {
+            self.close_chunk()?;
+        }
+        Ok(())
+    }
+
+    /// Writes the open chunk (if it has records) and its message indexes.
+    fn close_chunk(&mut self) -> io::Result<()> {
+        let Some((start_time, end_time)) = self.chunk_times.take() else {
+            return Ok(());
+        };
+        let uncompressed_crc = crc32fast::hash(&self.chunk);
+        let mut compressed = std::mem::take(&mut self.scratch);
+        compressed.clear();
+        self.compressor.compress(&self.chunk, &mut compressed)?;
+        let mut head = Vec::with_capacity(64);
+        head.u8(op::CHUNK);
+        let compression = self.compression.name();
+        let content = 8 + 8 + 8 + 4 + 4 + compression.len() + 8 + compressed.len();
+        head.u64(content as u64);
+        head.u64(start_time);
+        head.u64(end_time);
+        head.u64(self.chunk.len() as u64);
+        head.u32(uncompressed_crc);
+        head.str(compression);
+        head.u64(compressed.len() as u64);
+        let offset = self.out.position;
+        self.out.put(&head)?;
+        self.out.put(&compressed)?;
+        let length = self.out.position - offset;
+
+        // Message indexes, in channel order; entries by log time (stable:
+        // messages of equal times keep their file order).
+        let mut indexes = Vec::new();
+        let mut message_index_offsets = BTreeMap::new();
+        let index_start = self.out.position;
+        for (channel, entries) in self.chunk_messages.iter_mut().enumerate() {
+            if entries.is_empty() {
+                continue;
+            }
+            if !entries.is_sorted_by_key(|e| e.0) {
+                entries.sort_by_key(|e| e.0);
+            }
+            message_index_offsets.insert(channel as u16, index_start + indexes.len() as u64);
+            record(&mut indexes, op::MESSAGE_INDEX, |out| {
+                out.u16(channel as u16);
+                out.prefixed32(|out| {
+                    for &(time, at) in entries.iter() {
+                        out.u64(time);
+                        out.u64(at);
+                    }
+                });
+            });
+            entries.clear();
+        }
+        self.out.put(&indexes)?;
+        self.chunk_indexes.push(ChunkIndex {
+            start_time,
+            end_time,
+            offset,
+            length,
+            message_index_offsets,
+            message_index_length: indexes.len() as u64,
+            compressed_size: compressed.len() as u64,
+            uncompressed_size: self.chunk.len() as u64,
+        });
+        self.chunk.clear();
+        self.scratch = compressed;
+        Ok(())
+    }
+
+    /// Closes the open chunk, writes `DataEnd`, the summary section, the
+    /// summary offsets, the footer and the closing magic; returns the
+    /// output and what was written.
+    pub fn finish(mut self) -> io::Result<(W, WrittenSummary)> {
+        self.close_chunk()?;
+        let data_crc = self.out.crc.clone().finalize();
+        let mut end = Vec::new();
+        record(&mut end, op::DATA_END, |out| out.u32(data_crc));
+        self.out.put(&end)?;
+
+        // The summary's CRC starts here.
+        self.out.crc = crc32fast::Hasher::new();
+        let summary_start = self.out.position;
+        let mut groups: Vec<(u8, u64, u64)> = Vec::new();
+        let mut group = |w: &mut Self, opcode: u8, build: &dyn Fn(&Self, &mut Vec<u8>)| {
+            let mut buf = Vec::new();
+            build(w, &mut buf);
+            if buf.is_empty() {
+                return Ok(());
+            }
+            groups.push((opcode, w.out.position, buf.len() as u64));
+            w.out.put(&buf)
+        };
+        group(&mut self, op::SCHEMA, &|w, out| {
+            for (k, s) in w.schemas.iter().enumerate() {
+                schema_record(out, k as u16 + 1, s);
+            }
+        })?;
+        group(&mut self, op::CHANNEL, &|w, out| {
+            for (k, c) in w.channels.iter().enumerate() {
+                channel_record(out, k as u16, c);
+            }
+        })?;
+        group(&mut self, op::STATISTICS, &|w, out| {
+            let (start, end) = w.message_times.unwrap_or((0, 0));
+            record(out, op::STATISTICS, |out| {
+                out.u64(w.channel_counts.iter().sum());
+                out.u16(w.schemas.len() as u16);
+                out.u32(w.channels.len() as u32);
+                out.u32(w.attachment_indexes.len() as u32);
+                out.u32(w.metadata_indexes.len() as u32);
+                out.u32(w.chunk_indexes.len() as u32);
+                out.u64(start);
+                out.u64(end);
+                out.prefixed32(|out| {
+                    for (k, &n) in w.channel_counts.iter().enumerate() {
+                        out.u16(k as u16);
+                        out.u64(n);
+                    }
+                });
+            });
+        })?;
+        group(&mut self, op::CHUNK_INDEX, &|w, out| {
+            for c in &w.chunk_indexes {
+                record(out, op::CHUNK_INDEX, |out| {
+                    out.u64(c.start_time);
+                    out.u64(c.end_time);
+                    out.u64(c.offset);
+                    out.u64(c.length);
+                    out.prefixed32(|out| {
+                        for (&channel, &at) in &c.message_index_offsets {
+                            out.u16(channel);
+                            out.u64(at);
+                        }
+                    });
+                    out.u64(c.message_index_length);
+                    out.str(w.compression.name());
+                    out.u64(c.compressed_size);
+                    out.u64(c.uncompressed_size);
+                });
+            }
+        })?;
+        group(&mut self, op::ATTACHMENT_INDEX, &|w, out| {
+            for a in &w.attachment_indexes {
+                record(out, op::ATTACHMENT_INDEX, |out| {
+                    out.u64(a.offset);
+                    out.u64(a.length);
+                    out.u64(a.log_time);
+                    out.u64(a.create_time);
+                    out.u64(a.data_size);
+                    out.str(&a.name);
+                    out.str(&a.media_type);
+                });
+            }
+        })?;
+        group(&mut self, op::METADATA_INDEX, &|w, out| {
+            for (offset, length, name) in &w.metadata_indexes {
+                record(out, op::METADATA_INDEX, |out| {
+                    out.u64(*offset);
+                    out.u64(*length);
+                    out.str(name);
+                });
+            }
+        })?;
+        let summary_offset_start = self.out.position;
+        let mut tail = Vec::new();
+        for (opcode, start, length) in groups {
+            record(&mut tail, op::SUMMARY_OFFSET, |out| {
+                out.u8(opcode);
+                out.u64(start);
+                out.u64(length);
+            });
+        }
+        // The footer: its CRC covers the summary through `summary_offset_start`.
+        tail.u8(op::FOOTER);
+        tail.u64(8 + 8 + 4);
+        tail.u64(summary_start);
+        tail.u64(summary_offset_start);
+        self.out.crc.update(&tail);
+        let summary_crc = self.out.crc.clone().finalize();
+        tail.u32(summary_crc);
+        tail.extend_from_slice(MAGIC);
+        self.out.inner.write_all(&tail)?;
+        self.out.inner.flush()?;
+        let messages = self
+            .channels
+            .iter()
+            .zip(&self.channel_counts)
+            .filter(|&(_, &n)| n > 0)
+            .map(|(c, &n)| (c.topic.clone(), n))
+            .collect();
+        let summary = WrittenSummary {
+            messages,
+            chunks: self.chunk_indexes.len() as u32,
+        };
+        Ok((self.out.inner, summary))
+    }
+}
+
+fn schema_record(out: &mut Vec<u8>, id: u16, s: &SchemaRecord) {
+    record(out, op::SCHEMA, |out| {
+        out.u16(id);
+        out.str(&s.name);
+        out.str(&s.encoding);
+        out.u32(s.data.len() as u32);
+        out.extend_from_slice(&s.data);
+    });
+}
+
+fn channel_record(out: &mut Vec<u8>, id: u16, c: &ChannelRecord) {
+    record(out, op::CHANNEL, |out| {
+        out.u16(id);
+        out.u16(c.schema_id);
+        out.str(&c.topic);
+        out.str(&c.encoding);
+        string_map(out, &c.metadata);
+    });
+}
+
+fn too_many(what: &str) -> io::Error {
+    io::Error::new(
+        io::ErrorKind::InvalidInput,
+        format!("more MCAP {what} than the format's 16-bit ids allow"),
+    )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A file with every kind of record, several chunks and all
+    /// compressions, read back by the `mcap` crate: linearly (every record
+    /// and CRC checked) and through its summary and indexes.
+    #[test]
+    fn the_mcap_crate_reads_back_every_record() {
+        for compression in [
+            Compression::None,
+            Compression::Lz4,
+            Compression::Zstd(1),
+            Compression::Zstd(-3),
+        ] {
+            let mut w = McapWriter::new(Vec::new(), "", "test", compression).unwrap();
+            let meta = BTreeMap::from([("k".to_string(), "v".to_string())]);
+            w.write_metadata("first", &meta).unwrap();
+            w.attach(0, 0, "a.txt", "text/plain", b"hello").unwrap();
+            let s = w.add_schema("S", "jsonschema", b"{}").unwrap();
+            let a = w.add_channel(s, "/a", "json", &BTreeMap::new()).unwrap();
+            let b = w.add_channel(s, "/b", "json", &meta).unwrap();
+            let n = 40_000u64;
+            for k in 0..n {
+                let ch = if k % 3 == 0 { b } else { a };
+                w.message(ch, k as u32, k / 2, |out| {
+                    out.extend_from_slice(format!("{{\"k\":{k}}}").as_bytes());
+                    out.extend_from_slice(&[b' '; 40]);
+                })
+                .unwrap();
+            }
+            w.write_metadata("last", &meta).unwrap();
+            let (bytes, summary) = w.finish().unwrap();
+            assert!(
+                summary.chunks > 1,
+                "{compression:?}: {} chunks",
+                summary.chunks
+            );
+            assert_eq!(summary.messages["/a"] + summary.messages["/b"], n);
+
+            let mut seen = 0u64;
+            for (k, m) in mcap::MessageStream::new(&bytes).unwrap().enumerate() {
+                let m = m.unwrap();
+                assert_eq!(m.sequence as usize, k);
+                assert_eq!(m.log_time, k as u64 / 2);
+                assert!(m.data.starts_with(format!("{{\"k\":{k}}}").as_bytes()));
+                seen += 1;
+            }
+            assert_eq!(seen, n);
+            let read = mcap::Summary::read(&bytes).unwrap().unwrap();
+            let stats = read.stats.as_ref().unwrap();
+            assert_eq!(stats.message_count, n);
+            assert_eq!(stats.channel_message_counts[&b], n.div_ceil(3));
+            assert_eq!(read.chunk_indexes.len(), summary.chunks as usize);
+            assert_eq!(read.metadata_indexes.len(), 2);
+            let attachment = mcap::read::attachment(&bytes, &read.attachment_indexes[0]).unwrap();
+            assert_eq!(&attachment.data[..], b"hello");
+            // Every chunk's message indexes; some messages through them (each
+            // seek decompresses the chunk).
+            let mut indexed = 0;
+            for chunk in &read.chunk_indexes {
+                let index = read.read_message_indexes(&bytes, chunk).unwrap();
+                for entries in index.values() {
+                    for e in entries.iter().step_by(997).chain(entries.last()) {
+                        let m = read.seek_message(&bytes, chunk, e).unwrap();
+                        assert_eq!(m.log_time, e.log_time);
+                    }
+                    indexed += entries.len() as u64;
+                }
+            }
+            assert_eq!(indexed, n);
+        }
+    }
+}
