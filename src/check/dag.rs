@@ -8,8 +8,10 @@
 //! topological order. Operations that do not scalarize (matrix inverse,
 //! linear solve, matrix exponential, spectral norm) are [`Block`] nodes.
 
-use std::collections::HashMap;
+use std::collections::hash_map::Entry;
 use std::sync::Arc;
+
+use rustc_hash::FxHashMap as HashMap;
 
 use nalgebra::DMatrix;
 
@@ -472,13 +474,15 @@ impl Dag {
 
     fn intern(&mut self, n: Node) -> NodeId {
         self.ops += 1;
-        if let Some(&id) = self.memo.get(&n) {
-            return id;
+        match self.memo.entry(n) {
+            Entry::Occupied(e) => *e.get(),
+            Entry::Vacant(e) => {
+                let id = self.nodes.len() as NodeId;
+                self.nodes.push(n);
+                e.insert(id);
+                id
+            }
         }
-        let id = self.nodes.len() as NodeId;
-        self.nodes.push(n);
-        self.memo.insert(n, id);
-        id
     }
 
     /// A constant.

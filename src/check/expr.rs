@@ -446,7 +446,24 @@ impl Checker {
         let mut key = Vec::new();
         for a in args {
             match a {
-                IndexArg::One(e) => key.push(self.const_int(e, "a family index")?),
+                IndexArg::One(e) => {
+                    // A loop variable (the common `x[i]`) is read directly:
+                    // the general path allocates a value and interns a
+                    // constant per member reference. Same checks, same work
+                    // charged.
+                    if let ExprKind::Name(n) = &e.kind
+                        && let Some(i) = self.scope_lookup(n)
+                        && i.abs() <= 1_000_000_000_000_000
+                    {
+                        if !self.within_budget(0, e.span) {
+                            return None;
+                        }
+                        self.dag.charge(1);
+                        key.push(i);
+                        continue;
+                    }
+                    key.push(self.const_int(e, "a family index")?)
+                }
                 IndexArg::Slice(lo, _) => {
                     self.err(CheckError::Expected {
                         expected: "one index per family dimension".into(),
@@ -554,11 +571,6 @@ impl Checker {
             return None;
         }
         let key = self.family_key(args)?;
-        let label = key
-            .iter()
-            .map(|i| i.to_string())
-            .collect::<Vec<_>>()
-            .join(",");
         if !self.demand_signal(name, &key) {
             return None;
         }
@@ -576,7 +588,7 @@ impl Checker {
                 let members = self.family_members_words(name);
                 self.err(CheckError::FamilyOutOfRange {
                     name: name.to_string(),
-                    index: label,
+                    index: key_label(&key),
                     members,
                     span,
                 });
@@ -593,15 +605,7 @@ impl Checker {
             Some(Sym::StateFamily { members, .. }) => members.keys().cloned().collect(),
             _ => Vec::new(),
         };
-        let show = |k: &Vec<i64>| {
-            format!(
-                "[{}]",
-                k.iter()
-                    .map(|i| i.to_string())
-                    .collect::<Vec<_>>()
-                    .join(",")
-            )
-        };
+        let show = |k: &Vec<i64>| format!("[{}]", key_label(k));
         match keys.len() {
             0 => "none".into(),
             n if n <= 6 => keys.iter().map(show).collect::<Vec<_>>().join(", "),
@@ -1785,6 +1789,14 @@ pub(crate) const CONST_CTX: Ctx = Ctx {
     wiener: false,
     place: "a parameter",
 };
+
+/// A family member's key as written in its name: `2`, `1,3`.
+pub(crate) fn key_label(key: &[i64]) -> String {
+    key.iter()
+        .map(|i| i.to_string())
+        .collect::<Vec<_>>()
+        .join(",")
+}
 
 pub(crate) fn dims_words(d: Dims) -> String {
     match d {

@@ -1,13 +1,13 @@
 //! Checking of declarations: parameters, states, noise, flows, jumps,
 //! outputs and simulation settings.
 
-use std::collections::HashMap;
+use rustc_hash::FxHashMap as HashMap;
 use std::rc::Rc;
 
 use super::dag::{BinFn, Dag, Node, NodeId};
 use super::design::Solved;
 use super::error::{CheckError, Dims};
-use super::expr::{CONST_CTX, Ctx, Val, dims_words, suggest};
+use super::expr::{CONST_CTX, Ctx, Val, dims_words, key_label, suggest};
 use super::limits::{Limits, Quantity};
 use super::{Checker, DesignReport, Sym};
 use crate::engine::{ExactAffine, LinearSolver, Priority, SimError, SimSettings, Solver};
@@ -246,13 +246,13 @@ pub(crate) fn check_model(
         c: Checker {
             dag: Dag::new(),
             errors: Vec::new(),
-            syms: HashMap::new(),
+            syms: HashMap::default(),
             scopes: Vec::new(),
             set_scopes: Vec::new(),
             fields: Vec::new(),
             block_spans: Vec::new(),
             post_frame: None,
-            poisoned: HashMap::new(),
+            poisoned: HashMap::default(),
             poison_hit: None,
             backend: options.backend,
             metric_frame: None,
@@ -267,7 +267,7 @@ pub(crate) fn check_model(
         flow: Vec::new(),
         flow_set: None,
         rules: Vec::new(),
-        rule_names: HashMap::new(),
+        rule_names: HashMap::default(),
         outputs: Vec::new(),
         wiener_dim: 0,
         sim: Vec::new(),
@@ -277,7 +277,7 @@ pub(crate) fn check_model(
         groups: 0,
         group_resets: Vec::new(),
         part: None,
-        parts: HashMap::new(),
+        parts: HashMap::default(),
         designs: Vec::new(),
         random_params: Vec::new(),
         solve_checks: options.solve_checks,
@@ -300,7 +300,7 @@ pub(crate) fn check_model(
         // are part 0, each instance a part of its own.
         m.group = Some(m.groups);
         m.groups += 1;
-        m.group_resets.push(HashMap::new());
+        m.group_resets.push(HashMap::default());
         m.part = Some(0);
         m.parts.insert(String::new(), 0);
     }
@@ -404,17 +404,39 @@ pub(crate) fn check_model(
 
 /// `uniform(a, b)` or `normal(m, s)` (two arguments): a random
 /// parameter's draw.
+/// An assigned target (`x`, `x[2]`, `x[2][1:3]`) resolved to state
+/// components.
+struct Assigned {
+    comps: Vec<usize>,
+    dims: Dims,
+    /// The family member's key, for a member of a state family.
+    key: Option<Vec<i64>>,
+    /// True if the target selects part of the field (`x[1:3]`).
+    indexed: bool,
+}
+
+impl Assigned {
+    /// The target as messages show it (`x`, `x[2]`, `x[…]`); built only
+    /// when needed, since a family reset resolves one target per member.
+    fn display(&self, t: &Target) -> String {
+        let name = &t.name.name;
+        let base = match &self.key {
+            Some(key) => format!("{name}[{}]", key_label(key)),
+            None => name.clone(),
+        };
+        if self.indexed {
+            format!("{base}[…]")
+        } else {
+            base
+        }
+    }
+}
+
 fn is_draw(e: &Expr) -> bool {
     matches!(&e.kind, ExprKind::Call(f, args)
         if (f.name == "uniform" || f.name == "normal") && args.len() == 2)
 }
 
-fn label(key: &[i64]) -> String {
-    key.iter()
-        .map(|i| i.to_string())
-        .collect::<Vec<_>>()
-        .join(",")
-}
 
 impl ModelChecker<'_> {
     /// Elaborates `e`, or the override for `name` if there is one (errors in
@@ -561,7 +583,7 @@ impl ModelChecker<'_> {
             Item::Together(items, _) => {
                 let outer = self.group.replace(self.groups);
                 self.groups += 1;
-                self.group_resets.push(HashMap::new());
+                self.group_resets.push(HashMap::default());
                 for it in items {
                     self.pass2(it);
                 }
@@ -621,7 +643,7 @@ impl ModelChecker<'_> {
             [] => Some(t.name.name.clone()),
             [args] => {
                 let key = self.c.family_key(args)?;
-                Some(format!("{}[{}]", t.name.name, label(&key)))
+                Some(format!("{}[{}]", t.name.name, key_label(&key)))
             }
             _ => None,
         }
@@ -1205,16 +1227,15 @@ impl ModelChecker<'_> {
 
     fn noise_rule(&mut self, n: &NoiseDecl) {
         let Some(every) = &n.every else { return };
-        let Some((comps, dims, display)) = self.resolve_state(&n.target, true) else {
+        let Some(target) = self.resolve_state(&n.target, true) else {
             return;
         };
         let resets: Vec<ResetStmt> = vec![ResetStmt::Eq(Definition {
             target: n.target.clone(),
             value: n.dist.clone(),
         })];
-        let _ = (comps, dims);
         self.rule(
-            format!("{display}.redraw"),
+            format!("{}.redraw", target.display(&n.target)),
             &Trigger::Every(every.clone()),
             &resets,
             n.span,
@@ -1223,7 +1244,7 @@ impl ModelChecker<'_> {
     }
 
     /// Resolves an assigned target to state components.
-    fn resolve_state(&mut self, t: &Target, quiet: bool) -> Option<(Vec<usize>, Dims, String)> {
+    fn resolve_state(&mut self, t: &Target, quiet: bool) -> Option<Assigned> {
         let name = &t.name.name;
         // What the name is, without cloning a family's member table (a
         // reset of a family member would otherwise cost O(family size)).
@@ -1237,8 +1258,8 @@ impl ModelChecker<'_> {
             Sym::StateFamily { .. } => Kind::Family,
             other => Kind::Other(other.kind_words()),
         });
-        let (val, rest, display) = match kind {
-            Some(Kind::State(field)) => (self.c.field_val(field), &t.indices[..], name.clone()),
+        let (val, rest, key) = match kind {
+            Some(Kind::State(field)) => (self.c.field_val(field), &t.indices[..], None),
             Some(Kind::Family) => {
                 let Some(first) = t.indices.first() else {
                     self.c.err(CheckError::FamilyIndex {
@@ -1256,14 +1277,13 @@ impl ModelChecker<'_> {
                     let members = self.c.family_members_words(name);
                     self.c.err(CheckError::FamilyOutOfRange {
                         name: name.clone(),
-                        index: label(&key),
+                        index: key_label(&key),
                         members,
                         span: t.span,
                     });
                     return None;
                 };
-                let display = format!("{name}[{}]", label(&key));
-                (self.c.field_val(field), &t.indices[1..], display)
+                (self.c.field_val(field), &t.indices[1..], Some(key))
             }
             Some(Kind::Other(kind)) => {
                 if !quiet {
@@ -1309,12 +1329,12 @@ impl ModelChecker<'_> {
                 _ => usize::MAX,
             })
             .collect();
-        let text = if rest.is_empty() {
-            display
-        } else {
-            format!("{display}[…]")
-        };
-        Some((comps, val.dims(), text))
+        Some(Assigned {
+            comps,
+            dims: val.dims(),
+            key,
+            indexed: !rest.is_empty(),
+        })
     }
 
     fn flow_block(&mut self, f: &FlowBlock) {
@@ -1343,12 +1363,13 @@ impl ModelChecker<'_> {
             FlowStmt::Eq(d) => {
                 let target = self.resolve_state(&d.target, false);
                 let v = self.c.expr(&d.value, &FLOW_CTX);
-                let (Some((comps, dims, display)), Some(v)) = (target, v) else {
+                let (Some(target), Some(v)) = (target, v) else {
                     return;
                 };
+                let (comps, dims) = (&target.comps, target.dims);
                 if v.dims() != dims {
                     self.c.err(CheckError::AssignShape {
-                        target: format!("{display}'"),
+                        target: format!("{}'", target.display(&d.target)),
                         expected: dims,
                         found: v.dims(),
                         span: d.value.span,
@@ -1409,7 +1430,7 @@ impl ModelChecker<'_> {
             Some(t) => match t.indices.as_slice() {
                 [] => t.name.name.clone(),
                 [args] => match self.c.family_key(args) {
-                    Some(k) => format!("{}[{}]", t.name.name, label(&k)),
+                    Some(k) => format!("{}[{}]", t.name.name, key_label(&k)),
                     None => return,
                 },
                 _ => {
@@ -1446,7 +1467,7 @@ impl ModelChecker<'_> {
             return;
         }
         self.rule_names.insert(name.clone(), span);
-        let mut assigned: HashMap<usize, Span> = HashMap::new();
+        let mut assigned: HashMap<usize, Span> = HashMap::default();
         let mut out: Vec<(usize, NodeId)> = Vec::new();
         let (guard, timer) = match trigger {
             Trigger::When(e) => match self.condition(e) {
@@ -1547,9 +1568,10 @@ impl ModelChecker<'_> {
             ResetStmt::Eq(d) => {
                 let target = self.resolve_state(&d.target, false);
                 let v = self.c.expr(&d.value, &RESET_CTX);
-                let (Some((comps, dims, display)), Some(v)) = (target, v) else {
+                let (Some(target), Some(v)) = (target, v) else {
                     return;
                 };
+                let (comps, dims) = (&target.comps, target.dims);
                 let v = if v.dims() != dims && v.rows * v.cols == 1 {
                     Val {
                         rows: dims.0,
@@ -1562,7 +1584,7 @@ impl ModelChecker<'_> {
                 };
                 if v.dims() != dims {
                     self.c.err(CheckError::AssignShape {
-                        target: format!("{display}+"),
+                        target: format!("{}+", target.display(&d.target)),
                         expected: dims,
                         found: v.dims(),
                         span: d.value.span,
@@ -1662,9 +1684,9 @@ impl ModelChecker<'_> {
                 items.push((key.to_string(), o.expr.clone(), Span::default()));
             }
         }
-        let mut seen: HashMap<String, Span> = HashMap::new();
+        let mut seen: HashMap<String, Span> = HashMap::default();
         // Per canonical key: where its value is, for the checks of the settings as a whole.
-        let mut values: HashMap<String, (Span, Option<&Override>)> = HashMap::new();
+        let mut values: HashMap<String, (Span, Option<&Override>)> = HashMap::default();
         let overrides = self.overrides.clone();
         for (key, e, span) in &items {
             if key.starts_with("max_") && Limits::quantity(key).is_some() {

@@ -10,10 +10,12 @@
 //! followed member by member, so a family of instances connected along an
 //! acyclic graph is not a loop.
 
-use std::collections::{BTreeMap, HashMap};
+use rustc_hash::FxHashMap as HashMap;
+use std::collections::BTreeMap;
 use std::rc::Rc;
 
 use super::error::CheckError;
+use super::expr::key_label;
 use super::model::{OUTPUT_CTX, OutputField};
 use super::{Checker, Sym};
 use crate::source::Span;
@@ -55,12 +57,6 @@ pub(crate) struct Signals {
     next: usize,
 }
 
-fn label(key: &[i64]) -> String {
-    key.iter()
-        .map(|i| i.to_string())
-        .collect::<Vec<_>>()
-        .join(",")
-}
 
 impl Checker {
     /// Registers `def` (an output if `logged`, else an instance's input)
@@ -95,14 +91,14 @@ impl Checker {
         let display = if t.indices.is_empty() {
             t.name.name.clone()
         } else {
-            format!("{}[{}]", t.name.name, label(&key))
+            format!("{}[{}]", t.name.name, key_label(&key))
         };
         let id = self.signals.list.len();
         let entry = self
             .signals
             .by_name
             .entry(t.name.name.clone())
-            .or_insert_with(|| (!t.indices.is_empty(), HashMap::new()));
+            .or_insert_with(|| (!t.indices.is_empty(), HashMap::default()));
         if let Some(&first) = entry.1.get(&key) {
             let first = self.signals.list[first].def.target.span;
             self.err(CheckError::Duplicate {
@@ -283,7 +279,7 @@ impl Checker {
             1 => {
                 let key = self.family_key(&target.indices[0])?;
                 let s = sym(Some(&key));
-                let display = format!("{name}[{}]", label(&key));
+                let display = format!("{name}[{}]", key_label(&key));
                 let dup = |prev: Span| CheckError::Duplicate {
                     name: display.clone(),
                     span,
