@@ -559,7 +559,7 @@ impl Checker {
             let val = Val {
                 rows: m.nrows(),
                 cols: m.ncols(),
-                e,
+                e: e.into(),
                 boolean: false,
             };
             match &v.member {
@@ -1107,7 +1107,7 @@ impl Checker {
             ExprKind::Num(_) | ExprKind::Bool(_) => false,
             ExprKind::Name(n) => {
                 (cx.vars.contains_key(n) || cx.families.contains_key(n))
-                    && !self.scopes.iter().any(|(s, _)| s == n)
+                    && !self.scopes.iter().any(|(s, _)| **s == **n)
             }
             ExprKind::Matrix(rows) => rows.iter().flatten().any(|x| self.mentions(cx, x)),
             ExprKind::Unary(_, a) => self.mentions(cx, a),
@@ -1168,7 +1168,7 @@ impl Checker {
             ExprKind::Name(n) => cx.vars.get(n).map(|v| v.expr.clone()),
             ExprKind::Index(base, args)
                 if matches!(&base.kind, ExprKind::Name(n) if cx.families.contains_key(n)
-                    && !self.scopes.iter().any(|(s, _)| s == n)) =>
+                    && !self.scopes.iter().any(|(s, _)| **s == **n)) =>
             {
                 let ExprKind::Name(n) = &base.kind else {
                     return None;

@@ -9,6 +9,10 @@ use crate::source::Span;
 use crate::syntax::ast::{BinOp, Binder, Expr, ExprKind, IndexArg, IndexSet, UnOp};
 use std::rc::Rc;
 
+/// The elements of a [`Val`]: small values (scalars, short vectors, the
+/// common case by far) are stored inline, without an allocation.
+pub type Elems = smallvec::SmallVec<[NodeId; 4]>;
+
 /// A checked value: a rows × cols matrix of scalar nodes (row-major).
 #[derive(Debug, Clone, PartialEq)]
 pub struct Val {
@@ -17,7 +21,7 @@ pub struct Val {
     /// Columns.
     pub cols: usize,
     /// Elements, row-major.
-    pub e: Vec<NodeId>,
+    pub e: Elems,
     /// True for conditions (comparisons, logic, `bernoulli`).
     pub boolean: bool,
 }
@@ -28,7 +32,7 @@ impl Val {
         Self {
             rows: 1,
             cols: 1,
-            e: vec![n],
+            e: smallvec::smallvec![n],
             boolean: false,
         }
     }
@@ -163,7 +167,7 @@ impl Checker {
     }
 
     fn konst_val(&mut self, rows: usize, cols: usize, f: impl Fn(usize, usize) -> f64) -> Val {
-        let mut e = Vec::with_capacity(rows * cols);
+        let mut e = Elems::with_capacity(rows * cols);
         for r in 0..rows {
             for c in 0..cols {
                 e.push(self.dag.konst(f(r, c)));
@@ -377,14 +381,15 @@ impl Checker {
         let Some(members) = self.index_set(b) else {
             return;
         };
+        let names: Vec<Rc<str>> = b.vars.iter().map(|v| Rc::from(v.name.as_str())).collect();
         for m in members {
             self.dag.charge(1);
             if !self.within_budget(0, b.span) {
                 return;
             }
             let depth = self.scopes.len();
-            for (v, &i) in b.vars.iter().zip(&m) {
-                self.scopes.push((v.name.clone(), i));
+            for (v, &i) in names.iter().zip(&m) {
+                self.scopes.push((Rc::clone(v), i));
             }
             let keep = match &b.filter {
                 None => true,
@@ -413,11 +418,11 @@ impl Checker {
         }
     }
 
-    fn scope_lookup(&self, name: &str) -> Option<i64> {
+    pub(crate) fn scope_lookup(&self, name: &str) -> Option<i64> {
         self.scopes
             .iter()
             .rev()
-            .find(|(n, _)| n == name)
+            .find(|(n, _)| &**n == name)
             .map(|&(_, i)| i)
     }
 
@@ -425,7 +430,7 @@ impl Checker {
     pub(crate) fn visible_names(&self) -> Vec<String> {
         let mut v: Vec<String> = self.syms.keys().cloned().collect();
         v.extend(self.signal_names().cloned());
-        v.extend(self.scopes.iter().map(|(n, _)| n.clone()));
+        v.extend(self.scopes.iter().map(|(n, _)| n.to_string()));
         v.push("t".into());
         v.push("j".into());
         v.push("pi".into());
@@ -795,7 +800,7 @@ impl Checker {
         Some(out.unwrap_or(Val {
             rows: 0,
             cols: 0,
-            e: Vec::new(),
+            e: Elems::new(),
             boolean: false,
         }))
     }
@@ -814,7 +819,7 @@ impl Checker {
             return Some((a, b));
         }
         if a.is_scalar() {
-            let e = vec![a.e[0]; b.e.len()];
+            let e = Elems::from_elem(a.e[0], b.e.len());
             return Some((
                 Val {
                     rows: b.rows,
@@ -826,7 +831,7 @@ impl Checker {
             ));
         }
         if b.is_scalar() {
-            let e = vec![b.e[0]; a.e.len()];
+            let e = Elems::from_elem(b.e[0], a.e.len());
             let bb = Val {
                 rows: a.rows,
                 cols: a.cols,
@@ -858,7 +863,7 @@ impl Checker {
     }
 
     fn matmul(&mut self, a: &Val, b: &Val) -> Val {
-        let mut e = Vec::with_capacity(a.rows * b.cols);
+        let mut e = Elems::with_capacity(a.rows * b.cols);
         for i in 0..a.rows {
             for j in 0..b.cols {
                 let mut acc = self.dag.konst(0.0);
@@ -1139,7 +1144,7 @@ impl Checker {
         Some(Val {
             rows: out_rows,
             cols: out_cols,
-            e,
+            e: e.into(),
             boolean: v.boolean,
         })
     }
@@ -1217,7 +1222,7 @@ impl Checker {
             return None;
         }
         // Row 0 the abscissae, row 1 the ordinates.
-        let mut entries: Vec<NodeId> = xs.e.clone();
+        let mut entries: Vec<NodeId> = xs.e.to_vec();
         entries.extend_from_slice(&ys.e);
         let table = self
             .dag
@@ -1246,7 +1251,7 @@ impl Checker {
                 Some(Val {
                     rows,
                     cols,
-                    e,
+                    e: e.into(),
                     boolean: v.boolean,
                 })
             }
@@ -1263,7 +1268,7 @@ impl Checker {
                 Some(Val {
                     rows: rs.len(),
                     cols: cs.len(),
-                    e,
+                    e: e.into(),
                     boolean: v.boolean,
                 })
             }
@@ -1383,7 +1388,7 @@ impl Checker {
                     Some(Val {
                         rows: k,
                         cols: k,
-                        e,
+                        e: e.into(),
                         boolean: false,
                     })
                 } else if v.rows == v.cols {
@@ -1422,7 +1427,7 @@ impl Checker {
                 Some(Val {
                     rows,
                     cols,
-                    e,
+                    e: e.into(),
                     boolean: false,
                 })
             }
@@ -1446,7 +1451,7 @@ impl Checker {
                 Some(Val {
                     rows,
                     cols,
-                    e,
+                    e: e.into(),
                     boolean: false,
                 })
             }
@@ -1477,7 +1482,7 @@ impl Checker {
                         r: v.rows as u32,
                         c: v.cols as u32,
                     };
-                    self.block(kind, v.e.clone(), name, span, 1, 1)
+                    self.block(kind, v.e.to_vec(), name, span, 1, 1)
                 }
             }
             "inv" | "expm" => {
@@ -1496,7 +1501,7 @@ impl Checker {
                     let one = self.dag.konst(1.0);
                     return Some(Val::scalar(self.dag.bin(BinFn::Div, one, v.e[0])));
                 }
-                self.block(kind, v.e.clone(), name, span, v.rows, v.cols)
+                self.block(kind, v.e.to_vec(), name, span, v.rows, v.cols)
             }
             "solve" => {
                 arity(self, n == 2, "2 arguments")?;
@@ -1519,7 +1524,7 @@ impl Checker {
                     n: a.rows as u32,
                     m: b.cols as u32,
                 };
-                let mut inputs = a.e.clone();
+                let mut inputs = a.e.to_vec();
                 inputs.extend_from_slice(&b.e);
                 self.block(kind, inputs, name, span, b.rows, b.cols)
             }
@@ -1686,7 +1691,7 @@ impl Checker {
             Ok(e) => Some(Val {
                 rows,
                 cols,
-                e,
+                e: e.into(),
                 boolean: false,
             }),
             Err(_) => {
@@ -1816,7 +1821,7 @@ fn transpose(v: &Val) -> Val {
     Val {
         rows: v.cols,
         cols: v.rows,
-        e,
+        e: e.into(),
         boolean: v.boolean,
     }
 }
@@ -1831,7 +1836,7 @@ fn hcat(a: &Val, b: &Val) -> Val {
     Val {
         rows: a.rows,
         cols,
-        e,
+        e: e.into(),
         boolean: false,
     }
 }

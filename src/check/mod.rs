@@ -18,6 +18,7 @@ pub mod log;
 pub mod metric;
 mod model;
 pub mod property;
+mod reuse;
 mod signal;
 pub mod sweep;
 #[cfg(test)]
@@ -93,7 +94,9 @@ pub(crate) struct Checker {
     pub(crate) dag: Dag,
     pub(crate) errors: Vec<CheckError>,
     pub(crate) syms: HashMap<String, Sym>,
-    pub(crate) scopes: Vec<(String, i64)>,
+    /// The bound loop variables, innermost last (names shared: a loop
+    /// binds them once per member).
+    pub(crate) scopes: Vec<(Rc<str>, i64)>,
     /// Sets bound by `for S in subsets(..)` in design blocks.
     pub(crate) set_scopes: Vec<(String, Vec<i64>)>,
     pub(crate) fields: Vec<StateField>,
@@ -121,6 +124,9 @@ pub(crate) struct Checker {
     /// (inside an `if` branch, the right operand of `&&`/`||`); `None`:
     /// always. Run-time table indices fail only where it holds.
     pub(crate) path: Option<dag::NodeId>,
+    /// Statement values already lowered in the outermost `for` loop being
+    /// checked (`None` outside loops); see [`reuse`].
+    pub(crate) reuse: Option<reuse::Reuse>,
 }
 
 /// Checks a parsed model with overrides; on success returns the checked

@@ -259,6 +259,7 @@ pub(crate) fn check_model(
             signals: Default::default(),
             limits: options.limits,
             path: None,
+            reuse: None,
         },
         overrides: overrides.iter().map(|o| (o.name.as_str(), o)).collect(),
         used: Vec::new(),
@@ -668,17 +669,31 @@ impl ModelChecker<'_> {
 
     /// `for` over a binder with `self` (not just the inner checker).
     fn c_for(&mut self, b: &Binder, body: &mut dyn FnMut(&mut Self)) {
+        // The outermost loop keeps the statement values its body lowers
+        // for reuse (`super::reuse`), until it ends.
+        let outermost = self.c.reuse.is_none();
+        if outermost {
+            self.c.reuse = Some(Default::default());
+        }
+        self.c_for_members(b, body);
+        if outermost {
+            self.c.reuse = None;
+        }
+    }
+
+    fn c_for_members(&mut self, b: &Binder, body: &mut dyn FnMut(&mut Self)) {
         let Some(members) = self.c.index_set(b) else {
             return;
         };
+        let names: Vec<Rc<str>> = b.vars.iter().map(|v| Rc::from(v.name.as_str())).collect();
         for m in members {
             self.c.dag.charge(1);
             if !self.c.within_budget(0, b.span) {
                 return;
             }
             let depth = self.c.scopes.len();
-            for (v, &i) in b.vars.iter().zip(&m) {
-                self.c.scopes.push((v.name.clone(), i));
+            for (v, &i) in names.iter().zip(&m) {
+                self.c.scopes.push((Rc::clone(v), i));
             }
             let keep = match &b.filter {
                 None => true,
@@ -1362,7 +1377,7 @@ impl ModelChecker<'_> {
             }),
             FlowStmt::Eq(d) => {
                 let target = self.resolve_state(&d.target, false);
-                let v = self.c.expr(&d.value, &FLOW_CTX);
+                let v = self.c.expr_reused(&d.value, &FLOW_CTX);
                 let (Some(target), Some(v)) = (target, v) else {
                     return;
                 };
@@ -1567,7 +1582,7 @@ impl ModelChecker<'_> {
             }),
             ResetStmt::Eq(d) => {
                 let target = self.resolve_state(&d.target, false);
-                let v = self.c.expr(&d.value, &RESET_CTX);
+                let v = self.c.expr_reused(&d.value, &RESET_CTX);
                 let (Some(target), Some(v)) = (target, v) else {
                     return;
                 };
@@ -1576,7 +1591,7 @@ impl ModelChecker<'_> {
                     Val {
                         rows: dims.0,
                         cols: dims.1,
-                        e: vec![v.e[0]; dims.0 * dims.1],
+                        e: super::expr::Elems::from_elem(v.e[0], dims.0 * dims.1),
                         boolean: v.boolean,
                     }
                 } else {

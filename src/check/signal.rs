@@ -35,7 +35,7 @@ enum State {
 struct Signal {
     def: Definition,
     /// Loop indices in scope at the declaration.
-    scopes: Vec<(String, i64)>,
+    scopes: Vec<(std::rc::Rc<str>, i64)>,
     /// `e[2]` for a family member, `e` otherwise.
     display: String,
     /// Logged (an output) or not (an instance's input).
@@ -149,6 +149,12 @@ impl Checker {
         self.signals.by_name.get(name).is_some_and(|(f, _)| *f)
     }
 
+    /// True if `name` is a registered output or instance input (lowered
+    /// on first use).
+    pub(crate) fn is_signal(&self, name: &str) -> bool {
+        self.signals.by_name.contains_key(name)
+    }
+
     /// The registered names (for suggestions).
     pub(crate) fn signal_names(&self) -> impl Iterator<Item = &String> {
         self.signals.by_name.keys()
@@ -245,7 +251,7 @@ impl Checker {
                     name,
                     rows: v.rows,
                     cols: v.cols,
-                    nodes: v.e,
+                    nodes: v.e.into_vec(),
                     span: d.target.span,
                 },
             ));
