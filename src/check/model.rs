@@ -438,7 +438,6 @@ fn is_draw(e: &Expr) -> bool {
         if (f.name == "uniform" || f.name == "normal") && args.len() == 2)
 }
 
-
 impl ModelChecker<'_> {
     /// Elaborates `e`, or the override for `name` if there is one (errors in
     /// the override are reported as such).
@@ -673,7 +672,7 @@ impl ModelChecker<'_> {
         // for reuse (`super::reuse`), until it ends.
         let outermost = self.c.reuse.is_none();
         if outermost {
-            self.c.reuse = Some(Default::default());
+            self.c.reuse = super::reuse::Reuse::start();
         }
         self.c_for_members(b, body);
         if outermost {

@@ -34,6 +34,10 @@ use crate::syntax::ast::{Expr, ExprKind, IndexArg};
 /// another span unless it is a copy of the same source expression.
 type At = (usize, usize, usize);
 
+/// A value's key: where, the context's `random` and `wiener`, and the
+/// values of the loop variables it reads.
+type Key = (At, bool, bool, SmallVec<[i64; 4]>);
+
 /// The cache of one outermost `for` loop (see the module documentation).
 #[derive(Default)]
 pub(crate) struct Reuse {
@@ -42,9 +46,19 @@ pub(crate) struct Reuse {
     reads: FxHashMap<At, Option<Rc<[Rc<str>]>>>,
     /// Per expression, context and values of those variables: the value
     /// and the work its lowering was charged.
-    values: FxHashMap<(At, bool, bool, SmallVec<[i64; 4]>), (Val, u64)>,
-    /// Values handed out again (for tests).
-    pub(crate) hits: u64,
+    values: FxHashMap<Key, (Val, u64)>,
+}
+
+impl Reuse {
+    /// A cache for an outermost loop; `None` when reuse is switched off
+    /// (the tests' reference path).
+    pub(crate) fn start() -> Option<Self> {
+        #[cfg(test)]
+        if tests::OFF.get() {
+            return None;
+        }
+        Some(Self::default())
+    }
 }
 
 impl Checker {
@@ -83,14 +97,13 @@ impl Checker {
             .iter()
             .map(|v| self.scope_lookup(v).unwrap_or(i64::MIN))
             .collect();
-        let key = (at, ctx.random, ctx.wiener, values);
+        let key: Key = (at, ctx.random, ctx.wiener, values);
         if let Some((val, ops)) = self.reuse.as_ref().and_then(|r| r.values.get(&key)) {
             let (val, ops) = (val.clone(), *ops);
             if self.dag.ops().saturating_add(ops) <= self.limits.get(Quantity::Ops) {
                 self.dag.charge(ops);
-                if let Some(r) = self.reuse.as_mut() {
-                    r.hits += 1;
-                }
+                #[cfg(test)]
+                tests::REUSED.set(tests::REUSED.get() + 1);
                 return Some(val);
             }
             return self.expr(e, ctx);
@@ -101,6 +114,8 @@ impl Checker {
             && let Some(r) = self.reuse.as_mut()
         {
             r.values.insert(key, (val.clone(), self.dag.ops() - ops));
+            #[cfg(test)]
+            tests::LOWERED.set(tests::LOWERED.get() + 1);
         }
         Some(val)
     }
@@ -146,5 +161,119 @@ impl Checker {
             }
             _ => false,
         }
+    }
+}
+
+#[cfg(test)]
+pub(crate) mod tests {
+    use std::cell::Cell;
+
+    use crate::check::{self, CheckedModel};
+    use crate::source::SourceFile;
+
+    thread_local! {
+        /// Switches reuse off (the reference the tests compare with).
+        pub(crate) static OFF: Cell<bool> = const { Cell::new(false) };
+        /// Values stored for reuse, and values handed out again.
+        pub(crate) static LOWERED: Cell<u64> = const { Cell::new(0) };
+        pub(crate) static REUSED: Cell<u64> = const { Cell::new(0) };
+    }
+
+    /// Checks `text` with `overrides`, with reuse on or off; returns the
+    /// model and (values lowered for reuse, values reused).
+    fn checked(text: &str, overrides: &[&str], reuse: bool) -> (CheckedModel, u64, u64) {
+        let src = SourceFile::new("m.hyb", text);
+        let mut model = crate::syntax::parse_model(src.text()).expect("parses");
+        crate::imports::resolve(&src, &mut model).expect("imports");
+        crate::tables::resolve(&src, &mut model).expect("tables");
+        let overrides: Vec<check::Override> =
+            overrides.iter().map(|o| o.parse().unwrap()).collect();
+        OFF.set(!reuse);
+        LOWERED.set(0);
+        REUSED.set(0);
+        let m = check::check(&model, &overrides);
+        OFF.set(false);
+        (m.expect("checks"), LOWERED.get(), REUSED.get())
+    }
+
+    /// The same graph, node for node, and the same work charged.
+    fn assert_same(a: &CheckedModel, b: &CheckedModel, what: &str) {
+        assert_eq!(a.dag.len(), b.dag.len(), "{what}: nodes");
+        for id in 0..a.dag.len() as u32 {
+            assert_eq!(a.dag.node(id), b.dag.node(id), "{what}: node {id}");
+        }
+        assert_eq!(a.dag.ops(), b.dag.ops(), "{what}: work charged");
+        assert_eq!((&a.init, &a.flow), (&b.init, &b.flow), "{what}: init, flow");
+        assert_eq!(a.flow_set, b.flow_set, "{what}: flow set");
+        assert_eq!(a.rules, b.rules, "{what}: rules");
+        assert_eq!(a.outputs, b.outputs, "{what}: outputs");
+    }
+
+    /// Fireflies' N² resets `tau[k]+ = f(tau[k])` read only `k`: their
+    /// value is lowered N times, not N² times, and the graph is the one
+    /// lowering every reset gives.
+    #[test]
+    fn family_resets_are_lowered_once_per_member() {
+        let text =
+            std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/models/fireflies.hyb"))
+                .unwrap();
+        for n in [7_u64, 20] {
+            let set = format!("N={n}");
+            let (with, lowered, reused) = checked(&text, &[&set], true);
+            let (without, _, none) = checked(&text, &[&set], false);
+            assert_same(&with, &without, &set);
+            assert_eq!(none, 0);
+            // N values of f(tau[k]), the reset `tau[i]+ = 0` and the flow
+            // `tau[i]' = 1`; every other statement of the N² + N reuses one.
+            assert_eq!(lowered, n + 2, "{set}");
+            assert_eq!(reused, n * n + n - lowered, "{set}");
+        }
+    }
+
+    /// Reuse changes nothing in any shipped model (same graph, same work).
+    #[test]
+    fn reuse_is_exact_on_the_shipped_models() {
+        let dir = concat!(env!("CARGO_MANIFEST_DIR"), "/models");
+        let mut seen = 0;
+        for entry in std::fs::read_dir(dir).unwrap() {
+            let path = entry.unwrap().path();
+            if path.extension().is_none_or(|e| e != "hyb") {
+                continue;
+            }
+            let src = SourceFile::read(&path).unwrap();
+            let mut model = crate::syntax::parse_model(src.text()).unwrap();
+            crate::imports::resolve(&src, &mut model).unwrap();
+            crate::tables::resolve(&src, &mut model).unwrap();
+            OFF.set(true);
+            let without = check::check(&model, &[]);
+            OFF.set(false);
+            let with = check::check(&model, &[]);
+            let what = path.display().to_string();
+            assert_same(&with.expect(&what), &without.expect(&what), &what);
+            seen += 1;
+        }
+        assert!(seen >= 10, "{seen} models");
+    }
+
+    /// Values that must not be reused are lowered each time: random draws
+    /// (each member its own), and values under a path condition.
+    #[test]
+    fn draws_are_not_reused() {
+        let text = "model m
+param N = 4
+for i in 1..N {
+    state x[i] = 0
+    flow { x[i]' = 1 }
+}
+jump reset when x[1] >= 1 {
+    for i in 1..N { x[i]+ = uniform(0, 1) }
+}
+";
+        let (with, _, _) = checked(text, &[], true);
+        let (without, _, _) = checked(text, &[], false);
+        assert_same(&with, &without, "draws");
+        let resets = &with.rules[0].resets;
+        let draws: std::collections::BTreeSet<_> = resets.iter().map(|&(_, n)| n).collect();
+        assert_eq!(draws.len(), 4, "one draw per member: {resets:?}");
     }
 }

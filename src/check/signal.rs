@@ -57,7 +57,6 @@ pub(crate) struct Signals {
     next: usize,
 }
 
-
 impl Checker {
     /// Registers `def` (an output if `logged`, else an instance's input)
     /// with the loop indices now in scope.
