@@ -367,7 +367,19 @@ pub struct Dag {
     /// Work done so far (nodes requested, loop iterations charged): the
     /// checker bounds it so that no input makes compilation hang.
     ops: u64,
+    /// `State(k)` → its id ([`NO_NODE`] if not made yet), and a small
+    /// direct-mapped cache of constants (bits, id): the two most requested
+    /// leaves skip the memo's hashing. Both agree with `memo`, which only
+    /// grows.
+    state_ids: Vec<NodeId>,
+    konst_ids: Vec<(u64, NodeId)>,
 }
+
+/// No node (the leaf caches' empty entry).
+const NO_NODE: NodeId = NodeId::MAX;
+
+/// Entries of the constant cache (a power of two).
+const KONST_CACHE: usize = 64;
 
 /// Evaluates a unary function.
 pub fn eval_un(f: UnFn, a: f64) -> f64 {
@@ -488,8 +500,20 @@ impl Dag {
     /// A constant.
     pub fn konst(&mut self, v: f64) -> NodeId {
         // Normalize −0 so that hash-consing treats 0 and −0 alike.
-        let v = if v == 0.0 { 0.0 } else { v };
-        self.intern(Node::Const(v.to_bits()))
+        let bits = if v == 0.0 { 0.0_f64 } else { v }.to_bits();
+        if self.konst_ids.is_empty() {
+            self.konst_ids = vec![(0, NO_NODE); KONST_CACHE];
+        }
+        // Fibonacci hashing of the bits; the top bits index the cache.
+        let slot = (bits.wrapping_mul(0x9E37_79B9_7F4A_7C15) >> 58) as usize % KONST_CACHE;
+        let (b, id) = self.konst_ids[slot];
+        if b == bits && id != NO_NODE {
+            self.ops += 1;
+            return id;
+        }
+        let id = self.intern(Node::Const(bits));
+        self.konst_ids[slot] = (bits, id);
+        id
     }
 
     /// The constant value of `id`, if it is a constant.
@@ -502,7 +526,18 @@ impl Dag {
 
     /// State component `k`.
     pub fn state(&mut self, k: usize) -> NodeId {
-        self.intern(Node::State(k as u32))
+        if let Some(&id) = self.state_ids.get(k)
+            && id != NO_NODE
+        {
+            self.ops += 1;
+            return id;
+        }
+        let id = self.intern(Node::State(k as u32));
+        if self.state_ids.len() <= k {
+            self.state_ids.resize(k + 1, NO_NODE);
+        }
+        self.state_ids[k] = id;
+        id
     }
 
     /// Ordinary time.
