@@ -85,7 +85,7 @@ mod tests {
             // SAFETY: OpenBLAS's `int blas_server_avail`, read after `pin` returned.
             assert_eq!(unsafe { *(avail as *const std::ffi::c_int) }, 0);
         }
-        let n = 40;
+        let n: usize = 40;
         let mut a: Vec<f64> = (0..n * n)
             .map(|k| if k % (n + 1) == 0 { 4.0 } else { 0.0 })
             .collect();
