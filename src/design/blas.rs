@@ -27,7 +27,7 @@ static PIN: Once = Once::new();
 
 /// Sets OpenBLAS to [`BLAS_THREADS`] thread(s), once per process (later calls return at once).
 /// Overrides `OPENBLAS_NUM_THREADS`, `OMP_NUM_THREADS` and the CPU count, and stops the worker
-/// threads OpenBLAS started when it was loaded (see [`stop_pool`]).
+/// threads OpenBLAS started when it was loaded (`stop_pool`).
 pub fn pin() {
     PIN.call_once(|| {
         // SAFETY: a plain setter of OpenBLAS's global thread count; `Once` makes the first call
