@@ -351,7 +351,8 @@ impl Target {
 /// files): the model, then any number of sections, each from a line
 /// starting with `%%`: `%%set name=value` (the rest of the line is one
 /// override) or `%%table NAME` (the lines up to the next `%%` line are
-/// the file `NAME`). Text without such lines is a model alone.
+/// the file `NAME`); other lines after the model, up to the next `%%` line,
+/// are ignored. Text without such lines is a model alone.
 #[derive(Debug, Clone, Default, PartialEq, Eq)]
 pub struct Input {
     /// The model's text.
@@ -383,24 +384,27 @@ impl Input {
             model.extend_from_slice(line);
         }
         input.model = String::from_utf8(model).ok()?;
+        // Each header is a `%%` line: the model, and each section's body, end at one.
         while let Some(header) = lines.next() {
+            // The section's body: a table's bytes; ignored after any other header (the lines
+            // between `%%set` lines, say).
+            let mut body = Vec::new();
+            while let Some(line) = lines.next_if(|l| !l.starts_with(b"%%")) {
+                body.extend_from_slice(line);
+            }
             let header = std::str::from_utf8(&header[2..]).ok()?;
             let header = header.strip_suffix('\n').unwrap_or(header);
             let header = header.strip_suffix('\r').unwrap_or(header);
             if let Some(set) = header.strip_prefix("set ") {
                 input.overrides.push(set.to_string());
             } else if let Some(name) = header.strip_prefix("table ") {
-                let mut bytes = Vec::new();
-                while let Some(line) = lines.next_if(|l| !l.starts_with(b"%%")) {
-                    bytes.extend_from_slice(line);
-                }
                 let plain = !name.is_empty()
                     && !name.starts_with('.')
                     && name
                         .bytes()
                         .all(|b| b.is_ascii_alphanumeric() || matches!(b, b'_' | b'-' | b'.'));
                 if plain {
-                    input.tables.push((name.to_string(), bytes));
+                    input.tables.push((name.to_string(), body));
                 }
             }
         }

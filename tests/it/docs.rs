@@ -7,21 +7,9 @@
 //! clippy` of the same profile already ran (the fast profile of the edit-test cycle), and about
 //! 3 minutes once on a fresh target folder (2 loaded cores), e.g. the first `cargo test --release`.
 
-use std::path::PathBuf;
 use std::process::Command;
 
-/// (target folder, profile) of the running test binary (`target/PROFILE/deps/it-…`).
-fn target_and_profile() -> (PathBuf, String) {
-    let exe = std::env::current_exe().unwrap();
-    let profile_dir = exe.parent().and_then(|d| d.parent()).unwrap();
-    let name = profile_dir
-        .file_name()
-        .unwrap()
-        .to_string_lossy()
-        .into_owned();
-    let profile = if name == "debug" { "dev".into() } else { name };
-    (profile_dir.parent().unwrap().to_path_buf(), profile)
-}
+use crate::util::target_and_profile;
 
 #[test]
 fn the_api_docs_build_without_warnings() {

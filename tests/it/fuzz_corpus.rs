@@ -2,10 +2,12 @@
 //! corpus, on the stable toolchain: every model shipped or used by the tests
 //! (`models/`, `models/lib/`, `benches/models/`, `tests/models/`) and every
 //! input kept in `fuzz/regressions/` (what fuzzing or the mutation test
-//! found, minimized), through each target. The coverage-guided search itself
-//! needs `cargo fuzz` (README, "Hostile input").
+//! found, minimized), through each target; and a bounded coverage-guided
+//! search with libFuzzer (`scripts/fuzz`, README "Hostile input") on the
+//! `run` target.
 
 use std::path::{Path, PathBuf};
+use std::process::Command;
 
 use hybsim::fuzz::{Budget, Input, Outcome, Target};
 
@@ -80,10 +82,11 @@ fn seeds_carry_overrides_and_tables() {
 }
 
 /// The text of fuzz target `name`, calling `hybsim::fuzz::Target::{variant}`. Each file of
-/// `fuzz/fuzz_targets/` must be exactly this: the fuzz crate is a workspace of its own, which the
-/// root's `cargo clippy` does not lint and whose lint would need a second build of hybsim and
-/// libFuzzer; with the bodies in `hybsim::fuzz` (linted at the root), the targets hold only this
-/// template (checked lint-clean with `cargo clippy --manifest-path fuzz/Cargo.toml`, README).
+/// `fuzz/fuzz_targets/` must be exactly this: the fuzz crate is not a default member of the
+/// workspace, so the root's `cargo clippy` does not lint it, and its lint would need a check build
+/// of hybsim and libFuzzer; with the bodies in `hybsim::fuzz` (linted at the root), the targets
+/// hold only this template (checked lint-clean with `cargo clippy --release -p hybsim-fuzz`,
+/// README).
 fn target_text(name: &str, variant: &str) -> String {
     format!(
         "//! Fuzz target `{name}`: the input (a model, `%%set` overrides, `%%table` files: `hybsim::fuzz::Input`)
@@ -116,4 +119,117 @@ fn the_fuzz_crate_has_one_target_per_stage() {
         let body = std::fs::read_to_string(fuzz.join(format!("fuzz_targets/{name}.rs"))).unwrap();
         assert_eq!(body, target_text(name, &format!("{target:?}")), "{name}");
     }
+}
+
+/// Seconds of coverage-guided search per `cargo test` (README, "Hostile input"); `HYBSIM_FUZZ_SECS`
+/// changes it.
+const SEARCH_SECS: u64 = 60;
+
+/// Edges instrumented at least: hybsim's (94 000 in the release profile), not only the target's.
+const MIN_EDGES: u64 = 40_000;
+/// Edges the seeds cover at least (17 000 in the release profile).
+const MIN_SEED_COVERAGE: u64 = 8_000;
+/// The crates the search may compile: hybsim and the target (instrumented) and libFuzzer; every
+/// other is the test build's (fuzz/Cargo.toml), which keeps the search's cost in CI to one
+/// compilation of hybsim.
+const COMPILED: &[&str] = &["hybsim", "hybsim-fuzz", "libfuzzer-sys", "arbitrary"];
+
+/// A libFuzzer status line's counter `name` (`#81\tINITED cov: 5678 ft: 12345 corp: …`).
+fn status(line: &str, name: &str) -> Option<u64> {
+    let mut words = line.split_whitespace();
+    words.find(|w| *w == format!("{name}:"))?;
+    words.next()?.parse().ok()
+}
+
+#[test]
+fn a_bounded_coverage_guided_search_finds_no_failure() {
+    // scripts/fuzz on the `run` target (check, compile and a bounded run: the stages of the other
+    // three targets too), built in this test binary's target folder and profile: only hybsim and
+    // the target are compiled again, instrumented (scripts/fuzz-rustc). A fresh corpus folder, so
+    // that the search starts from the seeds on every run.
+    let secs: u64 = std::env::var("HYBSIM_FUZZ_SECS")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(SEARCH_SECS);
+    let (target, profile) = crate::util::target_and_profile();
+    let corpus = tempfile::tempdir().unwrap();
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let out = Command::new(root.join("scripts/fuzz"))
+        .args([&secs.to_string(), "run"])
+        .env("CARGO_TARGET_DIR", &target)
+        .env("HYBSIM_FUZZ_PROFILE", &profile)
+        .env("HYBSIM_FUZZ_CORPUS", corpus.path())
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    let tail: Vec<&str> = err
+        .lines()
+        .rev()
+        .take(80)
+        .collect::<Vec<_>>()
+        .into_iter()
+        .rev()
+        .collect();
+    let tail = tail.join("\n");
+    // A failing input: its path and how to reproduce it are in the last lines (scripts/fuzz).
+    assert!(out.status.success(), "scripts/fuzz failed:\n{tail}");
+    let compiled: Vec<&str> = err
+        .lines()
+        .filter_map(|l| {
+            l.trim_start()
+                .strip_prefix("Compiling ")?
+                .split_whitespace()
+                .next()
+        })
+        .collect();
+    assert!(
+        compiled.iter().all(|c| COMPILED.contains(c)),
+        "the fuzz build compiled dependencies again ({compiled:?}): make fuzz/Cargo.toml enable \
+         the features the test build enables on them"
+    );
+    // The coverage counters are live: hybsim itself is instrumented (94 000 edges in the release
+    // profile; the target's own code is a few lines), the seeds reach many of them, and the search
+    // found inputs with new coverage.
+    let edges = err
+        .lines()
+        .find_map(|l| {
+            let rest = l.strip_prefix("INFO: Loaded 1 modules")?;
+            rest.trim_start()
+                .trim_start_matches('(')
+                .split_whitespace()
+                .next()?
+                .parse::<u64>()
+                .ok()
+        })
+        .unwrap_or(0);
+    let line = |tag: &str| err.lines().find(|l| l.contains(tag)).unwrap_or("");
+    let (inited, done) = (line("INITED"), line("DONE"));
+    let stat = |name: &str| {
+        err.lines()
+            .find_map(|l| l.strip_prefix(&format!("stat::{name}:")))
+            .and_then(|v| v.trim().parse::<u64>().ok())
+            .unwrap_or(0)
+    };
+    let seeds = seeds().len() as u64;
+    eprintln!(
+        "coverage-guided search, {secs} s: {edges} edges instrumented; {inited}; {done}; {} runs, {} new inputs",
+        stat("number_of_executed_units"),
+        stat("new_units_added")
+    );
+    assert!(
+        edges >= MIN_EDGES,
+        "{edges} edges: hybsim not instrumented?\n{tail}"
+    );
+    let (cov0, ft0) = (status(inited, "cov"), status(inited, "ft"));
+    let (cov1, ft1) = (status(done, "cov"), status(done, "ft"));
+    assert!(
+        cov0.is_some_and(|c| c >= MIN_SEED_COVERAGE),
+        "{inited}\n{tail}"
+    );
+    assert!(
+        ft1 > ft0 && cov1 >= cov0,
+        "no new coverage: {inited} -> {done}"
+    );
+    assert!(stat("new_units_added") > 0, "{tail}");
+    assert!(stat("number_of_executed_units") > 2 * seeds, "{tail}");
 }

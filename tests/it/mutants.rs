@@ -1,10 +1,15 @@
-//! Grammar-aware mutation test (issue 24): `CASES` token-level mutants of
-//! the shipped models (`models/`, `models/lib/`, `benches/models/`), the
-//! same ones on every run (fixed seed), each through `hybsim::fuzz::run`:
-//! check, compile and, for what compiles, a run cut to T ≤ 2 and J ≤ 200.
-//! Asserted: no panic, every error located inside its file, `check`
-//! accepts only what compiles, and no case takes longer than `CASE_LIMIT`
-//! (each case runs on a worker thread watched by the test thread).
+//! Grammar-aware mutation test (issue 24): up to `CASES` token-level
+//! mutants of the shipped models (`models/`, `models/lib/`,
+//! `benches/models/`), each through `hybsim::fuzz::run`: check, compile
+//! and, for what compiles, a run cut to T ≤ 2 and J ≤ 200. Asserted: no
+//! panic, every error located inside its file, `check` accepts only what
+//! compiles, and no case takes longer than `CASE_LIMIT` (each case runs on a
+//! worker thread watched by the test thread).
+//!
+//! Case k is the same on every run (fixed seed, a function of k alone); a
+//! run checks the first cases of that list: all `CASES` if they fit in
+//! `BUDGET` of wall time, else those started within it, never fewer than
+//! `MIN_CASES` (`Plan`).
 //!
 //! A mutant applies 1–3 edits to the model's tokens: delete, duplicate or
 //! swap tokens, replace a number by an edge value (0, -0, 1e308, 1e-320,
@@ -14,8 +19,9 @@
 //! model that imports them, so their errors must point into the library
 //! file.
 //!
-//! `HYBSIM_MUTANTS=N` changes the number of cases (e.g. 100000 for a long
-//! local run); a failure prints the case number, the file and the mutant.
+//! `HYBSIM_MUTANTS=N` runs exactly the first N cases, without a time budget
+//! (e.g. 100000 for a long local run); a failure prints the case number k,
+//! the file and the mutant (`HYBSIM_MUTANTS=k+1` runs it again).
 
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicUsize, Ordering};
@@ -28,8 +34,13 @@ use hybsim::syntax::lex::{self, TokenKind as Kind};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
-/// Cases per run of the test (documented in README, "Fuzzing").
+/// Cases per run of the test, at most (README, "Hostile input").
 const CASES: usize = 5000;
+/// Cases per run, at least, however long they take.
+const MIN_CASES: usize = 1000;
+/// Wall time after which no new case starts (once `MIN_CASES` have):
+/// 5 000 cases took 66 s on 2 loaded cores, which CI cannot spend.
+const BUDGET: Duration = Duration::from_secs(30);
 /// The seed of the mutants.
 const SEED: u64 = 24;
 /// A case slower than this is a hang (typical cases take milliseconds).
@@ -373,15 +384,162 @@ fn run_case(s: &Subject, text: &str) -> Result<Outcome, String> {
     }
 }
 
+/// How many cases of a test's fixed list run: the first ones, up to `max`;
+/// a new case starts only while `budget` lasts or fewer than `min` have
+/// started, so the test's time is bounded on a slow or busy machine and
+/// never checks fewer than `min` cases. Case `k` is the same on every run
+/// (a function of `k` alone), so a run checks a prefix of the same list.
+#[derive(Debug, Clone, Copy)]
+struct Plan {
+    max: usize,
+    min: usize,
+    budget: Option<Duration>,
+}
+
+impl Plan {
+    /// `max` cases in `budget`, at least `min`; the environment variable
+    /// `var` set to N asks for exactly the first N cases, however long
+    /// they take (a long local run, or a failure's case again).
+    fn from_env(var: &str, max: usize, min: usize, budget: Duration) -> Plan {
+        match std::env::var(var).ok().and_then(|v| v.parse().ok()) {
+            Some(n) => Plan {
+                max: n,
+                min: n,
+                budget: None,
+            },
+            None => Plan {
+                max,
+                min,
+                budget: Some(budget),
+            },
+        }
+    }
+
+    /// Whether case `k` may start `elapsed` after the first.
+    fn starts(&self, k: usize, elapsed: Duration) -> bool {
+        k < self.max && (k < self.min || self.budget.is_none_or(|b| elapsed < b))
+    }
+}
+
+/// What the cases of a [`run_cases`] gave.
+#[derive(Debug, Default)]
+struct Tally {
+    done: usize,
+    rejected: usize,
+    ran: usize,
+    failed: usize,
+    /// (case, why) of the cases that broke a promise or hung.
+    failures: Vec<(usize, String)>,
+    elapsed: Duration,
+}
+
+impl Tally {
+    /// Asserted of every run: no broken promise (`report` renders a failing case), at least the
+    /// plan's minimum done, and the cases reach every stage (not all refused by the parser).
+    fn assert_ok(&self, what: &str, plan: &Plan, report: impl Fn(usize, &str) -> String) {
+        eprintln!(
+            "{} {what} (the first of the list; at most {}) in {:.1} s: {} rejected, {} ran, {} failed at run time, {} broke a promise",
+            self.done,
+            plan.max,
+            self.elapsed.as_secs_f64(),
+            self.rejected,
+            self.ran,
+            self.failed,
+            self.failures.len()
+        );
+        let shown: Vec<String> = self
+            .failures
+            .iter()
+            .take(20)
+            .map(|(k, why)| report(*k, why))
+            .collect();
+        assert!(self.failures.is_empty(), "{}", shown.join("\n"));
+        assert!(
+            self.done >= plan.min,
+            "{} {what} done, fewer than the minimum {}",
+            self.done,
+            plan.min
+        );
+        assert!(
+            self.ran > self.done / 20 && self.rejected > self.done / 4,
+            "ran {}, rejected {}",
+            self.ran,
+            self.rejected
+        );
+    }
+}
+
 /// What a worker is doing: (case, since when).
 type Running = Option<(usize, Instant)>;
 
+/// Runs cases 0, 1, … of `plan` (`job(k)` is case `k`) on two worker
+/// threads; a case without a result after `CASE_LIMIT` is recorded as a
+/// hang and ends the run (a worker cannot be stopped).
+fn run_cases<F>(plan: Plan, job: F) -> Tally
+where
+    F: Fn(usize) -> Result<Outcome, String> + Send + Sync + 'static,
+{
+    let job = Arc::new(job);
+    let started = Instant::now();
+    let next = Arc::new(AtomicUsize::new(0));
+    let busy: Arc<Mutex<Vec<Running>>> = Arc::new(Mutex::new(vec![None; 2]));
+    let (tx, rx) = mpsc::channel();
+    for w in 0..2 {
+        let (job, next, busy, tx) = (job.clone(), next.clone(), busy.clone(), tx.clone());
+        std::thread::spawn(move || {
+            loop {
+                let k = next.fetch_add(1, Ordering::Relaxed);
+                if !plan.starts(k, started.elapsed()) {
+                    break;
+                }
+                busy.lock().unwrap()[w] = Some((k, Instant::now()));
+                let r = job(k);
+                busy.lock().unwrap()[w] = None;
+                if tx.send((k, r)).is_err() {
+                    break;
+                }
+            }
+        });
+    }
+    drop(tx);
+    let mut tally = Tally::default();
+    loop {
+        match rx.recv_timeout(Duration::from_millis(200)) {
+            Ok((k, r)) => {
+                tally.done += 1;
+                match r {
+                    Ok(Outcome::Rejected { .. }) => tally.rejected += 1,
+                    Ok(Outcome::Ran { .. }) => tally.ran += 1,
+                    Ok(Outcome::Failed { .. }) => tally.failed += 1,
+                    Ok(Outcome::Accepted) => {}
+                    Err(why) => tally.failures.push((k, why)),
+                }
+            }
+            // Every worker has stopped: the plan is done.
+            Err(mpsc::RecvTimeoutError::Disconnected) => break,
+            Err(mpsc::RecvTimeoutError::Timeout) => {}
+        }
+        let hung = busy
+            .lock()
+            .unwrap()
+            .iter()
+            .flatten()
+            .find(|(_, since)| since.elapsed() > CASE_LIMIT)
+            .copied();
+        if let Some((k, _)) = hung {
+            tally
+                .failures
+                .push((k, format!("no result after {CASE_LIMIT:?}")));
+            break;
+        }
+    }
+    tally.elapsed = started.elapsed();
+    tally
+}
+
 #[test]
 fn mutants_of_the_shipped_models_never_panic_hang_or_lose_a_location() {
-    let cases: usize = std::env::var("HYBSIM_MUTANTS")
-        .ok()
-        .and_then(|v| v.parse().ok())
-        .unwrap_or(CASES);
+    let plan = Plan::from_env("HYBSIM_MUTANTS", CASES, MIN_CASES, BUDGET);
     let subjects = Arc::new(subjects());
     // Library hosts compile unmutated (so every error of a mutant is the mutant's).
     for s in subjects.iter() {
@@ -394,84 +552,22 @@ fn mutants_of_the_shipped_models_never_panic_hang_or_lose_a_location() {
             );
         }
     }
-    let next = Arc::new(AtomicUsize::new(0));
-    let busy: Arc<Mutex<Vec<Running>>> = Arc::new(Mutex::new(vec![None; 2]));
-    let (tx, rx) = mpsc::channel();
-    for w in 0..2 {
-        let (subjects, next, busy, tx) = (subjects.clone(), next.clone(), busy.clone(), tx.clone());
-        std::thread::spawn(move || {
-            loop {
-                let k = next.fetch_add(1, Ordering::Relaxed);
-                if k >= cases {
-                    break;
-                }
-                busy.lock().unwrap()[w] = Some((k, Instant::now()));
-                let c = case(&subjects, k);
-                let r = run_case(&subjects[c.subject], &c.text);
-                busy.lock().unwrap()[w] = None;
-                if tx.send((k, r)).is_err() {
-                    break;
-                }
-            }
-        });
-    }
-    drop(tx);
-    let started = Instant::now();
-    let mut failures = Vec::new();
-    let (mut rejected, mut ran, mut failed) = (0, 0, 0);
-    let mut done = 0;
-    while done < cases {
-        match rx.recv_timeout(Duration::from_millis(200)) {
-            Ok((k, r)) => {
-                done += 1;
-                match r {
-                    Ok(Outcome::Rejected { .. }) => rejected += 1,
-                    Ok(Outcome::Ran { .. }) => ran += 1,
-                    Ok(Outcome::Failed { .. }) => failed += 1,
-                    Ok(Outcome::Accepted) => {}
-                    Err(why) => failures.push((k, why)),
-                }
-            }
-            Err(mpsc::RecvTimeoutError::Disconnected) => break,
-            Err(mpsc::RecvTimeoutError::Timeout) => {}
+    let tally = run_cases(plan, {
+        let subjects = subjects.clone();
+        move |k| {
+            let c = case(&subjects, k);
+            run_case(&subjects[c.subject], &c.text)
         }
-        let hung = busy
-            .lock()
-            .unwrap()
-            .iter()
-            .flatten()
-            .find(|(_, since)| since.elapsed() > CASE_LIMIT)
-            .copied();
-        if let Some((k, _)) = hung {
-            // The worker cannot be stopped; report and fail now.
-            failures.push((k, format!("no result after {CASE_LIMIT:?}")));
-            break;
-        }
-    }
-    let report: Vec<String> = failures
-        .iter()
-        .take(20)
-        .map(|(k, why)| {
-            let c = case(&subjects, *k);
-            format!(
-                "case {k}: {} after {:?}\n{why}\n--- mutant ---\n{}\n",
-                subjects[c.subject].path.display(),
-                c.edits,
-                c.text
-            )
-        })
-        .collect();
-    eprintln!(
-        "{cases} mutants in {:.1} s: {rejected} rejected, {ran} ran, {failed} failed at run time, {} broke a promise",
-        started.elapsed().as_secs_f64(),
-        failures.len()
-    );
-    assert!(failures.is_empty(), "{}", report.join("\n"));
-    // The mutants reach every stage: not all refused by the parser.
-    assert!(
-        ran > cases / 20 && rejected > cases / 4,
-        "ran {ran}, rejected {rejected}"
-    );
+    });
+    tally.assert_ok("mutants", &plan, |k, why| {
+        let c = case(&subjects, k);
+        format!(
+            "case {k}: {} after {:?}\n{why}\n--- mutant ---\n{}\n",
+            subjects[c.subject].path.display(),
+            c.edits,
+            c.text
+        )
+    });
 }
 
 /// The defects the mutation test found, each as its smallest model (see
@@ -511,8 +607,12 @@ fn defects_found_by_mutation_end_quickly_with_located_results() {
     assert!(t0.elapsed() < Duration::from_secs(2), "{:?}", t0.elapsed());
 }
 
-/// Cases per run of the override and table test (README, "Hostile input").
+/// Cases per run of the override and table test, at most (README, "Hostile input").
 const INPUT_CASES: usize = 1000;
+/// Override and table cases per run, at least.
+const MIN_INPUT_CASES: usize = 300;
+/// Wall time after which no new override or table case starts.
+const INPUT_BUDGET: Duration = Duration::from_secs(15);
 
 /// `sim` keys an override may name (besides the model's own words and
 /// unknown names).
@@ -773,10 +873,12 @@ fn input_case(
 
 #[test]
 fn overrides_and_tables_never_panic_hang_or_lose_a_location() {
-    let cases: usize = std::env::var("HYBSIM_INPUT_MUTANTS")
-        .ok()
-        .and_then(|v| v.parse().ok())
-        .unwrap_or(INPUT_CASES);
+    let plan = Plan::from_env(
+        "HYBSIM_INPUT_MUTANTS",
+        INPUT_CASES,
+        MIN_INPUT_CASES,
+        INPUT_BUDGET,
+    );
     let subjects = Arc::new(subjects());
     let hosts = Arc::new(table_hosts());
     // The data models run unmutated (so every error of a case is its mutation's).
@@ -788,90 +890,25 @@ fn overrides_and_tables_never_panic_hang_or_lose_a_location() {
         let r = input.run(&Budget::default());
         assert!(matches!(r, Ok(Outcome::Ran { .. })), "{model}: {r:?}");
     }
-    let next = Arc::new(AtomicUsize::new(0));
-    let busy: Arc<Mutex<Vec<Running>>> = Arc::new(Mutex::new(vec![None; 2]));
-    let (tx, rx) = mpsc::channel();
-    for w in 0..2 {
-        let (subjects, hosts, next, busy, tx) = (
-            subjects.clone(),
-            hosts.clone(),
-            next.clone(),
-            busy.clone(),
-            tx.clone(),
-        );
-        std::thread::spawn(move || {
-            loop {
-                let k = next.fetch_add(1, Ordering::Relaxed);
-                if k >= cases {
-                    break;
-                }
-                busy.lock().unwrap()[w] = Some((k, Instant::now()));
-                let (input, _) = input_case(&subjects, &hosts, k);
-                let r = input.run(&Budget::default()).map_err(|v| v.to_string());
-                busy.lock().unwrap()[w] = None;
-                if tx.send((k, r)).is_err() {
-                    break;
-                }
-            }
-        });
-    }
-    drop(tx);
-    let started = Instant::now();
-    let mut failures = Vec::new();
-    let (mut rejected, mut ran, mut failed, mut done) = (0, 0, 0, 0);
-    while done < cases {
-        match rx.recv_timeout(Duration::from_millis(200)) {
-            Ok((k, r)) => {
-                done += 1;
-                match r {
-                    Ok(Outcome::Rejected { .. }) => rejected += 1,
-                    Ok(Outcome::Ran { .. }) => ran += 1,
-                    Ok(Outcome::Failed { .. }) => failed += 1,
-                    Ok(Outcome::Accepted) => {}
-                    Err(why) => failures.push((k, why)),
-                }
-            }
-            Err(mpsc::RecvTimeoutError::Disconnected) => break,
-            Err(mpsc::RecvTimeoutError::Timeout) => {}
+    let tally = run_cases(plan, {
+        let (subjects, hosts) = (subjects.clone(), hosts.clone());
+        move |k| {
+            let (input, _) = input_case(&subjects, &hosts, k);
+            input.run(&Budget::default()).map_err(|v| v.to_string())
         }
-        let hung = busy
-            .lock()
-            .unwrap()
+    });
+    tally.assert_ok("override and table cases", &plan, |k, why| {
+        let (input, edits) = input_case(&subjects, &hosts, k);
+        let shown: Vec<String> = input
+            .overrides
             .iter()
-            .flatten()
-            .find(|(_, since)| since.elapsed() > CASE_LIMIT)
-            .copied();
-        if let Some((k, _)) = hung {
-            failures.push((k, format!("no result after {CASE_LIMIT:?}")));
-            break;
-        }
-    }
-    let report: Vec<String> = failures
-        .iter()
-        .take(20)
-        .map(|(k, why)| {
-            let (input, edits) = input_case(&subjects, &hosts, *k);
-            let shown: Vec<String> = input
-                .overrides
-                .iter()
-                .map(|o| o.chars().take(120).collect())
-                .collect();
-            let tables: Vec<String> = input
-                .tables
-                .iter()
-                .map(|(n, b)| format!("{n}: {:?}", String::from_utf8_lossy(&b[..b.len().min(300)])))
-                .collect();
-            format!("case {k}: {edits:?}\n{why}\n--set {shown:?}\ntables {tables:?}\n")
-        })
-        .collect();
-    eprintln!(
-        "{cases} override and table cases in {:.1} s: {rejected} rejected, {ran} ran, {failed} failed at run time, {} broke a promise",
-        started.elapsed().as_secs_f64(),
-        failures.len()
-    );
-    assert!(failures.is_empty(), "{}", report.join("\n"));
-    assert!(
-        ran > cases / 20 && rejected > cases / 4,
-        "ran {ran}, rejected {rejected}"
-    );
+            .map(|o| o.chars().take(120).collect())
+            .collect();
+        let tables: Vec<String> = input
+            .tables
+            .iter()
+            .map(|(n, b)| format!("{n}: {:?}", String::from_utf8_lossy(&b[..b.len().min(300)])))
+            .collect();
+        format!("case {k}: {edits:?}\n{why}\n--set {shown:?}\ntables {tables:?}\n")
+    });
 }

@@ -251,3 +251,17 @@ pub fn sha256_hex(bytes: &[u8]) -> String {
         .map(|b| format!("{b:02x}"))
         .collect()
 }
+
+/// (target folder, profile) of the running test binary (`target/PROFILE/deps/it-…`), for tests that
+/// run cargo themselves and should reuse what the test build compiled.
+pub fn target_and_profile() -> (PathBuf, String) {
+    let exe = std::env::current_exe().unwrap();
+    let profile_dir = exe.parent().and_then(|d| d.parent()).unwrap();
+    let name = profile_dir
+        .file_name()
+        .unwrap()
+        .to_string_lossy()
+        .into_owned();
+    let profile = if name == "debug" { "dev".into() } else { name };
+    (profile_dir.parent().unwrap().to_path_buf(), profile)
+}
