@@ -7,14 +7,12 @@
 //! clippy` of the same profile already ran (the fast profile of the edit-test cycle), and about
 //! 3 minutes once on a fresh target folder (2 loaded cores), e.g. the first `cargo test --release`.
 
-use std::process::Command;
-
-use crate::util::target_and_profile;
+use crate::util::{nested_cargo, target_and_profile};
 
 #[test]
 fn the_api_docs_build_without_warnings() {
     let (target, profile) = target_and_profile();
-    let out = Command::new(env!("CARGO"))
+    let out = nested_cargo(env!("CARGO"))
         .args(["doc", "-p", "hybsim", "--no-deps", "--profile", &profile])
         .current_dir(env!("CARGO_MANIFEST_DIR"))
         .env("CARGO_TARGET_DIR", &target)

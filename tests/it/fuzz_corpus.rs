@@ -7,7 +7,6 @@
 //! `run` target.
 
 use std::path::{Path, PathBuf};
-use std::process::Command;
 
 use hybsim::fuzz::{Budget, Input, Outcome, Target};
 
@@ -154,7 +153,7 @@ fn a_bounded_coverage_guided_search_finds_no_failure() {
     let (target, profile) = crate::util::target_and_profile();
     let corpus = tempfile::tempdir().unwrap();
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
-    let out = Command::new(root.join("scripts/fuzz"))
+    let out = crate::util::nested_cargo(root.join("scripts/fuzz"))
         .args([&secs.to_string(), "run"])
         .env("CARGO_TARGET_DIR", &target)
         .env("HYBSIM_FUZZ_PROFILE", &profile)

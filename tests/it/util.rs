@@ -265,3 +265,30 @@ pub fn target_and_profile() -> (PathBuf, String) {
     let profile = if name == "debug" { "dev".into() } else { name };
     (profile_dir.parent().unwrap().to_path_buf(), profile)
 }
+
+/// A command that runs cargo (a nested build in the test binary's target folder, possibly through
+/// a script), without the variables cargo sets for the running test (`CARGO_MANIFEST_DIR`,
+/// `CARGO_PKG_*`, …): the nested cargo records some of them in the fingerprints of build scripts
+/// (ring's read `CARGO_MANIFEST_DIR`), and the next ordinary build would compile those crates and
+/// every crate above them again (clarabel, hybsim, …).
+pub fn nested_cargo(program: impl AsRef<OsStr>) -> Command {
+    let mut cmd = Command::new(program);
+    for (name, _) in std::env::vars_os() {
+        let name = name.to_string_lossy();
+        let per_crate = ["CARGO_PKG_", "CARGO_MANIFEST_", "CARGO_BIN_"]
+            .iter()
+            .any(|p| name.starts_with(p))
+            || matches!(
+                &*name,
+                "CARGO_CRATE_NAME"
+                    | "CARGO_PRIMARY_PACKAGE"
+                    | "CARGO_TARGET_TMPDIR"
+                    | "CARGO_RUSTC_CURRENT_DIR"
+                    | "OUT_DIR"
+            );
+        if per_crate {
+            cmd.env_remove(&*name);
+        }
+    }
+    cmd
+}
