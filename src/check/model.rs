@@ -613,12 +613,26 @@ impl ModelChecker<'_> {
         }
     }
 
+    /// Refuses a state or output named `t` or `j`: every logged record (MCAP
+    /// message, CSV and Parquet row) carries the hybrid time under those
+    /// names, so the value would be lost or ambiguous there.
+    fn not_a_time_name(&mut self, name: &str, span: Span) {
+        if name == "t" || name == "j" {
+            self.c.err(CheckError::Expected {
+                expected: "a name other than `t` and `j`, which name the hybrid time in every logged record".into(),
+                found: format!("a state or output named `{name}`"),
+                span,
+            });
+        }
+    }
+
     /// Registers the outputs and instance inputs (lowered on first use, see
     /// `check::signal`).
     fn signals(&mut self, item: &Item) {
         match item {
             Item::Output(defs) => {
                 for d in defs {
+                    self.not_a_time_name(&d.target.name.name, d.target.span);
                     self.c.register_signal(d, true);
                 }
             }
@@ -1109,6 +1123,7 @@ impl ModelChecker<'_> {
 
     fn state(&mut self, sd: &StateDef) {
         let name = sd.target.name.name.clone();
+        self.not_a_time_name(&name, sd.target.span);
         let Some(init_expr) = &sd.init else {
             self.c.err(CheckError::MissingInit {
                 name,

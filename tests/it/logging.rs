@@ -426,3 +426,37 @@ fn log_block_and_flags_choose_encoding_and_compression() {
     assert_eq!(strip(&default), strip(&block));
     assert_eq!(strip(&default), strip(&flags));
 }
+
+/// `t` and `j` name the hybrid time in every logged record, so a state or
+/// output of that name is a located error of `check` (not a file with two
+/// fields of one name).
+#[test]
+fn states_and_outputs_named_t_or_j_are_located_errors() {
+    let dir = tempfile::tempdir().unwrap();
+    for (src, line) in [
+        ("model m\nstate j = 0\nflow { j' = 1 }\nsim { T = 1 }\n", 2),
+        (
+            "model m\nstate x = 0, t = 1\nflow { x' = 1\n t' = 0 }\nsim { T = 1 }\n",
+            2,
+        ),
+        (
+            "model m\nstate x = 0\noutput j = 2 * x\nflow { x' = 1 }\nsim { T = 1 }\n",
+            3,
+        ),
+    ] {
+        std::fs::write(dir.path().join("m.hyb"), src).unwrap();
+        for cmd in ["check", "run"] {
+            let o = hybsim(
+                dir.path(),
+                &[cmd, "m.hyb", "-q"][..if cmd == "run" { 3 } else { 2 }],
+            );
+            let err = stderr(&o);
+            assert_eq!(code(&o), 2, "{cmd} {src}: {err}");
+            assert!(
+                err.contains("E0304") && err.contains(&format!("m.hyb:{line}:")),
+                "{err}"
+            );
+            assert!(!dir.path().join("m.mcap").exists());
+        }
+    }
+}
