@@ -5,9 +5,11 @@ use std::fmt;
 
 /// The first non-finite component of `x`, if any.
 ///
-/// A branch-free integer pass first (it vectorizes; the engine runs this on
-/// every step's state and the sinks on every logged sample): the exponent
-/// field is all ones exactly for ±∞ and NaN.
+/// A branch-free pass first (the engine runs this on every step's state
+/// and jump, the sinks on every logged sample): `v − v` is +0 for finite
+/// `v` and NaN for ±∞ and NaN, and a NaN stays in a sum. Eight independent
+/// sums vectorize on any x86-64 (half the instructions of a bitwise test
+/// of the exponent field, which needs 64-bit lane arithmetic).
 ///
 /// ```
 /// use hybsim::num::first_non_finite;
@@ -16,10 +18,19 @@ use std::fmt;
 /// ```
 #[inline]
 pub fn first_non_finite(x: &[f64]) -> Option<usize> {
-    let all_ones = x.iter().fold(0u64, |acc, v| {
-        acc | ((((v.to_bits() >> 52) & 0x7ff) + 1) >> 11)
-    });
-    if all_ones == 0 {
+    let mut acc = [0.0f64; 8];
+    let chunks = x.chunks_exact(8);
+    let rest = chunks.remainder();
+    for c in chunks {
+        for k in 0..8 {
+            acc[k] += c[k] - c[k];
+        }
+    }
+    let mut sum: f64 = acc.iter().sum();
+    for &v in rest {
+        sum += v - v;
+    }
+    if sum == 0.0 {
         return None;
     }
     x.iter().position(|v| !v.is_finite())
@@ -83,6 +94,25 @@ pub fn matrix_json(rows: usize, cols: usize, vals: &[f64]) -> serde_json::Value 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn non_finite_found_in_chunks_and_remainder() {
+        for len in [0, 1, 7, 8, 9, 16, 23, 238] {
+            let x: Vec<f64> = (0..len).map(|i| (i as f64 - 5.0) * 1e300).collect();
+            assert_eq!(first_non_finite(&x), None, "len {len}");
+            for k in 0..len {
+                for bad in [f64::NAN, f64::INFINITY, f64::NEG_INFINITY] {
+                    let mut y = x.clone();
+                    y[k] = bad;
+                    if k + 1 < len {
+                        y[len - 1] = f64::NAN;
+                    }
+                    assert_eq!(first_non_finite(&y), Some(k), "len {len}, at {k}");
+                }
+            }
+        }
+        assert_eq!(first_non_finite(&[f64::MAX, -f64::MAX, f64::MIN_POSITIVE, 5e-324]), None);
+    }
 
     #[test]
     fn compact_and_lossless() {

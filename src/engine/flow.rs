@@ -600,6 +600,34 @@ pub(crate) fn check_finite<S: HybridSystem + ?Sized>(
     })
 }
 
+/// As [`check_finite`] for the post-jump state `x` of `rule`: only the
+/// components its map writes ([`JumpRule::writes`](super::JumpRule::writes),
+/// when given), the others being the pre-jump state's, already checked.
+pub(crate) fn check_jump_finite<S: HybridSystem + ?Sized>(
+    sys: &S,
+    at: HybridTime,
+    x: &[f64],
+    rule: usize,
+) -> Option<SimError> {
+    let writes = &sys.jump_rules()[rule].writes;
+    if writes.is_empty() {
+        return check_finite(sys, at, x, Some(rule));
+    }
+    // The first non-finite component in state order, as the full check.
+    let i = writes
+        .iter()
+        .copied()
+        .filter(|&k| !x[k].is_finite())
+        .min()?;
+    Some(SimError::NonFinite {
+        at,
+        component: i,
+        name: sys.state_names().get(i).cloned().unwrap_or_default(),
+        value: x[i],
+        rule: Some(rule),
+    })
+}
+
 /// (rtol, atol) of an adaptive solver; (0, 1) (plain |ẋᵢ|) for the others.
 fn tolerances(solver: Solver) -> (f64, f64) {
     solver.tolerances().unwrap_or((0.0, 1.0))
@@ -1260,12 +1288,14 @@ impl Flows {
             let (s1, dt) = if last { (d_end, remaining) } else { (s + h, h) };
             if s == 0.0 {
                 // f at the segment start was evaluated by `start`.
-                y1.copy_from_slice(&self.f_prev);
+                for ((yn, &yo), &f) in y1.iter_mut().zip(&self.y_prev).zip(&self.f_prev) {
+                    *yn = yo + dt * f;
+                }
             } else {
                 sys.flow_map(HybridTime::new(t0 + s, j), &self.y_prev, &mut y1);
-            }
-            for (yn, &yo) in y1.iter_mut().zip(self.y_prev.iter()) {
-                *yn = yo + dt * *yn;
+                for (yn, &yo) in y1.iter_mut().zip(self.y_prev.iter()) {
+                    *yn = yo + dt * *yn;
+                }
             }
             if m > 0 {
                 sys.diffusion(HybridTime::new(t0 + s, j), &self.y_prev, &mut self.noise_g);

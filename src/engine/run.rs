@@ -7,7 +7,7 @@ use super::HybridSystem;
 use super::clock::TimeSum;
 use super::error::SimError;
 use super::events::{EventKind, FlowSetTest};
-use super::flow::{Affine, EndWhy, Flows, Method, Output, check_finite};
+use super::flow::{Affine, EndWhy, Flows, Method, Output, check_finite, check_jump_finite};
 use super::settings::{ExactAffine, Priority, SimSettings, Solver};
 use super::system::{FlowStructure, GuardKind, SimRng, SystemFault};
 use crate::arc::{
@@ -111,6 +111,14 @@ fn check_system<S: HybridSystem + ?Sized>(sys: &S, x0: &[f64]) -> Result<(), Sim
     }
     let rules = sys.jump_rules();
     for (i, rule) in rules.iter().enumerate() {
+        if let Some(&k) = rule.writes.iter().find(|&&k| k >= n) {
+            return Err(SimError::InvalidSystem {
+                what: format!(
+                    "rule {i} (`{}`) writes component {k}, which is out of range (n = {n})",
+                    rule.name
+                ),
+            });
+        }
         if let Some(g) = rule.group {
             // Rules of one part are alternatives and may share components.
             let same_part = |o: &super::JumpRule| rule.part.is_some() && o.part == rule.part;
@@ -333,7 +341,7 @@ pub fn simulate<S: HybridSystem + ?Sized>(
                         if let Some(f) = sys.take_fault() {
                             return Err(fault(f));
                         }
-                        if let Some(e) = check_finite(sys, post, &x_rule, Some(r)) {
+                        if let Some(e) = check_jump_finite(sys, post, &x_rule, r) {
                             return Err(e);
                         }
                         for &k in &rules[r].writes {
@@ -347,7 +355,7 @@ pub fn simulate<S: HybridSystem + ?Sized>(
                     if let Some(f) = sys.take_fault() {
                         return Err(fault(f));
                     }
-                    if let Some(e) = check_finite(sys, post, &x_plus, Some(rule)) {
+                    if let Some(e) = check_jump_finite(sys, post, &x_plus, rule) {
                         return Err(e);
                     }
                 }

@@ -74,7 +74,10 @@ pub struct JumpRule {
     pub part: Option<usize>,
     /// The state components the jump map may change; required (and
     /// disjoint between the rules of different parts of one group) for
-    /// grouped rules, ignored otherwise.
+    /// grouped rules, optional for a rule that fires alone (empty: any).
+    /// When given, the engine checks only these components of the post-jump
+    /// state for finiteness (the others are the pre-jump state's): a map
+    /// that changes others breaks the promise.
     pub writes: Vec<usize>,
 }
 
