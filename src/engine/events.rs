@@ -512,6 +512,12 @@ impl Watcher {
         let at = HybridTime::new(clock.value(), j);
         self.clock = clock;
         self.j = j;
+        // Nothing watched and nothing scheduled: no step is scanned and no
+        // event found, so nothing reads the start's values (timer rules
+        // only, as periodic sampling).
+        if self.watched.is_empty() && self.timers.is_empty() {
+            return;
+        }
         let set_tol = self.set_tol;
         self.flat_ok = sys.all_atom_values(at, x, false, &mut self.flat);
         for (i, ws) in self.sets.iter_mut().enumerate() {

@@ -13,7 +13,7 @@
 
 use std::ops::ControlFlow;
 
-use nalgebra::{DMatrix, DVector, DVectorView, DVectorViewMut};
+use nalgebra::{DMatrix, DVector};
 use ode_solvers::{Dop853, Dopri5, OutputType, Rk4, System, dop_shared::IntegrationError};
 
 use super::HybridSystem;
@@ -450,14 +450,19 @@ impl Affine {
             }
             return;
         }
-        out.copy_from_slice(&p.as_slice()[n * (n + 1)..n * (n + 1) + n]);
-        let mut y = DVectorViewMut::from_slice(out, n);
-        y.gemv(
-            1.0,
-            &p.view((0, 0), (n, n)),
-            &DVectorView::from_slice(x, n),
-            1.0,
-        );
+        // γ plus the columns of Φ scaled by x, column after column: the
+        // operations of a column-major gemv in its order (so the same bits),
+        // without its generic dispatch (most of its cost at small n).
+        let ps = p.as_slice();
+        let ld = n + 1;
+        let gamma = &ps[n * ld..n * ld + n];
+        for (r, (o, &g)) in out.iter_mut().zip(gamma).enumerate() {
+            let mut acc = g;
+            for (col, &xc) in ps.chunks_exact(ld).zip(x) {
+                acc += col[r] * xc;
+            }
+            *o = acc;
+        }
     }
 }
 
@@ -530,6 +535,9 @@ pub(crate) struct Flows {
     f_prev: Vec<f64>,
     f_cur: Vec<f64>,
     y_end: Vec<f64>,
+    /// Whether `f_prev` holds only the timers' rates (the auto choice
+    /// before it picked the solver).
+    f_prev_partial: bool,
     noise_g: Vec<f64>,
     noise_dw: Vec<f64>,
     /// Last full accepted step of an adaptive solver, for diagnostics.
@@ -685,6 +693,7 @@ impl Flows {
             f_prev: vec![0.0; n],
             f_cur: vec![0.0; n],
             y_end: vec![0.0; n],
+            f_prev_partial: false,
             noise_g: vec![0.0; n * m],
             noise_dw: vec![0.0; m],
             last_h: 0.0,
@@ -747,19 +756,23 @@ impl Flows {
         x: &[f64],
     ) -> &[f64] {
         let at = HybridTime::new(clock.value(), j);
+        self.f_prev_partial = false;
         match &self.method {
             // Exact flows need no interpolant: only the timers' rates, one
-            // row of [A, b] each.
-            Method::Affine(aff) => {
+            // row of [A, b] each. So does the auto choice without watched
+            // guards until it picks the solver (`segment` then completes f).
+            Method::Affine(aff) | Method::Auto(_, aff)
+                if matches!(self.method, Method::Affine(_)) || self.watcher.is_empty() =>
+            {
+                self.f_prev_partial = matches!(self.method, Method::Auto(..));
                 let n = aff.n;
+                // Column-major (n+1) × (n+1): row i's entries are ld apart.
+                let (g, ld) = (aff.gen_.as_slice(), n + 1);
                 for &i in &self.timer_rows {
-                    let row = aff.gen_.row(i);
-                    self.f_prev[i] = row[n]
-                        + row
-                            .columns(0, n)
-                            .iter()
+                    self.f_prev[i] = g[n * ld + i]
+                        + g.chunks_exact(ld)
                             .zip(x)
-                            .map(|(a, x)| a * x)
+                            .map(|(col, x)| col[i] * x)
                             .sum::<f64>();
                 }
             }
@@ -786,10 +799,13 @@ impl Flows {
         rng: &mut SimRng,
         t0: f64,
         j: u64,
-        x: &mut [f64],
+        x: &mut Vec<f64>,
         d_end: f64,
     ) -> Result<SegmentEnd, SimError> {
-        self.y_prev.copy_from_slice(x);
+        // The state moves in and out by swapping buffers (of equal length),
+        // not copying: `x` is not read until the segment ends, and `y_end`
+        // is written by every segment before it is read.
+        std::mem::swap(&mut self.y_prev, x);
         let end = match &mut self.method {
             Method::Ode(solver) => {
                 let solver = *solver;
@@ -801,6 +817,9 @@ impl Flows {
                 if self.watcher.is_empty() && aff.worth(d_end) {
                     self.affine_segment(sys, out, t0, j, d_end)?
                 } else {
+                    if self.f_prev_partial {
+                        sys.flow_map(HybridTime::new(t0, j), &self.y_prev, &mut self.f_prev);
+                    }
                     self.fevals = 0;
                     let end = self.solver_segment(sys, out, solver, t0, j, d_end)?;
                     if end.why == EndWhy::Reached
@@ -816,7 +835,7 @@ impl Flows {
                 self.em_segment(sys, out, rng, h, t0, j, d_end)?
             }
         };
-        x.copy_from_slice(&self.y_end);
+        std::mem::swap(x, &mut self.y_end);
         Ok(end)
     }
 
