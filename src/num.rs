@@ -111,7 +111,10 @@ mod tests {
                 }
             }
         }
-        assert_eq!(first_non_finite(&[f64::MAX, -f64::MAX, f64::MIN_POSITIVE, 5e-324]), None);
+        assert_eq!(
+            first_non_finite(&[f64::MAX, -f64::MAX, f64::MIN_POSITIVE, 5e-324]),
+            None
+        );
     }
 
     #[test]

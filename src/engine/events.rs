@@ -150,6 +150,7 @@ impl WSet {
         self.spec.as_ref().map_or(1, |s| s.atoms.len())
     }
 
+    #[inline]
     fn cmp(&self, k: usize) -> Cmp {
         self.spec.as_ref().map_or(Cmp::Ge, |s| s.atoms[k].cmp)
     }
@@ -530,14 +531,15 @@ impl Watcher {
                 }
                 _ => atom_values(sys, ws, at, x, false, &mut vals),
             }
+            let atoms = ws.spec.as_ref().map(|s| &s.atoms[..]);
             for (k, &g) in vals.iter().enumerate() {
-                let cmp = ws.cmp(k);
-                ws.relax[k] = if is_flow && !cmp.holds(g) && cmp.holds_within(g, set_tol) {
-                    set_tol
-                } else {
-                    0.0
-                };
-                ws.start_truth[k] = cmp.holds_within(g, ws.relax[k]);
+                let cmp = atoms.map_or(Cmp::Ge, |a| a[k].cmp);
+                let holds = cmp.holds(g);
+                // Relaxed: C's atoms that hold only within set_tol (and
+                // then hold within their relaxation).
+                let relaxed = is_flow && !holds && cmp.holds_within(g, set_tol);
+                ws.relax[k] = if relaxed { set_tol } else { 0.0 };
+                ws.start_truth[k] = holds || relaxed;
             }
             ws.vs = vals;
             ws.cur = match (&ws.spec, ws.set) {
@@ -656,20 +658,23 @@ impl Watcher {
             if s <= prev && !last {
                 continue;
             }
-            let mut xs = std::mem::take(&mut self.buf_s);
             if last {
-                xs.copy_from_slice(y1);
+                // The step end itself: no copy.
+                self.classes_at(sys, self.clock.at(s), y1);
             } else {
+                let mut xs = std::mem::take(&mut self.buf_s);
                 path.eval(s, &mut xs);
+                self.classes_at(sys, self.clock.at(s), &xs);
+                self.buf_s = xs;
             }
-            self.classes_at(sys, self.clock.at(s), &xs);
-            self.buf_s = xs;
-            if self.cls != self.cls_s
-                && let Some(found) = self.resolve(sys, path, prev, s)
-            {
-                return Some(found);
+            if self.cls != self.cls_s {
+                if let Some(found) = self.resolve(sys, path, prev, s) {
+                    return Some(found);
+                }
+                // The search may have ended relaxations: the checkpoint's
+                // classes again (`classes_at` left them otherwise).
+                self.classes_from_vs();
             }
-            self.classes_from_vs();
             self.cls.copy_from_slice(&self.cls_s);
             self.settle_relaxed(false);
             prev = s;
