@@ -17,6 +17,7 @@ use std::fmt;
 /// assert_eq!(first_non_finite(&[1.0, f64::NAN, f64::INFINITY]), Some(1));
 /// ```
 #[inline]
+#[allow(clippy::eq_op)] // `v - v` is the test itself
 pub fn first_non_finite(x: &[f64]) -> Option<usize> {
     let mut acc = [0.0f64; 8];
     let chunks = x.chunks_exact(8);
