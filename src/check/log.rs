@@ -1,7 +1,7 @@
 //! Checking a model's `log { … }` block: which states and outputs (`vars`),
 //! which jump rules (`rules`) and which flow samples (`every`, `dt`)
 //! `hybsim run` logs, and how the MCAP file encodes and compresses it
-//! (`encoding`, `compression`). Without a block every state and output is
+//! (`encoding`, `compression`, `jump_states`). Without a block every state and output is
 //! logged, and every rule but the noise redraws.
 
 use std::collections::HashMap;
@@ -32,10 +32,21 @@ pub struct LogDecl {
     pub encoding: Option<Encoding>,
     /// `compression = lz4 | zstd | none`: the MCAP chunks' compression.
     pub compression: Option<Compression>,
+    /// `jump_states = true | false`: whether MCAP jump records carry the
+    /// pre- and post-jump states.
+    pub jump_states: Option<bool>,
 }
 
 /// The keys a `log` block knows.
-const KEYS: &[&str] = &["vars", "rules", "every", "dt", "encoding", "compression"];
+const KEYS: &[&str] = &[
+    "vars",
+    "rules",
+    "every",
+    "dt",
+    "encoding",
+    "compression",
+    "jump_states",
+];
 
 /// Checks the `log` block among the top-level `items` (at most one; none
 /// inside `for`) against the model's rules.
@@ -139,6 +150,10 @@ fn check_block(c: &mut Checker, b: &LogBlock, rules: &[CheckedRule], decl: &mut 
             "compression" => match word(&s.value).and_then(Compression::parse) {
                 Some(k) => decl.compression = Some(k),
                 None => bad(c, "write lz4, zstd or none"),
+            },
+            "jump_states" => match s.value.kind {
+                ExprKind::Bool(b) => decl.jump_states = Some(b),
+                _ => bad(c, "write true or false"),
             },
             "vars" | "rules" => c.err(CheckError::Expected {
                 expected: format!("a list of names `{key} = [a, b[2]]`"),

@@ -144,6 +144,19 @@ pub struct RunArgs {
     /// `log { compression }`.
     #[arg(long, value_enum, value_name = "COMPRESSION")]
     pub log_compression: Option<LogCompressionArg>,
+    /// Whether MCAP jump records carry the pre- and post-jump states
+    /// (`pre`, `post`); without them a jump's states are the pre- and
+    /// post-jump samples on `/hybsim/state` around its record. Overrides
+    /// `log { jump_states }` (`--log-jump-states=false` turns it off);
+    /// default: false.
+    #[arg(
+        long,
+        value_name = "BOOL",
+        num_args = 0..=1,
+        require_equals = true,
+        default_missing_value = "true"
+    )]
+    pub log_jump_states: Option<bool>,
     /// No progress bar.
     #[arg(short, long)]
     pub quiet: bool,
@@ -474,6 +487,7 @@ pub fn simulate_to_files<S: HybridSystem + ?Sized>(
     rng: &mut SimRng,
     info: &RunInfo,
     output_fn: Option<OutputFn<'_>>,
+    logged_output_fn: Option<OutputFn<'_>>,
     outputs: &Outputs,
     metrics: Option<&Metrics>,
 ) -> anyhow::Result<(Report, Option<SimError>)> {
@@ -487,11 +501,13 @@ pub fn simulate_to_files<S: HybridSystem + ?Sized>(
         .as_ref()
         .map(|names| info.select_vars(names).0);
     let logged = selected.as_ref().unwrap_or(info);
+    // The files need only the logged outputs (the plot may show others).
+    let logged_fn = logged_output_fn.or(output_fn);
     let mut mcap = match &outputs.mcap {
         Some(path) => Some(McapSink::create(
             path,
             logged,
-            output_fn,
+            logged_fn,
             outputs.mcap_options.decimation(outputs.decimation),
         )?),
         None => None,
@@ -500,7 +516,7 @@ pub fn simulate_to_files<S: HybridSystem + ?Sized>(
         Some(path) => Some(CsvSink::create(
             path,
             logged,
-            output_fn,
+            logged_fn,
             outputs.decimation,
         )?),
         None => None,
@@ -509,7 +525,7 @@ pub fn simulate_to_files<S: HybridSystem + ?Sized>(
         Some(path) => Some(ParquetSink::create(
             path,
             logged,
-            output_fn,
+            logged_fn,
             outputs.decimation,
         )?),
         None => None,
@@ -930,6 +946,20 @@ pub fn execute(args: RunArgs) -> anyhow::Result<u8> {
         return Ok(EXIT_MODEL_ERROR);
     }
     let output_fn = |at: HybridTime, x: &[f64], y: &mut [f64]| model.outputs(at, x, y);
+    // A log that keeps some of the outputs evaluates only those.
+    let logged_outputs = outputs.log_vars.as_ref().and_then(|names| {
+        let (selected, _) = info.select_vars(names);
+        let components: Vec<usize> = selected
+            .output_layout
+            .components()
+            .into_iter()
+            .map(|(k, _)| k)
+            .collect();
+        (components.len() < info.output_dim).then(|| model.output_subset(&components))
+    });
+    let logged_fn = logged_outputs
+        .as_ref()
+        .map(|s| move |at: HybridTime, x: &[f64], y: &mut [f64]| s.eval(at, x, y));
     let (x0, mut rng) = model.start(seed);
     let (report, error) = simulate_to_files(
         &model,
@@ -938,6 +968,7 @@ pub fn execute(args: RunArgs) -> anyhow::Result<u8> {
         &mut rng,
         &info,
         Some(&output_fn),
+        logged_fn.as_ref().map(|f| f as OutputFn<'_>),
         &outputs,
         Some(model.metrics()),
     )?;
@@ -1106,7 +1137,14 @@ fn mcap_options(args: &RunArgs, decl: &hybsim::check::LogDecl) -> McapOptions {
         Some(LogCompressionArg::None) => Compression::None,
         None => decl.compression.unwrap_or(defaults.compression),
     };
-    defaults.encoding(encoding).compression(compression)
+    let jump_states = args
+        .log_jump_states
+        .or(decl.jump_states)
+        .unwrap_or(defaults.jump_states);
+    defaults
+        .encoding(encoding)
+        .compression(compression)
+        .jump_states(jump_states)
 }
 
 #[cfg(test)]
@@ -1139,6 +1177,7 @@ mod tests {
             &settings,
             &mut SimRng::seed_from(1),
             &info,
+            None,
             None,
             &outputs,
             None,

@@ -221,13 +221,16 @@ struct JacobianInfo {
     code: Option<JacobianCode>,
 }
 
-/// The flow's graph, kept to derive the Jacobian on first use (only the
-/// implicit solver asks for it).
+/// The model's graph, kept to derive the Jacobian on first use (only the
+/// implicit solver asks for it) and to compile subsets of the outputs
+/// ([`CompiledModel::output_subset`]).
 #[derive(Debug)]
 struct JacobianSource {
     dag: Dag,
     /// The flow (noise set to 0), one node per state.
     drift: Vec<NodeId>,
+    /// One node per output component.
+    outputs: Vec<NodeId>,
     /// Whether the model's programs run as machine code (then so does the
     /// Jacobian's).
     jit: bool,
@@ -327,6 +330,30 @@ pub struct CompiledModel {
     sweep: Option<crate::check::sweep::SweepDecl>,
     log: crate::check::LogDecl,
     jacobian: Arc<JacobianSource>,
+}
+
+/// Some of a model's output components, compiled on their own
+/// ([`CompiledModel::output_subset`]).
+#[derive(Debug)]
+pub struct OutputSubset {
+    program: Program,
+    /// The output components computed, in the program's output order.
+    components: Vec<usize>,
+    nregs: usize,
+}
+
+impl OutputSubset {
+    /// Evaluates the subset's components at hybrid time `at` and state `x`
+    /// into their places in `out` (the whole output vector); other entries
+    /// are left as they are.
+    pub fn eval(&self, at: HybridTime, x: &[f64], out: &mut [f64]) {
+        with_regs(self.nregs, |regs| {
+            self.program.run_at(regs, at, x, None);
+            for (&k, &r) in self.components.iter().zip(&self.program.outs) {
+                out[k] = regs[r as usize];
+            }
+        });
+    }
 }
 
 /// Whether a compiled model runs machine code ([`CompiledModel::jit`]).
@@ -554,6 +581,7 @@ impl CompiledModel {
         let jacobian = Arc::new(JacobianSource {
             dag: std::mem::take(&mut m.dag),
             drift: flow_nodes,
+            outputs: out_nodes,
             jit: matches!(jit, JitStatus::Native { .. }),
             info: OnceLock::new(),
         });
@@ -767,6 +795,41 @@ impl CompiledModel {
                 *o = regs[r as usize];
             }
         });
+    }
+
+    /// A program computing only the output components `components`
+    /// (indices into the output vector, as [`output_layout`](Self::output_layout)
+    /// numbers them; indices past [`output_dim`](Self::output_dim) are
+    /// ignored), as machine code when the model's programs are: a log that
+    /// keeps some outputs evaluates only what those need. Its values are
+    /// those of [`outputs`](Self::outputs), bit for bit.
+    ///
+    /// ```
+    /// use hybsim::{arc::HybridTime, lang, source::SourceFile};
+    /// let src = SourceFile::new("m.hyb", "model m\nstate x = 2\noutput a = x^2, b = sin(x)\n");
+    /// let model = lang::compile(&src, &[]).unwrap();
+    /// let mut y = [0.0; 2];
+    /// model.output_subset(&[1]).eval(HybridTime::new(0.0, 0), &[2.0], &mut y);
+    /// assert_eq!(y, [0.0, 2f64.sin()]);
+    /// ```
+    pub fn output_subset(&self, components: &[usize]) -> OutputSubset {
+        let graph = &self.jacobian;
+        let components: Vec<usize> = components
+            .iter()
+            .copied()
+            .filter(|&k| k < graph.outputs.len())
+            .collect();
+        let nodes: Vec<NodeId> = components.iter().map(|&k| graph.outputs[k]).collect();
+        let mut program = Program::compile(&graph.dag, self.frame, &nodes);
+        if graph.jit {
+            // Interpreted if the JIT declines (size, machine).
+            let _ = jit::compile(&mut [&mut program], 1);
+        }
+        OutputSubset {
+            nregs: program.nregs.max(self.frame.fixed()),
+            program,
+            components,
+        }
     }
 
     /// The `design` blocks' reports in source order (solver figures, results).

@@ -158,18 +158,12 @@ pub fn sample_schema(title: &str, layout: &Layout) -> Value {
     })
 }
 
-/// Schema of a jump record `{t, j, rule, rule_id, index?, pre{..}, post{..}}`;
-/// `t, j` are the pre-jump hybrid time.
-pub fn jump_schema(title: &str, layout: &Layout) -> Value {
-    let (state_props, state_required) = layout_properties(layout);
-    let state = json!({"type": "object", "properties": state_props, "required": state_required});
+/// Schema of a jump record `{t, j, rule, rule_id, index?}`, with
+/// `pre{..}, post{..}` (the states of `layout` just before and after) when
+/// `jump_states`; `t, j` are the pre-jump hybrid time.
+pub fn jump_schema(title: &str, layout: &Layout, jump_states: bool) -> Value {
     let mut props = serde_json::Map::new();
-    let mut required = vec![
-        "rule".to_string(),
-        "rule_id".into(),
-        "pre".into(),
-        "post".into(),
-    ];
+    let mut required = vec!["rule".to_string(), "rule_id".into()];
     props.insert(
         "rule".into(),
         json!({"type": "string", "description": "name of the jump rule that fired"}),
@@ -183,12 +177,18 @@ pub fn jump_schema(title: &str, layout: &Layout) -> Value {
         json!({"type": "array", "items": {"type": "integer"},
                "description": "indices of an indexed rule, e.g. [2] for transmit[2]"}),
     );
-    let mut pre = state.clone();
-    pre["description"] = json!("state just before the jump, at (t, j)");
-    let mut post = state;
-    post["description"] = json!("state just after the jump, at (t, j + 1)");
-    props.insert("pre".into(), pre);
-    props.insert("post".into(), post);
+    if jump_states {
+        let (state_props, state_required) = layout_properties(layout);
+        let state =
+            json!({"type": "object", "properties": state_props, "required": state_required});
+        let mut pre = state.clone();
+        pre["description"] = json!("state just before the jump, at (t, j)");
+        let mut post = state;
+        post["description"] = json!("state just after the jump, at (t, j + 1)");
+        props.insert("pre".into(), pre);
+        props.insert("post".into(), post);
+        required.extend(["pre".into(), "post".into()]);
+    }
     time_properties(&mut props, &mut required);
     json!({
         "$schema": DIALECT,
@@ -548,24 +548,36 @@ fn fill(probe: &Value, value: &Value, x: &mut [f64], path: &mut String) -> Resul
 }
 
 /// Writes the records of one run: sample records `{t, j, <values>}` and jump
-/// records `{t, j, rule, rule_id, index?, pre{..}, post{..}}`, as compact
-/// JSON into a caller's buffer.
+/// records `{t, j, rule, rule_id, index?}` (with `pre{..}, post{..}` when
+/// [`with_jump_states`](Self::with_jump_states)), as compact JSON into a
+/// caller's buffer.
 #[derive(Debug, Clone)]
 pub struct RecordWriter {
     body: Template,
-    /// Per rule: `,"rule":"NAME","rule_id":K[,"index":[..]],"pre":{`.
+    /// Per rule: `,"rule":"NAME","rule_id":K[,"index":[..]]`.
     rule_heads: Vec<Vec<u8>>,
+    jump_states: bool,
 }
 
 impl RecordWriter {
     /// Records of vectors structured by `layout`, jumps of the rules named
-    /// `rule_names` (in the system's order).
+    /// `rule_names` (in the system's order), without their states.
     pub fn new(layout: &Layout, rule_names: &[String]) -> Self {
         Self {
             body: Template::new(layout),
             rule_heads: (0..rule_names.len())
                 .map(|k| rule_head(&super::rule_name(rule_names, k), k))
                 .collect(),
+            jump_states: false,
+        }
+    }
+
+    /// Whether jump records carry the pre- and post-jump states (as
+    /// [`jump_schema`] with the same flag describes them).
+    pub fn with_jump_states(self, jump_states: bool) -> Self {
+        Self {
+            jump_states,
+            ..self
         }
     }
 
@@ -602,10 +614,14 @@ impl RecordWriter {
             Some(head) => out.extend_from_slice(head),
             None => out.extend_from_slice(&rule_head(name, rule)),
         }
-        self.body.write(out, pre);
-        out.extend_from_slice(b"},\"post\":{");
-        self.body.write(out, post);
-        out.extend_from_slice(b"}}");
+        if self.jump_states {
+            out.extend_from_slice(b",\"pre\":{");
+            self.body.write(out, pre);
+            out.extend_from_slice(b"},\"post\":{");
+            self.body.write(out, post);
+            out.push(b'}');
+        }
+        out.push(b'}');
     }
 }
 
@@ -618,6 +634,5 @@ fn rule_head(name: &str, rule: usize) -> Vec<u8> {
         head.extend_from_slice(b",\"index\":");
         serde_json::to_writer(&mut head, &index).expect("integers serialize");
     }
-    head.extend_from_slice(b",\"pre\":{");
     head
 }

@@ -7,7 +7,7 @@
 //!
 //! | record | content |
 //! |---|---|
-//! | metadata `hybsim.run` | `version`, `model` (path), `model_name`, `model_sha256`, `imports` (JSON `[{path, sha256}]` of the imported files), `tables` (JSON `[{path, sha256}]` of the files read by `table("…")`), `seed`, `state_names`, `output_names`, `rule_names`, `argv` (JSON arrays), `decimation`, `blas_threads` (OpenBLAS threads, 1), `threads` (rayon's worker threads) |
+//! | metadata `hybsim.run` | `version`, `model` (path), `model_name`, `model_sha256`, `imports` (JSON `[{path, sha256}]` of the imported files), `tables` (JSON `[{path, sha256}]` of the files read by `table("…")`), `seed`, `state_names`, `output_names`, `rule_names`, `argv` (JSON arrays), `decimation`, `encoding`, `jump_states`, `blas_threads` (OpenBLAS threads, 1), `threads` (rayon's worker threads) |
 //! | metadata `hybsim.parameters` | one entry per resolved parameter (JSON value) |
 //! | metadata `hybsim.solver` | one entry per setting (JSON value) |
 //! | metadata `hybsim.design` | design results, when the model has design blocks |
@@ -16,7 +16,7 @@
 //! | attachment `<path>` | each imported file, under its path relative to the model's folder (`text/plain`) |
 //! | channel `/hybsim/state` | one message per logged sample: `{t, j, <states>}` |
 //! | channel `/hybsim/outputs` | one message per logged sample: `{t, j, <outputs>}` (if the model has outputs) |
-//! | channel `/hybsim/jumps` | one message per jump: `{t, j, rule, rule_id, index?, pre, post}` |
+//! | channel `/hybsim/jumps` | one message per jump: `{t, j, rule, rule_id, index?}`, with `pre, post` (the states) if [`McapOptions::jump_states`] |
 //! | channel `/hybsim/log` | run start and end, and each change of integrator of `solver = auto` (`foxglove.Log`) |
 //! | metadata `hybsim.result` | `termination`, `message`, `status` (`completed`, `ended`, `failed`), `t_end`, `j_end`, `jumps` (per rule), `samples_logged`; with `solver = auto` also `solver_switches` (JSON `[{at: {t, j}, to}]`, the first 1000) and `solver_switches_total` |
 //! | metadata `hybsim.metrics` | one entry per `metric` of the model (its value), when it has any ([`McapSink::set_metrics`]) |
@@ -93,6 +93,11 @@ pub struct McapOptions {
     /// Chunk compression. Default: LZ4, the fastest (zstd level 1 makes
     /// files ~10 % smaller for about 2.5× the compression time).
     pub compression: Compression,
+    /// Whether jump records carry the pre- and post-jump states. Default:
+    /// no, since the pre- and post-jump samples on `/hybsim/state` around
+    /// each jump record hold the same values (a third to a half of a
+    /// jump-heavy log's bytes).
+    pub jump_states: bool,
 }
 
 impl Default for McapOptions {
@@ -101,6 +106,7 @@ impl Default for McapOptions {
             decimation: Decimation::default(),
             encoding: Encoding::default(),
             compression: Compression::Lz4,
+            jump_states: false,
         }
     }
 }
@@ -120,6 +126,14 @@ impl McapOptions {
     pub fn compression(self, compression: Compression) -> Self {
         Self {
             compression,
+            ..self
+        }
+    }
+
+    /// Sets whether jump records carry the pre- and post-jump states.
+    pub fn jump_states(self, jump_states: bool) -> Self {
+        Self {
+            jump_states,
             ..self
         }
     }
@@ -172,6 +186,8 @@ pub struct McapSink<'a> {
     y: Vec<f64>,
     records: Records,
     filter: JumpFilter,
+    /// Whether jump records carry the pre- and post-jump states.
+    jump_states: bool,
     error: Option<SinkError>,
     metrics: Vec<(String, f64)>,
 }
@@ -265,6 +281,7 @@ impl<'a> McapSink<'a> {
                 Value::String(json!(options.decimation).to_string()),
             ),
             ("encoding", json!(options.encoding)),
+            ("jump_states", json!(options.jump_states)),
             // The threads the design layer ran on: BLAS is pinned (design::blas), rayon's
             // pool follows the machine (the designs' numbers do not).
             ("blas_threads", json!(crate::design::blas::threads())),
@@ -300,6 +317,7 @@ impl<'a> McapSink<'a> {
             "design": info.design,
             "decimation": options.decimation,
             "encoding": options.encoding,
+            "jump_states": options.jump_states,
             "state": {"dim": info.state_dim, "layout": info.state_layout, "names": state_names},
             "outputs": {"dim": info.output_dim, "layout": info.output_layout, "names": output_names},
             "rules": info.rule_names,
@@ -349,10 +367,16 @@ impl<'a> McapSink<'a> {
                         outputs.clone(),
                         sample_schema(&outputs, &info.output_layout),
                     ),
-                    json_schema(jump.clone(), jump_schema(&jump, &info.state_layout)),
+                    json_schema(
+                        jump.clone(),
+                        jump_schema(&jump, &info.state_layout, options.jump_states),
+                    ),
                 ];
                 let records = Records::Json {
-                    states: Box::new(RecordWriter::new(&info.state_layout, &info.rule_names)),
+                    states: Box::new(
+                        RecordWriter::new(&info.state_layout, &info.rule_names)
+                            .with_jump_states(options.jump_states),
+                    ),
                     outputs: Box::new(RecordWriter::new(&info.output_layout, &[])),
                 };
                 (records, schemas)
@@ -363,6 +387,7 @@ impl<'a> McapSink<'a> {
                     &info.state_layout,
                     &info.output_layout,
                     &info.rule_names,
+                    options.jump_states,
                 );
                 let data = s.descriptor_set;
                 let schemas = [
@@ -418,6 +443,7 @@ impl<'a> McapSink<'a> {
             y: vec![0.0; info.output_dim],
             records,
             filter: JumpFilter::new(&info.logged_rules),
+            jump_states: options.jump_states,
             error: None,
             metrics: Vec::new(),
         })
@@ -531,7 +557,10 @@ impl<'a> McapSink<'a> {
         pre: &[f64],
         post: &[f64],
     ) -> Result<ControlFlow<()>, SinkError> {
-        for x in [pre, post] {
+        // Without the states, the samples around the record carry them
+        // (and are checked when written).
+        let states: &[&[f64]] = if self.jump_states { &[pre, post] } else { &[] };
+        for x in states {
             if let Some((k, value)) = first_non_finite(x) {
                 return Err(SinkError::NonFinite {
                     what: "state",

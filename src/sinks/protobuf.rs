@@ -20,7 +20,8 @@
 //!
 //! `State` and `Outputs` are `{double t = 1; uint64 j = 2; <entries from 3>}`;
 //! `Jump` is `{double t = 1; uint64 j = 2; string rule = 3; uint32 rule_id = 4;
-//! repeated int64 index = 5; Values pre = 6; Values post = 7}` with `Values`
+//! repeated int64 index = 5}`, and with the jump states (`jump_states` of
+//! [`ProtoWriter::new`]) also `Values pre = 6; Values post = 7`, `Values`
 //! the state's entries under the same field numbers as in `State`.
 //!
 //! The file is proto2 (proto3 refuses field names that differ only in case,
@@ -403,7 +404,7 @@ pub struct ProtoSchemas {
 /// use hybsim::layout::Layout;
 /// use hybsim::sinks::protobuf::ProtoWriter;
 /// let layout = Layout::scalars(&["h", "v"]);
-/// let (writer, schemas) = ProtoWriter::new("ball", &layout, &Layout::default(), &["bounce".into()]);
+/// let (writer, schemas) = ProtoWriter::new("ball", &layout, &Layout::default(), &["bounce".into()], false);
 /// let mut out = Vec::new();
 /// writer.sample(&mut out, HybridTime::new(0.5, 2), &[3.0, -1.5]);
 /// let json = hybsim::sinks::protobuf::to_json(&schemas.descriptor_set, &schemas.state, &out).unwrap();
@@ -415,16 +416,20 @@ pub struct ProtoWriter {
     outputs: Template,
     /// Per rule: `rule`, `rule_id` and `index` fields.
     rule_heads: Vec<Vec<u8>>,
+    /// Whether jump records carry `pre` and `post`.
+    jump_states: bool,
 }
 
 impl ProtoWriter {
     /// The writer and the schemas of the records of a model named `model`
-    /// with the given state and output layouts and jump rules.
+    /// with the given state and output layouts and jump rules; jump records
+    /// carry the pre- and post-jump states when `jump_states`.
     pub fn new(
         model: &str,
         state: &Layout,
         outputs: &Layout,
         rule_names: &[String],
+        jump_states: bool,
     ) -> (Self, ProtoSchemas) {
         let package = package_name(model);
         let mut b = Builder {
@@ -444,26 +449,26 @@ impl ProtoWriter {
             field: fields,
             ..DescriptorProto::default()
         };
-        let values = format!(".{package}.Values");
+        let mut jump = [
+            time(),
+            vec![
+                scalar_field("rule", 3, Label::Optional, Type::String),
+                scalar_field("rule_id", 4, Label::Optional, Type::Uint32),
+                scalar_field("index", 5, Label::Repeated, Type::Int64),
+            ],
+        ]
+        .concat();
         let mut types = vec![
             record("State", [time(), state_fields.clone()].concat()),
             record("Outputs", [time(), outputs_fields].concat()),
-            record(
-                "Jump",
-                [
-                    time(),
-                    vec![
-                        scalar_field("rule", 3, Label::Optional, Type::String),
-                        scalar_field("rule_id", 4, Label::Optional, Type::Uint32),
-                        scalar_field("index", 5, Label::Repeated, Type::Int64),
-                        message_field("pre", 6, Label::Optional, &values),
-                        message_field("post", 7, Label::Optional, &values),
-                    ],
-                ]
-                .concat(),
-            ),
-            record("Values", state_fields),
         ];
+        if jump_states {
+            let values = format!(".{package}.Values");
+            jump.push(message_field("pre", 6, Label::Optional, &values));
+            jump.push(message_field("post", 7, Label::Optional, &values));
+            types.push(record("Values", state_fields));
+        }
+        types.insert(2, record("Jump", jump));
         // Declared whether used or not: every model's file has them.
         types.push(record(
             "Matrix",
@@ -500,6 +505,7 @@ impl ProtoWriter {
             rule_heads: (0..rule_names.len())
                 .map(|k| rule_head(&super::rule_name(rule_names, k), k))
                 .collect(),
+            jump_states,
         };
         (writer, schemas)
     }
@@ -539,10 +545,12 @@ impl ProtoWriter {
             Some(head) => out.extend_from_slice(head),
             None => out.extend_from_slice(&rule_head(name, rule)),
         }
-        for (field, x) in [(6, pre), (7, post)] {
-            put_key(out, field, LEN);
-            put_varint(out, self.state.len as u64);
-            self.state.write(out, x);
+        if self.jump_states {
+            for (field, x) in [(6, pre), (7, post)] {
+                put_key(out, field, LEN);
+                put_varint(out, self.state.len as u64);
+                self.state.write(out, x);
+            }
         }
     }
 }
@@ -666,7 +674,7 @@ mod tests {
     fn messages_decode_to_the_json_records() {
         let (layout, dim) = every_shape();
         let rules = vec!["hit".to_string(), "transmit[2,3]".to_string()];
-        let (w, schemas) = ProtoWriter::new("every-shape", &layout, &layout, &rules);
+        let (w, schemas) = ProtoWriter::new("every-shape", &layout, &layout, &rules, false);
         let json = RecordWriter::new(&layout, &rules);
         let x: Vec<f64> = (0..dim).map(|k| (k as f64 - 3.5) * 0.37).collect();
         let post: Vec<f64> = x.iter().map(|v| -v).collect();
@@ -687,16 +695,30 @@ mod tests {
             decoded
         );
 
-        for (rule, index) in [(0, serde_json::json!([])), (1, serde_json::json!([2, 3]))] {
-            out.clear();
-            w.jump(&mut out, at, rule, "", &x, &post);
-            let decoded = to_json(&schemas.descriptor_set, &schemas.jump, &out).unwrap();
-            text.clear();
-            json.jump(&mut text, at, rule, "", &x, &post);
-            let mut expected: serde_json::Value = serde_json::from_slice(&text).unwrap();
-            // JSON leaves out the index of a plain rule; protobuf writes every field.
-            expected["index"] = index;
-            assert_eq!(decoded, expected, "rule {rule}");
+        // The pre-jump state is the sample's record without its time.
+        let mut values = decoded.clone();
+        let fields = values.as_object_mut().unwrap();
+        fields.remove("t");
+        fields.remove("j");
+        for jump_states in [false, true] {
+            let (w, schemas) =
+                ProtoWriter::new("every-shape", &layout, &layout, &rules, jump_states);
+            let json = RecordWriter::new(&layout, &rules).with_jump_states(jump_states);
+            for (rule, index) in [(0, serde_json::json!([])), (1, serde_json::json!([2, 3]))] {
+                out.clear();
+                w.jump(&mut out, at, rule, "", &x, &post);
+                let decoded = to_json(&schemas.descriptor_set, &schemas.jump, &out).unwrap();
+                text.clear();
+                json.jump(&mut text, at, rule, "", &x, &post);
+                let mut expected: serde_json::Value = serde_json::from_slice(&text).unwrap();
+                // JSON leaves out the index of a plain rule; protobuf writes every field.
+                expected["index"] = index;
+                assert_eq!(decoded, expected, "rule {rule}");
+                assert_eq!(decoded.get("pre").is_some(), jump_states);
+                if jump_states {
+                    assert_eq!(decoded["pre"], values);
+                }
+            }
         }
         assert_eq!(schemas.state, "hybsim.every_shape.State");
     }

@@ -78,9 +78,16 @@ fn records_follow_the_layout_shapes() {
 fn jump_records_carry_rule_index_pre_and_post() {
     let layout = Layout::scalars(&["h", "v"]);
     let rules: Vec<String> = ["a", "b", "c", "d", "transmit[2]"].map(String::from).into();
-    let writer = RecordWriter::new(&layout, &rules);
-    let mut out = Vec::new();
     let at = HybridTime::new(1.5, 0);
+    // By default without the states.
+    let mut out = Vec::new();
+    RecordWriter::new(&layout, &rules).jump(&mut out, at, 4, "", &[0.0, -3.0], &[0.0, 2.4]);
+    assert_eq!(
+        String::from_utf8(out).unwrap(),
+        r#"{"t":1.5,"j":0,"rule":"transmit[2]","rule_id":4,"index":[2]}"#
+    );
+    let writer = RecordWriter::new(&layout, &rules).with_jump_states(true);
+    let mut out = Vec::new();
     writer.jump(&mut out, at, 4, "", &[0.0, -3.0], &[0.0, 2.4]);
     let v: Value = serde_json::from_slice(&out).unwrap();
     assert_eq!(
@@ -226,7 +233,8 @@ fn schemas_stay_in_the_foxglove_subset() {
     let (layout, _) = rich_layout();
     for schema in [
         sample_schema("S", &layout),
-        jump_schema("J", &layout),
+        jump_schema("J", &layout, false),
+        jump_schema("J", &layout, true),
         super::json::log_schema(),
     ] {
         assert_foxglove_subset(&schema, false);

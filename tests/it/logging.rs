@@ -233,6 +233,7 @@ fn unknown_names_are_located_errors_in_the_block_and_usage_errors_in_flags() {
         ),
         ("log { encoding = yaml }\n", "protobuf or json", "E0506"),
         ("log { compression = 3 }\n", "lz4, zstd or none", "E0506"),
+        ("log { jump_states = 1 }\n", "true or false", "E0506"),
     ];
     for (block, message, detail) in cases {
         let model = write_model(dir.path(), block);
@@ -425,6 +426,51 @@ fn log_block_and_flags_choose_encoding_and_compression() {
     };
     assert_eq!(strip(&default), strip(&block));
     assert_eq!(strip(&default), strip(&flags));
+}
+
+/// Jump records carry the pre- and post-jump states only when asked (`log
+/// { jump_states = true }` or `--log-jump-states`, the flag over the block),
+/// in both encodings; they are then the samples written around the record.
+#[test]
+fn jump_states_are_logged_when_asked() {
+    let dir = tempfile::tempdir().unwrap();
+    let has_states = |bytes: &[u8]| {
+        let (topics, _) = messages(bytes);
+        let jumps = &topics["/hybsim/jumps"];
+        assert!(jumps.len() > 10);
+        let with: Vec<bool> = jumps.iter().map(|r| r.get("pre").is_some()).collect();
+        assert!(with.iter().all(|&w| w == with[0]), "{with:?}");
+        if with[0] {
+            // The state samples around each record hold its pre and post:
+            // the last sample at (t, j) and the first at (t, j + 1) (a
+            // jump's post-jump sample and the next one's pre-jump sample
+            // may share a hybrid time).
+            let states = &topics["/hybsim/state"];
+            for r in jumps {
+                let (t, j) = (&r["t"], r["j"].as_u64().unwrap());
+                let at = |j: u64| move |s: &&Value| s["t"] == *t && s["j"] == j;
+                let pre = states.iter().rfind(at(j)).unwrap();
+                let post = states.iter().find(at(j + 1)).unwrap();
+                for (key, s) in [("pre", pre), ("post", post)] {
+                    for (name, v) in r[key].as_object().unwrap() {
+                        assert_eq!(&s[name], v, "{key}.{name} at ({t}, {j})");
+                    }
+                }
+            }
+        }
+        with[0]
+    };
+    let plain = write_model(dir.path(), "");
+    assert!(!has_states(&run(dir.path(), &plain, &[]).0));
+    assert!(has_states(
+        &run(dir.path(), &plain, &["--log-jump-states"]).0
+    ));
+    let json = ["--log-jump-states", "--log-encoding", "json"];
+    assert!(has_states(&run(dir.path(), &plain, &json).0));
+    let model = write_model(dir.path(), "log { jump_states = true }\n");
+    assert!(has_states(&run(dir.path(), &model, &[]).0));
+    let off = ["--log-jump-states=false"];
+    assert!(!has_states(&run(dir.path(), &model, &off).0));
 }
 
 /// `t` and `j` name the hybrid time in every logged record, so a state or

@@ -209,9 +209,19 @@ fn mcap_has_channels_with_json_schemas() {
 
 #[test]
 fn mcap_orders_pre_jump_record_post_and_times_match_closed_form() {
+    for jump_states in [false, true] {
+        jump_records_between_their_samples(jump_states);
+    }
+}
+
+/// The pre-jump sample, the jump record and the post-jump sample, in that
+/// order, at the impacts' times; the record's `pre`/`post` (with
+/// `jump_states`) are the samples' values.
+fn jump_records_between_their_samples(jump_states: bool) {
     let dir = tempfile::tempdir().unwrap();
     let n = 6;
-    let bytes = write_ball(&dir.path().join("ball.mcap"), n, McapOptions::default());
+    let options = McapOptions::default().jump_states(jump_states);
+    let bytes = write_ball(&dir.path().join("ball.mcap"), n, options);
     let msgs = messages(&bytes);
     let impacts = ball_impacts(1.0, n);
 
@@ -242,16 +252,26 @@ fn mcap_orders_pre_jump_record_post_and_times_match_closed_form() {
             .unwrap();
         assert_eq!(state_before.body["t"].as_f64(), Some(t));
         assert_eq!(state_before.body["j"], i as u64);
-        assert_eq!(state_before.body["v"], jump["pre"]["v"]);
         assert_eq!(state_after.body["t"].as_f64(), Some(t));
         assert_eq!(state_after.body["j"], i as u64 + 1);
-        assert_eq!(state_after.body["v"], jump["post"]["v"]);
+        if jump_states {
+            for (x, m) in [("pre", state_before), ("post", state_after)] {
+                for v in ["h", "v"] {
+                    assert_eq!(m.body[v], jump[x][v], "{x}.{v}");
+                }
+            }
+        } else {
+            assert!(
+                jump.get("pre").is_none() && jump.get("post").is_none(),
+                "{jump}"
+            );
+        }
         for m in [state_before, state_after] {
             assert_eq!(m.log_time, msgs[k].log_time);
         }
         let (pre, post) = (
-            jump["pre"]["v"].as_f64().unwrap(),
-            jump["post"]["v"].as_f64().unwrap(),
+            state_before.body["v"].as_f64().unwrap(),
+            state_after.body["v"].as_f64().unwrap(),
         );
         assert!((post + 0.8 * pre).abs() < 1e-12);
     }
@@ -673,7 +693,8 @@ fn engine_run_logged_to_mcap_matches_closed_form_impacts() {
     let info = ball_info();
     let ball = BouncingBall::new(G, 0.8);
     let n = 12;
-    let mut sink = McapSink::create(&path, &info, Some(&energy), McapOptions::default()).unwrap();
+    let options = McapOptions::default().jump_states(true);
+    let mut sink = McapSink::create(&path, &info, Some(&energy), options).unwrap();
     let settings = SimSettings::default().horizon_j(n as u64);
     let term = simulate(
         &ball,
