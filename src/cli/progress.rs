@@ -32,6 +32,9 @@ pub struct Progress {
     horizon_t: f64,
     horizon_j: u64,
     position: u64,
+    /// Whether the bar is drawn (stderr a terminal and `show`): a hidden
+    /// bar is not updated (its message was formatted at every tick).
+    drawn: bool,
     interrupted: Arc<AtomicBool>,
     /// Samples and jumps of the run.
     pub tally: Tally,
@@ -61,6 +64,7 @@ impl Progress {
             .expect("a valid template"),
         );
         Self {
+            drawn: !bar.is_hidden(),
             bar,
             horizon_t,
             horizon_j,
@@ -81,6 +85,9 @@ impl Progress {
     }
 
     fn update(&mut self, at: HybridTime) {
+        if !self.drawn {
+            return;
+        }
         let ft = if self.horizon_t.is_finite() && self.horizon_t > 0.0 {
             at.t / self.horizon_t
         } else {
