@@ -265,7 +265,9 @@ pub(crate) struct Affine {
     n: usize,
     /// The augmented generator `[[A, b], [0, 0]]`, (n+1)×(n+1).
     gen_: DMatrix<f64>,
-    cache: Vec<(u64, DMatrix<f64>)>,
+    /// Propagators by step (bits of h), as [`exp_step`](Self::exp_step)
+    /// gives them.
+    cache: Vec<(u64, Vec<f64>)>,
     next_slot: usize,
     /// Longest step between guard checks: 1/‖A‖∞.
     watch_step: f64,
@@ -399,12 +401,24 @@ impl Affine {
         }
     }
 
-    /// The propagator of a step `h`: `exp(h [[A, b], [0, 0]])`, or its
-    /// active rows. With R the active rows and G_R their rows of the
-    /// generator, `exp(hG)_R = I_R + φ₁(h G_RR) h G_R` (φ₁(X) = Σ X^k/(k+1)!,
-    /// the top-right block of `exp([[X, I], [0, 0]])`): a 2k × 2k exponential
-    /// instead of an (n+1) × (n+1) one.
-    fn exp_step(&self, h: f64) -> DMatrix<f64> {
+    /// The propagator of a step `h`: the first n rows `[Φ, γ]` of
+    /// `exp(h [[A, b], [0, 0]])`, or its active rows, row after row (n + 1
+    /// entries each: a step is then one contiguous dot product per row).
+    fn exp_step(&self, h: f64) -> Vec<f64> {
+        let p = self.exp_rows(h);
+        let rows = self.active.as_ref().map_or(self.n, Vec::len);
+        (0..rows)
+            .flat_map(|a| (0..=self.n).map(move |c| (a, c)))
+            .map(|(a, c)| p[(a, c)])
+            .collect()
+    }
+
+    /// `exp(h [[A, b], [0, 0]])`, or its active rows. With R the active rows
+    /// and G_R their rows of the generator, `exp(hG)_R = I_R + φ₁(h G_RR)
+    /// h G_R` (φ₁(X) = Σ X^k/(k+1)!, the top-right block of
+    /// `exp([[X, I], [0, 0]])`): a 2k × 2k exponential instead of an
+    /// (n+1) × (n+1) one.
+    fn exp_rows(&self, h: f64) -> DMatrix<f64> {
         let Some(rows) = &self.active else {
             return (&self.gen_ * h).exp();
         };
@@ -435,33 +449,32 @@ impl Affine {
         self.apply(&self.cache[slot].1, x, out);
     }
 
-    /// `out = Φ x + γ` with `p = [[Φ, γ], [0, 1]]` (dense), or with `p` the
-    /// active rows of `[Φ, γ]`; the other components are copied from `x`.
-    fn apply(&self, p: &DMatrix<f64>, x: &[f64], out: &mut [f64]) {
+    /// `out = Φ x + γ` with `p` the rows `[Φ, γ]` of
+    /// [`exp_step`](Self::exp_step) (all, or the active ones: the other
+    /// components are copied from `x`). Each row is γ plus Φ's terms in
+    /// column order, as a column-major gemv adds them (the same bits).
+    fn apply(&self, p: &[f64], x: &[f64], out: &mut [f64]) {
         let n = self.n;
-        if let Some(rows) = &self.active {
-            out.copy_from_slice(x);
-            for (a, &r) in rows.iter().enumerate() {
-                let mut acc = p[(a, n)];
-                for (c, &xc) in x.iter().enumerate() {
-                    acc += p[(a, c)] * xc;
+        let row = |w: &[f64]| {
+            let (phi, gamma) = w.split_at(n);
+            let mut acc = gamma[0];
+            for (a, xc) in phi.iter().zip(x) {
+                acc += a * xc;
+            }
+            acc
+        };
+        match &self.active {
+            Some(rows) => {
+                out.copy_from_slice(x);
+                for (w, &r) in p.chunks_exact(n + 1).zip(rows) {
+                    out[r] = row(w);
                 }
-                out[r] = acc;
             }
-            return;
-        }
-        // γ plus the columns of Φ scaled by x, column after column: the
-        // operations of a column-major gemv in its order (so the same bits),
-        // without its generic dispatch (most of its cost at small n).
-        let ps = p.as_slice();
-        let ld = n + 1;
-        let gamma = &ps[n * ld..n * ld + n];
-        for (r, (o, &g)) in out.iter_mut().zip(gamma).enumerate() {
-            let mut acc = g;
-            for (col, &xc) in ps.chunks_exact(ld).zip(x) {
-                acc += col[r] * xc;
+            None => {
+                for (w, o) in p.chunks_exact(n + 1).zip(out.iter_mut()) {
+                    *o = row(w);
+                }
             }
-            *o = acc;
         }
     }
 }
@@ -1521,7 +1534,7 @@ mod tests {
             let rows = aff.exp_step(h);
             for (k, &r) in [1usize, 4].iter().enumerate() {
                 for c in 0..=n {
-                    let (d, s) = (dense[(r, c)], rows[(k, c)]);
+                    let (d, s) = (dense[(r, c)], rows[k * (n + 1) + c]);
                     assert!(
                         (d - s).abs() <= 1e-13 * (1.0 + d.abs()),
                         "h {h} ({r},{c}): {d} vs {s}"
