@@ -279,6 +279,8 @@ pub(crate) struct Affine {
     active: Option<Vec<usize>>,
     /// A state-sized buffer for chained propagation.
     scratch: Vec<f64>,
+    /// The rows of a one-off propagator (event localization).
+    one_off: Vec<f64>,
     /// Estimated flops of one exponential.
     exp_cost: f64,
     /// Estimated flops of one evaluation of f on the solver path.
@@ -337,6 +339,7 @@ impl Affine {
             next_slot: 0,
             watch_step,
             scratch: vec![0.0; n],
+            one_off: Vec::new(),
             // Scaling and squaring with a degree-13 Padé approximant: about
             // 20 products of m × m matrices, 2m³ flops each.
             exp_cost: {
@@ -405,12 +408,27 @@ impl Affine {
     /// `exp(h [[A, b], [0, 0]])`, or its active rows, row after row (n + 1
     /// entries each: a step is then one contiguous dot product per row).
     fn exp_step(&self, h: f64) -> Vec<f64> {
+        let mut rows = Vec::new();
+        self.exp_step_into(h, &mut rows);
+        rows
+    }
+
+    /// [`exp_step`](Self::exp_step) into `rows` (its buffer reused).
+    fn exp_step_into(&self, h: f64, rows: &mut Vec<f64>) {
         let p = self.exp_rows(h);
-        let rows = self.active.as_ref().map_or(self.n, Vec::len);
-        (0..rows)
-            .flat_map(|a| (0..=self.n).map(move |c| (a, c)))
-            .map(|(a, c)| p[(a, c)])
-            .collect()
+        let (k, w) = (self.active.as_ref().map_or(self.n, Vec::len), self.n + 1);
+        // `p` is column-major with p.nrows() rows; its first k rows, row-major.
+        let (ps, ld) = (p.as_slice(), p.nrows());
+        rows.clear();
+        if k == 0 {
+            return;
+        }
+        rows.resize(k * w, 0.0);
+        for (c, col) in ps.chunks_exact(ld).enumerate() {
+            for (a, &v) in col[..k].iter().enumerate() {
+                rows[a * w + c] = v;
+            }
+        }
     }
 
     /// `exp(h [[A, b], [0, 0]])`, or its active rows. With R the active rows
@@ -496,8 +514,10 @@ impl StepPath for AffinePath<'_> {
             out.copy_from_slice(self.y0);
         } else {
             // Not cached: event localization asks for many one-off times.
-            let p = self.aff.exp_step(s - self.s0);
+            let mut p = std::mem::take(&mut self.aff.one_off);
+            self.aff.exp_step_into(s - self.s0, &mut p);
             self.aff.apply(&p, self.y0, out);
+            self.aff.one_off = p;
         }
     }
 }
