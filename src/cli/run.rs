@@ -998,7 +998,11 @@ pub fn execute(args: RunArgs) -> anyhow::Result<u8> {
         }
     };
     if args.json {
-        say(summary_json(model.name(), &report, &info.rule_names, compile_time).to_string());
+        let jit = match model.jit() {
+            lang::JitStatus::Native { time, .. } => Some(*time),
+            _ => None,
+        };
+        say(summary_json(model.name(), &report, &info.rule_names, compile_time, jit).to_string());
         return Ok(exit_code(&report));
     }
     // The compile time belongs to the run's line, not after the last metric.
@@ -1015,12 +1019,14 @@ pub fn execute(args: RunArgs) -> anyhow::Result<u8> {
 }
 
 /// The run's summary as JSON (`hybsim run --json`): what [`summary_line`]
-/// says, for scripts. Non-finite metric values are strings (`"inf"`, `"nan"`).
+/// says, for scripts; `jit_time` is the machine-code generation's share of
+/// `compile_time` (`null` when interpreted). Non-finite metric values are strings (`"inf"`, `"nan"`).
 pub fn summary_json(
     model: &str,
     report: &Report,
     rule_names: &[String],
     compile_time: Duration,
+    jit_time: Option<Duration>,
 ) -> Value {
     let jumps: serde_json::Map<String, Value> = report
         .tally
@@ -1054,6 +1060,7 @@ pub fn summary_json(
         "written": report.written.iter().map(|p| p.display().to_string()).collect::<Vec<_>>(),
         "wall_s": report.wall.as_secs_f64(),
         "compile_s": compile_time.as_secs_f64(),
+        "jit_s": jit_time.map(|t| t.as_secs_f64()),
         "metrics": metrics,
         "solver": report.solver.name(),
         "solver_switches": report.tally.solver_switches,

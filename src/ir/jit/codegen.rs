@@ -1,11 +1,26 @@
 //! Translation of one register program into a Cranelift function.
 //!
 //! Programs are straight-line code (a selection is a `select`, not a
-//! branch), so each becomes one basic block in SSA form: a register's value
+//! branch), so each becomes basic blocks in SSA form: a register's value
 //! is the Cranelift value that defined it; the state registers are loaded
 //! from the state pointer, the other fixed registers and the block outputs
 //! from the register file, on first use; the outputs are stored into the
 //! register file at the end.
+//!
+//! **Sums as loops.** The checker scalarizes matrix work: the entries of
+//! `A * X` are [`Op::Lin`] sums of `cₖ·xₖ` over a row, `n³` terms for
+//! `n × n` matrices. Straight-line code for them (two instructions per
+//! term) makes Cranelift's time grow with the number of terms. Instead,
+//! sums of at least [`LOOP_LEN`] register terms are deferred until an
+//! instruction reads one (or the program ends), and a group of at least
+//! [`LOOP_TERMS`] terms becomes a table of terms (register, coefficient)
+//! and one call of [`helpers::sums`], a loop over the table: the same
+//! products added in the same order, so the result is the same to the
+//! bit, and the code grows with the number of instructions, not of
+//! terms. The loop reads its operands from the register file, so each
+//! operand that so far lives only in a machine register (or in the state)
+//! is stored there first, once per program; its results are written to
+//! the register file.
 
 use cranelift_codegen::Context;
 use cranelift_codegen::ir::condcodes::FloatCC;
@@ -21,11 +36,47 @@ use super::helpers::{self, BlockDesc};
 use crate::check::dag::{BinFn, UnFn};
 use crate::ir::program::{CONST_TERM, Op, Program};
 
+/// The fewest terms a group of sums needs to become a loop. Below it the
+/// sums are straight-line code (immediates, no table to load); 64 terms
+/// are ~130 instructions inline, a call and the stores of its operands
+/// as a loop.
+pub(crate) const LOOP_TERMS: usize = 64;
+
+/// The fewest terms a sum needs to go into a loop: a shorter one
+/// (`a + b`, a 4 × 4 product's row) is no matrix work, runs faster inline
+/// and costs few instructions there.
+pub(crate) const LOOP_LEN: usize = 8;
+
+/// How many sums of equal length advance together (their terms
+/// interleaved in the table): independent additions the processor
+/// overlaps, as it overlaps the sums of straight-line code.
+const WIDTH: usize = 4;
+
+/// The sums of `p` that may go into a loop nest: at least [`LOOP_LEN`]
+/// terms, none of them a constant.
+fn loopable(p: &Program, op: &Op) -> bool {
+    match *op {
+        Op::Lin { t0, len, .. } => {
+            len as usize >= LOOP_LEN
+                && p.lin[t0 as usize..(t0 + len) as usize]
+                    .iter()
+                    .all(|&(r, _)| r != CONST_TERM)
+        }
+        _ => false,
+    }
+}
+
 /// Translates programs one after the other, reusing Cranelift's buffers.
 pub(super) struct Generator {
     ctx: Context,
     fctx: FunctionBuilderContext,
     count: u32,
+    /// The tables of the loop nests generated so far.
+    // Boxed: the code holds their addresses, which must not move.
+    #[allow(clippy::vec_box)]
+    pub tables: Vec<Box<helpers::Nest>>,
+    /// Cranelift instructions generated so far (the work-count tests').
+    pub instructions: usize,
 }
 
 /// The imported signatures of the helpers, per function.
@@ -48,7 +99,15 @@ struct Emit<'a, 'b> {
     state_regs: u32,
     rng: Value,
     vals: Vec<Option<Value>>,
+    /// Registers whose value so far lives only in `vals` (not yet stored
+    /// into the register file).
+    dirty: Vec<bool>,
+    /// State registers copied into the register file (for the loops).
+    copied: Vec<bool>,
     sigs: Sigs,
+    // Boxed: the code holds their addresses, which must not move.
+    #[allow(clippy::vec_box)]
+    tables: &'b mut Vec<Box<helpers::Nest>>,
 }
 
 fn sig(module: &JITModule, params: &[Type], ret: Option<Type>) -> Signature {
@@ -64,6 +123,8 @@ impl Generator {
             ctx: module.make_context(),
             fctx: FunctionBuilderContext::new(),
             count: 0,
+            tables: Vec::new(),
+            instructions: 0,
         }
     }
 
@@ -113,13 +174,17 @@ impl Generator {
                 state_regs: p.state_regs as u32,
                 rng,
                 vals: vec![None; p.nregs],
+                dirty: vec![false; p.nregs],
+                copied: vec![false; p.state_regs],
                 sigs,
+                tables: &mut self.tables,
             };
             e.program(p, blocks);
             b.ins().return_(&[]);
             b.seal_all_blocks();
             b.finalize(module.target_config());
         }
+        self.instructions += self.ctx.func.dfg.num_insts();
         module
             .define_function(id, &mut self.ctx)
             .map_err(|e| JitError::Codegen(format!("{e:?}")))?;
@@ -155,6 +220,94 @@ impl Emit<'_, '_> {
 
     fn set(&mut self, r: u32, v: Value) {
         self.vals[r as usize] = Some(v);
+        self.dirty[r as usize] = true;
+    }
+
+    fn store(&mut self, r: u32, v: Value) {
+        self.b
+            .ins()
+            .store(MemFlagsData::trusted(), v, self.regs, offset(r));
+    }
+
+    /// `ops` (all [`Op::Lin`] without constant terms) as loop nests over
+    /// tables of their terms: for each sum, `acc = term₀`, then
+    /// `acc = acc + termₖ` in order, stored to its register, as the
+    /// interpreter computes it. Runs of [`WIDTH`] consecutive sums of one
+    /// length, none reading another, go through one loop together; the
+    /// others one by one.
+    fn lin_loop(&mut self, p: &Program, ops: &[Op]) {
+        let sums: Vec<(u32, &[(u32, f64)])> = ops
+            .iter()
+            .map(|op| match *op {
+                Op::Lin { d, t0, len } => (d, &p.lin[t0 as usize..(t0 + len) as usize]),
+                _ => unreachable!("a loop nest of sums only"),
+            })
+            .collect();
+        // The loops read their operands from the register file: a value
+        // defined before in this program, or a state component, goes there
+        // first (the interpreter's `run_at` copies the state there too).
+        for &(_, terms) in &sums {
+            for &(r, _) in terms {
+                debug_assert_ne!(r, CONST_TERM, "constant terms stay inline");
+                let r = r as usize;
+                if self.dirty[r] || (r < self.state_regs as usize && !self.copied[r]) {
+                    let v = self.get(r as u32);
+                    self.store(r as u32, v);
+                    self.dirty[r] = false;
+                    if r < self.state_regs as usize {
+                        self.copied[r] = true;
+                    }
+                }
+            }
+        }
+        // Batches, in order, then runs of batches of one width.
+        let mut i = 0;
+        let mut batches: Vec<(usize, usize)> = Vec::new(); // (first sum, width)
+        while i < sums.len() {
+            let group = &sums[i..(i + WIDTH).min(sums.len())];
+            let together = group.len() == WIDTH
+                && group.iter().all(|s| s.1.len() == group[0].1.len())
+                && group
+                    .iter()
+                    .all(|s| s.1.iter().all(|&(r, _)| group.iter().all(|g| g.0 != r)));
+            let w = if together { WIDTH } else { 1 };
+            batches.push((i, w));
+            i += w;
+        }
+        let mut start = 0;
+        while start < batches.len() {
+            let w = batches[start].1;
+            let end = start + batches[start..].iter().take_while(|b| b.1 == w).count();
+            let mut table = Vec::new();
+            let mut terms = Vec::new();
+            for &(first, w) in &batches[start..end] {
+                let group = &sums[first..first + w];
+                table.push(group[0].1.len() as u32);
+                table.extend(group.iter().map(|s| s.0));
+                for k in 0..group[0].1.len() {
+                    terms.extend(group.iter().map(|s| helpers::LoopTerm {
+                        reg: s.1[k].0 as usize,
+                        c: s.1[k].1,
+                    }));
+                }
+            }
+            let nest = Box::new(helpers::Nest {
+                width: w,
+                batches: table.into_boxed_slice(),
+                terms: terms.into_boxed_slice(),
+            });
+            let desc = self.address((&*nest as *const helpers::Nest).cast());
+            let (sig, regs) = (self.sigs.block, self.regs);
+            let h = helpers::sums as helpers::Sums as *const u8;
+            self.call(sig, h, &[desc, regs]);
+            self.tables.push(nest);
+            start = end;
+        }
+        // The results are in the register file now.
+        for &(d, _) in &sums {
+            self.vals[d as usize] = None;
+            self.dirty[d as usize] = false;
+        }
     }
 
     fn konst(&mut self, c: f64) -> Value {
@@ -263,163 +416,245 @@ impl Emit<'_, '_> {
 
     fn program(&mut self, p: &Program, blocks: &[BlockDesc]) {
         let mut next_block = 0;
+        // Sums are deferred, and gathered into one loop nest, until an
+        // instruction reads one (or the program ends): nothing but a sum
+        // reads the interleaved products a shared coefficient makes
+        // (`c * x` used by many rows), so a matrix product's sums stay
+        // together. Each instruction's value only depends on its
+        // operands, so the order does not change any result.
+        let mut sums: Vec<Op> = Vec::new();
+        let mut pending = vec![false; p.nregs];
         for op in &p.ops {
-            match *op {
-                Op::Const { d, c } => {
-                    let v = self.konst(c);
-                    self.set(d, v);
-                }
-                Op::Add { d, a, b }
-                | Op::Sub { d, a, b }
-                | Op::Mul { d, a, b }
-                | Op::Div { d, a, b } => {
-                    let f = match op {
-                        Op::Add { .. } => BinFn::Add,
-                        Op::Sub { .. } => BinFn::Sub,
-                        Op::Mul { .. } => BinFn::Mul,
-                        _ => BinFn::Div,
-                    };
-                    let (a, b) = (self.get(a), self.get(b));
-                    let v = self.bin(f, a, b, None);
-                    self.set(d, v);
-                }
-                Op::AddC { d, a, c } => {
-                    let (a, c) = (self.get(a), self.konst(c));
-                    let v = self.b.ins().fadd(a, c);
-                    self.set(d, v);
-                }
-                Op::MulC { d, a, c } => {
-                    let (a, c) = (self.get(a), self.konst(c));
-                    let v = self.b.ins().fmul(a, c);
-                    self.set(d, v);
-                }
-                Op::BinRC { d, f, a, c } => {
-                    let (a, k) = (self.get(a), self.konst(c));
-                    let v = self.bin(f, a, k, Some(c));
-                    self.set(d, v);
-                }
-                Op::BinCR { d, f, c, b } => {
-                    let (k, b) = (self.konst(c), self.get(b));
-                    let v = self.bin(f, k, b, None);
-                    self.set(d, v);
-                }
-                Op::Bin { d, f, a, b } => {
-                    let (a, b) = (self.get(a), self.get(b));
-                    let v = self.bin(f, a, b, None);
-                    self.set(d, v);
-                }
-                Op::Neg { d, a } => {
-                    let a = self.get(a);
-                    let v = self.b.ins().fneg(a);
-                    self.set(d, v);
-                }
-                Op::Un { d, f, a } => {
-                    let a = self.get(a);
-                    let v = self.un(f, a);
-                    self.set(d, v);
-                }
-                Op::Select { d, c, a, b } => {
-                    let c = self.get(c);
-                    let cond = self.nonzero(c);
-                    let (a, b) = (self.get(a), self.get(b));
-                    let v = self.b.ins().select(cond, a, b);
-                    self.set(d, v);
-                }
-                Op::Rand { d, dist, a, b } => {
-                    let (a, b) = (self.get(a), self.get(b));
-                    let code = self
-                        .b
-                        .ins()
-                        .iconst(types::I32, i64::from(helpers::dist_code(dist)));
-                    let (sig, rng) = (self.sigs.rand, self.rng);
-                    let r = helpers::rand as helpers::Rand as *const u8;
-                    let v = self.call(sig, r, &[rng, code, a, b]).expect("one result");
-                    self.set(d, v);
-                }
-                Op::Lookup {
-                    d,
-                    table,
-                    row,
-                    col,
-                    origin,
-                    when,
-                } => {
-                    let (row, col, when) = (self.get(row), self.get(col), self.get(when));
-                    // The time and jump registers follow the state ones.
-                    let (t, j) = (self.get(self.state_regs), self.get(self.state_regs + 1));
-                    let table =
-                        self.address(std::sync::Arc::as_ptr(&p.tables[table as usize]).cast());
-                    let origin = self.b.ins().iconst(types::I32, i64::from(origin));
-                    let h = helpers::table_lookup as helpers::Lookup as *const u8;
-                    let v = self
-                        .call(self.sigs.lookup, h, &[table, row, col, origin, when, t, j])
-                        .expect("one result");
-                    self.set(d, v);
-                }
-                Op::Interp { d, table, x, slope } => {
-                    let x = self.get(x);
-                    let table =
-                        self.address(std::sync::Arc::as_ptr(&p.tables[table as usize]).cast());
-                    let slope = self.b.ins().iconst(types::I32, i64::from(slope));
-                    let h = helpers::table_interp as helpers::Interp as *const u8;
-                    let v = self
-                        .call(self.sigs.interp, h, &[table, x, slope])
-                        .expect("one result");
-                    self.set(d, v);
-                }
-                Op::Lin { d, t0, len } => {
-                    let terms = &p.lin[t0 as usize..(t0 + len) as usize];
-                    let mut acc = None;
-                    for &(r, c) in terms {
-                        let k = self.konst(c);
-                        let term = if r == CONST_TERM {
-                            k
-                        } else {
-                            let x = self.get(r);
-                            self.b.ins().fmul(x, k)
-                        };
-                        acc = Some(match acc {
-                            None => term,
-                            Some(s) => self.b.ins().fadd(s, term),
-                        });
-                    }
-                    let v = acc.expect("a sum has terms");
-                    self.set(d, v);
-                }
-                Op::Block {
-                    kind,
-                    g0,
-                    len,
-                    inp,
-                    out,
-                    ..
-                } => {
-                    for k in 0..len {
-                        let v = self.get(p.gather[(g0 + k) as usize]);
-                        self.b
-                            .ins()
-                            .store(MemFlagsData::trusted(), v, self.regs, offset(inp + k));
-                    }
-                    let desc = &blocks[next_block] as *const BlockDesc as *const u8;
-                    next_block += 1;
-                    let desc = self.address(desc);
-                    let (sig, regs) = (self.sigs.block, self.regs);
-                    let h = helpers::block as helpers::Block as *const u8;
-                    self.call(sig, h, &[desc, regs]);
-                    // The outputs are in the register file now.
-                    for r in out..out + kind.outputs() as u32 {
-                        self.vals[r as usize] = None;
-                    }
-                }
+            if let Op::Lin { d, .. } = *op
+                && loopable(p, op)
+            {
+                sums.push(*op);
+                pending[d as usize] = true;
+                continue;
             }
+            if !sums.is_empty() && reads(p, op, |r| pending[r as usize]) {
+                self.sums(p, &mut sums, &mut pending);
+            }
+            self.op(p, op, blocks, &mut next_block);
         }
+        self.sums(p, &mut sums, &mut pending);
         // Every output lands in the register file, also one that is a state
         // register read from `x`.
         for &o in &p.outs {
+            if o >= self.state_regs && !self.dirty[o as usize] {
+                // Already there (read from there, or a loop's or a
+                // block's result).
+                continue;
+            }
             let v = self.get(o);
-            self.b
-                .ins()
-                .store(MemFlagsData::trusted(), v, self.regs, offset(o));
+            self.store(o, v);
         }
+    }
+
+    /// Emits the deferred `sums`: one loop nest if they have at least
+    /// [`LOOP_TERMS`] terms, else inline; then clears them.
+    fn sums(&mut self, p: &Program, sums: &mut Vec<Op>, pending: &mut [bool]) {
+        let terms: usize = sums
+            .iter()
+            .map(|o| match o {
+                Op::Lin { len, .. } => *len as usize,
+                _ => 0,
+            })
+            .sum();
+        if terms >= LOOP_TERMS {
+            self.lin_loop(p, sums);
+        } else {
+            for op in sums.iter() {
+                self.op(p, op, &[], &mut 0);
+            }
+        }
+        for op in sums.drain(..) {
+            if let Op::Lin { d, .. } = op {
+                pending[d as usize] = false;
+            }
+        }
+    }
+
+    /// Emits one instruction; `blocks[next_block]` is the next block
+    /// operation's descriptor.
+    fn op(&mut self, p: &Program, op: &Op, blocks: &[BlockDesc], next_block: &mut usize) {
+        match *op {
+            Op::Const { d, c } => {
+                let v = self.konst(c);
+                self.set(d, v);
+            }
+            Op::Add { d, a, b }
+            | Op::Sub { d, a, b }
+            | Op::Mul { d, a, b }
+            | Op::Div { d, a, b } => {
+                let f = match op {
+                    Op::Add { .. } => BinFn::Add,
+                    Op::Sub { .. } => BinFn::Sub,
+                    Op::Mul { .. } => BinFn::Mul,
+                    _ => BinFn::Div,
+                };
+                let (a, b) = (self.get(a), self.get(b));
+                let v = self.bin(f, a, b, None);
+                self.set(d, v);
+            }
+            Op::AddC { d, a, c } => {
+                let (a, c) = (self.get(a), self.konst(c));
+                let v = self.b.ins().fadd(a, c);
+                self.set(d, v);
+            }
+            Op::MulC { d, a, c } => {
+                let (a, c) = (self.get(a), self.konst(c));
+                let v = self.b.ins().fmul(a, c);
+                self.set(d, v);
+            }
+            Op::BinRC { d, f, a, c } => {
+                let (a, k) = (self.get(a), self.konst(c));
+                let v = self.bin(f, a, k, Some(c));
+                self.set(d, v);
+            }
+            Op::BinCR { d, f, c, b } => {
+                let (k, b) = (self.konst(c), self.get(b));
+                let v = self.bin(f, k, b, None);
+                self.set(d, v);
+            }
+            Op::Bin { d, f, a, b } => {
+                let (a, b) = (self.get(a), self.get(b));
+                let v = self.bin(f, a, b, None);
+                self.set(d, v);
+            }
+            Op::Neg { d, a } => {
+                let a = self.get(a);
+                let v = self.b.ins().fneg(a);
+                self.set(d, v);
+            }
+            Op::Un { d, f, a } => {
+                let a = self.get(a);
+                let v = self.un(f, a);
+                self.set(d, v);
+            }
+            Op::Select { d, c, a, b } => {
+                let c = self.get(c);
+                let cond = self.nonzero(c);
+                let (a, b) = (self.get(a), self.get(b));
+                let v = self.b.ins().select(cond, a, b);
+                self.set(d, v);
+            }
+            Op::Rand { d, dist, a, b } => {
+                let (a, b) = (self.get(a), self.get(b));
+                let code = self
+                    .b
+                    .ins()
+                    .iconst(types::I32, i64::from(helpers::dist_code(dist)));
+                let (sig, rng) = (self.sigs.rand, self.rng);
+                let r = helpers::rand as helpers::Rand as *const u8;
+                let v = self.call(sig, r, &[rng, code, a, b]).expect("one result");
+                self.set(d, v);
+            }
+            Op::Lookup {
+                d,
+                table,
+                row,
+                col,
+                origin,
+                when,
+            } => {
+                let (row, col, when) = (self.get(row), self.get(col), self.get(when));
+                // The time and jump registers follow the state ones.
+                let (t, j) = (self.get(self.state_regs), self.get(self.state_regs + 1));
+                let table = self.address(std::sync::Arc::as_ptr(&p.tables[table as usize]).cast());
+                let origin = self.b.ins().iconst(types::I32, i64::from(origin));
+                let h = helpers::table_lookup as helpers::Lookup as *const u8;
+                let v = self
+                    .call(self.sigs.lookup, h, &[table, row, col, origin, when, t, j])
+                    .expect("one result");
+                self.set(d, v);
+            }
+            Op::Interp { d, table, x, slope } => {
+                let x = self.get(x);
+                let table = self.address(std::sync::Arc::as_ptr(&p.tables[table as usize]).cast());
+                let slope = self.b.ins().iconst(types::I32, i64::from(slope));
+                let h = helpers::table_interp as helpers::Interp as *const u8;
+                let v = self
+                    .call(self.sigs.interp, h, &[table, x, slope])
+                    .expect("one result");
+                self.set(d, v);
+            }
+            Op::Lin { d, t0, len } => {
+                let terms = &p.lin[t0 as usize..(t0 + len) as usize];
+                let mut acc = None;
+                for &(r, c) in terms {
+                    let k = self.konst(c);
+                    let term = if r == CONST_TERM {
+                        k
+                    } else {
+                        let x = self.get(r);
+                        self.b.ins().fmul(x, k)
+                    };
+                    acc = Some(match acc {
+                        None => term,
+                        Some(s) => self.b.ins().fadd(s, term),
+                    });
+                }
+                let v = acc.expect("a sum has terms");
+                self.set(d, v);
+            }
+            Op::Block {
+                kind,
+                g0,
+                len,
+                inp,
+                out,
+                ..
+            } => {
+                for k in 0..len {
+                    let v = self.get(p.gather[(g0 + k) as usize]);
+                    self.b
+                        .ins()
+                        .store(MemFlagsData::trusted(), v, self.regs, offset(inp + k));
+                }
+                let desc = &blocks[*next_block] as *const BlockDesc as *const u8;
+                *next_block += 1;
+                let desc = self.address(desc);
+                let (sig, regs) = (self.sigs.block, self.regs);
+                let h = helpers::block as helpers::Block as *const u8;
+                self.call(sig, h, &[desc, regs]);
+                // The outputs are in the register file now.
+                for r in out..out + kind.outputs() as u32 {
+                    self.vals[r as usize] = None;
+                    self.dirty[r as usize] = false;
+                }
+            }
+        }
+    }
+}
+
+/// Whether `op` reads a register for which `f` holds.
+fn reads(p: &Program, op: &Op, mut f: impl FnMut(u32) -> bool) -> bool {
+    match *op {
+        Op::Const { .. } => false,
+        Op::Add { a, b, .. }
+        | Op::Sub { a, b, .. }
+        | Op::Mul { a, b, .. }
+        | Op::Div { a, b, .. }
+        | Op::Bin { a, b, .. }
+        | Op::Rand { a, b, .. } => f(a) || f(b),
+        Op::AddC { a, .. }
+        | Op::MulC { a, .. }
+        | Op::BinRC { a, .. }
+        | Op::Neg { a, .. }
+        | Op::Un { a, .. } => f(a),
+        Op::BinCR { b, .. } => f(b),
+        Op::Select { c, a, b, .. } => f(c) || f(a) || f(b),
+        Op::Lookup { row, col, when, .. } => {
+            let n = p.state_regs as u32;
+            f(row) || f(col) || f(when) || f(n) || f(n + 1)
+        }
+        Op::Interp { x, .. } => f(x),
+        Op::Lin { t0, len, .. } => p.lin[t0 as usize..(t0 + len) as usize]
+            .iter()
+            .any(|&(r, _)| r != CONST_TERM && f(r)),
+        Op::Block { g0, len, .. } => p.gather[g0 as usize..(g0 + len) as usize]
+            .iter()
+            .any(|&r| f(r)),
     }
 }

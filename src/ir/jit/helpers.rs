@@ -19,6 +19,61 @@ pub(super) type Lookup = extern "C" fn(*const Table, f64, f64, u32, f64, f64, f6
 /// `table_interp(table, x, slope)`.
 pub(super) type Interp = extern "C" fn(*const Table, f64, u32) -> f64;
 
+/// `sums(nest, regs)`.
+pub(super) type Sums = extern "C" fn(*const Nest, *mut f64);
+
+/// One term of a looped sum: register `reg` times `c`.
+#[repr(C)]
+pub(super) struct LoopTerm {
+    pub reg: usize,
+    pub c: f64,
+}
+
+/// Sums computed by [`sums`], in batches of `width` sums of one length:
+/// per batch `[len, d₀, …, d_{width−1}]` in `batches` (terms per sum,
+/// result registers), and in `terms`, batch after batch, the `k`-th terms
+/// of the batch's sums side by side.
+pub(super) struct Nest {
+    pub width: usize,
+    pub batches: Box<[u32]>,
+    pub terms: Box<[LoopTerm]>,
+}
+
+/// Computes the sums of `nest` into `regs`, each as the interpreter's
+/// `Op::Lin` does: `acc = v₀·c₀`, then `acc += vₖ·cₖ` in order (Rust
+/// neither fuses nor reassociates floating-point operations).
+pub(super) extern "C" fn sums(nest: *const Nest, regs: *mut f64) {
+    // SAFETY: the code passes a nest its `Code` holds.
+    let nest = unsafe { &*nest };
+    match nest.width {
+        4 => sums_of::<4>(nest, regs),
+        1 => sums_of::<1>(nest, regs),
+        w => unreachable!("no loop nest of width {w}"),
+    }
+}
+
+fn sums_of<const W: usize>(nest: &Nest, regs: *mut f64) {
+    let mut terms = nest.terms.chunks_exact(W);
+    for batch in nest.batches.chunks_exact(W + 1) {
+        let len = batch[0] as usize;
+        // SAFETY (all reads and writes of `regs`): the registers are the
+        // program's, below its register count, and `Native::run` checked
+        // that the file holds that many.
+        let first = terms.next().expect("a sum has terms");
+        let mut acc: [f64; W] =
+            std::array::from_fn(|w| unsafe { *regs.add(first[w].reg) } * first[w].c);
+        for _ in 1..len {
+            let row = terms.next().expect("len terms per sum");
+            for w in 0..W {
+                acc[w] += unsafe { *regs.add(row[w].reg) } * row[w].c;
+            }
+        }
+        for w in 0..W {
+            unsafe { *regs.add(batch[w + 1] as usize) = acc[w] };
+        }
+    }
+}
+
 /// A run-time table index (the interpreter's [`lookup`]).
 pub(super) extern "C" fn table_lookup(
     table: *const Table,

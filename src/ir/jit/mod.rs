@@ -68,6 +68,10 @@ struct Code {
     module: Option<JITModule>,
     /// Descriptors of the block operations, addressed by the code.
     _blocks: Vec<Box<[helpers::BlockDesc]>>,
+    /// The term tables of the loop nests, addressed by the code.
+    // Boxed: the code holds their addresses, which must not move.
+    #[allow(clippy::vec_box)]
+    _loops: Vec<Box<helpers::Nest>>,
     /// The tables the code addresses (also held by the programs; kept
     /// here so that the code never outlives them).
     _tables: Vec<Arc<crate::check::dag::Table>>,
@@ -266,10 +270,28 @@ fn build(programs: &[&Program], allocator: &str) -> Result<(Code, Vec<Entry>), J
         Code {
             module: Some(module),
             _blocks: blocks,
+            _loops: std::mem::take(&mut generator.tables),
             _tables: tables,
         },
         entries,
     ))
+}
+
+/// The number of Cranelift instructions generated for `p` (the work-count
+/// tests': code size, not time).
+#[cfg(test)]
+fn instructions(p: &Program) -> usize {
+    let jb = JITBuilder::with_isa(
+        isa("single_pass").expect("a supported machine"),
+        cranelift_module::default_libcall_names(),
+    );
+    let mut module = JITModule::new(jb);
+    let mut generator = codegen::Generator::new(&module);
+    let descs = helpers::block_descs(p);
+    generator
+        .define(&mut module, p, &descs)
+        .expect("the program compiles");
+    generator.instructions
 }
 
 #[cfg(test)]

@@ -2,7 +2,9 @@
 
 use proptest::prelude::*;
 
-use super::compile;
+use super::codegen::LOOP_TERMS;
+use super::{compile, instructions};
+use crate::arc::HybridTime;
 use crate::check::dag::{BinFn, BlockKind, Dag, Dist, NodeId, UnFn};
 use crate::engine::SimRng;
 use crate::ir::program::{Frame, Program};
@@ -198,6 +200,122 @@ proptest! {
         let (i, j) = both(&p, &x);
         prop_assert_eq!(i, j);
     }
+}
+
+/// `rows` sums, row `r` of `len` terms `cᵢ·vᵢ` (left-leaning, `+` or `−`)
+/// over operands drawn from the states, computed temporaries (`sin xₖ`),
+/// the earlier rows and constants (`pick` 39), as the checker scalarizes
+/// `A * v + b`.
+/// `pick` chooses each term's operand and sign, `coef` its coefficient.
+fn sums(rows: usize, len: usize, pick: &[u8], coef: &[f64]) -> (Dag, Vec<NodeId>) {
+    let mut dag = Dag::default();
+    let x: Vec<NodeId> = (0..4).map(|k| dag.state(k)).collect();
+    let temps: Vec<NodeId> = x.iter().map(|&v| dag.un(UnFn::Sin, v)).collect();
+    let mut rowv: Vec<NodeId> = Vec::new();
+    let mut k = 0;
+    for _ in 0..rows {
+        let mut acc: Option<NodeId> = None;
+        for _ in 0..len {
+            let (p, c) = (pick[k % pick.len()], coef[k % coef.len()]);
+            k += 1;
+            let term = match p % 5 {
+                0 | 1 => {
+                    let c = dag.konst(c);
+                    dag.bin(BinFn::Mul, c, x[p as usize / 5 % 4])
+                }
+                2 => {
+                    let c = dag.konst(c);
+                    dag.bin(BinFn::Mul, temps[p as usize / 5 % 4], c)
+                }
+                3 if !rowv.is_empty() => {
+                    let c = dag.konst(c);
+                    dag.bin(BinFn::Div, rowv[p as usize / 5 % rowv.len()], c)
+                }
+                // Constant terms (rare: a sum with one stays inline).
+                _ if p == 39 => dag.konst(c),
+                _ => {
+                    let c = dag.konst(c);
+                    dag.bin(BinFn::Mul, x[p as usize % 4], c)
+                }
+            };
+            acc = Some(match acc {
+                None => term,
+                Some(a) if p % 2 == 0 => dag.bin(BinFn::Add, a, term),
+                Some(a) => dag.bin(BinFn::Sub, a, term),
+            });
+        }
+        rowv.push(acc.expect("len > 0"));
+    }
+    (dag, rowv)
+}
+
+/// Runs `p` at (0.5, 3) on state `x` kept apart from the register file
+/// (whose state part holds garbage), interpreted and as machine code.
+fn both_at(p: &Program, x: &[f64; 4]) -> (Vec<u64>, Vec<u64>) {
+    let mut jitted = p.clone();
+    assert_eq!(compile(&mut [&mut jitted], 0).unwrap(), 1);
+    let eval = |p: &Program| {
+        let mut regs = vec![f64::NAN; p.nregs.max(FRAME.fixed())];
+        p.run_at(&mut regs, HybridTime { t: 0.5, j: 3 }, x, None);
+        p.outs
+            .iter()
+            .map(|&o| regs[o as usize].to_bits())
+            .collect::<Vec<_>>()
+    };
+    (eval(p), eval(&jitted))
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(100))]
+    /// Sums long enough to become loops (over states read from the
+    /// state, computed temporaries, constants and earlier sums of the
+    /// same loop) compute the interpreter's results to the last bit.
+    #[test]
+    fn looped_sums_are_bit_identical(
+        rows in 1usize..12,
+        len in 1usize..40,
+        pick in prop::collection::vec(0u8..40, 1..50),
+        coef in prop::collection::vec(-3.0f64..3.0, 1..50),
+        x in prop::array::uniform4(-4.0f64..4.0),
+    ) {
+        let (dag, outs) = sums(rows, len, &pick, &coef);
+        let p = Program::compile(&dag, FRAME, &outs);
+        let (i, j) = both(&p, &x);
+        prop_assert_eq!(i, j);
+        let (i, j) = both_at(&p, &x);
+        prop_assert_eq!(i, j);
+    }
+}
+
+/// A matrix product's code grows with its rows, not with its entries:
+/// an n × n constant times the state (plus temporaries) is looped, and
+/// four times the rows is at most four times the instructions (sixteen
+/// times the terms). Inline, the same sums take about two instructions
+/// per term.
+#[test]
+fn looped_code_grows_with_the_rows() {
+    // States and temporaries (no earlier rows: a scaled row used more
+    // than once is an instruction of its own; no constants: a sum with one
+    // stays inline), each coefficient once (a product used by two rows is
+    // an instruction too).
+    let pick: Vec<u8> = (0..39).filter(|p| p % 5 != 3).collect();
+    let code = |n: usize| {
+        let coef: Vec<f64> = (0..n * n).map(|i| 0.1 + i as f64 * 1e-3).collect();
+        let (dag, outs) = sums(n, n, &pick, &coef);
+        let p = Program::compile(&dag, FRAME, &outs);
+        let (i, j) = both(&p, &[0.3, -1.1, 2.5, 0.7]);
+        assert_eq!(i, j, "n = {n}");
+        (instructions(&p), n * n)
+    };
+    let (small, terms) = code(10);
+    assert!(terms >= LOOP_TERMS);
+    let (large, terms) = code(40);
+    assert!(large <= 4 * small, "{small} → {large} instructions");
+    assert!(large < terms / 4, "{large} instructions for {terms} terms");
+    // Below the threshold the sums stay inline (two per term or so).
+    let (inline, terms) = code(6);
+    assert!(terms < LOOP_TERMS);
+    assert!(inline >= terms, "{inline} instructions for {terms} terms");
 }
 
 /// A register file shorter than the program's is refused, not overrun.
