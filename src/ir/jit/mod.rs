@@ -147,7 +147,8 @@ impl Native {
             self.state_regs
         );
         let rng = rng.map_or(std::ptr::null_mut(), |r| r as *mut SimRng);
-        // SAFETY: as `run`; the code reads `x[..state_regs]` only.
+        // SAFETY: as `run`; the code reads `x[..state_regs]` only (and
+        // may copy it into `regs[..state_regs]`, as the interpreter does).
         unsafe { (self.entry)(regs.as_mut_ptr(), x.as_ptr(), rng) }
     }
 }
