@@ -166,7 +166,8 @@ impl Diagnostic {
             Some((a, b, lead)) => (s + shift).clamp(a, b) - a + lead,
             None => s + shift,
         };
-        let origin = std::sync::Arc::new(SourceFile::new(file, shown));
+        // Verbatim: a byte-order mark typed into the argument is part of it (the spans count it).
+        let origin = std::sync::Arc::new(SourceFile::verbatim(file, shown));
         for l in &mut self.labels {
             l.span = Span::new(moved(l.span.start), moved(l.span.end));
             l.file = Some(origin.clone());

@@ -63,6 +63,13 @@ impl SourceFile {
         if text.starts_with('\u{feff}') {
             text.drain(..'\u{feff}'.len_utf8());
         }
+        Self::verbatim(name, text)
+    }
+
+    /// A source holding `text` exactly, a leading byte-order mark included: for texts whose
+    /// spans were measured before any mark was removed (a `--set` argument, a table's data).
+    pub fn verbatim(name: impl Into<String>, text: impl Into<String>) -> Self {
+        let text = text.into();
         let line_starts = std::iter::once(0)
             .chain(text.match_indices('\n').map(|(i, _)| i + 1))
             .collect();

@@ -252,8 +252,8 @@ pub fn read(
     let raw = std::fs::read(file).map_err(unreadable)?;
     let sha256 = crate::source::sha256_hex(&raw);
     let name = file.display().to_string();
-    // Spans are offsets in the text without its byte-order mark, as `SourceFile` (which shows
-    // the error) holds it.
+    // Spans are offsets in the text without its byte-order mark; the `SourceFile` showing an
+    // error holds that text verbatim (a second mark would be data).
     let bom = if raw.starts_with("\u{feff}".as_bytes()) {
         3
     } else {
@@ -268,7 +268,7 @@ pub fn read(
             return Err(TableError::Data {
                 path: path.to_string(),
                 why: DataError::NotUtf8,
-                file: Arc::new(SourceFile::new(name, text)),
+                file: Arc::new(SourceFile::verbatim(name, text)),
                 at,
                 call,
             });
@@ -277,7 +277,7 @@ pub fn read(
     let (rows, cols, data) = parse(&text).map_err(|(at, why)| TableError::Data {
         path: path.to_string(),
         why,
-        file: Arc::new(SourceFile::new(name.clone(), text.clone())),
+        file: Arc::new(SourceFile::verbatim(name.clone(), text.clone())),
         at,
         call,
     })?;
