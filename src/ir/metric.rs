@@ -11,7 +11,10 @@
 //! that of the sample grid (`dt_out`, or the integrator's steps); the
 //! window is evaluated at the samples, and a flow segment counts if both
 //! its end samples are in it. `period` keeps the last values at the jumps
-//! (a bounded buffer) and detects their period when the run ends.
+//! (a bounded buffer) and detects their period when the run ends. A sample
+//! at the hybrid time of the previous one, or after jumps that write no
+//! component the sample program reads (a noise redraw, for metrics of the
+//! plant), reuses the previous values instead of running the program.
 
 use std::collections::VecDeque;
 use std::ops::ControlFlow;
@@ -20,7 +23,7 @@ use super::program::{Frame, Program};
 use super::with_regs;
 use crate::analysis::periodicity::{PeriodOutcome, PeriodSettings, detect_period_scalar};
 use crate::arc::{ArcSink, HybridTime, SampleKind, Termination};
-use crate::check::dag::Dag;
+use crate::check::dag::{Dag, Node};
 use crate::check::metric::{CheckedMetrics, ReductionKind};
 
 #[derive(Debug, Clone)]
@@ -48,12 +51,21 @@ pub struct Metrics {
     combine: Program,
     combine_regs: usize,
     base: usize,
+    /// Per rule: whether a jump by it leaves the sample program's values
+    /// unchanged (it writes no component the program reads, and the program
+    /// reads neither j nor a random draw), so the post-jump sample reuses the
+    /// pre-jump values.
+    jump_keeps_values: Vec<bool>,
+    /// Whether two samples at the same hybrid time have the same values (the
+    /// program draws nothing at random).
+    deterministic: bool,
 }
 
 impl Metrics {
     /// Compiles the checked metrics of a model with `n` state components
-    /// and `rules` jump rules.
-    pub(crate) fn compile(dag: &Dag, m: &CheckedMetrics, n: usize, rules: usize) -> Self {
+    /// and jump rules writing the components `writes[r]`.
+    pub(crate) fn compile(dag: &Dag, m: &CheckedMetrics, n: usize, writes: &[Vec<usize>]) -> Self {
+        let rules = writes.len();
         let mut outs = Vec::new();
         let mut specs = Vec::new();
         let mut by_rule = vec![Vec::new(); rules];
@@ -82,6 +94,27 @@ impl Metrics {
             .collect();
         let frame = Frame { n: 2 * n + 1, m: 0 };
         let sample = Program::compile(dag, frame, &outs);
+        // What the sample program reads in its frame [x (n) | j | x⁺ (n) | t]
+        // (x⁺ = x at a sample).
+        let reached = dag.reachable(&outs);
+        let mut reads = vec![false; n];
+        let (mut reads_j, mut draws) = (false, false);
+        for (id, _) in reached.iter().enumerate().filter(|&(_, &r)| r) {
+            match dag.node(id as crate::check::dag::NodeId) {
+                Node::State(k) if (k as usize) < n => reads[k as usize] = true,
+                Node::State(k) if k as usize == n => reads_j = true,
+                Node::State(k) => reads[k as usize - n - 1] = true,
+                Node::Jumps => reads_j = true,
+                Node::Rand(..) => draws = true,
+                _ => {}
+            }
+        }
+        let jump_keeps_values = writes
+            .iter()
+            .map(|w| {
+                !reads_j && !draws && w.iter().all(|&k| !reads.get(k).copied().unwrap_or(true))
+            })
+            .collect();
         let sample_regs = sample.nregs.max(frame.fixed());
         let cframe = Frame {
             n: m.base + m.reductions.len(),
@@ -101,6 +134,8 @@ impl Metrics {
             combine,
             combine_regs,
             base: m.base,
+            jump_keeps_values,
+            deterministic: !draws,
         }
     }
 
@@ -127,6 +162,7 @@ impl Metrics {
             m: self,
             acc: specs.iter().map(|s| Acc::new(s.kind)).collect(),
             prev: None,
+            kept_until: None,
             vals: vec![0.0; self.sample.outs.len()],
             prev_vals: vec![0.0; self.sample.outs.len()],
             end: None,
@@ -226,6 +262,9 @@ pub struct MetricSink<'a> {
     m: &'a Metrics,
     acc: Vec<Acc>,
     prev: Option<HybridTime>,
+    /// The hybrid time up to which the previous sample's values still hold:
+    /// its own, or after the jumps since it that left them unchanged.
+    kept_until: Option<HybridTime>,
     vals: Vec<f64>,
     prev_vals: Vec<f64>,
     end: Option<HybridTime>,
@@ -261,7 +300,13 @@ impl MetricSink<'_> {
 
 impl ArcSink for MetricSink<'_> {
     fn sample(&mut self, at: HybridTime, x: &[f64], _kind: SampleKind) -> ControlFlow<()> {
-        self.m.eval(at, x, &mut self.vals);
+        // A solution has one state per hybrid time: a sample where the
+        // previous one's values still hold needs no evaluation.
+        if self.m.deterministic && self.kept_until == Some(at) {
+            self.vals.copy_from_slice(&self.prev_vals);
+        } else {
+            self.m.eval(at, x, &mut self.vals);
+        }
         let holds = |vals: &[f64], w: Option<usize>| w.is_none_or(|w| vals[w] != 0.0);
         // Flow interval since the previous sample (same j).
         let dt = match self.prev {
@@ -303,11 +348,17 @@ impl ArcSink for MetricSink<'_> {
         }
         std::mem::swap(&mut self.vals, &mut self.prev_vals);
         self.prev = Some(at);
+        self.kept_until = Some(at);
         self.end = Some(at);
         ControlFlow::Continue(())
     }
 
     fn jump(&mut self, at: HybridTime, rule: usize, pre: &[f64], _post: &[f64]) -> ControlFlow<()> {
+        // The rules of one simultaneous jump all start from `at`.
+        let post = HybridTime::new(at.t, at.j + 1);
+        let from_kept = self.kept_until == Some(at) || self.kept_until == Some(post);
+        let keeps = self.m.jump_keeps_values.get(rule).copied().unwrap_or(false);
+        self.kept_until = (from_kept && keeps).then_some(post);
         let list = self.m.by_rule.get(rule).map_or(&[][..], Vec::as_slice);
         if list.is_empty() && self.m.at_jumps.is_empty() {
             return ControlFlow::Continue(());

@@ -532,7 +532,8 @@ impl CompiledModel {
         let jit_start = Instant::now();
         let (properties, native_props) =
             property::compile(&m.dag, &m.properties, m.dim, &source, want_jit);
-        let mut metrics = metric::Metrics::compile(&m.dag, &m.metrics, m.dim, m.rules.len());
+        let writes: Vec<Vec<usize>> = rule_code.iter().map(|rc| rc.targets.clone()).collect();
+        let mut metrics = metric::Metrics::compile(&m.dag, &m.metrics, m.dim, &writes);
         let mut flow = flow;
         let mut diffusion = diffusion;
         let mut init = init;

@@ -92,6 +92,45 @@ sim { T = 12 }
 }
 
 #[test]
+fn samples_after_jumps_that_leave_the_metrics_unchanged_give_the_same_metrics() {
+    // The sink reuses the pre-jump values after a jump writing nothing its
+    // program reads (`tick` for the metrics of x); a jump writing x
+    // (`reset`) or any jump for a metric of j or y must re-evaluate.
+    let model = |metrics: &str| {
+        format!(
+            "model reuse
+state x = 0, y = 0
+flow {{ x' = 1; y' = 0 }}
+jump reset when x >= 1 {{ x+ = 0 }}
+every 0.3 {{ y+ = y + 1 }}
+{metrics}
+sim {{ T = 3.95 }}
+"
+        )
+    };
+    let close = |a: f64, b: f64| (a - b).abs() < 1e-9 * (1.0 + b.abs());
+    // Saw-tooth x: ∫ = 3 teeth of 1/2 and 0.95²/2; min after the first reset is 0.
+    let m = metrics_of(&model(
+        "metric area = integral(x), low = min(x, t > 0.5), last = final(x)",
+    ));
+    assert!(close(m[0].1, 1.5 + 0.95 * 0.95 / 2.0), "{m:?}");
+    assert_eq!(m[1].1, 0.0, "{m:?}");
+    assert!(close(m[2].1, 0.95), "{m:?}");
+    // y counts the ticks at 0.3 k (k = 1…13); j counts them and the resets
+    // at 1, 2, 3: each adds 1 from its time on.
+    let ticks: Vec<f64> = (1..=13).map(|k| 0.3 * f64::from(k)).collect();
+    let after = |times: &[f64]| times.iter().map(|t| 3.95 - t).sum::<f64>();
+    let m = metrics_of(&model(
+        "metric ys = integral(y), js = integral(j), jl = final(j)",
+    ));
+    assert!(close(m[0].1, after(&ticks)), "{m:?}");
+    let mut all = ticks.clone();
+    all.extend([1.0, 2.0, 3.0]);
+    assert!(close(m[1].1, after(&all)), "{m:?}");
+    assert_eq!(m[2].1, 16.0, "{m:?}");
+}
+
+#[test]
 fn period_is_the_asymptotic_period_of_the_values_at_the_jumps() {
     // x cycles 0, 1, 2 from the start; z settles geometrically on the cycle
     // 1, 4 (period 2 only once the transient is below the detector's 1e-9);
