@@ -946,17 +946,23 @@ pub fn execute(args: RunArgs) -> anyhow::Result<u8> {
         return Ok(EXIT_MODEL_ERROR);
     }
     let output_fn = |at: HybridTime, x: &[f64], y: &mut [f64]| model.outputs(at, x, y);
-    // A log that keeps some of the outputs evaluates only those.
-    let logged_outputs = outputs.log_vars.as_ref().and_then(|names| {
-        let (selected, _) = info.select_vars(names);
-        let components: Vec<usize> = selected
-            .output_layout
-            .components()
-            .into_iter()
-            .map(|(k, _)| k)
-            .collect();
-        (components.len() < info.output_dim).then(|| model.output_subset(&components))
-    });
+    // A log that keeps some of the outputs evaluates only those (compiled
+    // only when a file logs them).
+    let logs = outputs.mcap.is_some() || outputs.csv.is_some() || outputs.parquet.is_some();
+    let logged_outputs = outputs
+        .log_vars
+        .as_ref()
+        .filter(|_| logs)
+        .and_then(|names| {
+            let (selected, _) = info.select_vars(names);
+            let components: Vec<usize> = selected
+                .output_layout
+                .components()
+                .into_iter()
+                .map(|(k, _)| k)
+                .collect();
+            (components.len() < info.output_dim).then(|| model.output_subset(&components))
+        });
     let logged_fn = logged_outputs
         .as_ref()
         .map(|s| move |at: HybridTime, x: &[f64], y: &mut [f64]| s.eval(at, x, y));
