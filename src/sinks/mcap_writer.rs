@@ -72,6 +72,10 @@ impl Compression {
 /// a 30 000-message run).
 pub const CHUNK_SIZE: usize = 1 << 18;
 
+/// Bytes of a message record before its payload: opcode, content length,
+/// channel id, sequence, log time, publish time.
+const MESSAGE_HEAD: usize = 1 + 8 + 2 + 4 + 8 + 8;
+
 const MAGIC: &[u8] = &[0x89, b'M', b'C', b'A', b'P', 0x30, b'\r', b'\n'];
 
 /// Record opcodes of the MCAP specification.
@@ -188,26 +192,7 @@ impl Compressor {
     fn compress(&mut self, data: &[u8], out: &mut Vec<u8>) -> io::Result<()> {
         match self {
             Compressor::None => out.extend_from_slice(data),
-            Compressor::Lz4 => {
-                // The chunk as one block (4 MiB blocks hold a chunk),
-                // compressed at once (`auto_flush`) rather than first copied
-                // into the encoder's buffer: 35 ms instead of 65 ms for the
-                // 37 MB of a consensus run (64 KiB linked blocks: 66 ms).
-                // No checksums of LZ4's own: the chunk record carries the
-                // CRC of its uncompressed records, the file that of its bytes.
-                let mut encoder = lz4::EncoderBuilder::new()
-                    .level(1)
-                    .block_size(lz4::BlockSize::Max4MB)
-                    .block_mode(lz4::BlockMode::Independent)
-                    .auto_flush(true)
-                    .checksum(lz4::ContentChecksum::NoChecksum)
-                    .block_checksum(lz4::liblz4::BlockChecksum::NoBlockChecksum)
-                    .build(std::mem::take(out))?;
-                encoder.write_all(data)?;
-                let (buf, result) = encoder.finish();
-                *out = buf;
-                result?;
-            }
+            Compressor::Lz4 => lz4_frame(data, LZ4_ACCELERATION, out),
             Compressor::Zstd(z) => {
                 out.reserve(zstd::zstd_safe::compress_bound(data.len()));
                 z.compress_to_buffer(data, out)?;
@@ -215,6 +200,62 @@ impl Compressor {
         }
         Ok(())
     }
+}
+
+/// The LZ4 frame header of every chunk: magic number; FLG = version 1,
+/// independent blocks, no block or content checksum, no content size;
+/// BD = 4 MiB blocks; the header checksum (second byte of the XXH32 of FLG
+/// and BD). No checksums of LZ4's own: the chunk record carries the CRC of
+/// its uncompressed records, the file that of its bytes.
+const LZ4_HEADER: [u8; 7] = [0x04, 0x22, 0x4D, 0x18, 0x60, 0x70, 0x73];
+
+/// Largest LZ4 block of the frame (BD above).
+const LZ4_BLOCK: usize = 4 << 20;
+
+/// LZ4's acceleration (1 is its default). A run's records are mostly
+/// float bytes that LZ4 cannot shorten, and 3 makes it give up on them
+/// sooner: ~30 % fewer instructions in LZ4 for files 1–2 % larger
+/// (BENCHMARKS.md, issue 19, session 14); 4 gains little more, 6 makes
+/// consensus's file 34 % larger.
+const LZ4_ACCELERATION: i32 = 3;
+
+/// Appends `data` as one LZ4 frame: a block per 4 MiB (one for a chunk of
+/// [`CHUNK_SIZE`]), each stored as is if it does not shrink, and the end
+/// mark. Written through LZ4's block function straight into `out` rather
+/// than through `lz4::Encoder`, which allocates a frame context and a
+/// 4 MiB buffer per chunk, copies the compressed block out of it, and
+/// cannot set the acceleration. At acceleration 1 the bytes are the frame
+/// that encoder writes with these settings (test
+/// `lz4_frames_are_the_lz4_crates`).
+fn lz4_frame(data: &[u8], acceleration: i32, out: &mut Vec<u8>) {
+    out.extend_from_slice(&LZ4_HEADER);
+    for block in data.chunks(LZ4_BLOCK) {
+        // A block is at most 4 MiB, so its bound fits in an i32.
+        let len = block.len() as i32;
+        // SAFETY: LZ4_compressBound only reads its argument.
+        let bound = unsafe { lz4::liblz4::LZ4_compressBound(len) };
+        let size_at = out.len();
+        out.reserve(4 + bound as usize);
+        // SAFETY: `out` has room for `bound` bytes after the size field;
+        // LZ4_compress_default reads `len` bytes of `block` and writes at
+        // most `bound` bytes (it returns how many, 0 on failure), which
+        // become initialized before `set_len` exposes them.
+        let written = unsafe {
+            let dst = out.as_mut_ptr().add(size_at + 4);
+            lz4::liblz4::LZ4_compress_fast(block.as_ptr().cast(), dst.cast(), len, bound, acceleration)
+        };
+        if written > 0 && written < len {
+            out.extend_from_slice(&(written as u32).to_le_bytes());
+            // SAFETY: the `written` bytes after the size field were just
+            // written by LZ4 (see above); the size field was pushed.
+            unsafe { out.set_len(size_at + 4 + written as usize) };
+        } else {
+            // Incompressible: stored, flagged by the size's high bit.
+            out.extend_from_slice(&(block.len() as u32 | 0x8000_0000).to_le_bytes());
+            out.extend_from_slice(block);
+        }
+    }
+    out.extend_from_slice(&0u32.to_le_bytes());
 }
 
 #[derive(Clone)]
@@ -553,14 +594,20 @@ impl<W: Write + Send + 'static> McapWriter<W> {
                     format!("MCAP message on unknown channel {channel}"),
                 )
             })?;
-        index.push((log_time, chunk.data.len() as u64));
-        record(&mut chunk.data, op::MESSAGE, |out| {
-            out.u16(channel);
-            out.u32(sequence);
-            out.u64(log_time);
-            out.u64(log_time);
-            payload(out);
-        });
+        let start = chunk.data.len();
+        index.push((log_time, start as u64));
+        // The record's opcode, length (set below) and header fields (log
+        // and publish time), appended at once: this runs per message.
+        let mut head = [0u8; MESSAGE_HEAD];
+        head[0] = op::MESSAGE;
+        head[9..11].copy_from_slice(&channel.to_le_bytes());
+        head[11..15].copy_from_slice(&sequence.to_le_bytes());
+        head[15..23].copy_from_slice(&log_time.to_le_bytes());
+        head[23..31].copy_from_slice(&log_time.to_le_bytes());
+        chunk.data.extend_from_slice(&head);
+        payload(&mut chunk.data);
+        let len = (chunk.data.len() - start - 9) as u64;
+        chunk.data[start + 1..start + 9].copy_from_slice(&len.to_le_bytes());
         self.channel_counts[usize::from(channel)] += 1;
         let widen = |b: Option<(u64, u64)>| match b {
             None => Some((log_time, log_time)),
@@ -980,5 +1027,53 @@ mod tests {
         let mut w = McapWriter::new(Failing { left: 50 }, "", "test", Compression::None).unwrap();
         assert!(w.add_schema("S", "jsonschema", &[b' '; 100]).is_ok());
         drop(w);
+    }
+
+    /// At acceleration 1 the frames `lz4_frame` writes are byte for byte
+    /// those of the `lz4` crate's encoder with the settings it documents;
+    /// at every acceleration they decode to their input: empty, compressible, incompressible (stored) and larger than
+    /// one 4 MiB block.
+    #[test]
+    fn lz4_frames_are_the_lz4_crates() {
+        let mut state = 0x2545_f491_4f6c_dd1du64;
+        let mut noise = |n: usize| -> Vec<u8> {
+            (0..n)
+                .map(|_| {
+                    state ^= state << 13;
+                    state ^= state >> 7;
+                    state ^= state << 17;
+                    state as u8
+                })
+                .collect()
+        };
+        let floats: Vec<u8> = (0..40_000)
+            .flat_map(|k| (f64::from(k) * 0.01).sin().to_le_bytes())
+            .collect();
+        let big: Vec<u8> = floats.iter().copied().cycle().take(LZ4_BLOCK + 12_345).collect();
+        for data in [Vec::new(), floats, noise(70_000), big] {
+            let mut ours = vec![7u8];
+            lz4_frame(&data, 1, &mut ours);
+            let mut encoder = lz4::EncoderBuilder::new()
+                .level(1)
+                .block_size(lz4::BlockSize::Max4MB)
+                .block_mode(lz4::BlockMode::Independent)
+                .auto_flush(true)
+                .checksum(lz4::ContentChecksum::NoChecksum)
+                .block_checksum(lz4::liblz4::BlockChecksum::NoBlockChecksum)
+                .build(vec![7u8])
+                .unwrap();
+            encoder.write_all(&data).unwrap();
+            let (theirs, result) = encoder.finish();
+            result.unwrap();
+            assert_eq!(ours, theirs, "{} bytes", data.len());
+            for acceleration in [1, LZ4_ACCELERATION] {
+                let mut frame = Vec::new();
+                lz4_frame(&data, acceleration, &mut frame);
+                let mut back = Vec::new();
+                let mut decoder = lz4::Decoder::new(&frame[..]).unwrap();
+                io::Read::read_to_end(&mut decoder, &mut back).unwrap();
+                assert_eq!(back, data, "acceleration {acceleration}");
+            }
+        }
     }
 }

@@ -147,42 +147,41 @@ impl Body {
 /// A compiled message body: literal bytes with holes for runs of values.
 #[derive(Debug, Clone, Default, PartialEq)]
 struct Template {
-    /// All literal bytes, concatenated.
-    lits: Vec<u8>,
-    /// Per run of values: the end of the literal bytes before it, the first
-    /// component and the number of components.
+    /// A written body with zeros in the holes.
+    image: Vec<u8>,
+    /// Per run of values: its place in the body, the first component and
+    /// the number of components.
     holes: Vec<(usize, usize, usize)>,
-    /// Length of a written body.
-    len: usize,
 }
 
 impl Template {
     fn new(body: &Body) -> Self {
-        let mut t = Template {
-            len: body.len(),
-            ..Template::default()
-        };
+        let mut t = Template::default();
         for p in &body.0 {
             match p {
-                Piece::Bytes(b) => t.lits.extend_from_slice(b),
-                Piece::Values { k, n } => t.holes.push((t.lits.len(), *k, *n)),
+                Piece::Bytes(b) => t.image.extend_from_slice(b),
+                Piece::Values { k, n } => {
+                    t.holes.push((t.image.len(), *k, *n));
+                    t.image.resize(t.image.len() + 8 * n, 0);
+                }
             }
         }
         t
     }
 
-    /// Appends the body with the values of `x`.
+    /// Appends the body with the values of `x`: the image in one copy,
+    /// then the values over its holes (rather than literal runs of a byte
+    /// or two and numbers appended one by one: this runs per message).
     #[inline]
     fn write(&self, out: &mut Vec<u8>, x: &[f64]) {
-        let mut start = 0;
-        for &(end, k, n) in &self.holes {
-            out.extend_from_slice(&self.lits[start..end]);
-            for v in &x[k..k + n] {
-                out.extend_from_slice(&v.to_le_bytes());
+        let start = out.len();
+        out.extend_from_slice(&self.image);
+        let body = &mut out[start..];
+        for &(at, k, n) in &self.holes {
+            for (dst, v) in body[at..at + 8 * n].chunks_exact_mut(8).zip(&x[k..k + n]) {
+                dst.copy_from_slice(&v.to_le_bytes());
             }
-            start = end;
         }
-        out.extend_from_slice(&self.lits[start..]);
     }
 }
 
@@ -510,11 +509,23 @@ impl ProtoWriter {
         (writer, schemas)
     }
 
+    /// Appends the `t` and `j` fields, at once (this runs per message).
     fn time(out: &mut Vec<u8>, at: HybridTime) {
-        put_key(out, 1, FIXED64);
-        out.extend_from_slice(&at.t.to_le_bytes());
-        put_key(out, 2, VARINT);
-        put_varint(out, at.j);
+        // Keys of one byte (fields 1 and 2), a double, a varint of at most
+        // 10 bytes.
+        let mut b = [0u8; 20];
+        b[0] = (1 << 3) | FIXED64;
+        b[1..9].copy_from_slice(&at.t.to_le_bytes());
+        b[9] = (2 << 3) | VARINT;
+        let mut n = 10;
+        let mut j = at.j;
+        while j >= 0x80 {
+            b[n] = (j as u8) | 0x80;
+            j >>= 7;
+            n += 1;
+        }
+        b[n] = j as u8;
+        out.extend_from_slice(&b[..=n]);
     }
 
     /// Appends the `State` record of `x` at `at`.
@@ -548,7 +559,7 @@ impl ProtoWriter {
         if self.jump_states {
             for (field, x) in [(6, pre), (7, post)] {
                 put_key(out, field, LEN);
-                put_varint(out, self.state.len as u64);
+                put_varint(out, self.state.image.len() as u64);
                 self.state.write(out, x);
             }
         }
