@@ -49,6 +49,7 @@ use super::{
 };
 use crate::arc::{ArcSink, HybridTime, SampleKind, SolverSwitch};
 use crate::atomic_file;
+use crate::layout::Layout;
 
 /// Topic of state samples.
 pub const STATE_TOPIC: &str = "/hybsim/state";
@@ -186,6 +187,9 @@ pub struct McapSink<'a> {
     y: Vec<f64>,
     records: Records,
     filter: JumpFilter,
+    /// Runs (first component, count) of the state components the records
+    /// carry: those checked for non-finite values.
+    logged: Vec<(usize, usize)>,
     /// Whether jump records carry the pre- and post-jump states.
     jump_states: bool,
     error: Option<SinkError>,
@@ -443,6 +447,7 @@ impl<'a> McapSink<'a> {
             y: vec![0.0; info.output_dim],
             records,
             filter: JumpFilter::new(&info.logged_rules),
+            logged: component_runs(&info.state_layout),
             jump_states: options.jump_states,
             error: None,
             metrics: Vec::new(),
@@ -505,8 +510,19 @@ impl<'a> McapSink<'a> {
         })
     }
 
+    /// The first non-finite component of `x` that the records carry, as
+    /// (index, value). Only those: the file must hold none, and the
+    /// engine has checked the whole state already (a selective log of a
+    /// wide state would otherwise scan all of it per sample).
+    fn non_finite_state(&self, x: &[f64]) -> Option<(usize, f64)> {
+        self.logged.iter().find_map(|&(first, n)| {
+            let run = x.get(first..(first + n).min(x.len()))?;
+            first_non_finite(run).map(|(k, v)| (first + k, v))
+        })
+    }
+
     fn write_sample(&mut self, at: HybridTime, x: &[f64]) -> Result<ControlFlow<()>, SinkError> {
-        if let Some((k, value)) = first_non_finite(x) {
+        if let Some((k, value)) = self.non_finite_state(x) {
             return Err(SinkError::NonFinite {
                 what: "state",
                 name: self.info.component_name("state", k),
@@ -561,7 +577,7 @@ impl<'a> McapSink<'a> {
         // (and are checked when written).
         let states: &[&[f64]] = if self.jump_states { &[pre, post] } else { &[] };
         for x in states {
-            if let Some((k, value)) = first_non_finite(x) {
+            if let Some((k, value)) = self.non_finite_state(x) {
                 return Err(SinkError::NonFinite {
                     what: "state",
                     name: self.info.component_name("state", k),
@@ -776,6 +792,21 @@ impl ArcSink for McapSink<'_> {
         }
         self.settle(r)
     }
+}
+
+/// The components `layout` covers, as runs (first, count) in index order.
+fn component_runs(layout: &Layout) -> Vec<(usize, usize)> {
+    let mut offsets: Vec<usize> = layout.components().into_iter().map(|c| c.0).collect();
+    offsets.sort_unstable();
+    offsets.dedup();
+    let mut runs: Vec<(usize, usize)> = Vec::new();
+    for k in offsets {
+        match runs.last_mut() {
+            Some((first, n)) if *first + *n == k => *n += 1,
+            _ => runs.push((k, 1)),
+        }
+    }
+    runs
 }
 
 /// The worker threads of rayon's global pool, without starting it: asking

@@ -242,7 +242,13 @@ fn lz4_frame(data: &[u8], acceleration: i32, out: &mut Vec<u8>) {
         // become initialized before `set_len` exposes them.
         let written = unsafe {
             let dst = out.as_mut_ptr().add(size_at + 4);
-            lz4::liblz4::LZ4_compress_fast(block.as_ptr().cast(), dst.cast(), len, bound, acceleration)
+            lz4::liblz4::LZ4_compress_fast(
+                block.as_ptr().cast(),
+                dst.cast(),
+                len,
+                bound,
+                acceleration,
+            )
         };
         if written > 0 && written < len {
             out.extend_from_slice(&(written as u32).to_le_bytes());
@@ -1049,7 +1055,12 @@ mod tests {
         let floats: Vec<u8> = (0..40_000)
             .flat_map(|k| (f64::from(k) * 0.01).sin().to_le_bytes())
             .collect();
-        let big: Vec<u8> = floats.iter().copied().cycle().take(LZ4_BLOCK + 12_345).collect();
+        let big: Vec<u8> = floats
+            .iter()
+            .copied()
+            .cycle()
+            .take(LZ4_BLOCK + 12_345)
+            .collect();
         for data in [Vec::new(), floats, noise(70_000), big] {
             let mut ours = vec![7u8];
             lz4_frame(&data, 1, &mut ours);

@@ -506,6 +506,37 @@ fn mcap_stops_the_run_before_writing_non_finite_values() {
         sink.stopped_by(),
         Some(SinkError::NonFinite { what: "output", name, .. }) if name == "E"
     ));
+
+    // Only the components the records carry are checked: with `v` alone
+    // logged, a non-finite `h` is not in the file and does not stop the
+    // sink (the engine checks the whole state); a non-finite `v` does.
+    let (only_v, _) = info.select_vars(&["v"]);
+    let path = dir.path().join("v.mcap");
+    let mut sink = McapSink::create(&path, &only_v, Some(&energy), McapOptions::default()).unwrap();
+    assert!(
+        sink.sample(
+            HybridTime::new(0.0, 0),
+            &[f64::NAN, 2.0],
+            SampleKind::Initial
+        )
+        .is_continue()
+    );
+    assert!(
+        sink.sample(HybridTime::new(0.5, 0), &[1.0, f64::NAN], SampleKind::Flow)
+            .is_break()
+    );
+    assert!(matches!(
+        sink.stopped_by(),
+        Some(SinkError::NonFinite { what: "state", name, .. }) if name == "v"
+    ));
+    sink.finish(&horizon()).unwrap();
+    let msgs = messages(&std::fs::read(&path).unwrap());
+    let states: Vec<&Value> = msgs
+        .iter()
+        .filter(|m| m.topic == "/hybsim/state")
+        .map(|m| &m.body)
+        .collect();
+    assert_eq!(states, [&json!({"t": 0.0, "j": 0, "v": 2.0})]);
 }
 
 #[test]
