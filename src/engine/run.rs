@@ -242,6 +242,7 @@ pub fn simulate<S: HybridSystem + ?Sized>(
     let mut cannot_flow = false;
     let mut at_horizon = false;
     let mut timer_d = vec![f64::INFINITY; timers.len()];
+    let mut inside = vec![false; rules.len()];
 
     let finish = |out: &mut Output<'_>, at: HybridTime, x: &[f64], cause: TerminationCause| {
         let term = Termination { at, cause };
@@ -282,7 +283,7 @@ pub fn simulate<S: HybridSystem + ?Sized>(
         if j >= settings.horizon_j {
             return finish(&mut out, at, &x, TerminationCause::HorizonJ);
         }
-        let enabled = (0..rules.len()).find(|&r| pending == Some(r) || sys.jump_set(r, at, &x));
+        let enabled = first_enabled(sys, at, &x, pending, &mut inside);
         pending = None;
         let after_event = std::mem::take(&mut from_event);
         let left_flow_set = std::mem::take(&mut cannot_flow);
@@ -434,6 +435,8 @@ pub fn simulate<S: HybridSystem + ?Sized>(
                     let grouped = rules[r].group.is_some() && timer_d[k] - d_end <= tol;
                     if timer_d[k] == d_end || grouped {
                         x[index] = threshold;
+                        // On its threshold, the rule's set holds.
+                        pending = Some(pending.map_or(r, |p| p.min(r)));
                     }
                 }
                 for (index, threshold) in flows.watcher.timers_due(d_end) {
@@ -456,6 +459,29 @@ pub fn simulate<S: HybridSystem + ?Sized>(
             }
         }
     }
+}
+
+/// The first rule (in declaration order) whose jump set holds `x` at `at`,
+/// `pending` (a rule known to hold: a timer on its threshold, a localized
+/// event) counting as holding. With a pending rule, the rules before it are
+/// asked one by one (none, for the first rule: a noise redraw); otherwise
+/// all sets at once if the system offers it (`inside` its scratch), else,
+/// or if that evaluation reported a fault, rule by rule.
+fn first_enabled<S: HybridSystem + ?Sized>(
+    sys: &S,
+    at: HybridTime,
+    x: &[f64],
+    pending: Option<usize>,
+    inside: &mut [bool],
+) -> Option<usize> {
+    if let Some(p) = pending {
+        return (0..p).find(|&r| sys.jump_set(r, at, x)).or(Some(p));
+    }
+    // On a fault, a set after the first enabled one may be what failed.
+    if sys.jump_sets(at, x, inside) && sys.take_fault().is_none() {
+        return (0..inside.len()).find(|&r| inside[r]);
+    }
+    (0..inside.len()).find(|&r| sys.jump_set(r, at, x))
 }
 
 /// The error of a fault the system reported.

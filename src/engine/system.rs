@@ -345,6 +345,18 @@ pub trait HybridSystem {
     /// Membership of x in the jump set D_i of rule `rule` at hybrid time `at`.
     fn jump_set(&self, rule: usize, at: HybridTime, x: &[f64]) -> bool;
 
+    /// Writes [`jump_set`](Self::jump_set) of every rule at once into
+    /// `inside` (one entry per rule) and returns `true`; or returns `false`
+    /// (the default) to have the engine ask rule by rule. A system whose
+    /// sets share subexpressions computes them once here. The engine asks
+    /// at each point where it chooses between flowing and jumping. A fault
+    /// reported after this call (a rule's set that cannot be evaluated)
+    /// makes the engine discard it and ask rule by rule in order, so that
+    /// only the rules before the first enabled one are evaluated, as then.
+    fn jump_sets(&self, _at: HybridTime, _x: &[f64], _inside: &mut [bool]) -> bool {
+        false
+    }
+
     /// A continuous function that is ≥ 0 on D_i's side of its boundary and
     /// < 0 away from it; a zero crossing from below is a candidate event.
     fn jump_guard(&self, rule: usize, at: HybridTime, x: &[f64]) -> f64;

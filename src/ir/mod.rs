@@ -78,6 +78,8 @@ struct SetCode {
     atom_text: Vec<String>,
     /// The node of each atom.
     nodes: Vec<NodeId>,
+    /// The node of the set's condition.
+    cond_node: NodeId,
 }
 
 impl SetCode {
@@ -136,6 +138,7 @@ impl SetCode {
             flowing: Program::compile(dag, frame, &fnodes),
             flowing_idx,
             nodes,
+            cond_node: cond,
             atoms: SetAtoms {
                 atoms,
                 expr: ca.expr,
@@ -173,11 +176,20 @@ struct AllAtoms {
     flowing: Program,
     /// Position in the layout of each output of `flowing`.
     flowing_pos: Vec<usize>,
+    /// Each jump rule's condition, in rule order (the engine's choice of
+    /// the rule to fire at a point, the five triggers' shared terms once).
+    conds: Program,
 }
 
 impl AllAtoms {
-    fn new<'a>(dag: &Dag, frame: Frame, sets: impl Iterator<Item = &'a SetCode>) -> Self {
+    fn new<'a>(
+        dag: &Dag,
+        frame: Frame,
+        sets: impl Iterator<Item = &'a SetCode>,
+        rules: &[RuleCode],
+    ) -> Self {
         let (mut all, mut flowing, mut flowing_pos) = (Vec::new(), Vec::new(), Vec::new());
+        let conds: Vec<NodeId> = rules.iter().map(|rc| rc.set.cond_node).collect();
         for code in sets {
             let off = all.len();
             all.extend_from_slice(&code.nodes);
@@ -190,6 +202,7 @@ impl AllAtoms {
             all: Program::compile(dag, frame, &all),
             flowing: Program::compile(dag, frame, &flowing),
             flowing_pos,
+            conds: Program::compile(dag, frame, &conds),
         }
     }
 }
@@ -503,6 +516,7 @@ impl CompiledModel {
                 .iter()
                 .map(|(c, _)| c)
                 .chain(rule_code.iter().map(|rc| &rc.set)),
+            &rule_code,
         );
         let mut nregs = [
             &flow,
@@ -511,6 +525,7 @@ impl CompiledModel {
             &outputs,
             &atoms.all,
             &atoms.flowing,
+            &atoms.conds,
         ]
         .iter()
         .map(|p| p.nregs)
@@ -565,6 +580,7 @@ impl CompiledModel {
             let hot = progs.len();
             progs.push(&mut atoms.all);
             progs.extend(sets);
+            progs.push(&mut atoms.conds);
             progs.extend([&mut outputs, metrics.sample_mut(), &mut init]);
             progs.extend(maps);
             let total = progs.len();
@@ -1361,6 +1377,21 @@ impl HybridSystem for CompiledModel {
                 for (o, &r) in out.iter_mut().zip(&atoms.all.outs) {
                     *o = regs[r as usize];
                 }
+            }
+        });
+        true
+    }
+
+    fn jump_sets(&self, at: HybridTime, x: &[f64], inside: &mut [bool]) -> bool {
+        let conds = &self.atoms.conds;
+        // One rule: its own program is as cheap.
+        if conds.outs.len() < 2 {
+            return false;
+        }
+        with_regs(self.nregs, |regs| {
+            conds.run_at(regs, at, x, None);
+            for (b, &r) in inside.iter_mut().zip(&conds.outs) {
+                *b = regs[r as usize] != 0.0;
             }
         });
         true

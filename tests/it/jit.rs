@@ -6,11 +6,12 @@
 //! use (`j` in every kind of expression, `together` groups, boolean set
 //! expressions with `==`/`!=`, the rounding functions, noise, metrics), and
 //! on the random systems of the semantics reference test. Also: all sets'
-//! atoms evaluated at once (one program) against set by set.
+//! atoms and all jump conditions evaluated at once (one program each)
+//! against set by set.
 
 use crate::util::simulate_arc;
 use hybsim::arc::HybridTime;
-use hybsim::engine::{HybridSystem, SetRef, SimRng};
+use hybsim::engine::{HybridSystem, SetRef, SimError, SimRng};
 use hybsim::lang::{self, CompiledModel, JitStatus, Override};
 use hybsim::source::SourceFile;
 
@@ -362,9 +363,9 @@ impl HybridSystem for SetBySet<'_> {
 }
 
 /// The engine's checkpoints evaluate all sets of a compiled model in one
-/// program (shared subexpressions once): the arcs are those of evaluating
-/// the sets one by one, bit for bit, on the shipped models and the random
-/// systems.
+/// program, and its choice of the rule to fire all jump conditions in one
+/// (shared subexpressions once): the arcs are those of evaluating the sets
+/// one by one, bit for bit, on the shipped models and the random systems.
 #[test]
 fn all_sets_at_once_give_the_arcs_of_set_by_set() {
     let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("models");
@@ -401,4 +402,51 @@ fn all_sets_at_once_give_the_arcs_of_set_by_set() {
         assert_eq!(a.jumps(), b.jumps(), "{name}: jumps");
         assert_eq!(a.termination(), b.termination(), "{name}: termination");
     }
+}
+
+/// The rule to fire is the first enabled one, and the sets after it are not
+/// evaluated: a set that cannot be evaluated there (an index out of range)
+/// does not stop the run, though the model's jump conditions are evaluated
+/// together (the engine then asks rule by rule). Where no earlier rule is
+/// enabled, the fault stops the run with its location.
+#[test]
+fn a_set_after_the_enabled_rule_that_cannot_be_evaluated_is_not_an_error() {
+    let text = |horizon: f64| {
+        format!(
+            "model order
+param k = [1, 2]
+state x = 0, n = 1
+flow {{ x' = 1; n' = 0 }}
+jump a when x >= 1 && n < 4 {{ n+ = n + 1 }}
+jump c when n >= 4 {{ x+ = 0; n+ = 1 }}
+jump b when k[n] >= 5 {{ n+ = 1 }}
+sim {{ T = {horizon} }}
+"
+        )
+    };
+    for jit in ["on", "off"] {
+        let m = compile(&SourceFile::new("order.hyb", text(3.5)), jit);
+        assert_eq!(
+            m.jump_rules()
+                .iter()
+                .map(|r| r.name.as_str())
+                .collect::<Vec<_>>(),
+            ["a", "c", "b"]
+        );
+        let (x0, mut rng) = m.start(m.seed());
+        let arc = simulate_arc(&m, &x0, &m.settings(), &mut rng).expect("no fault");
+        // At t = 1, 2, 3: a, a, a (n = 2, 3, 4), then c.
+        let rules: Vec<usize> = arc.jumps().iter().map(|j| j.rule).collect();
+        assert_eq!(rules, [0, 0, 0, 1].repeat(3), "jit {jit}");
+        assert_eq!(
+            arc.termination().map(|t| &t.cause),
+            Some(&hybsim::arc::TerminationCause::HorizonT)
+        );
+    }
+    // Without `c`, the point n = 4 has no enabled rule before `b`.
+    let faulty = text(3.5).replace("jump c when n >= 4", "jump c when n >= 40");
+    let m = compile(&SourceFile::new("order.hyb", faulty), "on");
+    let (x0, mut rng) = m.start(m.seed());
+    let err = simulate_arc(&m, &x0, &m.settings(), &mut rng).unwrap_err();
+    assert!(matches!(err, SimError::Fault { .. }), "{err}");
 }
