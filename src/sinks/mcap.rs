@@ -185,6 +185,10 @@ pub struct McapSink<'a> {
     last_log_time: u64,
     sequence: u32,
     y: Vec<f64>,
+    /// The hybrid time `y` was evaluated at: a solution has one state per
+    /// hybrid time, so a sample there again (the pre-jump sample of a second
+    /// jump at one instant, after the first one's post-jump sample) reuses it.
+    y_at: Option<HybridTime>,
     records: Records,
     filter: JumpFilter,
     /// Runs (first component, count) of the state components the records
@@ -445,6 +449,7 @@ impl<'a> McapSink<'a> {
             last_log_time: 0,
             sequence: 0,
             y: vec![0.0; info.output_dim],
+            y_at: None,
             records,
             filter: JumpFilter::new(&info.logged_rules),
             logged: component_runs(&info.state_layout),
@@ -531,8 +536,11 @@ impl<'a> McapSink<'a> {
             });
         }
         let mut y = std::mem::take(&mut self.y);
-        if let (Some(outputs), Some(_)) = (self.outputs, self.channels.outputs) {
+        if let (Some(outputs), Some(_)) = (self.outputs, self.channels.outputs)
+            && self.y_at != Some(at)
+        {
             outputs(at, x, &mut y);
+            self.y_at = Some(at);
             if let Some((k, value)) = first_non_finite(&y) {
                 self.y = y;
                 return Err(SinkError::NonFinite {

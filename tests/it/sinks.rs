@@ -814,3 +814,36 @@ fn plot_sink_thins_long_runs_but_keeps_jumps() {
         assert!((post.1 + 0.8 * pre.1).abs() < 1e-12, "jump {k}");
     }
 }
+
+/// A solution has one state per hybrid time: the MCAP sink evaluates the
+/// outputs once for the post-jump sample of one jump and the pre-jump
+/// sample of the next at the same instant, and writes the same values.
+#[test]
+fn mcap_evaluates_outputs_once_per_hybrid_time() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("twice.mcap");
+    let info = ball_info();
+    let calls = std::cell::Cell::new(0);
+    let counted = |at: HybridTime, x: &[f64], y: &mut [f64]| {
+        calls.set(calls.get() + 1);
+        energy(at, x, y);
+    };
+    let mut sink = McapSink::create(&path, &info, Some(&counted), McapOptions::default()).unwrap();
+    let (x0, x1, x2) = ([0.0, -3.0], [0.0, 2.4], [0.0, -1.92]);
+    let at = |j| HybridTime::new(0.5, j);
+    let _ = sink.sample(at(0), &x0, SampleKind::PreJump);
+    let _ = sink.jump(at(0), 0, &x0, &x1);
+    let _ = sink.sample(at(1), &x1, SampleKind::PostJump);
+    let _ = sink.sample(at(1), &x1, SampleKind::PreJump);
+    let _ = sink.jump(at(1), 0, &x1, &x2);
+    let _ = sink.sample(at(2), &x2, SampleKind::PostJump);
+    sink.finish(&horizon()).unwrap();
+    assert_eq!(calls.get(), 3, "one evaluation per hybrid time");
+    let outputs: Vec<f64> = messages(&std::fs::read(&path).unwrap())
+        .iter()
+        .filter(|m| m.topic == "/hybsim/outputs")
+        .map(|m| m.body["E"].as_f64().unwrap())
+        .collect();
+    let e = |x: [f64; 2]| G * x[0] + 0.5 * x[1] * x[1];
+    assert_eq!(outputs, [e(x0), e(x1), e(x1), e(x2)]);
+}
