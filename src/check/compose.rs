@@ -15,7 +15,7 @@
 use std::collections::HashMap;
 
 use super::error::CheckError;
-use super::expr::suggest;
+use super::expr::{Hints, suggest};
 use crate::source::Span;
 use crate::syntax::ast::*;
 
@@ -46,6 +46,7 @@ pub(crate) fn elaborate(model: &Model, errors: &mut Vec<CheckError>) -> Option<M
         subs,
         errors,
         stack: Vec::new(),
+        hints: Default::default(),
     };
     let items = e.items(&model.items, None);
     Some(Model {
@@ -129,6 +130,8 @@ struct Elab<'m, 'e> {
     /// The subsystems being expanded, outermost first (a subsystem that
     /// contains itself is an error, not an endless expansion).
     stack: Vec<String>,
+    /// What is left of the budget for "did you mean" hints.
+    hints: Hints,
 }
 
 /// How the names of one instance's subsystem are rewritten.
@@ -583,7 +586,11 @@ impl Elab<'_, '_> {
     fn instance(&mut self, inst: &InstanceDecl, outer: Option<&Scope>) -> Vec<Item> {
         let sname = &inst.subsystem.name;
         let Some(sub) = self.subs.get(sname).copied() else {
-            let suggestion = suggest(sname, self.subs.keys().map(|s| s.as_str()));
+            let suggestion = self
+                .hints
+                .charge(self.subs.len())
+                .then(|| suggest(sname, self.subs.keys()))
+                .flatten();
             self.errors.push(CheckError::UnknownName {
                 name: sname.clone(),
                 span: inst.subsystem.span,
@@ -663,7 +670,11 @@ impl Elab<'_, '_> {
                     .iter()
                     .map(|(p, _)| p.name.as_str())
                     .chain(ins.iter().map(|d| d.target.name.name.as_str()));
-                let hint = suggest(&name.name, cands)
+                let hint = self
+                    .hints
+                    .charge(sub.params.len() + ins.len())
+                    .then(|| suggest(&name.name, cands))
+                    .flatten()
                     .map(|s| format!("did you mean `{s}`? "))
                     .unwrap_or_default();
                 self.errors.push(CheckError::Instance {

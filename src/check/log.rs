@@ -219,7 +219,8 @@ fn var_name(c: &mut Checker, n: &LogName) -> Option<String> {
             return None;
         }
         None => {
-            let candidates: Vec<&str> = c
+            let fits = c.hints.charge(c.syms.len());
+            let candidates = c
                 .syms
                 .iter()
                 .filter(|(_, s)| {
@@ -231,9 +232,8 @@ fn var_name(c: &mut Checker, n: &LogName) -> Option<String> {
                             | Sym::OutputFamily { .. }
                     )
                 })
-                .map(|(k, _)| k.as_str())
-                .collect();
-            let suggestion = suggest(name, candidates.into_iter());
+                .map(|(k, _)| k.as_str());
+            let suggestion = fits.then(|| suggest(name, candidates)).flatten();
             c.err(CheckError::UnknownName {
                 name: name.to_string(),
                 span: n.target.name.span,
@@ -298,17 +298,24 @@ fn rule_indices(c: &mut Checker, n: &LogName, rules: &[CheckedRule]) -> Vec<usiz
     if found.is_empty() {
         let name = selection.to_string();
         // Families and noises by their own names too (`fire` for `fire[2]`).
-        let mut candidates: Vec<String> = Vec::new();
-        for r in rules {
-            let p = RuleSelection::parse(&r.name);
-            let whole = RuleSelection { label: None, ..p }.to_string();
-            for c in [r.name.clone(), whole] {
-                if !candidates.contains(&c) {
-                    candidates.push(c);
+        let suggestion = c
+            .hints
+            .charge(2 * rules.len())
+            .then(|| {
+                let mut candidates: Vec<String> = Vec::new();
+                let mut seen = std::collections::HashSet::new();
+                for r in rules {
+                    let p = RuleSelection::parse(&r.name);
+                    let whole = RuleSelection { label: None, ..p }.to_string();
+                    for c in [r.name.clone(), whole] {
+                        if seen.insert(c.clone()) {
+                            candidates.push(c);
+                        }
+                    }
                 }
-            }
-        }
-        let suggestion = suggest(&name, candidates.iter().map(|s| s.as_str()));
+                suggest(&name, candidates)
+            })
+            .flatten();
         c.err(CheckError::UnknownName {
             name,
             span: n.span,

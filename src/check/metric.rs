@@ -374,7 +374,11 @@ impl Checker {
             .map(|(k, _)| k)
             .collect();
         if found.is_empty() {
-            let suggestion = suggest(&name, rules.iter().map(|s| s.as_str()));
+            let suggestion = self
+                .hints
+                .charge(rules.len())
+                .then(|| suggest(&name, rules))
+                .flatten();
             self.err(CheckError::UnknownName {
                 name,
                 span: e.span,

@@ -127,6 +127,8 @@ pub(crate) struct Checker {
     /// Statement values already lowered in the outermost `for` loop being
     /// checked (`None` outside loops); see [`reuse`].
     pub(crate) reuse: Option<reuse::Reuse>,
+    /// What is left of the budget for "did you mean" hints.
+    pub(crate) hints: expr::Hints,
 }
 
 /// Checks a parsed model with overrides; on success returns the checked

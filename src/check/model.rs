@@ -260,6 +260,7 @@ pub(crate) fn check_model(
             limits: options.limits,
             path: None,
             reuse: None,
+            hints: Default::default(),
         },
         overrides: overrides.iter().map(|o| (o.name.as_str(), o)).collect(),
         used: Vec::new(),
@@ -324,9 +325,11 @@ pub(crate) fn check_model(
     let (settings, seed, jit) = m.settings();
     for o in overrides {
         if !m.used.iter().any(|u| u == &o.name) && !SIM_KEYS.contains(&o.name.as_str()) {
-            let mut cands: Vec<String> = m.c.syms.keys().cloned().collect();
-            cands.extend(SIM_KEYS.iter().map(|s| s.to_string()));
-            let suggestion = suggest(&o.name, cands.iter().map(|s| s.as_str()));
+            let fits = m.c.hints.charge(m.c.syms.len() + SIM_KEYS.len());
+            let keys = m.c.syms.keys().map(String::as_str);
+            let suggestion = fits
+                .then(|| suggest(&o.name, keys.chain(SIM_KEYS.iter().copied())))
+                .flatten();
             m.c.err(CheckError::UnknownOverride {
                 name: o.name.clone(),
                 value: o.value.clone(),
@@ -1327,8 +1330,7 @@ impl ModelChecker<'_> {
             None if self.c.is_poisoned(name) => return None,
             None => {
                 if !quiet {
-                    let suggestion =
-                        suggest(name, self.c.visible_names().iter().map(|s| s.as_str()));
+                    let suggestion = self.c.suggest_visible(name);
                     self.c.err(CheckError::UnknownName {
                         name: name.clone(),
                         span: t.name.span,

@@ -265,7 +265,11 @@ fn rule_index(c: &mut Checker, t: &Target, rules: &[String]) -> Option<usize> {
     if let Some(k) = rules.iter().position(|r| *r == name) {
         return Some(k);
     }
-    let suggestion = suggest(&name, rules.iter().map(|s| s.as_str()));
+    let suggestion = c
+        .hints
+        .charge(rules.len())
+        .then(|| suggest(&name, rules))
+        .flatten();
     c.err(CheckError::UnknownName {
         name,
         span: t.span,

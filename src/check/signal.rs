@@ -159,6 +159,10 @@ impl Checker {
         self.signals.by_name.keys()
     }
 
+    pub(crate) fn signal_count(&self) -> usize {
+        self.signals.by_name.len()
+    }
+
     /// Lowers member `key` of `name` if it is a registered value not yet
     /// lowered (called before a name is looked up). False if it is a value
     /// that could not be lowered (its error is already reported: the caller

@@ -80,7 +80,11 @@ fn check_block(c: &mut Checker, b: &SweepBlock, settable: &[String]) -> SweepDec
         }
         seen.insert(name, span);
         if !settable.iter().any(|s| s == name) {
-            let suggestion = suggest(name, settable.iter().map(|s| s.as_str()));
+            let suggestion = c
+                .hints
+                .charge(settable.len())
+                .then(|| suggest(name, settable))
+                .flatten();
             c.err(CheckError::UnknownSetting {
                 name: name.to_string(),
                 span,
