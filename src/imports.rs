@@ -162,7 +162,7 @@ impl Resolver {
                 self.errors.push(e);
                 continue;
             }
-            let text = match std::fs::read_to_string(&full) {
+            let text = match std::fs::File::open(&full).and_then(crate::source::read_text) {
                 Ok(t) => t,
                 Err(e) => {
                     self.errors.push(ImportError::Unreadable {

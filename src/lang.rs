@@ -183,9 +183,18 @@ pub fn compile_run_with(
 /// Runs only the checks (`hybsim check`): the diagnostics, empty if the
 /// model is valid.
 pub fn check_only(src: &SourceFile, overrides: &[Override]) -> Vec<Diagnostic> {
+    check_only_with(src, overrides, &CheckOptions::default())
+}
+
+/// As [`check_only`] with checker options (other resource limits, say).
+pub fn check_only_with(
+    src: &SourceFile,
+    overrides: &[Override],
+    options: &CheckOptions,
+) -> Vec<Diagnostic> {
     match parse(src) {
         Err(diags) => diags,
-        Ok((model, map)) => match check::check(&model, overrides) {
+        Ok((model, map)) => match check::check_with(&model, overrides, options) {
             Ok(checked) => crate::ir::structural_errors(&checked)
                 .iter()
                 .map(|e| e.to_diagnostic().locate(&map))

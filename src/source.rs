@@ -46,6 +46,29 @@ impl fmt::Display for LineCol {
     }
 }
 
+/// The largest model text hybsim reads (16 MiB; the shipped models are under 20 KB). Checking
+/// takes about 200 bytes of memory and 0.6 s per megabyte of text, and reading stops here, so a
+/// path such as `/dev/zero` or a runaway generated file is an error at once rather than a read
+/// that never ends or fills the memory.
+pub const MAX_SOURCE_BYTES: u64 = 16 << 20;
+
+/// The UTF-8 text `reader` gives, refused with [`std::io::ErrorKind::FileTooLarge`] past
+/// [`MAX_SOURCE_BYTES`] (without reading more than one byte beyond it).
+pub fn read_text(reader: impl std::io::Read) -> std::io::Result<String> {
+    let mut text = String::new();
+    std::io::Read::read_to_string(&mut reader.take(MAX_SOURCE_BYTES + 1), &mut text)?;
+    if text.len() as u64 > MAX_SOURCE_BYTES {
+        return Err(std::io::Error::new(
+            std::io::ErrorKind::FileTooLarge,
+            format!(
+                "more than {} MiB, the limit for a model's text",
+                MAX_SOURCE_BYTES >> 20
+            ),
+        ));
+    }
+    Ok(text)
+}
+
 /// A named source text with an index of line starts.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct SourceFile {
@@ -80,10 +103,10 @@ impl SourceFile {
         }
     }
 
-    /// Reads the file at `path`; its name is the path as given.
+    /// Reads the file at `path` (at most [`MAX_SOURCE_BYTES`]); its name is the path as given.
     pub fn read(path: impl AsRef<Path>) -> std::io::Result<Self> {
         let path = path.as_ref();
-        let text = std::fs::read_to_string(path)?;
+        let text = read_text(std::fs::File::open(path)?)?;
         Ok(Self::new(path.display().to_string(), text))
     }
 

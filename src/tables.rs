@@ -239,6 +239,10 @@ pub fn read(
             .iter()
             .filter(|&&b| b == b',' || b == b'\n')
             .count() as u64;
+        // Stop as soon as the limit is passed: `/dev/zero` never ends.
+        if separators.max(bytes / BYTES_PER_ENTRY) > max_entries {
+            break;
+        }
     }
     let estimate = separators.max(bytes / BYTES_PER_ENTRY);
     if estimate > max_entries {

@@ -191,10 +191,27 @@ where
     match result {
         Ok(code) => ExitCode::from(code),
         Err(e) => {
-            eprintln!("error: {e:#}");
+            eprintln!("error: {}", chain_text(&e));
             ExitCode::from(EXIT_FAILED)
         }
     }
+}
+
+/// An error and its causes, `: `-separated, leaving out a cause whose text the message already
+/// holds (many errors, hybsim's sink errors and `tempfile`'s among them, both show their cause
+/// and return it as `source`: "No space left on device (os error 28)" came twice).
+fn chain_text(e: &anyhow::Error) -> String {
+    let mut text = String::new();
+    for cause in e.chain() {
+        let part = cause.to_string();
+        if !text.contains(&part) {
+            if !text.is_empty() {
+                text.push_str(": ");
+            }
+            text.push_str(&part);
+        }
+    }
+    text
 }
 
 /// `--jit on|off`: machine code for the model's programs, or the
@@ -315,8 +332,7 @@ pub(crate) fn shell_word(arg: &str) -> String {
 /// diagnostics).
 pub(crate) fn read_model(path: &std::path::Path) -> std::io::Result<SourceFile> {
     if path == std::path::Path::new("-") {
-        let mut text = String::new();
-        std::io::Read::read_to_string(&mut std::io::stdin(), &mut text)?;
+        let text = hybsim::source::read_text(std::io::stdin())?;
         Ok(SourceFile::new("<stdin>", text))
     } else {
         SourceFile::read(path)
