@@ -22,7 +22,7 @@ pub struct InfoArgs {
 /// `hybsim info`. An unreadable, truncated, foreign or non-MCAP file is
 /// an error with exit code 2.
 pub fn execute(args: InfoArgs) -> anyhow::Result<u8> {
-    let bytes = match std::fs::read(&args.file) {
+    let bytes = match super::read_mcap_input(&args.file) {
         Ok(b) => b,
         Err(e) => {
             eprintln!("error: cannot read `{}`: {e}", args.file.display());

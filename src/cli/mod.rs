@@ -328,6 +328,28 @@ pub(crate) fn shell_word(arg: &str) -> String {
     }
 }
 
+/// The bytes of the MCAP file at `path` (standard input for `-`), as far as they can be one: an
+/// input that does not start with MCAP's magic bytes is returned after those 8 bytes, for the
+/// reader to refuse, so `/dev/zero` or a model given by mistake is not read to its end (or
+/// forever).
+pub(crate) fn read_mcap_input(path: &std::path::Path) -> std::io::Result<Vec<u8>> {
+    use std::io::Read;
+    const MAGIC: &[u8] = b"\x89MCAP0\r\n";
+    let mut reader: Box<dyn Read> = if path == std::path::Path::new("-") {
+        Box::new(std::io::stdin())
+    } else {
+        Box::new(std::fs::File::open(path)?)
+    };
+    let mut bytes = Vec::new();
+    (&mut reader)
+        .take(MAGIC.len() as u64)
+        .read_to_end(&mut bytes)?;
+    if bytes == MAGIC {
+        reader.read_to_end(&mut bytes)?;
+    }
+    Ok(bytes)
+}
+
 /// The model file at `path`, or standard input for `-` (named `<stdin>` in
 /// diagnostics).
 pub(crate) fn read_model(path: &std::path::Path) -> std::io::Result<SourceFile> {

@@ -68,13 +68,7 @@ pub fn execute(args: PlotArgs) -> anyhow::Result<u8> {
     if let Some(message) = atomic_file::clash(input, &[("-o", output.as_path())]) {
         return usage(message);
     }
-    let read = if args.file == Path::new("-") {
-        let mut bytes = Vec::new();
-        std::io::Read::read_to_end(&mut std::io::stdin(), &mut bytes).map(|_| bytes)
-    } else {
-        std::fs::read(&args.file)
-    };
-    let bytes = match read {
+    let bytes = match super::read_mcap_input(&args.file) {
         Ok(b) => b,
         Err(e) => return usage(format!("cannot read `{}`: {e}", args.file.display())),
     };

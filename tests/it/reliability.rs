@@ -1015,7 +1015,8 @@ fn long_literals_and_many_unknown_names_check_in_linear_time() {
 }
 
 /// Issue 24, no hang: a model path that never ends (`/dev/zero`, standard input from it, a
-/// table that is a pipe fed forever) is refused at its size limit, at once.
+/// table that is a pipe fed forever, a run file for `info` or `plot`) is refused at its size
+/// limit, or as soon as it cannot be what it should, at once.
 #[test]
 fn endless_inputs_are_refused_at_their_size_limit() {
     let dir = tempfile::tempdir().unwrap();
@@ -1055,6 +1056,11 @@ fn endless_inputs_are_refused_at_their_size_limit() {
     );
     assert!(start.elapsed() < Duration::from_secs(2), "{:?}", start.elapsed());
     writer.join().unwrap();
+    // A run file that is not one is refused after its first 8 bytes.
+    for args in [&["info", "/dev/zero"][..], &["plot", "/dev/zero", "-o", "p.svg"]] {
+        let err = refused(d, args, 2);
+        assert!(err.contains("not an MCAP file"), "{err}");
+    }
 }
 
 /// An output that cannot be written says why once (the cause used to be repeated after the
