@@ -489,9 +489,9 @@ impl Input {
         match target {
             Target::Parse => self.parse(),
             Target::Check => self.with_model(|src, ov| check_with(src, ov, &budget.limits)),
-            Target::Compile => self.with_model(|src, ov| {
-                compile_with(src, ov, &budget.limits).map(|(o, _)| o)
-            }),
+            Target::Compile => {
+                self.with_model(|src, ov| compile_with(src, ov, &budget.limits).map(|(o, _)| o))
+            }
             Target::Run => self.run(&budget),
         }
     }

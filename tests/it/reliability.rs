@@ -457,7 +457,12 @@ fn shipped_designs_agree_across_openblas_kernels_within_the_documented_tolerance
         eprintln!("not an x86-64 CPU with OpenBLAS's kernels: nothing to compare");
         return;
     }
-    let models = ["platoon.hyb", "cooperative_estimation.hyb", "appendix_f.hyb"].map(shipped);
+    let models = [
+        "platoon.hyb",
+        "cooperative_estimation.hyb",
+        "appendix_f.hyb",
+    ]
+    .map(shipped);
     let reports: Vec<Vec<String>> = std::thread::scope(|s| {
         let handles: Vec<_> = kernels
             .iter()
@@ -1022,7 +1027,10 @@ fn endless_inputs_are_refused_at_their_size_limit() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
     let err = refused(d, &["check", "/dev/zero"], 2);
-    assert!(err.contains("more than 16 MiB, the limit for a model's text"), "{err}");
+    assert!(
+        err.contains("more than 16 MiB, the limit for a model's text"),
+        "{err}"
+    );
     let out = Command::new(BIN)
         .args(["check", "-"])
         .stdin(std::fs::File::open("/dev/zero").unwrap())
@@ -1054,10 +1062,17 @@ fn endless_inputs_are_refused_at_their_size_limit() {
         err.contains("over the limit of 1000000") && err.contains("feed.hyb:5:11"),
         "{err}"
     );
-    assert!(start.elapsed() < Duration::from_secs(2), "{:?}", start.elapsed());
+    assert!(
+        start.elapsed() < Duration::from_secs(2),
+        "{:?}",
+        start.elapsed()
+    );
     writer.join().unwrap();
     // A run file that is not one is refused after its first 8 bytes.
-    for args in [&["info", "/dev/zero"][..], &["plot", "/dev/zero", "-o", "p.svg"]] {
+    for args in [
+        &["info", "/dev/zero"][..],
+        &["plot", "/dev/zero", "-o", "p.svg"],
+    ] {
         let err = refused(d, args, 2);
         assert!(err.contains("not an MCAP file"), "{err}");
     }
@@ -1074,7 +1089,10 @@ fn output_errors_name_their_cause_once() {
     for (args, cause) in [
         (&["-o", "out"][..], "is a directory"),
         (&["-o", "missing/x.mcap"], "No such file or directory"),
-        (&["--no-mcap", "--csv", "/dev/full"], "No space left on device"),
+        (
+            &["--no-mcap", "--csv", "/dev/full"],
+            "No space left on device",
+        ),
     ] {
         let mut all = vec!["run", "ball.hyb", "-q"];
         all.extend_from_slice(args);
