@@ -986,14 +986,16 @@ fn a_spent_jump_budget_is_a_located_warning() {
 }
 
 /// Issue 24, the front end linear in the model's size: a long matrix literal (each element used
-/// to copy the growing matrix) and many unknown names among many declared ones (each error
-/// compared its name with every declared one for a "did you mean": 50 000 of each took 6
-/// minutes) check in well under 2 s.
+/// to copy the growing matrix: 300 000 elements took about 19 s) and many unknown names among many
+/// declared ones (each error compared its name with every declared one for a "did you mean":
+/// 20 000 of each took about 60 s) check in about 1 s and 0.5 s. The bound is loose for a loaded
+/// CI machine (the suite's other tests run beside this one), far under the quadratic times.
 #[test]
 fn long_literals_and_many_unknown_names_check_in_linear_time() {
+    let bound = Duration::from_secs(12);
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
-    let n = 150_000;
+    let n = 300_000;
     let literal = vec!["1"; n].join(", ");
     std::fs::write(d.join("lit.hyb"), format!("{BASE}param A = [{literal}]\n")).unwrap();
     let n = 20_000;
@@ -1006,11 +1008,11 @@ fn long_literals_and_many_unknown_names_check_in_linear_time() {
     let out = hybsim(d, &["check", "lit.hyb"]);
     assert_eq!(code(&out), 0, "{}", stderr(&out));
     let took = start.elapsed();
-    assert!(took < Duration::from_secs(2), "literal: {took:?}");
+    assert!(took < bound, "literal: {took:?}");
     let start = Instant::now();
     let err = refused(d, &["check", "names.hyb"], 2);
     let took = start.elapsed();
-    assert!(took < Duration::from_secs(2), "names: {took:?}");
+    assert!(took < bound, "names: {took:?}");
     assert_eq!(err.matches("error[E0201]").count(), n);
     assert!(
         err.contains(&format!("names.hyb: {n} errors")),
