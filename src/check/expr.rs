@@ -1710,6 +1710,10 @@ impl Checker {
     ) -> Option<Val> {
         let origin = self.block_spans.len() as u32;
         self.block_spans.push(span);
+        // A constant NaN or infinity makes the operation undefined too; say so, not "singular".
+        let non_finite = inputs
+            .iter()
+            .any(|&i| self.dag.as_const(i).is_some_and(|v| !v.is_finite()));
         match self.dag.add_block(kind, inputs, origin) {
             Ok(e) => Some(Val {
                 rows,
@@ -1720,7 +1724,11 @@ impl Checker {
             Err(_) => {
                 self.err(CheckError::Compute {
                     func: func.to_string(),
-                    reason: "the matrix is singular".into(),
+                    reason: if non_finite {
+                        "the matrix has a non-finite entry (NaN or infinity)".into()
+                    } else {
+                        "the matrix is singular".into()
+                    },
                     span,
                 });
                 None
