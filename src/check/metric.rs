@@ -14,6 +14,7 @@ use super::Checker;
 use super::dag::{Dag, Node, NodeId};
 use super::error::CheckError;
 use super::expr::{Ctx, Val, dims_words, suggest};
+use super::rule_names::RuleNames;
 use crate::source::Span;
 use crate::syntax::ast::{Definition, Expr, ExprKind};
 
@@ -96,7 +97,7 @@ pub struct CheckedMetrics {
 #[derive(Debug)]
 pub(crate) struct MetricFrame {
     base: usize,
-    rules: Vec<String>,
+    rules: RuleNames,
     reductions: Vec<Reduction>,
 }
 
@@ -118,7 +119,7 @@ pub(crate) struct MetricCollector {
 
 impl MetricCollector {
     /// Starts collecting; makes `j` visible (as in properties).
-    pub(crate) fn new(c: &mut Checker, rules: Vec<String>, dim: usize) -> Self {
+    pub(crate) fn new(c: &mut Checker, rules: RuleNames, dim: usize) -> Self {
         let j_added = !c.syms.contains_key("j");
         if j_added {
             let val = Val::scalar(c.dag.state(dim));
@@ -284,7 +285,7 @@ impl Checker {
         &mut self,
         kind: ReductionKind,
         args: &[Expr],
-        rules: &[String],
+        rules: &RuleNames,
     ) -> Option<Reduction> {
         let window = args.get(1).map(|w| self.metric_condition(w));
         let (arg, rule_set) = if kind == ReductionKind::Count {
@@ -343,7 +344,7 @@ impl Checker {
 
     /// The rules `count(…)` names: `fire` (a rule, or every member of the
     /// family `fire`) or `fire[i]`.
-    fn count_rules(&mut self, e: &Expr, rules: &[String]) -> Option<Vec<usize>> {
+    fn count_rules(&mut self, e: &Expr, rules: &RuleNames) -> Option<Vec<usize>> {
         let (base, key) = match &e.kind {
             ExprKind::Name(n) => (n.clone(), None),
             ExprKind::Index(inner, args) => match &inner.kind {
@@ -365,19 +366,13 @@ impl Checker {
             });
             return None;
         }
-        let name = key.unwrap_or(base.clone());
-        let family = format!("{base}[");
-        let found: Vec<usize> = rules
-            .iter()
-            .enumerate()
-            .filter(|(_, r)| **r == name || (name == base && r.starts_with(&family)))
-            .map(|(k, _)| k)
-            .collect();
+        let name = key.unwrap_or(base);
+        let found = rules.matching(&name);
         if found.is_empty() {
             let suggestion = self
                 .hints
-                .charge(rules.len())
-                .then(|| suggest(&name, rules))
+                .charge(rules.names().len())
+                .then(|| suggest(&name, rules.names()))
                 .flatten();
             self.err(CheckError::UnknownName {
                 name,

@@ -19,6 +19,7 @@ pub mod metric;
 mod model;
 pub mod property;
 mod reuse;
+mod rule_names;
 mod signal;
 pub mod sweep;
 #[cfg(test)]

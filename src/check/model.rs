@@ -9,6 +9,7 @@ use super::design::Solved;
 use super::error::{CheckError, Dims};
 use super::expr::{CONST_CTX, Ctx, Val, dims_words, key_label, suggest};
 use super::limits::{Limits, Quantity};
+use super::rule_names::RuleNames;
 use super::{Checker, DesignReport, Sym};
 use crate::engine::{ExactAffine, LinearSolver, Priority, SimError, SimSettings, Solver};
 use crate::source::Span;
@@ -311,7 +312,7 @@ pub(crate) fn check_model(
     }
     m.c.lower_signals();
     m.outputs = m.c.take_outputs();
-    let rule_names: Vec<String> = m.rules.iter().map(|r| r.name.clone()).collect();
+    let rule_names = RuleNames::new(m.rules.iter().map(|r| r.name.clone()).collect());
     let properties =
         super::property::check_properties(&mut m.c, &model.items, &rule_names, m.init.len());
     let mut collector =

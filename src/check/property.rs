@@ -12,6 +12,7 @@ use std::collections::HashMap;
 use super::dag::{Dag, Node, NodeId};
 use super::error::CheckError;
 use super::expr::{Ctx, Val, dims_words, suggest};
+use super::rule_names::RuleNames;
 use super::{Checker, Sym};
 use crate::source::Span;
 use crate::syntax::ast::{Expr, Item, PropertyBody, PropertyDecl, Target};
@@ -93,7 +94,7 @@ const PROP_CTX: Ctx = Ctx {
 pub(crate) fn check_properties(
     c: &mut Checker,
     items: &[Item],
-    rules: &[String],
+    rules: &RuleNames,
     dim: usize,
 ) -> Vec<CheckedProperty> {
     // `j` (the jump counter) is visible in properties unless the model
@@ -159,7 +160,7 @@ fn nested(c: &mut Checker, items: &[Item]) {
 fn property(
     c: &mut Checker,
     p: &PropertyDecl,
-    rules: &[String],
+    rules: &RuleNames,
     dim: usize,
 ) -> Option<PropertyKind> {
     Some(match &p.body {
@@ -253,7 +254,7 @@ fn tolerance(c: &mut Checker, e: Option<&Expr>) -> Option<f64> {
     }
 }
 
-fn rule_index(c: &mut Checker, t: &Target, rules: &[String]) -> Option<usize> {
+fn rule_index(c: &mut Checker, t: &Target, rules: &RuleNames) -> Option<usize> {
     let name = match t.indices.first() {
         None => t.name.name.clone(),
         Some(args) => {
@@ -262,13 +263,13 @@ fn rule_index(c: &mut Checker, t: &Target, rules: &[String]) -> Option<usize> {
             format!("{}[{}]", t.name.name, key.join(","))
         }
     };
-    if let Some(k) = rules.iter().position(|r| *r == name) {
+    if let Some(k) = rules.get(&name) {
         return Some(k);
     }
     let suggestion = c
         .hints
-        .charge(rules.len())
-        .then(|| suggest(&name, rules))
+        .charge(rules.names().len())
+        .then(|| suggest(&name, rules.names()))
         .flatten();
     c.err(CheckError::UnknownName {
         name,

@@ -1024,6 +1024,29 @@ fn long_literals_and_many_unknown_names_check_in_linear_time() {
     );
 }
 
+/// Issue 24, the front end linear in the model's size: properties and `count(…)` metrics that
+/// name jump rules find them by name (each used to scan every rule: 80 000 of each took 35 s
+/// here); they check in about 1.3 s. Bound as above.
+#[test]
+fn many_properties_and_metrics_naming_rules_check_in_linear_time() {
+    let n = 80_000;
+    let mut text = format!(
+        "model many\nparam N = {n}\nstate x = 0\nflow {{ x' = 1 }}\nfor i in 1..N {{\n  \
+         jump fire[i] when x >= 1e9 + i {{ x+ = 0 }}\n  metric c[i] = count(fire[i])\n}}\n\
+         metric all = count(fire)\n"
+    );
+    for i in 1..=n {
+        text.push_str(&format!("property p{i}: at jumps fire[{i}] x >= 0\n"));
+    }
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::write(dir.path().join("many.hyb"), text).unwrap();
+    let start = Instant::now();
+    let out = hybsim(dir.path(), &["check", "many.hyb"]);
+    let took = start.elapsed();
+    assert_eq!(code(&out), 0, "{}", stderr(&out));
+    assert!(took < Duration::from_secs(12), "{took:?}");
+}
+
 /// Issue 24, no hang: a model path that never ends (`/dev/zero`, standard input from it, a
 /// table that is a pipe fed forever, a run file for `info` or `plot`) is refused at its size
 /// limit, or as soon as it cannot be what it should, at once.
