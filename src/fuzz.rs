@@ -253,16 +253,21 @@ pub fn check(src: &SourceFile) -> Result<Outcome, Violation> {
     check_with(src, &[], &Limits::default())
 }
 
+/// The checker's options with resource limits `limits`.
+fn check_options(limits: &Limits) -> CheckOptions {
+    CheckOptions {
+        limits: *limits,
+        ..CheckOptions::default()
+    }
+}
+
 /// [`check`] with `--set` overrides and resource limits.
 pub fn check_with(
     src: &SourceFile,
     overrides: &[Override],
     limits: &Limits,
 ) -> Result<Outcome, Violation> {
-    let options = CheckOptions {
-        limits: *limits,
-        ..CheckOptions::default()
-    };
+    let options = check_options(limits);
     let diags = guarded(Stage::Check, || {
         lang::check_only_with(src, overrides, &options)
     })?;
@@ -286,10 +291,7 @@ pub fn compile_with(
     limits: &Limits,
 ) -> Result<(Outcome, Option<lang::CompiledModel>), Violation> {
     let checked = check_with(src, overrides, limits)?;
-    let options = CheckOptions {
-        limits: *limits,
-        ..CheckOptions::default()
-    };
+    let options = check_options(limits);
     let compiled = guarded(Stage::Compile, || {
         lang::compile_with(src, overrides, &options)
     })?;
