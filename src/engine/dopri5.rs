@@ -10,7 +10,7 @@
 //! BENCHMARKS.md for the measured difference. Coefficients and controller
 //! follow Hairer, Nørsett & Wanner, *Solving ODEs I*, II.4–II.6 (DOPRI5).
 
-use super::events::StepPath;
+use super::events::{MAX_CONTROL, StepPath};
 
 // Nodes and coefficients of the Dormand–Prince pair.
 const C2: f64 = 1.0 / 5.0;
@@ -371,11 +371,71 @@ impl StepPath for DopriPath<'_> {
             *o = r1[i] + th * (r2[i] + th1 * (r3[i] + th * (r4[i] + th1 * r5[i])));
         }
     }
+
+    /// The quartic of `eval` in powers of τ = (s − s0)/(s1 − s0), then in
+    /// Bernstein form.
+    fn control_points(&self, i: usize, out: &mut [f64; MAX_CONTROL]) -> Option<(usize, f64)> {
+        let [r1, r2, r3, r4, r5] = self.rcont.each_ref().map(|r| r[i]);
+        // θ = (s − s0)/h = w·τ (w = 1 unless the step end was rounded).
+        let w = (self.s1 - self.s0) / self.h;
+        let (w2, w3, w4) = (w * w, w * w * w, w * w * w * w);
+        let a = [
+            r1,
+            (r2 + r3) * w,
+            (r4 + r5 - r3) * w2,
+            -(r4 + 2.0 * r5) * w3,
+            r5 * w4,
+        ];
+        out[0] = a[0];
+        out[1] = a[0] + a[1] / 4.0;
+        out[2] = a[0] + a[1] / 2.0 + a[2] / 6.0;
+        out[3] = a[0] + 0.75 * a[1] + a[2] / 2.0 + a[3] / 4.0;
+        out[4] = a[0] + a[1] + a[2] + a[3] + a[4];
+        let scale = (r1.abs() + r2.abs() + r3.abs() + r4.abs() + r5.abs()) * w4.max(1.0);
+        Some((5, 32.0 * f64::EPSILON * scale))
+    }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The control points of a step's quartic give back its values (de
+    /// Casteljau on [s0, s1]) within their error bound, also when the step
+    /// end is not s0 + h (a step end rounded to a segment end).
+    #[test]
+    fn control_points_give_the_dense_output() {
+        let mut f = |s: f64, y: &[f64], dy: &mut [f64]| {
+            dy[0] = y[1];
+            dy[1] = -y[0].sin() + 0.3 * s.cos();
+        };
+        let mut st = Dopri5::new(2, 1e-6, 1e-8);
+        let y = vec![1.0, -0.5];
+        let mut f0 = vec![0.0; 2];
+        f(0.0, &y, &mut f0);
+        st.start(&y, &f0, &mut f);
+        let h = st.step(0.0, &y, 10.0, &mut f).unwrap();
+        for s1 in [h, 0.9 * h] {
+            let mut p = st.path(s1);
+            for i in 0..2 {
+                let mut points = [0.0; MAX_CONTROL];
+                let (n, err) = p.control_points(i, &mut points).expect("a polynomial");
+                assert_eq!(n, 5);
+                for k in 0..8 {
+                    // s = s1 itself is the step's end state, not the quartic.
+                    let tau = k as f64 / 8.0;
+                    let mut out = [0.0; 2];
+                    p.eval(s1 * tau, &mut out);
+                    let v = crate::engine::events::tests::de_casteljau(&points[..n], tau);
+                    assert!(
+                        (v - out[i]).abs() <= 4.0 * err,
+                        "{i} at {tau}: {v} vs {}",
+                        out[i]
+                    );
+                }
+            }
+        }
+    }
 
     /// y' = -y + sin(s): steps and interpolant against the closed form,
     /// within the tolerance.

@@ -39,7 +39,7 @@
 use super::HybridSystem;
 use super::clock::TimeSum;
 use super::settings::{Priority, SimSettings};
-use super::system::{Cmp, GuardKind, SetAtoms, SetRef};
+use super::system::{AffineAtom, Cmp, GuardKind, SetAtoms, SetRef};
 use crate::arc::{FailedAtom, HybridTime};
 
 /// x(s) on one step `[s0, s1]`.
@@ -52,7 +52,21 @@ pub(crate) trait StepPath {
 
     /// Writes x(s) into `out`, for `s` in `[s0, s1]`.
     fn eval(&mut self, s: f64, out: &mut [f64]);
+
+    /// Where the path is a polynomial in `s` on the whole step `[s0, s1]`
+    /// (degree below [`MAX_CONTROL`]): writes the Bernstein control points
+    /// of its component `i` over the step into `out` and returns their
+    /// number and a bound on their rounding error. The component stays in
+    /// the convex hull of its control points, which lets the watcher prove
+    /// that an affine atom keeps its sign over the step. `None` (the
+    /// default): not a polynomial, or not known as one.
+    fn control_points(&self, _i: usize, _out: &mut [f64; MAX_CONTROL]) -> Option<(usize, f64)> {
+        None
+    }
 }
+
+/// The most Bernstein control points a [`StepPath`] gives per component.
+pub(crate) const MAX_CONTROL: usize = 8;
 
 /// The cubic Hermite interpolant through `(s0, y0, f0)` and `(s1, y1, f1)`:
 /// exact for polynomials of degree ≤ 3, error O(h⁴) otherwise.
@@ -86,6 +100,17 @@ impl StepPath for Hermite<'_> {
         for (i, o) in out.iter_mut().enumerate() {
             *o = h00 * self.y0[i] + h10 * self.f0[i] + h01 * self.y1[i] + h11 * self.f1[i];
         }
+    }
+
+    fn control_points(&self, i: usize, out: &mut [f64; MAX_CONTROL]) -> Option<(usize, f64)> {
+        let h = self.s1 - self.s0;
+        let (y0, y1) = (self.y0[i], self.y1[i]);
+        let (d0, d1) = (h * self.f0[i] / 3.0, h * self.f1[i] / 3.0);
+        out[..4].copy_from_slice(&[y0, y0 + d0, y1 - d1, y1]);
+        // The points and `eval`'s sums are each a few roundings of terms
+        // no larger than these.
+        let scale = y0.abs() + y1.abs() + d0.abs() + d1.abs();
+        Some((4, 16.0 * f64::EPSILON * scale))
     }
 }
 
@@ -256,6 +281,11 @@ pub(crate) struct Watcher {
     /// Per watched atom: an earlier one with the same function `g`
     /// ([`Atom::g_id`](super::system::Atom::g_id)).
     twin: Vec<Option<usize>>,
+    /// Per watched atom: its function as an affine form of the state, if
+    /// the system gives one ([`HybridSystem::atom_affine`]).
+    affine: Vec<Option<AffineAtom>>,
+    /// The watched atom that last failed [`Watcher::keep_signs`].
+    changing: usize,
     /// Sign class of each watched atom at the cursor and at the checkpoint.
     cls: Vec<i8>,
     cls_s: Vec<i8>,
@@ -372,6 +402,14 @@ impl Watcher {
                 (0..w).find(|&u| g_id(&watched[u]) == Some(id))
             })
             .collect();
+        let affine = watched
+            .iter()
+            .map(|w| {
+                let ws = &sets[w.set];
+                ws.spec.as_ref()?;
+                sys.atom_affine(ws.set, w.atom)
+            })
+            .collect();
         // The layout of `all_atom_values`: C's atoms, then each rule's.
         let mut flat_off = vec![None; sets.len()];
         let mut total = 0;
@@ -403,6 +441,8 @@ impl Watcher {
             watched,
             timers,
             twin,
+            affine,
+            changing: 0,
             checks: settings.guard_checks as usize,
             event_tol: settings.event_tol,
             set_tol: settings.set_tol,
@@ -639,11 +679,17 @@ impl Watcher {
         // on either side of an atom's zero) may cross it right away and
         // come back within the first interval: look early in the first
         // step too.
-        let early: &[f64] = if s0 == 0.0 && self.near_start {
+        let mut early: &[f64] = if s0 == 0.0 && self.near_start {
             &EARLY
         } else {
             &[]
         };
+        // Every watched atom provably keeps its sign over the step: only
+        // its end is looked at.
+        let mut m = m;
+        if (m > 0 || !early.is_empty()) && self.keep_signs(path) {
+            (m, early) = (0, &[]);
+        }
         let mut prev = s0;
         for k in 0..early.len() + m + 1 {
             let last = k == early.len() + m;
@@ -680,6 +726,55 @@ impl Watcher {
             prev = s;
         }
         None
+    }
+
+    /// Whether every watched atom keeps its sign class over the step of
+    /// `path`: each is an affine form of the state, strictly of the sign
+    /// of its class at the cursor, unrelaxed, and the control points of
+    /// its values along the path's polynomial are all of that sign by more
+    /// than their rounding error (the values lie in their convex hull).
+    fn keep_signs<P: StepPath>(&mut self, path: &P) -> bool {
+        let mut points = [0.0; MAX_CONTROL];
+        // The atom that changed sign last time first: it is the likely one
+        // to change again (a step near an event), and one is enough.
+        let n = self.watched.len();
+        for w in (self.changing..n).chain(0..self.changing) {
+            let Some(form) = &self.affine[w] else {
+                return false;
+            };
+            let WAtom { set, atom } = self.watched[w];
+            let sign = f64::from(self.cls[w]);
+            if self.sets[set].relax[atom] > 0.0 || sign.abs() != 1.0 {
+                self.changing = w;
+                return false;
+            }
+            // The atom's values' control points: c₀ + Σ cₖ·(xₖ's points).
+            let mut g = [form.constant; MAX_CONTROL];
+            let mut count = None;
+            let mut err = form.constant.abs();
+            for &(k, c) in &form.terms {
+                let Some((len, e)) = path.control_points(k, &mut points) else {
+                    return false;
+                };
+                if *count.get_or_insert(len) != len {
+                    return false;
+                }
+                let mut size: f64 = 0.0;
+                for (gi, &p) in g.iter_mut().zip(&points[..len]) {
+                    *gi += c * p;
+                    size = size.max(p.abs());
+                }
+                err += c.abs() * (size + e / f64::EPSILON);
+            }
+            // Rounding of these sums and of the system's own evaluation of
+            // the form (in another order) at the checkpoints.
+            let err = (form.terms.len() as f64 + 16.0) * f64::EPSILON * err;
+            if !g[..count.unwrap_or(1)].iter().all(|&v| v * sign > err) {
+                self.changing = w;
+                return false;
+            }
+        }
+        true
     }
 
     /// Examines, in time order, the sign changes of the watched atoms
@@ -1108,7 +1203,7 @@ impl FlowSetTest {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use crate::engine::models::BouncingBall;
     use crate::engine::system::{Atom, JumpRule, SetExpr};
@@ -1258,6 +1353,149 @@ mod tests {
         // Checkpoints and localizations: about 77 per impact (2026-12-02;
         // the earlier regula falsi spent over 250 on localizing alone).
         assert!(shared <= 30 * 100, "{shared} evaluations for 30 impacts");
+    }
+
+    /// A pendulum kicked back when it swings past θ = −0.9 (D: θ + 0.9 ≤ 0
+    /// ∧ ω < 0, atoms affine in the state), counting atom evaluations;
+    /// `affine` says whether it gives the atoms' affine forms.
+    struct KickedPendulum {
+        rules: Vec<JumpRule>,
+        affine: bool,
+        evaluations: Cell<usize>,
+    }
+
+    impl HybridSystem for KickedPendulum {
+        fn state_dim(&self) -> usize {
+            2
+        }
+        fn state_names(&self) -> Vec<String> {
+            vec!["th".into(), "w".into()]
+        }
+        fn flow_map(&self, _: HybridTime, x: &[f64], dx: &mut [f64]) {
+            dx[0] = x[1];
+            dx[1] = -x[0].sin();
+        }
+        fn jump_rules(&self) -> &[JumpRule] {
+            &self.rules
+        }
+        fn jump_set(&self, _: usize, _: HybridTime, x: &[f64]) -> bool {
+            x[0] + 0.9 <= 0.0 && x[1] < 0.0
+        }
+        fn jump_guard(&self, _: usize, _: HybridTime, x: &[f64]) -> f64 {
+            -(x[0] + 0.9).max(x[1])
+        }
+        fn jump_map(&self, _: usize, _: HybridTime, x: &[f64], _: &mut SimRng, xp: &mut [f64]) {
+            xp[0] = x[0];
+            xp[1] = -0.95 * x[1];
+        }
+        fn set_atoms(&self, set: SetRef) -> Option<SetAtoms> {
+            let atom = |cmp, id| Atom {
+                cmp,
+                flows: true,
+                g_id: Some(id),
+                timer: None,
+            };
+            (set != SetRef::Flow).then(|| SetAtoms {
+                atoms: vec![atom(Cmp::Le, 0), atom(Cmp::Lt, 1)],
+                expr: SetExpr::And(vec![SetExpr::Atom(0), SetExpr::Atom(1)]),
+            })
+        }
+        fn atom_values(&self, _: SetRef, _: HybridTime, x: &[f64], _: bool, out: &mut [f64]) {
+            self.evaluations.set(self.evaluations.get() + 1);
+            out[0] = x[0] + 0.9;
+            out[1] = x[1];
+        }
+        fn atom_affine(&self, _: SetRef, atom: usize) -> Option<AffineAtom> {
+            let (k, constant) = [(0, 0.9), (1, 0.0)][atom];
+            self.affine.then(|| AffineAtom {
+                terms: vec![(k, 1.0)],
+                constant,
+            })
+        }
+    }
+
+    /// Steps over which the watcher proves from the interpolant's control
+    /// points that the affine atoms keep their signs are looked at only at
+    /// their ends: far fewer evaluations, and the same arc to the last bit
+    /// (every kick found where the checkpoints find it).
+    #[test]
+    fn affine_atoms_that_keep_their_signs_are_not_checked_inside_steps() {
+        let run = |affine| {
+            let sys = KickedPendulum {
+                rules: vec![JumpRule::new("kick", GuardKind::General)],
+                affine,
+                evaluations: Cell::new(0),
+            };
+            let settings =
+                SimSettings::default()
+                    .horizon_t(100.0)
+                    .solver(crate::engine::Solver::Dopri5 {
+                        rtol: 1e-9,
+                        atol: 1e-11,
+                    });
+            let arc = simulate_arc(&sys, &[1.0, 0.0], &settings, &mut SimRng::seed_from(1))
+                .expect("simulation");
+            (arc, sys.evaluations.get())
+        };
+        let ((with, fewer), (without, all)) = (run(true), run(false));
+        assert!(with.jumps().len() >= 10, "{} kicks", with.jumps().len());
+        let bits = |a: &crate::arc::HybridArc| {
+            (a.samples())
+                .flat_map(|p| {
+                    p.x.iter()
+                        .chain([&p.at.t])
+                        .map(|v| v.to_bits())
+                        .collect::<Vec<_>>()
+                })
+                .collect::<Vec<u64>>()
+        };
+        assert_eq!(bits(&with), bits(&without), "same arc");
+        assert_eq!(with.jumps(), without.jumps());
+        assert!(
+            2 * fewer < all,
+            "{fewer} evaluations with the forms, {all} without"
+        );
+    }
+
+    /// The control points of the Hermite cubic give back its values (de
+    /// Casteljau at τ = (s − s0)/(s1 − s0)) within their error bound.
+    #[test]
+    fn hermite_control_points_give_the_path() {
+        let (y0, f0, y1, f1) = ([0.3, -2.0], [1.5, 0.25], [1.1, -1.0], [-0.5, 4.0]);
+        let mut p = Hermite {
+            s0: 0.2,
+            s1: 0.7,
+            y0: &y0,
+            f0: &f0,
+            y1: &y1,
+            f1: &f1,
+        };
+        for i in 0..2 {
+            let mut points = [0.0; MAX_CONTROL];
+            let (n, err) = p.control_points(i, &mut points).expect("a polynomial");
+            for k in 0..=8 {
+                let tau = k as f64 / 8.0;
+                let mut out = [0.0; 2];
+                p.eval(0.2 + 0.5 * tau, &mut out);
+                let v = de_casteljau(&points[..n], tau);
+                assert!(
+                    (v - out[i]).abs() <= 4.0 * err,
+                    "{i} at {tau}: {v} vs {}",
+                    out[i]
+                );
+            }
+        }
+    }
+
+    /// A polynomial in Bernstein form at τ ∈ [0, 1].
+    pub(crate) fn de_casteljau(points: &[f64], tau: f64) -> f64 {
+        let mut b = points.to_vec();
+        for r in 1..b.len() {
+            for k in 0..b.len() - r {
+                b[k] = (1.0 - tau) * b[k] + tau * b[k + 1];
+            }
+        }
+        b[0]
     }
 
     #[test]

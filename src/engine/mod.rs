@@ -213,6 +213,6 @@ pub use sparsity::{
     PatternError, SPARSE_MAX_FACTOR_DENSITY, SPARSE_MIN_STATES, SparsityPattern, use_sparse_lu,
 };
 pub use system::{
-    Atom, Cmp, FlowStructure, GuardKind, HybridSystem, JumpRule, SetAtoms, SetExpr, SetRef, SimRng,
-    SystemFault, finite_difference_jacobian,
+    AffineAtom, Atom, Cmp, FlowStructure, GuardKind, HybridSystem, JumpRule, SetAtoms, SetExpr,
+    SetRef, SimRng, SystemFault, finite_difference_jacobian,
 };

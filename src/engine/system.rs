@@ -204,6 +204,16 @@ impl Atom {
     }
 }
 
+/// An atom's function as an affine form of the state, `g(x) = c₀ + Σ cₖ·x[k]`
+/// (see [`HybridSystem::atom_affine`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct AffineAtom {
+    /// `(k, cₖ)`: the state components and their coefficients.
+    pub terms: Vec<(usize, f64)>,
+    /// `c₀`.
+    pub constant: f64,
+}
+
 /// A monotone boolean combination of the atoms of one set.
 #[derive(Debug, Clone, PartialEq)]
 pub enum SetExpr {
@@ -378,6 +388,18 @@ pub trait HybridSystem {
     /// to have the engine watch the set's guard as its only atom. Called
     /// once per run.
     fn set_atoms(&self, _set: SetRef) -> Option<SetAtoms> {
+        None
+    }
+
+    /// The function of atom `atom` of `set` as an affine form of the state,
+    /// if it is one (no time, jump count or noise in it), or `None` (the
+    /// default). Called once per run for each watched atom. The engine
+    /// uses the form to prove, from the control points of a step's
+    /// polynomial interpolant, that the atom keeps its sign over the whole
+    /// step, and then evaluates it at the step's end only instead of at
+    /// every checkpoint; it allows for rounding, so the form must equal
+    /// what [`atom_values`](Self::atom_values) computes up to rounding.
+    fn atom_affine(&self, _set: SetRef, _atom: usize) -> Option<AffineAtom> {
         None
     }
 

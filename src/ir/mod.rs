@@ -37,8 +37,8 @@ use crate::check::dag::{Dag, Node, NodeId};
 use crate::check::{CheckedModel, StateField};
 use crate::diagnostics::Diagnostic;
 use crate::engine::{
-    Atom, FlowStructure, GuardKind, HybridSystem, JumpRule, SetAtoms, SetRef, SimError, SimRng,
-    SimSettings, SparsityPattern, finite_difference_jacobian,
+    AffineAtom, Atom, FlowStructure, GuardKind, HybridSystem, JumpRule, SetAtoms, SetRef, SimError,
+    SimRng, SimSettings, SparsityPattern, finite_difference_jacobian,
 };
 use crate::layout::{Declared, Layout, Shape};
 use crate::source::{SourceFile, SourceMap, Span};
@@ -343,6 +343,10 @@ pub struct CompiledModel {
     sweep: Option<crate::check::sweep::SweepDecl>,
     log: crate::check::LogDecl,
     jacobian: Arc<JacobianSource>,
+    /// Each set's atoms as affine forms of the state where they are one
+    /// (C's, then each rule's), found on the first request
+    /// ([`HybridSystem::atom_affine`]).
+    affine_atoms: OnceLock<Vec<Vec<Option<AffineAtom>>>>,
 }
 
 /// Some of a model's output components, compiled on their own
@@ -638,6 +642,7 @@ impl CompiledModel {
             sweep: m.sweep,
             log: m.log,
             jacobian,
+            affine_atoms: OnceLock::new(),
         }
     }
 
@@ -1104,6 +1109,30 @@ impl CompiledModel {
         }
     }
 
+    /// The affine forms of all sets' atoms, in one pass over the graph.
+    fn affine_atoms(&self) -> &[Vec<Option<AffineAtom>>] {
+        self.affine_atoms.get_or_init(|| {
+            let sets: Vec<&SetCode> = (self.flow_set.iter().map(|(c, _)| c))
+                .chain(self.rule_code.iter().map(|c| &c.set))
+                .collect();
+            let nodes: Vec<NodeId> = sets.iter().flat_map(|c| c.nodes.iter().copied()).collect();
+            let mut forms =
+                analysis::affine_in(&self.jacobian.dag, &nodes, analysis::Vars::State).into_iter();
+            sets.iter()
+                .map(|c| {
+                    (forms.by_ref().take(c.nodes.len()))
+                        .map(|form| {
+                            form.map(|l| AffineAtom {
+                                terms: l.terms.iter().map(|&(k, c)| (k as usize, c)).collect(),
+                                constant: l.c,
+                            })
+                        })
+                        .collect()
+                })
+                .collect()
+        })
+    }
+
     #[inline]
     fn scalar(&self, p: &Program, at: HybridTime, x: &[f64]) -> f64 {
         with_regs(self.nregs, |regs| {
@@ -1330,6 +1359,14 @@ impl HybridSystem for CompiledModel {
 
     fn set_atoms(&self, set: SetRef) -> Option<SetAtoms> {
         self.set_code(set).map(|c| c.atoms.clone())
+    }
+
+    fn atom_affine(&self, set: SetRef, atom: usize) -> Option<AffineAtom> {
+        let index = match set {
+            SetRef::Flow => self.flow_set.as_ref().map(|_| 0)?,
+            SetRef::Jump(r) => r + usize::from(self.flow_set.is_some()),
+        };
+        self.affine_atoms().get(index)?.get(atom)?.clone()
     }
 
     fn atom_values(

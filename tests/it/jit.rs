@@ -314,7 +314,9 @@ fn random_systems_run_bit_identically() {
 }
 
 /// The model seen set by set: everything but [`HybridSystem::all_atom_values`]
-/// (so the engine evaluates the sets one by one).
+/// (so the engine evaluates the sets one by one) and
+/// [`HybridSystem::atom_affine`] (so it evaluates them at every checkpoint
+/// of every step).
 struct SetBySet<'a>(&'a CompiledModel);
 
 impl HybridSystem for SetBySet<'_> {
@@ -364,8 +366,10 @@ impl HybridSystem for SetBySet<'_> {
 
 /// The engine's checkpoints evaluate all sets of a compiled model in one
 /// program, and its choice of the rule to fire all jump conditions in one
-/// (shared subexpressions once): the arcs are those of evaluating the sets
-/// one by one, bit for bit, on the shipped models and the random systems.
+/// (shared subexpressions once), and it skips the checkpoints of steps
+/// over which affine atoms provably keep their signs: the arcs are those of
+/// evaluating the sets one by one at every checkpoint, bit for bit, on the
+/// shipped models and the random systems.
 #[test]
 fn all_sets_at_once_give_the_arcs_of_set_by_set() {
     let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("models");
