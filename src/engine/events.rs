@@ -286,6 +286,9 @@ pub(crate) struct Watcher {
     affine: Vec<Option<AffineAtom>>,
     /// The watched atom that last failed [`Watcher::keep_signs`].
     changing: usize,
+    /// How many of C's atoms are relaxed (most of the time none, and
+    /// [`Watcher::settle_relaxed`] has nothing to do).
+    relaxed: usize,
     /// Sign class of each watched atom at the cursor and at the checkpoint.
     cls: Vec<i8>,
     cls_s: Vec<i8>,
@@ -443,6 +446,7 @@ impl Watcher {
             twin,
             affine,
             changing: 0,
+            relaxed: 0,
             checks: settings.guard_checks as usize,
             event_tol: settings.event_tol,
             set_tol: settings.set_tol,
@@ -561,6 +565,7 @@ impl Watcher {
         }
         let set_tol = self.set_tol;
         self.flat_ok = sys.all_atom_values(at, x, false, &mut self.flat);
+        self.relaxed = 0;
         for (i, ws) in self.sets.iter_mut().enumerate() {
             let is_flow = self.flow == Some(i);
             let mut vals = std::mem::take(&mut ws.vs);
@@ -579,6 +584,7 @@ impl Watcher {
                 // then hold within their relaxation).
                 let relaxed = is_flow && !holds && cmp.holds_within(g, set_tol);
                 ws.relax[k] = if relaxed { set_tol } else { 0.0 };
+                self.relaxed += usize::from(relaxed);
                 ws.start_truth[k] = holds || relaxed;
             }
             ws.vs = vals;
@@ -647,7 +653,9 @@ impl Watcher {
     /// whose values are in `vs` (`vb` with `at_candidate`); their sign is
     /// then that of `g` itself.
     fn settle_relaxed(&mut self, at_candidate: bool) {
-        let Some(fi) = self.flow else { return };
+        let Some(fi) = self.flow.filter(|_| self.relaxed > 0) else {
+            return;
+        };
         for (w, c) in self.watched.iter().zip(self.cls.iter_mut()) {
             if w.set != fi {
                 continue;
@@ -657,6 +665,7 @@ impl Watcher {
             let (cmp, g) = (ws.cmp(w.atom), vals[w.atom]);
             if ws.relax[w.atom] > 0.0 && cmp.holds(g) {
                 ws.relax[w.atom] = 0.0;
+                self.relaxed -= 1;
                 *c = class(g);
             }
         }
