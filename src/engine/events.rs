@@ -254,6 +254,92 @@ struct TimerAtom {
     d: f64,
 }
 
+/// How often [`first_other_sign`] halves a step at most: a change of sign
+/// narrower than 2⁻³⁰ of the step (a touch of zero) counts as none.
+const SPLIT_DEPTH: u32 = 30;
+
+/// The most pieces [`first_other_sign`] examines for one atom on one step
+/// before it gives up (the step's checkpoints then watch the atom): an atom
+/// that hugs zero over the step would otherwise be split without end.
+const SPLIT_BUDGET: u32 = 256;
+
+/// The first point found in `[a, b]` where the polynomial with Bernstein
+/// control points `p` on `[a, b]` (strictly of sign `sign` at `a`) has
+/// the other sign by more than `tol`, searched from the left by halving.
+/// The polynomial lies in the hull of its control points, and has at most
+/// as many zeros in `[a, b]` as the points change sign (Descartes' rule in
+/// Bernstein form): points all of `sign` leave no change, one change of
+/// sign exactly one zero if the end has the other sign and none if not.
+/// `Err` when `budget` pieces did not settle it.
+fn first_other_sign(
+    p: &[f64],
+    sign: f64,
+    tol: f64,
+    (a, b): (f64, f64),
+    depth: u32,
+    budget: &mut u32,
+) -> Result<Option<f64>, ()> {
+    *budget = budget.checked_sub(1).ok_or(())?;
+    let class = |v: f64| {
+        if v * sign > tol {
+            1
+        } else if v * sign < -tol {
+            -1
+        } else {
+            0
+        }
+    };
+    // An end within the tolerance of zero is the end checkpoint's to see:
+    // before it the polynomial keeps its sign or changes it by no more
+    // than the tolerance.
+    let end = class(p[p.len() - 1]);
+    let (mut changes, mut unsure, mut before) = (0, false, 1);
+    for (i, &v) in p.iter().enumerate() {
+        match class(v) {
+            0 if i + 1 == p.len() => {}
+            0 => unsure = true,
+            c => {
+                changes += usize::from(c != before);
+                before = c;
+            }
+        }
+    }
+    if changes == 0 && !unsure {
+        return Ok(None);
+    }
+    if (changes == 1 && !unsure) || depth == 0 {
+        return Ok((end == -1).then_some(b));
+    }
+    let n = p.len();
+    let (left, right) = split(p, 0.5);
+    let m = 0.5 * (a + b);
+    match first_other_sign(&left[..n], sign, tol, (a, m), depth - 1, budget)? {
+        Some(t) => Ok(Some(t)),
+        None => first_other_sign(&right[..n], sign, tol, (m, b), depth - 1, budget),
+    }
+}
+
+/// The Bernstein control points of the polynomial with points `p` on
+/// `[0, 1]` restricted to `[0, t]` and to `[t, 1]` (de Casteljau).
+fn split(p: &[f64], t: f64) -> ([f64; MAX_CONTROL], [f64; MAX_CONTROL]) {
+    let n = p.len();
+    let (mut left, mut right) = ([0.0; MAX_CONTROL], [0.0; MAX_CONTROL]);
+    let mut work = [0.0; MAX_CONTROL];
+    work[..n].copy_from_slice(p);
+    for r in 0..n {
+        left[r] = work[0];
+        right[n - 1 - r] = work[n - 1 - r];
+        for i in 0..n - 1 - r {
+            work[i] = (1.0 - t) * work[i] + t * work[i + 1];
+        }
+    }
+    (left, right)
+}
+
+/// The most sign changes of one affine atom looked for on one step (a
+/// polynomial of degree 4 changes sign at most 4 times).
+const MAX_CHANGES: usize = 8;
+
 /// At most this many candidates are examined between two checkpoints (an
 /// atom chattering around zero on the interpolant cannot stall the scan).
 const MAX_CANDIDATES: usize = 64;
@@ -284,8 +370,12 @@ pub(crate) struct Watcher {
     /// Per watched atom: its function as an affine form of the state, if
     /// the system gives one ([`HybridSystem::atom_affine`]).
     affine: Vec<Option<AffineAtom>>,
-    /// The watched atom that last failed [`Watcher::keep_signs`].
-    changing: usize,
+    /// The checkpoints of the step being scanned, and the first sign
+    /// changes of its affine atoms ([`Watcher::affine_checkpoints`]).
+    points: Vec<f64>,
+    extra: Vec<f64>,
+    /// Those of atoms that change sign more than once on the step.
+    extra_many: Vec<f64>,
     /// How many of C's atoms are relaxed (most of the time none, and
     /// [`Watcher::settle_relaxed`] has nothing to do).
     relaxed: usize,
@@ -445,7 +535,9 @@ impl Watcher {
             timers,
             twin,
             affine,
-            changing: 0,
+            points: Vec::new(),
+            extra: Vec::new(),
+            extra_many: Vec::new(),
             relaxed: 0,
             checks: settings.guard_checks as usize,
             event_tol: settings.event_tol,
@@ -693,23 +785,40 @@ impl Watcher {
         } else {
             &[]
         };
-        // Every watched atom provably keeps its sign over the step: only
-        // its end is looked at.
+        // The checkpoints: the early ones and `m` evenly spaced, unless
+        // every watched atom is affine, whose first sign changes are then
+        // the only interior checkpoints (also added to the others).
         let mut m = m;
-        if (m > 0 || !early.is_empty()) && self.keep_signs(path) {
+        if (m > 0 || !early.is_empty()) && self.affine_checkpoints(path, s0, s1) {
             (m, early) = (0, &[]);
         }
+        let mut points = std::mem::take(&mut self.points);
+        points.clear();
+        points.extend(early.iter().map(|e| s0 + (s1 - s0) * e));
+        points.extend((1..=m).map(|i| s0 + (s1 - s0) * (i as f64 / (m + 1) as f64)));
+        if !self.extra.is_empty() {
+            points.extend_from_slice(&self.extra);
+            points.sort_by(f64::total_cmp);
+        }
+        points.push(s1);
+        let found = self.scan_points(sys, path, s0, &points, y1);
+        self.points = points;
+        found
+    }
+
+    /// [`scan`](Self::scan) over the checkpoints `points` (increasing, the
+    /// last the step's end `s1`, whose state is `y1`).
+    fn scan_points<S: HybridSystem + ?Sized, P: StepPath>(
+        &mut self,
+        sys: &S,
+        path: &mut P,
+        s0: f64,
+        points: &[f64],
+        y1: &[f64],
+    ) -> Option<(f64, EventKind)> {
         let mut prev = s0;
-        for k in 0..early.len() + m + 1 {
-            let last = k == early.len() + m;
-            let s = if last {
-                s1
-            } else if k < early.len() {
-                s0 + (s1 - s0) * early[k]
-            } else {
-                let i = k - early.len() + 1;
-                s0 + (s1 - s0) * (i as f64 / (m + 1) as f64)
-            };
+        for (k, &s) in points.iter().enumerate() {
+            let last = k + 1 == points.len();
             if s <= prev && !last {
                 continue;
             }
@@ -737,25 +846,29 @@ impl Watcher {
         None
     }
 
-    /// Whether every watched atom keeps its sign class over the step of
-    /// `path`: each is an affine form of the state, strictly of the sign
-    /// of its class at the cursor, unrelaxed, and the control points of
-    /// its values along the path's polynomial are all of that sign by more
-    /// than their rounding error (the values lie in their convex hull).
-    fn keep_signs<P: StepPath>(&mut self, path: &P) -> bool {
+    /// Checkpoints that make the scan exact for affine atoms: for each
+    /// watched atom that is an affine form of the state, strictly of the
+    /// sign of its class at the cursor and unrelaxed, each point of the
+    /// step where its value along the path's polynomial has changed sign
+    /// (from the Bernstein control points, see [`first_other_sign`]) goes
+    /// into `extra`; a change of sign that comes back within the step is
+    /// then found, however brief. Returns whether every watched atom was
+    /// so examined (then no other interior checkpoint is needed).
+    fn affine_checkpoints<P: StepPath>(&mut self, path: &P, s0: f64, s1: f64) -> bool {
         let mut points = [0.0; MAX_CONTROL];
-        // The atom that changed sign last time first: it is the likely one
-        // to change again (a step near an event), and one is enough.
-        let n = self.watched.len();
-        for w in (self.changing..n).chain(0..self.changing) {
+        let mut all = true;
+        self.extra.clear();
+        self.extra_many.clear();
+        for w in 0..self.watched.len() {
             let Some(form) = &self.affine[w] else {
-                return false;
+                all = false;
+                continue;
             };
             let WAtom { set, atom } = self.watched[w];
             let sign = f64::from(self.cls[w]);
             if self.sets[set].relax[atom] > 0.0 || sign.abs() != 1.0 {
-                self.changing = w;
-                return false;
+                all = false;
+                continue;
             }
             // The atom's values' control points: c₀ + Σ cₖ·(xₖ's points).
             let mut g = [form.constant; MAX_CONTROL];
@@ -777,13 +890,46 @@ impl Watcher {
             }
             // Rounding of these sums and of the system's own evaluation of
             // the form (in another order) at the checkpoints.
-            let err = (form.terms.len() as f64 + 16.0) * f64::EPSILON * err;
-            if !g[..count.unwrap_or(1)].iter().all(|&v| v * sign > err) {
-                self.changing = w;
-                return false;
+            let tol = (form.terms.len() as f64 + 16.0) * f64::EPSILON * err;
+            // At the start within the tolerance of zero (just after a
+            // jump onto the boundary): the early checkpoints watch it.
+            if !tol.is_finite() || g[0] * sign <= tol {
+                all = false;
+                continue;
+            }
+            // Each change of sign in turn: the first point of the other
+            // sign, then the first after it of the sign before, … — between
+            // two of them the atom does not change sign (beyond `tol`).
+            let n = count.unwrap_or(1);
+            let (mut from, mut sign, mut rest) = (0.0, sign, g);
+            let (mut budget, mut settled) = (SPLIT_BUDGET, false);
+            let first = self.extra.len();
+            for _ in 0..MAX_CHANGES {
+                match first_other_sign(&rest[..n], sign, tol, (from, 1.0), SPLIT_DEPTH, &mut budget)
+                {
+                    Ok(Some(tau)) if tau < 1.0 => {
+                        self.extra.push(s0 + tau * (s1 - s0));
+                        (from, sign, rest) = (tau, -sign, split(&g[..n], tau).1);
+                    }
+                    Ok(_) => {
+                        settled = true;
+                        break;
+                    }
+                    Err(()) => break,
+                }
+            }
+            // Not settled: the checkpoints watch this atom too.
+            all &= settled;
+            // A single change stays visible at every later checkpoint; only
+            // changes that come back can hide between them.
+            if self.extra.len() - first >= 2 {
+                self.extra_many.extend_from_slice(&self.extra[first..]);
             }
         }
-        true
+        if !all {
+            std::mem::swap(&mut self.extra, &mut self.extra_many);
+        }
+        all
     }
 
     /// Examines, in time order, the sign changes of the watched atoms
@@ -1423,12 +1569,12 @@ pub(crate) mod tests {
         }
     }
 
-    /// Steps over which the watcher proves from the interpolant's control
-    /// points that the affine atoms keep their signs are looked at only at
-    /// their ends: far fewer evaluations, and the same arc to the last bit
-    /// (every kick found where the checkpoints find it).
+    /// With affine atoms the watcher looks inside a step only where the
+    /// interpolant's control points show an atom changing sign: far fewer
+    /// evaluations than at every checkpoint, and the same kicks, each at
+    /// the same time within the event tolerance.
     #[test]
-    fn affine_atoms_that_keep_their_signs_are_not_checked_inside_steps() {
+    fn affine_atoms_are_checked_only_where_they_change_sign() {
         let run = |affine| {
             let sys = KickedPendulum {
                 rules: vec![JumpRule::new("kick", GuardKind::General)],
@@ -1447,19 +1593,18 @@ pub(crate) mod tests {
             (arc, sys.evaluations.get())
         };
         let ((with, fewer), (without, all)) = (run(true), run(false));
-        assert!(with.jumps().len() >= 10, "{} kicks", with.jumps().len());
-        let bits = |a: &crate::arc::HybridArc| {
-            (a.samples())
-                .flat_map(|p| {
-                    p.x.iter()
-                        .chain([&p.at.t])
-                        .map(|v| v.to_bits())
-                        .collect::<Vec<_>>()
-                })
-                .collect::<Vec<u64>>()
-        };
-        assert_eq!(bits(&with), bits(&without), "same arc");
-        assert_eq!(with.jumps(), without.jumps());
+        let (kicks, kicks_without) = (with.jumps(), without.jumps());
+        assert!(kicks.len() >= 10, "{} kicks", kicks.len());
+        assert_eq!(kicks.len(), kicks_without.len());
+        for (a, b) in kicks.iter().zip(kicks_without) {
+            assert_eq!(a.at.j, b.at.j);
+            assert!(
+                (a.at.t - b.at.t).abs() <= 1e-12 * a.at.t,
+                "{} vs {}",
+                a.at.t,
+                b.at.t
+            );
+        }
         assert!(
             2 * fewer < all,
             "{fewer} evaluations with the forms, {all} without"
@@ -1494,6 +1639,44 @@ pub(crate) mod tests {
                 );
             }
         }
+    }
+
+    /// The search for a change of sign: none in a polynomial that stays
+    /// positive although its control polygon dips (a bump); for s² − 0.04
+    /// with s from −0.5 to 1 (zeros at τ = 0.2 and 0.4667), a point of the
+    /// other sign between the zeros, then from there a point past the
+    /// second; and a bounded give-up on a polynomial that hugs zero within
+    /// the tolerance.
+    #[test]
+    fn the_first_change_of_sign_is_found_and_the_search_ends() {
+        let search = |p: &[f64], sign: f64, tol: f64| {
+            let mut budget = SPLIT_BUDGET;
+            first_other_sign(p, sign, tol, (0.0, 1.0), SPLIT_DEPTH, &mut budget)
+        };
+        // (1 − 2τ)² + 0.01 in Bernstein form (degree 2): 1.01, −0.99, 1.01.
+        assert_eq!(search(&[1.01, -0.99, 1.01], 1.0, 1e-12), Ok(None));
+        // s = −0.5 + 1.5τ: s² − 0.04 = 2.25τ² − 1.5τ + 0.21.
+        let p = [0.21, -0.54, 0.96];
+        let tau = search(&p, 1.0, 1e-12).unwrap().expect("a change");
+        let g = |t: f64| de_casteljau(&p, t);
+        assert!(tau > 0.2 && tau < 0.4666 && g(tau) < 0.0, "{tau}");
+        let back = split(&p, tau).1;
+        let mut budget = SPLIT_BUDGET;
+        let again = first_other_sign(
+            &back[..3],
+            -1.0,
+            1e-12,
+            (tau, 1.0),
+            SPLIT_DEPTH,
+            &mut budget,
+        );
+        let t2 = again.unwrap().expect("back");
+        assert!(t2 > 0.4667 && g(t2) > 0.0, "{t2}");
+        // Within the tolerance everywhere: neither sign is ever sure.
+        assert_eq!(
+            search(&[1e-13, -1e-13, 1e-13, -1e-13, 1e-13], 1.0, 1e-12),
+            Err(())
+        );
     }
 
     /// A polynomial in Bernstein form at τ ∈ [0, 1].

@@ -1122,7 +1122,12 @@ impl CompiledModel {
                 .map(|c| {
                     (forms.by_ref().take(c.nodes.len()))
                         .map(|form| {
-                            form.map(|l| AffineAtom {
+                            // A non-finite coefficient (`x <= -1/0`) gives
+                            // no usable form.
+                            let finite = |l: &analysis::Lin| {
+                                l.c.is_finite() && l.terms.iter().all(|t| t.1.is_finite())
+                            };
+                            form.filter(finite).map(|l| AffineAtom {
                                 terms: l.terms.iter().map(|&(k, c)| (k as usize, c)).collect(),
                                 constant: l.c,
                             })

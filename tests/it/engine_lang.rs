@@ -388,3 +388,48 @@ output pp = p
     let x = end(&run(&m)).1[0];
     assert!((x - 5.0 * (1.0 - (-0.1_f64).exp())).abs() < 1e-8, "{x}");
 }
+
+// ---- brief crossings --------------------------------------------------------
+
+/// A thrown stone whose apex clears the line `x = 1` by `d`: it is above the
+/// line for 2·√(2d) of time, inside one integrator step (Dopri5 is exact on
+/// the parabola and takes long steps), between the step's checkpoints.
+/// The guard is affine, so the watcher finds the crossing from the step's
+/// control points, however brief, at the closed-form time; a stone that
+/// stays below the line (d < 0) does not jump.
+#[test]
+fn a_crossing_inside_one_step_is_found_for_affine_guards() {
+    for d in [1e-3_f64, 1e-6, 1e-10, -1e-10] {
+        let m = compile(&format!(
+            "model graze
+             param d = {d}
+             state x = 0, v = sqrt(2 * (1 + d)), n = 0
+             flow {{
+                 x' = v
+                 v' = -1
+                 n' = 0
+             }}
+             jump hit when x >= 1 && n == 0 {{
+                 n+ = 1
+             }}
+             sim {{ T = 3 }}"
+        ));
+        let arc = run(&m);
+        let jumps = arc.jumps();
+        if d < 0.0 {
+            assert!(jumps.is_empty(), "d = {d}: {jumps:?}");
+            continue;
+        }
+        assert_eq!(jumps.len(), 1, "d = {d}");
+        // x(t) = v0 t − t²/2 reaches 1 at v0 − √(v0² − 2); near the apex
+        // x changes by √(2d) per unit time, so t is known to ~ε/√d.
+        let v0 = (2.0 * (1.0 + d)).sqrt();
+        let t = v0 - (2.0 * d).sqrt();
+        let err = (jumps[0].at.t - t).abs();
+        assert!(
+            err <= 1e-15 / d.sqrt() + 1e-14,
+            "d = {d}: {} vs {t}",
+            jumps[0].at.t
+        );
+    }
+}
