@@ -736,12 +736,13 @@ fn switches_note(report: &Report) -> String {
     )
 }
 
-/// `; compile T s (jit T s)`: the time from source to runnable model
-/// (design blocks included), for the summary line.
+/// `; compile T s, jit T s`: the time from source to runnable model
+/// (design blocks included) and the time spent generating machine code
+/// (during the run, as programs became hot), for the summary line.
 fn compile_note(total: Duration, jit: &lang::JitStatus) -> String {
     match jit {
         lang::JitStatus::Native { time, .. } => format!(
-            "; compile {:.3} s (jit {:.3} s)",
+            "; compile {:.3} s, jit {:.3} s",
             total.as_secs_f64(),
             time.as_secs_f64()
         ),
@@ -813,7 +814,7 @@ pub fn execute(args: RunArgs) -> anyhow::Result<u8> {
             }
         };
     let compile_time = compile_start.elapsed();
-    if let (Some(JitMode::On), lang::JitStatus::Unavailable(e)) = (args.jit, model.jit()) {
+    if let (Some(JitMode::On), lang::JitStatus::Unavailable(e)) = (args.jit, &model.jit()) {
         eprintln!("warning: the model runs interpreted: {e}");
     }
     let settings = match settings_from_flags(model.settings(), &args) {
@@ -1005,7 +1006,7 @@ pub fn execute(args: RunArgs) -> anyhow::Result<u8> {
     };
     if args.json {
         let jit = match model.jit() {
-            lang::JitStatus::Native { time, .. } => Some(*time),
+            lang::JitStatus::Native { time, .. } => Some(time),
             _ => None,
         };
         say(summary_json(model.name(), &report, &info.rule_names, compile_time, jit).to_string());
@@ -1013,7 +1014,7 @@ pub fn execute(args: RunArgs) -> anyhow::Result<u8> {
     }
     // The compile time belongs to the run's line, not after the last metric.
     let note = if compile_time.as_secs_f64() > 0.1 {
-        compile_note(compile_time, model.jit())
+        compile_note(compile_time, &model.jit())
     } else {
         String::new()
     };
@@ -1025,8 +1026,8 @@ pub fn execute(args: RunArgs) -> anyhow::Result<u8> {
 }
 
 /// The run's summary as JSON (`hybsim run --json`): what [`summary_line`]
-/// says, for scripts; `jit_time` is the machine-code generation's share of
-/// `compile_time` (`null` when interpreted). Non-finite metric values are strings (`"inf"`, `"nan"`).
+/// says, for scripts; `jit_time` is the time spent generating machine code,
+/// during the run as programs became hot (`null` when interpreted). Non-finite metric values are strings (`"inf"`, `"nan"`).
 pub fn summary_json(
     model: &str,
     report: &Report,

@@ -141,8 +141,8 @@ impl Metrics {
 
     /// The program evaluated at every sample (compiled to machine code
     /// with the model's programs).
-    pub(super) fn sample_mut(&mut self) -> &mut Program {
-        &mut self.sample
+    pub(super) fn sample(&self) -> &Program {
+        &self.sample
     }
 
     /// The metrics' names in declaration order (`rate[2]` for family members).

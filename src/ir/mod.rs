@@ -30,7 +30,7 @@ mod tests;
 use std::cell::RefCell;
 use std::collections::HashMap;
 use std::sync::{Arc, OnceLock};
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use crate::arc::{HybridTime, Termination, TerminationCause};
 use crate::check::dag::{Dag, Node, NodeId};
@@ -148,13 +148,8 @@ impl SetCode {
 
     /// Its programs, the one the engine evaluates most often first (the
     /// flowing atoms, at every guard check).
-    fn programs_mut(&mut self) -> [&mut Program; 4] {
-        [
-            &mut self.flowing,
-            &mut self.guard,
-            &mut self.cond,
-            &mut self.all,
-        ]
+    fn programs(&self) -> [&Program; 4] {
+        [&self.flowing, &self.guard, &self.cond, &self.all]
     }
 
     fn nregs(&self) -> usize {
@@ -244,9 +239,9 @@ struct JacobianSource {
     drift: Vec<NodeId>,
     /// One node per output component.
     outputs: Vec<NodeId>,
-    /// Whether the model's programs run as machine code (then so does the
-    /// Jacobian's).
-    jit: bool,
+    /// The model's machine-code generator, if it has one (then the
+    /// Jacobian's program gets machine code too).
+    jit: Option<Arc<jit::Jit>>,
     info: OnceLock<Option<JacobianInfo>>,
 }
 
@@ -277,10 +272,9 @@ impl JacobianSource {
                         }
                     }
                 }
-                let mut program = Program::compile(&dag, frame, &outputs);
-                if self.jit {
-                    // Interpreted if the JIT declines (size, machine).
-                    let _ = jit::compile(&mut [&mut program], 1);
+                let program = Program::compile(&dag, frame, &outputs);
+                if let Some(jit) = &self.jit {
+                    jit.attach(&program, true);
                 }
                 Some(JacobianInfo {
                     pattern: d.pattern,
@@ -338,8 +332,10 @@ pub struct CompiledModel {
     param_draws: Vec<crate::props::Dist>,
     designs: Vec<crate::check::DesignReport>,
     properties: Vec<(crate::props::Property, Span)>,
+    /// The properties' predicates (also held by `properties`).
+    predicates: Vec<Arc<property::Eval>>,
     metrics: metric::Metrics,
-    jit: JitStatus,
+    jit: Machine,
     sweep: Option<crate::check::sweep::SweepDecl>,
     log: crate::check::LogDecl,
     jacobian: Arc<JacobianSource>,
@@ -373,24 +369,39 @@ impl OutputSubset {
     }
 }
 
+/// How a model's programs get machine code.
+#[derive(Debug, Clone)]
+enum Machine {
+    /// `jit = off`.
+    Off,
+    /// Wanted, but this machine has no Cranelift backend.
+    Unavailable(jit::JitError),
+    /// Each program is compiled when it becomes hot.
+    On(Arc<jit::Jit>),
+}
+
 /// Whether a compiled model runs machine code ([`CompiledModel::jit`]).
 #[derive(Debug, Clone, PartialEq)]
 pub enum JitStatus {
-    /// The programs run as machine code; `interpreted` of them (beyond
-    /// the JIT's size limits, see [`jit::MAX_TOTAL_OPS`]) stay interpreted.
+    /// The programs get machine code when they become hot
+    /// ([`jit::TIER_UP_CALLS`]): so far `compiled` of them have it and
+    /// `interpreted` (not run often enough yet, or beyond the JIT's size
+    /// limits, see [`jit::MAX_TOTAL_OPS`]) do not.
     Native {
         /// Programs that run without the interpreter: compiled to machine
         /// code (property predicates included) or computing nothing.
         compiled: usize,
-        /// Programs left to the interpreter.
+        /// Programs interpreted so far.
         interpreted: usize,
-        /// Time spent generating the code.
+        /// Time spent generating the code so far (at compile time with
+        /// [`CompiledModel::compile_machine_code`], else during runs).
         time: Duration,
     },
     /// `jit = off`: interpreted.
     Off,
     /// The JIT was wanted but could not run (unsupported machine, code
-    /// generation error): interpreted.
+    /// generation error): interpreted (programs compiled before an error
+    /// keep their code).
     Unavailable(jit::JitError),
 }
 
@@ -547,66 +558,30 @@ impl CompiledModel {
         let inputs = inputs::random_inputs(&m);
         let param_inputs = m.random_params.len();
         let param_draws = m.random_params.iter().map(|i| i.dist).collect();
-        let want_jit = m.jit.unwrap_or(true);
-        let jit_start = Instant::now();
-        let (properties, native_props) =
-            property::compile(&m.dag, &m.properties, m.dim, &source, want_jit);
-        let writes: Vec<Vec<usize>> = rule_code.iter().map(|rc| rc.targets.clone()).collect();
-        let mut metrics = metric::Metrics::compile(&m.dag, &m.metrics, m.dim, &writes);
-        let mut flow = flow;
-        let mut diffusion = diffusion;
-        let mut init = init;
-        let mut outputs = outputs;
-        let mut flow_set = flow_set;
-        let mut rule_code = rule_code;
-        let mut atoms = atoms;
-        let jit = if want_jit {
-            // Hottest first (the JIT's budget may run out): the flow, then
-            // the atoms the engine watches at every step, all sets' at once
-            // and each set's (these get the better register allocator),
-            // then the sets' other programs (evaluated at event candidates
-            // and jumps), then the rest.
-            let mut progs: Vec<&mut Program> = vec![&mut flow, &mut diffusion, &mut atoms.flowing];
-            let (mut codes, mut maps) = (Vec::new(), Vec::new());
-            if let Some((code, _)) = &mut flow_set {
-                codes.push(code);
-            }
-            for rc in &mut rule_code {
-                codes.push(&mut rc.set);
-                maps.push(&mut rc.map);
-            }
-            let mut sets = Vec::new();
-            for code in codes {
-                let [flowing, rest @ ..] = code.programs_mut();
-                progs.push(flowing);
-                sets.extend(rest);
-            }
-            let hot = progs.len();
-            progs.push(&mut atoms.all);
-            progs.extend(sets);
-            progs.push(&mut atoms.conds);
-            progs.extend([&mut outputs, metrics.sample_mut(), &mut init]);
-            progs.extend(maps);
-            let total = progs.len();
-            match jit::compile(&mut progs, hot) {
-                Ok(compiled) => JitStatus::Native {
-                    compiled: compiled + native_props,
-                    interpreted: total - compiled,
-                    time: jit_start.elapsed(),
-                },
-                Err(e) => JitStatus::Unavailable(e),
+        let jit = if m.jit.unwrap_or(true) {
+            match jit::Jit::new(jit::TIER_UP_CALLS) {
+                Ok(jit) => Machine::On(jit),
+                Err(e) => Machine::Unavailable(e),
             }
         } else {
-            JitStatus::Off
+            Machine::Off
         };
+        let generator = match &jit {
+            Machine::On(jit) => Some(jit),
+            _ => None,
+        };
+        let (properties, predicates) =
+            property::compile(&m.dag, &m.properties, m.dim, &source, generator);
+        let writes: Vec<Vec<usize>> = rule_code.iter().map(|rc| rc.targets.clone()).collect();
+        let metrics = metric::Metrics::compile(&m.dag, &m.metrics, m.dim, &writes);
         let jacobian = Arc::new(JacobianSource {
             dag: std::mem::take(&mut m.dag),
             drift: flow_nodes,
             outputs: out_nodes,
-            jit: matches!(jit, JitStatus::Native { .. }),
+            jit: generator.cloned(),
             info: OnceLock::new(),
         });
-        CompiledModel {
+        let model = CompiledModel {
             name: m.name,
             source,
             imports: SourceMap::default(),
@@ -637,12 +612,59 @@ impl CompiledModel {
             param_draws,
             designs: m.designs,
             properties,
+            predicates,
             metrics,
             jit,
             sweep: m.sweep,
             log: m.log,
             jacobian,
             affine_atoms: OnceLock::new(),
+        };
+        if let Machine::On(jit) = &model.jit {
+            let (programs, hot) = model.programs();
+            for (k, p) in programs.into_iter().enumerate() {
+                jit.attach(p, k < hot);
+            }
+        }
+        model
+    }
+
+    /// Every program of the model (the Jacobian's and output subsets'
+    /// aside), the one the engine evaluates most often first, and how many
+    /// of the first are evaluated at every integrator stage (they get the
+    /// better register allocator): the flow, the diffusion, the atoms the
+    /// engine watches at every step (all sets' at once, then each set's);
+    /// then all sets' atoms, the sets' other programs (evaluated at event
+    /// candidates and jumps), the jump conditions, outputs, metrics,
+    /// initial values, jump maps and property predicates.
+    fn programs(&self) -> (Vec<&Program>, usize) {
+        let mut programs = vec![&self.flow, &self.diffusion, &self.atoms.flowing];
+        let mut sets = Vec::new();
+        let codes = self.flow_set.iter().map(|(c, _)| c);
+        for code in codes.chain(self.rule_code.iter().map(|rc| &rc.set)) {
+            let [flowing, rest @ ..] = code.programs();
+            programs.push(flowing);
+            sets.extend(rest);
+        }
+        let hot = programs.len();
+        programs.push(&self.atoms.all);
+        programs.extend(sets);
+        programs.push(&self.atoms.conds);
+        programs.extend([&self.outputs, self.metrics.sample(), &self.init]);
+        programs.extend(self.rule_code.iter().map(|rc| &rc.map));
+        programs.extend(self.predicates.iter().map(|e| e.program()));
+        (programs, hot)
+    }
+
+    /// Compiles every program to machine code now (hottest first, within
+    /// [`jit::MAX_TOTAL_OPS`]) instead of when each becomes hot, and so
+    /// every program compiled later (the Jacobian's, output subsets) when
+    /// it is made; no effect with `jit = off`. For tests comparing machine
+    /// code with the interpreter, and for measuring the JIT on a whole
+    /// model.
+    pub fn compile_machine_code(&self) {
+        if let Machine::On(jit) = &self.jit {
+            jit.compile_all(self.programs().0);
         }
     }
 
@@ -655,10 +677,24 @@ impl CompiledModel {
         self.jacobian.code(self.frame).is_some()
     }
 
-    /// Whether the model's programs run as machine code, and how long
-    /// generating it took.
-    pub fn jit(&self) -> &JitStatus {
-        &self.jit
+    /// Whether the model's programs run as machine code, how many have it
+    /// so far, and how long generating it took.
+    pub fn jit(&self) -> JitStatus {
+        match &self.jit {
+            Machine::Off => JitStatus::Off,
+            Machine::Unavailable(e) => JitStatus::Unavailable(e.clone()),
+            Machine::On(jit) => match jit.error() {
+                Some(e) => JitStatus::Unavailable(e.clone()),
+                None => {
+                    let (compiled, attached) = jit.counts();
+                    JitStatus::Native {
+                        compiled,
+                        interpreted: attached - compiled,
+                        time: jit.time(),
+                    }
+                }
+            },
+        }
     }
 
     /// The model's name (`model NAME`).
@@ -842,10 +878,10 @@ impl CompiledModel {
             .filter(|&k| k < graph.outputs.len())
             .collect();
         let nodes: Vec<NodeId> = components.iter().map(|&k| graph.outputs[k]).collect();
-        let mut program = Program::compile(&graph.dag, self.frame, &nodes);
-        if graph.jit {
-            // Interpreted if the JIT declines (size, machine).
-            let _ = jit::compile(&mut [&mut program], 1);
+        let program = Program::compile(&graph.dag, self.frame, &nodes);
+        if let Some(jit) = &graph.jit {
+            // Evaluated at every logged sample.
+            jit.attach(&program, true);
         }
         OutputSubset {
             nregs: program.nregs.max(self.frame.fixed()),

@@ -232,9 +232,10 @@ pub(crate) struct Program {
     /// Number of state registers (`x`, the frame's `n`): [`run_at`](Self::run_at)
     /// takes them from the state slice.
     pub(super) state_regs: usize,
-    /// Machine code for the same instructions (see [`super::jit`]), used
-    /// by [`run`](Self::run) when present.
-    native: Option<super::jit::Native>,
+    /// Machine code for the same instructions (see [`super::jit`]),
+    /// compiled when the program becomes hot and then used by
+    /// [`run`](Self::run).
+    pub(super) tier: super::jit::Tier,
 }
 
 /// Fixed registers of a model: state dimension and noise dimension.
@@ -640,18 +641,14 @@ impl Program {
             outs,
             nregs: next as usize,
             state_regs: frame.n,
-            native: None,
+            tier: Default::default(),
         }
     }
 
-    /// Attaches machine code generated from this program.
-    pub(super) fn set_native(&mut self, native: super::jit::Native) {
-        self.native = Some(native);
-    }
-
     /// Whether [`run`](Self::run) executes machine code.
+    #[cfg(test)]
     pub fn is_native(&self) -> bool {
-        self.native.is_some()
+        self.tier.is_native()
     }
 
     /// Whether the program computes nothing (no instruction, no output).
@@ -665,10 +662,11 @@ impl Program {
     }
 
     /// Runs the program on `regs` (fixed registers already filled): its
-    /// machine code if it has some, else the interpreter.
+    /// machine code if it has some (or gets it now: [`super::jit::Tier`]),
+    /// else the interpreter.
     #[inline]
     pub fn run(&self, regs: &mut [f64], rng: Option<&mut SimRng>) {
-        match &self.native {
+        match self.tier.code(self) {
             Some(native) => native.run(regs, rng),
             None => self.interpret(regs, rng),
         }
@@ -684,7 +682,7 @@ impl Program {
         let frame = Frame { n, m: 0 };
         regs[frame.time_reg()] = at.t;
         regs[frame.jumps_reg()] = at.j as f64;
-        match &self.native {
+        match self.tier.code(self) {
             Some(native) => native.run_at(regs, &x[..n], rng),
             None => {
                 regs[..n].copy_from_slice(&x[..n]);

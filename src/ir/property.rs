@@ -9,6 +9,7 @@
 
 use std::sync::Arc;
 
+use super::jit::Jit;
 use super::program::{Frame, Program};
 use super::with_regs;
 use crate::arc::HybridTime;
@@ -19,24 +20,27 @@ use crate::source::{SourceFile, Span};
 
 /// One compiled property expression.
 #[derive(Debug)]
-struct Eval {
+pub(super) struct Eval {
     prog: Program,
     nregs: usize,
     n: usize,
 }
 
 impl Eval {
-    /// The program of `node`, as machine code if `jit` (and the JIT works).
-    fn new(dag: &Dag, node: NodeId, n: usize, jit: bool) -> Arc<Self> {
+    /// The program of `node`, given to `jit` (compiled when it is hot).
+    fn new(dag: &Dag, node: NodeId, n: usize, jit: Option<&Arc<Jit>>) -> Arc<Self> {
         let frame = Frame { n: 2 * n + 1, m: 0 };
-        let mut prog = Program::compile(dag, frame, &[node]);
-        if jit {
-            // On failure the program stays interpreted; the model's
-            // programs report the reason (same machine, same generator).
-            let _ = super::jit::compile(&mut [&mut prog], 0);
+        let prog = Program::compile(dag, frame, &[node]);
+        if let Some(jit) = jit {
+            jit.attach(&prog, false);
         }
         let nregs = prog.nregs.max(frame.fixed());
         Arc::new(Self { prog, nregs, n })
+    }
+
+    /// Its program.
+    pub(super) fn program(&self) -> &Program {
+        &self.prog
     }
 
     /// The value at `(t, j)` for state `x` (and post-jump state `post`).
@@ -59,19 +63,19 @@ impl Eval {
 }
 
 /// The properties of a model with `n` state components; their text is
-/// taken from `source`. Their predicates are machine code if `jit`; the
-/// second result counts those that are.
+/// taken from `source`. Their predicates are given to `jit`; the second
+/// result holds them.
 pub(crate) fn compile(
     dag: &Dag,
     props: &[CheckedProperty],
     n: usize,
     source: &SourceFile,
-    jit: bool,
-) -> (Vec<(Property, Span)>, usize) {
-    let native = std::cell::Cell::new(0);
+    jit: Option<&Arc<Jit>>,
+) -> (Vec<(Property, Span)>, Vec<Arc<Eval>>) {
+    let evals = std::cell::RefCell::new(Vec::new());
     let eval = |node: NodeId| {
         let e = Eval::new(dag, node, n, jit);
-        native.set(native.get() + usize::from(e.prog.is_native()));
+        evals.borrow_mut().push(e.clone());
         e
     };
     let props = props
@@ -148,5 +152,5 @@ pub(crate) fn compile(
             (prop.with_text(text), p.span)
         })
         .collect();
-    (props, native.get())
+    (props, evals.into_inner())
 }

@@ -171,6 +171,9 @@ fn same_output_subsets(
 /// program.
 pub(crate) fn assert_bit_identical(name: &str, src: &SourceFile, horizon: f64, probes: usize) {
     let (native, interpreted) = (compile(src, "on"), compile(src, "off"));
+    // Every program as machine code from the start (by default each is
+    // compiled when it becomes hot).
+    native.compile_machine_code();
     if hybsim::ir::jit::supported() {
         assert!(
             matches!(native.jit(), JitStatus::Native { interpreted: 0, .. }),
@@ -178,7 +181,7 @@ pub(crate) fn assert_bit_identical(name: &str, src: &SourceFile, horizon: f64, p
             native.jit()
         );
     }
-    assert_eq!(interpreted.jit(), &JitStatus::Off);
+    assert_eq!(interpreted.jit(), JitStatus::Off);
     let mut settings = native.settings();
     settings.horizon_t = settings.horizon_t.min(horizon);
     let arc = |m: &CompiledModel| {

@@ -28,8 +28,11 @@
 mod codegen;
 mod helpers;
 
-use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, AtomicU32, AtomicU64, AtomicUsize, Ordering};
+use std::sync::{Arc, OnceLock};
+use std::time::{Duration, Instant};
 
+use cranelift_codegen::isa::OwnedTargetIsa;
 use cranelift_codegen::settings::{self, Configurable};
 use cranelift_jit::{JITBuilder, JITModule};
 
@@ -158,70 +161,230 @@ pub fn supported() -> bool {
     cranelift_native::builder().is_ok()
 }
 
-/// Compiles `programs` and attaches the machine code to each
-/// ([`Program::run`] then uses it). Programs larger than [`MAX_OPS`]
-/// instructions, and those that no longer fit into [`MAX_TOTAL_OPS`] when
-/// their turn comes, are left to the interpreter. The first `hot` programs
-/// (those evaluated at every integrator stage) get Cranelift's backtracking
-/// register allocator, the others its single-pass one, which compiles about
-/// 2.5 times faster for code about 10 % slower. Programs that compute
-/// nothing (no instruction, no output: the diffusion of a model without
-/// noise) need no code. Returns the number of programs that need no
-/// interpreter: those compiled and those that compute nothing.
-pub(crate) fn compile(programs: &mut [&mut Program], hot: usize) -> Result<usize, JitError> {
-    let mut budget = MAX_TOTAL_OPS;
-    let nothing = programs.iter().filter(|p| p.is_nothing()).count();
-    let chosen: Vec<usize> = (0..programs.len())
-        .filter(|&i| {
-            if programs[i].is_nothing() {
-                return false;
-            }
-            let len = programs[i].len();
-            let fits = len <= MAX_OPS && len + FUNCTION_COST <= budget;
-            if fits {
-                budget -= len + FUNCTION_COST;
-            }
-            fits
-        })
-        .collect();
-    if chosen.is_empty() {
-        return Ok(nothing);
-    }
-    let split = chosen.partition_point(|&i| i < hot);
-    let mut compiled = Vec::with_capacity(chosen.len());
-    for (group, allocator) in [
-        (&chosen[..split], "backtracking"),
-        (&chosen[split..], "single_pass"),
-    ] {
-        if group.is_empty() {
-            continue;
+/// Calls a program is interpreted before it gets machine code. Cranelift
+/// takes as long to compile a program as the interpreter takes to run it
+/// a few thousand times, so code for a program run only a few times (the
+/// initial values, the sets' predicates checked at rare events, outputs
+/// no sink asks for, rules that never fire) is never worth generating;
+/// the programs evaluated at every step pass this count in the first
+/// steps of a run.
+pub const TIER_UP_CALLS: u32 = 64;
+
+/// The machine-code generator of one model, shared by its programs (and
+/// the copies of the model that sweep threads use): when a program has
+/// been interpreted [`TIER_UP_CALLS`] times (see [`Jit::attach`]), the
+/// thread running it compiles it into its own code memory and attaches
+/// the code, which every later call (in any thread) runs. Programs larger
+/// than [`MAX_OPS`] instructions, and those that no longer fit into
+/// [`MAX_TOTAL_OPS`] when they become hot, stay interpreted.
+#[derive(Debug)]
+pub(crate) struct Jit {
+    /// Calls before a newly attached program is compiled (0: at once).
+    after: AtomicU32,
+    /// What is left of [`MAX_TOTAL_OPS`].
+    budget: AtomicUsize,
+    /// Programs attached.
+    attached: AtomicUsize,
+    /// Programs that need no interpreter: compiled, or computing nothing.
+    native: AtomicUsize,
+    /// Time spent generating code.
+    nanos: AtomicU64,
+    /// The first code-generation failure (a bug of the generator).
+    error: OnceLock<JitError>,
+}
+
+/// How a program is compiled once it is hot.
+#[derive(Debug, Clone)]
+struct Plan {
+    jit: Arc<Jit>,
+    /// Calls before it is compiled.
+    after: u32,
+    /// Evaluated at every integrator stage: Cranelift's backtracking
+    /// register allocator, else its single-pass one, which compiles about
+    /// 2.5 times faster for code about 10 % slower.
+    hot: bool,
+}
+
+/// A program's machine code, compiled when the program becomes hot
+/// (one field of [`Program`]).
+#[derive(Debug, Default)]
+pub(crate) struct Tier {
+    code: OnceLock<Native>,
+    plan: OnceLock<Plan>,
+    /// Interpreted calls so far (counted up to the plan's `after`).
+    calls: AtomicU32,
+    /// Whether a thread has taken on compiling it.
+    claimed: AtomicBool,
+}
+
+impl Clone for Tier {
+    fn clone(&self) -> Self {
+        Self {
+            code: self.code.clone(),
+            plan: self.plan.clone(),
+            calls: AtomicU32::new(self.calls.load(Ordering::Relaxed)),
+            claimed: AtomicBool::new(self.claimed.load(Ordering::Relaxed)),
         }
-        let refs: Vec<&Program> = group.iter().map(|&i| &*programs[i]).collect();
-        let (code, entries) =
-            std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| build(&refs, allocator)))
-                .unwrap_or_else(|_| Err(JitError::Codegen("the code generator panicked".into())))?;
-        let code = Arc::new(code);
-        compiled.extend(
-            group
-                .iter()
-                .zip(entries)
-                .map(|(&i, e)| (i, e, code.clone())),
-        );
     }
-    for (i, entry, code) in compiled {
-        let (nregs, state_regs) = (programs[i].nregs, programs[i].state_regs);
-        programs[i].set_native(Native {
-            _code: code,
-            entry,
-            nregs,
-            state_regs,
-        });
+}
+
+impl Tier {
+    /// The machine code of `p` (whose tier this is), compiling it first
+    /// if this call makes it hot; `None`: interpret.
+    #[inline]
+    pub fn code(&self, p: &Program) -> Option<&Native> {
+        if let Some(code) = self.code.get() {
+            return Some(code);
+        }
+        let plan = self.plan.get()?;
+        // Counting stops at the threshold: a program left to the
+        // interpreter costs one load per call, and threads share no
+        // counter they keep writing.
+        if self.calls.load(Ordering::Relaxed) >= plan.after
+            || self.calls.fetch_add(1, Ordering::Relaxed) + 1 < plan.after
+        {
+            return None;
+        }
+        plan.jit.tier_up(p, plan.hot);
+        self.code.get()
     }
-    Ok(chosen.len() + nothing)
+
+    /// Whether machine code is attached.
+    #[cfg(test)]
+    pub fn is_native(&self) -> bool {
+        self.code.get().is_some()
+    }
+}
+
+impl Jit {
+    /// A generator for one model that compiles each program after `after`
+    /// interpreted calls (0: when it is attached);
+    /// [`JitError::Unsupported`] on a machine Cranelift does not support.
+    pub fn new(after: u32) -> Result<Arc<Self>, JitError> {
+        isas()?;
+        Ok(Arc::new(Self {
+            after: AtomicU32::new(after),
+            budget: AtomicUsize::new(MAX_TOTAL_OPS),
+            attached: AtomicUsize::new(0),
+            native: AtomicUsize::new(0),
+            nanos: AtomicU64::new(0),
+            error: OnceLock::new(),
+        }))
+    }
+
+    /// Gives `p` to this generator (`hot`: see [`Plan::hot`]); it is
+    /// compiled once it has been interpreted the generator's number of
+    /// calls (at once if that is 0). A program that computes nothing (no
+    /// instruction, no output: the diffusion of a model without noise)
+    /// needs no code. A program attached before is left as it is.
+    pub fn attach(self: &Arc<Self>, p: &Program, hot: bool) {
+        if p.is_nothing() {
+            self.attached.fetch_add(1, Ordering::Relaxed);
+            self.native.fetch_add(1, Ordering::Relaxed);
+            return;
+        }
+        let after = self.after.load(Ordering::Relaxed);
+        let plan = Plan {
+            jit: self.clone(),
+            after,
+            hot,
+        };
+        if p.tier.plan.set(plan).is_err() {
+            return;
+        }
+        self.attached.fetch_add(1, Ordering::Relaxed);
+        if after == 0 {
+            self.tier_up(p, hot);
+        }
+    }
+
+    /// Compiles every program attached so far (if not compiled yet and
+    /// within the budget, in the order given) and from now on every
+    /// program when it is attached: for callers that want every program
+    /// as machine code before the first run (tests, compile-time
+    /// measurements).
+    pub fn compile_all<'a>(&self, programs: impl IntoIterator<Item = &'a Program>) {
+        self.after.store(0, Ordering::Relaxed);
+        for p in programs {
+            if let Some(plan) = p.tier.plan.get() {
+                self.tier_up(p, plan.hot);
+            }
+        }
+    }
+
+    /// Programs that need no interpreter (compiled or computing nothing)
+    /// and programs attached, so far.
+    pub fn counts(&self) -> (usize, usize) {
+        (
+            self.native.load(Ordering::Relaxed),
+            self.attached.load(Ordering::Relaxed),
+        )
+    }
+
+    /// Time spent generating code so far.
+    pub fn time(&self) -> Duration {
+        Duration::from_nanos(self.nanos.load(Ordering::Relaxed))
+    }
+
+    /// The first code-generation failure, if any.
+    pub fn error(&self) -> Option<&JitError> {
+        self.error.get()
+    }
+
+    /// Compiles `p` and attaches its code, unless another thread has taken
+    /// it on, it is too large, or the budget is spent (then it stays
+    /// interpreted).
+    #[cold]
+    #[inline(never)]
+    fn tier_up(&self, p: &Program, hot: bool) {
+        if p.tier.claimed.swap(true, Ordering::AcqRel) {
+            return;
+        }
+        let len = p.len();
+        let cost = len + FUNCTION_COST;
+        if len > MAX_OPS
+            || self
+                .budget
+                .fetch_update(Ordering::Relaxed, Ordering::Relaxed, |b| b.checked_sub(cost))
+                .is_err()
+        {
+            return;
+        }
+        let start = Instant::now();
+        let built = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| build(&[p], hot)))
+            .unwrap_or_else(|_| Err(JitError::Codegen("the code generator panicked".into())));
+        match built {
+            Ok((code, entries)) => {
+                let native = Native {
+                    _code: Arc::new(code),
+                    entry: entries[0],
+                    nregs: p.nregs,
+                    state_regs: p.state_regs,
+                };
+                if p.tier.code.set(native).is_ok() {
+                    self.native.fetch_add(1, Ordering::Relaxed);
+                }
+            }
+            Err(e) => {
+                let _ = self.error.set(e);
+            }
+        }
+        let spent = u64::try_from(start.elapsed().as_nanos()).unwrap_or(u64::MAX);
+        self.nanos.fetch_add(spent, Ordering::Relaxed);
+    }
+}
+
+/// The host's ISA with each register allocator (backtracking, single
+/// pass), built once per process.
+fn isas() -> Result<&'static [OwnedTargetIsa; 2], JitError> {
+    static ISAS: OnceLock<Result<[OwnedTargetIsa; 2], JitError>> = OnceLock::new();
+    ISAS.get_or_init(|| Ok([isa("backtracking")?, isa("single_pass")?]))
+        .as_ref()
+        .map_err(Clone::clone)
 }
 
 /// The host's ISA with the given register allocator.
-fn isa(allocator: &str) -> Result<cranelift_codegen::isa::OwnedTargetIsa, JitError> {
+fn isa(allocator: &str) -> Result<OwnedTargetIsa, JitError> {
     let mut flags = settings::builder();
     let set = |f: &mut settings::Builder, k: &str, v: &str| {
         f.set(k, v)
@@ -241,8 +404,10 @@ fn isa(allocator: &str) -> Result<cranelift_codegen::isa::OwnedTargetIsa, JitErr
         .map_err(|e| JitError::Unsupported(e.to_string()))
 }
 
-fn build(programs: &[&Program], allocator: &str) -> Result<(Code, Vec<Entry>), JitError> {
-    let jb = JITBuilder::with_isa(isa(allocator)?, cranelift_module::default_libcall_names());
+/// Compiles `programs` into one code memory (`hot`: see [`Plan::hot`]).
+fn build(programs: &[&Program], hot: bool) -> Result<(Code, Vec<Entry>), JitError> {
+    let isa = isas()?[usize::from(!hot)].clone();
+    let jb = JITBuilder::with_isa(isa, cranelift_module::default_libcall_names());
     let mut module = JITModule::new(jb);
     let mut generator = codegen::Generator::new(&module);
     let mut ids = Vec::with_capacity(programs.len());
@@ -283,7 +448,7 @@ fn build(programs: &[&Program], allocator: &str) -> Result<(Code, Vec<Entry>), J
 #[cfg(test)]
 fn instructions(p: &Program) -> usize {
     let jb = JITBuilder::with_isa(
-        isa("single_pass").expect("a supported machine"),
+        isas().expect("a supported machine")[1].clone(),
         cranelift_module::default_libcall_names(),
     );
     let mut module = JITModule::new(jb);

@@ -3,7 +3,7 @@
 use proptest::prelude::*;
 
 use super::codegen::LOOP_TERMS;
-use super::{compile, instructions};
+use super::{FUNCTION_COST, Jit, MAX_TOTAL_OPS, instructions};
 use crate::arc::HybridTime;
 use crate::check::dag::{BinFn, BlockKind, Dag, Dist, NodeId, UnFn};
 use crate::engine::SimRng;
@@ -42,15 +42,21 @@ fn all_bin() -> Vec<BinFn> {
 
 const FRAME: Frame = Frame { n: 4, m: 0 };
 
+/// A copy of `p` compiled to machine code at once.
+fn compiled(p: &Program, hot: bool) -> Program {
+    let q = p.clone();
+    Jit::new(0).expect("a supported machine").attach(&q, hot);
+    assert!(q.is_native());
+    q
+}
+
 /// Runs `p` interpreted and as machine code on state `x` (time 0.5, jump
 /// counter 3) with generators of the same seed; the outputs' bits of both. NaN counts as
 /// one value: which NaN an operation on two NaNs returns depends on the
 /// order in which a compiler puts the operands of `+`, and nothing
 /// downstream can tell (every comparison with NaN is false).
 fn both(p: &Program, x: &[f64; 4]) -> (Vec<u64>, Vec<u64>) {
-    let mut jitted = p.clone();
-    assert_eq!(compile(&mut [&mut jitted], 1).unwrap(), 1);
-    assert!(jitted.is_native());
+    let jitted = compiled(p, true);
     let eval = |p: &Program, native: bool| {
         let mut regs = vec![f64::NAN; p.nregs.max(FRAME.fixed())];
         regs[..4].copy_from_slice(x);
@@ -252,8 +258,7 @@ fn sums(rows: usize, len: usize, pick: &[u8], coef: &[f64]) -> (Dag, Vec<NodeId>
 /// Runs `p` at (0.5, 3) on state `x` kept apart from the register file
 /// (whose state part holds garbage), interpreted and as machine code.
 fn both_at(p: &Program, x: &[f64; 4]) -> (Vec<u64>, Vec<u64>) {
-    let mut jitted = p.clone();
-    assert_eq!(compile(&mut [&mut jitted], 0).unwrap(), 1);
+    let jitted = compiled(p, false);
     let eval = |p: &Program| {
         let mut regs = vec![f64::NAN; p.nregs.max(FRAME.fixed())];
         p.run_at(&mut regs, HybridTime { t: 0.5, j: 3 }, x, None);
@@ -325,8 +330,102 @@ fn short_register_file_is_refused() {
     let mut dag = Dag::default();
     let x = dag.state(3);
     let y = dag.un(UnFn::Sin, x);
-    let mut p = Program::compile(&dag, FRAME, &[y]);
-    compile(&mut [&mut p], 0).unwrap();
+    let p = compiled(&Program::compile(&dag, FRAME, &[y]), false);
     let mut regs = vec![0.0; 2];
     p.run(&mut regs, None);
+}
+
+/// The program `sin(x₀)·x₁ + x₂ / t` and its outputs' bits at state
+/// `x` through `run_at` (time 0.5).
+fn tiny() -> Program {
+    let mut dag = Dag::default();
+    let x: Vec<NodeId> = (0..4).map(|k| dag.state(k)).collect();
+    let t = dag.time();
+    let s = dag.un(UnFn::Sin, x[0]);
+    let m = dag.bin(BinFn::Mul, s, x[1]);
+    let d = dag.bin(BinFn::Div, x[2], t);
+    let y = dag.bin(BinFn::Add, m, d);
+    Program::compile(&dag, FRAME, &[y, m])
+}
+
+fn run_bits(p: &Program, x: &[f64; 4]) -> Vec<u64> {
+    let mut regs = vec![f64::NAN; p.nregs.max(FRAME.fixed())];
+    p.run_at(&mut regs, HybridTime { t: 0.5, j: 3 }, x, None);
+    p.outs.iter().map(|&o| regs[o as usize].to_bits()).collect()
+}
+
+/// A program is interpreted until it has run the generator's number of
+/// calls, then runs machine code; a program run fewer times never gets
+/// any, one that computes nothing needs none, and every call computes
+/// the interpreter's bits.
+#[test]
+fn programs_get_machine_code_when_hot() {
+    let jit = Jit::new(5).expect("a supported machine");
+    let (hot, cold, empty) = (tiny(), tiny(), Program::default());
+    for p in [&hot, &cold, &empty] {
+        jit.attach(p, false);
+    }
+    assert_eq!(jit.counts(), (1, 3), "only the empty program needs no code");
+    let x = [0.3, -1.25, 2.0, 7.0];
+    let reference = {
+        let p = tiny();
+        let mut regs = vec![0.0; p.nregs.max(FRAME.fixed())];
+        regs[..4].copy_from_slice(&x);
+        regs[FRAME.time_reg()] = 0.5;
+        regs[FRAME.jumps_reg()] = 3.0;
+        p.interpret(&mut regs, None);
+        p.outs.iter().map(|&o| regs[o as usize].to_bits()).collect::<Vec<_>>()
+    };
+    for call in 1..=8 {
+        assert_eq!(run_bits(&hot, &x), reference, "call {call}");
+        assert_eq!(hot.is_native(), call >= 5, "after call {call}");
+    }
+    for _ in 0..4 {
+        assert_eq!(run_bits(&cold, &x), reference);
+    }
+    assert!(!cold.is_native(), "run 4 < 5 times");
+    assert_eq!(jit.counts(), (2, 3));
+    assert!(jit.time() > std::time::Duration::ZERO);
+    // `compile_all` compiles the rest now, and later programs when attached.
+    jit.compile_all([&hot, &cold, &empty]);
+    assert!(cold.is_native());
+    let late = tiny();
+    jit.attach(&late, true);
+    assert!(late.is_native());
+    assert_eq!(jit.counts(), (4, 4));
+}
+
+/// Threads sharing a program (a model shared by sweep threads) compile
+/// it once, all get the interpreter's bits before and after, and the
+/// budget of code per model holds: a program beyond it stays interpreted.
+#[test]
+fn tier_up_is_shared_and_budgeted() {
+    let jit = Jit::new(50).expect("a supported machine");
+    let p = tiny();
+    jit.attach(&p, true);
+    let x = [1.5, 0.25, -3.0, 0.0];
+    let reference = run_bits(&tiny(), &x);
+    std::thread::scope(|s| {
+        for _ in 0..4 {
+            s.spawn(|| {
+                for _ in 0..100 {
+                    assert_eq!(run_bits(&p, &x), reference);
+                }
+            });
+        }
+    });
+    assert!(p.is_native());
+    assert_eq!(jit.counts(), (1, 1), "compiled once");
+    // Programs until the budget is spent: the ones that do not fit stay
+    // interpreted and still compute the same bits.
+    let eager = Jit::new(0).expect("a supported machine");
+    let fit = MAX_TOTAL_OPS / (tiny().len() + FUNCTION_COST);
+    let programs: Vec<Program> = (0..fit + 3).map(|_| tiny()).collect();
+    for p in &programs {
+        eager.attach(p, false);
+    }
+    assert_eq!(eager.counts(), (fit, fit + 3));
+    assert!(programs[..fit].iter().all(Program::is_native));
+    assert!(!programs[fit].is_native());
+    assert_eq!(run_bits(&programs[fit + 2], &x), reference);
 }
