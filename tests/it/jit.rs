@@ -456,3 +456,60 @@ sim {{ T = {horizon} }}
     let err = simulate_arc(&m, &x0, &m.settings(), &mut rng).unwrap_err();
     assert!(matches!(err, SimError::Fault { .. }), "{err}");
 }
+
+/// By default a program gets machine code once it has run
+/// `ir::jit::TIER_UP_CALLS` times: a model fresh from the compiler has
+/// none, a run compiles the programs it evaluates at every step but not
+/// those it evaluates once (initial values, a rule that fires once) or
+/// never (outputs no sink asks for), and its arc is the interpreter's,
+/// bit for bit.
+#[test]
+fn programs_get_machine_code_when_they_become_hot() {
+    if !hybsim::ir::jit::supported() {
+        return;
+    }
+    let src = SourceFile::new(
+        "tiers.hyb",
+        "model tiers
+state x = 1, n = 0
+flow { x' = -sin(x) - 0.1 * x; n' = 0 }
+jump once when n <= 0 && x <= 0.5 { n+ = n + 1 }
+output y = x^2 + n
+sim { T = 5 }
+",
+    );
+    let (lazy, interpreted) = (compile(&src, "on"), compile(&src, "off"));
+    let status = |m: &CompiledModel| match m.jit() {
+        JitStatus::Native {
+            compiled,
+            interpreted,
+            time,
+        } => (compiled, interpreted, time),
+        other => panic!("{other:?}"),
+    };
+    let (fresh, waiting, time) = status(&lazy);
+    assert_eq!(time, std::time::Duration::ZERO, "nothing compiled yet");
+    assert!(waiting > 0);
+    let arc = |m: &CompiledModel| {
+        let (x0, mut rng) = m.start(m.seed());
+        simulate_arc(m, &x0, &m.settings(), &mut rng).expect("simulation")
+    };
+    let (a, b) = (arc(&lazy), arc(&interpreted));
+    assert_eq!(a.jumps().len(), 1, "the rule fires once");
+    assert!(a.len() > 10, "{} samples", a.len());
+    let (hot, cold, time) = status(&lazy);
+    assert!(hot > fresh, "the flow is compiled: {fresh} → {hot}");
+    assert!(time > std::time::Duration::ZERO);
+    assert!(
+        cold >= 3,
+        "initial values, the jump map and the outputs stay interpreted: {cold}"
+    );
+    for (sa, sb) in a.samples().zip(b.samples()) {
+        assert_eq!(sa.at.t.to_bits(), sb.at.t.to_bits());
+        assert_eq!(bits(sa.x), bits(sb.x), "x at {}", sa.at);
+    }
+    assert_eq!(a.len(), b.len());
+    assert_eq!(a.jumps(), b.jumps());
+    lazy.compile_machine_code();
+    assert_eq!(status(&lazy).1, 0, "every program compiled now");
+}

@@ -581,8 +581,22 @@ impl Emit<'_, '_> {
             }
             Op::Lin { d, t0, len } => {
                 let terms = &p.lin[t0 as usize..(t0 + len) as usize];
-                let mut acc = None;
+                // A coefficient ±1 (most terms: the products of a matrix
+                // product of states, `a − b`) needs no multiplication:
+                // `x · 1 = x` and `s + x · (−1) = s − x` exactly (NaN aside,
+                // whose sign bit is not kept anyway).
+                let mut acc: Option<Value> = None;
                 for &(r, c) in terms {
+                    if r != CONST_TERM && (c == 1.0 || c == -1.0) {
+                        let x = self.get(r);
+                        acc = Some(match (acc, c == 1.0) {
+                            (None, true) => x,
+                            (None, false) => self.b.ins().fneg(x),
+                            (Some(s), true) => self.b.ins().fadd(s, x),
+                            (Some(s), false) => self.b.ins().fsub(s, x),
+                        });
+                        continue;
+                    }
                     let k = self.konst(c);
                     let term = if r == CONST_TERM {
                         k

@@ -1,17 +1,24 @@
 //! Machine code for register programs, generated with Cranelift.
 //!
-//! `compile` turns `Program`s (`ir::program`) into native functions
-//! `fn(regs: *mut f64, rng: *mut SimRng)` with the interpreter's contract:
+//! [`Jit`] turns `Program`s (`ir::program`) into native functions
+//! `fn(regs: *mut f64, x: *const f64, rng: *mut SimRng)` with the interpreter's contract:
 //! the fixed registers (`x`, `t`, `w`) are read from the register file and
 //! every output register is written back to it, so a compiled program is a
 //! drop-in replacement for `Program::run`'s interpreter, which stays the
 //! reference and the fallback.
 //!
+//! **Tiers.** A program starts interpreted and is compiled by the thread
+//! that runs it for the [`TIER_UP_CALLS`]-th time, each program into its
+//! own code memory (`Tier`: a call counter and the code, set once), so a
+//! run pays Cranelift only for the programs it evaluates often. Results do
+//! not depend on when a program changes tier: both compute the same bits.
+//!
 //! **Bit-identical results.** Each instruction becomes the IEEE operation
 //! the interpreter performs, in the same order: `+ − · /`, `√`, `|a|`,
 //! `⌊a⌋` and comparisons inline (Cranelift neither fuses multiply–adds nor
 //! reassociates), `Op::Lin` sums left to right as the
-//! interpreter does, and every other function (`exp`, `sin`, `pow`, `min`,
+//! interpreter does (a term `x · 1` as `x`, `s + x · (−1)` as `s − x`:
+//! exact), and every other function (`exp`, `sin`, `pow`, `min`,
 //! …) is a call into Rust code that runs the interpreter's own
 //! [`eval_un`](crate::check::dag::eval_un) / [`eval_bin`](crate::check::dag::eval_bin),
 //! so both call the same libm functions. Random draws and matrix blocks
@@ -45,9 +52,9 @@ use crate::engine::SimRng;
 pub const MAX_OPS: usize = 200_000;
 
 /// The most code compiled for one model, in instructions plus
-/// [`FUNCTION_COST`] per program: programs are compiled in the order given
-/// (hottest first) while they fit, the rest are interpreted. This bounds
-/// the compile time of huge models (thousands of jump maps).
+/// [`FUNCTION_COST`] per program: programs are compiled as they become hot
+/// while they fit, the rest are interpreted. This bounds the compile time
+/// of huge models (thousands of jump maps).
 pub const MAX_TOTAL_OPS: usize = 40_000;
 
 /// What one program counts against [`MAX_TOTAL_OPS`] besides its
@@ -345,7 +352,9 @@ impl Jit {
         if len > MAX_OPS
             || self
                 .budget
-                .fetch_update(Ordering::Relaxed, Ordering::Relaxed, |b| b.checked_sub(cost))
+                .fetch_update(Ordering::Relaxed, Ordering::Relaxed, |b| {
+                    b.checked_sub(cost)
+                })
                 .is_err()
         {
             return;

@@ -374,7 +374,10 @@ fn programs_get_machine_code_when_hot() {
         regs[FRAME.time_reg()] = 0.5;
         regs[FRAME.jumps_reg()] = 3.0;
         p.interpret(&mut regs, None);
-        p.outs.iter().map(|&o| regs[o as usize].to_bits()).collect::<Vec<_>>()
+        p.outs
+            .iter()
+            .map(|&o| regs[o as usize].to_bits())
+            .collect::<Vec<_>>()
     };
     for call in 1..=8 {
         assert_eq!(run_bits(&hot, &x), reference, "call {call}");
