@@ -1,6 +1,6 @@
 //! Machine code for register programs, generated with Cranelift.
 //!
-//! [`Jit`] turns `Program`s (`ir::program`) into native functions
+//! `Jit` turns `Program`s (`ir::program`) into native functions
 //! `fn(regs: *mut f64, x: *const f64, rng: *mut SimRng)` with the interpreter's contract:
 //! the fixed registers (`x`, `t`, `w`) are read from the register file and
 //! every output register is written back to it, so a compiled program is a
