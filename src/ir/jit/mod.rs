@@ -312,11 +312,19 @@ impl Jit {
     /// measurements).
     pub fn compile_all<'a>(&self, programs: impl IntoIterator<Item = &'a Program>) {
         self.after.store(0, Ordering::Relaxed);
+        // Into one code memory per register allocator: a Cranelift module
+        // costs tens of microseconds, which a model of hundreds of
+        // programs would pay for each.
+        let (mut hot, mut cold) = (Vec::new(), Vec::new());
         for p in programs {
-            if let Some(plan) = p.tier.plan.get() {
-                self.tier_up(p, plan.hot);
+            if let Some(plan) = p.tier.plan.get()
+                && self.claim(p)
+            {
+                if plan.hot { &mut hot } else { &mut cold }.push(p);
             }
         }
+        self.compile(&hot, true);
+        self.compile(&cold, false);
     }
 
     /// Programs that need no interpreter (compiled or computing nothing)
@@ -344,34 +352,50 @@ impl Jit {
     #[cold]
     #[inline(never)]
     fn tier_up(&self, p: &Program, hot: bool) {
+        if self.claim(p) {
+            self.compile(&[p], hot);
+        }
+    }
+
+    /// Whether `p` is this caller's to compile: no other thread has taken
+    /// it on, it is not too large, and it fits into the budget (charged).
+    fn claim(&self, p: &Program) -> bool {
         if p.tier.claimed.swap(true, Ordering::AcqRel) {
-            return;
+            return false;
         }
         let len = p.len();
         let cost = len + FUNCTION_COST;
-        if len > MAX_OPS
-            || self
+        len <= MAX_OPS
+            && self
                 .budget
                 .fetch_update(Ordering::Relaxed, Ordering::Relaxed, |b| {
                     b.checked_sub(cost)
                 })
-                .is_err()
-        {
+                .is_ok()
+    }
+
+    /// Compiles `programs` (claimed) into one code memory and attaches
+    /// each its code.
+    fn compile(&self, programs: &[&Program], hot: bool) {
+        if programs.is_empty() {
             return;
         }
         let start = Instant::now();
-        let built = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| build(&[p], hot)))
+        let built = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| build(programs, hot)))
             .unwrap_or_else(|_| Err(JitError::Codegen("the code generator panicked".into())));
         match built {
             Ok((code, entries)) => {
-                let native = Native {
-                    _code: Arc::new(code),
-                    entry: entries[0],
-                    nregs: p.nregs,
-                    state_regs: p.state_regs,
-                };
-                if p.tier.code.set(native).is_ok() {
-                    self.native.fetch_add(1, Ordering::Relaxed);
+                let code = Arc::new(code);
+                for (p, entry) in programs.iter().zip(entries) {
+                    let native = Native {
+                        _code: code.clone(),
+                        entry,
+                        nregs: p.nregs,
+                        state_regs: p.state_regs,
+                    };
+                    if p.tier.code.set(native).is_ok() {
+                        self.native.fetch_add(1, Ordering::Relaxed);
+                    }
                 }
             }
             Err(e) => {
