@@ -10,7 +10,7 @@
 //! BENCHMARKS.md for the measured difference. Coefficients and controller
 //! follow Hairer, Nørsett & Wanner, *Solving ODEs I*, II.4–II.6 (DOPRI5).
 
-use super::events::{MAX_CONTROL, StepPath};
+use super::events::{MAX_CONTROL, StepPath, bernstein_points};
 
 // Nodes and coefficients of the Dormand–Prince pair.
 const C2: f64 = 1.0 / 5.0;
@@ -386,13 +386,8 @@ impl StepPath for DopriPath<'_> {
             -(r4 + 2.0 * r5) * w3,
             r5 * w4,
         ];
-        out[0] = a[0];
-        out[1] = a[0] + a[1] / 4.0;
-        out[2] = a[0] + a[1] / 2.0 + a[2] / 6.0;
-        out[3] = a[0] + 0.75 * a[1] + a[2] / 2.0 + a[3] / 4.0;
-        out[4] = a[0] + a[1] + a[2] + a[3] + a[4];
-        let scale = (r1.abs() + r2.abs() + r3.abs() + r4.abs() + r5.abs()) * w4.max(1.0);
-        Some((5, 32.0 * f64::EPSILON * scale))
+        // The coefficients' own rounding is within the bound of their sum.
+        Some(bernstein_points(&a, out))
     }
 }
 

@@ -68,6 +68,24 @@ pub(crate) trait StepPath {
 /// The most Bernstein control points a [`StepPath`] gives per component.
 pub(crate) const MAX_CONTROL: usize = 8;
 
+/// The Bernstein control points on `[0, 1]` of the polynomial
+/// `Σ aᵢ τⁱ` (at most [`MAX_CONTROL`] coefficients) into `out`, with a
+/// bound on their rounding error: `bₖ = Σ_{i ≤ k} C(k, i)/C(n, i)·aᵢ`.
+pub(crate) fn bernstein_points(a: &[f64], out: &mut [f64; MAX_CONTROL]) -> (usize, f64) {
+    let n = a.len() - 1;
+    // C(k, i)/C(n, i) built up along i: ×(k − i)/(n − i) per step.
+    for (k, o) in out.iter_mut().enumerate().take(n + 1) {
+        let (mut ratio, mut b) = (1.0, 0.0);
+        for (i, &ai) in a.iter().enumerate().take(k + 1) {
+            b += ratio * ai;
+            ratio *= (k - i) as f64 / (n - i).max(1) as f64;
+        }
+        *o = b;
+    }
+    let size: f64 = a.iter().map(|v| v.abs()).sum();
+    (n + 1, 32.0 * f64::EPSILON * size)
+}
+
 /// The cubic Hermite interpolant through `(s0, y0, f0)` and `(s1, y1, f1)`:
 /// exact for polynomials of degree ≤ 3, error O(h⁴) otherwise.
 pub(crate) struct Hermite<'a> {

@@ -30,7 +30,7 @@
 use nalgebra::{Complex, ComplexField};
 
 use super::dopri5::{Failure, Rhs};
-use super::events::StepPath;
+use super::events::{MAX_CONTROL, StepPath, bernstein_points};
 use super::implicit::{Jac, Jacobian, LinearAlgebra, NewtonLu, initial_step, newton_tol};
 
 const S6: f64 = 2.449_489_742_783_178;
@@ -567,6 +567,16 @@ impl StepPath for RadauPath<'_> {
             *o = self.y0[i] + th * (q1[i] + th * (q2[i] + th * q3[i]));
         }
     }
+
+    /// The cubic of `eval` in powers of τ = (s − s0)/(s1 − s0), then in
+    /// Bernstein form.
+    fn control_points(&self, i: usize, out: &mut [f64; MAX_CONTROL]) -> Option<(usize, f64)> {
+        // θ = (s − s0)/h = w·τ (w = 1 unless the step end was rounded).
+        let w = (self.s1 - self.s0) / self.h;
+        let [q1, q2, q3] = self.q.each_ref().map(|q| q[i]);
+        let a = [self.y0[i], q1 * w, q2 * w * w, q3 * w * w * w];
+        Some(bernstein_points(&a, out))
+    }
 }
 
 #[cfg(test)]
@@ -611,6 +621,38 @@ mod tests {
         for (k, row) in P.iter().enumerate() {
             let sum: f64 = row.iter().sum();
             assert!((sum - if k == 2 { 1.0 } else { 0.0 }).abs() < 1e-13);
+        }
+    }
+
+    /// The control points of a step's collocation cubic give back its
+    /// values (de Casteljau on [s0, s1]) within their error bound, also for
+    /// a step end that is not s0 + h.
+    #[test]
+    fn control_points_give_the_collocation_polynomial() {
+        let mut f = |s: f64, y: &[f64], dy: &mut [f64]| dy[0] = -3.0 * (y[0] - s.cos());
+        let mut jac = |_s: f64, _y: &[f64], j: &mut [f64]| j[0] = -3.0;
+        let mut st = Radau5::new(1, 1e-6, 1e-8, &LinearAlgebra::dense(1));
+        let y = vec![2.0];
+        let mut f0 = vec![0.0];
+        f(0.0, &y, &mut f0);
+        st.start(&y, &f0, &mut f);
+        let h = st.step(0.0, &y, 10.0, &mut f, &mut jac).unwrap();
+        for s1 in [h, 0.9 * h] {
+            let mut p = st.path(s1);
+            let mut points = [0.0; MAX_CONTROL];
+            let (n, err) = p.control_points(0, &mut points).expect("a polynomial");
+            assert_eq!(n, 4);
+            for k in 0..8 {
+                let tau = k as f64 / 8.0;
+                let mut out = [0.0];
+                p.eval(s1 * tau, &mut out);
+                let v = crate::engine::events::tests::de_casteljau(&points[..n], tau);
+                assert!(
+                    (v - out[0]).abs() <= 4.0 * err,
+                    "at {tau}: {v} vs {}",
+                    out[0]
+                );
+            }
         }
     }
 

@@ -392,14 +392,18 @@ output pp = p
 // ---- brief crossings --------------------------------------------------------
 
 /// A thrown stone whose apex clears the line `x = 1` by `d`: it is above the
-/// line for 2·√(2d) of time, inside one integrator step (Dopri5 is exact on
-/// the parabola and takes long steps), between the step's checkpoints.
-/// The guard is affine, so the watcher finds the crossing from the step's
-/// control points, however brief, at the closed-form time; a stone that
-/// stays below the line (d < 0) does not jump.
+/// line for 2·√(2d) of time, inside one integrator step (the solvers are
+/// exact on the parabola and take long steps), between the step's
+/// checkpoints. The guard is affine, so the watcher finds the crossing from
+/// the step's control points, however brief, at the closed-form time, with
+/// every solver whose steps give them; a stone that stays below the line
+/// (d < 0) does not jump.
 #[test]
 fn a_crossing_inside_one_step_is_found_for_affine_guards() {
-    for d in [1e-3_f64, 1e-6, 1e-10, -1e-10] {
+    let cases = ["dopri5", "dop853", "rk4", "radau5"]
+        .into_iter()
+        .flat_map(|s| [1e-3_f64, 1e-6, 1e-10, -1e-10].map(|d| (s, d)));
+    for (solver, d) in cases {
         let m = compile(&format!(
             "model graze
              param d = {d}
@@ -412,23 +416,27 @@ fn a_crossing_inside_one_step_is_found_for_affine_guards() {
              jump hit when x >= 1 && n == 0 {{
                  n+ = 1
              }}
-             sim {{ T = 3 }}"
+             sim {{ T = 3; solver = {solver} }}"
         ));
         let arc = run(&m);
         let jumps = arc.jumps();
         if d < 0.0 {
-            assert!(jumps.is_empty(), "d = {d}: {jumps:?}");
+            assert!(jumps.is_empty(), "{solver}, d = {d}: {jumps:?}");
             continue;
         }
-        assert_eq!(jumps.len(), 1, "d = {d}");
+        assert_eq!(jumps.len(), 1, "{solver}, d = {d}");
         // x(t) = v0 t − t²/2 reaches 1 at v0 − √(v0² − 2); near the apex
-        // x changes by √(2d) per unit time, so t is known to ~ε/√d.
+        // x changes by √(2d) per unit time, so an error δ in x moves t by
+        // δ/√(2d): ~ε/√d for Dopri5 (its quartic holds the parabola
+        // exactly), more for solvers whose steps carry rounding of their
+        // stages (1.2e-12 at d = 1e-3 measured).
         let v0 = (2.0 * (1.0 + d)).sqrt();
         let t = v0 - (2.0 * d).sqrt();
         let err = (jumps[0].at.t - t).abs();
+        let allowed = if solver == "dopri5" { 1e-15 } else { 1e-13 } / d.sqrt() + 1e-14;
         assert!(
-            err <= 1e-15 / d.sqrt() + 1e-14,
-            "d = {d}: {} vs {t}",
+            err <= allowed,
+            "{solver}, d = {d}: {} vs {t}",
             jumps[0].at.t
         );
     }
