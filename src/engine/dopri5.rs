@@ -411,24 +411,7 @@ mod tests {
         st.start(&y, &f0, &mut f);
         let h = st.step(0.0, &y, 10.0, &mut f).unwrap();
         for s1 in [h, 0.9 * h] {
-            let mut p = st.path(s1);
-            for i in 0..2 {
-                let mut points = [0.0; MAX_CONTROL];
-                let (n, err) = p.control_points(i, &mut points).expect("a polynomial");
-                assert_eq!(n, 5);
-                for k in 0..8 {
-                    // s = s1 itself is the step's end state, not the quartic.
-                    let tau = k as f64 / 8.0;
-                    let mut out = [0.0; 2];
-                    p.eval(s1 * tau, &mut out);
-                    let v = crate::engine::events::tests::de_casteljau(&points[..n], tau);
-                    assert!(
-                        (v - out[i]).abs() <= 4.0 * err,
-                        "{i} at {tau}: {v} vs {}",
-                        out[i]
-                    );
-                }
-            }
+            crate::engine::events::tests::assert_control_points(&mut st.path(s1), 2, (0.0, s1), 5);
         }
     }
 

@@ -388,8 +388,8 @@ pub(crate) struct Watcher {
     /// Per watched atom: its function as an affine form of the state, if
     /// the system gives one ([`HybridSystem::atom_affine`]).
     affine: Vec<Option<AffineAtom>>,
-    /// The checkpoints of the step being scanned, and the first sign
-    /// changes of its affine atoms ([`Watcher::affine_checkpoints`]).
+    /// The checkpoints of the step being scanned, and the points where its
+    /// affine atoms have changed sign ([`Watcher::affine_checkpoints`]).
     points: Vec<f64>,
     extra: Vec<f64>,
     /// Those of atoms that change sign more than once on the step.
@@ -1642,21 +1642,7 @@ pub(crate) mod tests {
             y1: &y1,
             f1: &f1,
         };
-        for i in 0..2 {
-            let mut points = [0.0; MAX_CONTROL];
-            let (n, err) = p.control_points(i, &mut points).expect("a polynomial");
-            for k in 0..=8 {
-                let tau = k as f64 / 8.0;
-                let mut out = [0.0; 2];
-                p.eval(0.2 + 0.5 * tau, &mut out);
-                let v = de_casteljau(&points[..n], tau);
-                assert!(
-                    (v - out[i]).abs() <= 4.0 * err,
-                    "{i} at {tau}: {v} vs {}",
-                    out[i]
-                );
-            }
-        }
+        assert_control_points(&mut p, 2, (0.2, 0.7), 4);
     }
 
     /// The search for a change of sign: none in a polynomial that stays
@@ -1676,7 +1662,7 @@ pub(crate) mod tests {
         // s = −0.5 + 1.5τ: s² − 0.04 = 2.25τ² − 1.5τ + 0.21.
         let p = [0.21, -0.54, 0.96];
         let tau = search(&p, 1.0, 1e-12).unwrap().expect("a change");
-        let g = |t: f64| de_casteljau(&p, t);
+        let g = |t: f64| split(&p, t).0[2];
         assert!(tau > 0.2 && tau < 0.4666 && g(tau) < 0.0, "{tau}");
         let back = split(&p, tau).1;
         let mut budget = SPLIT_BUDGET;
@@ -1697,15 +1683,33 @@ pub(crate) mod tests {
         );
     }
 
-    /// A polynomial in Bernstein form at τ ∈ [0, 1].
-    pub(crate) fn de_casteljau(points: &[f64], tau: f64) -> f64 {
-        let mut b = points.to_vec();
-        for r in 1..b.len() {
-            for k in 0..b.len() - r {
-                b[k] = (1.0 - tau) * b[k] + tau * b[k + 1];
+    /// Checks that the control points of each of the `dim` components of
+    /// `path` on `[s0, s1]` give back its values (de Casteljau: the last
+    /// point of the left piece at τ) within their error bound at τ = k/8,
+    /// k < 8 (at `s1` itself a path may give its step's end state), and
+    /// that there are `count` of them.
+    pub(crate) fn assert_control_points<P: StepPath>(
+        path: &mut P,
+        dim: usize,
+        (s0, s1): (f64, f64),
+        count: usize,
+    ) {
+        for i in 0..dim {
+            let mut points = [0.0; MAX_CONTROL];
+            let (n, err) = path.control_points(i, &mut points).expect("a polynomial");
+            assert_eq!(n, count);
+            for k in 0..8 {
+                let tau = k as f64 / 8.0;
+                let mut out = vec![0.0; dim];
+                path.eval(s0 + (s1 - s0) * tau, &mut out);
+                let v = split(&points[..n], tau).0[n - 1];
+                assert!(
+                    (v - out[i]).abs() <= 4.0 * err,
+                    "{i} at {tau}: {v} vs {}",
+                    out[i]
+                );
             }
         }
-        b[0]
     }
 
     #[test]

@@ -638,21 +638,7 @@ mod tests {
         st.start(&y, &f0, &mut f);
         let h = st.step(0.0, &y, 10.0, &mut f, &mut jac).unwrap();
         for s1 in [h, 0.9 * h] {
-            let mut p = st.path(s1);
-            let mut points = [0.0; MAX_CONTROL];
-            let (n, err) = p.control_points(0, &mut points).expect("a polynomial");
-            assert_eq!(n, 4);
-            for k in 0..8 {
-                let tau = k as f64 / 8.0;
-                let mut out = [0.0];
-                p.eval(s1 * tau, &mut out);
-                let v = crate::engine::events::tests::de_casteljau(&points[..n], tau);
-                assert!(
-                    (v - out[0]).abs() <= 4.0 * err,
-                    "at {tau}: {v} vs {}",
-                    out[0]
-                );
-            }
+            crate::engine::events::tests::assert_control_points(&mut st.path(s1), 1, (0.0, s1), 4);
         }
     }
 
