@@ -59,6 +59,29 @@ pub struct JumpRecord {
     pub post: Vec<f64>,
 }
 
+/// A model's output map y = h(x, t, j), as the sinks evaluate it for each
+/// logged sample. Closures `Fn(HybridTime, &[f64], &mut [f64])` are output
+/// maps; a compiled model's [`crate::ir::OutputSubset`] also re-evaluates
+/// after a jump only what the jump can change.
+pub trait OutputMap {
+    /// Writes `y` (length = the output layout's dimension) at `at`, `x`.
+    fn eval(&self, at: HybridTime, x: &[f64], y: &mut [f64]);
+
+    /// Brings `y`, evaluated at the pre-jump point of a jump in which the
+    /// rules `rules` fired, to the post-jump point `at`, `x`, with the
+    /// values [`eval`](Self::eval) gives there. Default: `eval`.
+    fn eval_after_jump(&self, rules: &[usize], at: HybridTime, x: &[f64], y: &mut [f64]) {
+        let _ = rules;
+        self.eval(at, x, y);
+    }
+}
+
+impl<F: Fn(HybridTime, &[f64], &mut [f64])> OutputMap for F {
+    fn eval(&self, at: HybridTime, x: &[f64], y: &mut [f64]) {
+        self(at, x, y)
+    }
+}
+
 /// Receives a solution as it is computed. The engine pushes samples and
 /// jumps in hybrid-time order; a sink may stop the run by returning
 /// [`std::ops::ControlFlow::Break`].

@@ -947,26 +947,22 @@ pub fn execute(args: RunArgs) -> anyhow::Result<u8> {
         return Ok(EXIT_MODEL_ERROR);
     }
     let output_fn = |at: HybridTime, x: &[f64], y: &mut [f64]| model.outputs(at, x, y);
-    // A log that keeps some of the outputs evaluates only those (compiled
-    // only when a file logs them).
+    // The files' outputs: only those a log keeps, compiled on their own
+    // (only when a file logs), which also re-evaluate after a jump only
+    // what the jump can change.
     let logs = outputs.mcap.is_some() || outputs.csv.is_some() || outputs.parquet.is_some();
-    let logged_outputs = outputs
-        .log_vars
-        .as_ref()
-        .filter(|_| logs)
-        .and_then(|names| {
-            let (selected, _) = info.select_vars(names);
-            let components: Vec<usize> = selected
-                .output_layout
-                .components()
-                .into_iter()
-                .map(|(k, _)| k)
-                .collect();
-            (components.len() < info.output_dim).then(|| model.output_subset(&components))
-        });
-    let logged_fn = logged_outputs
-        .as_ref()
-        .map(|s| move |at: HybridTime, x: &[f64], y: &mut [f64]| s.eval(at, x, y));
+    let logged_outputs = logs.then(|| {
+        let components: Vec<usize> = match &outputs.log_vars {
+            Some(names) => {
+                let (selected, _) = info.select_vars(names);
+                let layout = selected.output_layout.components();
+                layout.into_iter().map(|(k, _)| k).collect()
+            }
+            None => (0..info.output_dim).collect(),
+        };
+        model.output_subset(&components)
+    });
+    let logged_fn = logged_outputs.as_ref().map(|s| s as OutputFn<'_>);
     let (x0, mut rng) = model.start(seed);
     let (report, error) = simulate_to_files(
         &model,
@@ -975,7 +971,7 @@ pub fn execute(args: RunArgs) -> anyhow::Result<u8> {
         &mut rng,
         &info,
         Some(&output_fn),
-        logged_fn.as_ref().map(|f| f as OutputFn<'_>),
+        logged_fn,
         &outputs,
         Some(model.metrics()),
     )?;

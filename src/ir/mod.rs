@@ -22,6 +22,7 @@ mod inputs;
 mod jacobian;
 pub mod jit;
 pub mod metric;
+mod outputs;
 mod program;
 mod property;
 #[cfg(test)]
@@ -42,6 +43,7 @@ use crate::engine::{
 };
 use crate::layout::{Declared, Layout, Shape};
 use crate::source::{SourceFile, SourceMap, Span};
+pub use outputs::OutputSubset;
 use program::{Frame, Program};
 
 thread_local! {
@@ -343,30 +345,6 @@ pub struct CompiledModel {
     /// (C's, then each rule's), found on the first request
     /// ([`HybridSystem::atom_affine`]).
     affine_atoms: OnceLock<Vec<Vec<Option<AffineAtom>>>>,
-}
-
-/// Some of a model's output components, compiled on their own
-/// ([`CompiledModel::output_subset`]).
-#[derive(Debug)]
-pub struct OutputSubset {
-    program: Program,
-    /// The output components computed, in the program's output order.
-    components: Vec<usize>,
-    nregs: usize,
-}
-
-impl OutputSubset {
-    /// Evaluates the subset's components at hybrid time `at` and state `x`
-    /// into their places in `out` (the whole output vector); other entries
-    /// are left as they are.
-    pub fn eval(&self, at: HybridTime, x: &[f64], out: &mut [f64]) {
-        with_regs(self.nregs, |regs| {
-            self.program.run_at(regs, at, x, None);
-            for (&k, &r) in self.components.iter().zip(&self.program.outs) {
-                out[k] = regs[r as usize];
-            }
-        });
-    }
 }
 
 /// How a model's programs get machine code.
@@ -871,23 +849,13 @@ impl CompiledModel {
     /// assert_eq!(y, [0.0, 2f64.sin()]);
     /// ```
     pub fn output_subset(&self, components: &[usize]) -> OutputSubset {
-        let graph = &self.jacobian;
         let components: Vec<usize> = components
             .iter()
             .copied()
-            .filter(|&k| k < graph.outputs.len())
+            .filter(|&k| k < self.jacobian.outputs.len())
             .collect();
-        let nodes: Vec<NodeId> = components.iter().map(|&k| graph.outputs[k]).collect();
-        let program = Program::compile(&graph.dag, self.frame, &nodes);
-        if let Some(jit) = &graph.jit {
-            // Evaluated at every logged sample.
-            jit.attach(&program, true);
-        }
-        OutputSubset {
-            nregs: program.nregs.max(self.frame.fixed()),
-            program,
-            components,
-        }
+        let writes = self.rules.iter().map(|r| r.writes.clone()).collect();
+        OutputSubset::new(self.jacobian.clone(), self.frame, components, writes)
     }
 
     /// The `design` blocks' reports in source order (solver figures, results).

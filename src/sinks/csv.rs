@@ -8,7 +8,7 @@
 //!
 //! Jumps of rules that are not logged ([`RunInfo::logged_rules`]) leave
 //! their pre-jump sample as a `flow` row and no `post_jump` row (see
-//! [`super::JumpFilter`]).
+//! [`super::LogFilter`]).
 
 use std::io::BufWriter;
 use std::ops::ControlFlow;
@@ -16,7 +16,7 @@ use std::path::{Path, PathBuf};
 
 use crate::atomic_file::OutputFile;
 
-use super::{Decimation, Decimator, JumpFilter, OutputFn, RunInfo, SinkError, Tally};
+use super::{Decimation, LogFilter, LoggedOutputs, OutputFn, RunInfo, SinkError, Tally};
 use crate::arc::{ArcSink, HybridTime, SampleKind};
 use crate::atomic_file;
 
@@ -39,13 +39,11 @@ pub fn kind_name(kind: SampleKind) -> &'static str {
 pub struct CsvSink<'a> {
     path: PathBuf,
     writer: Option<::csv::Writer<BufWriter<OutputFile>>>,
-    outputs: Option<OutputFn<'a>>,
-    decimator: Decimator,
+    outputs: LoggedOutputs<'a>,
     tally: Tally,
-    y: Vec<f64>,
     state_cols: Vec<usize>,
     output_cols: Vec<usize>,
-    filter: JumpFilter,
+    filter: LogFilter,
     error: Option<SinkError>,
 }
 
@@ -92,20 +90,11 @@ impl<'a> CsvSink<'a> {
         Ok(Self {
             path,
             writer: Some(writer),
-            y: vec![
-                0.0;
-                if outputs.is_some() {
-                    info.output_dim
-                } else {
-                    0
-                }
-            ],
-            outputs,
+            outputs: LoggedOutputs::new(outputs, info.output_dim),
             state_cols,
             output_cols,
-            decimator: Decimator::new(decimation),
             tally: Tally::new(info.rule_names.len()),
-            filter: JumpFilter::new(&info.logged_rules),
+            filter: LogFilter::new(&info.logged_rules, decimation),
             error: None,
         })
     }
@@ -116,9 +105,7 @@ impl<'a> CsvSink<'a> {
         x: &[f64],
         kind: SampleKind,
     ) -> Result<(), ::csv::Error> {
-        if let Some(outputs) = self.outputs {
-            outputs(at, x, &mut self.y);
-        }
+        let y = self.outputs.at(at, x);
         let w = self
             .writer
             .as_mut()
@@ -131,23 +118,9 @@ impl<'a> CsvSink<'a> {
             w.write_field(number_text(x[k], &mut num))?;
         }
         for &k in &self.output_cols {
-            w.write_field(number_text(self.y[k], &mut num))?;
+            w.write_field(number_text(y[k], &mut num))?;
         }
         w.write_record(None::<&[u8]>)
-    }
-
-    /// Writes the row if the decimation keeps the sample.
-    fn keep_and_write(
-        &mut self,
-        at: HybridTime,
-        x: &[f64],
-        kind: SampleKind,
-    ) -> Result<(), ::csv::Error> {
-        if self.decimator.keep(at, kind) {
-            self.write_row(at, x, kind)
-        } else {
-            Ok(())
-        }
     }
 
     /// Stores the first error and stops the run.
@@ -203,28 +176,26 @@ impl ArcSink for CsvSink<'_> {
             return ControlFlow::Break(());
         }
         self.tally.sample(at);
-        let mut filter = std::mem::take(&mut self.filter);
-        let r = filter.route_sample(at, x, kind, |at, x, kind| self.keep_and_write(at, x, kind));
-        self.filter = filter;
-        self.settle(r.unwrap_or(Ok(())))
+        let r = LogFilter::write_sample(
+            self,
+            |s| &mut s.filter,
+            Self::write_row,
+            (at, x, kind),
+            Ok(()),
+        );
+        self.settle(r)
     }
 
-    fn jump(
-        &mut self,
-        _at: HybridTime,
-        rule: usize,
-        _pre: &[f64],
-        _post: &[f64],
-    ) -> ControlFlow<()> {
+    fn jump(&mut self, at: HybridTime, rule: usize, pre: &[f64], _post: &[f64]) -> ControlFlow<()> {
         if self.error.is_some() {
             return ControlFlow::Break(());
         }
         self.tally.jump(rule);
-        let mut filter = std::mem::take(&mut self.filter);
-        let (_, flushed) = filter.route_jump(rule, |at, x| {
-            self.keep_and_write(at, x, SampleKind::PreJump)
-        });
-        self.filter = filter;
-        self.settle(flushed.unwrap_or(Ok(())))
+        self.outputs.jump(at, rule);
+        let r = match self.filter.route_jump(rule) {
+            (_, Some(at)) => self.write_row(at, pre, SampleKind::PreJump),
+            (_, None) => Ok(()),
+        };
+        self.settle(r)
     }
 }

@@ -44,8 +44,8 @@ pub use super::mcap_writer::Compression;
 use super::mcap_writer::McapWriter;
 use super::protobuf::ProtoWriter;
 use super::{
-    Decimation, Decimator, JumpFilter, OutputFn, RunInfo, RunOutcome, RunStatus, SinkError, Tally,
-    first_non_finite, rule_name,
+    Decimation, LogFilter, LoggedOutputs, OutputFn, RunInfo, RunOutcome, RunStatus, SinkError,
+    Tally, first_non_finite, rule_name,
 };
 use crate::arc::{ArcSink, HybridTime, SampleKind, SolverSwitch};
 use crate::atomic_file;
@@ -177,20 +177,15 @@ pub struct McapSink<'a> {
     path: PathBuf,
     writer: Option<McapWriter<BufWriter<OutputFile>>>,
     info: &'a RunInfo,
-    outputs: Option<OutputFn<'a>>,
+    /// The logged outputs (evaluated only when the outputs channel exists).
+    outputs: LoggedOutputs<'a>,
     channels: Channels,
-    decimator: Decimator,
     tally: Tally,
     t0: Option<f64>,
     last_log_time: u64,
     sequence: u32,
-    y: Vec<f64>,
-    /// The hybrid time `y` was evaluated at: a solution has one state per
-    /// hybrid time, so a sample there again (the pre-jump sample of a second
-    /// jump at one instant, after the first one's post-jump sample) reuses it.
-    y_at: Option<HybridTime>,
     records: Records,
-    filter: JumpFilter,
+    filter: LogFilter,
     /// Runs (first component, count) of the state components the records
     /// carry: those checked for non-finite values.
     logged: Vec<(usize, usize)>,
@@ -436,22 +431,22 @@ impl<'a> McapSink<'a> {
             path,
             writer: Some(writer),
             info,
-            outputs,
+            outputs: LoggedOutputs::new(
+                outputs.filter(|_| outputs_channel.is_some()),
+                info.output_dim,
+            ),
             channels: Channels {
                 state,
                 outputs: outputs_channel,
                 jumps,
                 log,
             },
-            decimator: Decimator::new(options.decimation),
             tally: Tally::new(info.rule_names.len()),
             t0: None,
             last_log_time: 0,
             sequence: 0,
-            y: vec![0.0; info.output_dim],
-            y_at: None,
             records,
-            filter: JumpFilter::new(&info.logged_rules),
+            filter: LogFilter::new(&info.logged_rules, options.decimation),
             logged: component_runs(&info.state_layout),
             jump_states: options.jump_states,
             error: None,
@@ -474,21 +469,24 @@ impl<'a> McapSink<'a> {
         ns
     }
 
-    /// Writes a message on `channel` whose payload `encode` appends.
+    /// Writes a message on `channel` whose payload `encode` appends (given
+    /// the record writers and the current outputs).
     fn write_message(
         &mut self,
         channel: u16,
         log_time: u64,
-        encode: impl FnOnce(&Records, &mut Vec<u8>),
+        encode: impl FnOnce(&Records, &[f64], &mut Vec<u8>),
     ) -> Result<(), SinkError> {
         let writer = self
             .writer
             .as_mut()
             .expect("the writer is present until finish");
         self.sequence = self.sequence.wrapping_add(1);
-        let records = &self.records;
+        let (records, y) = (&self.records, self.outputs.values());
         writer
-            .message(channel, self.sequence, log_time, |out| encode(records, out))
+            .message(channel, self.sequence, log_time, |out| {
+                encode(records, y, out)
+            })
             .map_err(|source| SinkError::Mcap {
                 path: self.path.clone(),
                 source,
@@ -510,7 +508,7 @@ impl<'a> McapSink<'a> {
             file: &file,
             line: 0,
         };
-        self.write_message(self.channels.log, log_time, |_, out| {
+        self.write_message(self.channels.log, log_time, |_, _, out| {
             serde_json::to_writer(out, &record).expect("a log record serializes")
         })
     }
@@ -535,21 +533,17 @@ impl<'a> McapSink<'a> {
                 at,
             });
         }
-        let mut y = std::mem::take(&mut self.y);
-        if let (Some(outputs), Some(_)) = (self.outputs, self.channels.outputs)
-            && self.y_at != Some(at)
-        {
-            outputs(at, x, &mut y);
-            self.y_at = Some(at);
-            if let Some((k, value)) = first_non_finite(&y) {
-                self.y = y;
-                return Err(SinkError::NonFinite {
-                    what: "output",
-                    name: self.info.component_name("output", k),
-                    value,
-                    at,
-                });
-            }
+        // A solution has one state per hybrid time: a sample there again
+        // (the pre-jump sample of a second jump at one instant, after the
+        // first one's post-jump sample) keeps the outputs.
+        let y = self.outputs.at(at, x);
+        if let Some((k, value)) = first_non_finite(y) {
+            return Err(SinkError::NonFinite {
+                what: "output",
+                name: self.info.component_name("output", k),
+                value,
+                at,
+            });
         }
         let first = self.t0.is_none();
         let log_time = self.log_time(at.t);
@@ -560,17 +554,16 @@ impl<'a> McapSink<'a> {
             );
             self.write_log(LogLevel::Info, &message, log_time)?;
         }
-        self.write_message(self.channels.state, log_time, |r, out| match r {
+        self.write_message(self.channels.state, log_time, |r, _, out| match r {
             Records::Json { states, .. } => states.sample(out, at, x),
             Records::Protobuf(p) => p.sample(out, at, x),
         })?;
         if let Some(channel) = self.channels.outputs {
-            self.write_message(channel, log_time, |r, out| match r {
-                Records::Json { outputs, .. } => outputs.sample(out, at, &y),
-                Records::Protobuf(p) => p.outputs(out, at, &y),
+            self.write_message(channel, log_time, |r, y, out| match r {
+                Records::Json { outputs, .. } => outputs.sample(out, at, y),
+                Records::Protobuf(p) => p.outputs(out, at, y),
             })?;
         }
-        self.y = y;
         Ok(ControlFlow::Continue(()))
     }
 
@@ -600,25 +593,11 @@ impl<'a> McapSink<'a> {
         } else {
             rule_name(&self.info.rule_names, rule)
         };
-        self.write_message(self.channels.jumps, log_time, |r, out| match r {
+        self.write_message(self.channels.jumps, log_time, |r, _, out| match r {
             Records::Json { states, .. } => states.jump(out, at, rule, &name, pre, post),
             Records::Protobuf(p) => p.jump(out, at, rule, &name, pre, post),
         })?;
         Ok(ControlFlow::Continue(()))
-    }
-
-    /// Writes the sample if the decimation keeps it.
-    fn keep_and_write(
-        &mut self,
-        at: HybridTime,
-        x: &[f64],
-        kind: SampleKind,
-    ) -> Result<ControlFlow<()>, SinkError> {
-        if self.decimator.keep(at, kind) {
-            self.write_sample(at, x)
-        } else {
-            Ok(ControlFlow::Continue(()))
-        }
     }
 
     /// Stores the first error and stops the run.
@@ -778,10 +757,14 @@ impl ArcSink for McapSink<'_> {
             return ControlFlow::Break(());
         }
         self.tally.sample(at);
-        let mut filter = std::mem::take(&mut self.filter);
-        let r = filter.route_sample(at, x, kind, |at, x, kind| self.keep_and_write(at, x, kind));
-        self.filter = filter;
-        self.settle(r.unwrap_or(Ok(ControlFlow::Continue(()))))
+        let r = LogFilter::write_sample(
+            self,
+            |s| &mut s.filter,
+            |s, at, x, _| s.write_sample(at, x),
+            (at, x, kind),
+            Ok(ControlFlow::Continue(())),
+        );
+        self.settle(r)
     }
 
     fn jump(&mut self, at: HybridTime, rule: usize, pre: &[f64], post: &[f64]) -> ControlFlow<()> {
@@ -789,12 +772,12 @@ impl ArcSink for McapSink<'_> {
             return ControlFlow::Break(());
         }
         self.tally.jump(rule);
-        let mut filter = std::mem::take(&mut self.filter);
-        let (record, flushed) = filter.route_jump(rule, |at, x| {
-            self.keep_and_write(at, x, SampleKind::PreJump)
-        });
-        self.filter = filter;
-        let mut r = flushed.unwrap_or(Ok(ControlFlow::Continue(())));
+        self.outputs.jump(at, rule);
+        let (record, flush) = self.filter.route_jump(rule);
+        let mut r = match flush {
+            Some(at) => self.write_sample(at, pre),
+            None => Ok(ControlFlow::Continue(())),
+        };
         if record && matches!(r, Ok(ControlFlow::Continue(()))) {
             r = self.write_jump(at, rule, pre, post);
         }

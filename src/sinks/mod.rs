@@ -223,9 +223,68 @@ pub fn entry_names(layout: &Layout) -> Vec<&str> {
         .collect()
 }
 
-/// A model's output map y = h(x, t, j), evaluated by the sinks for each logged
-/// sample. Writes `y` (length = the output layout's dimension).
-pub type OutputFn<'a> = &'a (dyn Fn(HybridTime, &[f64], &mut [f64]) + 'a);
+pub use crate::arc::OutputMap;
+
+/// The output map the sinks get ([`OutputMap`]).
+pub type OutputFn<'a> = &'a (dyn OutputMap + 'a);
+
+/// A file sink's outputs: the values at the last point evaluated, brought
+/// to the next point with as little work as its [`OutputMap`] allows (none
+/// at the same hybrid time, [`OutputMap::eval_after_jump`] across a jump).
+pub(crate) struct LoggedOutputs<'a> {
+    map: Option<OutputFn<'a>>,
+    y: Vec<f64>,
+    /// Where `y` was evaluated (`None`: nowhere yet).
+    at: Option<HybridTime>,
+    /// The rules that jumped from `fired_at` (whether or not `y` was
+    /// evaluated there yet).
+    fired: Vec<usize>,
+    fired_at: Option<HybridTime>,
+}
+
+impl<'a> LoggedOutputs<'a> {
+    /// Outputs of dimension `dim` by `map` (`None`: the sink logs none).
+    pub fn new(map: Option<OutputFn<'a>>, dim: usize) -> Self {
+        Self {
+            map,
+            y: vec![0.0; if map.is_some() { dim } else { 0 }],
+            at: None,
+            fired: Vec::new(),
+            fired_at: None,
+        }
+    }
+
+    /// Notes a jump of rule `rule` from the pre-jump point `at`.
+    pub fn jump(&mut self, at: HybridTime, rule: usize) {
+        if self.fired_at != Some(at) {
+            self.fired.clear();
+            self.fired_at = Some(at);
+        }
+        self.fired.push(rule);
+    }
+
+    /// The outputs at `at`, `x`: kept, updated after the jump from the
+    /// previous point, or evaluated.
+    pub fn at(&mut self, at: HybridTime, x: &[f64]) -> &[f64] {
+        let Some(map) = self.map else {
+            return &self.y;
+        };
+        match self.at {
+            Some(p) if p == at => {}
+            Some(p) if self.fired_at == Some(p) && p.t == at.t && p.j + 1 == at.j => {
+                map.eval_after_jump(&self.fired, at, x, &mut self.y)
+            }
+            _ => map.eval(at, x, &mut self.y),
+        }
+        self.at = Some(at);
+        &self.y
+    }
+
+    /// The outputs last returned by [`at`](Self::at).
+    pub fn values(&self) -> &[f64] {
+        &self.y
+    }
+}
 
 /// What the sinks know about a run: structure of the logged vectors and
 /// everything needed to reproduce the run from its log.
@@ -263,7 +322,7 @@ pub struct RunInfo {
     /// Per rule (the system's order), whether its jumps are logged; rules
     /// past the end are. A jump in which no logged rule fires leaves no jump
     /// record, and of its two samples only the pre-jump one, as a flow
-    /// sample (see [`JumpFilter`]). `hybsim run` leaves the noise redraws
+    /// sample (see [`LogFilter`]). `hybsim run` leaves the noise redraws
     /// out unless a `log` block or `--log-rules` asks for them.
     pub logged_rules: Vec<bool>,
     /// Resolved parameters (after overrides), name → value.
@@ -458,17 +517,23 @@ impl Decimator {
         }
     }
 
+    /// Whether [`keep`](Self::keep) would keep a flow sample at `at` now.
+    pub fn would_keep_flow(&self, at: HybridTime) -> bool {
+        let by_count = self.flow_count + 1 >= self.rule.every;
+        let by_time = match (self.rule.dt, self.last_kept_t) {
+            (Some(dt), Some(last)) => at.t - last >= dt,
+            _ => true,
+        };
+        by_count && by_time
+    }
+
     /// Whether to keep the sample at `at` of kind `kind`.
     pub fn keep(&mut self, at: HybridTime, kind: SampleKind) -> bool {
         let keep = match kind {
             SampleKind::Flow => {
+                let keep = self.would_keep_flow(at);
                 self.flow_count += 1;
-                let by_count = self.flow_count >= self.rule.every;
-                let by_time = match (self.rule.dt, self.last_kept_t) {
-                    (Some(dt), Some(last)) => at.t - last >= dt,
-                    _ => true,
-                };
-                by_count && by_time
+                keep
             }
             _ => true,
         };
@@ -480,44 +545,63 @@ impl Decimator {
     }
 }
 
-/// How a sink treats the jumps of rules that are not logged
-/// ([`RunInfo::logged_rules`]). The engine sends a pre-jump sample, one jump
-/// record per firing rule, then the post-jump sample; the filter holds the
-/// pre-jump sample until the rules are known. A jump in which a logged rule
-/// fires is written as usual (pre-jump sample, the records of its logged
-/// rules, post-jump sample). Any other jump is invisible in the log: no
-/// record, its pre-jump sample becomes a flow sample (subject to
-/// decimation) and its post-jump sample is dropped, so that e.g. a noise
-/// redraw at every integrator step costs one sample, not three records.
-#[derive(Debug, Clone, Default)]
-pub struct JumpFilter {
+/// What of a run a file sink writes: the samples its [`Decimation`] keeps,
+/// and the jumps of the rules it logs ([`RunInfo::logged_rules`]).
+///
+/// The engine sends a pre-jump sample, one jump record per firing rule,
+/// then the post-jump sample; the filter holds the pre-jump sample until
+/// the rules are known. A jump in which a logged rule fires is written as
+/// usual (pre-jump sample, the records of its logged rules, post-jump
+/// sample). Any other jump is invisible in the log: no record, its
+/// pre-jump sample becomes a flow sample (subject to decimation) and its
+/// post-jump sample is dropped, so that e.g. a noise redraw at every
+/// integrator step costs one sample, not three records.
+///
+/// A held sample's values are copied only when the decimation would keep
+/// it as a flow sample: a logged jump's pre-jump sample is written from the
+/// jump's pre-jump state. So a run that fails (or is stopped) between a
+/// pre-jump sample and its jump ends its log with that sample only if the
+/// decimation keeps it.
+#[derive(Debug, Clone)]
+pub struct LogFilter {
+    decimator: Decimator,
     logged: Vec<bool>,
-    /// Some rule is not logged (otherwise the filter passes everything).
+    /// Some rule is not logged (otherwise no sample is held).
     filtering: bool,
     /// The held pre-jump sample, until the jump is known.
     held_at: Option<HybridTime>,
+    /// Its values, if copied.
     held: Vec<f64>,
+    copied: bool,
     /// A logged rule fired in the current jump.
     visible: bool,
 }
 
-/// What a sink does with a post-jump sample ([`JumpFilter::post_jump`]).
+/// What a sink writes for a sample ([`LogFilter::route_sample`]).
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub enum PostJump {
-    /// Write it (always kept): the jump was logged.
-    Write,
-    /// Drop it; write the held pre-jump sample ([`JumpFilter::held`]) at
-    /// this time as a flow sample, if the decimation keeps it.
-    HeldAsFlow(HybridTime),
+pub enum Route {
+    /// Nothing now.
+    Nothing,
+    /// The sample itself, as a sample of this kind.
+    Sample(SampleKind),
+    /// In place of the post-jump sample of a jump that is not logged: the
+    /// held pre-jump sample ([`LogFilter::take_held`]), at this time, as a
+    /// flow sample.
+    Held(HybridTime),
 }
 
-impl JumpFilter {
-    /// A filter for the rules logged per `logged` (rules past the end are).
-    pub fn new(logged: &[bool]) -> Self {
+impl LogFilter {
+    /// A filter for the rules logged per `logged` (rules past the end are)
+    /// and the samples `decimation` keeps.
+    pub fn new(logged: &[bool], decimation: Decimation) -> Self {
         Self {
+            decimator: Decimator::new(decimation),
             logged: logged.to_vec(),
             filtering: logged.iter().any(|l| !l),
-            ..Self::default()
+            held_at: None,
+            held: Vec::new(),
+            copied: false,
+            visible: false,
         }
     }
 
@@ -526,94 +610,96 @@ impl JumpFilter {
         self.logged.get(rule).copied().unwrap_or(true)
     }
 
-    /// A pre-jump sample: true if the filter holds it (the sink writes
-    /// nothing now), false if the sink writes it as usual.
-    pub fn hold(&mut self, at: HybridTime, x: &[f64]) -> bool {
-        if !self.filtering {
-            return false;
-        }
-        self.held.clear();
-        self.held.extend_from_slice(x);
-        self.held_at = Some(at);
-        self.visible = false;
-        true
-    }
-
-    /// A jump record of rule `rule`: (write the record, write the held
-    /// pre-jump sample first, as a pre-jump sample).
-    pub fn jump(&mut self, rule: usize) -> (bool, bool) {
-        if !self.filtering {
-            return (true, false);
-        }
-        if !self.logs(rule) {
-            return (false, false);
-        }
-        let flush = self.held_at.is_some() && !self.visible;
-        self.visible = true;
-        (true, flush)
-    }
-
-    /// A post-jump sample: what to write.
-    pub fn post_jump(&mut self) -> PostJump {
-        match self.held_at.take() {
-            Some(at) if !self.visible => PostJump::HeldAsFlow(at),
-            _ => PostJump::Write,
-        }
-    }
-
-    /// The held pre-jump sample (its time and values), if any.
-    pub fn held(&self) -> Option<(HybridTime, &[f64])> {
-        self.held_at.map(|at| (at, self.held.as_slice()))
-    }
-
-    /// Routes one sample of the run to the log: calls `write(at, x, kind)`
-    /// for what the log gets now. Nothing while a pre-jump sample is held;
-    /// in place of the post-jump sample of a jump that is not logged, the
-    /// held pre-jump sample as a flow sample; otherwise the sample itself.
-    /// Returns `write`'s result, `None` if it was not called.
-    ///
-    /// A sink keeps its filter in a field; move it out
-    /// (`std::mem::take`) around the call, so that `write` can borrow the
-    /// sink.
-    pub fn route_sample<R>(
-        &mut self,
-        at: HybridTime,
-        x: &[f64],
-        kind: SampleKind,
-        write: impl FnOnce(HybridTime, &[f64], SampleKind) -> R,
-    ) -> Option<R> {
+    /// Routes one sample of the run: what the sink writes now.
+    pub fn route_sample(&mut self, at: HybridTime, x: &[f64], kind: SampleKind) -> Route {
         match kind {
-            SampleKind::PreJump if self.hold(at, x) => None,
-            SampleKind::PostJump => match self.post_jump() {
-                PostJump::Write => Some(write(at, x, kind)),
-                PostJump::HeldAsFlow(pre) => Some(write(pre, &self.held, SampleKind::Flow)),
+            SampleKind::PreJump if self.filtering => {
+                self.copied = self.decimator.would_keep_flow(at);
+                if self.copied {
+                    self.held.clear();
+                    self.held.extend_from_slice(x);
+                }
+                self.held_at = Some(at);
+                self.visible = false;
+                Route::Nothing
+            }
+            SampleKind::PostJump => match self.held_at.take() {
+                // The decimation decides on the held sample as a flow
+                // sample; it is copied exactly when that keeps it.
+                Some(pre) if !self.visible => {
+                    match self.decimator.keep(pre, SampleKind::Flow) && self.copied {
+                        true => Route::Held(pre),
+                        false => Route::Nothing,
+                    }
+                }
+                _ => self.keep(at, kind),
             },
-            _ => Some(write(at, x, kind)),
+            _ => self.keep(at, kind),
+        }
+    }
+
+    fn keep(&mut self, at: HybridTime, kind: SampleKind) -> Route {
+        match self.decimator.keep(at, kind) {
+            true => Route::Sample(kind),
+            false => Route::Nothing,
         }
     }
 
     /// Routes one jump record of rule `rule`: whether the record is logged,
-    /// and, when the held pre-jump sample must be written first (the first
-    /// logged rule of this jump), the result of `write_pre(at, x)` for it
-    /// (a pre-jump sample).
-    pub fn route_jump<R>(
-        &mut self,
-        rule: usize,
-        write_pre: impl FnOnce(HybridTime, &[f64]) -> R,
-    ) -> (bool, Option<R>) {
-        let (record, flush) = self.jump(rule);
-        let flushed = match (flush, self.held_at) {
-            (true, Some(at)) => Some(write_pre(at, &self.held)),
-            _ => None,
-        };
-        (record, flushed)
+    /// and the time of the held pre-jump sample when the sink must write it
+    /// first, as a pre-jump sample with the jump's pre-jump state (the
+    /// first logged rule of this jump).
+    pub fn route_jump(&mut self, rule: usize) -> (bool, Option<HybridTime>) {
+        if !self.filtering {
+            return (true, None);
+        }
+        if !self.logs(rule) {
+            return (false, None);
+        }
+        let flush = self.held_at.filter(|_| !self.visible);
+        self.visible = true;
+        (true, flush)
+    }
+
+    /// The held sample's values, for [`Route::Held`]; give them back with
+    /// [`give_back`](Self::give_back) (the buffer is reused).
+    pub fn take_held(&mut self) -> Vec<f64> {
+        std::mem::take(&mut self.held)
+    }
+
+    /// Returns the buffer [`take_held`](Self::take_held) gave.
+    pub fn give_back(&mut self, held: Vec<f64>) {
+        self.held = held;
+    }
+
+    /// Routes a sample of the run to `sink` (whose filter `filter` returns):
+    /// writes what the log gets now with `write(sink, at, x, kind)`;
+    /// `nothing` if the log gets nothing.
+    pub fn write_sample<S: ?Sized, R>(
+        sink: &mut S,
+        filter: fn(&mut S) -> &mut LogFilter,
+        write: fn(&mut S, HybridTime, &[f64], SampleKind) -> R,
+        (at, x, kind): (HybridTime, &[f64], SampleKind),
+        nothing: R,
+    ) -> R {
+        match filter(sink).route_sample(at, x, kind) {
+            Route::Nothing => nothing,
+            Route::Sample(kind) => write(sink, at, x, kind),
+            Route::Held(pre) => {
+                let held = filter(sink).take_held();
+                let r = write(sink, pre, &held, SampleKind::Flow);
+                filter(sink).give_back(held);
+                r
+            }
+        }
     }
 
     /// Takes the held pre-jump sample of a run that ended before its jump
-    /// was known (the sink writes it as its last sample).
+    /// was known, if its values were kept (the sink writes it as its last
+    /// sample).
     pub fn take_unfinished(&mut self) -> Option<(HybridTime, Vec<f64>)> {
         let at = self.held_at.take()?;
-        (!self.visible).then(|| (at, std::mem::take(&mut self.held)))
+        (!self.visible && self.copied).then(|| (at, std::mem::take(&mut self.held)))
     }
 }
 

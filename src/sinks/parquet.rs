@@ -34,7 +34,7 @@ use arrow_array::{ArrayRef, Float64Array, RecordBatch, StringArray, UInt64Array}
 use arrow_schema::{DataType, Field, Schema, SchemaRef};
 
 use super::csv::{FIXED_COLUMNS, kind_name};
-use super::{Decimation, Decimator, JumpFilter, OutputFn, RunInfo, SinkError, Tally, rule_name};
+use super::{Decimation, LogFilter, LoggedOutputs, OutputFn, RunInfo, SinkError, Tally, rule_name};
 use crate::arc::{ArcSink, HybridTime, SampleKind};
 use crate::atomic_file::{self, OutputFile};
 
@@ -294,8 +294,7 @@ pub struct ParquetSink<'a> {
     jumps_path: Option<PathBuf>,
     samples: Option<FileWriter>,
     jumps: Option<FileWriter>,
-    outputs: Option<OutputFn<'a>>,
-    y: Vec<f64>,
+    outputs: LoggedOutputs<'a>,
     state_cols: Vec<usize>,
     output_cols: Vec<usize>,
     sample_names: Vec<String>,
@@ -303,8 +302,7 @@ pub struct ParquetSink<'a> {
     rule_names: Vec<String>,
     sample_rows: Rows,
     jump_rows: Rows,
-    decimator: Decimator,
-    filter: JumpFilter,
+    filter: LogFilter,
     tally: Tally,
     error: Option<SinkError>,
 }
@@ -359,15 +357,7 @@ impl<'a> ParquetSink<'a> {
             jumps_path,
             samples: Some(samples),
             jumps,
-            y: vec![
-                0.0;
-                if outputs.is_some() {
-                    info.output_dim
-                } else {
-                    0
-                }
-            ],
-            outputs,
+            outputs: LoggedOutputs::new(outputs, info.output_dim),
             state_cols,
             output_cols,
             sample_names,
@@ -375,8 +365,7 @@ impl<'a> ParquetSink<'a> {
             rule_names: info.rule_names.clone(),
             sample_rows,
             jump_rows,
-            decimator: Decimator::new(decimation),
-            filter: JumpFilter::new(&info.logged_rules),
+            filter: LogFilter::new(&info.logged_rules, decimation),
             tally: Tally::new(info.rule_names.len()),
             error: None,
         })
@@ -421,15 +410,13 @@ impl<'a> ParquetSink<'a> {
     }
 
     fn push_row(&mut self, at: HybridTime, x: &[f64], kind: SampleKind) -> Result<(), SinkError> {
-        if let Some(outputs) = self.outputs {
-            outputs(at, x, &mut self.y);
-        }
+        let y = self.outputs.at(at, x);
         let rows = &mut self.sample_rows;
         rows.t.push(at.t);
         rows.j.push(at.j);
         rows.text.push(kind_name(kind).to_string());
         let values = self.state_cols.iter().map(|&k| x[k]);
-        let values = values.chain(self.output_cols.iter().map(|&k| self.y[k]));
+        let values = values.chain(self.output_cols.iter().map(|&k| y[k]));
         for (column, v) in rows.values.iter_mut().zip(values) {
             column.push(v);
         }
@@ -437,20 +424,6 @@ impl<'a> ParquetSink<'a> {
             self.flush_samples()?;
         }
         Ok(())
-    }
-
-    /// Writes the row if the decimation keeps the sample.
-    fn keep_and_write(
-        &mut self,
-        at: HybridTime,
-        x: &[f64],
-        kind: SampleKind,
-    ) -> Result<(), SinkError> {
-        if self.decimator.keep(at, kind) {
-            self.push_row(at, x, kind)
-        } else {
-            Ok(())
-        }
     }
 
     fn push_jump(
@@ -534,10 +507,14 @@ impl ArcSink for ParquetSink<'_> {
             return ControlFlow::Break(());
         }
         self.tally.sample(at);
-        let mut filter = std::mem::take(&mut self.filter);
-        let r = filter.route_sample(at, x, kind, |at, x, kind| self.keep_and_write(at, x, kind));
-        self.filter = filter;
-        self.settle(r.unwrap_or(Ok(())))
+        let r = LogFilter::write_sample(
+            self,
+            |s| &mut s.filter,
+            Self::push_row,
+            (at, x, kind),
+            Ok(()),
+        );
+        self.settle(r)
     }
 
     fn jump(&mut self, at: HybridTime, rule: usize, pre: &[f64], post: &[f64]) -> ControlFlow<()> {
@@ -545,12 +522,12 @@ impl ArcSink for ParquetSink<'_> {
             return ControlFlow::Break(());
         }
         self.tally.jump(rule);
-        let mut filter = std::mem::take(&mut self.filter);
-        let (record, flushed) = filter.route_jump(rule, |at, x| {
-            self.keep_and_write(at, x, SampleKind::PreJump)
-        });
-        self.filter = filter;
-        let mut r = flushed.unwrap_or(Ok(()));
+        self.outputs.jump(at, rule);
+        let (record, flush) = self.filter.route_jump(rule);
+        let mut r = match flush {
+            Some(at) => self.push_row(at, pre, SampleKind::PreJump),
+            None => Ok(()),
+        };
         if record && r.is_ok() {
             r = self.push_jump(at, rule, pre, post);
         }

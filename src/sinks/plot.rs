@@ -1208,7 +1208,7 @@ impl ArcSink for PlotSink<'_> {
         if let Some(outputs) = self.outputs
             && self.columns.iter().any(|c| c.0 == Source::Output)
         {
-            outputs(at, x, &mut y);
+            outputs.eval(at, x, &mut y);
         }
         self.store(at, kind, x, &y);
         self.y = y;

@@ -173,57 +173,109 @@ fn numbers_are_written_in_shortest_round_trip_form() {
 }
 
 #[test]
-fn jump_filter_hides_jumps_of_unlogged_rules() {
+fn log_filter_hides_jumps_of_unlogged_rules() {
     // Rule 0 logged, rule 1 (a redraw) not.
-    let mut f = JumpFilter::new(&[true, false]);
-    let at = HybridTime::new(1.0, 0);
+    let mut f = LogFilter::new(&[true, false], Decimation::all());
+    let (at, post) = (HybridTime::new(1.0, 0), HybridTime::new(1.0, 1));
     // A jump of rule 1 alone: nothing written until the post-jump sample,
     // then the held pre-jump sample as a flow sample.
-    assert!(f.hold(at, &[1.0, 2.0]));
-    assert_eq!(f.jump(1), (false, false));
-    assert_eq!(f.post_jump(), PostJump::HeldAsFlow(at));
     assert_eq!(
-        f.held(),
-        None,
-        "the held sample is given to the post-jump sample"
+        f.route_sample(at, &[1.0, 2.0], SampleKind::PreJump),
+        Route::Nothing
     );
+    assert_eq!(f.route_jump(1), (false, None));
+    assert_eq!(
+        f.route_sample(post, &[0.0, 0.0], SampleKind::PostJump),
+        Route::Held(at)
+    );
+    assert_eq!(f.take_held(), [1.0, 2.0]);
     // Rules 1 and 0 in one jump: the pre-jump sample is written before the
     // first logged record, once; the post-jump sample is written.
-    assert!(f.hold(at, &[3.0, 4.0]));
-    assert_eq!(f.jump(1), (false, false));
-    assert_eq!(f.jump(0), (true, true));
-    assert_eq!(f.jump(0), (true, false));
-    assert_eq!(f.post_jump(), PostJump::Write);
+    assert_eq!(
+        f.route_sample(at, &[3.0, 4.0], SampleKind::PreJump),
+        Route::Nothing
+    );
+    assert_eq!(f.route_jump(1), (false, None));
+    assert_eq!(f.route_jump(0), (true, Some(at)));
+    assert_eq!(f.route_jump(0), (true, None));
+    assert_eq!(
+        f.route_sample(post, &[5.0, 6.0], SampleKind::PostJump),
+        Route::Sample(SampleKind::PostJump)
+    );
     // A run that ends after a held sample keeps it.
-    assert!(f.hold(at, &[5.0, 6.0]));
+    assert_eq!(
+        f.route_sample(at, &[5.0, 6.0], SampleKind::PreJump),
+        Route::Nothing
+    );
     assert_eq!(f.take_unfinished(), Some((at, vec![5.0, 6.0])));
     // Without unlogged rules nothing is held.
-    let mut all = JumpFilter::new(&[true, true]);
-    assert!(!all.hold(at, &[1.0]));
-    assert_eq!(all.jump(1), (true, false));
-    assert_eq!(all.post_jump(), PostJump::Write);
-    // Routing: what a sink writes for the same jumps.
-    let mut f = JumpFilter::new(&[true, false]);
-    let mut log = Vec::new();
-    let route = |f: &mut JumpFilter, at: HybridTime, x: &[f64], kind| {
-        f.route_sample(at, x, kind, |at, x, kind| (at, x.to_vec(), kind))
-    };
-    let post = HybridTime::new(1.0, 1);
-    assert_eq!(route(&mut f, at, &[1.0], SampleKind::PreJump), None);
+    let mut all = LogFilter::new(&[true, true], Decimation::all());
     assert_eq!(
-        f.route_jump(1, |_, _| unreachable!("rule 1 is not logged")),
-        (false, None::<()>)
+        all.route_sample(at, &[1.0], SampleKind::PreJump),
+        Route::Sample(SampleKind::PreJump)
     );
-    log.extend(route(&mut f, post, &[2.0], SampleKind::PostJump));
-    assert_eq!(log, [(at, vec![1.0], SampleKind::Flow)]);
-    assert_eq!(route(&mut f, at, &[3.0], SampleKind::PreJump), None);
-    let (record, flushed) = f.route_jump(0, |at, x| (at, x.to_vec()));
-    assert!(record);
-    assert_eq!(flushed, Some((at, vec![3.0])));
+    assert_eq!(all.route_jump(1), (true, None));
     assert_eq!(
-        route(&mut f, post, &[4.0], SampleKind::PostJump),
-        Some((post, vec![4.0], SampleKind::PostJump))
+        all.route_sample(post, &[1.0], SampleKind::PostJump),
+        Route::Sample(SampleKind::PostJump)
     );
+}
+
+#[test]
+fn log_filter_copies_a_held_sample_only_if_the_decimation_keeps_it() {
+    // Flow samples at most every 0.5: redraws every 0.2 give one flow
+    // sample in three.
+    let mut f = LogFilter::new(&[true, false], Decimation::all().dt(Some(0.5)));
+    let start = HybridTime::new(0.0, 0);
+    assert_eq!(
+        f.route_sample(start, &[0.0], SampleKind::Initial),
+        Route::Sample(SampleKind::Initial)
+    );
+    let mut written = Vec::new();
+    for k in 1..=6 {
+        let (at, post) = (
+            HybridTime::new(0.2 * k as f64, k - 1),
+            HybridTime::new(0.2 * k as f64, k),
+        );
+        assert_eq!(
+            f.route_sample(at, &[k as f64], SampleKind::PreJump),
+            Route::Nothing
+        );
+        assert_eq!(f.route_jump(1), (false, None));
+        if let Route::Held(pre) = f.route_sample(post, &[-1.0], SampleKind::PostJump) {
+            let held = f.take_held();
+            written.push((pre, held.clone()));
+            f.give_back(held);
+        }
+    }
+    assert_eq!(
+        written,
+        [
+            (HybridTime::new(0.6000000000000001, 2), vec![3.0]),
+            (HybridTime::new(1.2000000000000002, 5), vec![6.0])
+        ]
+    );
+    // A sample the decimation drops is not kept for the end of the run
+    // either; one it keeps is.
+    assert_eq!(
+        f.route_sample(HybridTime::new(1.3, 6), &[7.0], SampleKind::PreJump),
+        Route::Nothing
+    );
+    assert_eq!(f.take_unfinished(), None);
+    assert_eq!(
+        f.route_sample(HybridTime::new(1.8, 6), &[8.0], SampleKind::PreJump),
+        Route::Nothing
+    );
+    assert_eq!(
+        f.take_unfinished(),
+        Some((HybridTime::new(1.8, 6), vec![8.0]))
+    );
+    // A logged jump writes its pre-jump sample whatever the decimation.
+    assert_eq!(
+        f.route_sample(HybridTime::new(1.9, 6), &[9.0], SampleKind::PreJump),
+        Route::Nothing
+    );
+    assert_eq!(f.route_jump(0), (true, Some(HybridTime::new(1.9, 6))));
 }
 
 /// Schemas use no `$ref`, no unions and no arrays of arrays (what Foxglove

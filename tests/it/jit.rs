@@ -125,9 +125,10 @@ fn same_programs(name: &str, a: &CompiledModel, b: &CompiledModel, at: HybridTim
     }
 }
 
-/// Subsets of the outputs (what a selective log evaluates), natively and
+/// Subsets of the outputs (what a log evaluates), natively and
 /// interpreted, compute the outputs' values bit for bit at every `every`-th
-/// sample of `arc`.
+/// sample of `arc`, and after every `every`-th jump from the pre-jump values
+/// ([`hybsim::ir::OutputSubset::eval_after_jump`]).
 fn same_output_subsets(
     name: &str,
     a: &CompiledModel,
@@ -145,6 +146,38 @@ fn same_output_subsets(
         .iter()
         .map(|c| (c, [a.output_subset(c), b.output_subset(c)]))
         .collect();
+    // Across each jump (the records of one simultaneous jump share their
+    // pre-jump time): the post-jump values from the pre-jump ones.
+    let jumps = arc.jumps();
+    let mut first = 0;
+    let mut groups = 0;
+    while first < jumps.len() {
+        let at = jumps[first].at;
+        let last = first + jumps[first..].iter().take_while(|r| r.at == at).count();
+        let rules: Vec<usize> = jumps[first..last].iter().map(|r| r.rule).collect();
+        let (pre, post) = (&jumps[first].pre, &jumps[first].post);
+        let after = hybsim::arc::HybridTime::new(at.t, at.j + 1);
+        if groups % every == 0 {
+            let mut all = vec![0.0; dim];
+            a.outputs(after, post, &mut all);
+            for (components, programs) in &compiled {
+                for p in programs {
+                    let mut y = vec![f64::NAN; dim];
+                    p.eval(at, pre, &mut y);
+                    p.eval_after_jump(&rules, after, post, &mut y);
+                    for &k in components.iter() {
+                        assert_eq!(
+                            bits(&[y[k]]),
+                            bits(&[all[k]]),
+                            "{name}: output {k} of a subset after the jump of {rules:?} at {at}"
+                        );
+                    }
+                }
+            }
+        }
+        groups += 1;
+        first = last;
+    }
     for s in arc.samples().step_by(every) {
         let mut all = vec![0.0; dim];
         a.outputs(s.at, s.x, &mut all);

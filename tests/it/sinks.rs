@@ -847,3 +847,65 @@ fn mcap_evaluates_outputs_once_per_hybrid_time() {
     let e = |x: [f64; 2]| G * x[0] + 0.5 * x[1] * x[1];
     assert_eq!(outputs, [e(x0), e(x1), e(x1), e(x2)]);
 }
+
+/// An output map that records how it is asked.
+#[derive(Default)]
+struct Asked(std::cell::RefCell<Vec<(HybridTime, Vec<usize>)>>);
+
+impl hybsim::arc::OutputMap for Asked {
+    fn eval(&self, at: HybridTime, x: &[f64], y: &mut [f64]) {
+        self.0.borrow_mut().push((at, Vec::new()));
+        energy(at, x, y);
+    }
+
+    fn eval_after_jump(&self, rules: &[usize], at: HybridTime, x: &[f64], y: &mut [f64]) {
+        self.0.borrow_mut().push((at, rules.to_vec()));
+        energy(at, x, y);
+    }
+}
+
+/// The file sinks evaluate outputs once per hybrid time, and a post-jump
+/// sample as the update of its pre-jump sample by the rules that fired
+/// (all of them, logged or not).
+#[test]
+fn post_jump_outputs_are_updates_by_the_rules_that_fired() {
+    let mut info = RunInfo::new("ball", &["h", "v"], &["impact", "redraw"]);
+    info.output_layout = Layout::scalars(&["E"]);
+    info.output_dim = 1;
+    info.logged_rules = vec![true, false];
+    let dir = tempfile::tempdir().unwrap();
+    let paths = [dir.path().join("a.mcap"), dir.path().join("b.csv")];
+    let (mcap_asked, csv_asked) = (Asked::default(), Asked::default());
+    let mut mcap =
+        McapSink::create(&paths[0], &info, Some(&mcap_asked), McapOptions::default()).unwrap();
+    let mut csv = CsvSink::create(&paths[1], &info, Some(&csv_asked), Decimation::all()).unwrap();
+    let mut sinks = Fanout::new(vec![&mut mcap, &mut csv]);
+    let t = |t: f64, j: u64| HybridTime::new(t, j);
+    let _ = sinks.sample(t(0.0, 0), &[1.0, 0.0], SampleKind::Initial);
+    // An impact and a redraw at once, then a second impact at that instant.
+    let _ = sinks.sample(t(0.5, 0), &[0.0, -4.0], SampleKind::PreJump);
+    let _ = sinks.jump(t(0.5, 0), 1, &[0.0, -4.0], &[0.0, 3.0]);
+    let _ = sinks.jump(t(0.5, 0), 0, &[0.0, -4.0], &[0.0, 3.0]);
+    let _ = sinks.sample(t(0.5, 1), &[0.0, 3.0], SampleKind::PostJump);
+    let _ = sinks.sample(t(0.5, 1), &[0.0, 3.0], SampleKind::PreJump);
+    let _ = sinks.jump(t(0.5, 1), 0, &[0.0, 3.0], &[0.0, 2.0]);
+    let _ = sinks.sample(t(0.5, 2), &[0.0, 2.0], SampleKind::PostJump);
+    // A redraw alone (not logged) and a flow sample after it.
+    let _ = sinks.sample(t(0.7, 2), &[1.0, 1.0], SampleKind::PreJump);
+    let _ = sinks.jump(t(0.7, 2), 1, &[1.0, 1.0], &[1.0, 1.0]);
+    let _ = sinks.sample(t(0.7, 3), &[1.0, 1.0], SampleKind::PostJump);
+    let _ = sinks.sample(t(0.8, 3), &[1.5, 0.5], SampleKind::Final);
+    drop(sinks);
+    mcap.finish(&horizon()).unwrap();
+    csv.finish().unwrap();
+    let expected = vec![
+        (t(0.0, 0), vec![]),
+        (t(0.5, 0), vec![]),
+        (t(0.5, 1), vec![1, 0]),
+        (t(0.5, 2), vec![0]),
+        (t(0.7, 2), vec![]),
+        (t(0.8, 3), vec![]),
+    ];
+    assert_eq!(*mcap_asked.0.borrow(), expected);
+    assert_eq!(*csv_asked.0.borrow(), expected);
+}
