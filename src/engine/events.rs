@@ -337,6 +337,169 @@ fn first_other_sign(
     }
 }
 
+/// Where the polynomial with Bernstein control points `p` on `[0, 1]`
+/// (its start within `tol` of zero, or of no matter which sign) takes a
+/// sure sign: a `τ` such that its value at `τ` has a sign `σ` beyond `tol`
+/// and on `[0, τ]` it never has the sign `−σ` beyond `tol` (the points of
+/// that piece after the first, which hold it in their hull with the
+/// start); `(τ, σ)`. The first of the [`EARLY`] fractions that is such a
+/// point, so that the change of class a start on the boundary makes is
+/// seen apart from the step's other changes; else the largest `2⁻ᵏ`
+/// (k ≤ [`SPLIT_DEPTH`]). `None`: no such point (the polynomial hugs
+/// zero, or leaves the start with the other sign first).
+fn first_sure_sign(p: &[f64], tol: f64) -> Option<(f64, f64)> {
+    let n = p.len();
+    let sure_on = |piece: &[f64]| {
+        let end = piece[n - 1];
+        let sure = if end > tol {
+            1.0
+        } else if end < -tol {
+            -1.0
+        } else {
+            return None;
+        };
+        piece[1..n].iter().all(|&v| v * sure >= -tol).then_some(sure)
+    };
+    for tau in EARLY {
+        if let Some(sure) = sure_on(&split(p, tau).0[..n]) {
+            return Some((tau, sure));
+        }
+    }
+    let mut piece = [0.0; MAX_CONTROL];
+    piece[..n].copy_from_slice(p);
+    let mut tau = 1.0;
+    for _ in 0..=SPLIT_DEPTH {
+        if let Some(sure) = sure_on(&piece[..n]) {
+            return Some((tau, sure));
+        }
+        piece = split(&piece[..n], 0.5).0;
+        tau *= 0.5;
+    }
+    None
+}
+
+/// An affine atom's control points on a step, their number and error bound.
+type FormPoints = ([f64; MAX_CONTROL], usize, f64);
+
+/// The Bernstein control points on the step of the affine form `form`
+/// along `path`'s polynomial, their number and a bound on their rounding
+/// error and on that of the system's own evaluation of the form (in
+/// another order) at a point of the step. `None`: the path is not a
+/// polynomial.
+fn form_points<P: StepPath>(form: &AffineAtom, path: &P) -> Option<FormPoints> {
+    let mut points = [0.0; MAX_CONTROL];
+    // c₀ + Σ cₖ·(xₖ's points).
+    let mut g = [form.constant; MAX_CONTROL];
+    let mut count = None;
+    let mut err = form.constant.abs();
+    for &(k, c) in &form.terms {
+        let (len, e) = path.control_points(k, &mut points)?;
+        if *count.get_or_insert(len) != len {
+            return None;
+        }
+        let mut size: f64 = 0.0;
+        for (gi, &p) in g.iter_mut().zip(&points[..len]) {
+            *gi += c * p;
+            size = size.max(p.abs());
+        }
+        err += c.abs() * (size + e / f64::EPSILON);
+    }
+    let tol = (form.terms.len() as f64 + 16.0) * f64::EPSILON * err;
+    Some((g, count.unwrap_or(1), tol))
+}
+
+/// The coefficients in powers of `t` of the polynomial with Bernstein
+/// points `p` on `[0, 1]`: `aⱼ = C(d, j)·Σₖ (−1)^(j−k)·C(j, k)·bₖ` (degree
+/// d = `p.len() − 1`).
+fn bernstein_to_powers(p: &[f64]) -> [f64; MAX_CONTROL] {
+    let d = p.len() - 1;
+    let mut a = [0.0; MAX_CONTROL];
+    for (j, aj) in a.iter_mut().enumerate().take(d + 1) {
+        let mut sum = 0.0;
+        for (k, &bk) in p.iter().enumerate().take(j + 1) {
+            let c = BINOMIAL[j][k];
+            sum += if (j - k) % 2 == 0 { c * bk } else { -c * bk };
+        }
+        *aj = BINOMIAL[d][j] * sum;
+    }
+    a
+}
+
+/// `C(n, k)` for `n < MAX_CONTROL` (Pascal's triangle).
+const BINOMIAL: [[f64; MAX_CONTROL]; MAX_CONTROL] = {
+    let mut c = [[0.0; MAX_CONTROL]; MAX_CONTROL];
+    let mut n = 0;
+    while n < MAX_CONTROL {
+        c[n][0] = 1.0;
+        let mut k = 1;
+        while k <= n {
+            c[n][k] = c[n - 1][k - 1] + c[n - 1][k];
+            k += 1;
+        }
+        n += 1;
+    }
+    c
+};
+
+/// The value, the derivative and half the second derivative at `t` of
+/// `Σ aⱼ tʲ` (Horner).
+fn powers_at(a: &[f64], t: f64) -> (f64, f64, f64) {
+    let (mut v, mut dv, mut hv) = (0.0, 0.0, 0.0);
+    for &c in a.iter().rev() {
+        hv = hv * t + dv;
+        dv = dv * t + v;
+        v = v * t + c;
+    }
+    (v, dv, hv)
+}
+
+/// A zero in `(a, b)` of the polynomial with Bernstein points `p` on
+/// `[0, 1]`, to within about `width` (Newton's method kept inside the
+/// bracket, no evaluation of the system; a first trial for the
+/// localization, which the system's values then confirm); `None` if its
+/// values at `a` and `b` do not have strictly opposite signs.
+fn bernstein_zero(p: &[f64], (mut a, mut b): (f64, f64), width: f64) -> Option<f64> {
+    let c = bernstein_to_powers(p);
+    let c = &c[..p.len()];
+    let ((fa, da, ha), (fb, db, hb)) = (powers_at(c, a), powers_at(c, b));
+    if !(fa * fb < 0.0) {
+        return None;
+    }
+    let a_neg = fa < 0.0;
+    // Newton from the end where the value and the curvature have the same
+    // sign (Fourier's condition: the iterates then approach the zero from
+    // that side without overshooting), else from the secant's zero.
+    let mut t = if fb * hb > 0.0 {
+        b - fb / db
+    } else if fa * ha > 0.0 {
+        a - fa / da
+    } else {
+        (a * fb - b * fa) / (fb - fa)
+    };
+    for _ in 0..32 {
+        if !(t > a && t < b) {
+            t = 0.5 * (a + b);
+        }
+        let (ft, dt, ht) = powers_at(c, t);
+        if ft == 0.0 {
+            break;
+        }
+        if (ft < 0.0) == a_neg {
+            a = t;
+        } else {
+            b = t;
+        }
+        let step = ft / dt;
+        t -= step;
+        // Newton's next error is about step²·f''/(2f'): below the width,
+        // this step ends the search.
+        if (step * step * ht / dt).abs() <= 0.5 * width || b - a <= width {
+            break;
+        }
+    }
+    Some(t.clamp(a, b))
+}
+
 /// The Bernstein control points of the polynomial with points `p` on
 /// `[0, 1]` restricted to `[0, t]` and to `[t, 1]` (de Casteljau).
 fn split(p: &[f64], t: f64) -> ([f64; MAX_CONTROL], [f64; MAX_CONTROL]) {
@@ -411,6 +574,11 @@ pub(crate) struct Watcher {
     /// Whether a watched atom started the segment within `set_tol` of its
     /// zero.
     near_start: bool,
+    /// The step being scanned, `[s0, s1]`.
+    span: (f64, f64),
+    /// Per watched atom: its affine form's points on the step being
+    /// scanned ([`form_points`]), once computed.
+    form_pts: Vec<Option<FormPoints>>,
     buf_s: Vec<f64>,
     buf_a: Vec<f64>,
     buf_b: Vec<f64>,
@@ -548,6 +716,7 @@ impl Watcher {
             flat_checks,
             cls: vec![0; watched.len()],
             cls_s: vec![0; watched.len()],
+            form_pts: vec![None; watched.len()],
             found: vec![(f64::NAN, f64::NAN, 0, 0.0); watched.len()],
             watched,
             timers,
@@ -563,6 +732,7 @@ impl Watcher {
             clock: TimeSum::default(),
             j: 0,
             near_start: false,
+            span: (0.0, 0.0),
             buf_s: vec![0.0; n],
             buf_a: vec![0.0; n],
             buf_b: vec![0.0; n],
@@ -794,6 +964,8 @@ impl Watcher {
         y1: &[f64],
     ) -> Option<(f64, EventKind)> {
         let m = if P::STRAIGHT { 0 } else { self.checks };
+        self.span = (s0, s1);
+        self.form_pts.fill(None);
         // A segment that starts on a boundary (a post-jump state, a few ulp
         // on either side of an atom's zero) may cross it right away and
         // come back within the first interval: look early in the first
@@ -865,15 +1037,17 @@ impl Watcher {
     }
 
     /// Checkpoints that make the scan exact for affine atoms: for each
-    /// watched atom that is an affine form of the state, strictly of the
-    /// sign of its class at the cursor and unrelaxed, each point of the
+    /// watched atom that is an affine form of the state, each point of the
     /// step where its value along the path's polynomial has changed sign
     /// (from the Bernstein control points, see [`first_other_sign`]) goes
     /// into `extra`; a change of sign that comes back within the step is
-    /// then found, however brief. Returns whether every watched atom was
-    /// so examined (then no other interior checkpoint is needed).
+    /// then found, however brief. An atom on its boundary at the cursor
+    /// (within rounding of zero, or relaxed) is examined from the first
+    /// point where its sign is sure ([`first_sure_sign`]), itself a
+    /// checkpoint if the class changes or a relaxation ends there. Returns
+    /// whether every watched atom was so examined (then no other interior
+    /// checkpoint is needed, early ones included).
     fn affine_checkpoints<P: StepPath>(&mut self, path: &P, s0: f64, s1: f64) -> bool {
-        let mut points = [0.0; MAX_CONTROL];
         let mut all = true;
         self.extra.clear();
         self.extra_many.clear();
@@ -883,46 +1057,65 @@ impl Watcher {
                 continue;
             };
             let WAtom { set, atom } = self.watched[w];
-            let sign = f64::from(self.cls[w]);
-            if self.sets[set].relax[atom] > 0.0 || sign.abs() != 1.0 {
+            let (cls, relaxed) = (self.cls[w], self.sets[set].relax[atom] > 0.0);
+            if cls == 2 {
                 all = false;
                 continue;
             }
-            // The atom's values' control points: c₀ + Σ cₖ·(xₖ's points).
-            let mut g = [form.constant; MAX_CONTROL];
-            let mut count = None;
-            let mut err = form.constant.abs();
-            for &(k, c) in &form.terms {
-                let Some((len, e)) = path.control_points(k, &mut points) else {
-                    return false;
+            // An earlier atom with the same function has the same points.
+            let points = match self.twin[w].and_then(|u| self.form_pts[u]) {
+                Some(points) => points,
+                None => {
+                    let Some(points) = form_points(form, path) else {
+                        return false;
+                    };
+                    points
+                }
+            };
+            self.form_pts[w] = Some(points);
+            let (g, n, tol) = points;
+            if !tol.is_finite() {
+                all = false;
+                continue;
+            }
+            let (mut from, mut sign, mut rest) = (0.0, f64::from(cls), g);
+            if relaxed || g[0] * sign <= tol {
+                // On the boundary at the start (within the tolerance of
+                // zero, or an atom of C that held only within `set_tol`:
+                // just after a jump onto it, or a timer set on its
+                // threshold): examined from the first point of a sure sign
+                // on. Before it the atom never has the other sign beyond
+                // `tol`, so a change of class there is seen at that point.
+                let Some((tau, sure)) = first_sure_sign(&g[..n], tol) else {
+                    all = false;
+                    continue;
                 };
-                if *count.get_or_insert(len) != len {
-                    return false;
+                // A relaxed atom moving into its set holds exactly from
+                // there on, where the scan ends its relaxation (a point of
+                // the step); one moving out is left to the checkpoints.
+                let cmp = self.sets[set].cmp(atom);
+                if relaxed && !cmp.holds(sure) {
+                    all = false;
+                    continue;
                 }
-                let mut size: f64 = 0.0;
-                for (gi, &p) in g.iter_mut().zip(&points[..len]) {
-                    *gi += c * p;
-                    size = size.max(p.abs());
+                if tau < 1.0 && (relaxed || sure != sign) {
+                    self.extra.push(s0 + tau * (s1 - s0));
                 }
-                err += c.abs() * (size + e / f64::EPSILON);
-            }
-            // Rounding of these sums and of the system's own evaluation of
-            // the form (in another order) at the checkpoints.
-            let tol = (form.terms.len() as f64 + 16.0) * f64::EPSILON * err;
-            // At the start within the tolerance of zero (just after a
-            // jump onto the boundary): the early checkpoints watch it.
-            if !tol.is_finite() || g[0] * sign <= tol {
-                all = false;
-                continue;
+                (from, sign) = (tau, sure);
+                if tau < 1.0 {
+                    rest = split(&g[..n], tau).1;
+                }
             }
             // Each change of sign in turn: the first point of the other
             // sign, then the first after it of the sign before, … — between
             // two of them the atom does not change sign (beyond `tol`).
-            let n = count.unwrap_or(1);
-            let (mut from, mut sign, mut rest) = (0.0, sign, g);
             let (mut budget, mut settled) = (SPLIT_BUDGET, false);
             let first = self.extra.len();
             for _ in 0..MAX_CHANGES {
+                if from >= 1.0 {
+                    settled = true;
+                    break;
+                }
                 match first_other_sign(&rest[..n], sign, tol, (from, 1.0), SPLIT_DEPTH, &mut budget)
                 {
                     Ok(Some(tau)) if tau < 1.0 => {
@@ -1155,6 +1348,45 @@ impl Watcher {
         v
     }
 
+    /// Where the watched value of atom `w`, if affine, crosses zero in
+    /// `(a, b)` on the polynomial of the step being scanned (local time),
+    /// to within a fraction of `tol`.
+    fn polynomial_zero<P: StepPath>(
+        &self,
+        w: usize,
+        path: &P,
+        a: f64,
+        b: f64,
+        tol: f64,
+    ) -> Option<f64> {
+        let form = self.affine[w].as_ref()?;
+        let WAtom { set, atom } = self.watched[w];
+        let ws = &self.sets[set];
+        let relax = ws.relax[atom];
+        let shift = match ws.cmp(atom) {
+            _ if relax <= 0.0 => 0.0,
+            Cmp::Ge | Cmp::Gt => relax,
+            Cmp::Le | Cmp::Lt => -relax,
+            Cmp::Ne => 0.0,
+            Cmp::Eq => return None,
+        };
+        let (mut g, n, _) = match self.form_pts[w] {
+            Some(points) => points,
+            None => form_points(form, path)?,
+        };
+        for v in &mut g[..n] {
+            *v += shift;
+        }
+        let (s0, s1) = self.span;
+        let h = s1 - s0;
+        if !(h > 0.0) {
+            return None;
+        }
+        let range = ((a - s0) / h, (b - s0) / h);
+        let tau = bernstein_zero(&g[..n], range, 0.25 * tol / h)?;
+        Some(s0 + tau * h)
+    }
+
     /// Shrinks the bracket `(a, b]` of watched atom `w` (sign class
     /// `cls[w]` at `a`, another at `b`) to the first change within the
     /// tolerance. Leaves x(a) in `buf_a` and x(b) in `buf_b`.
@@ -1185,6 +1417,15 @@ impl Watcher {
         let mut widths = [f64::INFINITY; 2];
         // Leaving an exact zero: the change is almost always right after a.
         let mut leaving_zero = c0 == 0;
+        // An affine atom's zero on the path's polynomial: the first trial,
+        // and a trial a tolerance beyond it on the other side the second
+        // (then the bracket is closed in two evaluations).
+        let mut guess = if leaving_zero {
+            None
+        } else {
+            self.polynomial_zero(w, path, a, b, tol_at(b))
+        };
+        let mut guided = guess.is_some();
         for _ in 0..400 {
             let width = b - a;
             let tol = tol_at(b);
@@ -1197,6 +1438,8 @@ impl Watcher {
             widths = [widths[1], width];
             let mut s = if leaving_zero {
                 a + 0.5 * tol
+            } else if let Some(g) = guess.take() {
+                g
             } else {
                 itp.next(a, b, fa, fb, c0 != 2 && !slow, tol)
             };
@@ -1217,6 +1460,9 @@ impl Watcher {
                 }
             }
             let v = self.watched_at(sys, w, path, s, Buf::T);
+            if std::mem::take(&mut guided) {
+                guess = Some(if class(v) != c0 { s - tol } else { s + tol });
+            }
             if class(v) != c0 {
                 b = s;
                 fb = v;
