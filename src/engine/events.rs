@@ -457,8 +457,9 @@ fn powers_at(a: &[f64], t: f64) -> (f64, f64, f64) {
 }
 
 /// A zero in `(a, b)` of the polynomial with Bernstein points `p` on
-/// `[0, 1]`, to within about `width` (Newton's method kept inside the
-/// bracket, no evaluation of the system; a first trial for the
+/// `[0, 1]`, to within about `width` (steps to the zero of the local
+/// Taylor quadratic kept inside the bracket, no evaluation of the system;
+/// a first trial for the
 /// localization, which the system's values then confirm); `None` if its
 /// values at `a` and `b` do not have strictly opposite signs.
 fn bernstein_zero(p: &[f64], (mut a, mut b): (f64, f64), width: f64) -> Option<f64> {
@@ -491,10 +492,18 @@ fn bernstein_zero(p: &[f64], (mut a, mut b): (f64, f64), width: f64) -> Option<f
         } else {
             b = t;
         }
-        let step = ft / dt;
+        // The zero nearest `t` of the Taylor quadratic ft + dt·δ + ht·δ²
+        // (exact for quadratics, cubic convergence otherwise), else
+        // Newton's step.
+        let disc = dt * dt - 4.0 * ft * ht;
+        let step = if disc >= 0.0 {
+            2.0 * ft / (dt + dt.signum() * disc.sqrt())
+        } else {
+            ft / dt
+        };
         t -= step;
-        // Newton's next error is about step²·f''/(2f'): below the width,
-        // this step ends the search.
+        // The next error is at most about Newton's, step²·f''/(2f'): below
+        // the width, this step ends the search.
         if (step * step * ht / dt).abs() <= 0.5 * width || b - a <= width {
             break;
         }
@@ -1024,12 +1033,15 @@ impl Watcher {
                 self.buf_s = xs;
             }
             if self.cls != self.cls_s {
+                let relaxed = self.relaxed;
                 if let Some(found) = self.resolve(sys, path, prev, s) {
                     return Some(found);
                 }
                 // The search may have ended relaxations: the checkpoint's
                 // classes again (`classes_at` left them otherwise).
-                self.classes_from_vs();
+                if self.relaxed != relaxed {
+                    self.classes_from_vs();
+                }
             }
             self.cls.copy_from_slice(&self.cls_s);
             self.settle_relaxed(false);
@@ -1224,8 +1236,12 @@ impl Watcher {
                     ws.relax[w.atom],
                 ));
             }
+            // Ended relaxations change the checkpoint's classes too.
+            let relaxed = self.relaxed;
             self.settle_relaxed(true);
-            self.classes_from_vs();
+            if self.relaxed != relaxed {
+                self.classes_from_vs();
+            }
             cursor = b;
             if b >= s {
                 break;
