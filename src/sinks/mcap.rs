@@ -189,6 +189,8 @@ pub struct McapSink<'a> {
     /// Runs (first component, count) of the state components the records
     /// carry: those checked for non-finite values.
     logged: Vec<(usize, usize)>,
+    /// The same for the output components (the others are not evaluated).
+    logged_outputs: Vec<(usize, usize)>,
     /// Whether jump records carry the pre- and post-jump states.
     jump_states: bool,
     error: Option<SinkError>,
@@ -448,6 +450,7 @@ impl<'a> McapSink<'a> {
             records,
             filter: LogFilter::new(&info.logged_rules, options.decimation),
             logged: component_runs(&info.state_layout),
+            logged_outputs: component_runs(&info.output_layout),
             jump_states: options.jump_states,
             error: None,
             metrics: Vec::new(),
@@ -513,15 +516,12 @@ impl<'a> McapSink<'a> {
         })
     }
 
-    /// The first non-finite component of `x` that the records carry, as
-    /// (index, value). Only those: the file must hold none, and the
-    /// engine has checked the whole state already (a selective log of a
-    /// wide state would otherwise scan all of it per sample).
+    /// The first non-finite state component the records carry, as (index,
+    /// value). Only those: the file must hold none, and the engine has
+    /// checked the whole state already (a selective log of a wide state
+    /// would otherwise scan all of it per sample).
     fn non_finite_state(&self, x: &[f64]) -> Option<(usize, f64)> {
-        self.logged.iter().find_map(|&(first, n)| {
-            let run = x.get(first..(first + n).min(x.len()))?;
-            first_non_finite(run).map(|(k, v)| (first + k, v))
-        })
+        first_non_finite_in(&self.logged, x)
     }
 
     fn write_sample(&mut self, at: HybridTime, x: &[f64]) -> Result<ControlFlow<()>, SinkError> {
@@ -537,7 +537,7 @@ impl<'a> McapSink<'a> {
         // (the pre-jump sample of a second jump at one instant, after the
         // first one's post-jump sample) keeps the outputs.
         let y = self.outputs.at(at, x);
-        if let Some((k, value)) = first_non_finite(y) {
+        if let Some((k, value)) = first_non_finite_in(&self.logged_outputs, y) {
             return Err(SinkError::NonFinite {
                 what: "output",
                 name: self.info.component_name("output", k),
@@ -783,6 +783,15 @@ impl ArcSink for McapSink<'_> {
         }
         self.settle(r)
     }
+}
+
+/// The first non-finite component of `x` in `runs` (first, count), as
+/// (index, value).
+fn first_non_finite_in(runs: &[(usize, usize)], x: &[f64]) -> Option<(usize, f64)> {
+    runs.iter().find_map(|&(first, n)| {
+        let run = x.get(first..(first + n).min(x.len()))?;
+        first_non_finite(run).map(|(k, v)| (first + k, v))
+    })
 }
 
 /// The components `layout` covers, as runs (first, count) in index order.

@@ -178,7 +178,13 @@ impl Template {
         out.extend_from_slice(&self.image);
         let body = &mut out[start..];
         for &(at, k, n) in &self.holes {
-            for (dst, v) in body[at..at + 8 * n].chunks_exact_mut(8).zip(&x[k..k + n]) {
+            let dst = &mut body[at..at + 8 * n];
+            // Protobuf's doubles are little-endian, as in memory here: a
+            // run of values is one copy.
+            #[cfg(target_endian = "little")]
+            dst.copy_from_slice(bytemuck::cast_slice(&x[k..k + n]));
+            #[cfg(not(target_endian = "little"))]
+            for (dst, v) in dst.chunks_exact_mut(8).zip(&x[k..k + n]) {
                 dst.copy_from_slice(&v.to_le_bytes());
             }
         }

@@ -537,6 +537,33 @@ fn mcap_stops_the_run_before_writing_non_finite_values() {
         .map(|m| &m.body)
         .collect();
     assert_eq!(states, [&json!({"t": 0.0, "j": 0, "v": 2.0})]);
+
+    // So are the outputs: an output left out of the log (`F`) may be
+    // anything, a logged one (`E`) may not.
+    let mut two = info.clone();
+    two.output_layout = Layout::scalars(&["E", "F"]);
+    two.output_dim = 2;
+    let (only_e, _) = two.select_vars(&["h", "v", "E"]);
+    let outputs = |_: HybridTime, x: &[f64], y: &mut [f64]| {
+        y[0] = 1.0 / x[1];
+        y[1] = f64::NAN;
+    };
+    let path = dir.path().join("e.mcap");
+    let mut sink =
+        McapSink::create(&path, &only_e, Some(&outputs), McapOptions::default()).unwrap();
+    let t = |t| HybridTime::new(t, 0);
+    assert!(
+        sink.sample(t(0.0), &[1.0, 2.0], SampleKind::Initial)
+            .is_continue()
+    );
+    assert!(
+        sink.sample(t(0.5), &[1.0, 0.0], SampleKind::Final)
+            .is_break()
+    );
+    assert!(matches!(
+        sink.stopped_by(),
+        Some(SinkError::NonFinite { what: "output", name, .. }) if name == "E"
+    ));
 }
 
 #[test]
