@@ -598,8 +598,10 @@ pub(crate) struct Watcher {
     /// Offset of each set's atoms in the layout of
     /// [`HybridSystem::all_atom_values`] (`None`: a set without atoms).
     flat_off: Vec<Option<usize>>,
-    /// All sets' atom values at one point, in that layout.
+    /// All sets' atom values at one point, in that layout (and at the
+    /// second end of an event's bracket).
     flat: Vec<f64>,
+    flat_b: Vec<f64>,
     /// Whether the system evaluates all sets at once (found at each
     /// segment's start).
     flat_ok: bool,
@@ -723,6 +725,7 @@ impl Watcher {
             flow,
             flat_off,
             flat: vec![0.0; total],
+            flat_b: vec![0.0; total],
             flat_ok: false,
             flat_checks,
             cls: vec![0; watched.len()],
@@ -1302,11 +1305,25 @@ impl Watcher {
     fn evaluate_sets<S: HybridSystem + ?Sized>(&mut self, sys: &S, ta: f64, tb: f64) {
         let (ta, tb) = (HybridTime::new(ta, self.j), HybridTime::new(tb, self.j));
         let (xa, xb) = (&self.best_a, &self.event_state);
-        for ws in &mut self.sets {
+        // Every set's atoms in one evaluation per bracket end where the
+        // system offers it, as at the segment's start.
+        let flat = self.flat_ok
+            && sys.all_atom_values(ta, xa, false, &mut self.flat)
+            && sys.all_atom_values(tb, xb, false, &mut self.flat_b);
+        for (i, ws) in self.sets.iter_mut().enumerate() {
             let mut va = std::mem::take(&mut ws.va);
             let mut vb = std::mem::take(&mut ws.vb);
-            atom_values(sys, ws, ta, xa, false, &mut va);
-            atom_values(sys, ws, tb, xb, false, &mut vb);
+            match self.flat_off[i] {
+                Some(off) if flat => {
+                    let len = va.len();
+                    va.copy_from_slice(&self.flat[off..off + len]);
+                    vb.copy_from_slice(&self.flat_b[off..off + len]);
+                }
+                _ => {
+                    atom_values(sys, ws, ta, xa, false, &mut va);
+                    atom_values(sys, ws, tb, xb, false, &mut vb);
+                }
+            }
             ws.new = match (&ws.spec, ws.set) {
                 (Some(spec), _) => {
                     for k in 0..vb.len() {
