@@ -38,7 +38,7 @@ use std::thread::JoinHandle;
 pub enum Compression {
     /// Uncompressed chunks.
     None,
-    /// LZ4 frames (acceleration 3): about 1.5 GB/s on a run's floats, files ~10 % larger than zstd's.
+    /// LZ4 frames (acceleration 4): about 1.5 GB/s on a run's floats, files ~10 % larger than zstd's.
     Lz4,
     /// zstd at the given level (negative levels are zstd's fast modes).
     Zstd(i32),
@@ -213,11 +213,12 @@ const LZ4_HEADER: [u8; 7] = [0x04, 0x22, 0x4D, 0x18, 0x60, 0x70, 0x73];
 const LZ4_BLOCK: usize = 4 << 20;
 
 /// LZ4's acceleration (1 is its default). A run's records are mostly
-/// float bytes that LZ4 cannot shorten, and 3 makes it give up on them
-/// sooner: ~30 % fewer instructions in LZ4 for files 1–2 % larger
-/// (BENCHMARKS.md, issue 19, session 14); 4 gains little more, 6 makes
-/// consensus's file 34 % larger.
-const LZ4_ACCELERATION: i32 = 3;
+/// float bytes that LZ4 cannot shorten, and a higher acceleration makes it
+/// give up on them sooner. On consensus's log (BENCHMARKS.md, issue 19,
+/// sessions 14 and 16): 3 takes ~30 % fewer instructions in LZ4 than 1
+/// for a file 1.8 % larger; 4 9 % fewer than 3 for 3.2 % larger, 5 14 %
+/// fewer than 3 for 6.2 % larger; 6 makes the file 34 % larger.
+const LZ4_ACCELERATION: i32 = 4;
 
 /// Appends `data` as one LZ4 frame: a block per 4 MiB (one for a chunk of
 /// [`CHUNK_SIZE`]), each stored as is if it does not shrink, and the end
