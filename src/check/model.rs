@@ -93,6 +93,8 @@ pub struct OutputField {
 pub struct CheckedModel {
     /// The model's name.
     pub name: String,
+    /// Where the name is (the `model` header).
+    pub name_span: Span,
     /// The scalar graph.
     pub dag: Dag,
     /// State fields in order.
@@ -382,6 +384,7 @@ pub(crate) fn check_model(
     let flow_spans = m.flow.iter().map(|f| f.map(|(_, s)| s)).collect();
     Ok(CheckedModel {
         name: model.name.name.clone(),
+        name_span: model.name.span,
         dag: m.c.dag,
         fields: m.c.fields,
         dim,

@@ -320,6 +320,8 @@ pub struct CompiledModel {
     outputs: Program,
     structure: FlowStructure,
     flow_spans: Vec<Option<Span>>,
+    /// The `model` header's name.
+    name_span: Span,
     block_spans: Vec<Span>,
     /// The files read by `table("…")`.
     tables: Vec<crate::tables::TableFile>,
@@ -580,6 +582,7 @@ impl CompiledModel {
             outputs,
             structure,
             flow_spans: m.flow_spans,
+            name_span: m.name_span,
             block_spans: m.block_spans,
             tables: m.tables,
             settings: m.settings,
@@ -1014,6 +1017,14 @@ impl CompiledModel {
 
     fn runtime_diagnostic_here(&self, err: &SimError) -> Diagnostic {
         let mut d = Diagnostic::error("E0601", err.to_string()).help(err.help());
+        if self.state_dim() == 0 {
+            // Only a model of `design` blocks passes the checker without
+            // states (for `hybsim design`).
+            return d.primary(
+                self.name_span,
+                "this model has no state to simulate; its `design` blocks run with `hybsim design`",
+            );
+        }
         if let SimError::Fault { at, site, .. } = err {
             d.code = "E0604";
             if let Some(&span) = self.block_spans.get(*site) {

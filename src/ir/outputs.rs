@@ -8,10 +8,14 @@
 //! component that reads none of those (nor a random draw) has the same
 //! inputs on both sides, so the same instructions give the same value: the
 //! post-jump sample keeps it and evaluates only the others, with a program
-//! compiled for the rules that fired (once per set of rules, on first use)
-//! when that program is at most half the size of the whole subset's (a
-//! smaller saving does not repay its compilation).
+//! compiled for the rules that fired when that program is at most half the
+//! size of the whole subset's (a smaller saving does not repay its
+//! compilation). A set of rules is analysed once it has jumped
+//! [`DECIDE_AFTER`] times (until then every component is evaluated): a
+//! rule that fires a few times in a run with thousands of rules costs no
+//! analysis of the graph and no compilation.
 
+use std::sync::atomic::{AtomicU32, Ordering};
 use std::sync::{Arc, Mutex, OnceLock};
 
 use super::program::{Frame, Program};
@@ -24,6 +28,34 @@ use crate::check::dag::{Node, NodeId};
 /// (a model whose rules fire in many combinations would pay a compilation
 /// for each).
 const MAX_JUMP_SETS: usize = 64;
+
+/// Jumps of a set of rules after which it is analysed (see the module).
+pub(crate) const DECIDE_AFTER: u32 = 16;
+
+/// A set of simultaneously firing rules (sorted) and its decision.
+type RuleSet = (Box<[usize]>, Arc<Decision>);
+
+/// What the jumps of one set of rules evaluate, once decided.
+#[derive(Debug, Default)]
+struct Decision {
+    /// Jumps so far (counted up to [`DECIDE_AFTER`]).
+    seen: AtomicU32,
+    what: OnceLock<AfterJump>,
+}
+
+impl Decision {
+    /// What this jump evaluates: decided by `decide` at the
+    /// [`DECIDE_AFTER`]-th jump, everything before.
+    fn get(&self, decide: impl FnOnce() -> AfterJump) -> AfterJump {
+        if let Some(what) = self.what.get() {
+            return what.clone();
+        }
+        if self.seen.fetch_add(1, Ordering::Relaxed) + 1 < DECIDE_AFTER {
+            return AfterJump::All;
+        }
+        self.what.get_or_init(decide).clone()
+    }
+}
 
 /// Output components computed by one program.
 #[derive(Debug)]
@@ -83,11 +115,10 @@ pub struct OutputSubset {
     frame: Frame,
     /// The state components each jump rule writes.
     writes: Vec<Vec<usize>>,
-    /// What a jump of one rule evaluates, by rule (decided at its first
-    /// jump).
-    after_rule: Box<[OnceLock<AfterJump>]>,
+    /// What a jump of one rule evaluates, by rule.
+    after_rule: Box<[Decision]>,
     /// The same for simultaneous jumps, by set of rules (sorted).
-    after_rules: Mutex<Vec<(Box<[usize]>, AfterJump)>>,
+    after_rules: Mutex<Vec<RuleSet>>,
 }
 
 impl OutputSubset {
@@ -103,7 +134,7 @@ impl OutputSubset {
             all,
             source,
             frame,
-            after_rule: writes.iter().map(|_| OnceLock::new()).collect(),
+            after_rule: writes.iter().map(|_| Decision::default()).collect(),
             writes,
             after_rules: Mutex::new(Vec::new()),
         }
@@ -143,15 +174,11 @@ impl OutputSubset {
             [r] => self.after_rule.get(*r),
             _ => None,
         };
-        let several;
         let what = match one {
-            Some(cell) => cell.get_or_init(|| self.decide(rules)),
-            None => {
-                several = self.after_rules(rules);
-                &several
-            }
+            Some(decision) => decision.get(|| self.decide(rules)),
+            None => self.after_rules(rules),
         };
-        match what {
+        match &what {
             AfterJump::Nothing => {}
             AfterJump::Some(code) => code.eval(at, x, out),
             AfterJump::All => self.all.eval(at, x, out),
@@ -168,15 +195,18 @@ impl OutputSubset {
         let Ok(mut known) = self.after_rules.lock() else {
             return AfterJump::All;
         };
-        if let Some((_, what)) = known.iter().find(|(k, _)| **k == *key) {
-            return what.clone();
-        }
-        if known.len() >= MAX_JUMP_SETS {
-            return AfterJump::All;
-        }
-        let what = self.decide(&key);
-        known.push((key.into_boxed_slice(), what.clone()));
-        what
+        let decision = match known.iter().find(|(k, _)| **k == *key) {
+            Some((_, d)) => d.clone(),
+            None if known.len() >= MAX_JUMP_SETS => return AfterJump::All,
+            None => {
+                let d = Arc::new(Decision::default());
+                known.push((key.clone().into_boxed_slice(), d.clone()));
+                d
+            }
+        };
+        // Decided without the lock held (the analysis walks the graph).
+        drop(known);
+        decision.get(|| self.decide(&key))
     }
 
     /// What a jump of `rules` evaluates: the components it can change, by
@@ -250,9 +280,19 @@ impl OutputMap for OutputSubset {
 
 #[cfg(test)]
 mod tests {
+    use super::{DECIDE_AFTER, OutputSubset};
     use crate::arc::HybridTime;
     use crate::lang;
     use crate::source::SourceFile;
+
+    /// Jumps of `rules` until the next one is the first analysed (each
+    /// evaluates everything, into a scratch vector).
+    fn warm(outputs: &OutputSubset, rules: &[usize]) {
+        let mut scratch = [0.0; 4];
+        for _ in 1..DECIDE_AFTER {
+            outputs.eval_after_jump(rules, HybridTime::new(0.0, 1), &[0.0; 4], &mut scratch);
+        }
+    }
 
     /// A bouncing mass with a jump counter and a clock that a second rule
     /// resets: outputs reading x, n, the clock, j and t.
@@ -281,6 +321,7 @@ mod tests {
         outputs.eval(at, &pre, &mut y);
         y[0] = 123.0;
         y[3] = 456.0;
+        warm(&outputs, &[0]);
         outputs.eval_after_jump(&[0], after, &post, &mut y);
         assert_eq!(y[0], 123.0, "bounce writes v and n, height reads x and t");
         assert_eq!(y[3], 456.0, "clock reads c");
@@ -288,10 +329,12 @@ mod tests {
         // Both rules at once (repeated, out of order): the union.
         let post2 = [0.0, 2.4, 3.0, 0.0];
         y[3] = 456.0;
+        warm(&outputs, &[0, 1]);
         outputs.eval_after_jump(&[1, 0, 1], after, &post2, &mut y);
         assert_eq!(y[0], 123.0);
         assert_eq!(y[1..], full(&post2)[1..]);
         // An unknown rule: everything.
+        warm(&outputs, &[7]);
         outputs.eval_after_jump(&[7], after, &post, &mut y);
         assert_eq!(y, full(&post));
     }
@@ -301,9 +344,11 @@ mod tests {
         let model = lang::compile(&SourceFile::new("m.hyb", MODEL), &[]).unwrap();
         let outputs = model.output_subset(&[3]);
         let mut y = [7.0; 4];
+        warm(&outputs, &[0]);
         outputs.eval_after_jump(&[0], HybridTime::new(1.0, 1), &[0.0; 4], &mut y);
         assert_eq!(y, [7.0; 4]);
         // The clock after a tick is evaluated (c reset to 0).
+        warm(&outputs, &[1]);
         outputs.eval_after_jump(&[1], HybridTime::new(1.0, 1), &[0.0; 4], &mut y);
         assert_eq!(y, [7.0, 7.0, 7.0, 0.0]);
     }
@@ -322,7 +367,25 @@ mod tests {
         let mut full = [0.0; 4];
         outputs.eval(at, &x, &mut full);
         let mut y = [7.0; 4];
+        warm(&outputs, &[1]);
         outputs.eval_after_jump(&[1], at, &x, &mut y);
         assert_eq!(y, [7.0, full[1], 7.0, full[3]]);
+    }
+
+    #[test]
+    fn a_rule_is_analysed_only_once_it_has_jumped_often() {
+        let model = lang::compile(&SourceFile::new("m.hyb", MODEL), &[]).unwrap();
+        let outputs = model.output_subset(&[3]);
+        // `bounce` cannot change `clock`, but its first jumps evaluate it
+        // (no analysis yet); from the DECIDE_AFTER-th on they do not.
+        let mut y = [7.0; 4];
+        for _ in 1..DECIDE_AFTER {
+            y[3] = 7.0;
+            outputs.eval_after_jump(&[0], HybridTime::new(1.0, 1), &[0.0; 4], &mut y);
+            assert_eq!(y[3], 0.0);
+        }
+        y[3] = 7.0;
+        outputs.eval_after_jump(&[0], HybridTime::new(1.0, 1), &[0.0; 4], &mut y);
+        assert_eq!(y[3], 7.0);
     }
 }

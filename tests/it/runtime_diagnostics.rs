@@ -160,3 +160,14 @@ fn cannot_flow_or_jump_names_the_case_the_failing_atom_and_the_state() {
     }
     assert!(!text.contains("`y > 0` fails"), "{text}");
 }
+
+/// A model of `design` blocks alone checks (for `hybsim design`); run, it
+/// has no state, and the error points at its name.
+#[test]
+fn a_model_without_states_run_points_at_its_name() {
+    let text = "model designs_only\ndesign d {\n    scalar t\n    maximize t\n    t <= 1\n}\n";
+    let (err, d, src) = fail("d.hyb", text);
+    assert!(matches!(err, SimError::InvalidSystem { .. }), "{err:?}");
+    let lc = d.line_col(&src).unwrap();
+    assert_eq!((lc.line, lc.col), (1, 7), "at the model's name");
+}
