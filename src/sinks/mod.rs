@@ -627,9 +627,10 @@ impl LogFilter {
                 // The decimation decides on the held sample as a flow
                 // sample; it is copied exactly when that keeps it.
                 Some(pre) if !self.visible => {
-                    match self.decimator.keep(pre, SampleKind::Flow) && self.copied {
-                        true => Route::Held(pre),
-                        false => Route::Nothing,
+                    if self.decimator.keep(pre, SampleKind::Flow) && self.copied {
+                        Route::Held(pre)
+                    } else {
+                        Route::Nothing
                     }
                 }
                 _ => self.keep(at, kind),
@@ -639,9 +640,10 @@ impl LogFilter {
     }
 
     fn keep(&mut self, at: HybridTime, kind: SampleKind) -> Route {
-        match self.decimator.keep(at, kind) {
-            true => Route::Sample(kind),
-            false => Route::Nothing,
+        if self.decimator.keep(at, kind) {
+            Route::Sample(kind)
+        } else {
+            Route::Nothing
         }
     }
 
