@@ -39,7 +39,7 @@
 use super::HybridSystem;
 use super::clock::TimeSum;
 use super::settings::{Priority, SimSettings};
-use super::system::{AffineAtom, Cmp, GuardKind, SetAtoms, SetRef};
+use super::system::{AffineAtom, Cmp, GuardKind, SetAtoms, SetRef, TruthTable};
 use crate::arc::{FailedAtom, HybridTime};
 
 /// x(s) on one step `[s0, s1]`.
@@ -171,6 +171,9 @@ struct WSet {
     /// `None`: the set's guard is its only atom (`≥ 0`) and the system's
     /// predicate decides membership.
     spec: Option<SetAtoms>,
+    /// The truth table of `spec`'s structure, if it has at most
+    /// [`TruthTable::MAX_ATOMS`] atoms.
+    table: Option<TruthTable>,
     /// Whether a change of this set ends a segment.
     source: bool,
     /// Per atom: relaxation (C's atoms that held only within `set_tol` at
@@ -201,6 +204,23 @@ impl WSet {
     /// Whether atom `k` is watched ([`Atom::watched`](super::system::Atom::watched)).
     fn watched(&self, k: usize) -> bool {
         self.spec.as_ref().is_none_or(|s| s.atoms[k].watched())
+    }
+}
+
+/// The truth table of a set of at most [`TruthTable::MAX_ATOMS`] atoms.
+fn truth_table(spec: Option<&SetAtoms>) -> Option<TruthTable> {
+    spec.filter(|s| s.atoms.len() <= TruthTable::MAX_ATOMS)?
+        .expr
+        .truth_table()
+}
+
+/// The value of set `spec` (truth table `table`, if it has one) when atom
+/// `k` has truth `truth(k)`.
+#[inline]
+fn set_value(spec: &SetAtoms, table: Option<TruthTable>, truth: impl Fn(usize) -> bool) -> bool {
+    match table {
+        Some(t) => t.value(TruthTable::mask(spec.atoms.len(), truth)),
+        None => spec.expr.eval_with(&truth),
     }
 }
 
@@ -627,6 +647,7 @@ impl Watcher {
             let n = spec.as_ref().map_or(1, |s| s.atoms.len());
             sets.push(WSet {
                 set,
+                table: truth_table(spec.as_ref()),
                 spec,
                 source,
                 relax: vec![0.0; n],
@@ -821,7 +842,7 @@ impl Watcher {
         if changed {
             for (i, ws) in self.sets.iter_mut().enumerate() {
                 if let Some(spec) = &ws.spec {
-                    let value = spec.expr.eval(&ws.start_truth);
+                    let value = set_value(spec, ws.table, |k| ws.start_truth[k]);
                     if self.flow == Some(i) {
                         if !value {
                             return None;
@@ -883,7 +904,7 @@ impl Watcher {
             }
             ws.vs = vals;
             ws.cur = match (&ws.spec, ws.set) {
-                (Some(spec), _) => spec.expr.eval(&ws.start_truth),
+                (Some(spec), _) => set_value(spec, ws.table, |k| ws.start_truth[k]),
                 (None, SetRef::Jump(r)) => sys.jump_set(r, at, x),
                 (None, SetRef::Flow) => true,
             };
@@ -1296,8 +1317,16 @@ impl Watcher {
                 Some(spec.atoms[k].cmp.holds_within(ws.vs[k], ws.relax[k]))
             }
         };
-        spec.expr.eval_with(&|k| truth(k).unwrap_or(true))
-            != spec.expr.eval_with(&|k| truth(k).unwrap_or(false))
+        match ws.table {
+            Some(t) => {
+                let m = TruthTable::mask(spec.atoms.len(), |k| truth(k).unwrap_or(false));
+                t.value(m | 1 << atom) != t.value(m)
+            }
+            None => {
+                spec.expr.eval_with(&|k| truth(k).unwrap_or(true))
+                    != spec.expr.eval_with(&|k| truth(k).unwrap_or(false))
+            }
+        }
     }
 
     /// Evaluates every set on the bracket `[ta, tb]` whose end states are
@@ -1340,7 +1369,7 @@ impl Watcher {
                             }
                         };
                     }
-                    spec.expr.eval(&ws.truth)
+                    set_value(spec, ws.table, |k| ws.truth[k])
                 }
                 (None, SetRef::Jump(r)) => sys.jump_set(r, tb, xb),
                 (None, SetRef::Flow) => {
@@ -1594,6 +1623,7 @@ impl Itp {
 /// Membership tests of the flow set C with reusable buffers.
 pub(crate) struct FlowSetTest {
     spec: Option<SetAtoms>,
+    table: Option<TruthTable>,
     vals: Vec<f64>,
     truth: Vec<bool>,
 }
@@ -1603,6 +1633,7 @@ impl FlowSetTest {
         let spec = sys.set_atoms(SetRef::Flow);
         let n = spec.as_ref().map_or(0, |s| s.atoms.len());
         Self {
+            table: truth_table(spec.as_ref()),
             spec,
             vals: vec![0.0; n],
             truth: vec![false; n],
@@ -1624,7 +1655,7 @@ impl FlowSetTest {
                 for ((t, a), &g) in self.truth.iter_mut().zip(&spec.atoms).zip(&self.vals) {
                     *t = a.cmp.holds_within(g, tol);
                 }
-                spec.expr.eval(&self.truth)
+                set_value(spec, self.table, |k| self.truth[k])
             }
             None => {
                 sys.flow_set(at, x)

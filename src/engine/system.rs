@@ -243,6 +243,32 @@ impl SetExpr {
         }
     }
 
+    /// The combination's truth table when it refers only to atoms 0–5:
+    /// bit `m` is its value when atom `k` holds exactly if bit `k` of `m`
+    /// is set (see [`TruthTable`]). Built by bitwise `and`/`or` of the
+    /// atoms' columns, in one pass over the tree.
+    pub(crate) fn truth_table(&self) -> Option<TruthTable> {
+        /// Column of atom k: bit m set iff bit k of m is.
+        const COLUMNS: [u64; 6] = [
+            0xAAAA_AAAA_AAAA_AAAA,
+            0xCCCC_CCCC_CCCC_CCCC,
+            0xF0F0_F0F0_F0F0_F0F0,
+            0xFF00_FF00_FF00_FF00,
+            0xFFFF_0000_FFFF_0000,
+            0xFFFF_FFFF_0000_0000,
+        ];
+        Some(TruthTable(match self {
+            SetExpr::Const(b) => 0u64.wrapping_sub(u64::from(*b)),
+            SetExpr::Atom(k) => *COLUMNS.get(*k)?,
+            SetExpr::And(v) => v
+                .iter()
+                .try_fold(!0, |acc, e| Some(acc & e.truth_table()?.0))?,
+            SetExpr::Or(v) => v
+                .iter()
+                .try_fold(0, |acc, e| Some(acc | e.truth_table()?.0))?,
+        }))
+    }
+
     /// The atoms whose failure makes the combination fail, given the truth
     /// of each atom (for diagnostics): for a failing `and`, the failing
     /// conjuncts' atoms; for a failing `or`, every alternative's.
@@ -262,6 +288,30 @@ impl SetExpr {
                 }
             }
         }
+    }
+}
+
+/// A [`SetExpr`] of at most six atoms as a table of its 64 values: one
+/// shift per evaluation instead of a walk of the tree (the engine asks
+/// for a set's value at every event candidate and for whether it depends
+/// on an atom at every sign change).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) struct TruthTable(u64);
+
+impl TruthTable {
+    /// The most atoms a table covers.
+    pub const MAX_ATOMS: usize = 6;
+
+    /// The value when atom `k` holds exactly if bit `k` of `mask` is set.
+    #[inline]
+    pub fn value(self, mask: u32) -> bool {
+        (self.0 >> mask) & 1 != 0
+    }
+
+    /// The bit mask of the truth of `n` atoms.
+    #[inline]
+    pub fn mask(n: usize, truth: impl Fn(usize) -> bool) -> u32 {
+        (0..n).fold(0, |m, k| m | (u32::from(truth(k)) << k))
     }
 }
 
@@ -552,5 +602,46 @@ impl SimRng {
     /// The underlying generator, for distributions not wrapped here.
     pub fn inner(&mut self) -> &mut ChaCha8Rng {
         &mut self.0
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Random monotone combinations of up to 6 atoms (constants included):
+    /// the truth table agrees with the tree at every assignment.
+    #[test]
+    fn a_truth_table_agrees_with_its_tree() {
+        fn random(rng: &mut SimRng, depth: u32) -> SetExpr {
+            let pick = (rng.uniform(0.0, 1.0) * 10.0) as u32;
+            match pick {
+                0 => SetExpr::Const(rng.bernoulli(0.5)),
+                1..=4 => SetExpr::Atom((rng.uniform(0.0, 1.0) * 6.0) as usize % 6),
+                _ if depth == 0 => SetExpr::Atom(0),
+                _ => {
+                    let n = 1 + (rng.uniform(0.0, 1.0) * 3.0) as usize;
+                    let v = (0..n).map(|_| random(rng, depth - 1)).collect();
+                    if pick < 8 {
+                        SetExpr::And(v)
+                    } else {
+                        SetExpr::Or(v)
+                    }
+                }
+            }
+        }
+        let mut rng = SimRng::seed_from(7);
+        for _ in 0..500 {
+            let e = random(&mut rng, 3);
+            let t = e.truth_table().expect("atoms below 6");
+            for m in 0..64u32 {
+                let truth: Vec<bool> = (0..6).map(|k| m >> k & 1 != 0).collect();
+                assert_eq!(t.value(m), e.eval(&truth), "{e:?} at {m:06b}");
+                assert_eq!(TruthTable::mask(6, |k| truth[k]), m);
+            }
+        }
+        assert_eq!(SetExpr::Atom(6).truth_table(), None);
+        let e = SetExpr::And(vec![SetExpr::Atom(0), SetExpr::Or(vec![SetExpr::Atom(7)])]);
+        assert_eq!(e.truth_table(), None);
     }
 }
