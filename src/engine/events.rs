@@ -273,11 +273,12 @@ fn eq_met(ga: f64, gb: f64) -> bool {
     gb == 0.0 || (ga < 0.0 && gb > 0.0) || (ga > 0.0 && gb < 0.0)
 }
 
-/// A watched atom: atom `atom` of set `set`.
+/// A watched atom: atom `atom` of set `set`, with its comparison.
 #[derive(Debug, Clone, Copy)]
 struct WAtom {
     set: usize,
     atom: usize,
+    cmp: Cmp,
 }
 
 /// A timer atom `x[index] − threshold ⋈ 0` (`⋈` is `<=` or `>=`) of set
@@ -629,6 +630,9 @@ pub(crate) struct Watcher {
     /// half of all flowing atoms (the other sets' atoms are evaluated for
     /// nothing) and there are several sources.
     flat_checks: bool,
+    /// Whether every event source has its atoms in that layout (a
+    /// checkpoint's values are then read per watched atom).
+    flat_watched: bool,
     /// The state at the last event found by [`Watcher::scan`] (the
     /// post-change end of its bracket).
     pub event_state: Vec<f64>,
@@ -681,7 +685,11 @@ impl Watcher {
             if ws.source {
                 for k in 0..ws.atom_count() {
                     if ws.watched(k) {
-                        watched.push(WAtom { set: i, atom: k });
+                        watched.push(WAtom {
+                            set: i,
+                            atom: k,
+                            cmp: ws.cmp(k),
+                        });
                     }
                 }
             }
@@ -740,6 +748,7 @@ impl Watcher {
             }
         }
         let flat_checks = watched_sets >= 2 && 2 * watched.len() >= flowing;
+        let flat_watched = (0..sets.len()).all(|i| !sets[i].source || flat_off[i].is_some());
         let n = x0.len();
         Self {
             sets,
@@ -749,6 +758,7 @@ impl Watcher {
             flat_b: vec![0.0; total],
             flat_ok: false,
             flat_checks,
+            flat_watched,
             cls: vec![0; watched.len()],
             cls_s: vec![0; watched.len()],
             form_pts: vec![None; watched.len()],
@@ -917,51 +927,59 @@ impl Watcher {
         self.near_start = false;
         for (w, c) in self.watched.iter().zip(self.cls.iter_mut()) {
             let ws = &self.sets[w.set];
-            let v = watched_value(ws.cmp(w.atom), ws.vs[w.atom], ws.relax[w.atom]);
+            let v = watched_value(w.cmp, ws.vs[w.atom], ws.relax[w.atom]);
             self.near_start |= v.abs() <= 2.0 * near;
             *c = class(v);
         }
     }
 
     /// Sign classes of the watched atoms at (t, x) into `cls_s`, with the
-    /// values left in each set's `vs`.
-    fn classes_at<S: HybridSystem + ?Sized>(&mut self, sys: &S, t: f64, x: &[f64]) {
+    /// values left in each set's `vs`; whether a class differs from `cls`.
+    fn classes_at<S: HybridSystem + ?Sized>(&mut self, sys: &S, t: f64, x: &[f64]) -> bool {
         let at = HybridTime::new(t, self.j);
         let flat =
             self.flat_ok && self.flat_checks && sys.all_atom_values(at, x, true, &mut self.flat);
-        for (i, ws) in self.sets.iter_mut().enumerate() {
-            if !ws.source {
-                continue;
+        if flat && self.flat_watched {
+            // Only the watched atoms' values are read at a checkpoint.
+            for w in &self.watched {
+                let off = self.flat_off[w.set].unwrap_or_default();
+                self.sets[w.set].vs[w.atom] = self.flat[off + w.atom];
             }
-            match self.flat_off[i] {
-                Some(off) if flat => {
-                    for k in 0..ws.vs.len() {
-                        if ws.watched(k) {
-                            ws.vs[k] = self.flat[off + k];
+        } else {
+            for (i, ws) in self.sets.iter_mut().enumerate() {
+                if !ws.source {
+                    continue;
+                }
+                match self.flat_off[i] {
+                    Some(off) if flat => {
+                        for k in 0..ws.vs.len() {
+                            if ws.watched(k) {
+                                ws.vs[k] = self.flat[off + k];
+                            }
                         }
                     }
-                }
-                _ => {
-                    let mut vals = std::mem::take(&mut ws.vs);
-                    atom_values(sys, ws, at, x, true, &mut vals);
-                    ws.vs = vals;
+                    _ => {
+                        let mut vals = std::mem::take(&mut ws.vs);
+                        atom_values(sys, ws, at, x, true, &mut vals);
+                        ws.vs = vals;
+                    }
                 }
             }
         }
-        self.classes_from_vs();
+        self.classes_from_vs()
     }
 
     /// Sign classes of the watched atoms from the values in `vs` (the
-    /// checkpoint's) under the current relaxations, into `cls_s`.
-    fn classes_from_vs(&mut self) {
-        for (w, c) in self.watched.iter().zip(self.cls_s.iter_mut()) {
+    /// checkpoint's) under the current relaxations, into `cls_s`; whether
+    /// a class differs from `cls`.
+    fn classes_from_vs(&mut self) -> bool {
+        let mut changed = false;
+        for ((w, c), &c0) in self.watched.iter().zip(&mut self.cls_s).zip(&self.cls) {
             let ws = &self.sets[w.set];
-            *c = class(watched_value(
-                ws.cmp(w.atom),
-                ws.vs[w.atom],
-                ws.relax[w.atom],
-            ));
+            *c = class(watched_value(w.cmp, ws.vs[w.atom], ws.relax[w.atom]));
+            changed |= *c != c0;
         }
+        changed
     }
 
     /// Ends the relaxation of C's atoms that hold exactly at the point
@@ -977,7 +995,7 @@ impl Watcher {
             }
             let ws = &mut self.sets[fi];
             let vals = if at_candidate { &ws.vb } else { &ws.vs };
-            let (cmp, g) = (ws.cmp(w.atom), vals[w.atom]);
+            let (cmp, g) = (w.cmp, vals[w.atom]);
             if ws.relax[w.atom] > 0.0 && cmp.holds(g) {
                 ws.relax[w.atom] = 0.0;
                 self.relaxed -= 1;
@@ -1047,16 +1065,17 @@ impl Watcher {
             if s <= prev && !last {
                 continue;
             }
-            if last {
+            let changed = if last {
                 // The step end itself: no copy.
-                self.classes_at(sys, self.clock.at(s), y1);
+                self.classes_at(sys, self.clock.at(s), y1)
             } else {
                 let mut xs = std::mem::take(&mut self.buf_s);
                 path.eval(s, &mut xs);
-                self.classes_at(sys, self.clock.at(s), &xs);
+                let changed = self.classes_at(sys, self.clock.at(s), &xs);
                 self.buf_s = xs;
-            }
-            if self.cls != self.cls_s {
+                changed
+            };
+            if changed {
                 let relaxed = self.relaxed;
                 if let Some(found) = self.resolve(sys, path, prev, s) {
                     return Some(found);
@@ -1067,7 +1086,9 @@ impl Watcher {
                     self.classes_from_vs();
                 }
             }
-            self.cls.copy_from_slice(&self.cls_s);
+            // The checkpoint's classes become the cursor's (`cls_s` is
+            // written in full at the next checkpoint before it is read).
+            std::mem::swap(&mut self.cls, &mut self.cls_s);
             self.settle_relaxed(false);
             prev = s;
         }
@@ -1094,7 +1115,7 @@ impl Watcher {
                 all = false;
                 continue;
             };
-            let WAtom { set, atom } = self.watched[w];
+            let WAtom { set, atom, cmp } = self.watched[w];
             let (cls, relaxed) = (self.cls[w], self.sets[set].relax[atom] > 0.0);
             if cls == 2 {
                 all = false;
@@ -1131,7 +1152,6 @@ impl Watcher {
                 // A relaxed atom moving into its set holds exactly from
                 // there on, where the scan ends its relaxation (a point of
                 // the step); one moving out is left to the checkpoints.
-                let cmp = self.sets[set].cmp(atom);
                 if relaxed && !cmp.holds(sure) {
                     all = false;
                     continue;
@@ -1204,7 +1224,7 @@ impl Watcher {
                 if !self.needs_localizing(w) || self.shares_zero(w) {
                     continue;
                 }
-                let WAtom { set, atom } = self.watched[w];
+                let WAtom { set, atom, .. } = self.watched[w];
                 let relax = self.sets[set].relax[atom];
                 let (a, b, fresh) = match self.found[w] {
                     (a, b, c, r) if a >= cursor && c == self.cls[w] && r == relax => (a, b, false),
@@ -1254,11 +1274,7 @@ impl Watcher {
             }
             for (w, c) in self.watched.iter().zip(self.cls.iter_mut()) {
                 let ws = &self.sets[w.set];
-                *c = class(watched_value(
-                    ws.cmp(w.atom),
-                    ws.vb[w.atom],
-                    ws.relax[w.atom],
-                ));
+                *c = class(watched_value(w.cmp, ws.vb[w.atom], ws.relax[w.atom]));
             }
             // Ended relaxations change the checkpoint's classes too.
             let relaxed = self.relaxed;
@@ -1280,7 +1296,7 @@ impl Watcher {
     /// last bit.
     fn shares_zero(&self, w: usize) -> bool {
         let unrelaxed = |w: usize| {
-            let WAtom { set, atom } = self.watched[w];
+            let WAtom { set, atom, .. } = self.watched[w];
             self.sets[set].relax[atom] == 0.0
         };
         self.twin[w].is_some_and(|u| unrelaxed(u) && unrelaxed(w) && self.needs_localizing(u))
@@ -1296,7 +1312,7 @@ impl Watcher {
         if self.cls[w] == self.cls_s[w] {
             return false;
         }
-        let WAtom { set, atom } = self.watched[w];
+        let WAtom { set, atom, .. } = self.watched[w];
         let others_change = self
             .watched
             .iter()
@@ -1390,7 +1406,7 @@ impl Watcher {
         s: f64,
         which: Buf,
     ) -> f64 {
-        let WAtom { set, atom } = self.watched[w];
+        let WAtom { set, atom, cmp } = self.watched[w];
         let buf = match which {
             Buf::A => &mut self.buf_a,
             Buf::B => &mut self.buf_b,
@@ -1407,7 +1423,7 @@ impl Watcher {
             true,
             &mut vt,
         );
-        let v = watched_value(ws.cmp(atom), vt[atom], ws.relax[atom]);
+        let v = watched_value(cmp, vt[atom], ws.relax[atom]);
         ws.vt = vt;
         v
     }
@@ -1424,10 +1440,9 @@ impl Watcher {
         tol: f64,
     ) -> Option<f64> {
         let form = self.affine[w].as_ref()?;
-        let WAtom { set, atom } = self.watched[w];
-        let ws = &self.sets[set];
-        let relax = ws.relax[atom];
-        let shift = match ws.cmp(atom) {
+        let WAtom { set, atom, cmp } = self.watched[w];
+        let relax = self.sets[set].relax[atom];
+        let shift = match cmp {
             _ if relax <= 0.0 => 0.0,
             Cmp::Ge | Cmp::Gt => relax,
             Cmp::Le | Cmp::Lt => -relax,
