@@ -136,8 +136,8 @@ impl SetCode {
             atom_text,
             cond: Program::compile(dag, frame, &[cond]),
             guard: Program::compile(dag, frame, &[g]),
-            all: Program::compile(dag, frame, &nodes),
-            flowing: Program::compile(dag, frame, &fnodes),
+            all: Program::compile(dag, frame, &nodes).into_buffer(),
+            flowing: Program::compile(dag, frame, &fnodes).scatter_to(&flowing_idx),
             flowing_idx,
             nodes,
             cond_node: cond,
@@ -170,9 +170,8 @@ impl SetCode {
 #[derive(Debug, Clone)]
 struct AllAtoms {
     all: Program,
+    /// The watched atoms, each written to its position in the layout.
     flowing: Program,
-    /// Position in the layout of each output of `flowing`.
-    flowing_pos: Vec<usize>,
     /// Each jump rule's condition, in rule order (the engine's choice of
     /// the rule to fire at a point, the five triggers' shared terms once).
     conds: Program,
@@ -196,9 +195,8 @@ impl AllAtoms {
             }
         }
         AllAtoms {
-            all: Program::compile(dag, frame, &all),
-            flowing: Program::compile(dag, frame, &flowing),
-            flowing_pos,
+            all: Program::compile(dag, frame, &all).into_buffer(),
+            flowing: Program::compile(dag, frame, &flowing).scatter_to(&flowing_pos),
             conds: Program::compile(dag, frame, &conds),
         }
     }
@@ -274,7 +272,7 @@ impl JacobianSource {
                         }
                     }
                 }
-                let program = Program::compile(&dag, frame, &outputs);
+                let program = Program::compile(&dag, frame, &outputs).scatter_to(&entries);
                 if let Some(jit) = &self.jit {
                     jit.attach(&program, true);
                 }
@@ -484,6 +482,7 @@ impl CompiledModel {
                 writes: r.resets.iter().map(|&(k, _)| k).collect(),
             });
             let values: Vec<_> = r.resets.iter().map(|&(_, n)| n).collect();
+            let writes: Vec<usize> = r.resets.iter().map(|&(k, _)| k).collect();
             rule_code.push(RuleCode {
                 set: SetCode::new(
                     &mut m.dag,
@@ -493,15 +492,15 @@ impl CompiledModel {
                     &timer_states,
                     None,
                 ),
-                map: Program::compile(&m.dag, frame, &values),
-                targets: r.resets.iter().map(|&(k, _)| k).collect(),
+                map: Program::compile(&m.dag, frame, &values).scatter_to(&writes),
+                targets: writes,
                 span: r.span,
             });
         }
         let out_nodes: Vec<_> = m.outputs.iter().flat_map(|o| o.nodes.clone()).collect();
-        let flow = Program::compile(&m.dag, frame, &drift);
+        let flow = Program::compile(&m.dag, frame, &drift).into_buffer();
         let flow_nodes = drift.clone();
-        let diffusion = Program::compile(&m.dag, frame, &diff);
+        let diffusion = Program::compile(&m.dag, frame, &diff).into_buffer();
         let init = Program::compile(&m.dag, frame, &m.init);
         let outputs = Program::compile(&m.dag, frame, &out_nodes);
         let atoms = AllAtoms::new(
@@ -1304,12 +1303,7 @@ impl HybridSystem for CompiledModel {
     }
 
     fn flow_map(&self, at: HybridTime, x: &[f64], dx: &mut [f64]) {
-        with_regs(self.nregs, |regs| {
-            self.flow.run_at(regs, at, x, None);
-            for (d, &r) in dx.iter_mut().zip(&self.flow.outs) {
-                *d = regs[r as usize];
-            }
-        });
+        with_regs(self.nregs, |regs| self.flow.run_into(regs, at, x, None, dx));
     }
 
     /// The symbolic Jacobian (see [`CompiledModel::has_exact_jacobian`]),
@@ -1356,10 +1350,7 @@ impl HybridSystem for CompiledModel {
         };
         values.copy_from_slice(&code.constants);
         with_regs(self.nregs.max(code.program.nregs), |regs| {
-            code.program.run_at(regs, at, x, None);
-            for (&e, &r) in code.entries.iter().zip(&code.program.outs) {
-                values[e] = regs[r as usize];
-            }
+            code.program.run_into(regs, at, x, None, values);
         });
         true
     }
@@ -1400,19 +1391,12 @@ impl HybridSystem for CompiledModel {
         let Some(code) = self.set_code(set) else {
             return;
         };
-        with_regs(self.nregs, |regs| {
-            if flowing_only {
-                code.flowing.run_at(regs, at, x, None);
-                for (&k, &r) in code.flowing_idx.iter().zip(&code.flowing.outs) {
-                    out[k] = regs[r as usize];
-                }
-            } else {
-                code.all.run_at(regs, at, x, None);
-                for (o, &r) in out.iter_mut().zip(&code.all.outs) {
-                    *o = regs[r as usize];
-                }
-            }
-        });
+        let p = if flowing_only {
+            &code.flowing
+        } else {
+            &code.all
+        };
+        with_regs(self.nregs, |regs| p.run_into(regs, at, x, None, out));
     }
 
     fn all_atom_values(
@@ -1423,19 +1407,12 @@ impl HybridSystem for CompiledModel {
         out: &mut [f64],
     ) -> bool {
         let atoms = &self.atoms;
-        with_regs(self.nregs, |regs| {
-            if flowing_only {
-                atoms.flowing.run_at(regs, at, x, None);
-                for (&k, &r) in atoms.flowing_pos.iter().zip(&atoms.flowing.outs) {
-                    out[k] = regs[r as usize];
-                }
-            } else {
-                atoms.all.run_at(regs, at, x, None);
-                for (o, &r) in out.iter_mut().zip(&atoms.all.outs) {
-                    *o = regs[r as usize];
-                }
-            }
-        });
+        let p = if flowing_only {
+            &atoms.flowing
+        } else {
+            &atoms.all
+        };
+        with_regs(self.nregs, |regs| p.run_into(regs, at, x, None, out));
         true
     }
 
@@ -1510,12 +1487,9 @@ impl HybridSystem for CompiledModel {
         x_plus: &mut [f64],
     ) {
         let code = &self.rule_code[rule];
+        x_plus.copy_from_slice(x);
         with_regs(self.nregs, |regs| {
-            code.map.run_at(regs, at, x, Some(rng));
-            x_plus.copy_from_slice(x);
-            for (&k, &r) in code.targets.iter().zip(&code.map.outs) {
-                x_plus[k] = regs[r as usize];
-            }
+            code.map.run_into(regs, at, x, Some(rng), x_plus);
         });
     }
 
@@ -1529,10 +1503,7 @@ impl HybridSystem for CompiledModel {
 
     fn diffusion(&self, at: HybridTime, x: &[f64], g: &mut [f64]) {
         with_regs(self.nregs, |regs| {
-            self.diffusion.run_at(regs, at, x, None);
-            for (o, &r) in g.iter_mut().zip(&self.diffusion.outs) {
-                *o = regs[r as usize];
-            }
+            self.diffusion.run_into(regs, at, x, None, g)
         });
     }
 }

@@ -227,6 +227,15 @@ pub(crate) struct Program {
     pub(super) lin: Vec<(u32, f64)>,
     /// Register of each output.
     pub outs: Vec<u32>,
+    /// Where [`run_into`](Self::run_into) writes each output in its
+    /// caller's buffer: set by [`scatter_to`](Self::scatter_to) for the
+    /// programs the engine evaluates into its own buffers, whose machine
+    /// code then stores the outputs there instead of into the register
+    /// file; `None`: the identity, through the registers.
+    pub(super) dest: Option<Vec<u32>>,
+    /// The shortest buffer [`run_into`](Self::run_into) accepts: one past
+    /// the largest position.
+    pub(super) dest_len: usize,
     /// Registers needed.
     pub nregs: usize,
     /// Number of state registers (`x`, the frame's `n`): [`run_at`](Self::run_at)
@@ -628,7 +637,7 @@ impl Program {
             }
             reg[id as usize] = d;
         }
-        let outs = outputs
+        let outs: Vec<u32> = outputs
             .iter()
             .map(|&o| as_reg(dag, o, reg, &mut ops, &mut next))
             .collect();
@@ -638,6 +647,8 @@ impl Program {
             gather,
             tables,
             lin,
+            dest: None,
+            dest_len: outs.len(),
             outs,
             nregs: next as usize,
             state_regs: frame.n,
@@ -649,6 +660,67 @@ impl Program {
     #[cfg(test)]
     pub fn is_native(&self) -> bool {
         self.tier.is_native()
+    }
+
+    /// The same program, with [`run_into`](Self::run_into) writing output
+    /// `k` to `dest[k]` of its buffer (a state's components a jump map
+    /// resets, the positions of some atoms among all): its machine code
+    /// stores each output there directly, with no gather after the call.
+    /// For a program the engine evaluates at every step into its own
+    /// buffer; [`run`](Self::run) and [`run_at`](Self::run_at) still put
+    /// the outputs into their registers, at the cost of a copy.
+    ///
+    /// # Panics
+    /// If `dest` does not give one position per output, or the program
+    /// has machine code already.
+    pub fn scatter_to(mut self, dest: &[usize]) -> Self {
+        assert_eq!(dest.len(), self.outs.len(), "one position per output");
+        assert!(
+            self.tier.code_is_unset(),
+            "positions set before machine code"
+        );
+        self.dest = Some(
+            dest.iter()
+                .map(|&d| u32::try_from(d).expect("a position below 2^32"))
+                .collect(),
+        );
+        self.dest_len = dest.iter().map(|&d| d + 1).max().unwrap_or(0);
+        self
+    }
+
+    /// [`scatter_to`](Self::scatter_to) with output `k` at position `k`.
+    pub fn into_buffer(self) -> Self {
+        let dest: Vec<usize> = (0..self.outs.len()).collect();
+        self.scatter_to(&dest)
+    }
+
+    /// The position of each output in [`run_into`](Self::run_into)'s buffer.
+    fn positions(&self) -> impl Iterator<Item = (usize, u32)> + '_ {
+        self.outs.iter().enumerate().map(|(k, &r)| {
+            let d = self.dest.as_ref().map_or(k, |d| d[k] as usize);
+            (d, r)
+        })
+    }
+
+    /// Machine code that writes its outputs into the caller's buffer, run
+    /// for a caller that wants them in the registers (cold: the engine
+    /// calls such programs through [`run_into`](Self::run_into)).
+    #[cold]
+    fn run_native_to_regs(
+        &self,
+        native: &super::jit::Native,
+        regs: &mut [f64],
+        x: Option<&[f64]>,
+        rng: Option<&mut SimRng>,
+    ) {
+        let mut out = vec![0.0; self.dest_len];
+        match x {
+            Some(x) => native.run_into(regs, x, rng, &mut out),
+            None => native.run_regs_into(regs, rng, &mut out),
+        }
+        for (d, r) in self.positions() {
+            regs[r as usize] = out[d];
+        }
     }
 
     /// Whether the program computes nothing (no instruction, no output).
@@ -667,6 +739,7 @@ impl Program {
     #[inline]
     pub fn run(&self, regs: &mut [f64], rng: Option<&mut SimRng>) {
         match self.tier.code(self) {
+            Some(native) if self.dest.is_some() => self.run_native_to_regs(native, regs, None, rng),
             Some(native) => native.run(regs, rng),
             None => self.interpret(regs, rng),
         }
@@ -683,11 +756,56 @@ impl Program {
         regs[frame.time_reg()] = at.t;
         regs[frame.jumps_reg()] = at.j as f64;
         match self.tier.code(self) {
+            Some(native) if self.dest.is_some() => {
+                self.run_native_to_regs(native, regs, Some(&x[..n]), rng)
+            }
             Some(native) => native.run_at(regs, &x[..n], rng),
             None => {
                 regs[..n].copy_from_slice(&x[..n]);
                 self.interpret(regs, rng)
             }
+        }
+    }
+
+    /// [`run_at`](Self::run_at), with output `k` written to
+    /// `out[dest[k]]` (see [`scatter_to`](Self::scatter_to)) instead of
+    /// its register; `out`'s other entries are left as they are. Machine
+    /// code stores the outputs there directly.
+    ///
+    /// # Panics
+    /// If `out` is shorter than the positions need.
+    #[inline]
+    pub fn run_into(
+        &self,
+        regs: &mut [f64],
+        at: HybridTime,
+        x: &[f64],
+        rng: Option<&mut SimRng>,
+        out: &mut [f64],
+    ) {
+        let n = self.state_regs;
+        let frame = Frame { n, m: 0 };
+        regs[frame.time_reg()] = at.t;
+        regs[frame.jumps_reg()] = at.j as f64;
+        match self.tier.code(self) {
+            Some(native) if self.dest.is_some() => native.run_into(regs, &x[..n], rng, out),
+            Some(native) => {
+                native.run_at(regs, &x[..n], rng);
+                self.gather_into(regs, out);
+            }
+            None => {
+                regs[..n].copy_from_slice(&x[..n]);
+                self.interpret(regs, rng);
+                self.gather_into(regs, out);
+            }
+        }
+    }
+
+    /// The outputs in `regs` written to `out` at their positions.
+    fn gather_into(&self, regs: &[f64], out: &mut [f64]) {
+        assert!(out.len() >= self.dest_len, "output buffer too short");
+        for (d, r) in self.positions() {
+            out[d] = regs[r as usize];
         }
     }
 

@@ -4,8 +4,9 @@
 //! branch), so each becomes basic blocks in SSA form: a register's value
 //! is the Cranelift value that defined it; the state registers are loaded
 //! from the state pointer, the other fixed registers and the block outputs
-//! from the register file, on first use; the outputs are stored into the
-//! register file at the end.
+//! from the register file, on first use; the outputs are stored at the
+//! end, into the register file or, for a program given positions in its
+//! caller's buffer, there.
 //!
 //! **Sums as loops.** The checker scalarizes matrix work: the entries of
 //! `A * X` are [`Op::Lin`] sums of `cₖ·xₖ` over a row, `n³` terms for
@@ -137,7 +138,7 @@ impl Generator {
         blocks: &[BlockDesc],
     ) -> Result<FuncId, JitError> {
         let ptr = module.target_config().pointer_type();
-        let entry_sig = sig(module, &[ptr, ptr, ptr], None);
+        let entry_sig = sig(module, &[ptr, ptr, ptr, ptr], None);
         let name = format!("program{}", self.count);
         self.count += 1;
         let id = module
@@ -152,7 +153,7 @@ impl Generator {
             b.append_block_params_for_function_params(block);
             b.switch_to_block(block);
             let params = b.block_params(block);
-            let (regs, x, rng) = (params[0], params[1], params[2]);
+            let (regs, x, rng, out) = (params[0], params[1], params[2], params[3]);
             let f64t = types::F64;
             let sigs = Sigs {
                 un: b.import_signature(sig(module, &[f64t], Some(f64t))),
@@ -179,8 +180,7 @@ impl Generator {
                 sigs,
                 tables: &mut self.tables,
             };
-            e.program(p, blocks);
-            b.ins().return_(&[]);
+            e.program(p, blocks, out);
             b.seal_all_blocks();
             b.finalize(module.target_config());
         }
@@ -414,7 +414,10 @@ impl Emit<'_, '_> {
         }
     }
 
-    fn program(&mut self, p: &Program, blocks: &[BlockDesc]) {
+    /// Emits `p`, ending with the stores of its outputs: into the
+    /// register file, or for a program with positions (`Program::dest`)
+    /// into `out` (the entry's pointer) at those.
+    fn program(&mut self, p: &Program, blocks: &[BlockDesc], out: Value) {
         let mut next_block = 0;
         // Sums are deferred, and gathered into one loop nest, until an
         // instruction reads one (or the program ends): nothing but a sum
@@ -438,17 +441,31 @@ impl Emit<'_, '_> {
             self.op(p, op, blocks, &mut next_block);
         }
         self.sums(p, &mut sums, &mut pending);
-        // Every output lands in the register file, also one that is a state
-        // register read from `x`.
-        for &o in &p.outs {
-            if o >= self.state_regs && !self.dirty[o as usize] {
-                // Already there (read from there, or a loop's or a
-                // block's result).
-                continue;
+        match &p.dest {
+            // Every output lands in the register file, also one that is a
+            // state register read from `x`.
+            None => {
+                for &o in &p.outs {
+                    if o >= self.state_regs && !self.dirty[o as usize] {
+                        // Already there (read from there, or a loop's or a
+                        // block's result).
+                        continue;
+                    }
+                    let v = self.get(o);
+                    self.store(o, v);
+                }
             }
-            let v = self.get(o);
-            self.store(o, v);
+            // Each output at its position in the caller's buffer.
+            Some(dest) => {
+                for (&o, &d) in p.outs.iter().zip(dest) {
+                    let v = self.get(o);
+                    self.b
+                        .ins()
+                        .store(MemFlagsData::trusted(), v, out, offset(d));
+                }
+            }
         }
+        self.b.ins().return_(&[]);
     }
 
     /// Emits the deferred `sums`: one loop nest if they have at least

@@ -1,11 +1,13 @@
 //! Machine code for register programs, generated with Cranelift.
 //!
 //! `Jit` turns `Program`s (`ir::program`) into native functions
-//! `fn(regs: *mut f64, x: *const f64, rng: *mut SimRng)` with the interpreter's contract:
-//! the fixed registers (`x`, `t`, `w`) are read from the register file and
-//! every output register is written back to it, so a compiled program is a
-//! drop-in replacement for `Program::run`'s interpreter, which stays the
-//! reference and the fallback.
+//! `fn(regs: *mut f64, x: *const f64, rng: *mut SimRng, out: *mut f64)` with the
+//! interpreter's contract: the fixed registers (`x`, `t`, `w`) are read from the register
+//! file and every output register is written back to it (with `out` null), so a compiled
+//! program is a drop-in replacement for `Program::run`'s interpreter, which stays the
+//! reference and the fallback. A program given positions (`Program::scatter_to`) stores its
+//! outputs into the caller's buffer `out` instead, each at its position
+//! (`Program::run_into`), which saves the caller a gather.
 //!
 //! **Tiers.** A program starts interpreted and is compiled by the thread
 //! that runs it for the [`TIER_UP_CALLS`]-th time, each program into its
@@ -103,9 +105,10 @@ impl Drop for Code {
     }
 }
 
-/// `fn(regs, x, rng)`: state register `k < state_regs` is read from `x[k]`,
-/// every other register from `regs`.
-type Entry = unsafe extern "C" fn(*mut f64, *const f64, *mut SimRng);
+/// `fn(regs, x, rng, out)`: state register `k < state_regs` is read from `x[k]`,
+/// every other register from `regs`; output `k` is written to its register,
+/// or to `out[dest[k]]` for a program with positions (`out` unused otherwise).
+type Entry = unsafe extern "C" fn(*mut f64, *const f64, *mut SimRng, *mut f64);
 
 /// A program's machine code.
 #[derive(Clone)]
@@ -114,6 +117,9 @@ pub(crate) struct Native {
     entry: Entry,
     nregs: usize,
     state_regs: usize,
+    /// For a program with positions (`Program::scatter_to`), the length
+    /// its output buffer needs; `None`: it writes into the registers.
+    dest_len: Option<usize>,
 }
 
 impl std::fmt::Debug for Native {
@@ -130,8 +136,8 @@ impl Native {
     #[inline]
     pub fn run(&self, regs: &mut [f64], rng: Option<&mut SimRng>) {
         assert!(
-            regs.len() >= self.nregs,
-            "register file of {} < {} registers",
+            regs.len() >= self.nregs && self.dest_len.is_none(),
+            "register file of {} < {} registers, or outputs to a buffer",
             regs.len(),
             self.nregs
         );
@@ -141,7 +147,7 @@ impl Native {
         // fixed at compile time; a state register is only written with the
         // value read from it), `rng` is null or a live exclusive reference,
         // and `_code` keeps the code memory alive.
-        unsafe { (self.entry)(regs, regs, rng) }
+        unsafe { (self.entry)(regs, regs, rng, std::ptr::null_mut()) }
     }
 
     /// Runs the code with the state registers read from `x` instead of
@@ -149,8 +155,9 @@ impl Native {
     #[inline]
     pub fn run_at(&self, regs: &mut [f64], x: &[f64], rng: Option<&mut SimRng>) {
         assert!(
-            regs.len() >= self.nregs && x.len() >= self.state_regs,
-            "register file of {} < {} registers or state of {} < {} components",
+            regs.len() >= self.nregs && x.len() >= self.state_regs && self.dest_len.is_none(),
+            "register file of {} < {} registers, state of {} < {} components, or outputs \
+             to a buffer",
             regs.len(),
             self.nregs,
             x.len(),
@@ -159,7 +166,49 @@ impl Native {
         let rng = rng.map_or(std::ptr::null_mut(), |r| r as *mut SimRng);
         // SAFETY: as `run`; the code reads `x[..state_regs]` only (and
         // may copy it into `regs[..state_regs]`, as the interpreter does).
-        unsafe { (self.entry)(regs.as_mut_ptr(), x.as_ptr(), rng) }
+        unsafe { (self.entry)(regs.as_mut_ptr(), x.as_ptr(), rng, std::ptr::null_mut()) }
+    }
+
+    /// The code of a program with positions: as [`run_at`](Self::run_at),
+    /// with the outputs stored into `out` at their positions; same
+    /// contract as [`Program::run_into`].
+    #[inline]
+    pub fn run_into(&self, regs: &mut [f64], x: &[f64], rng: Option<&mut SimRng>, out: &mut [f64]) {
+        assert!(
+            regs.len() >= self.nregs
+                && x.len() >= self.state_regs
+                && self.dest_len.is_some_and(|d| out.len() >= d),
+            "register file of {} < {} registers, state of {} < {} components, or output \
+             buffer of {} < {:?}",
+            regs.len(),
+            self.nregs,
+            x.len(),
+            self.state_regs,
+            out.len(),
+            self.dest_len
+        );
+        let rng = rng.map_or(std::ptr::null_mut(), |r| r as *mut SimRng);
+        // SAFETY: as `run_at`; the code writes `out[..dest_len]` only
+        // (positions fixed at compile time) and does not read it.
+        unsafe { (self.entry)(regs.as_mut_ptr(), x.as_ptr(), rng, out.as_mut_ptr()) }
+    }
+
+    /// The code of a program with positions: as [`run`](Self::run), with
+    /// the outputs stored into `out` as by [`run_into`](Self::run_into).
+    #[inline]
+    pub fn run_regs_into(&self, regs: &mut [f64], rng: Option<&mut SimRng>, out: &mut [f64]) {
+        assert!(
+            regs.len() >= self.nregs && self.dest_len.is_some_and(|d| out.len() >= d),
+            "register file of {} < {} registers or output buffer of {} < {:?}",
+            regs.len(),
+            self.nregs,
+            out.len(),
+            self.dest_len
+        );
+        let rng = rng.map_or(std::ptr::null_mut(), |r| r as *mut SimRng);
+        let regs = regs.as_mut_ptr();
+        // SAFETY: as `run` and `run_into`.
+        unsafe { (self.entry)(regs, regs, rng, out.as_mut_ptr()) }
     }
 }
 
@@ -254,6 +303,11 @@ impl Tier {
         }
         plan.jit.tier_up(p, plan.hot);
         self.code.get()
+    }
+
+    /// Whether no machine code is attached yet.
+    pub fn code_is_unset(&self) -> bool {
+        self.code.get().is_none()
     }
 
     /// Whether machine code is attached.
@@ -365,7 +419,10 @@ impl Jit {
         }
         let len = p.len();
         let cost = len + FUNCTION_COST;
+        // Offsets into the register file and the output buffer are 32-bit.
+        let addressable = p.nregs.max(p.dest_len) <= i32::MAX as usize / 8;
         len <= MAX_OPS
+            && addressable
             && self
                 .budget
                 .fetch_update(Ordering::Relaxed, Ordering::Relaxed, |b| {
@@ -392,6 +449,7 @@ impl Jit {
                         entry,
                         nregs: p.nregs,
                         state_regs: p.state_regs,
+                        dest_len: p.dest.as_ref().map(|_| p.dest_len),
                     };
                     if p.tier.code.set(native).is_ok() {
                         self.native.fetch_add(1, Ordering::Relaxed);
@@ -461,7 +519,7 @@ fn build(programs: &[&Program], hot: bool) -> Result<(Code, Vec<Entry>), JitErro
         .map(|id| {
             let ptr = module.get_finalized_function(id);
             // SAFETY: the function was defined with the signature
-            // `(ptr, ptr, ptr) -> ()` in the platform's C convention.
+            // `(ptr, ptr, ptr, ptr) -> ()` in the platform's C convention.
             unsafe { std::mem::transmute::<*const u8, Entry>(ptr) }
         })
         .collect();

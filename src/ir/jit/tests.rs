@@ -270,6 +270,32 @@ fn both_at(p: &Program, x: &[f64; 4]) -> (Vec<u64>, Vec<u64>) {
     (eval(p), eval(&jitted))
 }
 
+/// `p`'s outputs at (0.5, 3) on state `x` through `run_into` with output
+/// `k` at position `2(len − k) − 1` of a buffer of sentinels (every other
+/// position left alone), interpreted and as machine code; and through
+/// `run_at` as machine code (the outputs copied back into their
+/// registers). Bits, NaN as one value.
+fn both_into(p: &Program, x: &[f64; 4]) -> [Vec<u64>; 3] {
+    let len = p.outs.len();
+    let dest: Vec<usize> = (0..len).map(|k| 2 * (len - k) - 1).collect();
+    let p = p.clone().scatter_to(&dest);
+    let jitted = compiled(&p, true);
+    let bits = |v: f64| if v.is_nan() { f64::NAN } else { v }.to_bits();
+    let into = |p: &Program| {
+        let mut regs = vec![f64::NAN; p.nregs.max(FRAME.fixed())];
+        let mut out = vec![-7.5; 2 * len + 1];
+        p.run_into(&mut regs, HybridTime { t: 0.5, j: 3 }, x, None, &mut out);
+        for k in (0..out.len()).step_by(2) {
+            assert_eq!(out[k], -7.5, "position {k} is no output's");
+        }
+        dest.iter().map(|&d| bits(out[d])).collect::<Vec<_>>()
+    };
+    let mut regs = vec![f64::NAN; p.nregs.max(FRAME.fixed())];
+    jitted.run_at(&mut regs, HybridTime { t: 0.5, j: 3 }, x, None);
+    let at = p.outs.iter().map(|&o| bits(regs[o as usize])).collect();
+    [into(&p), into(&jitted), at]
+}
+
 proptest! {
     #![proptest_config(ProptestConfig::with_cases(100))]
     /// Sums long enough to become loops (over states read from the
@@ -288,8 +314,48 @@ proptest! {
         let (i, j) = both(&p, &x);
         prop_assert_eq!(i, j);
         let (i, j) = both_at(&p, &x);
-        prop_assert_eq!(i, j);
+        prop_assert_eq!(&i, &j);
+        // Stored at their positions in a caller's buffer, the same bits.
+        let [interpreted, native, at] = both_into(&p, &x);
+        prop_assert_eq!(&interpreted, &i);
+        prop_assert_eq!(&native, &i);
+        prop_assert_eq!(&at, &i);
     }
+}
+
+/// Outputs that are a state component, a constant, a helper call's
+/// result and a loop's land at their positions too, and a buffer shorter
+/// than the positions is refused, not overrun.
+#[test]
+fn outputs_land_at_their_positions() {
+    let (mut dag, mut outs) = sums(3, 20, &(0..39).collect::<Vec<u8>>(), &[0.5, -1.25, 2.0]);
+    let x0 = dag.state(0);
+    let k = dag.konst(4.5);
+    let s = dag.un(UnFn::Sin, x0);
+    outs.extend([x0, k, s, x0]);
+    let p = Program::compile(&dag, FRAME, &outs);
+    let x = [0.75, -2.0, 1.5, 3.0];
+    let reference: Vec<u64> = {
+        let mut regs = vec![0.0; p.nregs.max(FRAME.fixed())];
+        p.run_at(&mut regs, HybridTime { t: 0.5, j: 3 }, &x, None);
+        p.outs.iter().map(|&o| regs[o as usize].to_bits()).collect()
+    };
+    assert_eq!(reference[outs.len() - 3], 4.5f64.to_bits());
+    for bits in both_into(&p, &x) {
+        assert_eq!(bits, reference);
+    }
+    let short = compiled(&p.clone().scatter_to(&vec![9; outs.len()]), true);
+    let result = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+        let mut regs = vec![0.0; short.nregs.max(FRAME.fixed())];
+        short.run_into(
+            &mut regs,
+            HybridTime { t: 0.5, j: 3 },
+            &x,
+            None,
+            &mut [0.0; 9],
+        );
+    }));
+    assert!(result.is_err(), "a buffer of 9 for position 9");
 }
 
 /// A matrix product's code grows with its rows, not with its entries:
