@@ -395,7 +395,8 @@ impl StepPath for DopriPath<'_> {
     /// The quartic of `eval` in powers of τ = (s − s0)/(s1 − s0), then in
     /// Bernstein form.
     fn control_points(&self, i: usize, out: &mut [f64; MAX_CONTROL]) -> Option<(usize, f64)> {
-        let [r1, r2, r3, r4, r5] = self.rcont.each_ref().map(|r| r[i]);
+        let r = &self.rcont;
+        let (r1, r2, r3, r4, r5) = (r[0][i], r[1][i], r[2][i], r[3][i], r[4][i]);
         // θ = (s − s0)/h = w·τ (w = 1 unless the step end was rounded).
         let w = (self.s1 - self.s0) / self.h;
         let (w2, w3, w4) = (w * w, w * w * w, w * w * w * w);

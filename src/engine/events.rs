@@ -633,6 +633,9 @@ pub(crate) struct Watcher {
     /// Whether every event source has its atoms in that layout (a
     /// checkpoint's values are then read per watched atom).
     flat_watched: bool,
+    /// Whether `flat` already holds every set's atoms at the point the
+    /// next [`start`](Self::start) starts from ([`prefetch`](Self::prefetch)).
+    prefetched: bool,
     /// The state at the last event found by [`Watcher::scan`] (the
     /// post-change end of its bracket).
     pub event_state: Vec<f64>,
@@ -759,6 +762,7 @@ impl Watcher {
             flat_ok: false,
             flat_checks,
             flat_watched,
+            prefetched: false,
             cls: vec![0; watched.len()],
             cls_s: vec![0; watched.len()],
             form_pts: vec![None; watched.len()],
@@ -889,7 +893,9 @@ impl Watcher {
             return;
         }
         let set_tol = self.set_tol;
-        self.flat_ok = sys.all_atom_values(at, x, false, &mut self.flat);
+        if !std::mem::take(&mut self.prefetched) {
+            self.flat_ok = sys.all_atom_values(at, x, false, &mut self.flat);
+        }
         self.relaxed = 0;
         for (i, ws) in self.sets.iter_mut().enumerate() {
             let is_flow = self.flow == Some(i);
@@ -931,6 +937,31 @@ impl Watcher {
             self.near_start |= v.abs() <= 2.0 * near;
             *c = class(v);
         }
+    }
+
+    /// Evaluates every set's atoms at (`at`, `x`) for the next
+    /// [`start`](Self::start), which must start from that point (the
+    /// caller asks before deciding whether the flow may start there):
+    /// returns C's atom values, in the order of its atoms, so that the
+    /// flow-set test does not evaluate them again. `None` (nothing
+    /// evaluated): the start evaluates nothing (nothing watched or
+    /// scheduled), C has no atoms, or the system has no evaluation of all
+    /// sets at once.
+    pub fn prefetch<S: HybridSystem + ?Sized>(
+        &mut self,
+        sys: &S,
+        at: HybridTime,
+        x: &[f64],
+    ) -> Option<&[f64]> {
+        if self.watched.is_empty() && self.timers.is_empty() {
+            return None;
+        }
+        let fi = self.flow?;
+        let off = self.flat_off[fi]?;
+        self.flat_ok = sys.all_atom_values(at, x, false, &mut self.flat);
+        self.prefetched = self.flat_ok;
+        let len = self.sets[fi].vs.len();
+        self.flat_ok.then(|| &self.flat[off..off + len])
     }
 
     /// Sign classes of the watched atoms at (t, x) into `cls_s`, with the
@@ -1640,7 +1671,6 @@ pub(crate) struct FlowSetTest {
     spec: Option<SetAtoms>,
     table: Option<TruthTable>,
     vals: Vec<f64>,
-    truth: Vec<bool>,
 }
 
 impl FlowSetTest {
@@ -1651,26 +1681,33 @@ impl FlowSetTest {
             table: truth_table(spec.as_ref()),
             spec,
             vals: vec![0.0; n],
-            truth: vec![false; n],
         }
     }
 
     /// Whether x is in C within `tol` on C's atoms (or, for a system
     /// without atoms, in its predicate or within `tol` of its guard's zero).
+    /// `known`: C's atom values at x if the caller has them
+    /// ([`Watcher::prefetch`]).
     pub fn contains<S: HybridSystem + ?Sized>(
         &mut self,
         sys: &S,
         at: HybridTime,
         x: &[f64],
         tol: f64,
+        known: Option<&[f64]>,
     ) -> bool {
         match &self.spec {
             Some(spec) => {
-                sys.atom_values(SetRef::Flow, at, x, false, &mut self.vals);
-                for ((t, a), &g) in self.truth.iter_mut().zip(&spec.atoms).zip(&self.vals) {
-                    *t = a.cmp.holds_within(g, tol);
-                }
-                set_value(spec, self.table, |k| self.truth[k])
+                let vals = match known {
+                    Some(vals) => vals,
+                    None => {
+                        sys.atom_values(SetRef::Flow, at, x, false, &mut self.vals);
+                        &self.vals
+                    }
+                };
+                set_value(spec, self.table, |k| {
+                    spec.atoms[k].cmp.holds_within(vals[k], tol)
+                })
             }
             None => {
                 sys.flow_set(at, x)

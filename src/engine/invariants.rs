@@ -90,7 +90,7 @@ pub fn check_arc<S: HybridSystem + ?Sized>(
         let starts_flow = matches!(a.kind, SampleKind::Initial | SampleKind::PostJump)
             && b.at.j == a.at.j
             && b.at.t > a.at.t;
-        if starts_flow && !flow_set.contains(sys, a.at, a.x, tol) {
+        if starts_flow && !flow_set.contains(sys, a.at, a.x, tol, None) {
             return Err(ArcViolation::FlowOutsideC {
                 at: a.at,
                 x: a.x.to_vec(),

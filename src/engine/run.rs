@@ -287,7 +287,16 @@ pub fn simulate<S: HybridSystem + ?Sized>(
         pending = None;
         let after_event = std::mem::take(&mut from_event);
         let left_flow_set = std::mem::take(&mut cannot_flow);
-        let can_flow = !left_flow_set && flow_set.contains(sys, at, &x, settings.set_tol);
+        // With no rule enabled the flow starts here if it may: C's atoms
+        // are then read from the evaluation of every set that the
+        // segment's start makes anyway.
+        let can_flow = !left_flow_set && {
+            let known = match enabled {
+                None => flows.watcher.prefetch(sys, at, &x),
+                Some(_) => None,
+            };
+            flow_set.contains(sys, at, &x, settings.set_tol, known)
+        };
         let jump = enabled.is_some()
             && (!can_flow
                 || match settings.priority {
