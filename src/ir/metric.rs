@@ -48,6 +48,11 @@ pub struct Metrics {
     sample: Program,
     sample_regs: usize,
     n: usize,
+    /// The state components the sample program reads in its frame's x and
+    /// x⁺ parts: copied into its registers at each evaluation (often a few
+    /// of a large state).
+    reads_pre: Vec<usize>,
+    reads_post: Vec<usize>,
     combine: Program,
     combine_regs: usize,
     base: usize,
@@ -98,17 +103,26 @@ impl Metrics {
         // (x⁺ = x at a sample).
         let reached = dag.reachable(&outs);
         let mut reads = vec![false; n];
+        let (mut reads_pre, mut reads_post) = (Vec::new(), Vec::new());
         let (mut reads_j, mut draws) = (false, false);
         for (id, _) in reached.iter().enumerate().filter(|&(_, &r)| r) {
             match dag.node(id as crate::check::dag::NodeId) {
-                Node::State(k) if (k as usize) < n => reads[k as usize] = true,
+                Node::State(k) if (k as usize) < n => {
+                    reads[k as usize] = true;
+                    reads_pre.push(k as usize);
+                }
                 Node::State(k) if k as usize == n => reads_j = true,
-                Node::State(k) => reads[k as usize - n - 1] = true,
+                Node::State(k) => {
+                    reads[k as usize - n - 1] = true;
+                    reads_post.push(k as usize - n - 1);
+                }
                 Node::Jumps => reads_j = true,
                 Node::Rand(..) => draws = true,
                 _ => {}
             }
         }
+        reads_pre.sort_unstable();
+        reads_post.sort_unstable();
         let jump_keeps_values = writes
             .iter()
             .map(|w| {
@@ -131,6 +145,8 @@ impl Metrics {
             sample,
             sample_regs,
             n,
+            reads_pre,
+            reads_post,
             combine,
             combine_regs,
             base: m.base,
@@ -176,9 +192,13 @@ impl Metrics {
         }
         let n = self.n;
         with_regs(self.sample_regs, |regs| {
-            regs[..n].copy_from_slice(&x[..n]);
+            for &k in &self.reads_pre {
+                regs[k] = x[k];
+            }
             regs[n] = at.j as f64;
-            regs[n + 1..2 * n + 1].copy_from_slice(&x[..n]);
+            for &k in &self.reads_post {
+                regs[n + 1 + k] = x[k];
+            }
             regs[2 * n + 1] = at.t;
             regs[2 * n + 2] = at.j as f64;
             self.sample.run(regs, None);
