@@ -1,6 +1,10 @@
 //! Rust functions the generated code calls: the transcendental functions
 //! (through the interpreter's own `eval_un` / `eval_bin`, so both run the
-//! same libm code), random draws and matrix blocks.
+//! same libm code; the unary ones remember their last results per thread),
+//! random draws and matrix blocks.
+
+use std::cell::Cell;
+use std::thread::LocalKey;
 
 use crate::check::dag::{BinFn, BlockKind, Dist, Table, UnFn, eval_bin, eval_un};
 use crate::engine::SimRng;
@@ -112,7 +116,54 @@ macro_rules! bin_helpers {
     };
 }
 
-un_helpers!(
+un_helpers!(un_round = Round);
+
+/// Slots of a transcendental function's memo (a power of two).
+const MEMO_SLOTS: usize = 16;
+
+/// One function's last results, by argument: slot `hash(bits)` holds
+/// `(bits, f(bits))`.
+type Memo = [Cell<(u64, f64)>; MEMO_SLOTS];
+
+/// `f(a)`, from `memo` if the slot of `a` holds it (the same argument, to
+/// the bit), else computed and kept there. The programs evaluated at one
+/// point (flow, guards, jump maps, metrics at the same hybrid time) call
+/// the same functions of the same arguments, `sin(0.5 t)` of a reference
+/// trajectory in each: a repeated call costs a hash and a compare
+/// instead of libm's tens of instructions, with the same bits (the value
+/// was computed by the same function of the same argument).
+#[inline]
+fn memoized(memo: &'static LocalKey<Memo>, f: UnFn, a: f64) -> f64 {
+    let bits = a.to_bits();
+    // The top bits of a multiplicative hash: nearby arguments (t, t + h)
+    // differ in their low bits.
+    let slot =
+        (bits.wrapping_mul(0x9E37_79B9_7F4A_7C15) >> (64 - MEMO_SLOTS.trailing_zeros())) as usize;
+    memo.try_with(|m| {
+        let (k, v) = m[slot].get();
+        if k == bits {
+            return v;
+        }
+        let v = eval_un(f, a);
+        m[slot].set((bits, v));
+        v
+    })
+    .unwrap_or_else(|_| eval_un(f, a))
+}
+
+macro_rules! memo_helpers {
+    ($($name:ident = $f:ident),* $(,)?) => {
+        $(extern "C" fn $name(a: f64) -> f64 {
+            thread_local! {
+                // Every slot valid from the start: argument 0 and its value.
+                static MEMO: Memo = std::array::from_fn(|_| Cell::new((0, eval_un(UnFn::$f, 0.0))));
+            }
+            memoized(&MEMO, UnFn::$f, a)
+        })*
+    };
+}
+
+memo_helpers!(
     un_exp = Exp,
     un_log = Log,
     un_sin = Sin,
@@ -120,7 +171,6 @@ un_helpers!(
     un_tan = Tan,
     un_atan = Atan,
     un_tanh = Tanh,
-    un_round = Round,
 );
 
 bin_helpers!(

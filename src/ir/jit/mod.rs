@@ -23,7 +23,8 @@
 //! exact), and every other function (`exp`, `sin`, `pow`, `min`,
 //! …) is a call into Rust code that runs the interpreter's own
 //! [`eval_un`](crate::check::dag::eval_un) / [`eval_bin`](crate::check::dag::eval_bin),
-//! so both call the same libm functions. Random draws and matrix blocks
+//! so both call the same libm functions (the unary ones through a small per-thread memo of
+//! their last results: the same argument's bits give the same value). Random draws and matrix blocks
 //! call the interpreter's own helpers too.
 //!
 //! **Safety.** Generated code addresses only the register file, at offsets

@@ -389,6 +389,29 @@ fn looped_code_grows_with_the_rows() {
     assert!(inline >= terms, "{inline} instructions for {terms} terms");
 }
 
+/// The helpers that remember their last results return what the
+/// interpreter computes, to the bit, in any order of arguments: repeated
+/// ones, ones sharing a slot, zero (every slot's first argument), signed
+/// zeros, infinities and NaN payloads.
+#[test]
+fn memoized_functions_return_the_functions_bits() {
+    let mut args: Vec<f64> = SPECIAL.to_vec();
+    args.extend((0..100).map(|k| 0.37 * f64::from(k) - 20.0));
+    args.extend([f64::from_bits(0x7ff8_0000_0000_0001), -f64::NAN, 1e-320]);
+    let mut state = 12345u64;
+    for f in all_un() {
+        let Some(h) = super::helpers::un_helper(f) else {
+            continue;
+        };
+        for _ in 0..2000 {
+            state = state.wrapping_mul(6364136223846793005).wrapping_add(1);
+            let a = args[(state >> 33) as usize % args.len()];
+            let want = crate::check::dag::eval_un(f, a);
+            assert_eq!(h(a).to_bits(), want.to_bits(), "{f:?}({a:e})");
+        }
+    }
+}
+
 /// A register file shorter than the program's is refused, not overrun.
 #[test]
 #[should_panic(expected = "register file")]
