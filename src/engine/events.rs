@@ -71,6 +71,7 @@ pub(crate) const MAX_CONTROL: usize = 8;
 /// The Bernstein control points on `[0, 1]` of the polynomial
 /// `Σ aᵢ τⁱ` (at most [`MAX_CONTROL`] coefficients) into `out`, with a
 /// bound on their rounding error: `bₖ = Σ_{i ≤ k} C(k, i)/C(n, i)·aᵢ`.
+#[inline]
 pub(crate) fn bernstein_points(a: &[f64], out: &mut [f64; MAX_CONTROL]) -> (usize, f64) {
     let n = a.len() - 1;
     // C(k, i)/C(n, i) built up along i: ×(k − i)/(n − i) per step.
