@@ -423,8 +423,9 @@ pub trait HybridSystem {
 
     /// The jump map G_i of rule `rule` at pre-jump state `x` and pre-jump
     /// hybrid time `at` (HyEQ's g(x, t, j)): writes one element of G_i(x)
-    /// into `x_plus`. Set-valued maps draw
-    /// from `rng`, so that a seed reproduces a run exactly.
+    /// into `x_plus`. The engine passes `x_plus` holding a copy of `x`, so
+    /// a map need only write the components it changes. Set-valued maps
+    /// draw from `rng`, so that a seed reproduces a run exactly.
     fn jump_map(
         &self,
         rule: usize,

@@ -1487,7 +1487,7 @@ impl HybridSystem for CompiledModel {
         x_plus: &mut [f64],
     ) {
         let code = &self.rule_code[rule];
-        x_plus.copy_from_slice(x);
+        // `x_plus` holds `x` (the engine's contract): only the targets.
         with_regs(self.nregs, |regs| {
             code.map.run_into(regs, at, x, Some(rng), x_plus);
         });

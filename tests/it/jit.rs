@@ -118,7 +118,8 @@ fn same_programs(name: &str, a: &CompiledModel, b: &CompiledModel, at: HybridTim
             bits(&[b.jump_guard(r, at, x)]),
             "{name}: guard of rule {r} at {at}"
         );
-        let (mut pa, mut pb) = (vec![0.0; n], vec![0.0; n]);
+        // As the engine calls it: the post-jump state starts as `x`.
+        let (mut pa, mut pb) = (x.to_vec(), x.to_vec());
         a.jump_map(r, at, x, &mut SimRng::seed_from(3), &mut pa);
         b.jump_map(r, at, x, &mut SimRng::seed_from(3), &mut pb);
         assert_eq!(bits(&pa), bits(&pb), "{name}: map of rule {r} at {at}");
