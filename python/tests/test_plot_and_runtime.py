@@ -86,8 +86,10 @@ def test_ctrl_c_interrupts_a_run():
     start = time.monotonic()
     timer.start()
     try:
+        # Bounded (~25 s, ~0.7 GB of samples): a missed interrupt fails the
+        # test instead of running until memory is exhausted.
         with pytest.raises(KeyboardInterrupt):
-            m.run(exact_affine=False)
+            m.run(T=2e4, exact_affine=False)
     finally:
         timer.cancel()
     assert time.monotonic() - start < 5.0
