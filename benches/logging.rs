@@ -152,6 +152,11 @@ fn ratios() {
     for (name, model, extra) in [
         ("consensus", "models/consensus_estimation.hyb", &[][..]),
         (
+            "consensus, events with their samples",
+            "models/consensus_estimation.hyb",
+            &["--log-rules", "event"][..],
+        ),
+        (
             "consensus, everything logged",
             "models/consensus_estimation.hyb",
             &["--log-vars", "*", "--log-rules", "*"][..],

@@ -1,5 +1,6 @@
 //! Checking a model's `log { … }` block: which states and outputs (`vars`),
-//! which jump rules (`rules`) and which flow samples (`every`, `dt`)
+//! which jump rules in full (`rules`) or as records only (`marks`) and
+//! which flow samples (`every`, `dt`)
 //! `hybsim run` logs, and how the MCAP file encodes and compresses it
 //! (`encoding`, `compression`, `jump_states`). Without a block every state and output is
 //! logged, and every rule but the noise redraws.
@@ -21,9 +22,13 @@ pub struct LogDecl {
     /// `vars`: the states and outputs logged, as the model names them
     /// (`xh`, `xh[2]`, `e[1,3]`); `None`: all of them.
     pub vars: Option<Vec<String>>,
-    /// Per rule (the model's order): whether its jumps are logged. Default:
-    /// every rule but the redraws of held `noise`.
+    /// Per rule (the model's order): whether its jumps are logged in full
+    /// (pre-jump sample, record, post-jump sample). Default: every rule but
+    /// the redraws of held `noise`.
     pub rules: Vec<bool>,
+    /// `marks`: per rule, whether its jumps are logged as records only
+    /// (never a rule of `rules`). Default: none.
+    pub marks: Vec<bool>,
     /// `every = N`: every N-th flow sample.
     pub every: Option<u64>,
     /// `dt = DT`: flow samples at least DT apart.
@@ -41,6 +46,7 @@ pub struct LogDecl {
 const KEYS: &[&str] = &[
     "vars",
     "rules",
+    "marks",
     "every",
     "dt",
     "encoding",
@@ -53,6 +59,7 @@ const KEYS: &[&str] = &[
 pub(crate) fn check_logs(c: &mut Checker, items: &[Item], rules: &[CheckedRule]) -> LogDecl {
     let mut decl = LogDecl {
         rules: rules.iter().map(|r| !r.redraw).collect(),
+        marks: vec![false; rules.len()],
         ..LogDecl::default()
     };
     let mut first: Option<Span> = None;
@@ -107,6 +114,8 @@ fn check_block(c: &mut Checker, b: &LogBlock, rules: &[CheckedRule], decl: &mut 
         }
         seen.insert(&key.name, key.span);
     }
+    // Where `marks` names each rule it marks.
+    let mut marked_at: Vec<Option<Span>> = vec![None; rules.len()];
     for (key, names) in &b.lists {
         match key.name.as_str() {
             "vars" => {
@@ -122,11 +131,37 @@ fn check_block(c: &mut Checker, b: &LogBlock, rules: &[CheckedRule], decl: &mut 
                 }
                 decl.rules = chosen;
             }
+            "marks" => {
+                for n in names {
+                    for k in rule_indices(c, n, rules) {
+                        decl.marks[k] = true;
+                        marked_at[k].get_or_insert(n.span);
+                    }
+                }
+            }
             other => c.err(CheckError::UnknownSetting {
                 name: other.to_string(),
                 span: key.span,
                 suggestion: suggest(other, KEYS.iter().copied()),
             }),
+        }
+    }
+    // A marked rule is not logged in full: left out of the default `rules`,
+    // an error where `rules` names it too.
+    let explicit_rules = b.lists.iter().any(|(k, _)| k.name == "rules");
+    for (k, span) in marked_at.iter().enumerate() {
+        let Some(span) = *span else { continue };
+        if !explicit_rules {
+            decl.rules[k] = false;
+        } else if decl.rules[k] {
+            c.bad_setting(
+                "marks",
+                format!(
+                    "`{}` is in `rules` too: a rule is logged in full or marked, not both",
+                    rules[k].name
+                ),
+                span,
+            );
         }
     }
     for s in &b.settings {
@@ -155,7 +190,7 @@ fn check_block(c: &mut Checker, b: &LogBlock, rules: &[CheckedRule], decl: &mut 
                 ExprKind::Bool(b) => decl.jump_states = Some(b),
                 _ => bad(c, "write true or false"),
             },
-            "vars" | "rules" => c.err(CheckError::Expected {
+            "vars" | "rules" | "marks" => c.err(CheckError::Expected {
                 expected: format!("a list of names `{key} = [a, b[2]]`"),
                 found: "an expression".into(),
                 span: s.value.span,

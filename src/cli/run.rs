@@ -20,7 +20,7 @@ use hybsim::sinks::mcap::{Compression, Encoding, McapOptions, McapSink};
 use hybsim::sinks::parquet::ParquetSink;
 use hybsim::sinks::plot::{ImageFormat, PlotKind, PlotSink};
 use hybsim::sinks::{
-    Decimation, Fanout, OutputFn, RunInfo, RunOutcome, RunStatus, Tally, rule_name,
+    Decimation, Fanout, OutputFn, RuleLog, RunInfo, RunOutcome, RunStatus, Tally, rule_name,
 };
 use serde_json::{Value, json};
 
@@ -135,6 +135,13 @@ pub struct RunArgs {
     /// noise redraws.
     #[arg(long, value_name = "RULES")]
     pub log_rules: Option<String>,
+    /// Jump rules whose jumps are logged as records only (`/hybsim/jumps`,
+    /// the Parquet jumps table), without their pre- and post-jump samples:
+    /// names as for `--log-rules`. Replaces the model's `log { marks }`; a
+    /// rule it names is not logged in full (naming it in `--log-rules` too
+    /// is an error).
+    #[arg(long, value_name = "RULES")]
+    pub log_marks: Option<String>,
     /// Encoding of the MCAP messages: protobuf (default; Foxglove decodes it
     /// natively) or json. Overrides `log { encoding }`.
     #[arg(long, value_enum, value_name = "ENCODING")]
@@ -852,7 +859,7 @@ pub fn execute(args: RunArgs) -> anyhow::Result<u8> {
         output_layout: model.output_layout().clone(),
         output_dim: model.output_dim(),
         rule_names: model.rule_names(),
-        logged_rules: model.log_decl().rules.clone(),
+        logged_rules: RuleLog::combine(&model.log_decl().rules, &model.log_decl().marks),
         parameters: model.parameters_json(),
         solver: settings_json(&settings),
         design: model.design_json(),
@@ -895,21 +902,50 @@ pub fn execute(args: RunArgs) -> anyhow::Result<u8> {
         }
         None => model.log_decl().vars.clone(),
     };
-    if let Some(list) = &args.log_rules {
+    // `--log-rules` and `--log-marks` replace the block's `rules` and `marks`.
+    let rule_flag = |flag: &str, list: &Option<String>| -> Result<Option<Vec<bool>>, u8> {
+        let Some(list) = list else { return Ok(None) };
         if list.trim() == "*" {
-            info.logged_rules = vec![true; info.rule_names.len()];
-        } else {
-            match select_rules(&split_names(list), &info.rule_names) {
-                Ok(logged) => info.logged_rules = logged,
-                Err(name) => {
-                    eprintln!(
-                        "error: `--log-rules {name}`: no jump rule of the model has that name (rules: {}; a family is `fire` or `fire[i]`, a noise's redraws `v.redraw`)",
-                        info.rule_names.join(", ")
-                    );
-                    return Ok(EXIT_MODEL_ERROR);
-                }
-            }
+            return Ok(Some(vec![true; info.rule_names.len()]));
         }
+        select_rules(&split_names(list), &info.rule_names)
+            .map(Some)
+            .map_err(|name| {
+                eprintln!(
+                    "error: `{flag} {name}`: no jump rule of the model has that name (rules: {}; a family is `fire` or `fire[i]`, a noise's redraws `v.redraw`)",
+                    info.rule_names.join(", ")
+                );
+                EXIT_MODEL_ERROR
+            })
+    };
+    let (full, marks) = match (
+        rule_flag("--log-rules", &args.log_rules),
+        rule_flag("--log-marks", &args.log_marks),
+    ) {
+        (Ok(full), Ok(marks)) => (full, marks),
+        (Err(code), _) | (_, Err(code)) => return Ok(code),
+    };
+    if let (Some(full), Some(marks)) = (&full, &marks)
+        && let Some(k) = (0..full.len()).find(|&k| full[k] && marks[k])
+    {
+        eprintln!(
+            "error: `{}` is in both `--log-rules` and `--log-marks`: a rule is logged in full or marked, not both",
+            info.rule_names[k]
+        );
+        return Ok(EXIT_MODEL_ERROR);
+    }
+    if full.is_some() || marks.is_some() {
+        let decl = model.log_decl();
+        let marks = marks.unwrap_or_else(|| decl.marks.clone());
+        // Flags win over the block: rules the flag marks leave the block's `rules`.
+        let full = full.unwrap_or_else(|| {
+            let mut full = decl.rules.clone();
+            if args.log_marks.is_some() {
+                full.iter_mut().zip(&marks).for_each(|(f, &m)| *f &= !m);
+            }
+            full
+        });
+        info.logged_rules = RuleLog::combine(&full, &marks);
     }
     for report in model.design_reports() {
         eprintln!("{}", report.summary_line());

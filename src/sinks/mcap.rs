@@ -7,7 +7,7 @@
 //!
 //! | record | content |
 //! |---|---|
-//! | metadata `hybsim.run` | `version`, `model` (path), `model_name`, `model_sha256`, `imports` (JSON `[{path, sha256}]` of the imported files), `tables` (JSON `[{path, sha256}]` of the files read by `table("…")`), `seed`, `state_names`, `output_names`, `rule_names`, `argv` (JSON arrays), `decimation`, `encoding`, `jump_states`, `blas_threads` (OpenBLAS threads, 1), `threads` (rayon's worker threads) |
+//! | metadata `hybsim.run` | `version`, `model` (path), `model_name`, `model_sha256`, `imports` (JSON `[{path, sha256}]` of the imported files), `tables` (JSON `[{path, sha256}]` of the files read by `table("…")`), `seed`, `state_names`, `output_names`, `rule_names`, `logged_rules` (logged in full), `marked_rules` (records only), `argv` (JSON arrays), `decimation`, `encoding`, `jump_states`, `blas_threads` (OpenBLAS threads, 1), `threads` (rayon's worker threads) |
 //! | metadata `hybsim.parameters` | one entry per resolved parameter (JSON value) |
 //! | metadata `hybsim.solver` | one entry per setting (JSON value) |
 //! | metadata `hybsim.design` | design results, when the model has design blocks |
@@ -280,6 +280,10 @@ impl<'a> McapSink<'a> {
                 "logged_rules",
                 Value::String(json!(info.logged_rule_names()).to_string()),
             ),
+            (
+                "marked_rules",
+                Value::String(json!(info.marked_rule_names()).to_string()),
+            ),
             ("argv", Value::String(json!(info.argv).to_string())),
             (
                 "decimation",
@@ -327,6 +331,7 @@ impl<'a> McapSink<'a> {
             "outputs": {"dim": info.output_dim, "layout": info.output_layout, "names": output_names},
             "rules": info.rule_names,
             "logged_rules": info.logged_rule_names(),
+            "marked_rules": info.marked_rule_names(),
         });
         let description =
             serde_json::to_vec_pretty(&description).expect("a JSON value always serializes");

@@ -9,9 +9,9 @@ use std::collections::BTreeMap;
 
 use serde_json::Value;
 
-use super::RunInfo;
 use super::json::RecordReader;
 use super::mcap::{OUTPUTS_TOPIC, STATE_TOPIC};
+use super::{RuleLog, RunInfo};
 use crate::arc::{HybridTime, SampleKind};
 use crate::layout::Layout;
 
@@ -394,7 +394,13 @@ fn run_info(run: &Value) -> Result<RunInfo, String> {
     info.state_dim = state_dim;
     info.output_layout = output_layout;
     info.output_dim = output_dim;
-    info.logged_rules = rules.iter().map(|r| logged.contains(r)).collect();
+    // Files written before marks existed have no `marked_rules`.
+    let marked: Vec<String> =
+        serde_json::from_value(run["marked_rules"].clone()).unwrap_or_default();
+    info.logged_rules = RuleLog::combine(
+        &rules.iter().map(|r| logged.contains(r)).collect::<Vec<_>>(),
+        &rules.iter().map(|r| marked.contains(r)).collect::<Vec<_>>(),
+    );
     info.parameters = run["parameters"].clone();
     info.solver = run["solver"].clone();
     info.argv = serde_json::from_value(run["argv"].clone()).unwrap_or_default();

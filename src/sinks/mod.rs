@@ -319,12 +319,13 @@ pub struct RunInfo {
     pub output_dim: usize,
     /// Names of the jump rules, in the system's order.
     pub rule_names: Vec<String>,
-    /// Per rule (the system's order), whether its jumps are logged; rules
-    /// past the end are. A jump in which no logged rule fires leaves no jump
-    /// record, and of its two samples only the pre-jump one, as a flow
-    /// sample (see [`LogFilter`]). `hybsim run` leaves the noise redraws
-    /// out unless a `log` block or `--log-rules` asks for them.
-    pub logged_rules: Vec<bool>,
+    /// Per rule (the system's order), how its jumps are logged ([`RuleLog`]);
+    /// rules past the end are logged in full. A jump in which no rule logged
+    /// in full fires leaves, of its two samples, only the pre-jump one, as a
+    /// flow sample (see [`LogFilter`]). `hybsim run` leaves the noise
+    /// redraws out unless a `log` block or `--log-rules`/`--log-marks` asks
+    /// for them.
+    pub logged_rules: Vec<RuleLog>,
     /// Resolved parameters (after overrides), name → value.
     pub parameters: serde_json::Value,
     /// Simulation settings (horizons, solver, tolerances, priority).
@@ -352,7 +353,7 @@ impl RunInfo {
             output_layout: Layout::default(),
             output_dim: 0,
             rule_names: rule_names.iter().map(|s| s.as_ref().to_string()).collect(),
-            logged_rules: vec![true; rule_names.len()],
+            logged_rules: vec![RuleLog::Full; rule_names.len()],
             parameters: serde_json::Value::Object(Default::default()),
             solver: serde_json::Value::Object(Default::default()),
             design: None,
@@ -377,12 +378,29 @@ impl RunInfo {
         (info, unknown)
     }
 
-    /// Names of the rules whose jumps are logged.
+    /// How the jumps of rule `rule` are logged.
+    pub fn rule_log(&self, rule: usize) -> RuleLog {
+        self.logged_rules
+            .get(rule)
+            .copied()
+            .unwrap_or(RuleLog::Full)
+    }
+
+    /// Names of the rules whose jumps are logged in full.
     pub fn logged_rule_names(&self) -> Vec<&str> {
+        self.rule_names_logged(RuleLog::Full)
+    }
+
+    /// Names of the rules whose jumps are logged as records only.
+    pub fn marked_rule_names(&self) -> Vec<&str> {
+        self.rule_names_logged(RuleLog::Mark)
+    }
+
+    fn rule_names_logged(&self, how: RuleLog) -> Vec<&str> {
         self.rule_names
             .iter()
             .enumerate()
-            .filter(|(k, _)| self.logged_rules.get(*k).copied().unwrap_or(true))
+            .filter(|(k, _)| self.rule_log(*k) == how)
             .map(|(_, n)| n.as_str())
             .collect()
     }
@@ -545,17 +563,51 @@ impl Decimator {
     }
 }
 
+/// How a file sink logs the jumps of one rule ([`RunInfo::logged_rules`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum RuleLog {
+    /// Not at all: no jump record, and of the jump's two samples only the
+    /// pre-jump one, as a flow sample (subject to decimation).
+    Off,
+    /// The jump record alone (MCAP `/hybsim/jumps`, the Parquet jumps
+    /// table), the samples as for [`Off`](Self::Off): the times of many
+    /// events at a few dozen bytes each.
+    Mark,
+    /// The pre-jump sample, the jump record and the post-jump sample.
+    Full,
+}
+
+impl RuleLog {
+    /// Per rule: `Full` where `full` says so, else `Mark` where `marked`
+    /// does, else `Off`.
+    pub fn combine(full: &[bool], marked: &[bool]) -> Vec<RuleLog> {
+        full.iter()
+            .enumerate()
+            .map(
+                |(k, &f)| match (f, marked.get(k).copied().unwrap_or(false)) {
+                    (true, _) => RuleLog::Full,
+                    (false, true) => RuleLog::Mark,
+                    (false, false) => RuleLog::Off,
+                },
+            )
+            .collect()
+    }
+}
+
 /// What of a run a file sink writes: the samples its [`Decimation`] keeps,
 /// and the jumps of the rules it logs ([`RunInfo::logged_rules`]).
 ///
 /// The engine sends a pre-jump sample, one jump record per firing rule,
 /// then the post-jump sample; the filter holds the pre-jump sample until
-/// the rules are known. A jump in which a logged rule fires is written as
-/// usual (pre-jump sample, the records of its logged rules, post-jump
-/// sample). Any other jump is invisible in the log: no record, its
-/// pre-jump sample becomes a flow sample (subject to decimation) and its
-/// post-jump sample is dropped, so that e.g. a noise redraw at every
-/// integrator step costs one sample, not three records.
+/// the rules are known. A jump in which a rule logged in full
+/// ([`RuleLog::Full`]) fires is written as usual (pre-jump sample, the
+/// records of its logged and marked rules, post-jump sample). In any other
+/// jump the samples are invisible: the pre-jump sample becomes a flow
+/// sample (subject to decimation) and the post-jump sample is dropped, so
+/// that e.g. a noise redraw at every integrator step costs one sample, not
+/// three records; a marked rule ([`RuleLog::Mark`]) leaves its record
+/// alone (before that flow sample, at the same time).
 ///
 /// A held sample's values are copied only when the decimation would keep
 /// it as a flow sample: a logged jump's pre-jump sample is written from the
@@ -565,15 +617,15 @@ impl Decimator {
 #[derive(Debug, Clone)]
 pub struct LogFilter {
     decimator: Decimator,
-    logged: Vec<bool>,
-    /// Some rule is not logged (otherwise no sample is held).
+    logged: Vec<RuleLog>,
+    /// Some rule is not logged in full (otherwise no sample is held).
     filtering: bool,
     /// The held pre-jump sample, until the jump is known.
     held_at: Option<HybridTime>,
     /// Its values, if copied.
     held: Vec<f64>,
     copied: bool,
-    /// A logged rule fired in the current jump.
+    /// A rule logged in full fired in the current jump.
     visible: bool,
 }
 
@@ -591,13 +643,13 @@ pub enum Route {
 }
 
 impl LogFilter {
-    /// A filter for the rules logged per `logged` (rules past the end are)
-    /// and the samples `decimation` keeps.
-    pub fn new(logged: &[bool], decimation: Decimation) -> Self {
+    /// A filter for the rules logged per `logged` (rules past the end are
+    /// logged in full) and the samples `decimation` keeps.
+    pub fn new(logged: &[RuleLog], decimation: Decimation) -> Self {
         Self {
             decimator: Decimator::new(decimation),
             logged: logged.to_vec(),
-            filtering: logged.iter().any(|l| !l),
+            filtering: logged.iter().any(|&l| l != RuleLog::Full),
             held_at: None,
             held: Vec::new(),
             copied: false,
@@ -605,9 +657,9 @@ impl LogFilter {
         }
     }
 
-    /// Whether jumps of rule `rule` are logged.
-    pub fn logs(&self, rule: usize) -> bool {
-        self.logged.get(rule).copied().unwrap_or(true)
+    /// How jumps of rule `rule` are logged.
+    pub fn logs(&self, rule: usize) -> RuleLog {
+        self.logged.get(rule).copied().unwrap_or(RuleLog::Full)
     }
 
     /// Routes one sample of the run: what the sink writes now.
@@ -650,17 +702,20 @@ impl LogFilter {
     /// Routes one jump record of rule `rule`: whether the record is logged,
     /// and the time of the held pre-jump sample when the sink must write it
     /// first, as a pre-jump sample with the jump's pre-jump state (the
-    /// first logged rule of this jump).
+    /// first rule of this jump logged in full).
     pub fn route_jump(&mut self, rule: usize) -> (bool, Option<HybridTime>) {
         if !self.filtering {
             return (true, None);
         }
-        if !self.logs(rule) {
-            return (false, None);
+        match self.logs(rule) {
+            RuleLog::Off => (false, None),
+            RuleLog::Mark => (true, None),
+            RuleLog::Full => {
+                let flush = self.held_at.filter(|_| !self.visible);
+                self.visible = true;
+                (true, flush)
+            }
         }
-        let flush = self.held_at.filter(|_| !self.visible);
-        self.visible = true;
-        (true, flush)
     }
 
     /// The held sample's values, for [`Route::Held`]; give them back with

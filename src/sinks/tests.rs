@@ -175,7 +175,7 @@ fn numbers_are_written_in_shortest_round_trip_form() {
 #[test]
 fn log_filter_hides_jumps_of_unlogged_rules() {
     // Rule 0 logged, rule 1 (a redraw) not.
-    let mut f = LogFilter::new(&[true, false], Decimation::all());
+    let mut f = LogFilter::new(&[RuleLog::Full, RuleLog::Off], Decimation::all());
     let (at, post) = (HybridTime::new(1.0, 0), HybridTime::new(1.0, 1));
     // A jump of rule 1 alone: nothing written until the post-jump sample,
     // then the held pre-jump sample as a flow sample.
@@ -209,7 +209,7 @@ fn log_filter_hides_jumps_of_unlogged_rules() {
     );
     assert_eq!(f.take_unfinished(), Some((at, vec![5.0, 6.0])));
     // Without unlogged rules nothing is held.
-    let mut all = LogFilter::new(&[true, true], Decimation::all());
+    let mut all = LogFilter::new(&[RuleLog::Full, RuleLog::Full], Decimation::all());
     assert_eq!(
         all.route_sample(at, &[1.0], SampleKind::PreJump),
         Route::Sample(SampleKind::PreJump)
@@ -222,10 +222,73 @@ fn log_filter_hides_jumps_of_unlogged_rules() {
 }
 
 #[test]
+fn log_filter_writes_a_marked_rules_record_without_its_samples() {
+    // Rule 0 logged in full, rule 1 marked, rule 2 off.
+    let mut f = LogFilter::new(
+        &[RuleLog::Full, RuleLog::Mark, RuleLog::Off],
+        Decimation::all(),
+    );
+    let (at, post) = (HybridTime::new(1.0, 0), HybridTime::new(1.0, 1));
+    // A marked jump alone: its record, no pre-jump sample before it; the
+    // held pre-jump sample becomes a flow sample, the post-jump one is
+    // dropped.
+    assert_eq!(
+        f.route_sample(at, &[1.0, 2.0], SampleKind::PreJump),
+        Route::Nothing
+    );
+    assert_eq!(f.route_jump(2), (false, None));
+    assert_eq!(f.route_jump(1), (true, None));
+    assert_eq!(
+        f.route_sample(post, &[0.0, 0.0], SampleKind::PostJump),
+        Route::Held(at)
+    );
+    assert_eq!(f.take_held(), [1.0, 2.0]);
+    // With a rule logged in full in the same jump, the jump is written as
+    // usual, the marked rule's record among the others.
+    let post2 = HybridTime::new(1.0, 2);
+    assert_eq!(
+        f.route_sample(post, &[3.0, 4.0], SampleKind::PreJump),
+        Route::Nothing
+    );
+    assert_eq!(f.route_jump(0), (true, Some(post)));
+    assert_eq!(f.route_jump(1), (true, None));
+    assert_eq!(
+        f.route_sample(post2, &[5.0, 6.0], SampleKind::PostJump),
+        Route::Sample(SampleKind::PostJump)
+    );
+    // Marks alone (nothing off) still hold samples.
+    let mut m = LogFilter::new(&[RuleLog::Mark], Decimation::all());
+    assert_eq!(
+        m.route_sample(at, &[1.0], SampleKind::PreJump),
+        Route::Nothing
+    );
+    assert_eq!(m.route_jump(0), (true, None));
+    assert_eq!(
+        m.route_sample(post, &[2.0], SampleKind::PostJump),
+        Route::Held(at)
+    );
+}
+
+#[test]
+fn rule_logs_combine_full_before_marks() {
+    assert_eq!(
+        RuleLog::combine(&[true, false, false, true], &[true, true, false, false]),
+        [RuleLog::Full, RuleLog::Mark, RuleLog::Off, RuleLog::Full]
+    );
+    let mut info = RunInfo::new("m", &["x"], &["a", "b", "c"]);
+    info.logged_rules = vec![RuleLog::Mark, RuleLog::Full];
+    assert_eq!(info.logged_rule_names(), ["b", "c"]);
+    assert_eq!(info.marked_rule_names(), ["a"]);
+}
+
+#[test]
 fn log_filter_copies_a_held_sample_only_if_the_decimation_keeps_it() {
     // Flow samples at most every 0.5: redraws every 0.2 give one flow
     // sample in three.
-    let mut f = LogFilter::new(&[true, false], Decimation::all().dt(Some(0.5)));
+    let mut f = LogFilter::new(
+        &[RuleLog::Full, RuleLog::Off],
+        Decimation::all().dt(Some(0.5)),
+    );
     let start = HybridTime::new(0.0, 0);
     assert_eq!(
         f.route_sample(start, &[0.0], SampleKind::Initial),

@@ -234,6 +234,12 @@ fn unknown_names_are_located_errors_in_the_block_and_usage_errors_in_flags() {
         ("log { encoding = yaml }\n", "protobuf or json", "E0506"),
         ("log { compression = 3 }\n", "lz4, zstd or none", "E0506"),
         ("log { jump_states = 1 }\n", "true or false", "E0506"),
+        (
+            "log { rules = [fire]; marks = [fire[2]] }\n",
+            "`fire[2]` is in `rules` too",
+            "E0506",
+        ),
+        ("log { marks = [fir] }\n", "unknown name `fir`", "E0201"),
     ];
     for (block, message, detail) in cases {
         let model = write_model(dir.path(), block);
@@ -257,6 +263,7 @@ fn unknown_names_are_located_errors_in_the_block_and_usage_errors_in_flags() {
         ("--log-vars", "xh[3]"),
         ("--log-rules", "fire,nope"),
         ("--log-rules", "fire[9]"),
+        ("--log-marks", "nope"),
     ] {
         let o = hybsim(
             dir.path(),
@@ -266,6 +273,102 @@ fn unknown_names_are_located_errors_in_the_block_and_usage_errors_in_flags() {
         assert!(stderr(&o).contains(&format!("`{flag} ")), "{}", stderr(&o));
         assert!(!dir.path().join("x.mcap").exists());
     }
+}
+
+/// A marked rule's jumps leave their records alone: no pre- or post-jump
+/// sample in MCAP, CSV or Parquet, the records on `/hybsim/jumps` and in the
+/// Parquet jumps table; from the block or from `--log-marks`, and a rule
+/// logged in full keeps its samples beside it.
+#[test]
+fn marked_rules_leave_records_without_samples() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let kinds = |csv: &str, kind: &str| {
+        csv.lines()
+            .skip(1)
+            .filter(|l| l.split(',').nth(2) == Some(kind))
+            .count()
+    };
+    for (extra, args) in [
+        ("log { marks = [fire] }\n", &[][..]),
+        ("", &["--log-marks", "fire"][..]),
+        ("log { rules = [fire] }\n", &["--log-marks", "fire"][..]),
+    ] {
+        let model = write_model(d, extra);
+        let (bytes, csv) = run(d, &model, &[args, &["--parquet", "out.parquet"]].concat());
+        let (topics, _) = messages(&bytes);
+        let jumps = result_jumps(&bytes);
+        let fires = jumps["fire[1]"] + jumps["fire[2]"];
+        assert!(fires >= 2, "{extra}{args:?}: {jumps:?}");
+        let logged = rules_of(&topics);
+        assert_eq!(logged.values().sum::<usize>() as u64, fires, "{logged:?}");
+        assert!(!logged.contains_key("v.redraw"));
+        assert_eq!(
+            kinds(&csv, "pre_jump") + kinds(&csv, "post_jump"),
+            0,
+            "{extra}{args:?}"
+        );
+        // Every sample is a flow sample (or the first or last), one per hybrid time.
+        let states = &topics["/hybsim/state"];
+        let times: Vec<(u64, u64)> = states
+            .iter()
+            .map(|m| (m["t"].as_f64().unwrap().to_bits(), m["j"].as_u64().unwrap()))
+            .collect();
+        let mut distinct = times.clone();
+        distinct.dedup();
+        assert_eq!(distinct, times);
+        assert_eq!(kinds(&csv, "flow") + 2, states.len());
+        // The Parquet jumps table has the records.
+        use parquet::file::reader::{FileReader, SerializedFileReader};
+        let table = std::fs::File::open(d.join("out.jumps.parquet")).unwrap();
+        let table = SerializedFileReader::new(table).unwrap();
+        assert_eq!(table.metadata().file_metadata().num_rows() as u64, fires);
+        let o = hybsim(d, &["info", "out.mcap"]);
+        assert_eq!(code(&o), 0, "{}", stderr(&o));
+        let run_meta = mcap::Summary::read(&bytes).unwrap().unwrap();
+        let run_json = run_meta
+            .metadata_indexes
+            .iter()
+            .map(|i| mcap::read::metadata(&bytes, i).unwrap())
+            .find(|m| m.name == "hybsim.run")
+            .unwrap();
+        assert_eq!(
+            run_json.metadata["marked_rules"],
+            r#"["fire[1]","fire[2]"]"#
+        );
+        assert_eq!(run_json.metadata["logged_rules"], "[]");
+    }
+    // `--log-rules` wins over the block's marks; one rule in both flags is
+    // a usage error.
+    let model = write_model(d, "log { marks = [fire] }\n");
+    let (bytes, csv) = run(d, &model, &["--log-rules", "fire[1]"]);
+    let jumps = result_jumps(&bytes);
+    assert_eq!(kinds(&csv, "post_jump") as u64, jumps["fire[1]"]);
+    assert_eq!(
+        rules_of(&messages(&bytes).0).values().sum::<usize>() as u64,
+        jumps["fire[1]"] + jumps["fire[2]"]
+    );
+    let o = hybsim(
+        d,
+        &[
+            "run",
+            &model,
+            "-o",
+            "y.mcap",
+            "-q",
+            "--log-rules",
+            "fire",
+            "--log-marks",
+            "fire[2]",
+        ],
+    );
+    assert_eq!(code(&o), 2, "{}", stderr(&o));
+    assert!(
+        stderr(&o).contains("`fire[2]` is in both"),
+        "{}",
+        stderr(&o)
+    );
+    assert!(!d.join("y.mcap").exists());
 }
 
 /// The numbers of one JSON text in order, as written (strings skipped),

@@ -101,9 +101,10 @@ fn parquet_holds_the_csv_values_bit_for_bit_and_the_jumps() {
             vec!["--T", "0.6", "--log-vars", "x,xhat[2],e,enorm"],
             vec![],
         ),
+        // Its events in full (its `log` block marks them).
         (
             "consensus_estimation.hyb",
-            vec!["--T", "0.3", "--log-every", "3"],
+            vec!["--T", "0.3", "--log-every", "3", "--log-rules", "event"],
             vec![],
         ),
     ] {

@@ -9,7 +9,7 @@ use hybsim::sinks::csv::CsvSink;
 use hybsim::sinks::mcap::{Encoding, McapOptions, McapSink};
 use hybsim::sinks::mcap_read::MessageDecoder;
 use hybsim::sinks::plot::PlotSink;
-use hybsim::sinks::{Decimation, Fanout, RunInfo, RunOutcome, RunStatus, SinkError};
+use hybsim::sinks::{Decimation, Fanout, RuleLog, RunInfo, RunOutcome, RunStatus, SinkError};
 use mcap::records::Record;
 use serde_json::{Value, json};
 
@@ -899,7 +899,7 @@ fn post_jump_outputs_are_updates_by_the_rules_that_fired() {
     let mut info = RunInfo::new("ball", &["h", "v"], &["impact", "redraw"]);
     info.output_layout = Layout::scalars(&["E"]);
     info.output_dim = 1;
-    info.logged_rules = vec![true, false];
+    info.logged_rules = vec![RuleLog::Full, RuleLog::Off];
     let dir = tempfile::tempdir().unwrap();
     let paths = [dir.path().join("a.mcap"), dir.path().join("b.csv")];
     let (mcap_asked, csv_asked) = (Asked::default(), Asked::default());
