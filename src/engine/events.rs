@@ -900,35 +900,60 @@ impl Watcher {
         self.relaxed = 0;
         for (i, ws) in self.sets.iter_mut().enumerate() {
             let is_flow = self.flow == Some(i);
-            let mut vals = std::mem::take(&mut ws.vs);
             match self.flat_off[i] {
                 Some(off) if self.flat_ok => {
-                    let len = vals.len();
-                    vals.copy_from_slice(&self.flat[off..off + len]);
+                    let len = ws.vs.len();
+                    ws.vs.copy_from_slice(&self.flat[off..off + len]);
                 }
-                _ => atom_values(sys, ws, at, x, false, &mut vals),
+                _ => {
+                    let mut vals = std::mem::take(&mut ws.vs);
+                    atom_values(sys, ws, at, x, false, &mut vals);
+                    ws.vs = vals;
+                }
             }
-            let atoms = ws.spec.as_ref().map(|s| &s.atoms[..]);
-            for (k, &g) in vals.iter().enumerate() {
-                let cmp = atoms.map_or(Cmp::Ge, |a| a[k].cmp);
-                let holds = cmp.holds(g);
-                // Relaxed: C's atoms that hold only within set_tol (and
-                // then hold within their relaxation).
-                let relaxed = is_flow && !holds && cmp.holds_within(g, set_tol);
-                ws.relax[k] = if relaxed { set_tol } else { 0.0 };
-                self.relaxed += usize::from(relaxed);
-                ws.start_truth[k] = holds || relaxed;
+            // The atoms' truth, and as bits the truth table's index (a
+            // table covers at most `TruthTable::MAX_ATOMS` atoms).
+            let mut mask = 0u32;
+            match &ws.spec {
+                // A jump set's atoms are never relaxed (`relax` stays 0):
+                // one pass of comparisons, the per-segment common case.
+                Some(spec) if !is_flow => {
+                    let atoms = spec.atoms.iter().zip(&ws.vs).zip(&mut ws.start_truth);
+                    for (k, ((a, &g), truth)) in atoms.enumerate() {
+                        let holds = a.cmp.holds(g);
+                        *truth = holds;
+                        if k < TruthTable::MAX_ATOMS {
+                            mask |= u32::from(holds) << k;
+                        }
+                    }
+                }
+                _ => {
+                    let atoms = ws.spec.as_ref().map(|s| &s.atoms[..]);
+                    for (k, &g) in ws.vs.iter().enumerate() {
+                        let cmp = atoms.map_or(Cmp::Ge, |a| a[k].cmp);
+                        let holds = cmp.holds(g);
+                        // Relaxed: C's atoms that hold only within set_tol
+                        // (and then hold within their relaxation).
+                        let relaxed = is_flow && !holds && cmp.holds_within(g, set_tol);
+                        ws.relax[k] = if relaxed { set_tol } else { 0.0 };
+                        self.relaxed += usize::from(relaxed);
+                        ws.start_truth[k] = holds || relaxed;
+                        if k < TruthTable::MAX_ATOMS {
+                            mask |= u32::from(holds || relaxed) << k;
+                        }
+                    }
+                }
             }
-            ws.vs = vals;
             ws.cur = match (&ws.spec, ws.set) {
-                (Some(spec), _) => set_value(spec, ws.table, |k| ws.start_truth[k]),
+                // The engine flows only from points of C (within set_tol).
+                _ if is_flow => true,
+                (Some(spec), _) => match ws.table {
+                    Some(t) => t.value(mask),
+                    None => spec.expr.eval_with(&|k| ws.start_truth[k]),
+                },
                 (None, SetRef::Jump(r)) => sys.jump_set(r, at, x),
                 (None, SetRef::Flow) => true,
             };
-            if is_flow {
-                // The engine flows only from points of C (within set_tol).
-                ws.cur = true;
-            }
         }
         let near = set_tol.max(f64::MIN_POSITIVE);
         self.near_start = false;
