@@ -634,9 +634,11 @@ pub(crate) struct Watcher {
     /// Whether every event source has its atoms in that layout (a
     /// checkpoint's values are then read per watched atom).
     flat_watched: bool,
-    /// Whether `flat` already holds every set's atoms at the point the
-    /// next [`start`](Self::start) starts from ([`prefetch`](Self::prefetch)).
-    prefetched: bool,
+    /// The point at which `flat` already holds every set's atoms, if the
+    /// next [`start`](Self::start) may start from it
+    /// ([`prefetch`](Self::prefetch), [`prefetch_sets`](Self::prefetch_sets)):
+    /// a jump moves to another point (j + 1), a start takes them.
+    prefetched: Option<HybridTime>,
     /// The state at the last event found by [`Watcher::scan`] (the
     /// post-change end of its bracket).
     pub event_state: Vec<f64>,
@@ -763,7 +765,7 @@ impl Watcher {
             flat_ok: false,
             flat_checks,
             flat_watched,
-            prefetched: false,
+            prefetched: None,
             cls: vec![0; watched.len()],
             cls_s: vec![0; watched.len()],
             form_pts: vec![None; watched.len()],
@@ -894,7 +896,7 @@ impl Watcher {
             return;
         }
         let set_tol = self.set_tol;
-        if !std::mem::take(&mut self.prefetched) {
+        if std::mem::take(&mut self.prefetched) != Some(at) {
             self.flat_ok = sys.all_atom_values(at, x, false, &mut self.flat);
         }
         self.relaxed = 0;
@@ -984,10 +986,43 @@ impl Watcher {
         }
         let fi = self.flow?;
         let off = self.flat_off[fi]?;
-        self.flat_ok = sys.all_atom_values(at, x, false, &mut self.flat);
-        self.prefetched = self.flat_ok;
+        if self.prefetched != Some(at) {
+            self.flat_ok = sys.all_atom_values(at, x, false, &mut self.flat);
+            self.prefetched = self.flat_ok.then_some(at);
+        }
         let len = self.sets[fi].vs.len();
         self.flat_ok.then(|| &self.flat[off..off + len])
+    }
+
+    /// Every rule's jump set at (`at`, `x`) into `inside`, with every set's
+    /// atoms in the same evaluation
+    /// ([`HybridSystem::jump_sets_and_atoms`]) kept for a
+    /// [`prefetch`](Self::prefetch) or [`start`](Self::start) from that
+    /// point: the engine's choice between flowing and jumping and the
+    /// segment's start share one evaluation. `false` (nothing evaluated):
+    /// the start evaluates nothing, or the system has no such evaluation.
+    pub fn prefetch_sets<S: HybridSystem + ?Sized>(
+        &mut self,
+        sys: &S,
+        at: HybridTime,
+        x: &[f64],
+        inside: &mut [bool],
+    ) -> bool {
+        if (self.watched.is_empty() && self.timers.is_empty())
+            || !sys.jump_sets_and_atoms(at, x, inside, &mut self.flat)
+        {
+            return false;
+        }
+        self.flat_ok = true;
+        self.prefetched = Some(at);
+        true
+    }
+
+    /// Drops the atoms of [`prefetch_sets`](Self::prefetch_sets) (their
+    /// evaluation reported a fault: evaluated again where needed, the fault
+    /// is reported again there).
+    pub fn forget_prefetch(&mut self) {
+        self.prefetched = None;
     }
 
     /// Sign classes of the watched atoms at (t, x) into `cls_s`, with the

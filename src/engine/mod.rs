@@ -80,7 +80,10 @@
 //!   early points in the first step when the segment starts within
 //!   `set_tol` of an atom's zero; a system
 //!   that offers [`HybridSystem::all_atom_values`] gives all sets' atoms of
-//!   a checkpoint in one call, sharing what the sets have in common). Each sign
+//!   a checkpoint in one call, sharing what the sets have in common; one
+//!   that offers [`HybridSystem::jump_sets_and_atoms`] gives, where the
+//!   engine chooses between flowing and jumping, the jump sets and the
+//!   atoms a segment started there reads in one evaluation). Each sign
 //!   change is bracketed and shrunk to [`event_tol`](SimSettings::event_tol)
 //!   (default: 4 ulp of t) around the *first point where the
 //!   sign differs*. The candidates are examined in time order; at each one

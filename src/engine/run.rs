@@ -6,7 +6,7 @@ use std::collections::VecDeque;
 use super::HybridSystem;
 use super::clock::TimeSum;
 use super::error::SimError;
-use super::events::{EventKind, FlowSetTest};
+use super::events::{EventKind, FlowSetTest, Watcher};
 use super::flow::{Affine, EndWhy, Flows, Method, Output, check_finite, check_jump_finite};
 use super::settings::{ExactAffine, Priority, SimSettings, Solver};
 use super::system::{FlowStructure, GuardKind, SimRng, SystemFault};
@@ -283,7 +283,7 @@ pub fn simulate<S: HybridSystem + ?Sized>(
         if j >= settings.horizon_j {
             return finish(&mut out, at, &x, TerminationCause::HorizonJ);
         }
-        let enabled = first_enabled(sys, at, &x, pending, &mut inside);
+        let enabled = first_enabled(sys, at, &x, pending, &mut inside, &mut flows.watcher);
         pending = None;
         let after_event = std::mem::take(&mut from_event);
         let left_flow_set = std::mem::take(&mut cannot_flow);
@@ -474,7 +474,8 @@ pub fn simulate<S: HybridSystem + ?Sized>(
 /// `pending` (a rule known to hold: a timer on its threshold, a localized
 /// event) counting as holding. With a pending rule, the rules before it are
 /// asked one by one (none, for the first rule: a noise redraw); otherwise
-/// all sets at once if the system offers it (`inside` its scratch), else,
+/// all sets at once if the system offers it (`inside` its scratch; with
+/// the atoms a flow segment started here reads, kept by `watcher`), else,
 /// or if that evaluation reported a fault, rule by rule.
 fn first_enabled<S: HybridSystem + ?Sized>(
     sys: &S,
@@ -482,14 +483,18 @@ fn first_enabled<S: HybridSystem + ?Sized>(
     x: &[f64],
     pending: Option<usize>,
     inside: &mut [bool],
+    watcher: &mut Watcher,
 ) -> Option<usize> {
     if let Some(p) = pending {
         return (0..p).find(|&r| sys.jump_set(r, at, x)).or(Some(p));
     }
     // On a fault, a set after the first enabled one may be what failed.
-    if sys.jump_sets(at, x, inside) && sys.take_fault().is_none() {
+    if (watcher.prefetch_sets(sys, at, x, inside) || sys.jump_sets(at, x, inside))
+        && sys.take_fault().is_none()
+    {
         return (0..inside.len()).find(|&r| inside[r]);
     }
+    watcher.forget_prefetch();
     (0..inside.len()).find(|&r| sys.jump_set(r, at, x))
 }
 

@@ -523,6 +523,26 @@ pub trait HybridSystem {
         false
     }
 
+    /// [`jump_sets`](Self::jump_sets) and [`all_atom_values`](Self::all_atom_values)
+    /// (all atoms) at one point in one evaluation: each rule's membership
+    /// into `inside`, every set's atoms into `atoms` in `all_atom_values`'
+    /// layout, and `true`; or `false` (the default: nothing written) to have
+    /// the engine make the two calls. The engine asks where it chooses
+    /// between flowing and jumping and would start a flow segment from the
+    /// point if no rule is enabled: a system whose sets share
+    /// subexpressions computes them once for both. The results must equal
+    /// the two calls' to the last bit; a fault is handled as for
+    /// `jump_sets`.
+    fn jump_sets_and_atoms(
+        &self,
+        _at: HybridTime,
+        _x: &[f64],
+        _inside: &mut [bool],
+        _atoms: &mut [f64],
+    ) -> bool {
+        false
+    }
+
     /// Structure of the flow map; [`FlowStructure::General`] by default.
     fn flow_structure(&self) -> FlowStructure {
         FlowStructure::General

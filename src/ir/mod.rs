@@ -175,6 +175,9 @@ struct AllAtoms {
     /// Each jump rule's condition, in rule order (the engine's choice of
     /// the rule to fire at a point, the five triggers' shared terms once).
     conds: Program,
+    /// `all`'s outputs, then `conds`': the choice and the atoms a flow
+    /// segment from the point starts with, in one run.
+    sets: Program,
 }
 
 impl AllAtoms {
@@ -186,6 +189,7 @@ impl AllAtoms {
     ) -> Self {
         let (mut all, mut flowing, mut flowing_pos) = (Vec::new(), Vec::new(), Vec::new());
         let conds: Vec<NodeId> = rules.iter().map(|rc| rc.set.cond_node).collect();
+        let mut joint = Vec::new();
         for code in sets {
             let off = all.len();
             all.extend_from_slice(&code.nodes);
@@ -194,7 +198,10 @@ impl AllAtoms {
                 flowing_pos.push(off + k);
             }
         }
+        joint.extend_from_slice(&all);
+        joint.extend_from_slice(&conds);
         AllAtoms {
+            sets: Program::compile(dag, frame, &joint),
             all: Program::compile(dag, frame, &all).into_buffer(),
             flowing: Program::compile(dag, frame, &flowing).scatter_to(&flowing_pos),
             conds: Program::compile(dag, frame, &conds),
@@ -520,6 +527,7 @@ impl CompiledModel {
             &atoms.all,
             &atoms.flowing,
             &atoms.conds,
+            &atoms.sets,
         ]
         .iter()
         .map(|p| p.nregs)
@@ -614,7 +622,8 @@ impl CompiledModel {
     /// of the first are evaluated at every integrator stage (they get the
     /// better register allocator): the flow, the diffusion, the atoms the
     /// engine watches at every step (all sets' at once, then each set's);
-    /// then all sets' atoms, the sets' other programs (evaluated at event
+    /// then the jump conditions with all sets' atoms (at each point where
+    /// the engine chooses between flowing and jumping), all sets' atoms, the sets' other programs (evaluated at event
     /// candidates and jumps), the jump conditions, outputs, metrics,
     /// initial values, jump maps and property predicates.
     fn programs(&self) -> (Vec<&Program>, usize) {
@@ -627,6 +636,7 @@ impl CompiledModel {
             sets.extend(rest);
         }
         let hot = programs.len();
+        programs.push(&self.atoms.sets);
         programs.push(&self.atoms.all);
         programs.extend(sets);
         programs.push(&self.atoms.conds);
@@ -1425,6 +1435,27 @@ impl HybridSystem for CompiledModel {
         with_regs(self.nregs, |regs| {
             conds.run_at(regs, at, x, None);
             for (b, &r) in inside.iter_mut().zip(&conds.outs) {
+                *b = regs[r as usize] != 0.0;
+            }
+        });
+        true
+    }
+
+    fn jump_sets_and_atoms(
+        &self,
+        at: HybridTime,
+        x: &[f64],
+        inside: &mut [bool],
+        atoms: &mut [f64],
+    ) -> bool {
+        let p = &self.atoms.sets;
+        let (vals, conds) = p.outs.split_at(p.outs.len() - inside.len());
+        with_regs(self.nregs, |regs| {
+            p.run_at(regs, at, x, None);
+            for (v, &r) in atoms.iter_mut().zip(vals) {
+                *v = regs[r as usize];
+            }
+            for (b, &r) in inside.iter_mut().zip(conds) {
                 *b = regs[r as usize] != 0.0;
             }
         });

@@ -94,6 +94,25 @@ fn same_programs(name: &str, a: &CompiledModel, b: &CompiledModel, at: HybridTim
         }
     }
     assert_eq!(bits(&fa), bits(&per_set), "{name}: all atoms vs set by set");
+    // The jump conditions with all atoms in one evaluation: the same bits
+    // as the two evaluations, and each rule's own predicate.
+    let rules = a.jump_rules().len();
+    let per_rule: Vec<bool> = (0..rules).map(|r| a.jump_set(r, at, x)).collect();
+    for (sys, which) in [(a, "a"), (b, "b")] {
+        // Filled with what they must not hold.
+        let mut atoms = vec![f64::NAN; total];
+        let mut inside: Vec<bool> = per_rule.iter().map(|b| !b).collect();
+        assert!(sys.jump_sets_and_atoms(at, x, &mut inside, &mut atoms));
+        assert_eq!(
+            bits(&atoms),
+            bits(&fa),
+            "{name} ({which}): sets and atoms at {at}"
+        );
+        assert_eq!(
+            inside, per_rule,
+            "{name} ({which}): sets with atoms at {at}"
+        );
+    }
     let mut flowing = vec![f64::NAN; total];
     assert!(a.all_atom_values(at, x, true, &mut flowing));
     let mut k = 0;
@@ -546,4 +565,129 @@ sim { T = 5 }
     assert_eq!(a.jumps(), b.jumps());
     lazy.compile_machine_code();
     assert_eq!(status(&lazy).1, 0, "every program compiled now");
+}
+
+/// The compiled model counted: how often the engine asks for all jump
+/// conditions, alone and with all atoms, and how often it asks again for
+/// all atoms at the point of the last joint evaluation before a checkpoint
+/// of a flow step (an event bracket may start at that point).
+struct Counting<'a> {
+    m: &'a CompiledModel,
+    joint: std::cell::Cell<usize>,
+    conds: std::cell::Cell<usize>,
+    again: std::cell::Cell<usize>,
+    last: std::cell::RefCell<Option<(HybridTime, Vec<f64>)>>,
+}
+
+impl HybridSystem for Counting<'_> {
+    fn state_dim(&self) -> usize {
+        self.m.state_dim()
+    }
+    fn state_names(&self) -> Vec<String> {
+        self.m.state_names()
+    }
+    fn flow_map(&self, at: HybridTime, x: &[f64], dx: &mut [f64]) {
+        self.m.flow_map(at, x, dx)
+    }
+    fn flow_set(&self, at: HybridTime, x: &[f64]) -> bool {
+        self.m.flow_set(at, x)
+    }
+    fn flow_guard(&self, at: HybridTime, x: &[f64]) -> Option<f64> {
+        self.m.flow_guard(at, x)
+    }
+    fn jump_rules(&self) -> &[hybsim::engine::JumpRule] {
+        self.m.jump_rules()
+    }
+    fn jump_set(&self, rule: usize, at: HybridTime, x: &[f64]) -> bool {
+        self.m.jump_set(rule, at, x)
+    }
+    fn jump_sets(&self, at: HybridTime, x: &[f64], inside: &mut [bool]) -> bool {
+        self.conds.set(self.conds.get() + 1);
+        self.m.jump_sets(at, x, inside)
+    }
+    fn jump_sets_and_atoms(
+        &self,
+        at: HybridTime,
+        x: &[f64],
+        inside: &mut [bool],
+        atoms: &mut [f64],
+    ) -> bool {
+        self.joint.set(self.joint.get() + 1);
+        *self.last.borrow_mut() = Some((at, x.to_vec()));
+        self.m.jump_sets_and_atoms(at, x, inside, atoms)
+    }
+    fn all_atom_values(&self, at: HybridTime, x: &[f64], flowing: bool, out: &mut [f64]) -> bool {
+        let same = |(t, y): &(HybridTime, Vec<f64>)| *t == at && bits(y) == bits(x);
+        if flowing {
+            *self.last.borrow_mut() = None;
+        } else if self.last.borrow().as_ref().is_some_and(same) {
+            self.again.set(self.again.get() + 1);
+        }
+        self.m.all_atom_values(at, x, flowing, out)
+    }
+    fn jump_guard(&self, rule: usize, at: HybridTime, x: &[f64]) -> f64 {
+        self.m.jump_guard(rule, at, x)
+    }
+    fn jump_map(&self, rule: usize, at: HybridTime, x: &[f64], rng: &mut SimRng, xp: &mut [f64]) {
+        self.m.jump_map(rule, at, x, rng, xp)
+    }
+    fn set_atoms(&self, set: SetRef) -> Option<hybsim::engine::SetAtoms> {
+        self.m.set_atoms(set)
+    }
+    fn atom_values(&self, set: SetRef, at: HybridTime, x: &[f64], flowing: bool, out: &mut [f64]) {
+        // A checkpoint (one source: set by set).
+        *self.last.borrow_mut() = None;
+        self.m.atom_values(set, at, x, flowing, out)
+    }
+    fn atom_affine(&self, set: SetRef, atom: usize) -> Option<hybsim::engine::AffineAtom> {
+        self.m.atom_affine(set, atom)
+    }
+    fn flow_structure(&self) -> hybsim::engine::FlowStructure {
+        self.m.flow_structure()
+    }
+    fn noise_dim(&self) -> usize {
+        self.m.noise_dim()
+    }
+    fn diffusion(&self, at: HybridTime, x: &[f64], g: &mut [f64]) {
+        self.m.diffusion(at, x, g)
+    }
+    fn take_fault(&self) -> Option<hybsim::engine::SystemFault> {
+        self.m.take_fault()
+    }
+}
+
+/// Where the engine chooses between flowing and jumping, the jump
+/// conditions and all sets' atoms come from one evaluation, and a flow
+/// segment started there does not evaluate the atoms again (each jump of
+/// the bouncing ball and of the consensus model, whose noise redraws start
+/// every step); the arc is the one of the separate evaluations
+/// (`all_sets_at_once_give_the_arcs_of_set_by_set`).
+#[test]
+fn the_choice_and_the_segment_start_share_one_evaluation_of_the_sets() {
+    for (model, horizon) in [("bouncing_ball", 3.0), ("consensus_estimation", 0.01)] {
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("models")
+            .join(format!("{model}.hyb"));
+        let m = compile(&SourceFile::read(&path).unwrap(), "on");
+        let mut settings = m.settings();
+        settings.horizon_t = horizon;
+        let sys = Counting {
+            m: &m,
+            joint: Default::default(),
+            conds: Default::default(),
+            again: Default::default(),
+            last: Default::default(),
+        };
+        let (x0, mut rng) = m.start(m.seed());
+        let arc = simulate_arc(&sys, &x0, &settings, &mut rng).expect("simulation");
+        let jumps = arc.jumps().len();
+        assert!(jumps >= 3, "{model}: {jumps} jumps");
+        assert!(
+            sys.joint.get() >= jumps,
+            "{model}: {} joint",
+            sys.joint.get()
+        );
+        assert_eq!(sys.conds.get(), 0, "{model}: conditions alone");
+        assert_eq!(sys.again.get(), 0, "{model}: atoms evaluated again");
+    }
 }
