@@ -321,12 +321,16 @@ impl MetricSink<'_> {
 impl ArcSink for MetricSink<'_> {
     fn sample(&mut self, at: HybridTime, x: &[f64], _kind: SampleKind) -> ControlFlow<()> {
         // A solution has one state per hybrid time: a sample where the
-        // previous one's values still hold needs no evaluation.
+        // previous one's values still hold needs no evaluation, and changes
+        // no reduction (no flow time since that sample, whose values an
+        // extreme or a final has already seen): the post-jump sample of a
+        // jump that leaves them unchanged.
         if self.m.deterministic && self.kept_until == Some(at) {
-            self.vals.copy_from_slice(&self.prev_vals);
-        } else {
-            self.m.eval(at, x, &mut self.vals);
+            self.prev = Some(at);
+            self.end = Some(at);
+            return ControlFlow::Continue(());
         }
+        self.m.eval(at, x, &mut self.vals);
         let holds = |vals: &[f64], w: Option<usize>| w.is_none_or(|w| vals[w] != 0.0);
         // Flow interval since the previous sample (same j).
         let dt = match self.prev {

@@ -111,11 +111,16 @@ sim {{ T = 3.95 }}
     let close = |a: f64, b: f64| (a - b).abs() < 1e-9 * (1.0 + b.abs());
     // Saw-tooth x: ∫ = 3 teeth of 1/2 and 0.95²/2; min after the first reset is 0.
     let m = metrics_of(&model(
-        "metric area = integral(x), low = min(x, t > 0.5), last = final(x)",
+        "metric area = integral(x), low = min(x, t > 0.5), last = final(x)
+metric top = max(x), avg = mean(x)",
     ));
-    assert!(close(m[0].1, 1.5 + 0.95 * 0.95 / 2.0), "{m:?}");
+    let area = 1.5 + 0.95 * 0.95 / 2.0;
+    assert!(close(m[0].1, area), "{m:?}");
     assert_eq!(m[1].1, 0.0, "{m:?}");
     assert!(close(m[2].1, 0.95), "{m:?}");
+    // The resets start from x = 1 (an event reached exactly).
+    assert_eq!(m[3].1, 1.0, "{m:?}");
+    assert!(close(m[4].1, area / 3.95), "{m:?}");
     // y counts the ticks at 0.3 k (k = 1…13); j counts them and the resets
     // at 1, 2, 3: each adds 1 from its time on.
     let ticks: Vec<f64> = (1..=13).map(|k| 0.3 * f64::from(k)).collect();
