@@ -1110,13 +1110,13 @@ pub fn summary_json(
 /// The message for `flag name` if `name` is neither a state nor an output
 /// of `info` (an entry, a family or a member such as `xhat[2]`).
 pub fn unknown_plot_var(flag: &str, name: &str, info: &RunInfo) -> Option<String> {
-    if info.state_layout.find(name).is_some() || info.output_layout.find(name).is_some() {
+    if PlotSink::selects(info, name) {
         return None;
     }
     let mut known = hybsim::sinks::entry_names(&info.state_layout);
     known.extend(hybsim::sinks::entry_names(&info.output_layout));
     Some(format!(
-        "`{flag} {name}`: neither a state nor an output of the model (known: {}; a family member is `name[i]`)",
+        "`{flag} {name}`: neither a state nor an output of the model (known: {}; a family member is `name[i]`, a component `x[2]`, `P[1,2]`)",
         known.join(", ")
     ))
 }

@@ -40,7 +40,7 @@ use plotters::style::FontStyle;
 use super::{Decimation, Decimator, OutputFn, RunInfo, SinkError, entry_names};
 use crate::arc::{ArcSink, HybridTime, SampleKind};
 use crate::atomic_file;
-use crate::layout::{Entry, Field, Shape};
+use crate::layout::{Entry, Field, Layout, Shape};
 
 /// Colours of successive series (a colour-blind-friendly palette).
 const COLORS: [RGBColor; 10] = [
@@ -819,6 +819,27 @@ fn entry_panels(entry: &Entry, source: Source) -> Vec<PanelSpec> {
     }
 }
 
+/// The position of the component of `layout` whose flat (CSV) name is
+/// `name`, spaces ignored (`P[1, 2]` is `P[1,2]`).
+fn component(layout: &Layout, name: &str) -> Option<usize> {
+    let name: String = name.chars().filter(|c| !c.is_whitespace()).collect();
+    layout
+        .components()
+        .into_iter()
+        .find(|(_, n)| *n == name)
+        .map(|(k, _)| k)
+}
+
+/// A panel of one component (`x[2]`), titled by its name.
+fn component_panel(name: &str, source: Source, k: usize) -> PanelSpec {
+    let name: String = name.chars().filter(|c| !c.is_whitespace()).collect();
+    PanelSpec {
+        title: name.clone(),
+        series: vec![(name, source, k)],
+        total: 1,
+    }
+}
+
 /// What a [`PlotSink`] draws: the plot kinds of the HyEQ Toolbox.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub enum PlotKind {
@@ -940,14 +961,16 @@ impl<'a> PlotSink<'a> {
                 panels.extend(entry_panels(e, Source::State));
             }
         }
+        let outputs_known = info.output_dim > 0 && with_outputs;
         for name in select {
             if let Some(e) = info.state_layout.find(name) {
                 panels.extend(entry_panels(&e, Source::State));
-            } else if let (Some(e), true) = (
-                info.output_layout.find(name),
-                info.output_dim > 0 && with_outputs,
-            ) {
+            } else if let (Some(e), true) = (info.output_layout.find(name), outputs_known) {
                 panels.extend(entry_panels(&e, Source::Output));
+            } else if let Some(k) = component(&info.state_layout, name) {
+                panels.push(component_panel(name, Source::State, k));
+            } else if let (Some(k), true) = (component(&info.output_layout, name), outputs_known) {
+                panels.push(component_panel(name, Source::Output, k));
             } else {
                 let mut known = entry_names(&info.state_layout);
                 known.extend(entry_names(&info.output_layout));
@@ -1003,15 +1026,29 @@ impl<'a> PlotSink<'a> {
         } else {
             select
                 .iter()
-                .filter_map(|n| {
-                    info.state_layout
+                .map(|n| {
+                    match info
+                        .state_layout
                         .find(n)
                         .or_else(|| info.output_layout.find(n))
+                    {
+                        Some(e) => count(&e),
+                        None => usize::from(PlotSink::selects(info, n)),
+                    }
                 })
-                .map(|e| count(&e))
                 .sum()
         };
         check_kind(kind, components)
+    }
+
+    /// Whether `name` selects something to draw of a run described by
+    /// `info`: a state or output entry, a family member (`xh[2]`), or one
+    /// component named as in CSV (`x[2]`, `P[1,2]`, `xh[2][1]`,
+    /// `agent[3].xhat[1]`).
+    pub fn selects(info: &RunInfo, name: &str) -> bool {
+        [&info.state_layout, &info.output_layout]
+            .iter()
+            .any(|l| l.find(name).is_some() || component(l, name).is_some())
     }
 
     /// Keeps one sample: `x` the state, `y` the outputs (read only if an

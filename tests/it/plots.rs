@@ -125,6 +125,98 @@ fn plots_from_a_file_are_the_plots_of_the_run() {
     assert_eq!(svg, std::fs::read_to_string(d.join("live.svg")).unwrap());
 }
 
+/// Single components named as in CSV (`x[2]`, `xhat[2][1]`, spaces
+/// allowed) select one series each: a phase plot of a vector state's
+/// first two components, from a run and from its file alike; a component
+/// that does not exist exits 2 and names the forms.
+#[test]
+fn components_of_vectors_and_family_members_are_selected_one_by_one() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let sh = model("sample_and_hold.hyb");
+    ok(
+        d,
+        &[
+            "run",
+            sh.to_str().unwrap(),
+            "-q",
+            "-o",
+            "sh.mcap",
+            "--plot",
+            "live.svg",
+            "--plot-kind",
+            "phase",
+            "--plot-vars",
+            "x[1], x[2]",
+        ],
+    );
+    ok(
+        d,
+        &[
+            "plot",
+            "sh.mcap",
+            "--kind",
+            "phase",
+            "--vars",
+            "x[1],x[2]",
+            "-o",
+            "file.svg",
+        ],
+    );
+    let live = std::fs::read_to_string(d.join("live.svg")).unwrap();
+    assert_eq!(live, std::fs::read_to_string(d.join("file.svg")).unwrap());
+    let labels = texts(&live);
+    for name in ["x[1]", "x[2]"] {
+        assert!(
+            labels.iter().any(|l| l == name),
+            "no `{name}` in {labels:?}"
+        );
+    }
+    // A member's component and an output, flows.
+    let m = model("intermittent_estimation.hyb");
+    let m = m.to_str().unwrap();
+    ok(
+        d,
+        &[
+            "run",
+            m,
+            "-q",
+            "--T",
+            "0.5",
+            "-o",
+            "ie.mcap",
+            "--plot",
+            "c.svg",
+            "--plot-vars",
+            "xhat[2][1],enorm",
+        ],
+    );
+    let labels = texts(&std::fs::read_to_string(d.join("c.svg")).unwrap());
+    assert!(labels.iter().any(|l| l == "xhat[2][1]"), "{labels:?}");
+    assert!(
+        !labels.iter().any(|l| l == "xhat[2][2]"),
+        "one component only: {labels:?}"
+    );
+    for args in [
+        &[
+            "run",
+            sh.to_str().unwrap(),
+            "-q",
+            "--no-mcap",
+            "--plot",
+            "x.svg",
+            "--plot-vars",
+            "x[40]",
+        ][..],
+        &["plot", "sh.mcap", "--vars", "x[0]", "-o", "x.svg"][..],
+    ] {
+        let o = hybsim(d, args);
+        assert_eq!(code(&o), 2, "{args:?}: {}", stderr(&o));
+        assert!(stderr(&o).contains("a component `x[2]`"), "{}", stderr(&o));
+        assert!(!d.join("x.svg").exists());
+    }
+}
+
 /// HyEQ's `plotHybrid`: one 3-D panel per entry, axes t, j and the entry,
 /// flows solid, jumps dashed; from a run and from a file, ball and a paper
 /// model.
