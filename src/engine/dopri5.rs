@@ -378,6 +378,14 @@ pub(crate) struct DopriPath<'a> {
     y1: &'a [f64],
 }
 
+impl DopriPath<'_> {
+    /// The state at the step's start (the interpolant's constant term, its
+    /// value there up to the sign of a zero).
+    pub fn start(&self) -> &[f64] {
+        &self.rcont[0][..self.y1.len()]
+    }
+}
+
 impl StepPath for DopriPath<'_> {
     fn eval(&mut self, s: f64, out: &mut [f64]) {
         if s == self.s1 {
@@ -454,6 +462,12 @@ mod tests {
             let s1 = if s + h >= 10.0 { 10.0 } else { s + h };
             let mut p = st.path(s1);
             let mut out = [0.0];
+            let mut out_start = [0.0];
+            // The path's start, which dense output reads instead of
+            // evaluating the path there, is the state the step started from.
+            assert_eq!(p.start(), &y[..], "start of the step at {s}");
+            p.eval(s, &mut out_start);
+            assert_eq!(out_start, y[..], "the interpolant at {s}");
             for k in 1..4 {
                 let sm = s + h * k as f64 / 4.0;
                 p.eval(sm, &mut out);
