@@ -1414,7 +1414,7 @@ impl Flows {
                 y1: &y1,
             };
             let reach = last.then_some(EndWhy::Reached);
-            if let Some(end) = close_step(
+            if let Some((end, at_y1)) = close_step_at(
                 sys,
                 &mut self.watcher,
                 &mut self.y_end,
@@ -1425,6 +1425,11 @@ impl Flows {
                 &y1,
                 reach,
             ) {
+                // The state is moved to the end, not copied (a segment of
+                // one step, ended by a noise redraw, is the common case).
+                if at_y1 {
+                    std::mem::swap(&mut self.y_end, &mut y1);
+                }
                 break Ok(end);
             }
             std::mem::swap(&mut self.y_prev, &mut y1);
@@ -1448,10 +1453,32 @@ fn close_step<S: HybridSystem + ?Sized, P: DensePath>(
     out: &mut Output<'_>,
     path: &mut P,
     j: u64,
-    (s0, s1): (f64, f64),
+    span: (f64, f64),
     y1: &[f64],
     reach: Option<EndWhy>,
 ) -> Option<SegmentEnd> {
+    let (end, at_y1) = close_step_at(sys, watcher, y_end, out, path, j, span, y1, reach)?;
+    if at_y1 {
+        y_end.copy_from_slice(y1);
+    }
+    Some(end)
+}
+
+/// [`close_step`], leaving `y_end` unwritten when the segment ends at the
+/// step's end (`true` with the end: the state is `y1`), for a caller that
+/// can move `y1` there instead of copying it.
+#[allow(clippy::too_many_arguments)]
+fn close_step_at<S: HybridSystem + ?Sized, P: DensePath>(
+    sys: &S,
+    watcher: &mut Watcher,
+    y_end: &mut [f64],
+    out: &mut Output<'_>,
+    path: &mut P,
+    j: u64,
+    (s0, s1): (f64, f64),
+    y1: &[f64],
+    reach: Option<EndWhy>,
+) -> Option<(SegmentEnd, bool)> {
     let clock = watcher.clock();
     if !watcher.is_empty()
         && let Some((se, kind)) = watcher.scan(sys, path, s0, s1, y1)
@@ -1463,20 +1490,17 @@ fn close_step<S: HybridSystem + ?Sized, P: DensePath>(
         } else {
             EndWhy::Event(kind)
         };
-        return Some(SegmentEnd { s: se, why });
+        return Some((SegmentEnd { s: se, why }, false));
     }
     let limit = if reach.is_some() { s1 } else { f64::INFINITY };
     if out.step(clock, j, path, s0, s1, y1, limit).is_break() {
-        y_end.copy_from_slice(y1);
-        return Some(SegmentEnd {
+        let end = SegmentEnd {
             s: s1,
             why: EndWhy::Stopped,
-        });
+        };
+        return Some((end, true));
     }
-    reach.map(|why| {
-        y_end.copy_from_slice(y1);
-        SegmentEnd { s: s1, why }
-    })
+    reach.map(|why| (SegmentEnd { s: s1, why }, true))
 }
 
 /// The `ode_solvers::System` seen by the steppers: the flow map in local
