@@ -1593,6 +1593,73 @@ impl<S: HybridSystem + ?Sized> System<f64, DVector<f64>> for &mut Stepper<'_, '_
 #[cfg(test)]
 mod tests {
     use super::{APPLY_BLOCK, Affine};
+    use crate::arc::HybridTime;
+    use crate::engine::{
+        GuardKind, HybridSystem, JumpRule, SimRng, SimSettings, Solver, simulate_arc,
+    };
+
+    /// x' = 1 with a clock reset every 0.1: Euler steps are exact, so the
+    /// arc tells where each segment's state came from.
+    struct Ticks(Vec<JumpRule>);
+
+    impl HybridSystem for Ticks {
+        fn state_dim(&self) -> usize {
+            2
+        }
+        fn state_names(&self) -> Vec<String> {
+            vec!["x".into(), "tau".into()]
+        }
+        fn flow_map(&self, _: HybridTime, _: &[f64], dx: &mut [f64]) {
+            dx.fill(1.0);
+        }
+        fn jump_rules(&self) -> &[JumpRule] {
+            &self.0
+        }
+        fn jump_set(&self, _: usize, _: HybridTime, x: &[f64]) -> bool {
+            x[1] >= 0.1
+        }
+        fn jump_guard(&self, _: usize, _: HybridTime, x: &[f64]) -> f64 {
+            x[1] - 0.1
+        }
+        fn jump_map(&self, _: usize, _: HybridTime, x: &[f64], _: &mut SimRng, xp: &mut [f64]) {
+            xp[0] = x[0];
+            xp[1] = 0.0;
+        }
+    }
+
+    /// Euler–Maruyama segments of several steps (the last one partial) and
+    /// of one step, each ended by a timer: every segment ends with the
+    /// state of its last step (moved to the end, not copied) and the next
+    /// starts from it, so x is t at every sample.
+    #[test]
+    fn euler_maruyama_segments_end_with_their_last_step() {
+        let ticks = Ticks(vec![JumpRule::new(
+            "tick",
+            GuardKind::Timer {
+                index: 1,
+                threshold: 0.1,
+            },
+        )]);
+        for h in [0.03, 0.1, 0.25] {
+            let s = SimSettings::default()
+                .horizon_t(1.0)
+                .solver(Solver::EulerMaruyama { h });
+            let arc = simulate_arc(&ticks, &[0.0, 0.0], &s, &mut SimRng::seed_from(1)).unwrap();
+            assert!(
+                arc.jumps().len() >= 9,
+                "h = {h}: {} jumps",
+                arc.jumps().len()
+            );
+            for p in arc.samples() {
+                assert!(
+                    (p.x[0] - p.at.t).abs() < 1e-12,
+                    "h = {h}: {:?} at {}",
+                    p.x,
+                    p.at
+                );
+            }
+        }
+    }
 
     /// Sparse propagators (active rows only) equal the rows of the dense
     /// exponential, and a step leaves the inactive components unchanged.
