@@ -936,11 +936,12 @@ pub fn execute(args: RunArgs) -> anyhow::Result<u8> {
     }
     if full.is_some() || marks.is_some() {
         let decl = model.log_decl();
+        let flag_marks = marks.is_some();
         let marks = marks.unwrap_or_else(|| decl.marks.clone());
         // Flags win over the block: rules the flag marks leave the block's `rules`.
         let full = full.unwrap_or_else(|| {
             let mut full = decl.rules.clone();
-            if args.log_marks.is_some() {
+            if flag_marks {
                 full.iter_mut().zip(&marks).for_each(|(f, &m)| *f &= !m);
             }
             full

@@ -819,20 +819,15 @@ fn entry_panels(entry: &Entry, source: Source) -> Vec<PanelSpec> {
     }
 }
 
-/// The position of the component of `layout` whose flat (CSV) name is
+/// The position and flat (CSV) name of the component of `layout` named
 /// `name`, spaces ignored (`P[1, 2]` is `P[1,2]`).
-fn component(layout: &Layout, name: &str) -> Option<usize> {
+fn component(layout: &Layout, name: &str) -> Option<(usize, String)> {
     let name: String = name.chars().filter(|c| !c.is_whitespace()).collect();
-    layout
-        .components()
-        .into_iter()
-        .find(|(_, n)| *n == name)
-        .map(|(k, _)| k)
+    layout.components().into_iter().find(|(_, n)| *n == name)
 }
 
-/// A panel of one component (`x[2]`), titled by its name.
-fn component_panel(name: &str, source: Source, k: usize) -> PanelSpec {
-    let name: String = name.chars().filter(|c| !c.is_whitespace()).collect();
+/// A panel of one component (`x[2]`, from [`component`]), titled by its name.
+fn component_panel((k, name): (usize, String), source: Source) -> PanelSpec {
     PanelSpec {
         title: name.clone(),
         series: vec![(name, source, k)],
@@ -967,10 +962,10 @@ impl<'a> PlotSink<'a> {
                 panels.extend(entry_panels(&e, Source::State));
             } else if let (Some(e), true) = (info.output_layout.find(name), outputs_known) {
                 panels.extend(entry_panels(&e, Source::Output));
-            } else if let Some(k) = component(&info.state_layout, name) {
-                panels.push(component_panel(name, Source::State, k));
-            } else if let (Some(k), true) = (component(&info.output_layout, name), outputs_known) {
-                panels.push(component_panel(name, Source::Output, k));
+            } else if let Some(c) = component(&info.state_layout, name) {
+                panels.push(component_panel(c, Source::State));
+            } else if let (Some(c), true) = (component(&info.output_layout, name), outputs_known) {
+                panels.push(component_panel(c, Source::Output));
             } else {
                 let mut known = entry_names(&info.state_layout);
                 known.extend(entry_names(&info.output_layout));
