@@ -4,9 +4,11 @@
 //! branch), so each becomes basic blocks in SSA form: a register's value
 //! is the Cranelift value that defined it; the state registers are loaded
 //! from the state pointer, the other fixed registers and the block outputs
-//! from the register file, on first use; the outputs are stored at the
-//! end, into the register file or, for a program given positions in its
-//! caller's buffer, there.
+//! from the register file, on first use; each output is stored as soon
+//! as its register is defined, into the register file or, for a program
+//! given positions in its caller's buffer, there (stores at the end kept
+//! every output live through the whole function, which made Cranelift's
+//! register allocation half as slow again on a large flow).
 //!
 //! **Sums as loops.** The checker scalarizes matrix work: the entries of
 //! `A * X` are [`Op::Lin`] sums of `cₖ·xₖ` over a row, `n³` terms for
@@ -105,6 +107,16 @@ struct Emit<'a, 'b> {
     dirty: Vec<bool>,
     /// State registers copied into the register file (for the loops).
     copied: Vec<bool>,
+    /// The outputs as (register, position) sorted by register: each is
+    /// stored as soon as its register is defined, so that no value stays
+    /// live to the end of the program (Cranelift's register allocation
+    /// time and spills grow with the values live at once).
+    outputs: Vec<(u32, u32)>,
+    /// Where outputs go: the caller's buffer (a program with positions)
+    /// or, if `None`, the register file.
+    out: Option<Value>,
+    /// Registers whose outputs are stored already.
+    stored: Vec<bool>,
     sigs: Sigs,
     // Boxed: the code holds their addresses, which must not move.
     #[allow(clippy::vec_box)]
@@ -177,6 +189,9 @@ impl Generator {
                 vals: vec![None; p.nregs],
                 dirty: vec![false; p.nregs],
                 copied: vec![false; p.state_regs],
+                outputs: outputs(p),
+                out: p.dest.as_ref().map(|_| out),
+                stored: vec![false; p.nregs],
                 sigs,
                 tables: &mut self.tables,
             };
@@ -190,6 +205,18 @@ impl Generator {
             .map_err(|e| JitError::Codegen(format!("{e:?}")))?;
         Ok(id)
     }
+}
+
+/// `p`'s outputs as (register, position in the output buffer or, without
+/// positions, the register itself), sorted, each once.
+fn outputs(p: &Program) -> Vec<(u32, u32)> {
+    let mut outputs: Vec<(u32, u32)> = match &p.dest {
+        Some(dest) => p.outs.iter().copied().zip(dest.iter().copied()).collect(),
+        None => p.outs.iter().map(|&o| (o, o)).collect(),
+    };
+    outputs.sort_unstable();
+    outputs.dedup();
+    outputs
 }
 
 fn offset(r: u32) -> i32 {
@@ -221,6 +248,37 @@ impl Emit<'_, '_> {
     fn set(&mut self, r: u32, v: Value) {
         self.vals[r as usize] = Some(v);
         self.dirty[r as usize] = true;
+        self.defined(r, false);
+    }
+
+    /// Stores register `r`'s outputs now that its value is defined
+    /// (`in_regs`: a loop or block wrote it into the register file).
+    fn defined(&mut self, r: u32, in_regs: bool) {
+        let first = self.outputs.partition_point(|&(o, _)| o < r);
+        if self.outputs.get(first).is_none_or(|&(o, _)| o != r) {
+            return;
+        }
+        self.stored[r as usize] = true;
+        match self.out {
+            Some(out) => {
+                let v = self.get(r);
+                let mut k = first;
+                while let Some(&(o, d)) = self.outputs.get(k)
+                    && o == r
+                {
+                    self.b
+                        .ins()
+                        .store(MemFlagsData::trusted(), v, out, offset(d));
+                    k += 1;
+                }
+            }
+            None if !in_regs => {
+                let v = self.get(r);
+                self.store(r, v);
+                self.dirty[r as usize] = false;
+            }
+            None => {}
+        }
     }
 
     fn store(&mut self, r: u32, v: Value) {
@@ -307,6 +365,7 @@ impl Emit<'_, '_> {
         for &(d, _) in &sums {
             self.vals[d as usize] = None;
             self.dirty[d as usize] = false;
+            self.defined(d, true);
         }
     }
 
@@ -414,9 +473,10 @@ impl Emit<'_, '_> {
         }
     }
 
-    /// Emits `p`, ending with the stores of its outputs: into the
-    /// register file, or for a program with positions (`Program::dest`)
-    /// into `out` (the entry's pointer) at those.
+    /// Emits `p`, each output stored when it is defined and, at the end,
+    /// those that are fixed registers: into the register file, or for a
+    /// program with positions (`Program::dest`) into `out` (the entry's
+    /// pointer) at those.
     fn program(&mut self, p: &Program, blocks: &[BlockDesc], out: Value) {
         let mut next_block = 0;
         // Sums are deferred, and gathered into one loop nest, until an
@@ -458,6 +518,9 @@ impl Emit<'_, '_> {
             // Each output at its position in the caller's buffer.
             Some(dest) => {
                 for (&o, &d) in p.outs.iter().zip(dest) {
+                    if self.stored[o as usize] {
+                        continue;
+                    }
                     let v = self.get(o);
                     self.b
                         .ins()
@@ -653,6 +716,7 @@ impl Emit<'_, '_> {
                 for r in out..out + kind.outputs() as u32 {
                     self.vals[r as usize] = None;
                     self.dirty[r as usize] = false;
+                    self.defined(r, true);
                 }
             }
         }
