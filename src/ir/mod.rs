@@ -619,12 +619,14 @@ impl CompiledModel {
 
     /// Every program of the model (the Jacobian's and output subsets'
     /// aside), the one the engine evaluates most often first, and how many
-    /// of the first are evaluated at every integrator stage (they get the
-    /// better register allocator): the flow, the diffusion, the atoms the
-    /// engine watches at every step (all sets' at once, then each set's);
-    /// then the jump conditions with all sets' atoms (at each point where
-    /// the engine chooses between flowing and jumping), all sets' atoms, the sets' other programs (evaluated at event
-    /// candidates and jumps), the jump conditions, outputs, metrics,
+    /// of the first get the better register allocator: those evaluated at
+    /// every integrator stage (the flow, the diffusion, the atoms the
+    /// engine watches at every step: all sets' at once, then each set's)
+    /// and the jump conditions with all sets' atoms (at each point where
+    /// the engine chooses between flowing and jumping: after every jump,
+    /// so at every step of a model whose noise or sampling jumps at every
+    /// step); then all sets' atoms, the sets' other programs (evaluated at
+    /// event candidates and jumps), the jump conditions, outputs, metrics,
     /// initial values, jump maps and property predicates.
     fn programs(&self) -> (Vec<&Program>, usize) {
         let mut programs = vec![&self.flow, &self.diffusion, &self.atoms.flowing];
@@ -635,8 +637,8 @@ impl CompiledModel {
             programs.push(flowing);
             sets.extend(rest);
         }
-        let hot = programs.len();
         programs.push(&self.atoms.sets);
+        let hot = programs.len();
         programs.push(&self.atoms.all);
         programs.extend(sets);
         programs.push(&self.atoms.conds);

@@ -256,9 +256,10 @@ struct Plan {
     jit: Arc<Jit>,
     /// Calls before it is compiled.
     after: u32,
-    /// Evaluated at every integrator stage: Cranelift's backtracking
+    /// Evaluated at every integrator stage or choice between flowing and
+    /// jumping (`CompiledModel::programs`): Cranelift's backtracking
     /// register allocator, else its single-pass one, which compiles about
-    /// 2.5 times faster for code about 10 % slower.
+    /// 2.5 times faster for code 10–40 % slower (more on large programs).
     hot: bool,
 }
 
