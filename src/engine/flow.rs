@@ -6,8 +6,9 @@
 //!   with sparse output; events are localized on the cubic Hermite
 //!   interpolant of the step ends;
 //! - exact advance of affine flows `ẋ = A x + b` by the exponential of the
-//!   augmented matrix `[[A, b], [0, 0]]`, cached per distinct step length;
-//!   events are localized on the exact solution;
+//!   augmented matrix `[[A, b], [0, 0]]`, cached per distinct step length,
+//!   or, where `A` is structurally nilpotent, by the flow's own polynomial
+//!   ([`PolynomialFlow`]); events are localized on the exact solution;
 //! - Euler–Maruyama with fixed step for noisy flows; events are localized
 //!   on the linear interpolant of the step ends.
 
@@ -23,6 +24,7 @@ use super::dopri5::{Dopri5 as OwnDopri5, DopriPath, Failure};
 use super::error::SimError;
 use super::events::{EventKind, Hermite, Linear, StepPath, Watcher};
 use super::implicit::LinearAlgebra;
+use super::polynomial::{PolynomialFlow, PolynomialPath};
 use super::radau5::{Radau5, RadauPath};
 use super::settings::{LinearSolver, SimSettings, Solver};
 use super::sparsity::{JacobianEval, system_pattern, use_sparse_lu};
@@ -106,6 +108,11 @@ impl DensePath for DopriPath<'_> {
 impl DensePath for RadauPath<'_> {}
 impl DensePath for BdfPath<'_> {}
 impl DensePath for Linear<'_> {}
+impl DensePath for PolynomialPath<'_> {
+    fn start(&self) -> Option<&[f64]> {
+        Some(self.y0)
+    }
+}
 
 /// Output of flow samples to the sink: a fixed grid (`dt_out`), or dense
 /// output: every step end, plus points of the step's path (the solver's
@@ -306,6 +313,10 @@ pub(crate) struct Affine {
     /// each recent duration (bits of the duration), for the auto choice.
     spent: Vec<(u64, f64)>,
     next_spent: usize,
+    /// The flow as a polynomial in time, where `A` is structurally
+    /// nilpotent: then every segment takes it (exact, and cheaper than
+    /// an exponential or a solver's step, guards watched or not).
+    poly: Option<PolynomialFlow>,
 }
 
 const AFFINE_CACHE: usize = 16;
@@ -375,6 +386,7 @@ impl Affine {
             spent: Vec::with_capacity(AFFINE_SPENT),
             next_spent: 0,
             active: (2 * active.len() <= n).then_some(active),
+            poly: PolynomialFlow::new(n, a, b),
         })
     }
 
@@ -835,7 +847,9 @@ impl Flows {
             // row of [A, b] each. So does the auto choice without watched
             // guards until it picks the solver (`segment` then completes f).
             Method::Affine(aff) | Method::Auto(_, aff)
-                if matches!(self.method, Method::Affine(_)) || self.watcher.is_empty() =>
+                if matches!(self.method, Method::Affine(_))
+                    || self.watcher.is_empty()
+                    || aff.poly.is_some() =>
             {
                 self.f_prev_partial = matches!(self.method, Method::Auto(..));
                 let n = aff.n;
@@ -883,6 +897,9 @@ impl Flows {
             Method::Ode(solver) => {
                 let solver = *solver;
                 self.solver_segment(sys, out, solver, t0, j, d_end)?
+            }
+            Method::Affine(aff) | Method::Auto(_, aff) if aff.poly.is_some() => {
+                self.polynomial_segment(sys, out, t0, j, d_end)?
             }
             Method::Affine(_) => self.affine_segment(sys, out, t0, j, d_end)?,
             Method::Auto(solver, aff) => {
@@ -1310,32 +1327,65 @@ impl Flows {
         let (Method::Affine(aff) | Method::Auto(_, aff)) = &mut self.method else {
             unreachable!("affine method")
         };
-        // Guards, and dense output, need steps short enough that the path
-        // cannot turn back unseen between checks.
-        let watch = !self.watcher.is_empty() || out.dense();
-        let hw = if watch {
-            self.max_step.min(aff.watch_step)
-        } else {
-            f64::INFINITY
-        };
+        let hw = exact_step_limit(&self.watcher, out, self.max_step, aff.watch_step);
         let mut s = 0.0;
         loop {
-            let mut s1 = d_end.min(s + hw);
-            if let Some(sg) = out.next_grid_after(t0, s)
-                && sg < s1
-            {
-                s1 = sg;
-            }
-            let last = s1 >= d_end;
-            if last {
-                s1 = d_end;
-            }
+            let (s1, last) = exact_step_end(out, t0, s, hw, d_end);
             aff.advance(s1 - s, &self.y_prev, &mut self.f_cur);
             if let Some(e) = check_finite(sys, HybridTime::new(t0 + s1, j), &self.f_cur, None) {
                 return Err(e);
             }
             let mut path = AffinePath {
                 aff,
+                s0: s,
+                s1,
+                y0: &self.y_prev,
+                y1: &self.f_cur,
+            };
+            let reach = last.then_some(EndWhy::Reached);
+            if let Some(end) = close_step(
+                sys,
+                &mut self.watcher,
+                &mut self.y_end,
+                out,
+                &mut path,
+                j,
+                (s, s1),
+                &self.f_cur,
+                reach,
+            ) {
+                return Ok(end);
+            }
+            std::mem::swap(&mut self.y_prev, &mut self.f_cur);
+            s = s1;
+        }
+    }
+
+    /// A segment of a [`PolynomialFlow`]: exact steps, each ending where
+    /// the exact path's do ([`affine_segment`](Self::affine_segment)).
+    fn polynomial_segment<S: HybridSystem + ?Sized>(
+        &mut self,
+        sys: &S,
+        out: &mut Output<'_>,
+        t0: f64,
+        j: u64,
+        d_end: f64,
+    ) -> Result<SegmentEnd, SimError> {
+        let (Method::Affine(aff) | Method::Auto(_, aff)) = &mut self.method else {
+            unreachable!("affine method")
+        };
+        let hw = exact_step_limit(&self.watcher, out, self.max_step, aff.watch_step);
+        let poly = aff.poly.as_mut().expect("a polynomial flow");
+        let mut s = 0.0;
+        loop {
+            let (s1, last) = exact_step_end(out, t0, s, hw, d_end);
+            poly.set_step(&self.y_prev, s1 - s);
+            poly.eval_at(1.0, &mut self.f_cur);
+            if let Some(e) = check_finite(sys, HybridTime::new(t0 + s1, j), &self.f_cur, None) {
+                return Err(e);
+            }
+            let mut path = PolynomialPath {
+                flow: poly,
                 s0: s,
                 s1,
                 y0: &self.y_prev,
@@ -1437,6 +1487,34 @@ impl Flows {
         };
         self.f_cur = y1;
         result
+    }
+}
+
+/// The longest step of an exact path: guards, and dense output, need steps
+/// short enough that the path cannot turn back unseen between checks
+/// (`watch_step`, 1/‖A‖∞); without either a step may span the segment.
+fn exact_step_limit(watcher: &Watcher, out: &Output<'_>, max_step: f64, watch_step: f64) -> f64 {
+    if !watcher.is_empty() || out.dense() {
+        max_step.min(watch_step)
+    } else {
+        f64::INFINITY
+    }
+}
+
+/// The end of an exact step from `s` (at most `hw` long): the segment's
+/// end `d_end` or the next output grid point if sooner; whether it is the
+/// segment's end.
+fn exact_step_end(out: &Output<'_>, t0: f64, s: f64, hw: f64, d_end: f64) -> (f64, bool) {
+    let mut s1 = d_end.min(s + hw);
+    if let Some(sg) = out.next_grid_after(t0, s)
+        && sg < s1
+    {
+        s1 = sg;
+    }
+    if s1 >= d_end {
+        (d_end, true)
+    } else {
+        (s1, false)
     }
 }
 

@@ -200,6 +200,7 @@ mod flow;
 mod implicit;
 mod invariants;
 pub mod models;
+mod polynomial;
 mod radau5;
 mod run;
 mod settings;

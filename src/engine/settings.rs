@@ -163,6 +163,10 @@ pub enum ExactAffine {
     /// few periods, while durations that never repeat (random timers, bouncing)
     /// never pay for an exponential. At most twice the cost of the better
     /// choice made in hindsight (the ski-rental rule).
+    ///
+    /// Flows whose `A` is structurally nilpotent are polynomials in time
+    /// and always take their exact polynomial (guards watched or not),
+    /// under `Auto` and `On` alike.
     #[default]
     Auto,
     /// Every segment of an affine flow exactly (exponentials cached per

@@ -56,6 +56,43 @@ fn bouncing_ball_matches_closed_form_impacts() {
     check_ball_impacts(&affine, &SimSettings::default());
 }
 
+/// An affine flow whose `A` is nilpotent (the ball: height quadratic in
+/// time) runs on its own polynomial under `exact_affine` auto and on: the
+/// impacts are the closed form's to rounding, far inside the solver's
+/// tolerance, and the guard is decided on the exact path.
+#[test]
+fn polynomial_flows_are_exact_at_their_events() {
+    let mut ball = BouncingBall::new(9.81, 0.8);
+    ball.affine = true;
+    for mode in [ExactAffine::Auto, ExactAffine::On] {
+        let arc = run(
+            &ball,
+            &[1.0, 0.0],
+            &SimSettings::default().exact_affine(mode),
+            0,
+        );
+        let exact = ball.impacts(1.0, 20);
+        assert!(
+            arc.jumps().len() >= 20,
+            "{mode:?}: {} impacts",
+            arc.jumps().len()
+        );
+        for (k, (jump, (t, v))) in arc.jumps().iter().zip(&exact).enumerate() {
+            let et = (jump.at.t - t).abs() / t;
+            let ev = (jump.pre[1] - v).abs() / v.abs();
+            assert!(
+                et <= 1e-13 && ev <= 1e-12,
+                "{mode:?}, impact {k}: rel {et:e}, {ev:e}"
+            );
+            assert!(
+                jump.pre[0].abs() <= 1e-13,
+                "{mode:?}, impact {k}: h = {}",
+                jump.pre[0]
+            );
+        }
+    }
+}
+
 #[test]
 fn bouncing_ball_stops_at_zeno_time() {
     let ball = BouncingBall::new(9.81, 0.8);

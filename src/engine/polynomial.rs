@@ -1,0 +1,255 @@
+//! Exact flows of affine systems `ẋ = A x + b` whose solutions are
+//! polynomials in time: `A` structurally nilpotent (no cycle in the graph
+//! of its nonzero entries: a bouncing ball, chains of integrators, clocks).
+//! Then `x(s₀ + h) = Σₖ hᵏ/k! Gᵏ [x(s₀); 1]` with `G = [[A, b], [0, 0]]`
+//! ends at the longest chain of dependencies, so a step is a few sparse
+//! products instead of a matrix exponential or a solver's stages, its path
+//! is exact, and its Bernstein control points let the watcher decide every
+//! affine guard on the step exactly.
+
+use super::events::{MAX_CONTROL, StepPath, bernstein_points};
+
+/// The exact polynomial flow of `ẋ = A x + b` with `A` structurally
+/// nilpotent, and the coefficients of its current step.
+#[derive(Debug, Clone)]
+pub(crate) struct PolynomialFlow {
+    n: usize,
+    /// Degree of the solution in time: the longest chain of dependencies
+    /// (`xᵣ` on `x꜀` for `A[r, c] ≠ 0`, on a constant for `b[r] ≠ 0`).
+    degree: usize,
+    /// Nonzero entries of `A`, row after row: `(row, column, value)`.
+    a: Vec<(usize, usize, f64)>,
+    /// Nonzero entries of `b`.
+    b: Vec<(usize, f64)>,
+    /// Rows of `A` or `b` with a nonzero entry (the components that move).
+    active: Vec<usize>,
+    /// The current step's coefficients in the step's own variable
+    /// `u = (s − s₀)/h ∈ [0, 1]`: `d[k·n + i] = hᵏ/k! (Gᵏ [x(s₀); 1])ᵢ`
+    /// (zero for k ≥ 1 outside `active`).
+    d: Vec<f64>,
+}
+
+impl PolynomialFlow {
+    /// The polynomial flow of `ẋ = A x + b` (`a` row-major n × n), if `A`
+    /// is structurally nilpotent and the solutions have degree below
+    /// [`MAX_CONTROL`]; `None` otherwise (a cycle, such as an oscillator or
+    /// a decay `ẋ = −x`, makes the solution a true exponential).
+    pub fn new(n: usize, a: &[f64], b: &[f64]) -> Option<Self> {
+        debug_assert_eq!((a.len(), b.len()), (n * n, n));
+        let entries: Vec<(usize, usize, f64)> = (0..n)
+            .flat_map(|r| (0..n).map(move |c| (r, c)))
+            .filter_map(|(r, c)| {
+                let v = a[r * n + c];
+                (v != 0.0).then_some((r, c, v))
+            })
+            .collect();
+        let degree = chain_degrees(n, &entries, b)?;
+        let max = degree.iter().copied().max().unwrap_or(0);
+        if max >= MAX_CONTROL {
+            return None;
+        }
+        let active = (0..n).filter(|&r| degree[r] > 0).collect();
+        Some(Self {
+            n,
+            degree: max,
+            a: entries,
+            b: (0..n).filter(|&r| b[r] != 0.0).map(|r| (r, b[r])).collect(),
+            active,
+            d: vec![0.0; (max + 1) * n],
+        })
+    }
+
+    /// Degree of the solutions in time.
+    #[cfg(test)]
+    pub fn degree(&self) -> usize {
+        self.degree
+    }
+
+    /// Sets the step of length `h` from `y0`: its Taylor coefficients
+    /// `d₀ = y0`, `d₁ = h (A y0 + b)`, `dₖ₊₁ = h/(k+1) · A dₖ`.
+    pub fn set_step(&mut self, y0: &[f64], h: f64) {
+        let n = self.n;
+        self.d[..n].copy_from_slice(y0);
+        for k in 1..=self.degree {
+            let (lower, upper) = self.d.split_at_mut(k * n);
+            let (prev, cur) = (&lower[(k - 1) * n..], &mut upper[..n]);
+            for &r in &self.active {
+                cur[r] = 0.0;
+            }
+            if k == 1 {
+                for &(r, v) in &self.b {
+                    cur[r] = v;
+                }
+            }
+            for &(r, c, v) in &self.a {
+                cur[r] += v * prev[c];
+            }
+            let scale = h / k as f64;
+            for &r in &self.active {
+                cur[r] *= scale;
+            }
+        }
+    }
+
+    /// The step's state at `u ∈ [0, 1]` (Horner's rule), into `out`.
+    pub fn eval_at(&self, u: f64, out: &mut [f64]) {
+        let n = self.n;
+        let top = &self.d[self.degree * n..];
+        out.copy_from_slice(&top[..n]);
+        for k in (0..self.degree).rev() {
+            let dk = &self.d[k * n..(k + 1) * n];
+            for (o, &c) in out.iter_mut().zip(dk) {
+                *o = *o * u + c;
+            }
+        }
+    }
+}
+
+/// The degree in time of each component's solution, `None` if the
+/// dependencies have a cycle: `deg(r) = 0` for a row of zeros, else the
+/// largest of 1 and `1 + deg(c)` over the columns `c` it reads. Kahn's
+/// order over the dependencies, linear in the entries.
+fn chain_degrees(n: usize, entries: &[(usize, usize, f64)], b: &[f64]) -> Option<Vec<usize>> {
+    // readers[c]: the rows that read c; waiting[r]: columns r still waits for.
+    let mut readers: Vec<Vec<usize>> = vec![Vec::new(); n];
+    let mut waiting = vec![0usize; n];
+    for &(r, c, _) in entries {
+        readers[c].push(r);
+        waiting[r] += 1;
+    }
+    let mut degree: Vec<usize> = (0..n).map(|r| usize::from(b[r] != 0.0)).collect();
+    let mut ready: Vec<usize> = (0..n).filter(|&r| waiting[r] == 0).collect();
+    let mut done = 0;
+    while let Some(c) = ready.pop() {
+        done += 1;
+        for &r in &readers[c] {
+            degree[r] = degree[r].max(degree[c] + 1);
+            waiting[r] -= 1;
+            if waiting[r] == 0 {
+                ready.push(r);
+            }
+        }
+    }
+    (done == n).then_some(degree)
+}
+
+/// The exact path of one step of a [`PolynomialFlow`] (set by
+/// [`PolynomialFlow::set_step`]), `[s0, s1]` in the segment's local time.
+pub(crate) struct PolynomialPath<'a> {
+    pub flow: &'a PolynomialFlow,
+    pub s0: f64,
+    pub s1: f64,
+    pub y0: &'a [f64],
+    pub y1: &'a [f64],
+}
+
+impl StepPath for PolynomialPath<'_> {
+    fn eval(&mut self, s: f64, out: &mut [f64]) {
+        if s == self.s1 {
+            out.copy_from_slice(self.y1);
+        } else if s == self.s0 {
+            out.copy_from_slice(self.y0);
+        } else {
+            self.flow.eval_at((s - self.s0) / (self.s1 - self.s0), out);
+        }
+    }
+
+    fn control_points(&self, i: usize, out: &mut [f64; MAX_CONTROL]) -> Option<(usize, f64)> {
+        let flow = self.flow;
+        let mut a = [0.0; MAX_CONTROL];
+        for (k, ak) in a.iter_mut().enumerate().take(flow.degree + 1) {
+            *ak = flow.d[k * flow.n + i];
+        }
+        // `eval` is Horner's rule on the same coefficients: within the
+        // bound of their sum, as the points are.
+        Some(bernstein_points(&a[..=flow.degree], out))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The ball: height quadratic in time, exact at any step length.
+    #[test]
+    fn a_falling_ball_is_a_parabola() {
+        let g = 9.81;
+        let mut flow = PolynomialFlow::new(2, &[0.0, 1.0, 0.0, 0.0], &[0.0, -g]).unwrap();
+        assert_eq!(flow.degree(), 2);
+        let y0 = [1.0, 0.5];
+        let h = 0.75;
+        flow.set_step(&y0, h);
+        let mut y = [0.0; 2];
+        for u in [0.0, 0.25, 0.5, 1.0] {
+            flow.eval_at(u, &mut y);
+            let s = u * h;
+            let exact = [1.0 + 0.5 * s - 0.5 * g * s * s, 0.5 - g * s];
+            for (v, e) in y.iter().zip(exact) {
+                assert!(
+                    (v - e).abs() <= 1e-15 * (1.0 + e.abs()),
+                    "{v} vs {e} at {s}"
+                );
+            }
+        }
+    }
+
+    /// Degrees follow the longest chain; cycles (oscillators, decays) and
+    /// chains longer than the control points allow are refused.
+    #[test]
+    fn only_acyclic_short_chains_are_polynomial() {
+        // Chain x0' = x1, x1' = x2, x2' = 1, clock x3' = 1, constant x4.
+        let mut a = vec![0.0; 25];
+        a[1] = 1.0;
+        a[5 + 2] = 1.0;
+        let b = [0.0, 0.0, 1.0, 1.0, 0.0];
+        let flow = PolynomialFlow::new(5, &a, &b).unwrap();
+        assert_eq!(flow.degree(), 3);
+        assert_eq!(flow.active, vec![0, 1, 2, 3]);
+        assert!(PolynomialFlow::new(2, &[0.0, 1.0, -1.0, 0.0], &[0.0; 2]).is_none());
+        assert!(PolynomialFlow::new(1, &[-1.0], &[0.0]).is_none());
+        // A chain of n integrators driven by a constant has degree n.
+        let chain = |n: usize| {
+            let mut a = vec![0.0; n * n];
+            for r in 0..n - 1 {
+                a[r * n + r + 1] = 1.0;
+            }
+            let mut b = vec![0.0; n];
+            b[n - 1] = 1.0;
+            PolynomialFlow::new(n, &a, &b)
+        };
+        assert_eq!(chain(MAX_CONTROL - 1).unwrap().degree(), MAX_CONTROL - 1);
+        assert!(chain(MAX_CONTROL).is_none());
+        // No motion at all: degree 0.
+        assert_eq!(
+            PolynomialFlow::new(2, &[0.0; 4], &[0.0; 2])
+                .unwrap()
+                .degree(),
+            0
+        );
+    }
+
+    /// The control points give back the path on the step (de Casteljau),
+    /// within their bound.
+    #[test]
+    fn control_points_give_the_path() {
+        let mut flow = PolynomialFlow::new(
+            3,
+            &[0.0, 2.0, 0.0, 0.0, 0.0, -1.5, 0.0, 0.0, 0.0],
+            &[0.5, 0.0, 3.0],
+        )
+        .unwrap();
+        let y0 = [1.0, -0.25, 0.5];
+        let (s0, s1) = (0.3, 1.1);
+        flow.set_step(&y0, s1 - s0);
+        let mut y1 = [0.0; 3];
+        flow.eval_at(1.0, &mut y1);
+        let mut path = PolynomialPath {
+            flow: &flow,
+            s0,
+            s1,
+            y0: &y0,
+            y1: &y1,
+        };
+        crate::engine::events::tests::assert_control_points(&mut path, 3, (s0, s1), 4);
+    }
+}
