@@ -93,14 +93,14 @@ impl PolynomialFlow {
 
     /// The step's state at `u ∈ [0, 1]` (Horner's rule), into `out`.
     pub fn eval_at(&self, u: f64, out: &mut [f64]) {
-        let n = self.n;
-        let top = &self.d[self.degree * n..];
-        out.copy_from_slice(&top[..n]);
-        for k in (0..self.degree).rev() {
-            let dk = &self.d[k * n..(k + 1) * n];
-            for (o, &c) in out.iter_mut().zip(dk) {
-                *o = *o * u + c;
+        let (n, m) = (self.n, self.degree);
+        let d = &self.d[..(m + 1) * n];
+        for (i, o) in out[..n].iter_mut().enumerate() {
+            let mut v = d[m * n + i];
+            for k in (0..m).rev() {
+                v = v * u + d[k * n + i];
             }
+            *o = v;
         }
     }
 }
