@@ -898,10 +898,10 @@ impl Flows {
                 let solver = *solver;
                 self.solver_segment(sys, out, solver, t0, j, d_end)?
             }
-            Method::Affine(aff) | Method::Auto(_, aff) if aff.poly.is_some() => {
-                self.polynomial_segment(sys, out, t0, j, d_end)?
-            }
             Method::Affine(_) => self.affine_segment(sys, out, t0, j, d_end)?,
+            Method::Auto(_, aff) if aff.poly.is_some() => {
+                self.affine_segment(sys, out, t0, j, d_end)?
+            }
             Method::Auto(solver, aff) => {
                 let solver = *solver;
                 if self.watcher.is_empty() && aff.worth(d_end) {
@@ -1316,6 +1316,8 @@ impl Flows {
         }
     }
 
+    /// A segment on the exact path: matrix exponentials, or the flow's
+    /// polynomial where it has one.
     fn affine_segment<S: HybridSystem + ?Sized>(
         &mut self,
         sys: &S,
@@ -1328,85 +1330,19 @@ impl Flows {
             unreachable!("affine method")
         };
         let hw = exact_step_limit(&self.watcher, out, self.max_step, aff.watch_step);
-        let mut s = 0.0;
-        loop {
-            let (s1, last) = exact_step_end(out, t0, s, hw, d_end);
-            aff.advance(s1 - s, &self.y_prev, &mut self.f_cur);
-            if let Some(e) = check_finite(sys, HybridTime::new(t0 + s1, j), &self.f_cur, None) {
-                return Err(e);
-            }
-            let mut path = AffinePath {
-                aff,
-                s0: s,
-                s1,
-                y0: &self.y_prev,
-                y1: &self.f_cur,
-            };
-            let reach = last.then_some(EndWhy::Reached);
-            if let Some(end) = close_step(
-                sys,
-                &mut self.watcher,
-                &mut self.y_end,
-                out,
-                &mut path,
-                j,
-                (s, s1),
-                &self.f_cur,
-                reach,
-            ) {
-                return Ok(end);
-            }
-            std::mem::swap(&mut self.y_prev, &mut self.f_cur);
-            s = s1;
-        }
-    }
-
-    /// A segment of a [`PolynomialFlow`]: exact steps, each ending where
-    /// the exact path's do ([`affine_segment`](Self::affine_segment)).
-    fn polynomial_segment<S: HybridSystem + ?Sized>(
-        &mut self,
-        sys: &S,
-        out: &mut Output<'_>,
-        t0: f64,
-        j: u64,
-        d_end: f64,
-    ) -> Result<SegmentEnd, SimError> {
-        let (Method::Affine(aff) | Method::Auto(_, aff)) = &mut self.method else {
-            unreachable!("affine method")
+        let mut steps = ExactSteps {
+            watcher: &mut self.watcher,
+            y_prev: &mut self.y_prev,
+            y1: &mut self.f_cur,
+            y_end: &mut self.y_end,
         };
-        let hw = exact_step_limit(&self.watcher, out, self.max_step, aff.watch_step);
-        let poly = aff.poly.as_mut().expect("a polynomial flow");
-        let mut s = 0.0;
-        loop {
-            let (s1, last) = exact_step_end(out, t0, s, hw, d_end);
-            poly.set_step(&self.y_prev, s1 - s);
-            poly.eval_at(1.0, &mut self.f_cur);
-            if let Some(e) = check_finite(sys, HybridTime::new(t0 + s1, j), &self.f_cur, None) {
-                return Err(e);
+        match aff.poly.take() {
+            Some(mut poly) => {
+                let end = steps.run(sys, out, &mut poly, (t0, j), hw, d_end);
+                aff.poly = Some(poly);
+                end
             }
-            let mut path = PolynomialPath {
-                flow: poly,
-                s0: s,
-                s1,
-                y0: &self.y_prev,
-                y1: &self.f_cur,
-            };
-            let reach = last.then_some(EndWhy::Reached);
-            if let Some(end) = close_step(
-                sys,
-                &mut self.watcher,
-                &mut self.y_end,
-                out,
-                &mut path,
-                j,
-                (s, s1),
-                &self.f_cur,
-                reach,
-            ) {
-                return Ok(end);
-            }
-            std::mem::swap(&mut self.y_prev, &mut self.f_cur);
-            s = s1;
+            None => steps.run(sys, out, &mut **aff, (t0, j), hw, d_end),
         }
     }
 
@@ -1487,6 +1423,112 @@ impl Flows {
         };
         self.f_cur = y1;
         result
+    }
+}
+
+/// An exact flow: steps of any length, each with its exact path.
+trait ExactFlow {
+    type Path<'a>: DensePath
+    where
+        Self: 'a;
+
+    /// `y1` = the flow from `y0` after `h`; the step whose path
+    /// [`path`](Self::path) then gives.
+    fn advance(&mut self, h: f64, y0: &[f64], y1: &mut [f64]);
+
+    /// The path of the step just advanced, `[s0, s1]` from `y0` to `y1`.
+    fn path<'a>(&'a mut self, s0: f64, s1: f64, y0: &'a [f64], y1: &'a [f64]) -> Self::Path<'a>;
+}
+
+impl ExactFlow for Affine {
+    type Path<'a> = AffinePath<'a>;
+
+    fn advance(&mut self, h: f64, y0: &[f64], y1: &mut [f64]) {
+        Affine::advance(self, h, y0, y1);
+    }
+
+    fn path<'a>(&'a mut self, s0: f64, s1: f64, y0: &'a [f64], y1: &'a [f64]) -> AffinePath<'a> {
+        AffinePath {
+            aff: self,
+            s0,
+            s1,
+            y0,
+            y1,
+        }
+    }
+}
+
+impl ExactFlow for PolynomialFlow {
+    type Path<'a> = PolynomialPath<'a>;
+
+    fn advance(&mut self, h: f64, y0: &[f64], y1: &mut [f64]) {
+        self.set_step(y0, h);
+        self.eval_at(1.0, y1);
+    }
+
+    fn path<'a>(
+        &'a mut self,
+        s0: f64,
+        s1: f64,
+        y0: &'a [f64],
+        y1: &'a [f64],
+    ) -> PolynomialPath<'a> {
+        PolynomialPath {
+            flow: self,
+            s0,
+            s1,
+            y0,
+            y1,
+        }
+    }
+}
+
+/// The buffers an exact segment steps through (borrowed from [`Flows`]).
+struct ExactSteps<'a> {
+    watcher: &'a mut Watcher,
+    y_prev: &'a mut Vec<f64>,
+    y1: &'a mut Vec<f64>,
+    y_end: &'a mut Vec<f64>,
+}
+
+impl ExactSteps<'_> {
+    /// Steps of at most `hw` from `y_prev` (global time `t0`, jump count
+    /// `j`) until an event, the sink's stop or `d_end`.
+    fn run<S: HybridSystem + ?Sized, F: ExactFlow>(
+        &mut self,
+        sys: &S,
+        out: &mut Output<'_>,
+        flow: &mut F,
+        (t0, j): (f64, u64),
+        hw: f64,
+        d_end: f64,
+    ) -> Result<SegmentEnd, SimError> {
+        let mut s = 0.0;
+        loop {
+            let (s1, last) = exact_step_end(out, t0, s, hw, d_end);
+            flow.advance(s1 - s, self.y_prev, self.y1);
+            if let Some(e) = check_finite(sys, HybridTime::new(t0 + s1, j), self.y1, None) {
+                return Err(e);
+            }
+            let mut path = flow.path(s, s1, self.y_prev, self.y1);
+            let reach = last.then_some(EndWhy::Reached);
+            if let Some(end) = close_step(
+                sys,
+                self.watcher,
+                self.y_end,
+                out,
+                &mut path,
+                j,
+                (s, s1),
+                self.y1,
+                reach,
+            ) {
+                return Ok(end);
+            }
+            drop(path);
+            std::mem::swap(self.y_prev, self.y1);
+            s = s1;
+        }
     }
 }
 
