@@ -86,3 +86,33 @@ fn control_functions_compute_parameters() {
     assert!((p["Bd"][0].as_f64().unwrap() - 0.005).abs() < 1e-12);
     assert!(p["K"][0][0].as_f64().unwrap() > 0.0);
 }
+
+/// A chain of three integrators driven by a constant jerk (a flow whose
+/// solution is a cubic in time) reset at `x ≥ 1`: every reset at
+/// `k·6^(1/3)` to rounding, on the default settings.
+#[test]
+fn a_constant_jerk_reaches_its_guard_at_the_cubic_root() {
+    let src = SourceFile::new(
+        "jerk.hyb",
+        "model jerk\nstate x = 0, v = 0, a = 0\nflow {\n    x' = v\n    v' = a\n    a' = 1\n}\n\
+         jump reset when x >= 1 {\n    x+ = 0\n    v+ = 0\n    a+ = 0\n}\nsim { T = 10 }\n",
+    );
+    let m = lang::compile(&src, &[])
+        .unwrap_or_else(|d| panic!("{}", hybsim::diagnostics::render(&d, &src, false)));
+    let arc = run(&m);
+    let period = 6f64.cbrt();
+    assert_eq!(arc.jumps().len(), 5);
+    for (k, jr) in arc.jumps().iter().enumerate() {
+        let t = (k + 1) as f64 * period;
+        assert!(
+            (jr.at.t - t).abs() <= 16.0 * f64::EPSILON * t,
+            "reset {k}: {} vs {t}",
+            jr.at.t
+        );
+        assert!(
+            (jr.pre[0] - 1.0).abs() <= 1e-14,
+            "reset {k}: x = {}",
+            jr.pre[0]
+        );
+    }
+}
