@@ -87,6 +87,27 @@ pub(crate) fn bernstein_points(a: &[f64], out: &mut [f64; MAX_CONTROL]) -> (usiz
     (n + 1, 32.0 * f64::EPSILON * size)
 }
 
+/// Writes the state at `s` into `out` if `s` is an end of the step
+/// (`s0` with state `y0`, `s1` with `y1`), which a path gives exactly as
+/// held; whether it did.
+#[inline]
+pub(crate) fn at_step_end(
+    s: f64,
+    (s0, y0): (f64, &[f64]),
+    (s1, y1): (f64, &[f64]),
+    out: &mut [f64],
+) -> bool {
+    let end = if s == s1 {
+        y1
+    } else if s == s0 {
+        y0
+    } else {
+        return false;
+    };
+    out.copy_from_slice(end);
+    true
+}
+
 /// The cubic Hermite interpolant through `(s0, y0, f0)` and `(s1, y1, f1)`:
 /// exact for polynomials of degree ≤ 3, error O(h⁴) otherwise.
 pub(crate) struct Hermite<'a> {
@@ -100,12 +121,7 @@ pub(crate) struct Hermite<'a> {
 
 impl StepPath for Hermite<'_> {
     fn eval(&mut self, s: f64, out: &mut [f64]) {
-        if s == self.s1 {
-            out.copy_from_slice(self.y1);
-            return;
-        }
-        if s == self.s0 {
-            out.copy_from_slice(self.y0);
+        if at_step_end(s, (self.s0, self.y0), (self.s1, self.y1), out) {
             return;
         }
         let h = self.s1 - self.s0;

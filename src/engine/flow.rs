@@ -22,7 +22,7 @@ use super::bdf::{Bdf, BdfPath};
 use super::clock::TimeSum;
 use super::dopri5::{Dopri5 as OwnDopri5, DopriPath, Failure};
 use super::error::SimError;
-use super::events::{EventKind, Hermite, Linear, StepPath, Watcher};
+use super::events::{EventKind, Hermite, Linear, StepPath, Watcher, at_step_end};
 use super::implicit::LinearAlgebra;
 use super::polynomial::{PolynomialFlow, PolynomialPath};
 use super::radau5::{Radau5, RadauPath};
@@ -550,17 +550,14 @@ struct AffinePath<'a> {
 
 impl StepPath for AffinePath<'_> {
     fn eval(&mut self, s: f64, out: &mut [f64]) {
-        if s == self.s1 {
-            out.copy_from_slice(self.y1);
-        } else if s == self.s0 {
-            out.copy_from_slice(self.y0);
-        } else {
-            // Not cached: event localization asks for many one-off times.
-            let mut p = std::mem::take(&mut self.aff.one_off);
-            self.aff.exp_step_into(s - self.s0, &mut p);
-            self.aff.apply(&p, self.y0, out);
-            self.aff.one_off = p;
+        if at_step_end(s, (self.s0, self.y0), (self.s1, self.y1), out) {
+            return;
         }
+        // Not cached: event localization asks for many one-off times.
+        let mut p = std::mem::take(&mut self.aff.one_off);
+        self.aff.exp_step_into(s - self.s0, &mut p);
+        self.aff.apply(&p, self.y0, out);
+        self.aff.one_off = p;
     }
 }
 
@@ -844,8 +841,9 @@ impl Flows {
         self.f_prev_partial = false;
         match &self.method {
             // Exact flows need no interpolant: only the timers' rates, one
-            // row of [A, b] each. So does the auto choice without watched
-            // guards until it picks the solver (`segment` then completes f).
+            // row of [A, b] each. So do polynomial flows (always exact), and
+            // the auto choice without watched guards until it picks the
+            // solver (`segment` then completes f).
             Method::Affine(aff) | Method::Auto(_, aff)
                 if matches!(self.method, Method::Affine(_))
                     || self.watcher.is_empty()

@@ -7,7 +7,7 @@
 //! is exact, and its Bernstein control points let the watcher decide every
 //! affine guard on the step exactly.
 
-use super::events::{MAX_CONTROL, StepPath, bernstein_points};
+use super::events::{MAX_CONTROL, StepPath, at_step_end, bernstein_points};
 
 /// The exact polynomial flow of `ẋ = A x + b` with `A` structurally
 /// nilpotent, and the coefficients of its current step.
@@ -145,11 +145,7 @@ pub(crate) struct PolynomialPath<'a> {
 
 impl StepPath for PolynomialPath<'_> {
     fn eval(&mut self, s: f64, out: &mut [f64]) {
-        if s == self.s1 {
-            out.copy_from_slice(self.y1);
-        } else if s == self.s0 {
-            out.copy_from_slice(self.y0);
-        } else {
+        if !at_step_end(s, (self.s0, self.y0), (self.s1, self.y1), out) {
             self.flow.eval_at((s - self.s0) / (self.s1 - self.s0), out);
         }
     }
