@@ -1305,6 +1305,42 @@ fn detect_timer(m: &CheckedModel, cond: crate::check::dag::NodeId) -> Option<Gua
     })
 }
 
+/// The engine's fault of a run-time table index failure.
+#[cold]
+fn index_fault(f: program::IndexFault) -> crate::engine::SystemFault {
+    let show = |v: f64| describe::number(v);
+    let why = |i: f64, n: usize| {
+        if i.fract() == 0.0 {
+            format!("{} is out of range 1..{n}", show(i))
+        } else {
+            format!("{} is not an integer", show(i))
+        }
+    };
+    let ok = |i: f64, n: usize| i >= 1.0 && i <= n as f64 && i.fract() == 0.0;
+    let what = if f.cols == 1 && f.bad.col == 1.0 {
+        format!("table index {}", why(f.bad.row, f.rows))
+    } else if !ok(f.bad.row, f.rows) {
+        format!(
+            "table row index {} ({}×{} table)",
+            why(f.bad.row, f.rows),
+            f.rows,
+            f.cols
+        )
+    } else {
+        format!(
+            "table column index {} ({}×{} table)",
+            why(f.bad.col, f.cols),
+            f.rows,
+            f.cols
+        )
+    };
+    crate::engine::SystemFault {
+        at: HybridTime::new(f.t, f.j as u64),
+        site: f.origin as usize,
+        what,
+    }
+}
+
 impl HybridSystem for CompiledModel {
     fn state_dim(&self) -> usize {
         self.frame.n
@@ -1464,39 +1500,11 @@ impl HybridSystem for CompiledModel {
         true
     }
 
+    #[inline]
     fn take_fault(&self) -> Option<crate::engine::SystemFault> {
-        let f = program::take_index_fault()?;
-        let show = |v: f64| describe::number(v);
-        let why = |i: f64, n: usize| {
-            if i.fract() == 0.0 {
-                format!("{} is out of range 1..{n}", show(i))
-            } else {
-                format!("{} is not an integer", show(i))
-            }
-        };
-        let ok = |i: f64, n: usize| i >= 1.0 && i <= n as f64 && i.fract() == 0.0;
-        let what = if f.cols == 1 && f.bad.col == 1.0 {
-            format!("table index {}", why(f.bad.row, f.rows))
-        } else if !ok(f.bad.row, f.rows) {
-            format!(
-                "table row index {} ({}×{} table)",
-                why(f.bad.row, f.rows),
-                f.rows,
-                f.cols
-            )
-        } else {
-            format!(
-                "table column index {} ({}×{} table)",
-                why(f.bad.col, f.cols),
-                f.rows,
-                f.cols
-            )
-        };
-        Some(crate::engine::SystemFault {
-            at: HybridTime::new(f.t, f.j as u64),
-            site: f.origin as usize,
-            what,
-        })
+        // Polled after every segment and jump map: the usual answer, none,
+        // without the frame of the description.
+        program::take_index_fault().map(index_fault)
     }
 
     fn jump_rules(&self) -> &[JumpRule] {

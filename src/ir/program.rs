@@ -173,10 +173,18 @@ thread_local! {
     /// flow segment and jump map, so a bad index stops the run even where
     /// its NaN would go unnoticed (a guard, an output).
     static INDEX_FAULT: Cell<Option<IndexFault>> = const { Cell::new(None) };
+    /// Whether `INDEX_FAULT` holds one: the poll, several times a step,
+    /// reads a flag instead of moving the whole record out and back.
+    static FAULTED: Cell<bool> = const { Cell::new(false) };
 }
 
 /// Takes the first recorded index failure on this thread, if any.
+#[inline]
 pub(crate) fn take_index_fault() -> Option<IndexFault> {
+    if !FAULTED.with(Cell::get) {
+        return None;
+    }
+    FAULTED.with(|f| f.set(false));
     INDEX_FAULT.with(|f| f.take())
 }
 
@@ -200,6 +208,7 @@ pub(super) fn lookup(
         Err(bad) => {
             INDEX_FAULT.with(|f| {
                 if f.get().is_none() {
+                    FAULTED.with(|f| f.set(true));
                     f.set(Some(IndexFault {
                         origin,
                         bad,
