@@ -633,6 +633,11 @@ pub(crate) struct Watcher {
     buf_b: Vec<f64>,
     buf_t: Vec<f64>,
     best_a: Vec<f64>,
+    /// Whether an event's bracket start is read: only equality atoms
+    /// (`==`, `!=`) are decided from both ends of the bracket (every other
+    /// atom at its post-change end), so without them neither the state
+    /// nor the atoms there are computed.
+    bracket_start_read: bool,
     /// Offset of each set's atoms in the layout of
     /// [`HybridSystem::all_atom_values`] (`None`: a set without atoms).
     flat_off: Vec<Option<usize>>,
@@ -770,6 +775,13 @@ impl Watcher {
             }
         }
         let flat_checks = watched_sets >= 2 && 2 * watched.len() >= flowing;
+        let bracket_start_read = sets.iter().any(|ws| {
+            ws.spec.as_ref().is_some_and(|spec| {
+                spec.atoms
+                    .iter()
+                    .any(|a| matches!(a.cmp, Cmp::Eq | Cmp::Ne))
+            })
+        });
         let flat_watched = (0..sets.len()).all(|i| !sets[i].source || flat_off[i].is_some());
         let n = x0.len();
         Self {
@@ -806,6 +818,7 @@ impl Watcher {
             buf_b: vec![0.0; n],
             buf_t: vec![0.0; n],
             best_a: vec![0.0; n],
+            bracket_start_read,
             event_state: vec![0.0; n],
             rule_at_event: None,
         }
@@ -1345,14 +1358,18 @@ impl Watcher {
                 if best.is_none_or(|(_, bb, _)| b < bb) {
                     best = Some((a, b, fresh));
                     if fresh {
-                        self.best_a.copy_from_slice(&self.buf_a);
+                        if self.bracket_start_read {
+                            self.best_a.copy_from_slice(&self.buf_a);
+                        }
                         self.event_state.copy_from_slice(&self.buf_b);
                     }
                 }
             }
             let (a, b, fresh) = best?;
             if !fresh {
-                path.eval(a, &mut self.best_a);
+                if self.bracket_start_read {
+                    path.eval(a, &mut self.best_a);
+                }
                 path.eval(b, &mut self.event_state);
             }
             self.evaluate_sets(sys, self.clock.at(a), self.clock.at(b));
@@ -1454,14 +1471,16 @@ impl Watcher {
     }
 
     /// Evaluates every set on the bracket `[ta, tb]` whose end states are
-    /// in `best_a` and `event_state`, into each set's `new` (module docs).
+    /// in `best_a` (if [`bracket_start_read`](Self::bracket_start_read))
+    /// and `event_state`, into each set's `new` (module docs).
     fn evaluate_sets<S: HybridSystem + ?Sized>(&mut self, sys: &S, ta: f64, tb: f64) {
         let (ta, tb) = (HybridTime::new(ta, self.j), HybridTime::new(tb, self.j));
         let (xa, xb) = (&self.best_a, &self.event_state);
+        let read_a = self.bracket_start_read;
         // Every set's atoms in one evaluation per bracket end where the
         // system offers it, as at the segment's start.
         let flat = self.flat_ok
-            && sys.all_atom_values(ta, xa, false, &mut self.flat)
+            && (!read_a || sys.all_atom_values(ta, xa, false, &mut self.flat))
             && sys.all_atom_values(tb, xb, false, &mut self.flat_b);
         for (i, ws) in self.sets.iter_mut().enumerate() {
             let mut va = std::mem::take(&mut ws.va);
@@ -1469,11 +1488,15 @@ impl Watcher {
             match self.flat_off[i] {
                 Some(off) if flat => {
                     let len = va.len();
-                    va.copy_from_slice(&self.flat[off..off + len]);
+                    if read_a {
+                        va.copy_from_slice(&self.flat[off..off + len]);
+                    }
                     vb.copy_from_slice(&self.flat_b[off..off + len]);
                 }
                 _ => {
-                    atom_values(sys, ws, ta, xa, false, &mut va);
+                    if read_a {
+                        atom_values(sys, ws, ta, xa, false, &mut va);
+                    }
                     atom_values(sys, ws, tb, xb, false, &mut vb);
                 }
             }
@@ -1573,8 +1596,9 @@ impl Watcher {
     }
 
     /// Shrinks the bracket `(a, b]` of watched atom `w` (sign class
-    /// `cls[w]` at `a`, another at `b`) to the first change within the
-    /// tolerance. Leaves x(a) in `buf_a` and x(b) in `buf_b`.
+    /// `cls[w]` at `a`, `cls_s[w]` at the checkpoint `b`) to the first
+    /// change within the tolerance. Leaves x(b) in `buf_b`, and x(a) in
+    /// `buf_a` if [`bracket_start_read`](Self::bracket_start_read).
     fn localize<S: HybridSystem + ?Sized, P: StepPath>(
         &mut self,
         sys: &S,
@@ -1584,14 +1608,21 @@ impl Watcher {
         mut b: f64,
     ) -> (f64, f64) {
         let c0 = self.cls[w];
-        let mut fa = self.watched_at(sys, w, path, a, Buf::A);
-        let mut fb = self.watched_at(sys, w, path, b, Buf::B);
-        if fb == 0.0 && c0 != 0 {
-            // b is an exact root (a clock reaching its threshold at a step
-            // end): the change is at b. Secant and bisection would only
-            // creep towards b for ~50 iterations.
-            self.buf_a.copy_from_slice(&self.buf_b);
-            return (b, b);
+        // The values at the bracket's ends (with the states in `buf_a`,
+        // `buf_b`) are computed when first read: interpolation reads them,
+        // but the guided trials of an affine atom close most brackets
+        // first, replacing both ends.
+        let (mut fa, mut fb) = (None, None);
+        if self.cls_s[w] == 0 {
+            let v = self.watched_at(sys, w, path, b, Buf::B);
+            fb = Some(v);
+            if v == 0.0 && c0 != 0 {
+                // b is an exact root (a clock reaching its threshold at a
+                // step end): the change is at b. Secant and bisection would
+                // only creep towards b for ~50 iterations.
+                self.buf_a.copy_from_slice(&self.buf_b);
+                return (b, b);
+            }
         }
         let event_tol = self.event_tol;
         // A few ulp of t: finer than t itself can hold would only chase
@@ -1626,6 +1657,8 @@ impl Watcher {
             } else if let Some(g) = guess.take() {
                 g
             } else {
+                let fa = *fa.get_or_insert_with(|| self.watched_at(sys, w, path, a, Buf::A));
+                let fb = *fb.get_or_insert_with(|| self.watched_at(sys, w, path, b, Buf::B));
                 itp.next(a, b, fa, fb, c0 != 2 && !slow, tol)
             };
             // Keep the trial strictly inside. A trial within `tol` of an end
@@ -1650,7 +1683,7 @@ impl Watcher {
             }
             if class(v) != c0 {
                 b = s;
-                fb = v;
+                fb = Some(v);
                 std::mem::swap(&mut self.buf_b, &mut self.buf_t);
                 if leaving_zero {
                     // The change is within `tol` of a.
@@ -1658,10 +1691,16 @@ impl Watcher {
                 }
             } else {
                 a = s;
-                fa = v;
+                fa = Some(v);
                 std::mem::swap(&mut self.buf_a, &mut self.buf_t);
             }
             leaving_zero = false;
+        }
+        if fb.is_none() {
+            path.eval(b, &mut self.buf_b);
+        }
+        if fa.is_none() && self.bracket_start_read {
+            path.eval(a, &mut self.buf_a);
         }
         (a, b)
     }
