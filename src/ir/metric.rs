@@ -50,9 +50,13 @@ pub struct Metrics {
     n: usize,
     /// The state components the sample program reads in its frame's x and
     /// x⁺ parts: copied into its registers at each evaluation (often a few
-    /// of a large state).
+    /// of a large state). Both empty when the program is compiled over x
+    /// alone (`on_x`).
     reads_pre: Vec<usize>,
     reads_post: Vec<usize>,
+    /// Whether the sample program's frame is the state itself (it reads no
+    /// x⁺ component and not the frame's j): it then runs on x where it is.
+    on_x: bool,
     combine: Program,
     combine_regs: usize,
     base: usize,
@@ -97,21 +101,22 @@ impl Metrics {
         let at_jumps = (0..specs.len())
             .filter(|&k| specs[k].kind == ReductionKind::Period)
             .collect();
-        let frame = Frame { n: 2 * n + 1, m: 0 };
-        let sample = Program::compile(dag, frame, &outs);
         // What the sample program reads in its frame [x (n) | j | x⁺ (n) | t]
         // (x⁺ = x at a sample).
         let reached = dag.reachable(&outs);
         let mut reads = vec![false; n];
         let (mut reads_pre, mut reads_post) = (Vec::new(), Vec::new());
-        let (mut reads_j, mut draws) = (false, false);
+        let (mut reads_j, mut frame_j, mut draws) = (false, false, false);
         for (id, _) in reached.iter().enumerate().filter(|&(_, &r)| r) {
             match dag.node(id as crate::check::dag::NodeId) {
                 Node::State(k) if (k as usize) < n => {
                     reads[k as usize] = true;
                     reads_pre.push(k as usize);
                 }
-                Node::State(k) if k as usize == n => reads_j = true,
+                Node::State(k) if k as usize == n => {
+                    reads_j = true;
+                    frame_j = true;
+                }
                 Node::State(k) => {
                     reads[k as usize - n - 1] = true;
                     reads_post.push(k as usize - n - 1);
@@ -123,6 +128,17 @@ impl Metrics {
         }
         reads_pre.sort_unstable();
         reads_post.sort_unstable();
+        // `eval` fills x⁺ with x and the frame's j with j: a program reading
+        // neither is the same program over x, t and j (the state's frame),
+        // and runs on x without a copy of the components it reads.
+        let on_x = reads_post.is_empty() && !frame_j;
+        let frame = if on_x {
+            reads_pre.clear();
+            Frame { n, m: 0 }
+        } else {
+            Frame { n: 2 * n + 1, m: 0 }
+        };
+        let sample = Program::compile(dag, frame, &outs);
         let jump_keeps_values = writes
             .iter()
             .map(|w| {
@@ -147,6 +163,7 @@ impl Metrics {
             n,
             reads_pre,
             reads_post,
+            on_x,
             combine,
             combine_regs,
             base: m.base,
@@ -192,16 +209,20 @@ impl Metrics {
         }
         let n = self.n;
         with_regs(self.sample_regs, |regs| {
-            for &k in &self.reads_pre {
-                regs[k] = x[k];
+            if self.on_x {
+                self.sample.run_at(regs, at, x, None);
+            } else {
+                for &k in &self.reads_pre {
+                    regs[k] = x[k];
+                }
+                regs[n] = at.j as f64;
+                for &k in &self.reads_post {
+                    regs[n + 1 + k] = x[k];
+                }
+                regs[2 * n + 1] = at.t;
+                regs[2 * n + 2] = at.j as f64;
+                self.sample.run(regs, None);
             }
-            regs[n] = at.j as f64;
-            for &k in &self.reads_post {
-                regs[n + 1 + k] = x[k];
-            }
-            regs[2 * n + 1] = at.t;
-            regs[2 * n + 2] = at.j as f64;
-            self.sample.run(regs, None);
             for (v, &o) in vals.iter_mut().zip(&self.sample.outs) {
                 *v = regs[o as usize];
             }
