@@ -906,6 +906,7 @@ impl Program {
 
 /// A random draw of `dist` with parameters `(x, y)`; NaN without a
 /// generator (programs that may not draw).
+#[inline]
 pub(super) fn draw(rng: Option<&mut SimRng>, dist: Dist, x: f64, y: f64) -> f64 {
     match rng {
         Some(rng) => match dist {

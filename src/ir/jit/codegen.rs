@@ -170,7 +170,7 @@ impl Generator {
             let sigs = Sigs {
                 un: b.import_signature(sig(module, &[f64t], Some(f64t))),
                 bin: b.import_signature(sig(module, &[f64t, f64t], Some(f64t))),
-                rand: b.import_signature(sig(module, &[ptr, types::I32, f64t, f64t], Some(f64t))),
+                rand: b.import_signature(sig(module, &[ptr, f64t, f64t], Some(f64t))),
                 block: b.import_signature(sig(module, &[ptr, ptr], None)),
                 lookup: b.import_signature(sig(
                     module,
@@ -621,13 +621,9 @@ impl Emit<'_, '_> {
             }
             Op::Rand { d, dist, a, b } => {
                 let (a, b) = (self.get(a), self.get(b));
-                let code = self
-                    .b
-                    .ins()
-                    .iconst(types::I32, i64::from(helpers::dist_code(dist)));
                 let (sig, rng) = (self.sigs.rand, self.rng);
-                let r = helpers::rand as helpers::Rand as *const u8;
-                let v = self.call(sig, r, &[rng, code, a, b]).expect("one result");
+                let r = helpers::rand_helper(dist) as *const u8;
+                let v = self.call(sig, r, &[rng, a, b]).expect("one result");
                 self.set(d, v);
             }
             Op::Lookup {

@@ -14,8 +14,8 @@ use crate::ir::program::{Op, Program, apply_block, draw, lookup};
 pub(super) type Un = extern "C" fn(f64) -> f64;
 /// A function of two arguments called by the generated code.
 pub(super) type Bin = extern "C" fn(f64, f64) -> f64;
-/// `draw(rng, dist, a, b)`.
-pub(super) type Rand = extern "C" fn(*mut SimRng, u32, f64, f64) -> f64;
+/// `draw(rng, dist, a, b)` for one `dist` ([`rand_helper`]).
+pub(super) type Rand = extern "C" fn(*mut SimRng, f64, f64) -> f64;
 /// `block(desc, regs)`.
 pub(super) type Block = extern "C" fn(*const BlockDesc, *mut f64);
 /// `table_lookup(table, row, col, origin, when, t, j)`.
@@ -226,25 +226,34 @@ pub(super) fn bin_helper(f: BinFn) -> Option<Bin> {
     }
 }
 
-/// The code of `dist` passed to [`rand`].
-pub(super) fn dist_code(dist: Dist) -> u32 {
+/// The helper drawing from `dist`: one per distribution, so a draw decodes
+/// no distribution at run time.
+pub(super) fn rand_helper(dist: Dist) -> Rand {
     match dist {
-        Dist::Uniform => 0,
-        Dist::Normal => 1,
-        Dist::Bernoulli => 2,
+        Dist::Uniform => rand_uniform,
+        Dist::Normal => rand_normal,
+        Dist::Bernoulli => rand_bernoulli,
     }
 }
 
 /// A random draw (the interpreter's [`draw`]); `rng` null draws NaN.
-pub(super) extern "C" fn rand(rng: *mut SimRng, dist: u32, a: f64, b: f64) -> f64 {
-    let dist = match dist {
-        0 => Dist::Uniform,
-        1 => Dist::Normal,
-        _ => Dist::Bernoulli,
-    };
+#[inline(always)]
+fn rand(rng: *mut SimRng, dist: Dist, a: f64, b: f64) -> f64 {
     // SAFETY: `Native::run` passes null or a pointer from a live `&mut SimRng`.
     let rng = unsafe { rng.as_mut() };
     draw(rng, dist, a, b)
+}
+
+extern "C" fn rand_uniform(rng: *mut SimRng, a: f64, b: f64) -> f64 {
+    rand(rng, Dist::Uniform, a, b)
+}
+
+extern "C" fn rand_normal(rng: *mut SimRng, a: f64, b: f64) -> f64 {
+    rand(rng, Dist::Normal, a, b)
+}
+
+extern "C" fn rand_bernoulli(rng: *mut SimRng, a: f64, b: f64) -> f64 {
+    rand(rng, Dist::Bernoulli, a, b)
 }
 
 /// What the generated code passes to [`block`]: one matrix operation of a
