@@ -307,7 +307,14 @@ struct TimerAtom {
     atom: usize,
     index: usize,
     threshold: f64,
+    /// Local time at which the timer reaches its threshold (∞: never).
     d: f64,
+    /// The atom's truth once past the threshold (the sign of the rate).
+    after: bool,
+    /// Whether the scan has passed `d` ([`Watcher::cross_timers`]), and
+    /// whether at the checkpoint being examined.
+    crossed: bool,
+    now: bool,
 }
 
 /// How often [`first_other_sign`] halves a step at most: a change of sign
@@ -733,6 +740,9 @@ impl Watcher {
                             index,
                             threshold,
                             d: f64::INFINITY,
+                            after: false,
+                            crossed: false,
+                            now: false,
                         });
                     }
                 }
@@ -856,11 +866,17 @@ impl Watcher {
 
     /// Schedules the timer atoms of the segment started by
     /// [`start`](Self::start) from `x`, whose flow there is `f` (at least
-    /// at the timer components): returns the local time at which the first
-    /// of them reaches its threshold (∞: none does), or `None` if C is left
-    /// at once (a timer atom of C on its threshold, or beyond it within
-    /// `set_tol`, moving away from C, and C fails with it). A timer atom
-    /// that becomes false at once keeps that truth for the segment.
+    /// at the timer components): returns the local time at which the
+    /// segment must end for them (∞: never), or `None` if C is left at once
+    /// (a timer atom of C on its threshold, or beyond it within `set_tol`,
+    /// moving away from C, and C fails with it). A timer atom that becomes
+    /// false at once keeps that truth for the segment.
+    ///
+    /// With watched atoms, every step is scanned and each threshold is a
+    /// checkpoint of the step that passes it ([`cross_timers`](Self::cross_timers)):
+    /// the segment goes on there unless a set changes (the ball's apex, a
+    /// timer atom of C = {h ≥ 0 ∨ v ≥ 0} passed while h > 0, costs no new
+    /// segment). Without, the segment ends at the first threshold.
     pub fn schedule(&mut self, x: &[f64], f: &[f64]) -> Option<f64> {
         let mut first = f64::INFINITY;
         let mut changed = false;
@@ -873,6 +889,8 @@ impl Watcher {
             } else {
                 f64::INFINITY
             };
+            ta.after = cmp.holds(rate);
+            ta.crossed = false;
             first = first.min(ta.d);
             // On (or past) the threshold and moving away from it: the truth
             // just after the start is that of `g` with the rate's sign.
@@ -899,7 +917,97 @@ impl Watcher {
                 }
             }
         }
-        Some(first)
+        Some(if self.watched.is_empty() {
+            first
+        } else {
+            f64::INFINITY
+        })
+    }
+
+    /// Passes the thresholds of the timer atoms due by the checkpoint `s`
+    /// (local time; the state there is `x`, the watched atoms' values at it
+    /// in `vs`): an event if a jump set holds on a threshold (the timer
+    /// exactly on it) or C fails past it, else each set takes its value
+    /// past the thresholds and the scan goes on. The event's state is `x`
+    /// with the timers set exactly to their thresholds.
+    fn cross_timers(&mut self, s: f64, x: &[f64]) -> Option<EventKind> {
+        let mut any = false;
+        for ta in &mut self.timers {
+            ta.now = !ta.crossed && ta.d <= s;
+            ta.crossed |= ta.now;
+            any |= ta.now;
+        }
+        if !any {
+            return None;
+        }
+        // Past the thresholds for the rest of the segment, unless an event
+        // ends it here.
+        for ta in &self.timers {
+            if ta.now {
+                self.sets[ta.set].start_truth[ta.atom] = ta.after;
+            }
+        }
+        // An atom's truth at the checkpoint: the checkpoint's value for a
+        // watched atom, else the segment's truth (past the thresholds), or
+        // for the timers crossed now, on their threshold if `on`.
+        let timers = &self.timers;
+        let value = |i: usize, ws: &WSet, on: bool| {
+            let spec = ws.spec.as_ref().filter(|_| ws.source)?;
+            Some(set_value(spec, ws.table, |k| {
+                let atom = spec.atoms[k];
+                if on
+                    && timers
+                        .iter()
+                        .any(|ta| ta.now && ta.set == i && ta.atom == k)
+                {
+                    atom.cmp.holds(0.0)
+                } else if atom.watched() {
+                    atom.cmp.holds_within(ws.vs[k], ws.relax[k])
+                } else {
+                    ws.start_truth[k]
+                }
+            }))
+        };
+        // A jump set met on the thresholds, or C left past them.
+        let kind = self
+            .sets
+            .iter()
+            .enumerate()
+            .find_map(|(i, ws)| match ws.set {
+                SetRef::Jump(r) if !ws.cur && value(i, ws, true) == Some(true) => {
+                    Some(EventKind::Jump(r))
+                }
+                _ => None,
+            });
+        let kind = kind.or_else(|| {
+            let i = self.flow?;
+            (value(i, &self.sets[i], false) == Some(false)).then_some(EventKind::LeftFlowSet)
+        });
+        for i in 0..self.sets.len() {
+            let ws = &self.sets[i];
+            let on = kind.is_some() && ws.set != SetRef::Flow;
+            // A set without timer atoms keeps its value here.
+            let v = value(i, ws, on).unwrap_or(ws.cur);
+            let ws = &mut self.sets[i];
+            if kind.is_some() {
+                ws.new = v;
+            } else {
+                ws.cur = v;
+            }
+        }
+        let kind = kind?;
+        // As at an event found by `resolve`.
+        self.rule_at_event = self.sets.iter().find_map(|ws| match ws.set {
+            SetRef::Jump(r) if ws.new => Some(r),
+            _ => None,
+        });
+        self.event_state.copy_from_slice(x);
+        for ta in &self.timers {
+            if ta.crossed {
+                self.event_state[ta.index] = ta.threshold;
+            }
+        }
+        Some(kind)
     }
 
     /// The timer atoms due at the end `d_end` of a segment reached by the
@@ -1160,8 +1268,16 @@ impl Watcher {
         points.clear();
         points.extend(early.iter().map(|e| s0 + (s1 - s0) * e));
         points.extend((1..=m).map(|i| s0 + (s1 - s0) * (i as f64 / (m + 1) as f64)));
-        if !self.extra.is_empty() {
-            points.extend_from_slice(&self.extra);
+        let evenly = points.len();
+        points.extend_from_slice(&self.extra);
+        // The timers' thresholds reached on the step (`cross_timers`).
+        points.extend(
+            self.timers
+                .iter()
+                .filter(|ta| !ta.crossed && ta.d > s0 && ta.d < s1)
+                .map(|ta| ta.d),
+        );
+        if points.len() > evenly {
             points.sort_by(f64::total_cmp);
         }
         points.push(s1);
@@ -1205,6 +1321,14 @@ impl Watcher {
                 // classes again (`classes_at` left them otherwise).
                 if self.relaxed != relaxed {
                     self.classes_from_vs();
+                }
+            }
+            if !self.timers.is_empty() {
+                let xs = std::mem::take(&mut self.buf_s);
+                let crossed = self.cross_timers(s, if last { y1 } else { &xs });
+                self.buf_s = xs;
+                if let Some(kind) = crossed {
+                    return Some((s, kind));
                 }
             }
             // The checkpoint's classes become the cursor's (`cls_s` is

@@ -953,6 +953,16 @@ fn timer_atoms_of_the_sets_are_scheduled_exactly() {
         matches!(&end.cause, TerminationCause::CannotFlowOrJump { leaving: true, state, .. } if state[0] == 0.0),
         "{end:?}"
     );
+    // The same beside a watched atom (which makes every step scanned): the
+    // threshold is a checkpoint inside a step, where C is left exactly.
+    let src = "model m\nstate tau = 0.75, y = 0\nflow { tau' = -1; y' = 2 } in tau >= 0 && y <= 100\n\
+               jump never when y >= 10 { y+ = 0 }\nsim { T = 5 }\n";
+    let end = run(&compile(src)).termination().unwrap().clone();
+    assert_eq!(end.at.t, 0.75);
+    assert!(
+        matches!(&end.cause, TerminationCause::CannotFlowOrJump { leaving: true, state, .. } if state[0] == 0.0 && (state[1] - 1.5).abs() < 1e-14),
+        "{end:?}"
+    );
     // On the threshold and moving out of C at the start: no flow at all.
     let src = "model m\nstate tau = 1\nflow { tau' = 1 } in tau <= 1\nsim { T = 5 }\n";
     let end = run(&compile(src)).termination().unwrap().clone();
@@ -983,6 +993,28 @@ fn timer_atoms_of_the_sets_are_scheduled_exactly() {
         "{}",
         arc.jumps()[0].pre[0]
     );
+}
+
+/// A timer atom whose threshold is passed while its set keeps its value (C =
+/// {h ≥ 0 ∨ tau ≤ 0.3} at tau = 0.3 with the ball in the air) changes
+/// nothing: the flow goes on through it, and the bounces are those of the
+/// ball without the atom (C = {h ≥ 0}).
+#[test]
+fn a_timer_threshold_that_changes_no_set_is_passed_within_the_flow() {
+    let model = |c: &str| {
+        format!(
+            "model m\nstate h = 1, v = 0, tau = 0\nflow {{ h' = v; v' = -9.81; tau' = 1 }} in {c}\n\
+             jump bounce when h <= 0 && v < 0 {{ v+ = -0.8 * v }}\nsim {{ T = 3 }}\n"
+        )
+    };
+    let with = run(&compile(&model("h >= 0 || tau <= 0.3")));
+    let without = run(&compile(&model("h >= 0")));
+    let (a, b) = (jump_times(&with), jump_times(&without));
+    assert_eq!(a.len(), b.len());
+    assert!(a.len() >= 5, "{a:?}");
+    for (x, y) in a.iter().zip(&b) {
+        assert!((x - y).abs() <= 1e-12, "{a:?} vs {b:?}");
+    }
 }
 
 /// An event of a guard that depends on `t` is recorded at exactly the time
