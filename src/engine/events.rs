@@ -1039,17 +1039,17 @@ impl Watcher {
         self.relaxed = 0;
         for (i, ws) in self.sets.iter_mut().enumerate() {
             let is_flow = self.flow == Some(i);
-            match self.flat_off[i] {
-                Some(off) if self.flat_ok => {
-                    let len = ws.vs.len();
-                    ws.vs.copy_from_slice(&self.flat[off..off + len]);
-                }
+            // The set's values from the prefetched ones (copied by the pass
+            // below: a call to memcpy for 3 or 4 values cost more), or its own.
+            let flat = match self.flat_off[i] {
+                Some(off) if self.flat_ok => Some(&self.flat[off..off + ws.vs.len()]),
                 _ => {
                     let mut vals = std::mem::take(&mut ws.vs);
                     atom_values(sys, ws, at, x, false, &mut vals);
                     ws.vs = vals;
+                    None
                 }
-            }
+            };
             // The atoms' truth, and as bits the truth table's index (a
             // table covers at most `TruthTable::MAX_ATOMS` atoms).
             let mut mask = 0u32;
@@ -1057,8 +1057,10 @@ impl Watcher {
                 // A jump set's atoms are never relaxed (`relax` stays 0):
                 // one pass of comparisons, the per-segment common case.
                 Some(spec) if !is_flow => {
-                    let atoms = spec.atoms.iter().zip(&ws.vs).zip(&mut ws.start_truth);
-                    for (k, ((a, &g), truth)) in atoms.enumerate() {
+                    let atoms = spec.atoms.iter().zip(&mut ws.vs).zip(&mut ws.start_truth);
+                    for (k, ((a, v), truth)) in atoms.enumerate() {
+                        let g = flat.map_or(*v, |f| f[k]);
+                        *v = g;
                         let holds = a.cmp.holds(g);
                         *truth = holds;
                         if k < TruthTable::MAX_ATOMS {
@@ -1067,6 +1069,9 @@ impl Watcher {
                     }
                 }
                 _ => {
+                    if let Some(f) = flat {
+                        ws.vs.copy_from_slice(f);
+                    }
                     let atoms = ws.spec.as_ref().map(|s| &s.atoms[..]);
                     for (k, &g) in ws.vs.iter().enumerate() {
                         let cmp = atoms.map_or(Cmp::Ge, |a| a[k].cmp);
