@@ -929,7 +929,7 @@ impl Watcher {
     /// in `vs`): an event if a jump set holds on a threshold (the timer
     /// exactly on it) or C fails past it, else each set takes its value
     /// past the thresholds and the scan goes on. The event's state is `x`
-    /// with the timers set exactly to their thresholds.
+    /// with the timers crossed there set exactly to their thresholds.
     fn cross_timers(&mut self, s: f64, x: &[f64]) -> Option<EventKind> {
         let mut any = false;
         for ta in &mut self.timers {
@@ -1003,7 +1003,7 @@ impl Watcher {
         });
         self.event_state.copy_from_slice(x);
         for ta in &self.timers {
-            if ta.crossed {
+            if ta.now {
                 self.event_state[ta.index] = ta.threshold;
             }
         }

@@ -1010,6 +1010,16 @@ fn a_timer_threshold_that_changes_no_set_is_passed_within_the_flow() {
     let with = run(&compile(&model("h >= 0 || tau <= 0.3")));
     let without = run(&compile(&model("h >= 0")));
     let (a, b) = (jump_times(&with), jump_times(&without));
+    // A timer passed earlier in the segment stays where its flow took it
+    // at a later timer's event: only the timer reaching its threshold
+    // there is set to it (x, of varying rate, is watched).
+    let src = "model m\nstate x = 1, t1 = 0, t2 = 0\nflow { x' = -x; t1' = 1; t2' = 1 } in x >= 0 || t1 <= 0.2\n\
+               jump go when t2 >= 1 && x <= 100 { t2+ = -5 }\nsim { T = 1.5 }\n";
+    let arc = run(&compile(src));
+    assert_times(&arc, &[1.0], "t2 >= 1 && x <= 100");
+    let pre = &arc.jumps()[0].pre;
+    assert_eq!(pre[2], 1.0);
+    assert!((pre[1] - 1.0).abs() < 1e-12, "{pre:?}");
     assert_eq!(a.len(), b.len());
     assert!(a.len() >= 5, "{a:?}");
     for (x, y) in a.iter().zip(&b) {
