@@ -317,6 +317,8 @@ pub(crate) struct Affine {
     /// series of [`action`](Self::action) (one product per term costs the
     /// nonzeros, not n²).
     entries: Vec<(usize, usize, f64)>,
+    /// Where each row's entries start in `entries` (n + 1 offsets).
+    row_start: Vec<usize>,
     /// ‖A‖∞, for the series' bound.
     norm: f64,
     /// The series' term and its next one.
@@ -327,8 +329,12 @@ pub(crate) struct Affine {
     /// Estimated flops of one evaluation of f on the solver path.
     feval_cost: f64,
     /// Solver work (flops, estimated) spent so far on whole segments of
-    /// each recent duration (bits of the duration), for the auto choice.
-    spent: Vec<(u64, f64)>,
+    /// each recent duration (bits of the duration), for the auto choice:
+    /// the durations (`NO_DURATION` in unused slots), the work on each,
+    /// and the slot the next new duration takes (oldest first). Fixed
+    /// arrays: every segment looks its duration up.
+    spent_keys: [u64; AFFINE_SPENT],
+    spent_work: [f64; AFFINE_SPENT],
     next_spent: usize,
     /// The flow as a polynomial in time, where `A` is structurally
     /// nilpotent: then every segment takes it (exact, and cheaper than
@@ -341,6 +347,9 @@ const AFFINE_CACHE: usize = 16;
 const APPLY_BLOCK: usize = 8;
 /// Durations whose solver work is remembered by the auto choice.
 const AFFINE_SPENT: usize = 16;
+/// An unused slot of the remembered durations: the bits of a NaN that no
+/// arithmetic produces (a duration is never NaN anyway).
+const NO_DURATION: u64 = u64::MAX;
 
 impl Affine {
     pub fn new(n: usize, a: &[f64], b: &[f64]) -> Result<Self, SimError> {
@@ -375,6 +384,13 @@ impl Affine {
             .filter_map(|(r, c)| Some((r, c, gen_[(r, c)])).filter(|e| e.2 != 0.0))
             .collect();
         let nnz = entries.len();
+        let mut row_start = vec![0; n + 1];
+        for &(r, _, _) in &entries {
+            row_start[r + 1] += 1;
+        }
+        for r in 0..n {
+            row_start[r + 1] += row_start[r];
+        }
         let watch_step = if norm > 0.0 {
             1.0 / norm
         } else {
@@ -392,6 +408,7 @@ impl Affine {
             scratch: vec![0.0; n],
             one_off: Vec::new(),
             entries,
+            row_start,
             norm,
             term: vec![0.0; n],
             term_next: vec![0.0; n],
@@ -408,7 +425,8 @@ impl Affine {
             // The products of f, and the vector updates of a Runge–Kutta
             // stage (about 12 flops per component).
             feval_cost: 2.0 * nnz as f64 + 12.0 * n as f64,
-            spent: Vec::with_capacity(AFFINE_SPENT),
+            spent_keys: [NO_DURATION; AFFINE_SPENT],
+            spent_work: [0.0; AFFINE_SPENT],
             next_spent: 0,
             active: (2 * active.len() <= n).then_some(active),
             poly: PolynomialFlow::new(n, a, b),
@@ -422,9 +440,20 @@ impl Affine {
         let key = d.to_bits();
         self.cache.iter().any(|(k, _)| *k == key)
             || self
-                .spent
-                .iter()
-                .any(|&(k, w)| k == key && w >= self.exp_cost)
+                .spent_slot(key)
+                .is_some_and(|i| self.spent_work[i] >= self.exp_cost)
+    }
+
+    /// The slot of `spent_keys` holding `key`, if any.
+    fn spent_slot(&self, key: u64) -> Option<usize> {
+        // Branch-free over the whole array (a key is in one slot at most).
+        let mut slot = AFFINE_SPENT;
+        for (i, &k) in self.spent_keys.iter().enumerate() {
+            if k == key {
+                slot = i;
+            }
+        }
+        (slot < AFFINE_SPENT).then_some(slot)
     }
 
     /// Records `fevals` solver evaluations of f on a whole segment of
@@ -432,13 +461,12 @@ impl Affine {
     fn spend(&mut self, d: f64, fevals: u64) {
         let key = d.to_bits();
         let w = fevals as f64 * self.feval_cost;
-        if let Some(e) = self.spent.iter_mut().find(|(k, _)| *k == key) {
-            e.1 += w;
-        } else if self.spent.len() < AFFINE_SPENT {
-            self.spent.push((key, w));
+        if let Some(i) = self.spent_slot(key) {
+            self.spent_work[i] += w;
         } else {
-            self.spent[self.next_spent] = (key, w);
-            self.next_spent = (self.next_spent + 1) % AFFINE_SPENT;
+            let i = self.next_spent;
+            (self.spent_keys[i], self.spent_work[i]) = (key, w);
+            self.next_spent = (i + 1) % AFFINE_SPENT;
         }
     }
 
@@ -521,6 +549,17 @@ impl Affine {
     fn advance(&mut self, h: f64, x: &[f64], out: &mut [f64]) {
         let slot = self.propagator(h);
         self.apply(&self.cache[slot].1, x, out);
+    }
+
+    /// Component `i` of `A x + b`: its row's nonzero entries in column
+    /// order, `b` last (a timer's rate costs its row's entries, not n).
+    fn rate(&self, i: usize, x: &[f64]) -> f64 {
+        let row = &self.entries[self.row_start[i]..self.row_start[i + 1]];
+        let (terms, b) = match row.last() {
+            Some(&(_, c, b)) if c == self.n => (&row[..row.len() - 1], b),
+            _ => (row, 0.0),
+        };
+        b + terms.iter().map(|&(_, c, a)| a * x[c]).sum::<f64>()
     }
 
     /// `out` = the flow from `x` after `h`, by the Taylor series of the
@@ -965,15 +1004,8 @@ impl Flows {
                     || aff.poly.is_some() =>
             {
                 self.f_prev_partial = matches!(self.method, Method::Auto(..));
-                let n = aff.n;
-                // Column-major (n+1) × (n+1): row i's entries are ld apart.
-                let (g, ld) = (aff.gen_.as_slice(), n + 1);
                 for &i in &self.timer_rows {
-                    self.f_prev[i] = g[n * ld + i]
-                        + g.chunks_exact(ld)
-                            .zip(x)
-                            .map(|(col, x)| col[i] * x)
-                            .sum::<f64>();
+                    self.f_prev[i] = aff.rate(i, x);
                 }
             }
             // Timer rates and the Hermite interpolant (guards, output).
