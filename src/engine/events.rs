@@ -34,7 +34,11 @@
 //!
 //! Atoms of C that hold at the segment's start only within
 //! [`set_tol`](super::SimSettings::set_tol) are watched relaxed by that
-//! tolerance (`g + set_tol` for `g ≥ 0`) until they hold exactly.
+//! tolerance (`g + set_tol` for `g ≥ 0`) until they hold exactly. Inequality
+//! atoms of C without an affine form, whose sign near zero can be rounding
+//! noise (`h ≥ A·sin(ω·t)`), are watched relaxed whenever the segment starts
+//! within `set_tol` of their zero, on either side, until they hold by
+//! `set_tol`.
 
 use super::HybridSystem;
 use super::clock::TimeSum;
@@ -194,8 +198,21 @@ struct WSet {
     /// Whether a change of this set ends a segment.
     source: bool,
     /// Per atom: relaxation (C's atoms that held only within `set_tol` at
-    /// the segment's start), truth at the segment's start.
+    /// the segment's start, or that start on their boundary and are
+    /// `noisy`), truth at the segment's start.
     relax: Vec<f64>,
+    /// Per atom: how far inside its set a relaxed atom must be for its
+    /// relaxation to end (0: where it holds exactly; `set_tol` for a
+    /// `noisy` atom).
+    settle: Vec<f64>,
+    /// Per atom: a watched inequality atom of C without an affine form.
+    /// Its sign near its zero is rounding noise (`h ≥ A·sin(ω·t)`: the
+    /// rounding of `ω·t` alone), which the checkpoints cannot tell from a
+    /// change of sign; so where the segment starts on its boundary (within
+    /// `set_tol` on either side: a jump onto it) it is watched relaxed,
+    /// until it holds by `set_tol` (a flow that points out of C leaves it
+    /// at `−set_tol`, as any relaxed atom's).
+    noisy: Vec<bool>,
     start_truth: Vec<bool>,
     /// Atom values at the checkpoint, at the bracket ends, at a trial point.
     vs: Vec<f64>,
@@ -254,6 +271,19 @@ fn atom_values<S: HybridSystem + ?Sized>(
         (Some(_), set) => sys.atom_values(set, at, x, flowing_only, out),
         (None, SetRef::Jump(r)) => out[0] = sys.jump_guard(r, at, x),
         (None, SetRef::Flow) => out[0] = sys.flow_guard(at, x).unwrap_or(f64::INFINITY),
+    }
+}
+
+/// Whether the atom `g ⋈ 0` holds by at least `margin ≥ 0` (`g ≥ margin`
+/// for `≥`); with `margin = 0`, whether it holds.
+fn holds_by(cmp: Cmp, g: f64, margin: f64) -> bool {
+    if margin <= 0.0 {
+        return cmp.holds(g);
+    }
+    match cmp {
+        Cmp::Ge | Cmp::Gt => g >= margin,
+        Cmp::Le | Cmp::Lt => g <= -margin,
+        Cmp::Eq | Cmp::Ne => cmp.holds(g),
     }
 }
 
@@ -689,6 +719,8 @@ impl Watcher {
                 spec,
                 source,
                 relax: vec![0.0; n],
+                settle: vec![0.0; n],
+                noisy: vec![false; n],
                 start_truth: vec![false; n],
                 vs: vec![0.0; n],
                 va: vec![0.0; n],
@@ -760,7 +792,7 @@ impl Watcher {
                 (0..w).find(|&u| g_id(&watched[u]) == Some(id))
             })
             .collect();
-        let affine = watched
+        let affine: Vec<Option<AffineAtom>> = watched
             .iter()
             .map(|w| {
                 let ws = &sets[w.set];
@@ -768,6 +800,12 @@ impl Watcher {
                 sys.atom_affine(ws.set, w.atom)
             })
             .collect();
+        for (w, form) in watched.iter().zip(&affine) {
+            let inequality = matches!(w.cmp, Cmp::Ge | Cmp::Gt | Cmp::Le | Cmp::Lt);
+            if Some(w.set) == flow && form.is_none() && inequality {
+                sets[w.set].noisy[w.atom] = true;
+            }
+        }
         // The layout of `all_atom_values`: C's atoms, then each rule's.
         let mut flat_off = vec![None; sets.len()];
         let mut total = 0;
@@ -1077,9 +1115,14 @@ impl Watcher {
                         let cmp = atoms.map_or(Cmp::Ge, |a| a[k].cmp);
                         let holds = cmp.holds(g);
                         // Relaxed: C's atoms that hold only within set_tol
-                        // (and then hold within their relaxation).
-                        let relaxed = is_flow && !holds && cmp.holds_within(g, set_tol);
+                        // (and then hold within their relaxation), and its
+                        // noisy atoms that hold on their boundary (within
+                        // set_tol of zero).
+                        let outside = !holds && cmp.holds_within(g, set_tol);
+                        let edge = holds && ws.noisy[k] && g.abs() <= set_tol;
+                        let relaxed = is_flow && (outside || edge);
                         ws.relax[k] = if relaxed { set_tol } else { 0.0 };
+                        ws.settle[k] = if relaxed && ws.noisy[k] { set_tol } else { 0.0 };
                         self.relaxed += usize::from(relaxed);
                         ws.start_truth[k] = holds || relaxed;
                         if k < TruthTable::MAX_ATOMS {
@@ -1230,7 +1273,7 @@ impl Watcher {
             let ws = &mut self.sets[fi];
             let vals = if at_candidate { &ws.vb } else { &ws.vs };
             let (cmp, g) = (w.cmp, vals[w.atom]);
-            if ws.relax[w.atom] > 0.0 && cmp.holds(g) {
+            if ws.relax[w.atom] > 0.0 && holds_by(cmp, g, ws.settle[w.atom]) {
                 ws.relax[w.atom] = 0.0;
                 self.relaxed -= 1;
                 *c = class(g);

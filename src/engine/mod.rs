@@ -102,7 +102,13 @@
 //!   solution jumps there if that point is in D, otherwise it ends.
 //! - C's atoms that hold at the start of a flow only within `set_tol` are
 //!   watched relaxed (`g + set_tol` for `g ≥ 0`) until they hold exactly:
-//!   a flow that points out of C leaves it at `−set_tol`.
+//!   a flow that points out of C leaves it at `−set_tol`. An inequality
+//!   atom of C without an affine form ([`HybridSystem::atom_affine`]),
+//!   whose sign near its zero can be rounding noise (`h ≥ A·sin(ω·t)`: the
+//!   rounding of `ω·t` alone), is watched relaxed whenever the segment
+//!   starts within `set_tol` of its zero, on either side (a jump onto its
+//!   boundary), until it holds by `set_tol`: a noisy sign there does not
+//!   end a flow that moves into C.
 //! - **Limit:** an atom that changes sign and changes back between two
 //!   consecutive checkpoints of one step is not seen; lower
 //!   [`max_step`](SimSettings::max_step) or raise `guard_checks` for sets

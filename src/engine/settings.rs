@@ -292,7 +292,10 @@ pub struct SimSettings {
     /// atom `g ≥ 0` of C counts as holding when `g ≥ −set_tol` (`|g| ≤
     /// set_tol` for `=`), so that a jump map that lands on C's boundary up
     /// to rounding (a reflecting `h⁺ = −h`) lets the solution flow. Such an
-    /// atom stays relaxed along that flow until it holds exactly. Default
+    /// atom stays relaxed along that flow until it holds exactly (a
+    /// non-affine atom, whose sign near zero is rounding noise, is relaxed
+    /// whenever the flow starts within `set_tol` of its zero, and until it
+    /// holds by `set_tol`; module docs of `engine`). Default
     /// 1e-9: above the rounding of quantities up to ~10⁶ (ulp(10⁶) ≈ 1e-10),
     /// far below any meaningful distance to a boundary. Jump sets are never
     /// relaxed.

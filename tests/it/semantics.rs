@@ -5,7 +5,7 @@
 
 use crate::util::simulate_arc;
 use hybsim::arc::{FailedAtom, HybridArc, TerminationCause};
-use hybsim::engine::{SimSettings, check_arc};
+use hybsim::engine::{ExactAffine, SimSettings, check_arc};
 use hybsim::ir::CompiledModel;
 use hybsim::lang;
 use hybsim::source::SourceFile;
@@ -294,6 +294,64 @@ fn set_tol_lets_a_boundary_state_flow() {
         "{end:?}"
     );
     assert!(end.at.t < 1e-8, "ended at {}", end.at);
+}
+
+/// A ball that leaves a sinusoidally moving platform, its flow set
+/// `h >= A*sin(w*(t + t0))` (not affine: it reads `t`) starting on its
+/// boundary, flies and lands at the closed-form time. The atom's sign near
+/// its zero is rounding noise (the rounding of `t + t0` alone moves it by
+/// an ulp of `h`): the segment must not end at the first noisy negative
+/// value ("cannot flow or jump" within 1e-17 of the start, as it did for
+/// every `t0` below at some `dv`, and for the ball chattering to rest on
+/// the platform near its Zeno time with `exact_affine = off`).
+#[test]
+fn a_flow_leaving_a_time_varying_boundary_is_not_stopped_by_its_rounding() {
+    let src = "model plat\nparam g = 9.81, A = 0.2, w = 3, t0 = 1, dv = 1e-2\n\
+               state h = A*sin(w*t0), v = A*w*cos(w*t0) + dv\n\
+               flow { h' = v; v' = -g } in h >= A*sin(w*(t + t0))\n\
+               jump impact when h <= A*sin(w*(t + t0)) && v <= A*w*cos(w*(t + t0)) \
+               { v+ = A*w*cos(w*(t + t0)) + 0.5*dv }\nsim { T = 0.01; J = 1 }\n";
+    let (g, a, w) = (9.81f64, 0.2f64, 3.0f64);
+    for t0 in [1.0, 4.0, 4.0864, 10.3, 100.3] {
+        for dv in [1e-2, 1e-3, 1e-4, 1e-5] {
+            // The landing: the first zero s > 0 of the gap
+            // dv·s − g s²/2 − A (sin w(t0 + s) − sin w t0 − w cos(w t0)·s),
+            // positive on (0, s) (it is, for these values, below 2.2 dv / g);
+            // the landing time to the gap's rounding (that of t + t0) over its slope.
+            let gap = |s: f64| {
+                dv * s
+                    - g * s * s / 2.0
+                    - a * ((w * (t0 + s)).sin() - (w * t0).sin() - w * (w * t0).cos() * s)
+            };
+            let (mut lo, mut hi) = (0.5 * dv / g, 2.2 * dv / g);
+            assert!(gap(lo) > 0.0 && gap(hi) < 0.0);
+            for _ in 0..200 {
+                let mid = 0.5 * (lo + hi);
+                if gap(mid) > 0.0 { lo = mid } else { hi = mid }
+            }
+            let file = SourceFile::new("plat.hyb", src);
+            let set = [
+                format!("t0={t0}").parse().unwrap(),
+                format!("dv={dv}").parse().unwrap(),
+            ];
+            let m = lang::compile(&file, &set).expect("compiles");
+            for exact in [ExactAffine::Auto, ExactAffine::Off] {
+                let settings = m.settings().exact_affine(exact);
+                let arc = run_with(&m, &settings);
+                let end = arc.termination().unwrap();
+                assert_eq!(
+                    end.cause,
+                    TerminationCause::HorizonJ,
+                    "t0 = {t0}, dv = {dv}, {exact:?}: {end:?}"
+                );
+                let landed = jump_times(&arc)[0];
+                assert!(
+                    (landed - lo).abs() <= 1e-6 * lo + 1e-15 * (1.0 + t0) / dv,
+                    "t0 = {t0}, dv = {dv}, {exact:?}: landed at {landed}, expected {lo}"
+                );
+            }
+        }
+    }
 }
 
 /// The reference-semantics property test: random small hybrid systems
