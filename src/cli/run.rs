@@ -685,7 +685,9 @@ pub fn panic_message(payload: &(dyn std::any::Any + Send)) -> String {
 /// (`  metric NAME = VALUE`).
 pub fn summary_line(model: &str, report: &Report, rule_names: &[String], note: &str) -> String {
     let end = match report.tally.end {
-        Some(at) => format!("(t = {}, j = {})", at.t, at.j),
+        // As every other hybrid time of the line (`HybridTime`'s Display:
+        // `Num`, 1e-300 rather than 300 digits).
+        Some(at) => format!("(t = {}, j = {})", hybsim::num::Num(at.t), at.j),
         None => "(no sample)".to_string(),
     };
     let jumps: Vec<String> = report

@@ -36,6 +36,26 @@ fn help_and_usage_errors() {
     assert_eq!(code(&hybsim(dir.path(), &["run", "missing.hyb"])), 2);
 }
 
+/// The summary's final hybrid time is written as every other time of the
+/// line (compact and lossless): a horizon of 1e-300 ends "at (t = 1e-300,
+/// j = 0)", not at 300 digits of a decimal fraction.
+#[test]
+fn the_summary_writes_tiny_end_times_compactly() {
+    let dir = tempfile::tempdir().unwrap();
+    let model = write(
+        dir.path(),
+        "tiny.hyb",
+        "model tiny\nstate x = 0\nflow { x' = 1 }\nsim { T = 1e-300 }\n",
+    );
+    let out = hybsim(dir.path(), &["run", model.to_str().unwrap(), "--no-mcap"]);
+    assert_eq!(code(&out), 0, "{}", stderr(&out));
+    let summary = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        summary.starts_with("tiny: ended at (t = 1e-300, j = 0); "),
+        "{summary}"
+    );
+}
+
 #[test]
 fn run_writes_mcap_csv_and_svg_and_prints_a_summary() {
     let dir = tempfile::tempdir().unwrap();
