@@ -294,8 +294,6 @@ pub(crate) enum Method {
 /// Exact propagators of `ẋ = A x + b`.
 pub(crate) struct Affine {
     n: usize,
-    /// The augmented generator `[[A, b], [0, 0]]`, (n+1)×(n+1).
-    gen_: DMatrix<f64>,
     /// Propagators by step (bits of h), as [`exp_step`](Self::exp_step)
     /// gives them.
     cache: Vec<(u64, Vec<f64>)>,
@@ -368,21 +366,25 @@ impl Affine {
                 what: "FlowStructure::Affine has a non-finite entry in A or b".into(),
             });
         }
-        let mut gen_ = DMatrix::zeros(n + 1, n + 1);
+        // One pass over A: its nonzero entries (b's after each row's) and
+        // ‖A‖∞ (row sums in column order). A model of n states declares n²
+        // entries, most of them zero (n clocks: A = 0), so nothing n² is
+        // kept or built unless an exponential is computed.
+        let mut entries = Vec::new();
         let mut norm: f64 = 0.0;
         for r in 0..n {
             let mut row = 0.0;
-            for c in 0..n {
-                gen_[(r, c)] = a[r * n + c];
-                row += a[r * n + c].abs();
+            for (c, &v) in a[r * n..(r + 1) * n].iter().enumerate() {
+                row += v.abs();
+                if v != 0.0 {
+                    entries.push((r, c, v));
+                }
             }
-            gen_[(r, n)] = b[r];
+            if b[r] != 0.0 {
+                entries.push((r, n, b[r]));
+            }
             norm = norm.max(row);
         }
-        let entries: Vec<(usize, usize, f64)> = (0..n)
-            .flat_map(|r| (0..=n).map(move |c| (r, c)))
-            .filter_map(|(r, c)| Some((r, c, gen_[(r, c)])).filter(|e| e.2 != 0.0))
-            .collect();
         let nnz = entries.len();
         let mut row_start = vec![0; n + 1];
         for &(r, _, _) in &entries {
@@ -397,11 +399,11 @@ impl Affine {
             f64::INFINITY
         };
         let active: Vec<usize> = (0..n)
-            .filter(|&r| gen_.row(r).iter().any(|&v| v != 0.0))
+            .filter(|&r| row_start[r + 1] > row_start[r])
             .collect();
+        let poly = PolynomialFlow::from_entries(n, &entries);
         Ok(Self {
             n,
-            gen_,
             cache: Vec::with_capacity(AFFINE_CACHE),
             next_slot: 0,
             watch_step,
@@ -429,7 +431,7 @@ impl Affine {
             spent_work: [0.0; AFFINE_SPENT],
             next_spent: 0,
             active: (2 * active.len() <= n).then_some(active),
-            poly: PolynomialFlow::new(n, a, b),
+            poly,
         })
     }
 
@@ -521,28 +523,48 @@ impl Affine {
     /// `exp([[X, I], [0, 0]])`): a 2k × 2k exponential instead of an
     /// (n+1) × (n+1) one.
     fn exp_rows(&self, h: f64) -> DMatrix<f64> {
+        let n = self.n;
         let Some(rows) = &self.active else {
-            return (&self.gen_ * h).exp();
+            return (self.generator() * h).exp();
         };
-        let (n, k) = (self.n, rows.len());
+        let k = rows.len();
         let mut p = DMatrix::zeros(k, n + 1);
         if k == 0 {
             return p;
         }
-        let mut aug = DMatrix::zeros(2 * k, 2 * k);
+        // Active row a of [A, b] is `h·G_r` below; its entries in the
+        // active columns fill the k × k block of the augmented matrix.
+        let mut slot = vec![usize::MAX; n + 1];
         for (a, &r) in rows.iter().enumerate() {
-            for (b, &c) in rows.iter().enumerate() {
-                aug[(a, b)] = h * self.gen_[(r, c)];
+            slot[r] = a;
+        }
+        let mut aug = DMatrix::zeros(2 * k, 2 * k);
+        let mut g_r = DMatrix::zeros(k, n + 1);
+        for (a, &r) in rows.iter().enumerate() {
+            for &(_, c, v) in &self.entries[self.row_start[r]..self.row_start[r + 1]] {
+                g_r[(a, c)] = h * v;
+                if slot[c] != usize::MAX {
+                    aug[(a, slot[c])] = h * v;
+                }
             }
             aug[(a, k + a)] = 1.0;
         }
         let phi = aug.exp().view((0, k), (k, k)).into_owned();
-        let g_r = DMatrix::from_fn(k, n + 1, |a, c| h * self.gen_[(rows[a], c)]);
         p.gemm(1.0, &phi, &g_r, 0.0);
         for (a, &r) in rows.iter().enumerate() {
             p[(a, r)] += 1.0;
         }
         p
+    }
+
+    /// The augmented generator `[[A, b], [0, 0]]`, (n+1) × (n+1), built
+    /// for an exponential (not kept: most models never compute one).
+    fn generator(&self) -> DMatrix<f64> {
+        let mut g = DMatrix::zeros(self.n + 1, self.n + 1);
+        for &(r, c, v) in &self.entries {
+            g[(r, c)] = v;
+        }
+        g
     }
 
     /// `out` = the flow from `x` after a step `h`.
@@ -2022,7 +2044,7 @@ mod tests {
         assert_eq!(aff.active.as_deref(), Some(&[1, 4][..]));
         let x = [0.5, -1.0, 2.0, 0.1, 3.0, -0.4, 1.7];
         for h in [1e-3, 0.02, 0.7, 3.0] {
-            let dense = (&aff.gen_ * h).exp();
+            let dense = (aff.generator() * h).exp();
             let rows = aff.exp_step(h);
             for (k, &r) in [1usize, 4].iter().enumerate() {
                 for c in 0..=n {

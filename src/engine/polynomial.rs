@@ -34,16 +34,25 @@ impl PolynomialFlow {
     /// is structurally nilpotent and the solutions have degree below
     /// [`MAX_CONTROL`]; `None` otherwise (a cycle, such as an oscillator or
     /// a decay `ẋ = −x`, makes the solution a true exponential).
+    #[cfg(test)]
     pub fn new(n: usize, a: &[f64], b: &[f64]) -> Option<Self> {
         debug_assert_eq!((a.len(), b.len()), (n * n, n));
         let entries: Vec<(usize, usize, f64)> = (0..n)
-            .flat_map(|r| (0..n).map(move |c| (r, c)))
+            .flat_map(|r| (0..=n).map(move |c| (r, c)))
             .filter_map(|(r, c)| {
-                let v = a[r * n + c];
+                let v = if c < n { a[r * n + c] } else { b[r] };
                 (v != 0.0).then_some((r, c, v))
             })
             .collect();
-        let degree = chain_degrees(n, &entries, b)?;
+        Self::from_entries(n, &entries)
+    }
+
+    /// The same from the nonzero entries `(row, column, value)` of
+    /// `[A, b]` (column n is b), row after row.
+    pub fn from_entries(n: usize, entries: &[(usize, usize, f64)]) -> Option<Self> {
+        let (a, b): (Vec<_>, Vec<_>) = entries.iter().partition(|&&(_, c, _)| c < n);
+        let b: Vec<(usize, f64)> = b.into_iter().map(|(r, _, v)| (r, v)).collect();
+        let degree = chain_degrees(n, &a, &b)?;
         let max = degree.iter().copied().max().unwrap_or(0);
         if max >= MAX_CONTROL {
             return None;
@@ -52,8 +61,8 @@ impl PolynomialFlow {
         Some(Self {
             n,
             degree: max,
-            a: entries,
-            b: (0..n).filter(|&r| b[r] != 0.0).map(|r| (r, b[r])).collect(),
+            a,
+            b,
             active,
             d: vec![0.0; (max + 1) * n],
         })
@@ -109,7 +118,11 @@ impl PolynomialFlow {
 /// dependencies have a cycle: `deg(r) = 0` for a row of zeros, else the
 /// largest of 1 and `1 + deg(c)` over the columns `c` it reads. Kahn's
 /// order over the dependencies, linear in the entries.
-fn chain_degrees(n: usize, entries: &[(usize, usize, f64)], b: &[f64]) -> Option<Vec<usize>> {
+fn chain_degrees(
+    n: usize,
+    entries: &[(usize, usize, f64)],
+    b: &[(usize, f64)],
+) -> Option<Vec<usize>> {
     // readers[c]: the rows that read c; waiting[r]: columns r still waits for.
     let mut readers: Vec<Vec<usize>> = vec![Vec::new(); n];
     let mut waiting = vec![0usize; n];
@@ -117,7 +130,10 @@ fn chain_degrees(n: usize, entries: &[(usize, usize, f64)], b: &[f64]) -> Option
         readers[c].push(r);
         waiting[r] += 1;
     }
-    let mut degree: Vec<usize> = (0..n).map(|r| usize::from(b[r] != 0.0)).collect();
+    let mut degree = vec![0; n];
+    for &(r, _) in b {
+        degree[r] = 1;
+    }
     let mut ready: Vec<usize> = (0..n).filter(|&r| waiting[r] == 0).collect();
     let mut done = 0;
     while let Some(c) = ready.pop() {
