@@ -254,7 +254,10 @@ fn describe(rule: Rule) -> Option<&'static str> {
         Rule::together_for => "a rule (`jump`, `every`, `for`)",
         Rule::flow_eq | Rule::flow_for => "an equation `x' = ...`",
         Rule::reset_eq | Rule::reset_for => "a reset `x+ = ...`",
-        Rule::when_clause | Rule::every_clause => "`when` or `every`",
+        // Apart: an `every` rule is also a declaration, where `when` cannot
+        // start anything (after `jump NAME` both are expected).
+        Rule::when_clause => "`when`",
+        Rule::every_clause => "`every`",
         Rule::reset_block => "`{`",
         Rule::reset_post => "`+`",
         Rule::sim_setting | Rule::log_setting | Rule::log_key => "a setting `key = value`",

@@ -58,6 +58,28 @@ fn syntax_errors_speak_plainly() {
     assert_eq!(err.span().start, 22);
 }
 
+/// A word is never expected where it was found: `when` after a flow block
+/// (a flow set written as a guard) is not "expected `when` or `every`" (an
+/// `every` rule may start a declaration there, `when` may not), while
+/// after `jump NAME` both are.
+#[test]
+fn an_unexpected_when_is_not_expected() {
+    let err = parse_model("model m\nstate x = 0\nflow { x' = 1 } when x >= 0\n").unwrap_err();
+    let message = err.to_diagnostic().message;
+    assert!(
+        message.starts_with("unexpected `when`; expected "),
+        "{message}"
+    );
+    assert!(
+        !message.contains("; expected `when`") && !message.contains(", `when`"),
+        "{message}"
+    );
+    assert!(message.contains("`every`"), "{message}");
+    let err = parse_model("model m\nstate x = 0\njump reset x >= 1 { x+ = 0 }\n").unwrap_err();
+    let message = err.to_diagnostic().message;
+    assert_eq!(message, "unexpected `x`; expected `[`, `every` or `when`");
+}
+
 #[test]
 fn deep_nesting_is_an_error_not_a_crash() {
     let deep = format!(
