@@ -373,11 +373,16 @@ impl Affine {
         let mut entries = Vec::new();
         let mut norm: f64 = 0.0;
         for r in 0..n {
+            let a_r = &a[r * n..(r + 1) * n];
             let mut row = 0.0;
-            for (c, &v) in a[r * n..(r + 1) * n].iter().enumerate() {
-                row += v.abs();
-                if v != 0.0 {
-                    entries.push((r, c, v));
+            // Zero rows (clocks, held values) by a vectorised OR of the bits
+            // without the sign (-0.0 is zero too).
+            if a_r.iter().fold(0u64, |m, v| m | (v.to_bits() << 1)) != 0 {
+                for (c, &v) in a_r.iter().enumerate() {
+                    row += v.abs();
+                    if v != 0.0 {
+                        entries.push((r, c, v));
+                    }
                 }
             }
             if b[r] != 0.0 {
