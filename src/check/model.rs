@@ -171,10 +171,23 @@ pub(crate) const OUTPUT_CTX: Ctx = Ctx {
     place: "an output",
 };
 
-/// Known `sim` keys.
 /// The `solver` names, for the errors that list them.
 const SOLVER_NAMES: &str = "dopri5, dop853, radau5, bdf, auto, rk4, euler_maruyama";
 
+/// The values a numeric `sim` key takes, for its out-of-range message.
+fn sim_range(key: &str) -> &'static str {
+    match key {
+        "T" => "the horizon T is a positive finite time",
+        "J" => "the horizon J is a whole number of jumps ≥ 0, or inf (no bound)",
+        "seed" => "a seed is a whole number from 0 to 2^64 - 1",
+        "event_tol" => "event_tol is a tolerance ≥ 0",
+        "set_tol" => "set_tol is a finite tolerance ≥ 0",
+        "max_step" | "rtol" | "atol" | "zeno_rate" => "it is a number > 0",
+        _ => "it is a positive finite number",
+    }
+}
+
+/// Known `sim` keys.
 const SIM_KEYS: &[&str] = &[
     "T",
     "J",
@@ -1823,7 +1836,8 @@ impl ModelChecker<'_> {
                         };
                         match canon {
                             "T" if x > 0.0 && x.is_finite() => s.horizon_t = x,
-                            "J" if x >= 0.0 && x.fract() == 0.0 => {
+                            // `inf`: no bound (the largest count).
+                            "J" if x >= 0.0 && (x.fract() == 0.0 || x == f64::INFINITY) => {
                                 s.horizon_j = x.min(u64::MAX as f64) as u64
                             }
                             "rtol" if x > 0.0 => rtol = Some(x),
@@ -1849,7 +1863,7 @@ impl ModelChecker<'_> {
                             "max_total_jumps" => bad(self, format!("{x} is not an integer ≥ 1")),
                             "T" | "J" | "rtol" | "atol" | "h" | "dt_out" | "seed" | "max_step"
                             | "event_tol" | "set_tol" | "zeno_rate" => {
-                                bad(self, format!("{x} is out of range"))
+                                bad(self, format!("{x} is out of range: {}", sim_range(canon)))
                             }
                             _ => {
                                 let suggestion = suggest(key, SIM_KEYS.iter().copied());

@@ -454,7 +454,7 @@ mod tests {
             panic!("not run")
         };
         assert_eq!(a.horizon_t, Some(5.0));
-        assert_eq!(a.horizon_j, Some(30));
+        assert_eq!(a.horizon_j, Some(30.0));
         assert_eq!(a.seed, Some(3));
         assert_eq!(a.set, ["g=9.8", "K=[1, 2]"]);
         assert_eq!(

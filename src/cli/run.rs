@@ -45,9 +45,10 @@ pub struct RunArgs {
     /// Horizon T in ordinary time (overrides the model's `sim` block).
     #[arg(long = "T", value_name = "T")]
     pub horizon_t: Option<f64>,
-    /// Horizon J in jumps (overrides the model's `sim` block).
+    /// Horizon J in jumps (overrides the model's `sim` block): a whole
+    /// number (`1e6` too), or `inf` for no bound; checked as the block's `J`.
     #[arg(long = "J", value_name = "J")]
-    pub horizon_j: Option<u64>,
+    pub horizon_j: Option<f64>,
     /// Output grid: flow samples at t = k·DT instead of every integrator step
     /// (overrides the model's `sim` block).
     #[arg(long, value_name = "DT")]
@@ -314,7 +315,7 @@ impl RunArgs {
         let mut all = self.guard.with_overrides(&self.set);
         let float = |key: &str, x: Option<f64>| x.map(|x| format!("{key}={}", float_override(x)));
         all.extend(float("T", self.horizon_t));
-        all.extend(self.horizon_j.map(|j| format!("J={j}")));
+        all.extend(float("J", self.horizon_j));
         all.extend(float("dt_out", self.dt_out));
         all.extend(float("max_step", self.max_step));
         all

@@ -56,6 +56,40 @@ fn the_summary_writes_tiny_end_times_compactly() {
     );
 }
 
+/// `--J` takes what the `sim` block's `J` takes, checked the same way: a
+/// whole number written as a float (`1e30`, saturating), `inf` for no bound;
+/// other values get the block's located error, which says what J may be.
+#[test]
+fn the_jump_horizon_flag_takes_what_the_sim_block_takes() {
+    let dir = tempfile::tempdir().unwrap();
+    let model = write(
+        dir.path(),
+        "ticks.hyb",
+        "model ticks\nstate x = 0\nflow { x' = 1 }\njump r when x >= 1 { x+ = 0 }\nsim { T = 3.5; J = inf }\n",
+    );
+    let m = model.to_str().unwrap();
+    for (j, jumps) in [
+        (None, "j = 3)"),
+        (Some("1e30"), "j = 3)"),
+        (Some("inf"), "j = 3)"),
+        (Some("2"), "j = 2)"),
+    ] {
+        let mut args = vec!["run", m, "--no-mcap"];
+        args.extend(j.iter().flat_map(|j| ["--J", *j]));
+        let out = hybsim(dir.path(), &args);
+        assert_eq!(code(&out), 0, "--J {j:?}: {}", stderr(&out));
+        let summary = String::from_utf8_lossy(&out.stdout);
+        assert!(summary.contains(jumps), "--J {j:?}: {summary}");
+    }
+    let out = hybsim(dir.path(), &["run", m, "--no-mcap", "--J", "2.5"]);
+    assert_eq!(code(&out), 2);
+    let err = stderr(&out);
+    assert!(
+        err.contains("E0506") && err.contains("a whole number of jumps ≥ 0, or inf"),
+        "{err}"
+    );
+}
+
 #[test]
 fn run_writes_mcap_csv_and_svg_and_prints_a_summary() {
     let dir = tempfile::tempdir().unwrap();

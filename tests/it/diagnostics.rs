@@ -345,7 +345,7 @@ const CASES: &[Case] = &[
         "model m\nstate x = 0\nsim { T = -1 }\n",
         "E0506",
         "3:11",
-        "invalid `T`: -1 is out of range",
+        "invalid `T`: -1 is out of range: the horizon T is a positive finite time",
     ),
     case(
         "unknown solver",
