@@ -45,8 +45,9 @@ pub enum SyntaxError {
         /// Its text.
         target: String,
     },
-    /// A MATLAB spelling hybsim does not use (`&`, `|`, `~=`, `~x`).
-    #[error("`{found}` is MATLAB's spelling; hybsim writes `{write}`")]
+    /// A MATLAB spelling hybsim does not use (`&`, `|`, `~=`, `~x`), or a
+    /// Python one (`and`, `or`, `not`).
+    #[error("`{found}` is {lang}'s spelling; hybsim writes `{write}`")]
     MatlabOperator {
         /// The operator.
         span: Span,
@@ -54,6 +55,8 @@ pub enum SyntaxError {
         found: &'static str,
         /// The hybsim spelling.
         write: &'static str,
+        /// Whose spelling it is (`MATLAB`, `Python`).
+        lang: &'static str,
     },
     /// A number literal that does not fit in an f64.
     #[error("number `{text}` is out of range")]
@@ -106,7 +109,9 @@ impl SyntaxError {
                     .note("in `jump` and `every` blocks, `x+` is the state after the jump and `x` the state before it")
                     .help(format!("write `{target}+ = ...`"))
             }
-            SyntaxError::MatlabOperator { span, found, write } => {
+            SyntaxError::MatlabOperator {
+                span, found, write, ..
+            } => {
                 Diagnostic::error("E0105", self.to_string())
                     .primary(*span, format!("write `{write}` here"))
                     .help(format!(
@@ -145,6 +150,15 @@ impl SyntaxError {
                 span: Span::new(pos, pos + found.len()),
                 found,
                 write,
+                lang: "MATLAB",
+            };
+        }
+        if let Some((at, found, write)) = word_operator(text, pos) {
+            return SyntaxError::MatlabOperator {
+                span: Span::new(at, at + found.len()),
+                found,
+                write,
+                lang: "Python",
             };
         }
         let (found, len) = found_at(text, pos);
@@ -172,6 +186,30 @@ fn matlab_operator(text: &str, pos: usize) -> Option<(&'static str, &'static str
     } else {
         None
     }
+}
+
+/// A Python operator word (`and`, `or`, `not`) where the parser stopped or
+/// just before it (`x >= 0 and x <= 5` stops at the second `x`, `and`
+/// having been read as a name), with its position and hybsim spelling.
+fn word_operator(text: &str, pos: usize) -> Option<(usize, &'static str, &'static str)> {
+    let is_word = |c: char| c.is_ascii_alphanumeric() || c == '_';
+    let spelling = |w: &str| match w {
+        "and" => Some(("and", "&&")),
+        "or" => Some(("or", "||")),
+        "not" => Some(("not", "!")),
+        _ => None,
+    };
+    let (before, rest) = (text.get(..pos)?, text.get(pos..)?);
+    let here = &rest[..rest.find(|c: char| !is_word(c)).unwrap_or(rest.len())];
+    if let Some((found, write)) = spelling(here) {
+        return Some((pos, found, write));
+    }
+    let end = before.trim_end_matches([' ', '\t']).len();
+    let start = before[..end]
+        .rfind(|c: char| !is_word(c))
+        .map_or(0, |i| i + 1);
+    let (found, write) = spelling(&before[start..end])?;
+    Some((start, found, write))
 }
 
 /// The token at `pos`, in words, and its length in bytes.

@@ -80,6 +80,43 @@ fn an_unexpected_when_is_not_expected() {
     assert_eq!(message, "unexpected `x`; expected `[`, `every` or `when`");
 }
 
+/// Python's operator words are E0105 like MATLAB's operators, at the word:
+/// where the parse stops on it (`or`) or just after it (`and`, `not`, read
+/// as a name).
+#[test]
+fn python_operator_words_name_hybsims() {
+    for (src, word, write, at) in [
+        (
+            "model m\nstate x = 0\nflow { x' = 1 } in x >= 0 and x <= 5\n",
+            "and",
+            "&&",
+            46,
+        ),
+        (
+            "model m\nstate x = 0\njump r when x >= 1 or x < 0 { x+ = 0 }\n",
+            "or",
+            "||",
+            39,
+        ),
+        (
+            "model m\nstate x = 0\njump r when not x >= 1 { x+ = 0 }\n",
+            "not",
+            "!",
+            32,
+        ),
+    ] {
+        let err = parse_model(src).unwrap_err();
+        let d = err.to_diagnostic();
+        assert_eq!(d.code, "E0105", "{src}");
+        assert_eq!(
+            d.message,
+            format!("`{word}` is Python's spelling; hybsim writes `{write}`")
+        );
+        assert_eq!(&src[err.span().start..err.span().end], word, "{src}");
+        assert_eq!(err.span().start, at, "{src}");
+    }
+}
+
 #[test]
 fn deep_nesting_is_an_error_not_a_crash() {
     let deep = format!(
