@@ -1646,6 +1646,29 @@ impl Checker {
                     None => Some(Val::scalar(self.dag.konst(0.0))),
                 };
                 let (a, b) = self.broadcast(a?, b?, name, span)?;
+                // Parameters known now must make a distribution (those that
+                // vary are the model's to keep in range).
+                for (&x, &y) in a.e.iter().zip(&b.e) {
+                    let (Some(x), Some(y)) = (self.dag.as_const(x), self.dag.as_const(y)) else {
+                        continue;
+                    };
+                    let wrong = match dist {
+                        Dist::Uniform => (!(x.is_finite() && y.is_finite() && x <= y))
+                            .then(|| ("finite bounds lo ≤ hi in uniform(lo, hi)", format!("uniform({x}, {y})"))),
+                        Dist::Normal => (!(x.is_finite() && y.is_finite() && y >= 0.0))
+                            .then(|| ("a finite mean and a standard deviation ≥ 0 in normal(mean, std)", format!("normal({x}, {y})"))),
+                        Dist::Bernoulli => (!(0.0..=1.0).contains(&x))
+                            .then(|| ("a probability in [0, 1] in bernoulli(p)", format!("bernoulli({x})"))),
+                    };
+                    if let Some((expected, found)) = wrong {
+                        self.err(CheckError::Expected {
+                            expected: expected.into(),
+                            found,
+                            span,
+                        });
+                        return None;
+                    }
+                }
                 let e =
                     a.e.iter()
                         .zip(&b.e)

@@ -348,6 +348,27 @@ const CASES: &[Case] = &[
         "invalid `T`: -1 is out of range: the horizon T is a positive finite time",
     ),
     case(
+        "empty uniform range",
+        "model m\nstate x = 0\njump r when x <= 0 { x+ = uniform(1, 0) }\n",
+        "E0304",
+        "3:27",
+        "expected finite bounds lo ≤ hi in uniform(lo, hi), found uniform(1, 0)",
+    ),
+    case(
+        "negative standard deviation",
+        "model m\nstate x = 0\njump r when x <= 0 { x+ = normal(0, -1) }\n",
+        "E0304",
+        "3:27",
+        "expected a finite mean and a standard deviation ≥ 0 in normal(mean, std), found normal(0, -1)",
+    ),
+    case(
+        "probability above one",
+        "model m\nstate x = 0\njump r when x <= 0 { x+ = bernoulli(1.5) }\n",
+        "E0304",
+        "3:27",
+        "expected a probability in [0, 1] in bernoulli(p), found bernoulli(1.5)",
+    ),
+    case(
         "unknown solver",
         "model m\nstate x = 0\nsim { solver = rk5 }\n",
         "E0506",
