@@ -143,9 +143,11 @@ fn solver(
                 "`rtol`/`atol` apply to the adaptive solvers \"dopri5\", \"dop853\", \"radau5\", \"bdf\" and \"auto\"",
             ));
         }
-        step.or(h0)
-            .map(make)
-            .ok_or_else(|| PyValueError::new_err("a fixed-step solver needs its step: add step=H"))
+        // As the `sim` block and the command line: the default step where
+        // none is given.
+        Ok(make(
+            step.or(h0).unwrap_or(hybsim::engine::DEFAULT_FIXED_STEP),
+        ))
     };
     match name.replace('-', "_").as_str() {
         "dopri5" => adaptive(|rtol, atol| Solver::Dopri5 { rtol, atol }),

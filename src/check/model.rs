@@ -1897,10 +1897,10 @@ impl ModelChecker<'_> {
             "bdf" => Solver::Bdf { rtol, atol },
             "auto" => Solver::Auto { rtol, atol },
             "rk4" => Solver::Rk4 {
-                h: h.unwrap_or(1e-3),
+                h: h.unwrap_or(crate::engine::DEFAULT_FIXED_STEP),
             },
             "euler_maruyama" => Solver::EulerMaruyama {
-                h: h.unwrap_or(1e-3),
+                h: h.unwrap_or(crate::engine::DEFAULT_FIXED_STEP),
             },
             other => {
                 self.c.err(CheckError::BadSetting {

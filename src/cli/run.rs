@@ -62,7 +62,8 @@ pub struct RunArgs {
     /// Absolute tolerance of the adaptive solvers.
     #[arg(long, value_name = "ATOL")]
     pub atol: Option<f64>,
-    /// Step of the fixed-step solvers (rk4, euler-maruyama).
+    /// Step of the fixed-step solvers (rk4, euler-maruyama); default: the
+    /// model's `h`, else 1e-3 (as in the `sim` block).
     #[arg(long, value_name = "H")]
     pub step: Option<f64>,
     /// Largest integrator step of the adaptive solvers.
@@ -293,10 +294,11 @@ fn solver_from_flags(current: Solver, args: &RunArgs) -> Result<Solver, String> 
                         .into(),
                 );
             }
+            // As the `sim` block: the default step where none is given.
             let h = args
                 .step
                 .or(h0)
-                .ok_or_else(|| "a fixed-step solver needs its step: add `--step H`".to_string())?;
+                .unwrap_or(hybsim::engine::DEFAULT_FIXED_STEP);
             Ok(if kind == SolverKind::Rk4 {
                 Solver::Rk4 { h }
             } else {

@@ -218,7 +218,7 @@ pub use crate::arc::{Termination, TerminationCause, ZenoDetail};
 pub use error::SimError;
 pub use invariants::{ArcViolation, check_arc};
 pub use run::{simulate, simulate_arc};
-pub use settings::{ExactAffine, LinearSolver, Priority, SimSettings, Solver};
+pub use settings::{DEFAULT_FIXED_STEP, ExactAffine, LinearSolver, Priority, SimSettings, Solver};
 pub use sparsity::{
     PatternError, SPARSE_MAX_FACTOR_DENSITY, SPARSE_MIN_STATES, SparsityPattern, use_sparse_lu,
 };

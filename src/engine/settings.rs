@@ -4,6 +4,10 @@
 
 use super::error::SimError;
 
+/// The step of the fixed-step solvers (`rk4`, `euler_maruyama`) when the
+/// model's `sim` block or the command line chooses one without giving `h`.
+pub const DEFAULT_FIXED_STEP: f64 = 1e-3;
+
 /// The integrator used for flows. Flows whose structure is
 /// [`FlowStructure::Affine`](super::FlowStructure::Affine) are advanced
 /// exactly instead, unless [`SimSettings::exact_affine`] is off.

@@ -90,6 +90,38 @@ fn the_jump_horizon_flag_takes_what_the_sim_block_takes() {
     );
 }
 
+/// `--solver rk4` without `--step` takes the `sim` block's default step
+/// (1e-3), as `sim { solver = rk4 }` without `h` does: the same arc.
+#[test]
+fn a_fixed_step_solver_without_a_step_takes_the_default_step() {
+    let dir = tempfile::tempdir().unwrap();
+    let model = write(
+        dir.path(),
+        "decay.hyb",
+        "model decay\nstate x = 1\nflow { x' = -x }\nsim { T = 0.5 }\n",
+    );
+    let m = model.to_str().unwrap();
+    let csv = |name: &str, extra: &[&str]| {
+        let path = dir.path().join(name);
+        let mut args = vec![
+            "run",
+            m,
+            "--no-mcap",
+            "--csv",
+            path.to_str().unwrap(),
+            "--solver",
+            "rk4",
+        ];
+        args.extend_from_slice(extra);
+        let out = hybsim(dir.path(), &args);
+        assert_eq!(code(&out), 0, "{extra:?}: {}", stderr(&out));
+        std::fs::read_to_string(path).unwrap()
+    };
+    let default = csv("default.csv", &[]);
+    assert_eq!(default, csv("explicit.csv", &["--step", "1e-3"]));
+    assert!(default.lines().count() > 400, "steps of 1e-3 over 0.5");
+}
+
 #[test]
 fn run_writes_mcap_csv_and_svg_and_prints_a_summary() {
     let dir = tempfile::tempdir().unwrap();
@@ -219,7 +251,7 @@ fn model_errors_exit_2_with_located_diagnostics() {
     assert_eq!(code(&malformed), 2);
     let inconsistent = hybsim(
         dir.path(),
-        &["run", model.to_str().unwrap(), "--solver", "rk4"],
+        &["run", model.to_str().unwrap(), "--step", "1e-3"],
     );
     assert_eq!(code(&inconsistent), 2);
     assert!(stderr(&inconsistent).contains("--step"));
