@@ -60,6 +60,10 @@ impl ArcSink for Tally {
     fn finish(&mut self, termination: &Termination) {
         self.end = Some(termination.clone());
     }
+
+    fn wants_dense_points(&self) -> bool {
+        false
+    }
 }
 
 /// One run of `m` with `mode` (and `solver = auto` instead of the model's

@@ -37,6 +37,10 @@ impl ArcSink for Count {
         self.jumps += 1;
         ControlFlow::Continue(())
     }
+
+    fn wants_dense_points(&self) -> bool {
+        false
+    }
 }
 
 fn run(m: &CompiledModel, settings: &SimSettings) -> anyhow::Result<Count> {

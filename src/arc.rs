@@ -109,6 +109,17 @@ pub trait ArcSink {
     /// advanced by `switch.to`. Default: nothing. Sinks that write files
     /// or summaries record it.
     fn solver_switch(&mut self, _switch: &SolverSwitch) {}
+
+    /// Whether the sink wants the points that dense output adds between a
+    /// step's ends where the polyline through them would deviate from the
+    /// path (plots, files, trapezoid integrals of metrics). Default: `true`.
+    /// A sink that only counts samples or keeps the final state says
+    /// `false`, and the engine then pushes step ends only and skips the
+    /// test that places those points. Steps, events and every pushed state
+    /// are the same either way.
+    fn wants_dense_points(&self) -> bool {
+        true
+    }
 }
 
 /// A change of the integrator during a run (`Solver::Auto`): from hybrid

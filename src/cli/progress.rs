@@ -133,4 +133,9 @@ impl ArcSink for Progress {
     fn solver_switch(&mut self, switch: &SolverSwitch) {
         self.tally.solver_switch(switch);
     }
+
+    /// Counts only: a run without files computes no dense points.
+    fn wants_dense_points(&self) -> bool {
+        false
+    }
 }

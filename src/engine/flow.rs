@@ -127,10 +127,15 @@ impl DensePath for PolynomialPath<'_> {
 /// step ends would deviate from the path by more than [`DENSE_REL`] of the
 /// components' magnitudes. The number of points per step follows from the
 /// deviation at the step's midpoint (it scales with the square of the
-/// spacing).
+/// spacing). Without a grid, a sink that wants no such points
+/// ([`ArcSink::wants_dense_points`]) gets the step ends only; the steps are
+/// the same.
 pub(crate) struct Output<'a> {
     pub sink: &'a mut dyn ArcSink,
     dt: Option<f64>,
+    /// Whether points between step ends are placed (dense output, a sink
+    /// that wants them).
+    points: bool,
     next_k: u64,
     buf: Vec<f64>,
     buf_lo: Vec<f64>,
@@ -142,9 +147,11 @@ pub(crate) struct Output<'a> {
 impl<'a> Output<'a> {
     pub fn new(sink: &'a mut dyn ArcSink, dt: Option<f64>, x0: &[f64]) -> Self {
         let n = x0.len();
+        let points = sink.wants_dense_points();
         Self {
             sink,
             dt,
+            points,
             next_k: 1,
             buf: vec![0.0; n],
             buf_lo: vec![0.0; n],
@@ -212,7 +219,7 @@ impl<'a> Output<'a> {
                 // Dense points only on the part of the step the solution
                 // takes (up to an event inside it).
                 let s_end = s_hi.min(limit);
-                let parts = if !P::STRAIGHT && s_end > s_lo {
+                let parts = if self.points && !P::STRAIGHT && s_end > s_lo {
                     let mut y_end = std::mem::take(&mut self.buf_hi);
                     let parts = if s_end < s_hi {
                         path.eval(s_end, &mut y_end);

@@ -930,6 +930,10 @@ impl ArcSink for Fanout<'_> {
             s.solver_switch(switch);
         }
     }
+
+    fn wants_dense_points(&self) -> bool {
+        self.sinks.iter().any(|s| s.wants_dense_points())
+    }
 }
 
 /// Pushes a solution held in memory into `sink` in the order the engine

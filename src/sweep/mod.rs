@@ -566,6 +566,10 @@ impl<S: ArcSink> ArcSink for Stoppable<'_, S> {
     fn solver_switch(&mut self, switch: &SolverSwitch) {
         self.inner.solver_switch(switch);
     }
+
+    fn wants_dense_points(&self) -> bool {
+        self.inner.wants_dense_points()
+    }
 }
 
 /// The per-grid-point statistics of `rows` (all rows of each point present

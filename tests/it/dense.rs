@@ -3,10 +3,12 @@
 //! samples), and `exact_affine = auto | on | off` give the same arcs within
 //! the solver's tolerance on every shipped model.
 
+use std::ops::ControlFlow;
+
 use crate::util::simulate_arc;
-use hybsim::arc::{HybridArc, HybridTime, SampleKind};
+use hybsim::arc::{ArcSink, HybridArc, HybridTime, SampleKind};
 use hybsim::engine::models::BouncingBall;
-use hybsim::engine::{ExactAffine, HybridSystem, SimRng, SimSettings};
+use hybsim::engine::{ExactAffine, HybridSystem, SimRng, SimSettings, simulate};
 
 use super::lang::load;
 
@@ -122,5 +124,70 @@ fn exact_affine_auto_on_off_agree_on_every_model() {
                 );
             }
         }
+    }
+}
+
+/// A sink that keeps the arc but wants no dense points (as `hybsim run`
+/// without files): step ends only.
+struct StepEnds(HybridArc);
+
+impl ArcSink for StepEnds {
+    fn sample(&mut self, at: HybridTime, x: &[f64], kind: SampleKind) -> ControlFlow<()> {
+        self.0.sample(at, x, kind)
+    }
+
+    fn jump(&mut self, at: HybridTime, rule: usize, pre: &[f64], post: &[f64]) -> ControlFlow<()> {
+        self.0.jump(at, rule, pre, post)
+    }
+
+    fn wants_dense_points(&self) -> bool {
+        false
+    }
+}
+
+/// A sink that declines dense points gets a subset of the samples, each
+/// bit-identical, with every non-flow sample and every jump: the points are
+/// output only, never steps. On the three paths (exact polynomial, exact
+/// exponential, Dopri5) of curved flows, where dense output adds points.
+#[test]
+fn declining_dense_points_drops_only_points_between_step_ends() {
+    let key = |at: HybridTime, x: &[f64], kind: SampleKind| {
+        let mut k = vec![at.t.to_bits(), at.j, kind as u64];
+        k.extend(x.iter().map(|v| v.to_bits()));
+        k
+    };
+    for (name, mode) in [
+        ("bouncing_ball.hyb", ExactAffine::Auto),
+        ("sample_and_hold.hyb", ExactAffine::On),
+        ("sample_and_hold.hyb", ExactAffine::Off),
+        ("thermostat.hyb", ExactAffine::Off),
+    ] {
+        let m = load(name, &[]);
+        let s = m.settings().exact_affine(mode);
+        let (x0, mut rng) = m.start(m.seed());
+        let full = simulate_arc(&m, &x0, &s, &mut rng).unwrap();
+        let (x0, mut rng) = m.start(m.seed());
+        let mut ends = StepEnds(HybridArc::new(
+            m.state_dim(),
+            vec![String::new(); m.jump_rules().len()],
+        ));
+        simulate(&m, &x0, &s, &mut rng, &mut ends).unwrap();
+        let ends = ends.0;
+        let all: std::collections::HashSet<_> =
+            full.samples().map(|p| key(p.at, p.x, p.kind)).collect();
+        assert!(
+            ends.samples()
+                .all(|p| all.contains(&key(p.at, p.x, p.kind))),
+            "{name} {mode:?}: a step-end sample differs"
+        );
+        let not_flow = |a: &HybridArc| a.samples().filter(|p| p.kind != SampleKind::Flow).count();
+        assert_eq!(not_flow(&ends), not_flow(&full), "{name} {mode:?}");
+        assert_eq!(ends.jumps(), full.jumps(), "{name} {mode:?}");
+        assert!(
+            ends.samples().len() < full.samples().len(),
+            "{name} {mode:?}: {} step ends against {} samples: no dense points declined",
+            ends.samples().len(),
+            full.samples().len()
+        );
     }
 }
