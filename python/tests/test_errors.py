@@ -69,8 +69,11 @@ def test_bad_settings():
         m.run(solver="rk5")
     with pytest.raises(ValueError, match="horizon_t"):
         m.run(T=-1.0)
-    with pytest.raises(ValueError, match="step"):
-        m.run(solver="rk4")
+    with pytest.raises(ValueError, match="`step` applies to the fixed-step solvers"):
+        m.run(step=1e-3)
+    # A fixed-step solver without a step takes the sim block's default (1e-3).
+    a, b = m.run(solver="rk4"), m.run(solver="rk4", step=1e-3)
+    assert len(a.jumps.t) > 0 and (a.jumps.t == b.jumps.t).all() and (a["h"] == b["h"]).all()
     with pytest.raises(TypeError, match="`J`"):
         m.run(J="many")
     with pytest.raises(ValueError, match="linear_solver `lu`"):
