@@ -58,6 +58,26 @@ pub enum SyntaxError {
         /// Whose spelling it is (`MATLAB`, `Python`).
         lang: &'static str,
     },
+    /// `dx = v` in a flow block: an equation gives a state's derivative,
+    /// `x' = v` (HyEQ's and Simulink's scripts name it `dx`).
+    #[error("a flow equation gives a state's derivative, written with a prime: `x' = ...`")]
+    FlowWithoutPrime {
+        /// The name before `=`.
+        span: Span,
+        /// Its text.
+        name: String,
+    },
+    /// A block whose `{` is not closed where a new declaration (or the end
+    /// of the file) begins.
+    #[error("`{{` not closed: expected `}}` before {found}")]
+    Unclosed {
+        /// What was found where `}` was expected.
+        span: Span,
+        /// The unclosed `{`.
+        open: Span,
+        /// What was found, in words.
+        found: String,
+    },
     /// A number literal that does not fit in an f64.
     #[error("number `{text}` is out of range")]
     BadNumber {
@@ -77,6 +97,8 @@ impl SyntaxError {
             | SyntaxError::TooLong { span, .. }
             | SyntaxError::ResetWithoutPlus { span, .. }
             | SyntaxError::MatlabOperator { span, .. }
+            | SyntaxError::FlowWithoutPrime { span, .. }
+            | SyntaxError::Unclosed { span, .. }
             | SyntaxError::BadNumber { span, .. } => *span,
         }
     }
@@ -118,6 +140,23 @@ impl SyntaxError {
                         "hybsim's operators are C-like: `&&` and, `||` or, `!=` not equal, \
                          `!x` not; replace `{found}` by `{write}`"
                     ))
+            }
+            SyntaxError::FlowWithoutPrime { span, name } => {
+                let mut d = Diagnostic::error("E0107", self.to_string())
+                    .primary(*span, format!("the derivative of `{name}` is `{name}'`"))
+                    .note("a `flow` block holds equations `x' = f(x)`, one per state that changes");
+                if let Some(x) = name.strip_prefix('d').filter(|x| !x.is_empty()) {
+                    d = d.help(format!(
+                        "if `{name}` is the derivative of `{x}`, write `{x}' = ...`"
+                    ));
+                }
+                d
+            }
+            SyntaxError::Unclosed { span, open, .. } => {
+                Diagnostic::error("E0108", self.to_string())
+                    .primary(*span, "`}` expected before this")
+                    .secondary(*open, "this `{` is not closed")
+                    .help("close the block with `}`")
             }
             SyntaxError::BadNumber { span, text } => {
                 Diagnostic::error("E0103", format!("number `{text}` is out of range"))
@@ -161,7 +200,20 @@ impl SyntaxError {
                 lang: "Python",
             };
         }
+        if let Some((at, name)) = flow_without_prime(text, pos) {
+            return SyntaxError::FlowWithoutPrime {
+                span: Span::new(at, at + name.len()),
+                name,
+            };
+        }
         let (found, len) = found_at(text, pos);
+        if let Some(open) = unclosed_before_declaration(text, pos) {
+            return SyntaxError::Unclosed {
+                span: Span::new(pos, pos + len),
+                open: Span::new(open, open + 1),
+                found,
+            };
+        }
         SyntaxError::Unexpected {
             span: Span::new(pos, pos + len),
             found,
@@ -210,6 +262,79 @@ fn word_operator(text: &str, pos: usize) -> Option<(usize, &'static str, &'stati
         .map_or(0, |i| i + 1);
     let (found, write) = spelling(&before[start..end])?;
     Some((start, found, write))
+}
+
+/// The last `{` before `pos` that is not closed before it (comments and
+/// quoted strings skipped).
+fn unclosed_brace(text: &str, pos: usize) -> Option<usize> {
+    let mut open = Vec::new();
+    let (mut comment, mut string) = (false, false);
+    for (i, c) in text.get(..pos)?.char_indices() {
+        match c {
+            '\n' => comment = false,
+            _ if comment => {}
+            '"' => string = !string,
+            _ if string => {}
+            '#' => comment = true,
+            '{' => open.push(i),
+            '}' => {
+                open.pop();
+            }
+            _ => {}
+        }
+    }
+    open.pop()
+}
+
+/// `NAME =` where the parser stopped at `=` inside a `flow` block: the
+/// start of `NAME` and its text.
+fn flow_without_prime(text: &str, pos: usize) -> Option<(usize, String)> {
+    let rest = text.get(pos..)?;
+    if !rest.starts_with('=') || rest.starts_with("==") {
+        return None;
+    }
+    let is_word = |c: char| c.is_ascii_alphanumeric() || c == '_';
+    let before = text.get(..pos)?.trim_end_matches([' ', '\t']);
+    let start = before.rfind(|c: char| !is_word(c)).map_or(0, |i| i + 1);
+    let name = &before[start..];
+    if name.is_empty() || !name.starts_with(|c: char| c.is_ascii_alphabetic() || c == '_') {
+        return None;
+    }
+    let brace = unclosed_brace(text, start)?;
+    let opener = text[..brace].trim_end();
+    opener.ends_with("flow").then(|| (start, name.to_string()))
+}
+
+/// The unclosed `{` of a block when the parser stopped at the end of the
+/// file or at the first word of a line that begins a declaration (or
+/// `in`, the flow set after a flow block): the block was not closed.
+fn unclosed_before_declaration(text: &str, pos: usize) -> Option<usize> {
+    const STARTS: [&str; 13] = [
+        "in",
+        "flow",
+        "jump",
+        "every",
+        "state",
+        "param",
+        "sim",
+        "output",
+        "noise",
+        "design",
+        "import",
+        "subsystem",
+        "log",
+    ];
+    let rest = text.get(pos..)?;
+    let line_start = text[..pos].rfind('\n').map_or(0, |i| i + 1);
+    let at_line_start = text[line_start..pos].trim().is_empty();
+    let word = &rest[..rest
+        .find(|c: char| !(c.is_ascii_alphanumeric() || c == '_'))
+        .unwrap_or(rest.len())];
+    let declaration = at_line_start && STARTS.contains(&word);
+    if !(rest.trim().is_empty() || declaration) {
+        return None;
+    }
+    unclosed_brace(text, pos)
 }
 
 /// The token at `pos`, in words, and its length in bytes.

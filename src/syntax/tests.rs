@@ -134,3 +134,50 @@ fn deep_nesting_is_an_error_not_a_crash() {
         Err(SyntaxError::TooDeep { .. })
     ));
 }
+
+/// HyEQ's `dx1 = x2` in a flow block is E0107 at the name, with the
+/// equation to write; `==` and names outside flow blocks are not.
+#[test]
+fn a_flow_equation_without_a_prime_says_how_to_write_it() {
+    let src = "model m\nstate x1 = 1, x2 = 0\nflow {\n  dx1 = x2\n  dx2 = -1\n}\n";
+    let err = parse_model(src).unwrap_err();
+    let d = err.to_diagnostic();
+    assert_eq!(d.code, "E0107");
+    assert_eq!(&src[err.span().start..err.span().end], "dx1");
+    assert!(d.message.contains("`x' = ...`"), "{}", d.message);
+    assert!(
+        d.help.iter().any(|h| h.contains("write `x1' = ...`")),
+        "{:?}",
+        d.help
+    );
+    // Elsewhere a stray `=` stays the plain syntax error.
+    let err = parse_model("model m\nstate x = 1\njump r when x = 1 { x+ = 0 }\n").unwrap_err();
+    assert_eq!(err.to_diagnostic().code, "E0101");
+}
+
+/// A block left open where the next declaration (or the flow set, or the
+/// end of the file) begins is E0108 there, pointing at the open `{`.
+#[test]
+fn an_unclosed_block_points_at_its_brace() {
+    for (src, found) in [
+        ("model m\nstate x = 1\nflow {\n  x' = -x\nin x >= 0\n", "in"),
+        (
+            "model m\nstate x = 1\nflow { x' = -x\njump r when x <= 0 { x+ = 1 }\n",
+            "jump",
+        ),
+        ("model m\nstate x = 1\nsim { T = 1\n", ""),
+    ] {
+        let err = parse_model(src).unwrap_err();
+        let d = err.to_diagnostic();
+        assert_eq!(d.code, "E0108", "{src}: {}", d.message);
+        assert_eq!(&src[err.span().start..err.span().end], found, "{src}");
+        let SyntaxError::Unclosed { open, .. } = err else {
+            panic!()
+        };
+        assert_eq!(&src[open.start..open.end], "{", "{src}");
+    }
+    // Inside a block, a misplaced keyword that is not at a line's start
+    // stays the plain syntax error.
+    let err = parse_model("model m\nstate x = 1\nflow { x' = in }\n").unwrap_err();
+    assert_eq!(err.to_diagnostic().code, "E0101");
+}
