@@ -220,6 +220,13 @@ struct WSet {
     vb: Vec<f64>,
     vt: Vec<f64>,
     truth: Vec<bool>,
+    /// Per atom: a timer atom crossed at the checkpoint being examined by
+    /// [`Watcher::cross_timers`] (any of them: `any_on_threshold`), and the
+    /// set's value there past the thresholds and on them.
+    on_threshold: Vec<bool>,
+    any_on_threshold: bool,
+    past: bool,
+    on: bool,
     /// The set's value at the cursor, and at the candidate being examined.
     cur: bool,
     new: bool,
@@ -256,6 +263,23 @@ fn set_value(spec: &SetAtoms, table: Option<TruthTable>, truth: impl Fn(usize) -
         Some(t) => t.value(TruthTable::mask(spec.atoms.len(), truth)),
         None => spec.expr.eval_with(&truth),
     }
+}
+
+/// The value of the set `ws` (with atoms) at a checkpoint where timers
+/// pass their thresholds ([`Watcher::cross_timers`]): its watched atoms at
+/// their checkpoint values `vs`, the others at their truth for the rest of
+/// the segment, or with `on`, the timers crossed there on their thresholds.
+fn timer_set_value(ws: &WSet, spec: &SetAtoms, on: bool) -> bool {
+    set_value(spec, ws.table, |k| {
+        let atom = spec.atoms[k];
+        if on && ws.on_threshold[k] {
+            atom.cmp.holds(0.0)
+        } else if atom.watched() {
+            atom.cmp.holds_within(ws.vs[k], ws.relax[k])
+        } else {
+            ws.start_truth[k]
+        }
+    })
 }
 
 /// Evaluates the atoms of `ws` at (t, j, x) into `out`.
@@ -439,7 +463,7 @@ fn first_sure_sign(p: &[f64], tol: f64) -> Option<(f64, f64)> {
             .then_some(sure)
     };
     for tau in EARLY {
-        if let Some(sure) = sure_on(&split(p, tau).0[..n]) {
+        if let Some(sure) = sure_on(&split_left(p, tau)[..n]) {
             return Some((tau, sure));
         }
     }
@@ -450,7 +474,7 @@ fn first_sure_sign(p: &[f64], tol: f64) -> Option<(f64, f64)> {
         if let Some(sure) = sure_on(&piece[..n]) {
             return Some((tau, sure));
         }
-        piece = split(&piece[..n], 0.5).0;
+        piece = split_left(&piece[..n], 0.5);
         tau *= 0.5;
     }
     None
@@ -591,16 +615,34 @@ fn bernstein_zero(p: &[f64], (mut a, mut b): (f64, f64), width: f64) -> Option<f
 fn split(p: &[f64], t: f64) -> ([f64; MAX_CONTROL], [f64; MAX_CONTROL]) {
     let n = p.len();
     let (mut left, mut right) = ([0.0; MAX_CONTROL], [0.0; MAX_CONTROL]);
+    de_casteljau(p, t, |r, first, last| {
+        left[r] = first;
+        right[n - 1 - r] = last;
+    });
+    (left, right)
+}
+
+/// The points of [`split`]'s first half alone (the start of a step, looked
+/// at for every atom on a boundary at a segment's start).
+fn split_left(p: &[f64], t: f64) -> [f64; MAX_CONTROL] {
+    let mut left = [0.0; MAX_CONTROL];
+    de_casteljau(p, t, |r, first, _| left[r] = first);
+    left
+}
+
+/// De Casteljau's scheme at `t` on the points `p`: `row(r, first, last)`
+/// for each row `r` of the triangle, with its first and last entries.
+#[inline(always)]
+fn de_casteljau(p: &[f64], t: f64, mut row: impl FnMut(usize, f64, f64)) {
+    let n = p.len();
     let mut work = [0.0; MAX_CONTROL];
     work[..n].copy_from_slice(p);
     for r in 0..n {
-        left[r] = work[0];
-        right[n - 1 - r] = work[n - 1 - r];
+        row(r, work[0], work[n - 1 - r]);
         for i in 0..n - 1 - r {
             work[i] = (1.0 - t) * work[i] + t * work[i + 1];
         }
     }
-    (left, right)
 }
 
 /// The most sign changes of one affine atom looked for on one step (a
@@ -631,6 +673,9 @@ pub(crate) struct Watcher {
     /// the current [`Watcher::resolve`], with the class and relaxation it
     /// was found for (`a` NaN: none).
     found: Vec<(f64, f64, i8, f64)>,
+    /// Per watched atom: whether it needs localizing in the current round
+    /// of [`Watcher::resolve`] ([`Watcher::needs_localizing`]).
+    need: Vec<bool>,
     /// Per watched atom: an earlier one with the same function `g`
     /// ([`Atom::g_id`](super::system::Atom::g_id)).
     twin: Vec<Option<usize>>,
@@ -665,6 +710,9 @@ pub(crate) struct Watcher {
     /// Per watched atom: its affine form's points on the step being
     /// scanned ([`form_points`]), once computed.
     form_pts: Vec<Option<FormPoints>>,
+    /// Per watched atom: its [`first_sure_sign`] on the step being scanned,
+    /// once computed.
+    sure_pts: Vec<Option<Option<(f64, f64)>>>,
     buf_s: Vec<f64>,
     buf_a: Vec<f64>,
     buf_b: Vec<f64>,
@@ -727,6 +775,10 @@ impl Watcher {
                 vb: vec![0.0; n],
                 vt: vec![0.0; n],
                 truth: vec![false; n],
+                on_threshold: vec![false; n],
+                any_on_threshold: false,
+                past: false,
+                on: false,
                 cur: false,
                 new: false,
             });
@@ -845,7 +897,9 @@ impl Watcher {
             cls: vec![0; watched.len()],
             cls_s: vec![0; watched.len()],
             form_pts: vec![None; watched.len()],
+            sure_pts: vec![None; watched.len()],
             found: vec![(f64::NAN, f64::NAN, 0, 0.0); watched.len()],
+            need: vec![false; watched.len()],
             watched,
             timers,
             twin,
@@ -982,55 +1036,49 @@ impl Watcher {
         // ends it here.
         for ta in &self.timers {
             if ta.now {
-                self.sets[ta.set].start_truth[ta.atom] = ta.after;
+                let ws = &mut self.sets[ta.set];
+                ws.start_truth[ta.atom] = ta.after;
+                ws.on_threshold[ta.atom] = true;
+                ws.any_on_threshold = true;
             }
         }
-        // An atom's truth at the checkpoint: the checkpoint's value for a
-        // watched atom, else the segment's truth (past the thresholds), or
-        // for the timers crossed now, on their threshold if `on`.
-        let timers = &self.timers;
-        let value = |i: usize, ws: &WSet, on: bool| {
-            let spec = ws.spec.as_ref().filter(|_| ws.source)?;
-            Some(set_value(spec, ws.table, |k| {
-                let atom = spec.atoms[k];
-                if on
-                    && timers
-                        .iter()
-                        .any(|ta| ta.now && ta.set == i && ta.atom == k)
-                {
-                    atom.cmp.holds(0.0)
-                } else if atom.watched() {
-                    atom.cmp.holds_within(ws.vs[k], ws.relax[k])
-                } else {
-                    ws.start_truth[k]
-                }
-            }))
-        };
+        // Each source set's value past the thresholds and on them (which
+        // differ only where one of its timers is crossed now), once.
+        for ws in &mut self.sets {
+            if let Some(spec) = ws.spec.as_ref().filter(|_| ws.source) {
+                let past = timer_set_value(ws, spec, false);
+                let on = ws.any_on_threshold && timer_set_value(ws, spec, true);
+                (ws.past, ws.on) = (past, if ws.any_on_threshold { on } else { past });
+            }
+        }
+        let decided = |ws: &WSet| ws.source && ws.spec.is_some();
         // A jump set met on the thresholds, or C left past them.
-        let kind = self
-            .sets
-            .iter()
-            .enumerate()
-            .find_map(|(i, ws)| match ws.set {
-                SetRef::Jump(r) if !ws.cur && value(i, ws, true) == Some(true) => {
-                    Some(EventKind::Jump(r))
-                }
-                _ => None,
-            });
-        let kind = kind.or_else(|| {
-            let i = self.flow?;
-            (value(i, &self.sets[i], false) == Some(false)).then_some(EventKind::LeftFlowSet)
+        let kind = self.sets.iter().find_map(|ws| match ws.set {
+            SetRef::Jump(r) if !ws.cur && decided(ws) && ws.on => Some(EventKind::Jump(r)),
+            _ => None,
         });
-        for i in 0..self.sets.len() {
-            let ws = &self.sets[i];
-            let on = kind.is_some() && ws.set != SetRef::Flow;
+        let kind = kind.or_else(|| {
+            let ws = &self.sets[self.flow?];
+            (decided(ws) && !ws.past).then_some(EventKind::LeftFlowSet)
+        });
+        for ws in &mut self.sets {
             // A set without timer atoms keeps its value here.
-            let v = value(i, ws, on).unwrap_or(ws.cur);
-            let ws = &mut self.sets[i];
+            let v = match (decided(ws), kind.is_some() && ws.set != SetRef::Flow) {
+                (false, _) => ws.cur,
+                (true, true) => ws.on,
+                (true, false) => ws.past,
+            };
             if kind.is_some() {
                 ws.new = v;
             } else {
                 ws.cur = v;
+            }
+        }
+        for ta in &self.timers {
+            if ta.now {
+                let ws = &mut self.sets[ta.set];
+                ws.on_threshold[ta.atom] = false;
+                ws.any_on_threshold = false;
             }
         }
         let kind = kind?;
@@ -1296,6 +1344,7 @@ impl Watcher {
         let m = if P::STRAIGHT { 0 } else { self.checks };
         self.span = (s0, s1);
         self.form_pts.fill(None);
+        self.sure_pts.fill(None);
         // A segment that starts on a boundary (a post-jump state, a few ulp
         // on either side of an atom's zero) may cross it right away and
         // come back within the first interval: look early in the first
@@ -1438,7 +1487,13 @@ impl Watcher {
                 // threshold): examined from the first point of a sure sign
                 // on. Before it the atom never has the other sign beyond
                 // `tol`, so a change of class there is seen at that point.
-                let Some((tau, sure)) = first_sure_sign(&g[..n], tol) else {
+                // A twin's (the same points) is this atom's.
+                let found = match self.twin[w].and_then(|u| self.sure_pts[u]) {
+                    Some(found) => found,
+                    None => first_sure_sign(&g[..n], tol),
+                };
+                self.sure_pts[w] = Some(found);
+                let Some((tau, sure)) = found else {
                     all = false;
                     continue;
                 };
@@ -1514,7 +1569,9 @@ impl Watcher {
         for _ in 0..MAX_CANDIDATES {
             let mut best: Option<(f64, f64, bool)> = None;
             for w in 0..self.watched.len() {
-                if !self.needs_localizing(w) || self.shares_zero(w) {
+                // Decided once per atom and round (twins read theirs).
+                self.need[w] = self.needs_localizing(w);
+                if !self.need[w] || self.shares_zero(w) {
                     continue;
                 }
                 let WAtom { set, atom, .. } = self.watched[w];
@@ -1590,13 +1647,13 @@ impl Watcher {
     /// Whether watched atom `w` changes sign exactly where an earlier
     /// watched atom that is localized does (same function, neither
     /// relaxed), so that its localization would repeat that one's to the
-    /// last bit.
+    /// last bit. The earlier atoms' [`need`](Self::need) is this round's.
     fn shares_zero(&self, w: usize) -> bool {
         let unrelaxed = |w: usize| {
             let WAtom { set, atom, .. } = self.watched[w];
             self.sets[set].relax[atom] == 0.0
         };
-        self.twin[w].is_some_and(|u| unrelaxed(u) && unrelaxed(w) && self.needs_localizing(u))
+        self.twin[w].is_some_and(|u| unrelaxed(u) && unrelaxed(w) && self.need[u])
     }
 
     /// Whether watched atom `w` changed sign class between the cursor and
@@ -1805,13 +1862,15 @@ impl Watcher {
         let mut widths = [f64::INFINITY; 2];
         // Leaving an exact zero: the change is almost always right after a.
         let mut leaving_zero = c0 == 0;
-        // An affine atom's zero on the path's polynomial: the first trial,
-        // and a trial a tolerance beyond it on the other side the second
-        // (then the bracket is closed in two evaluations).
+        // An affine atom's zero on the path's polynomial (within a quarter
+        // tolerance): the first trial, and a trial half a tolerance beyond
+        // it on the other side the second (then the bracket is closed in two
+        // evaluations, its ends within half a tolerance of the zero).
         let mut guess = if leaving_zero {
             None
         } else {
-            self.polynomial_zero(w, path, a, b, tol_at(b))
+            // The bracket's smaller tolerance: the zero's own may be either.
+            self.polynomial_zero(w, path, a, b, tol_at(a).min(tol_at(b)))
         };
         let mut guided = guess.is_some();
         for _ in 0..400 {
@@ -1824,6 +1883,9 @@ impl Watcher {
             // are then too close to rounding noise (or NaN) to interpolate.
             let slow = width > 0.5 * widths[0];
             widths = [widths[1], width];
+            // The second trial of a guided search: half a tolerance across
+            // the first, which was within a quarter of one of the zero.
+            let second = guess.is_some() && !guided;
             let mut s = if leaving_zero {
                 a + 0.5 * tol
             } else if let Some(g) = guess.take() {
@@ -1834,13 +1896,13 @@ impl Watcher {
                 itp.next(a, b, fa, fb, c0 != 2 && !slow, tol)
             };
             // Keep the trial strictly inside. A trial within `tol` of an end
-            // means the estimate has converged there: step a full `tol`
-            // inside, so that the probe lands across the root and closes the
-            // bracket in one evaluation.
-            let margin = if leaving_zero || width <= 2.0 * tol {
+            // means the estimate has converged there: step almost a full
+            // `tol` inside ([`INSIDE`]), so that the probe lands across the
+            // root and closes the bracket in one evaluation.
+            let margin = if leaving_zero || second || width <= 2.0 * tol {
                 0.25 * tol
             } else {
-                tol
+                INSIDE * tol
             };
             s = s.clamp(a + margin, b - margin);
             if !(s > a && s < b) {
@@ -1851,7 +1913,13 @@ impl Watcher {
             }
             let v = self.watched_at(sys, w, path, s, Buf::T);
             if std::mem::take(&mut guided) {
-                guess = Some(if class(v) != c0 { s - tol } else { s + tol });
+                // With the tolerance at the bracket's new end (its `b` may
+                // have moved to `s`).
+                guess = Some(if class(v) != c0 {
+                    s - 0.5 * tol_at(s)
+                } else {
+                    s + 0.5 * tol
+                });
             }
             if class(v) != c0 {
                 b = s;
@@ -1877,6 +1945,14 @@ impl Watcher {
         (a, b)
     }
 }
+
+/// How far inside a bracket's end, in tolerances, a trial near it is
+/// placed: a probe that lands across the root then leaves a bracket no
+/// wider than the tolerance, the rounding of the trial point included (at
+/// most an eighth of the tolerance, which is at least 4 ulp of t), and the
+/// search ends; a full tolerance would miss by that rounding half the time
+/// and cost one more evaluation.
+const INSIDE: f64 = 0.875;
 
 #[derive(Clone, Copy)]
 enum Buf {
