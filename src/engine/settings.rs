@@ -302,7 +302,9 @@ pub struct SimSettings {
     /// holds by `set_tol`; module docs of `engine`). Default
     /// 1e-9: above the rounding of quantities up to ~10⁶ (ulp(10⁶) ≈ 1e-10),
     /// far below any meaningful distance to a boundary. Jump sets are never
-    /// relaxed.
+    /// relaxed, nor is a strict atom of C that cannot change along a flow
+    /// (`k < 3` with `k` a counter: on its boundary it would fail on the
+    /// whole flow; [`Atom::holds_within`](super::Atom::holds_within)).
     pub set_tol: f64,
     /// Number of interior points per step at which guards are evaluated in
     /// addition to the step ends, to catch a guard that crosses and
