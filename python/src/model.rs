@@ -327,7 +327,7 @@ impl Model {
     ) -> PyResult<Bound<'py, PyDict>> {
         let (shared, seed) = self.for_run(py, seed)?;
         let model: &CompiledModel = &shared;
-        let settings = settings::apply(model.settings(), &sim.cloned().unwrap_or(PyDict::new(py)))?;
+        let settings = settings::apply(model, &sim.cloned().unwrap_or(PyDict::new(py)))?;
         let (result, mut rec, diagnostic) = py.detach(|| {
             let (x0, mut rng) = model.start(seed);
             let mut rec = Recorder::new(model.state_dim());
@@ -521,7 +521,7 @@ impl Model {
     ) -> PyResult<f64> {
         let (shared, seed) = self.for_run(py, seed)?;
         let model: &CompiledModel = &shared;
-        let settings = settings::apply(model.settings(), &sim.cloned().unwrap_or(PyDict::new(py)))?;
+        let settings = settings::apply(model, &sim.cloned().unwrap_or(PyDict::new(py)))?;
         py.detach(|| {
             let mut best = f64::INFINITY;
             for _ in 0..repeats.max(1) {

@@ -1,7 +1,8 @@
 //! `Model.run(**sim)`: simulation settings from Python keywords, over the
 //! model's `sim` block (the keywords of `hybsim run`'s flags).
 
-use hybsim::engine::{LinearSolver, Priority, SimSettings, Solver};
+use hybsim::engine::{LinearSolver, Priority, SimError, SimSettings, Solver};
+use hybsim::ir::CompiledModel;
 use pyo3::exceptions::{PyTypeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
@@ -37,8 +38,10 @@ fn get<'py, T: FromPyObjectOwned<'py>>(sim: &Bound<'py, PyDict>, key: &str) -> P
     }
 }
 
-/// `settings` with the keywords of `sim` applied, validated.
-pub fn apply(mut settings: SimSettings, sim: &Bound<'_, PyDict>) -> PyResult<SimSettings> {
+/// `model`'s settings with the keywords of `sim` applied, validated for the
+/// model (a `solver` that cannot integrate its white noise is a `ValueError`).
+pub fn apply(model: &CompiledModel, sim: &Bound<'_, PyDict>) -> PyResult<SimSettings> {
+    let mut settings = model.settings();
     for key in sim.keys() {
         let key: String = key.extract()?;
         if !KEYS.contains(&key.as_str()) {
@@ -105,9 +108,14 @@ pub fn apply(mut settings: SimSettings, sim: &Bound<'_, PyDict>) -> PyResult<Sim
         get::<f64>(sim, "step")?,
     )?;
     let settings = settings.solver(solver);
-    settings
-        .validate()
-        .map_err(|e| PyValueError::new_err(format!("{e}; {}", e.help())))?;
+    settings.validate_for(model).map_err(|e| match e {
+        SimError::NoiseNeedsEulerMaruyama { .. } => PyValueError::new_err(format!(
+            "solver=\"{}\": the model's flows have white noise (`wiener`), which only \
+             solver=\"euler_maruyama\" integrates",
+            solver.name()
+        )),
+        e => PyValueError::new_err(format!("{e}; {}", e.help())),
+    })?;
     Ok(settings)
 }
 

@@ -80,6 +80,14 @@ def test_bad_settings():
         m.run(linear_solver="lu")
 
 
+def test_a_solver_that_cannot_integrate_white_noise_is_a_value_error():
+    # Was a SimulationError naming the Rust API's `Solver::EulerMaruyama { h }`.
+    ou = hybsim.load("model ou\nnoise w ~ wiener(1)\nstate x = 0\nflow { x' = -x + w }\nsim { T = 0.1 }\n")
+    with pytest.raises(ValueError, match='solver="dopri5".*solver="euler_maruyama"'):
+        ou.run(solver="dopri5")
+    assert ou.run(solver="euler_maruyama").termination.cause == "horizon_t"
+
+
 def test_runtime_failure_points_at_the_flow_equation():
     src = """model blowup
 state x = 1

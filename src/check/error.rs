@@ -508,10 +508,18 @@ impl CheckError {
                 .secondary(*first, "first declared here")
                 .help("rename one of them"),
             ShapeMismatch {
-                span, left, right, ..
+                span,
+                left,
+                right,
+                op,
             } => d
                 .primary(*span, format!("{} and {}", shape(*left), shape(*right)))
-                .help("check the dimensions; use `'` to transpose"),
+                .help(if op.starts_with('^') {
+                    // MATLAB's `x.^2` written `x^2`: no transpose helps.
+                    "`^` is not elementwise: write `x .* x` for the squares of a vector's entries"
+                } else {
+                    "check the dimensions; use `'` to transpose"
+                }),
             AssignShape { span, found, .. } => d
                 .primary(*span, format!("this is a {}", shape(*found)))
                 .help("make both sides the same shape"),

@@ -13,6 +13,7 @@ use hybsim::engine::{
     ExactAffine, HybridSystem, LinearSolver, Priority, SimError, SimRng, SimSettings, Solver,
     simulate,
 };
+use hybsim::ir::CompiledModel;
 use hybsim::ir::metric::Metrics;
 use hybsim::lang;
 use hybsim::sinks::csv::CsvSink;
@@ -325,10 +326,12 @@ impl RunArgs {
 }
 
 /// The model's settings with the command-line flags that are not `sim`-key overrides
-/// ([`RunArgs::overrides`]) applied.
+/// ([`RunArgs::overrides`]) applied, validated for `model` (a `--solver` that cannot
+/// integrate its white noise is refused here, as a usage error).
 pub fn settings_from_flags(
     mut settings: SimSettings,
     args: &RunArgs,
+    model: &CompiledModel,
 ) -> Result<SimSettings, String> {
     if let Some(p) = args.priority {
         settings = settings.priority(match p {
@@ -353,9 +356,14 @@ pub fn settings_from_flags(
     }
     let solver = solver_from_flags(settings.solver, args)?;
     let settings = settings.solver(solver);
-    settings
-        .validate()
-        .map_err(|e| format!("{e}; {}", e.help()))?;
+    settings.validate_for(model).map_err(|e| match e {
+        SimError::NoiseNeedsEulerMaruyama { .. } => format!(
+            "`--solver {}`: the model's flows have white noise (`wiener`), which only \
+             `--solver euler-maruyama` integrates",
+            solver.name().replace('_', "-")
+        ),
+        e => format!("{e}; {}", e.help()),
+    })?;
     Ok(settings)
 }
 
@@ -829,7 +837,7 @@ pub fn execute(args: RunArgs) -> anyhow::Result<u8> {
     if let (Some(JitMode::On), lang::JitStatus::Unavailable(e)) = (args.jit, &model.jit()) {
         eprintln!("warning: the model runs interpreted: {e}");
     }
-    let settings = match settings_from_flags(model.settings(), &args) {
+    let settings = match settings_from_flags(model.settings(), &args, &model) {
         Ok(s) => s,
         Err(message) => {
             eprintln!("error: {message}");

@@ -1166,7 +1166,11 @@ impl Watcher {
                         // (and then hold within their relaxation), and its
                         // noisy atoms that hold on their boundary (within
                         // set_tol of zero).
-                        let outside = !holds && cmp.holds_within(g, set_tol);
+                        let within = match atoms {
+                            Some(a) => a[k].holds_within(g, set_tol),
+                            None => cmp.holds_within(g, set_tol),
+                        };
+                        let outside = !holds && within;
                         let edge = holds && ws.noisy[k] && g.abs() <= set_tol;
                         let relaxed = is_flow && (outside || edge);
                         ws.relax[k] = if relaxed { set_tol } else { 0.0 };
@@ -2070,7 +2074,7 @@ impl FlowSetTest {
                     }
                 };
                 set_value(spec, self.table, |k| {
-                    spec.atoms[k].cmp.holds_within(vals[k], tol)
+                    spec.atoms[k].holds_within(vals[k], tol)
                 })
             }
             None => {

@@ -36,7 +36,10 @@
 //!    [`set_tol`](SimSettings::set_tol) on C's atoms (default 1e-9): an
 //!    atom `g ≥ 0` counts as holding when `g ≥ −set_tol`, so that a jump map
 //!    that lands on C's boundary up to rounding (`h⁺ = −h`) lets the
-//!    solution flow. Jump sets are tested exactly.
+//!    solution flow. A strict atom that cannot change along the flow
+//!    (`k < 3` with `k` a counter or `j`) is tested exactly: on its boundary
+//!    it fails on the whole flow, not by rounding. Jump sets are tested
+//!    exactly.
 //! 4. **Neither.** If x is in neither set (or the previous flow ended
 //!    because it was leaving C and x is not in D), the solution is maximal
 //!    and ends with [`TerminationCause::CannotFlowOrJump`].

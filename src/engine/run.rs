@@ -77,13 +77,10 @@ fn method_for<S: HybridSystem + ?Sized>(
     sys: &S,
     settings: &SimSettings,
 ) -> Result<Method, SimError> {
-    let noise_dim = sys.noise_dim();
     if let Solver::EulerMaruyama { h } = settings.solver {
         return Ok(Method::EulerMaruyama { h });
     }
-    if noise_dim > 0 {
-        return Err(SimError::NoiseNeedsEulerMaruyama { noise_dim });
-    }
+    settings.solver.suits(sys)?;
     if settings.exact_affine != ExactAffine::Off
         && let FlowStructure::Affine { a, b } = sys.flow_structure()
     {

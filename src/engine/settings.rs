@@ -3,6 +3,7 @@
 //! [`SimSettings::validate`] checks them all once and names the faulty field.
 
 use super::error::SimError;
+use super::system::HybridSystem;
 
 /// The step of the fixed-step solvers (`rk4`, `euler_maruyama`) when the
 /// model's `sim` block or the command line chooses one without giving `h`.
@@ -103,6 +104,18 @@ impl Solver {
             Solver::Auto { .. } => "auto",
             Solver::Rk4 { .. } => "rk4",
             Solver::EulerMaruyama { .. } => "euler_maruyama",
+        }
+    }
+
+    /// Whether the solver can integrate `sys`'s flows: white noise
+    /// ([`HybridSystem::noise_dim`] > 0) needs [`Solver::EulerMaruyama`].
+    ///
+    /// # Errors
+    /// [`SimError::NoiseNeedsEulerMaruyama`].
+    pub fn suits<S: HybridSystem + ?Sized>(&self, sys: &S) -> Result<(), SimError> {
+        match (sys.noise_dim(), self) {
+            (0, _) | (_, Solver::EulerMaruyama { .. }) => Ok(()),
+            (noise_dim, _) => Err(SimError::NoiseNeedsEulerMaruyama { noise_dim }),
         }
     }
 
@@ -302,7 +315,9 @@ pub struct SimSettings {
     /// holds by `set_tol`; module docs of `engine`). Default
     /// 1e-9: above the rounding of quantities up to ~10⁶ (ulp(10⁶) ≈ 1e-10),
     /// far below any meaningful distance to a boundary. Jump sets are never
-    /// relaxed.
+    /// relaxed, nor is a strict atom of C that cannot change along a flow
+    /// (`k < 3` with `k` a counter: on its boundary it would fail on the
+    /// whole flow; [`Atom::holds_within`](super::Atom::holds_within)).
     pub set_tol: f64,
     /// Number of interior points per step at which guards are evaluated in
     /// addition to the step ends, to catch a guard that crosses and
@@ -397,6 +412,19 @@ impl SimSettings {
     pub fn exact_affine(mut self, value: impl Into<ExactAffine>) -> Self {
         self.exact_affine = value.into();
         self
+    }
+
+    /// [`validate`](Self::validate), then whether the settings suit `sys`:
+    /// a system driven by white noise ([`HybridSystem::noise_dim`] > 0)
+    /// needs [`Solver::EulerMaruyama`]. Front ends call it before a run, so
+    /// that a solver chosen on the command line is refused as such, not as
+    /// a failed run.
+    ///
+    /// # Errors
+    /// The first faulty field, or [`SimError::NoiseNeedsEulerMaruyama`].
+    pub fn validate_for<S: HybridSystem + ?Sized>(&self, sys: &S) -> Result<(), SimError> {
+        self.validate()?;
+        self.solver.suits(sys)
     }
 
     /// Checks every field; the error names the first faulty one.

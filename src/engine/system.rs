@@ -196,6 +196,19 @@ pub struct Atom {
 }
 
 impl Atom {
+    /// Whether `g` is within `tol` of the atom's set as C's atoms are tested
+    /// ([`Cmp::holds_within`]), except that a strict comparison that cannot
+    /// change along a flow (`k < 3` with `k` a counter, `j < 3`) is tested
+    /// exactly: on its boundary it fails on the whole flow, not by rounding,
+    /// and relaxed it would make `<` a `<=` for every integer-valued mode.
+    pub fn holds_within(&self, g: f64, tol: f64) -> bool {
+        if !self.flows && matches!(self.cmp, Cmp::Lt | Cmp::Gt) {
+            self.cmp.holds(g)
+        } else {
+            self.cmp.holds_within(g, tol)
+        }
+    }
+
     /// Whether the engine watches the atom along flows (at checkpoints,
     /// localizing its sign changes): it can change along a flow and is not
     /// a [`timer`](Self::timer).

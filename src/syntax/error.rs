@@ -67,6 +67,22 @@ pub enum SyntaxError {
         /// Its text.
         name: String,
     },
+    /// Another language's way of writing something hybsim writes
+    /// differently, where the parser stopped: a MATLAB `%` or C `//`
+    /// comment, `.^`, `**`, `.5`, matrix entries separated by spaces,
+    /// `x(1)` indexing, `x''`, `=` in a condition, a flow set without `in`,
+    /// `end`.
+    #[error("{message}")]
+    Foreign {
+        /// What was written.
+        span: Span,
+        /// The error, naming the spelling and hybsim's.
+        message: String,
+        /// The label at the span.
+        label: String,
+        /// What to write instead.
+        help: String,
+    },
     /// A block whose `{` is not closed where a new declaration (or the end
     /// of the file) begins.
     #[error("`{{` not closed: expected `}}` before {found}")]
@@ -98,6 +114,7 @@ impl SyntaxError {
             | SyntaxError::ResetWithoutPlus { span, .. }
             | SyntaxError::MatlabOperator { span, .. }
             | SyntaxError::FlowWithoutPrime { span, .. }
+            | SyntaxError::Foreign { span, .. }
             | SyntaxError::Unclosed { span, .. }
             | SyntaxError::BadNumber { span, .. } => *span,
         }
@@ -152,6 +169,14 @@ impl SyntaxError {
                 }
                 d
             }
+            SyntaxError::Foreign {
+                span,
+                message,
+                label,
+                help,
+            } => Diagnostic::error("E0109", message.clone())
+                .primary(*span, label.clone())
+                .help(help.clone()),
             SyntaxError::Unclosed { span, open, .. } => {
                 Diagnostic::error("E0108", self.to_string())
                     .primary(*span, "`}` expected before this")
@@ -206,6 +231,9 @@ impl SyntaxError {
                 name,
             };
         }
+        if let Some(foreign) = foreign_spelling(text, pos) {
+            return foreign;
+        }
         let (found, len) = found_at(text, pos);
         if let Some(open) = unclosed_before_declaration(text, pos) {
             return SyntaxError::Unclosed {
@@ -257,9 +285,7 @@ fn word_operator(text: &str, pos: usize) -> Option<(usize, &'static str, &'stati
         return Some((pos, found, write));
     }
     let end = before.trim_end_matches([' ', '\t']).len();
-    let start = before[..end]
-        .rfind(|c: char| !is_word(c))
-        .map_or(0, |i| i + 1);
+    let start = before[..end].trim_end_matches(is_word).len();
     let (found, write) = spelling(&before[start..end])?;
     Some((start, found, write))
 }
@@ -286,6 +312,237 @@ fn unclosed_brace(text: &str, pos: usize) -> Option<usize> {
     open.pop()
 }
 
+/// Another language's spelling where the parser stopped at `pos` (see
+/// [`SyntaxError::Foreign`]), with hybsim's.
+fn foreign_spelling(text: &str, pos: usize) -> Option<SyntaxError> {
+    let rest = text.get(pos..)?;
+    let before = text.get(..pos)?;
+    let prev = before.chars().next_back();
+    let is_word = |c: char| c.is_ascii_alphanumeric() || c == '_';
+    // The operand before `pos` ends here (a name, a number, a closing
+    // bracket or a transpose).
+    let after_operand = |b: &str| {
+        b.trim_end_matches([' ', '\t'])
+            .chars()
+            .next_back()
+            .is_some_and(|c| is_word(c) || matches!(c, ')' | ']' | '\''))
+    };
+    let foreign = |start: usize, end: usize, message: &str, label: &str, help: &str| {
+        Some(SyntaxError::Foreign {
+            span: Span::new(start, end),
+            message: message.into(),
+            label: label.into(),
+            help: help.into(),
+        })
+    };
+    if rest.starts_with('%') {
+        return foreign(
+            pos,
+            pos + 1,
+            "`%` starts a comment in MATLAB; hybsim's comments start with `#`",
+            "write `#` here",
+            "replace `%` by `#`: everything after `#` on the line is a comment",
+        );
+    }
+    // Two-character spellings, where the parse stops at either character.
+    let pair = |c: char| {
+        if rest.starts_with(c) && rest[1..].starts_with(c) {
+            Some(pos)
+        } else if rest.starts_with(c) && prev == Some(c) {
+            Some(pos - 1)
+        } else {
+            None
+        }
+    };
+    if let Some(at) = pair('/') {
+        return foreign(
+            at,
+            at + 2,
+            "`//` starts a comment in C; hybsim's comments start with `#`",
+            "write `#` here",
+            "replace `//` by `#`: everything after `#` on the line is a comment",
+        );
+    }
+    if rest.starts_with(".^") {
+        return foreign(
+            pos,
+            pos + 2,
+            "`.^` is MATLAB's elementwise power; hybsim writes `^`",
+            "write `^` here",
+            "`x^2` for a scalar; elementwise on a vector or matrix, `x .* x` (or `exp(p * log(x))` for x > 0)",
+        );
+    }
+    if rest.starts_with(".'") {
+        return foreign(
+            pos,
+            pos + 2,
+            "`.'` is MATLAB's transpose; hybsim writes `'`",
+            "write `'` here",
+            "hybsim's matrices are real: `A'` is the transpose",
+        );
+    }
+    if let Some(at) = pair('*') {
+        return foreign(
+            at,
+            at + 2,
+            "`**` is Python's power; hybsim writes `^`",
+            "write `^` here",
+            "`x^2` for a scalar (or a square matrix to a constant integer power); elementwise, `x .* x`",
+        );
+    }
+    if rest.starts_with('.')
+        && rest[1..].starts_with(|c: char| c.is_ascii_digit())
+        && !after_operand(before)
+    {
+        let digits = rest[1..]
+            .find(|c: char| !c.is_ascii_digit())
+            .map_or(rest.len(), |i| i + 1);
+        return foreign(
+            pos,
+            pos + digits,
+            &format!("a number starts with a digit: write `0{}`", &rest[..digits]),
+            &format!("write `0{}`", &rest[..digits]),
+            "write a leading zero before the decimal point",
+        );
+    }
+    if let Some(at) = pair('\'') {
+        return foreign(
+            at,
+            at + 2,
+            "a flow equation gives a first derivative: `x''` is not written",
+            "a second derivative",
+            "write a second-order equation as two first-order ones: `x' = v; v' = ...` (with `state v`)",
+        );
+    }
+    if rest.starts_with('(') && prev.is_some_and(is_word) {
+        let start = before.trim_end_matches(is_word).len();
+        let name = &before[start..];
+        if name.starts_with(|c: char| c.is_ascii_alphabetic() || c == '_') {
+            return foreign(
+                start,
+                pos + 1,
+                &format!(
+                    "`{name}(...)` indexes in MATLAB; hybsim indexes with brackets: `{name}[...]`"
+                ),
+                "indexed with parentheses",
+                &format!(
+                    "write `{name}[i]` (or `{name}[i, k]` for a matrix), indices starting at 1; \
+                     an initial value is written `state {name} = value`"
+                ),
+            );
+        }
+    }
+    let line_start = before.rfind('\n').map_or(0, |i| i + 1);
+    let line = &before[line_start..];
+    if rest.starts_with('=') && !rest.starts_with("==") && !before.ends_with(['<', '>', '!', '=']) {
+        // `=` inside a condition: after `when`, `in`, `if`, ... on this line
+        // and not inside a block opened after it.
+        let words = ["when", "in", "if", "always", "within"];
+        let cond = line
+            .match_indices(|c: char| !is_word(c))
+            .map(|(i, m)| i + m.len())
+            .chain(std::iter::once(0))
+            .filter(|&i| {
+                let w = &line[i..];
+                let w = &w[..w.find(|c: char| !is_word(c)).unwrap_or(w.len())];
+                words.contains(&w)
+            })
+            .max();
+        if let Some(i) = cond
+            && !line[i..].contains(['{', '}'])
+        {
+            return foreign(
+                pos,
+                pos + 1,
+                "`=` in a condition: hybsim compares with `==`",
+                "write `==` here",
+                "`x == 0` holds where x equals 0 (`=` only assigns, in `param`, `state`, equations and resets)",
+            );
+        }
+    }
+    // A flow set without `in`: the parser read its first name as a new
+    // declaration, right after a flow block's `}` on the same line.
+    let trimmed = before.trim_end_matches([' ', '\t']);
+    let word_start = trimmed.trim_end_matches(is_word);
+    if word_start.len() < trimmed.len()
+        && let Some(close) = word_start.trim_end_matches([' ', '\t']).strip_suffix('}')
+        && close.len() >= line_start
+        && let Some(open) = unclosed_brace(text, close.len())
+        && text[..open].trim_end().ends_with("flow")
+    {
+        let at = close.len();
+        return foreign(
+            at,
+            at + 1,
+            "a flow set is written after `in`: `flow { ... } in CONDITION`",
+            "`in` expected after this `}`",
+            "write `in` between the flow block and its flow set C",
+        );
+    }
+    // MATLAB's `end`, alone on its line: read as the start of a declaration.
+    let is_end = |at: usize| {
+        let ls = text[..at].rfind('\n').map_or(0, |i| i + 1);
+        let le = text[at..].find('\n').map_or(text.len(), |i| at + i);
+        text[ls..le].trim() == "end"
+    };
+    let last = before.trim_end();
+    if rest.starts_with("end") && is_end(pos) {
+        return end_keyword(pos);
+    }
+    if last.ends_with("end") && is_end(last.len() - 3) {
+        return end_keyword(last.len() - 3);
+    }
+    // Matrix entries separated by spaces, as MATLAB allows: the parser
+    // stopped at the second entry, inside `[`.
+    if rest.starts_with(|c: char| is_word(c) || c == '(')
+        && before.ends_with([' ', '\t'])
+        && after_operand(before)
+        && unclosed_bracket(text, pos).is_some()
+    {
+        return foreign(
+            pos,
+            pos + rest
+                .find(|c: char| !is_word(c))
+                .unwrap_or(rest.len())
+                .max(1),
+            "matrix entries are separated by `,` (rows by `;`), not by spaces",
+            "`,` expected before this entry",
+            "write `[0, 1; -1, 0]` for MATLAB's `[0 1; -1 0]`",
+        );
+    }
+    None
+}
+
+/// MATLAB's `end` at `at`.
+fn end_keyword(at: usize) -> Option<SyntaxError> {
+    Some(SyntaxError::Foreign {
+        span: Span::new(at, at + 3),
+        message: "hybsim has no `end`: blocks are written in braces `{ ... }`".into(),
+        label: "MATLAB's `end`".into(),
+        help: "delete `end`; a block ends with its `}`".into(),
+    })
+}
+
+/// The last `[` before `pos` that is not closed before it (comments
+/// skipped).
+fn unclosed_bracket(text: &str, pos: usize) -> Option<usize> {
+    let mut open = Vec::new();
+    let mut comment = false;
+    for (i, c) in text.get(..pos)?.char_indices() {
+        match c {
+            '\n' => comment = false,
+            _ if comment => {}
+            '#' => comment = true,
+            '[' => open.push(i),
+            ']' => {
+                open.pop();
+            }
+            _ => {}
+        }
+    }
+    open.pop()
+}
+
 /// `NAME =` where the parser stopped at `=` inside a `flow` block: the
 /// start of `NAME` and its text.
 fn flow_without_prime(text: &str, pos: usize) -> Option<(usize, String)> {
@@ -295,7 +552,7 @@ fn flow_without_prime(text: &str, pos: usize) -> Option<(usize, String)> {
     }
     let is_word = |c: char| c.is_ascii_alphanumeric() || c == '_';
     let before = text.get(..pos)?.trim_end_matches([' ', '\t']);
-    let start = before.rfind(|c: char| !is_word(c)).map_or(0, |i| i + 1);
+    let start = before.trim_end_matches(is_word).len();
     let name = &before[start..];
     if name.is_empty() || !name.starts_with(|c: char| c.is_ascii_alphabetic() || c == '_') {
         return None;

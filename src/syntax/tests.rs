@@ -150,9 +150,9 @@ fn a_flow_equation_without_a_prime_says_how_to_write_it() {
         "{:?}",
         d.help
     );
-    // Elsewhere a stray `=` stays the plain syntax error.
+    // Elsewhere a stray `=` is not E0107 (in a guard it is `==`, E0109).
     let err = parse_model("model m\nstate x = 1\njump r when x = 1 { x+ = 0 }\n").unwrap_err();
-    assert_eq!(err.to_diagnostic().code, "E0101");
+    assert_eq!(err.to_diagnostic().code, "E0109");
 }
 
 /// A block left open where the next declaration (or the flow set, or the
@@ -180,4 +180,64 @@ fn an_unclosed_block_points_at_its_brace() {
     // stays the plain syntax error.
     let err = parse_model("model m\nstate x = 1\nflow { x' = in }\n").unwrap_err();
     assert_eq!(err.to_diagnostic().code, "E0101");
+}
+
+/// Another language's spelling where the parse stops is E0109 at what was
+/// written, naming hybsim's: the habits of a MATLAB (HyEQ) user first.
+#[test]
+fn foreign_spellings_name_hybsims() {
+    for (src, at, says) in [
+        ("model m\n% MATLAB comment\nstate x = 1\n", "%", "`#`"),
+        ("model m\nstate x = 1 // C comment\n", "//", "`#`"),
+        ("model m\nstate x = 1\nflow { x' = -x.^2 }\n", ".^", "`^`"),
+        ("model m\nparam A = eye(2).'\n", ".'", "`'`"),
+        ("model m\nstate x = 1\nflow { x' = -x**2 }\n", "**", "`^`"),
+        ("model m\nstate x = .5\n", ".5", "`0.5`"),
+        (
+            "model m\nstate x = 1, v = 0\nflow { x'' = -x }\n",
+            "''",
+            "first derivative",
+        ),
+        (
+            "model m\nstate x = [1; 2]\nflow { x(1)' = x(2) }\n",
+            "x(",
+            "`x[...]`",
+        ),
+        ("model m\nstate x(0) = 1\n", "x(", "`x[...]`"),
+        (
+            "model m\nstate x = 1\njump r when x = 0 { x+ = 1 }\n",
+            "=",
+            "`==`",
+        ),
+        (
+            "model m\nstate x = 1\nflow { x' = -1 } in x = 0\n",
+            "=",
+            "`==`",
+        ),
+        ("model m\nparam p = if 1 = 2 then 1 else 0\n", "=", "`==`"),
+        (
+            "model m\nstate x = 1\nflow { x' = -x } x >= 0\n",
+            "}",
+            "`in`",
+        ),
+        (
+            "model m\nstate x = 1\nflow { x' = -x }\nend\n",
+            "end",
+            "no `end`",
+        ),
+        ("model m\nparam A = [0 1; -1 0]\n", "1", "`,`"),
+        ("model m\nparam A = [sin(1) cos(1)]\n", "cos", "`,`"),
+    ] {
+        let err = parse_model(src).unwrap_err();
+        let d = err.to_diagnostic();
+        assert_eq!(d.code, "E0109", "{src}: {}", d.message);
+        assert_eq!(&src[err.span().start..err.span().end], at, "{src}");
+        assert!(d.message.contains(says), "{src}: {}", d.message);
+    }
+    // What parses stays as it was: `x.*y`, `0.5`, calls, comparisons.
+    parse_model(
+        "model m\nparam a = [1, 2] .* [3, 4], b = 0.5 ^ 2, c = sin(0.5)\n\
+         state x = 1\nflow { x' = -x } in x >= 0 && b != 1\n",
+    )
+    .unwrap();
 }

@@ -90,6 +90,37 @@ fn the_jump_horizon_flag_takes_what_the_sim_block_takes() {
     );
 }
 
+/// A `--solver` that cannot integrate the model's white noise is a usage
+/// error naming the flag and the solver to use (exit 2), not a failed run
+/// (it was exit 1 with "ended at (no sample)" and the Rust API's
+/// `Solver::EulerMaruyama { h }` as help); `--solver euler-maruyama` runs.
+#[test]
+fn a_solver_flag_that_cannot_integrate_white_noise_is_a_usage_error() {
+    let dir = tempfile::tempdir().unwrap();
+    let model = write(
+        dir.path(),
+        "ou.hyb",
+        "model ou\nnoise w ~ wiener(1)\nstate x = 0\nflow { x' = -x + w }\nsim { T = 0.1 }\n",
+    );
+    let m = model.to_str().unwrap();
+    for solver in ["dopri5", "radau5", "rk4"] {
+        let out = hybsim(dir.path(), &["run", m, "--no-mcap", "--solver", solver]);
+        assert_eq!(code(&out), 2, "{solver}: {}", stderr(&out));
+        let err = stderr(&out);
+        assert!(
+            err.contains(&format!("`--solver {solver}`"))
+                && err.contains("`--solver euler-maruyama`")
+                && !err.contains("Solver::"),
+            "{err}"
+        );
+    }
+    let out = hybsim(
+        dir.path(),
+        &["run", m, "--no-mcap", "--solver", "euler-maruyama"],
+    );
+    assert_eq!(code(&out), 0, "{}", stderr(&out));
+}
+
 /// `--solver rk4` without `--step` takes the `sim` block's default step
 /// (1e-3), as `sim { solver = rk4 }` without `h` does: the same arc.
 #[test]

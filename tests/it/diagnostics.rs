@@ -78,6 +78,20 @@ const CASES: &[Case] = &[
         "unexpected `}`; expected an expression",
     ),
     case(
+        "MATLAB's space-separated matrix",
+        "model m\nparam A = [0 1; -1 0]\n",
+        "E0109",
+        "2:14",
+        "matrix entries are separated by `,` (rows by `;`), not by spaces",
+    ),
+    case(
+        "power of a vector",
+        "model m\nstate x = [1; 2]\nflow { x' = -x^2 }\n",
+        "E0301",
+        "3:14",
+        "shape mismatch in `^ (scalars, or a square matrix to a constant integer power)`: 2×1 vector and scalar",
+    ),
+    case(
         "reset written without +",
         "model m\nstate x = 0\njump r when x >= 1 { x = 0 }\n",
         "E0104",
@@ -487,6 +501,14 @@ const RENDERED: &[(&str, &str)] = &[
     (
         "matrix times vector of the wrong length",
         "error[E0301]: shape mismatch in `*`: 2×2 matrix and 3×1 vector\n  ┌─ m.hyb:3:11\n  │\n3 │ param c = A * b\n  │           ^^^^^ 2×2 matrix and 3×1 vector\n  │\n  = help: check the dimensions; use `'` to transpose\n\n",
+    ),
+    (
+        "power of a vector",
+        "error[E0301]: shape mismatch in `^ (scalars, or a square matrix to a constant integer power)`: 2×1 vector and scalar\n  ┌─ m.hyb:3:14\n  │\n3 │ flow { x' = -x^2 }\n  │              ^^^ 2×1 vector and scalar\n  │\n  = help: `^` is not elementwise: write `x .* x` for the squares of a vector's entries\n\n",
+    ),
+    (
+        "MATLAB's space-separated matrix",
+        "error[E0109]: matrix entries are separated by `,` (rows by `;`), not by spaces\n  ┌─ m.hyb:2:14\n  │\n2 │ param A = [0 1; -1 0]\n  │              ^ `,` expected before this entry\n  │\n  = help: write `[0, 1; -1, 0]` for MATLAB's `[0 1; -1 0]`\n\n",
     ),
     (
         "reset twice in one rule",

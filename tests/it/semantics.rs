@@ -296,6 +296,37 @@ fn set_tol_lets_a_boundary_state_flow() {
     assert!(end.at.t < 1e-8, "ended at {}", end.at);
 }
 
+/// A strict comparison of C that cannot change along a flow (a counter
+/// `k < 3`, `j < 3`, `!(k >= 3)`) is not relaxed by `set_tol`: at k = 3
+/// exactly it fails on the whole flow. Relaxed (as it was), it read `<`
+/// as `<=`: the ramp flowed a fourth time, from (t, j) = (3, 3) to (4, 4).
+#[test]
+fn a_strict_flow_set_condition_constant_along_flows_is_tested_exactly() {
+    for c in ["k < 3", "j < 3", "!(k >= 3)", "3 > k && x <= 1"] {
+        let src = format!(
+            "model m\nstate x = 0, k = 0\nflow {{ x' = 1 }} in {c}\n\
+             jump r when x >= 1 {{ x+ = 0; k+ = k + 1 }}\nsim {{ T = 10 }}\n"
+        );
+        let arc = run(&compile(&src));
+        assert_times(&arc, &[1.0, 2.0, 3.0], c);
+        let end = arc.termination().unwrap();
+        assert!(
+            matches!(
+                end.cause,
+                TerminationCause::CannotFlowOrJump { leaving: false, .. }
+            ),
+            "{c}: {end:?}"
+        );
+        assert_eq!((end.at.t, end.at.j), (3.0, 3), "{c}");
+    }
+    // A non-strict one keeps its rounding allowance: `k <= 3` holds at
+    // k = 3 + 1e-12, and the ramp runs to the horizon.
+    let src = "model m\nstate x = 0, k = 3 + 1e-12\nflow { x' = 1 } in k <= 3\n\
+               jump r when x >= 1 { x+ = 0 }\nsim { T = 3.5 }\n";
+    let arc = run(&compile(src));
+    assert_eq!(arc.termination().unwrap().cause, TerminationCause::HorizonT);
+}
+
 /// A ball that leaves a sinusoidally moving platform, its flow set
 /// `h >= A*sin(w*(t + t0))` (not affine: it reads `t`) starting on its
 /// boundary, flies and lands at the closed-form time. The atom's sign near
