@@ -284,10 +284,13 @@ pub fn simulate<S: HybridSystem + ?Sized>(
         pending = None;
         let after_event = std::mem::take(&mut from_event);
         let left_flow_set = std::mem::take(&mut cannot_flow);
+        // An enabled rule with jumps first: the jump is taken whatever C
+        // says, which is then not evaluated.
+        let must_jump = enabled.is_some() && settings.priority == Priority::Jumps;
         // With no rule enabled the flow starts here if it may: C's atoms
         // are then read from the evaluation of every set that the
         // segment's start makes anyway.
-        let can_flow = !left_flow_set && {
+        let can_flow = !left_flow_set && !must_jump && {
             let known = match enabled {
                 None => flows.watcher.prefetch(sys, at, &x),
                 Some(_) => None,
@@ -295,7 +298,8 @@ pub fn simulate<S: HybridSystem + ?Sized>(
             flow_set.contains(sys, at, &x, settings.set_tol, known)
         };
         let jump = enabled.is_some()
-            && (!can_flow
+            && (must_jump
+                || !can_flow
                 || match settings.priority {
                     Priority::Jumps => true,
                     Priority::Flows => false,
