@@ -227,6 +227,11 @@ fn foreign_spellings_name_hybsims() {
         ),
         ("model m\nparam A = [0 1; -1 0]\n", "1", "`,`"),
         ("model m\nparam A = [sin(1) cos(1)]\n", "cos", "`,`"),
+        // A sign glued to the next entry: MATLAB's second entry, or a difference?
+        ("model m\nparam b = [0 -1]\n", "-", "ambiguous `-`"),
+        ("model m\nparam b = [1, a +b]\n", "+", "ambiguous `+`"),
+        ("model m\nparam A = [1, 2; 3 -x[1]]\n", "-", "ambiguous `-`"),
+        ("model m\nparam A = [2*a -(b)]\n", "-", "ambiguous `-`"),
     ] {
         let err = parse_model(src).unwrap_err();
         let d = err.to_diagnostic();
@@ -240,4 +245,42 @@ fn foreign_spellings_name_hybsims() {
          state x = 1\nflow { x' = -x } in x >= 0 && b != 1\n",
     )
     .unwrap();
+}
+
+/// `[0 -1]` is refused (E0109 at the `-`), saying both readings; spaced or
+/// glued operators, a sign after a comma and parenthesised or indexed
+/// expressions inside `[ ]` keep parsing as they did.
+#[test]
+fn a_sign_glued_to_the_next_entry_is_ambiguous() {
+    let err = parse_expr("[0 -1]").unwrap_err();
+    assert_eq!(err.span(), crate::source::Span::new(3, 4));
+    let d = err.to_diagnostic();
+    assert_eq!(d.code, "E0109");
+    let help = d.help.unwrap_or_default();
+    assert!(
+        help.contains("`[0, -1]` for two entries") && help.contains("`[0 - 1]` for the difference"),
+        "{help}"
+    );
+    let err = parse_expr("[a +b]").unwrap_err();
+    let help = err.to_diagnostic().help.unwrap_or_default();
+    assert!(help.contains("`[a, b]`"), "{help}");
+    for ok in [
+        "[0 - 1]",
+        "[0-1]",
+        "[0, -1]",
+        "[-1, 0]",
+        "[a - -b]",
+        "[f(a -b)]",
+        "[(a -b), 1]",
+        "x[i -1]",
+        "[x[i -1], 2]",
+        "[sum(k in 1..2: k -1)]",
+        "[a -\n b]",
+        "a -b",
+    ] {
+        parse_expr(ok).unwrap_or_else(|e| panic!("{ok}: {e}"));
+    }
+    // The blocks of a matrix inequality are matrix entries too.
+    let err = parse_model("model m\ndesign d {\n  sym P[2]\n  [P -P; P, P] > 0\n}\n").unwrap_err();
+    assert_eq!(err.to_diagnostic().code, "E0109");
 }

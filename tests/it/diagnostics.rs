@@ -85,6 +85,13 @@ const CASES: &[Case] = &[
         "matrix entries are separated by `,` (rows by `;`), not by spaces",
     ),
     case(
+        "MATLAB's sign-separated matrix entry",
+        "model m\nparam b = [0 -1]\n",
+        "E0109",
+        "2:14",
+        "ambiguous `-` inside `[ ]`: MATLAB reads `0 -1` as two entries, hybsim as a difference",
+    ),
+    case(
         "power of a vector",
         "model m\nstate x = [1; 2]\nflow { x' = -x^2 }\n",
         "E0301",
