@@ -215,6 +215,17 @@ impl Termination {
         match &self.cause {
             TerminationCause::HorizonT => "raise `horizon_t` to simulate longer",
             TerminationCause::HorizonJ => "raise `horizon_j` to allow more jumps",
+            // No time passed over the window: a system that only jumps (an
+            // empty flow set, discrete time) ends only at a jump horizon.
+            TerminationCause::ZenoSuspected {
+                detail: ZenoDetail::Rate { within, .. },
+                ..
+            } if *within == 0.0 => {
+                "these jumps all happened at the same t: a discrete-time system (empty flow set) \
+                 needs a jump horizon J (`horizon_j`) to say how many jumps to make; to let the \
+                 rule fire at one instant without J, set `zeno_max_rate` to infinity and a jump \
+                 budget `max_total_jumps`"
+            }
             TerminationCause::ZenoSuspected {
                 detail: ZenoDetail::Rate { .. },
                 ..

@@ -114,9 +114,31 @@ pub fn apply(model: &CompiledModel, sim: &Bound<'_, PyDict>) -> PyResult<SimSett
              solver=\"euler_maruyama\" integrates",
             solver.name()
         )),
+        // Named as the caller's keyword, not the engine's field.
+        SimError::InvalidSettings { field, reason } => {
+            let e = SimError::InvalidSettings {
+                field: keyword(field),
+                reason,
+            };
+            PyValueError::new_err(format!("{e}; {}", e.help()))
+        }
         e => PyValueError::new_err(format!("{e}; {}", e.help())),
     })?;
     Ok(settings)
+}
+
+/// The keyword of `run()` that sets the engine's settings field `field`
+/// (`SimError::InvalidSettings` names fields), so that an error names what
+/// the caller wrote.
+fn keyword(field: &'static str) -> &'static str {
+    match field {
+        "horizon_t" => "T",
+        "horizon_j" => "J",
+        "solver.rtol" => "rtol",
+        "solver.atol" => "atol",
+        "solver.h" => "step",
+        f => f,
+    }
 }
 
 /// The solver after the keywords: a name keeps the model's tolerances or

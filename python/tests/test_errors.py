@@ -61,13 +61,40 @@ def test_missing_file():
         hybsim.load("no/such/model.hyb")
 
 
+@pytest.mark.parametrize(
+    "kwargs, key",
+    [
+        ({"T": -1.0}, "T"),
+        ({"rtol": -1.0}, "rtol"),
+        ({"atol": -1.0}, "atol"),
+        ({"solver": "rk4", "step": -1.0}, "step"),
+        ({"dt_out": 0.0}, "dt_out"),
+        ({"max_step": 0.0}, "max_step"),
+        ({"event_tol": 1.0}, "event_tol"),
+        ({"guard_checks": 100}, "guard_checks"),
+        ({"zeno_max_rate": -1.0}, "zeno_max_rate"),
+        ({"zeno_window": 1}, "zeno_window"),
+        ({"max_total_jumps": 0}, "max_total_jumps"),
+    ],
+)
+def test_bad_setting_names_the_keyword(kwargs, key):
+    # The error names the keyword the caller passed, never the engine's field
+    # (`horizon_t`, `solver.rtol`, `solver.h`).
+    m = hybsim.load(GOOD)
+    with pytest.raises(ValueError) as err:
+        m.run(**kwargs)
+    msg = str(err.value)
+    assert f"invalid setting `{key}`:" in msg, msg
+    assert "horizon_" not in msg and "solver." not in msg, msg
+
+
 def test_bad_settings():
     m = hybsim.load(GOOD)
     with pytest.raises(TypeError, match="unexpected keyword `dtout`"):
         m.run(dtout=0.1)
     with pytest.raises(ValueError, match="solver `rk5`"):
         m.run(solver="rk5")
-    with pytest.raises(ValueError, match="horizon_t"):
+    with pytest.raises(ValueError, match="invalid setting `T`: must be finite and > 0, got -1"):
         m.run(T=-1.0)
     with pytest.raises(ValueError, match="`step` applies to the fixed-step solvers"):
         m.run(step=1e-3)

@@ -923,8 +923,9 @@ impl CompiledModel {
     /// A warning for a run that ended because it could neither flow nor
     /// jump (W0603): which case holds, the flow set's source with the atoms
     /// that fail there and their values, and the state; or for a run that
-    /// spent its jump budget `max_total_jumps` (W0605): the rule about to
-    /// fire. `None` for other endings.
+    /// spent its jump budget `max_total_jumps` (W0605), or one stopped by the
+    /// Zeno guard with all its last jumps at one t (W0606, a discrete-time
+    /// system without `J`): the rule about to fire. `None` for other endings.
     pub fn termination_diagnostic(&self, term: &Termination) -> Option<Diagnostic> {
         if let TerminationCause::ZenoSuspected {
             rule,
@@ -944,6 +945,38 @@ impl CompiledModel {
             .help(
                 "if the model is meant to jump this often, raise `max_total_jumps` (or set `J`); \
                  otherwise check this rule's guard and reset",
+            );
+            return Some(match self.rule_span(*rule) {
+                Some(span) => d.primary(span, "this rule").locate(&self.imports),
+                None => d,
+            });
+        }
+        if let TerminationCause::ZenoSuspected {
+            rule,
+            rule_name,
+            detail: crate::arc::ZenoDetail::Rate { jumps, within },
+        } = &term.cause
+            && *within == 0.0
+        {
+            // The Zeno guard on a model that jumps without time passing (a
+            // discrete-time system without `J`): say what to write.
+            let d = Diagnostic::warning(
+                "W0606",
+                format!(
+                    "the run stopped at {}: the Zeno guard saw {jumps} jumps at the same t, \
+                     and rule `{rule_name}` was about to fire again",
+                    term.at
+                ),
+            )
+            .note(
+                "without a jump horizon `J`, a run ends when jumps come faster than `zeno_rate` \
+                 per unit of t over the last `zeno_window` jumps (LANGUAGE.md, \"Zeno guard\")",
+            )
+            .help(
+                "a discrete-time system (one that only jumps) needs a jump horizon: `J = 100` in \
+                 its `sim` block (or `--J 100`); to make it jump at one instant without `J`, \
+                 `zeno_rate = inf` with a budget `max_total_jumps = N` (or `--zeno-rate inf \
+                 --max-total-jumps N`)",
             );
             return Some(match self.rule_span(*rule) {
                 Some(span) => d.primary(span, "this rule").locate(&self.imports),

@@ -15,7 +15,7 @@ use pest::iterators::Pair;
 
 use super::ast::{Binder, Definition, Expr, Ident, Target};
 use super::error::SyntaxError;
-use super::parse::{Rule, binder, definition, expr, first, ident, target};
+use super::parse::{Rule, ambiguous_sign, binder, definition, expr, first, ident, target};
 use crate::source::Span;
 
 /// A `design` block.
@@ -297,7 +297,10 @@ fn side(p: Pair<'_, Rule>) -> Res<LmiSide> {
                     let e = first(&mut el.into_inner(), espan)?;
                     match e.as_rule() {
                         Rule::lmi_star => Ok(None),
-                        _ => expr(e).map(Some),
+                        _ => {
+                            ambiguous_sign(&e)?;
+                            expr(e).map(Some)
+                        }
                     }
                 })
                 .collect::<Res<Vec<_>>>()

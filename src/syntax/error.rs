@@ -335,6 +335,39 @@ fn foreign_spelling(text: &str, pos: usize) -> Option<SyntaxError> {
             help: help.into(),
         })
     };
+    // A keyword glued to what follows it (keywords are whole words): other
+    // languages' `elseif`, or `else0` for `else 0`.
+    let word = &rest[..rest.find(|c: char| !is_word(c)).unwrap_or(rest.len())];
+    if let Some(lang) = match word {
+        "elseif" => Some("MATLAB's (and Julia's)"),
+        "elif" => Some("Python's"),
+        "elsif" => Some("Perl's (and Ruby's)"),
+        _ => None,
+    } {
+        return foreign(
+            pos,
+            pos + word.len(),
+            &format!("`{word}` is {lang} spelling; hybsim writes `else if`"),
+            "write `else if` here",
+            "chain conditions as `if a then x else if b then y else z`",
+        );
+    }
+    if let Some(kw) = ["then", "else", "when", "every", "in", "if"]
+        .into_iter()
+        .find(|kw| {
+            word.strip_prefix(kw)
+                .is_some_and(|r| r.starts_with(|c: char| c.is_ascii_digit()))
+        })
+    {
+        let rest = &word[kw.len()..];
+        return foreign(
+            pos,
+            pos + word.len(),
+            &format!("`{word}` is one name: `{kw}` is a keyword, a whole word"),
+            &format!("write `{kw} {rest}`"),
+            &format!("separate the keyword from what follows: `{kw} {rest}`"),
+        );
+    }
     if rest.starts_with('%') {
         return foreign(
             pos,
@@ -620,7 +653,7 @@ fn found_at(text: &str, pos: usize) -> (String, usize) {
 fn describe(rule: Rule) -> Option<&'static str> {
     Some(match rule {
         Rule::EOI => "end of file",
-        Rule::header => "`model NAME` at the start of the file",
+        Rule::header | Rule::b_model => "`model NAME` at the start of the file",
         Rule::ident | Rule::target => "a name",
         Rule::number => "a number",
         Rule::expr
@@ -640,6 +673,15 @@ fn describe(rule: Rule) -> Option<&'static str> {
         | Rule::boolean
         | Rule::prefix_op => "an expression",
         Rule::param_decl
+        | Rule::b_param
+        | Rule::b_graph
+        | Rule::b_state
+        | Rule::b_noise
+        | Rule::b_flow
+        | Rule::b_jump
+        | Rule::b_output
+        | Rule::b_sim
+        | Rule::b_design
         | Rule::param_tuple
         | Rule::param_table
         | Rule::table_call
@@ -676,8 +718,18 @@ fn describe(rule: Rule) -> Option<&'static str> {
         Rule::reset_eq | Rule::reset_for => "a reset `x+ = ...`",
         // Apart: an `every` rule is also a declaration, where `when` cannot
         // start anything (after `jump NAME` both are expected).
-        Rule::when_clause => "`when`",
-        Rule::every_clause => "`every`",
+        Rule::when_clause | Rule::b_when => "`when`",
+        Rule::every_clause | Rule::b_every => "`every`",
+        // A keyword's look-ahead stands for the rule it starts when it is the
+        // only thing tried there.
+        Rule::b_for => "`for`",
+        Rule::b_in => "`in`",
+        Rule::b_if => "`if`",
+        Rule::b_then => "`then`",
+        Rule::b_else => "`else`",
+        Rule::b_sum => "`sum`",
+        Rule::b_out => "`out`",
+        Rule::b_edges => "`edges`",
         Rule::reset_block => "`{`",
         Rule::reset_post => "`+`",
         Rule::sim_setting | Rule::log_setting | Rule::log_key => "a setting `key = value`",

@@ -782,6 +782,7 @@ fn expr_d(p: Pair<'_, Rule>) -> Res<(Expr, usize)> {
             for r in it {
                 let mut row = Vec::new();
                 for e in r.into_inner() {
+                    ambiguous_sign(&e)?;
                     let (e, de) = expr_d(e)?;
                     d = d.max(de);
                     row.push(e);
@@ -802,4 +803,57 @@ fn expr_d(p: Pair<'_, Rule>) -> Res<(Expr, usize)> {
             expected: "an expression".into(),
         }),
     }
+}
+
+/// Rejects a binary `-` or `+` written `a -b` (space before, none after) at
+/// the top level of the matrix entry `entry`: MATLAB reads `[0 -1]` as two
+/// entries, hybsim's grammar as `0 - 1`, so either reading may be meant.
+/// Parentheses, calls, index lists and nested matrices are not the entry's
+/// top level (`[f(a -b)]` is one entry in MATLAB too).
+pub(super) fn ambiguous_sign(entry: &Pair<'_, Rule>) -> Res<()> {
+    fn walk(entry: &Pair<'_, Rule>, p: &Pair<'_, Rule>) -> Res<()> {
+        let mut children = p.clone().into_inner().peekable();
+        while let Some(q) = children.next() {
+            match q.as_rule() {
+                Rule::paren | Rule::call | Rule::index_list | Rule::matrix | Rule::sum_expr => {}
+                Rule::add_op => {
+                    let span = q.as_span();
+                    let input = span.get_input();
+                    let spaced_before = input[..span.start()].ends_with(char::is_whitespace);
+                    let glued_after =
+                        input[span.end()..].starts_with(|c: char| !c.is_whitespace() && c != '#');
+                    if let (true, true, Some(rhs)) = (spaced_before, glued_after, children.peek()) {
+                        let op = q.as_str();
+                        let lhs = input[entry.as_span().start()..span.start()].trim_end();
+                        let rhs = rhs.as_str();
+                        let (entry2, what) = if op == "-" {
+                            (format!("-{rhs}"), "difference")
+                        } else {
+                            (rhs.to_string(), "sum")
+                        };
+                        // In brackets when the entry is the whole matrix (`[0 -1]`).
+                        let (es, ee) = (entry.as_span().start(), entry.as_span().end());
+                        let whole = input[..es].trim_end().ends_with('[')
+                            && input[ee..].trim_start().starts_with(']');
+                        let (open, close) = if whole { ("[", "]") } else { ("", "") };
+                        return Err(SyntaxError::Foreign {
+                            span: span.into(),
+                            message: format!(
+                                "ambiguous `{op}` inside `[ ]`: MATLAB reads `{lhs} {op}{rhs}` \
+                                 as two entries, hybsim as a {what}"
+                            ),
+                            label: format!("a space before `{op}` and none after it"),
+                            help: format!(
+                                "write `{open}{lhs}, {entry2}{close}` for two entries or \
+                                 `{open}{lhs} {op} {rhs}{close}` for the {what}"
+                            ),
+                        });
+                    }
+                }
+                _ => walk(entry, &q)?,
+            }
+        }
+        Ok(())
+    }
+    walk(entry, entry)
 }

@@ -227,6 +227,31 @@ fn foreign_spellings_name_hybsims() {
         ),
         ("model m\nparam A = [0 1; -1 0]\n", "1", "`,`"),
         ("model m\nparam A = [sin(1) cos(1)]\n", "cos", "`,`"),
+        // A sign glued to the next entry: MATLAB's second entry, or a difference?
+        ("model m\nparam b = [0 -1]\n", "-", "ambiguous `-`"),
+        ("model m\nparam b = [1, a +b]\n", "+", "ambiguous `+`"),
+        ("model m\nparam A = [1, 2; 3 -x[1]]\n", "-", "ambiguous `-`"),
+        ("model m\nparam A = [2*a -(b)]\n", "-", "ambiguous `-`"),
+        (
+            "model m\nparam p = if 1 > 2 then 1 elseif 1 > 0 then 2 else 3\n",
+            "elseif",
+            "`else if`",
+        ),
+        (
+            "model m\nparam p = if 1 > 2 then 1 elif 1 > 0 then 2 else 3\n",
+            "elif",
+            "`else if`",
+        ),
+        (
+            "model m\nparam p = if 1 > 2 then 1 else0\n",
+            "else0",
+            "`else`",
+        ),
+        (
+            "model m\nparam p = if 1 > 2 then1 else 0\n",
+            "then1",
+            "`then`",
+        ),
     ] {
         let err = parse_model(src).unwrap_err();
         let d = err.to_diagnostic();
@@ -240,4 +265,74 @@ fn foreign_spellings_name_hybsims() {
          state x = 1\nflow { x' = -x } in x >= 0 && b != 1\n",
     )
     .unwrap();
+}
+
+/// `[0 -1]` is refused (E0109 at the `-`), saying both readings; spaced or
+/// glued operators, a sign after a comma and parenthesised or indexed
+/// expressions inside `[ ]` keep parsing as they did.
+#[test]
+fn a_sign_glued_to_the_next_entry_is_ambiguous() {
+    let err = parse_expr("[0 -1]").unwrap_err();
+    assert_eq!(err.span(), crate::source::Span::new(3, 4));
+    let d = err.to_diagnostic();
+    assert_eq!(d.code, "E0109");
+    let help = d.help.unwrap_or_default();
+    assert!(
+        help.contains("`[0, -1]` for two entries") && help.contains("`[0 - 1]` for the difference"),
+        "{help}"
+    );
+    let err = parse_expr("[a +b]").unwrap_err();
+    let help = err.to_diagnostic().help.unwrap_or_default();
+    assert!(help.contains("`[a, b]`"), "{help}");
+    for ok in [
+        "[0 - 1]",
+        "[0-1]",
+        "[0, -1]",
+        "[-1, 0]",
+        "[a - -b]",
+        "[f(a -b)]",
+        "[(a -b), 1]",
+        "x[i -1]",
+        "[x[i -1], 2]",
+        "[sum(k in 1..2: k -1)]",
+        "[a -\n b]",
+        "a -b",
+    ] {
+        parse_expr(ok).unwrap_or_else(|e| panic!("{ok}: {e}"));
+    }
+    // The blocks of a matrix inequality are matrix entries too.
+    let err = parse_model("model m\ndesign d {\n  sym P[2]\n  [P -P; P, P] > 0\n}\n").unwrap_err();
+    assert_eq!(err.to_diagnostic().code, "E0109");
+}
+
+/// Keywords are whole words: `elseif`, `paramx = 1`, `for i in1..3` are not
+/// read as `else if`, `param x = 1`, `in 1..3`; names that start with a
+/// keyword stay names everywhere a name goes.
+#[test]
+fn keywords_are_whole_words() {
+    for src in [
+        "model m\nparamx = 1\n",
+        "model m\nstatex = 1\n",
+        "model m\nparam p = if 1 > 2 then 1 elseif 1 > 0 then 2 else 3\n",
+        "model m\nstate x = 1\nflow { x' = -x } infalse\n",
+        "model m\nstate x = [1; 2]\nfor i in1..2 { output y[i] = x[i] }\n",
+        "model m\nstate x = 1\njump r whenx >= 1 { x+ = 0 }\n",
+        "model m\nparam p = sumk(k in 1..2: k)\n",
+    ] {
+        assert!(parse_model(src).is_err(), "{src}");
+    }
+    let m = parse_model(
+        "model modelled\n\
+         param elsewhere = 1, input = 2, iffy = 3, thenceforth = 4, summer = 5, outer = 6\n\
+         param edges1 = 1, informal = 2, format = 3, simple = 4, designer = 5, whence = 6\n\
+         state everyone = 1, flows = 0, jumper = 0, stateful = 0, params = 0, graphs = 0, noisy = 0\n\
+         output outputs = if iffy > 0 then elsewhere else thenceforth\n\
+         flow { everyone' = -everyone * input; flows' = 1 } in everyone >= informal - 2\n\
+         for iffy2 in 1..2 { output ifs[iffy2] = iffy2 * summer }\n\
+         jump elseif when flows >= 1 { flows+ = 0 }\n\
+         output total = sum(insider in 1..3: insider * outer)\n",
+    )
+    .unwrap();
+    assert_eq!(m.name.name, "modelled");
+    assert_eq!(m.items.len(), 8);
 }

@@ -85,6 +85,20 @@ const CASES: &[Case] = &[
         "matrix entries are separated by `,` (rows by `;`), not by spaces",
     ),
     case(
+        "MATLAB's sign-separated matrix entry",
+        "model m\nparam b = [0 -1]\n",
+        "E0109",
+        "2:14",
+        "ambiguous `-` inside `[ ]`: MATLAB reads `0 -1` as two entries, hybsim as a difference",
+    ),
+    case(
+        "MATLAB's elseif",
+        "model m\nparam p = if 1 > 2 then 1 elseif 1 > 0 then 2 else 3\n",
+        "E0109",
+        "2:27",
+        "`elseif` is MATLAB's (and Julia's) spelling; hybsim writes `else if`",
+    ),
+    case(
         "power of a vector",
         "model m\nstate x = [1; 2]\nflow { x' = -x^2 }\n",
         "E0301",

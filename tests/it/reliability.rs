@@ -988,6 +988,60 @@ fn a_spent_jump_budget_is_a_located_warning() {
     assert!(err.contains("raise `max_total_jumps`"), "{err}");
 }
 
+/// A discrete-time model (empty flow set) without `J` meets the Zeno guard at t = 0: the run
+/// says, at the rule's line, that it needs a jump horizon and how to lift the guard (W0606);
+/// with `J` it makes J jumps. A model whose jumps are only fast (Δt > 0) gets no W0606.
+#[test]
+fn a_discrete_model_without_j_is_told_to_set_j() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    std::fs::write(
+        d.join("disc.hyb"),
+        "model disc\nstate k = 0\nflow { k' = 0 } in false\n\
+         jump step when true { k+ = k + 1 }\n",
+    )
+    .unwrap();
+    let out = hybsim(d, &["run", "disc.hyb", "--no-mcap"]);
+    let (err, summary) = (
+        stderr(&out),
+        String::from_utf8_lossy(&out.stdout).to_string(),
+    );
+    assert_eq!(code(&out), 0, "{err}");
+    assert!(summary.contains("Zeno behaviour suspected"), "{summary}");
+    assert!(
+        err.contains("W0606") && err.contains("disc.hyb:4:1") && err.contains("at the same t"),
+        "{err}"
+    );
+    assert!(
+        err.contains("`J = 100` in its `sim` block (or `--J 100`)")
+            && err.contains("`zeno_rate = inf` with a budget `max_total_jumps = N`"),
+        "{err}"
+    );
+    // The advice works: with J, J jumps and no warning.
+    let out = hybsim(d, &["run", "disc.hyb", "--no-mcap", "--J", "25"]);
+    let err = stderr(&out);
+    assert!(!err.contains("W0606"), "{err}");
+    assert!(
+        String::from_utf8_lossy(&out.stdout).contains("j = 25"),
+        "{}",
+        String::from_utf8_lossy(&out.stdout)
+    );
+    // Fast jumps that take time are Zeno-like, not discrete time: no W0606.
+    std::fs::write(
+        d.join("fast.hyb"),
+        "model fast\nstate tau = 0\nflow { tau' = 1 }\n\
+         jump tick when tau >= 1e-8 { tau+ = 0 }\nsim { T = 1 }\n",
+    )
+    .unwrap();
+    let out = hybsim(d, &["run", "fast.hyb", "--no-mcap"]);
+    let err = stderr(&out);
+    assert!(
+        String::from_utf8_lossy(&out.stdout).contains("Zeno behaviour suspected")
+            && !err.contains("W0606"),
+        "{err}"
+    );
+}
+
 /// Issue 24, the front end linear in the model's size: a long matrix literal (each element used
 /// to copy the growing matrix: 300 000 elements took about 19 s) and many unknown names among many
 /// declared ones (each error compared its name with every declared one for a "did you mean":
