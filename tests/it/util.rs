@@ -3,7 +3,8 @@
 use std::ffi::OsStr;
 use std::ops::ControlFlow;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::process::{Command, Output, Stdio};
+use std::time::Duration;
 
 use hybsim::arc::{ArcSink, HybridTime, SampleKind, Termination};
 use hybsim::engine::models::BouncingBall;
@@ -180,6 +181,82 @@ pub fn hybsim<S: AsRef<OsStr>>(dir: &Path, args: &[S]) -> Output {
         .current_dir(dir)
         .output()
         .expect("the binary runs")
+}
+
+/// Runs `hybsim ARGS` in `dir` as [`hybsim`] does; also returns the child's
+/// own CPU time.
+pub fn hybsim_cpu<S: AsRef<OsStr>>(dir: &Path, args: &[S]) -> (Output, Duration) {
+    output_with_cpu(Command::new(BIN).args(args).current_dir(dir))
+}
+
+/// Runs `cmd` to its end as `Command::output` does (standard input
+/// closed, standard output and error captured) and returns the child's own
+/// CPU time, user and system, from `wait4`. A time bound that guards
+/// against super-linear blow-ups holds on this however loaded the machine
+/// is, where one on wall-clock time fails when other work takes the cores.
+// The child is reaped by `wait4`, which `Child::wait` cannot replace (it
+// gives no resource usage).
+#[allow(clippy::zombie_processes)]
+pub fn output_with_cpu(cmd: &mut Command) -> (Output, Duration) {
+    use std::io::Read;
+    use std::os::unix::process::ExitStatusExt;
+    let mut child = cmd
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("the binary runs");
+    let mut err_pipe = child.stderr.take().expect("piped");
+    let err_reader = std::thread::spawn(move || {
+        let mut buf = Vec::new();
+        err_pipe.read_to_end(&mut buf).map(|_| buf)
+    });
+    let mut stdout = Vec::new();
+    child
+        .stdout
+        .take()
+        .expect("piped")
+        .read_to_end(&mut stdout)
+        .expect("the child's standard output");
+    let stderr = err_reader
+        .join()
+        .expect("the reader thread")
+        .expect("the child's standard error");
+    let pid = libc::pid_t::try_from(child.id()).expect("a pid");
+    let (mut status, mut usage) = (0, unsafe { std::mem::zeroed::<libc::rusage>() });
+    loop {
+        // SAFETY: `status` and `usage` are valid for writes; `pid` is this
+        // process's child, not waited for yet (`child` is dropped unwaited).
+        let r = unsafe { libc::wait4(pid, &mut status, 0, &mut usage) };
+        if r == pid {
+            break;
+        }
+        let e = std::io::Error::last_os_error();
+        assert_eq!(e.kind(), std::io::ErrorKind::Interrupted, "wait4: {e}");
+    }
+    let time = |t: libc::timeval| {
+        Duration::from_secs(t.tv_sec as u64) + Duration::from_micros(t.tv_usec as u64)
+    };
+    let cpu = time(usage.ru_utime) + time(usage.ru_stime);
+    let output = Output {
+        status: std::process::ExitStatus::from_raw(status),
+        stdout,
+        stderr,
+    };
+    (output, cpu)
+}
+
+/// This thread's CPU time so far: bounds on work done in process hold on it
+/// however loaded the machine is.
+pub fn thread_cpu() -> Duration {
+    let mut ts = libc::timespec {
+        tv_sec: 0,
+        tv_nsec: 0,
+    };
+    // SAFETY: `ts` is valid for writes.
+    let r = unsafe { libc::clock_gettime(libc::CLOCK_THREAD_CPUTIME_ID, &mut ts) };
+    assert_eq!(r, 0, "clock_gettime");
+    Duration::new(ts.tv_sec as u64, ts.tv_nsec as u32)
 }
 
 /// A run's standard output as text.
