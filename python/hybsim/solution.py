@@ -191,6 +191,11 @@ class Solution:
         self.names: List[str] = list(data["names"])
         self.output_names: List[str] = list(data["output_names"])
         self.rule_names: List[str] = list(data["rule_names"])
+        # Indices into `names` / `output_names` of the CSV's columns, in its order.
+        self._state_columns: List[int] = list(data.get("state_columns", range(len(self.names))))
+        self._output_columns: List[int] = list(
+            data.get("output_columns", range(len(self.output_names)))
+        )
         self.parameters: Dict[str, Any] = data.get("parameters", {})
         self.solver_switches: List[Dict[str, Any]] = list(data.get("solver_switches", []))
         jumps = data["jumps"]
@@ -287,9 +292,10 @@ class Solution:
 
     def _table(self) -> Dict[str, Any]:
         cols: Dict[str, Any] = {"t": self.t, "j": self.j, "kind": self.kind}
-        for k, n in enumerate(self.names):
-            cols[n] = self.x[:, k]
-        for k, n in enumerate(self.output_names):
+        for k in self._state_columns:
+            cols[self.names[k]] = self.x[:, k]
+        for k in self._output_columns:
+            n = self.output_names[k]
             if n not in cols:
                 cols[n] = self.y[:, k]
         return cols
@@ -328,6 +334,8 @@ class Solution:
                 "outputs": self._output_map,
                 "names": self.names,
                 "output_names": self.output_names,
+                "state_columns": self._state_columns,
+                "output_columns": self._output_columns,
                 "rule_names": self.rule_names,
                 "parameters": self.parameters,
                 "jumps": self.jumps._select(jump_mask),
@@ -450,6 +458,8 @@ class Solution:
                 "outputs": self._output_map,
                 "names": self.names,
                 "output_names": self.output_names,
+                "state_columns": self._state_columns,
+                "output_columns": self._output_columns,
                 "rule_names": self.rule_names,
                 "parameters": self.parameters,
                 "jumps": self.jumps._select((self.jumps.t >= lo) & (self.jumps.t <= hi)),

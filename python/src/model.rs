@@ -120,6 +120,14 @@ fn solution_dict<'py>(
     )?;
     out.set_item("names", model.state_names())?;
     out.set_item("output_names", model.output_names())?;
+    // The columns of `hybsim run --csv`, in its order: the declared states (not the timers the
+    // language adds for `every` and `noise`) and the outputs, families grouped as the layouts
+    // group them (`r.x[1]`, `r.x[2]`, `r.q[1]`, … where the state vector interleaves members).
+    let columns = |layout: &hybsim::layout::Layout| -> Vec<usize> {
+        layout.components().into_iter().map(|(k, _)| k).collect()
+    };
+    out.set_item("state_columns", columns(model.state_layout()))?;
+    out.set_item("output_columns", columns(model.output_layout()))?;
     out.set_item("rule_names", model.rule_names())?;
     let jumps = PyDict::new(py);
     jumps.set_item("rule", PyArray1::from_vec(py, rec.jump_rule))?;

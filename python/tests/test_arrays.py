@@ -106,6 +106,41 @@ def test_jumps_table_matches_the_samples(models):
     np.testing.assert_array_equal(part.jumps.pre, part.x[part.kind == "pre_jump"])
 
 
+FAMILY_MODEL = """model rooms
+subsystem Room(a = 0.5, x0 = 20) {
+    state x = x0, q = 1
+    flow { x' = -a * (x - 5) + 12 * q } in (q == 1 && x <= 22) || (q == 0 && x >= 18)
+    jump off when q == 1 && x >= 22 { q+ = 0 }
+    jump on when q == 0 && x <= 18 { q+ = 1 }
+    output heating = q, excess = x - 20
+}
+for i in 1..3 { r[i] = Room(x0 = 18 + i) }
+state n = 0
+noise d ~ normal(0, 1) every 0.5
+every 1 { n+ = n + 1 }
+output load = sum(i in 1..3: r[i].heating) + 0 * d
+sim { T = 4 }
+"""
+
+
+def test_to_pandas_is_the_csv_of_a_model_with_families_and_timers(hybsim_bin, tmp_path):
+    # Families of instances with two states each (grouped by family in the CSV, interleaved
+    # in the state vector), `every` and held `noise` (their timers are not CSV columns).
+    model = tmp_path / "rooms.hyb"
+    model.write_text(FAMILY_MODEL)
+    header, rows = run_csv(hybsim_bin, model, tmp_path, "--log-rules", "*")
+    df = hybsim.load(model).run().to_pandas()
+    assert list(df.columns) == header
+    assert len(df) == len(rows)
+    cols = list(zip(*rows))
+    for k, name in enumerate(header):
+        if name == "kind":
+            assert list(df[name]) == list(cols[k])
+        else:
+            expect = np.array([float(v) for v in cols[k]])
+            assert df[name].to_numpy(dtype=float).tobytes() == expect.tobytes(), name
+
+
 def test_to_pandas_has_the_csv_columns(hybsim_bin, models, tmp_path):
     header, _ = run_csv(hybsim_bin, models / "bouncing_ball.hyb", tmp_path)
     df = hybsim.load(models / "bouncing_ball.hyb").run().to_pandas()

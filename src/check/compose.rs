@@ -720,7 +720,12 @@ impl Elab<'_, '_> {
                             p.name, p.name
                         ),
                     });
-                    continue;
+                    // Declared anyway (as 0, like a parameter whose value failed), so
+                    // that the body's uses of it do not cascade into unknown names.
+                    Expr {
+                        kind: ExprKind::Num(0.0),
+                        span: p.span,
+                    }
                 }
             };
             let target = Target {

@@ -96,8 +96,11 @@ pub enum CheckError {
         name: String,
         /// The value as given.
         value: String,
-        /// The closest known name.
+        /// The closest name `--set` accepts.
         suggestion: Option<String>,
+        /// The family the name designates (whole or a member), which `--set`
+        /// does not reach.
+        family: Option<String>,
     },
     /// Operands of incompatible shapes.
     #[error("shape mismatch in `{op}`: {} and {}", shape(*left), shape(*right))]
@@ -490,11 +493,18 @@ impl CheckError {
                 name,
                 value,
                 suggestion,
+                family,
             } => {
                 let d = d.primary(Span::new(0, name.len()), "not in the model");
-                let d = match did_you_mean(suggestion) {
-                    Some(h) => d.help(h),
-                    None => d.help("--set names a parameter, a state (its initial value) or a `sim` key"),
+                let d = match (family, did_you_mean(suggestion)) {
+                    (Some(f), _) => d.help(format!(
+                        "`{f}` is a family: --set gives single parameters and initial values, \
+                         not families or their members; set what the family is computed from"
+                    )),
+                    (None, Some(h)) => d.help(h),
+                    (None, None) => d.help(
+                        "--set names a parameter, a state (its initial value) or a `sim` key",
+                    ),
                 };
                 d.in_set_argument(name, &format!("{name}={value}"), 0)
             }

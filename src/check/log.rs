@@ -396,19 +396,52 @@ impl<'a> RuleSelection<'a> {
     }
 
     /// Whether the rule named `rule` (as the model names its rules) is
-    /// selected.
+    /// selected. Names are compared with their index taken out, wherever it
+    /// stands: the model names a member of an instance family's rule
+    /// `f.fire[2]`, the language reads it `f[2].fire`, and the family is
+    /// `f.fire` (as a noise family's member is `v[2].redraw`).
     pub fn matches(&self, rule: &str) -> bool {
-        let r = RuleSelection::parse(rule);
-        let same_label =
-            |a: &str, b: &str| a.split(',').map(str::trim).eq(b.split(',').map(str::trim));
-        r.base == self.base
-            && r.suffix == self.suffix
-            && match (self.label, r.label) {
+        let (name, label) = without_index(&self.to_string());
+        let (rule_name, rule_label) = without_index(rule);
+        name == rule_name
+            && match (label, rule_label) {
                 (None, _) => true,
-                (Some(a), Some(b)) => same_label(a, b),
+                (Some(a), Some(b)) => a == b,
                 (Some(_), None) => false,
             }
     }
+}
+
+/// `name` without its index brackets (`f[2].fire` → `f.fire`), and the
+/// index's entries (`["2"]`; several brackets, of nested families, in
+/// order), spaces ignored.
+fn without_index(name: &str) -> (String, Option<Vec<String>>) {
+    let mut bare = String::with_capacity(name.len());
+    let mut label: Option<Vec<String>> = None;
+    let mut depth = 0usize;
+    let mut entry = String::new();
+    for ch in name.chars().filter(|c| !c.is_whitespace()) {
+        match ch {
+            '[' => {
+                depth += 1;
+                label.get_or_insert_with(Vec::new);
+            }
+            ']' if depth > 0 => {
+                depth -= 1;
+                if let Some(l) = label.as_mut() {
+                    l.push(std::mem::take(&mut entry));
+                }
+            }
+            ',' if depth > 0 => {
+                if let Some(l) = label.as_mut() {
+                    l.push(std::mem::take(&mut entry));
+                }
+            }
+            _ if depth > 0 => entry.push(ch),
+            _ => bare.push(ch),
+        }
+    }
+    (bare, label)
 }
 
 impl std::fmt::Display for RuleSelection<'_> {
@@ -452,5 +485,18 @@ mod tests {
         assert!(!sel("v").matches("v.redraw"));
         assert!(!sel("eve").matches("event"));
         assert_eq!(sel("v[2].redraw").to_string(), "v[2].redraw");
+        // Rules of a family of subsystem instances: the model's `f.fire[2]`.
+        assert!(sel("f.fire").matches("f.fire[2]"));
+        assert!(sel("f[2].fire").matches("f.fire[2]"));
+        assert!(sel("f.fire[2]").matches("f.fire[2]"));
+        assert!(!sel("f[1].fire").matches("f.fire[2]"));
+        assert!(!sel("f").matches("f.fire[2]"));
+        assert!(sel("ball.impact").matches("ball.impact"));
+        let block = RuleSelection {
+            base: "f",
+            label: Some("2"),
+            suffix: Some("fire"),
+        };
+        assert!(block.matches("f.fire[2]"));
     }
 }

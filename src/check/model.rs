@@ -220,8 +220,8 @@ struct ModelChecker<'o> {
     c: Checker,
     overrides: HashMap<&'o str, &'o Override>,
     used: Vec<String>,
-    /// The names `--set` accepts besides the `sim` keys (parameters,
-    /// random parameters, initial values): sweep axes must be among them.
+    /// The names `--set` accepts (the `sim` keys, parameters, random
+    /// parameters, initial values): sweep axes must be among them.
     settable: Vec<String>,
     init: Vec<Option<NodeId>>,
     flow: Vec<Option<(NodeId, Span)>>,
@@ -341,15 +341,16 @@ pub(crate) fn check_model(
     let (settings, seed, jit) = m.settings();
     for o in overrides {
         if !m.used.iter().any(|u| u == &o.name) && !SIM_KEYS.contains(&o.name.as_str()) {
-            let fits = m.c.hints.charge(m.c.syms.len() + SIM_KEYS.len());
-            let keys = m.c.syms.keys().map(String::as_str);
-            let suggestion = fits
-                .then(|| suggest(&o.name, keys.chain(SIM_KEYS.iter().copied())))
-                .flatten();
+            // A family (`z`, `z[2]`, an instance family's `f[2].x0`) is declared but not
+            // settable; any other hint names what `--set` accepts, never a name it refuses.
+            let family = family_named(&o.name, &m.c.syms);
+            let fits = family.is_none() && m.c.hints.charge(m.settable.len());
+            let suggestion = fits.then(|| suggest(&o.name, &m.settable)).flatten();
             m.c.err(CheckError::UnknownOverride {
                 name: o.name.clone(),
                 value: o.value.clone(),
                 suggestion,
+                family,
             });
         }
     }
@@ -375,6 +376,11 @@ pub(crate) fn check_model(
         m.c.errors.truncate(k + 1);
     }
     if !m.c.errors.is_empty() {
+        // Loop headers and filters are evaluated in each pass over the model: an error there
+        // (`for i in 1..N` with N = 2.5) is found once per pass, and reported once.
+        let mut seen = std::collections::HashSet::new();
+        m.c.errors
+            .retain(|e| seen.insert((e.span(), e.to_string())));
         for e in &mut m.c.errors {
             if let CheckError::Design(d) = e
                 && let Some((block, list)) = d.unavailable_mut()
@@ -451,6 +457,26 @@ impl Assigned {
             base
         }
     }
+}
+
+/// The family that the override name `name` designates, whole or one member
+/// (`z`, `z[2]`, `f[2].x0` and `f.x0[2]` for `f.x0`), if the model declares one.
+fn family_named(name: &str, syms: &HashMap<String, Sym>) -> Option<String> {
+    let mut bare = String::with_capacity(name.len());
+    let mut depth = 0usize;
+    for ch in name.chars() {
+        match ch {
+            '[' => depth += 1,
+            ']' => depth = depth.saturating_sub(1),
+            _ if depth == 0 => bare.push(ch),
+            _ => {}
+        }
+    }
+    matches!(
+        syms.get(&bare),
+        Some(Sym::ParamFamily { .. } | Sym::StateFamily { .. } | Sym::OutputFamily { .. })
+    )
+    .then_some(bare)
 }
 
 fn is_draw(e: &Expr) -> bool {
@@ -1441,6 +1467,26 @@ impl ModelChecker<'_> {
         }
     }
 
+    /// The part of a condition that is not one true/false value, to point at:
+    /// the operand of `&&`, `||` or `!` that is (`x <= 0` with `x` a vector in
+    /// `h <= 0 && x <= 0`), else the whole condition `e` of value `v`.
+    fn culprit<'e>(&mut self, e: &'e Expr, v: Val) -> (&'e Expr, Val) {
+        let parts: Vec<&Expr> = match &e.kind {
+            ExprKind::Binary(BinOp::And | BinOp::Or, a, b) => vec![&**a, &**b],
+            ExprKind::Unary(UnOp::Not, a) => vec![&**a],
+            _ => Vec::new(),
+        };
+        for part in parts {
+            // The whole was evaluated without error: its parts are too (same values).
+            if let Some(pv) = self.c.expr(part, &GUARD_CTX)
+                && (pv.rows * pv.cols != 1 || !pv.boolean)
+            {
+                return self.culprit(part, pv);
+            }
+        }
+        (e, v)
+    }
+
     fn component_name(&self, k: usize) -> String {
         for f in &self.c.fields {
             let len = f.rows * f.cols;
@@ -1459,6 +1505,7 @@ impl ModelChecker<'_> {
     fn condition(&mut self, e: &Expr) -> Option<NodeId> {
         let v = self.c.expr(e, &GUARD_CTX)?;
         if v.rows * v.cols != 1 || !v.boolean {
+            let (e, v) = self.culprit(e, v);
             self.c.err(CheckError::Expected {
                 expected: "a condition such as `h >= 0`".into(),
                 found: if v.rows * v.cols == 1 {

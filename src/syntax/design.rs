@@ -153,7 +153,7 @@ type Res<T> = Result<T, SyntaxError>;
 
 /// Converts a `design_block` pair.
 pub(super) fn design_block(p: Pair<'_, Rule>) -> Res<DesignBlock> {
-    let span: Span = p.as_span().into();
+    let span = super::parse::significant_span(&p);
     let mut inner = p.into_inner().peekable();
     let check = inner.next_if(|q| q.as_rule() == Rule::w_check).is_some();
     let mut inner = inner.collect::<Vec<_>>().into_iter();
@@ -172,7 +172,7 @@ pub(super) fn design_block(p: Pair<'_, Rule>) -> Res<DesignBlock> {
 }
 
 fn stmt(p: Pair<'_, Rule>) -> Res<DesignStmt> {
-    let span: Span = p.as_span().into();
+    let span = super::parse::significant_span(&p);
     let rule = p.as_rule();
     let mut inner = p.into_inner();
     Ok(match rule {

@@ -654,7 +654,7 @@ fn describe(rule: Rule) -> Option<&'static str> {
     Some(match rule {
         Rule::EOI => "end of file",
         Rule::header | Rule::b_model => "`model NAME` at the start of the file",
-        Rule::ident | Rule::target => "a name",
+        Rule::ident | Rule::target | Rule::rule_path => "a name",
         Rule::number => "a number",
         Rule::expr
         | Rule::if_expr

@@ -145,8 +145,24 @@ pub(super) fn ident(p: Pair<'_, Rule>) -> Ident {
     }
 }
 
+/// The span of `p` up to its last token: pest's implicit trivia leave the blanks and comments
+/// before an optional `;` that is not there inside a rule's span (into the next line).
+pub(super) fn significant_span(p: &Pair<'_, Rule>) -> Span {
+    let start = p.as_span().start();
+    let text = p.as_str();
+    let mut end = text.len();
+    loop {
+        let body = text[..end].trim_end();
+        let line_start = body.rfind('\n').map_or(0, |i| i + 1);
+        match super::lex::tokens(&body[line_start..]).last() {
+            Some(t) if t.kind == super::lex::TokenKind::Comment => end = line_start + t.offset,
+            _ => return Span::new(start, start + body.len()),
+        }
+    }
+}
+
 fn item(p: Pair<'_, Rule>) -> Res<Item> {
-    let span: Span = p.as_span().into();
+    let span = significant_span(&p);
     let rule = p.as_rule();
     let p_design = p.clone();
     let mut inner = p.into_inner();
@@ -456,7 +472,7 @@ pub(super) fn target(p: Pair<'_, Rule>) -> Res<Target> {
     })
 }
 
-fn index_list(p: Pair<'_, Rule>) -> Res<Vec<IndexArg>> {
+pub(super) fn index_list(p: Pair<'_, Rule>) -> Res<Vec<IndexArg>> {
     p.into_inner()
         .map(|a| {
             let aspan: Span = a.as_span().into();

@@ -3,8 +3,8 @@
 
 use pest::iterators::{Pair, Pairs};
 
-use super::ast::{Expr, PropertyBody, PropertyDecl};
-use super::parse::{Res, Rule, expr, first, ident, target};
+use super::ast::{Expr, IndexArg, PropertyBody, PropertyDecl, Target};
+use super::parse::{Res, Rule, expr, first, ident, index_list, significant_span};
 use crate::source::Span;
 
 /// The children of a `property_decl` pair (span `span`) as a declaration.
@@ -16,8 +16,7 @@ pub(super) fn property_decl(inner: Pairs<'_, Rule>, span: Span) -> Res<PropertyD
     let body = parts.next().ok_or_else(|| incomplete(span))?;
     // pest's implicit trivia can leave comments after the last token inside
     // the span: cut them off, so that reports show exactly the body.
-    let body_start = body.as_span().start();
-    let body_span = Span::new(body_start, body_start + significant_len(body.as_str()));
+    let body_span = significant_span(&body);
     let span = Span::new(span.start, body_span.end);
     let rule = body.as_rule();
     let kids: Vec<Pair<'_, Rule>> = body.into_inner().collect();
@@ -40,7 +39,7 @@ pub(super) fn property_decl(inner: Pairs<'_, Rule>, span: Span) -> Res<PropertyD
                 Some(p) if p.as_rule() == Rule::prop_rule => {
                     let p = rest.remove(0);
                     let pspan = p.as_span().into();
-                    Some(target(first(&mut p.into_inner(), pspan)?)?)
+                    Some(rule_path(first(&mut p.into_inner(), pspan)?)?)
                 }
                 _ => None,
             };
@@ -86,21 +85,6 @@ pub(super) fn property_decl(inner: Pairs<'_, Rule>, span: Span) -> Res<PropertyD
     })
 }
 
-/// Length of `text` up to its last character that is neither whitespace
-/// nor part of a `#` comment.
-fn significant_len(text: &str) -> usize {
-    let mut end = 0;
-    let mut line_start = 0;
-    for line in text.split_inclusive('\n') {
-        let code = line.split('#').next().unwrap_or_default().trim_end();
-        if !code.is_empty() {
-            end = line_start + code.len();
-        }
-        line_start += line.len();
-    }
-    end
-}
-
 fn is_word(r: Rule) -> bool {
     matches!(
         r,
@@ -129,18 +113,35 @@ fn tol(p: Pair<'_, Rule>) -> Res<Expr> {
     expr(it.next().ok_or_else(|| incomplete(span))?)
 }
 
-#[cfg(test)]
-#[test]
-fn trailing_comments_are_not_significant() {
-    assert_eq!(significant_len("always h >= 0 # ok\n  # more\n"), 13);
-    assert_eq!(significant_len("always h >= 0\n  && v <= 1  # c\n"), 25);
-    assert_eq!(significant_len("always x"), 8);
-}
-
 fn incomplete(span: Span) -> super::SyntaxError {
     super::SyntaxError::Unexpected {
         span,
         found: "an incomplete property".into(),
         expected: "a complete property body".into(),
     }
+}
+
+/// A rule named in `at jumps RULE P`: `impact`, `fire[2]`, `ball.impact`,
+/// `f.fire[2]` or `f[2].fire` (a family of instances is indexed first by the
+/// instance, as the model names its rules: `f[i].fire[k]` is `f.fire[i, k]`).
+fn rule_path(p: Pair<'_, Rule>) -> Res<Target> {
+    let span: Span = p.as_span().into();
+    let mut it = p.into_inner();
+    let mut name = ident(first(&mut it, span)?);
+    let mut index: Vec<IndexArg> = Vec::new();
+    let mut indexed = false;
+    for q in it {
+        if q.as_rule() == Rule::member {
+            name.name.push_str(q.as_str());
+            name.span = Span::new(name.span.start, q.as_span().end());
+        } else {
+            index.extend(index_list(q)?);
+            indexed = true;
+        }
+    }
+    Ok(Target {
+        name,
+        indices: if indexed { vec![index] } else { Vec::new() },
+        span,
+    })
 }

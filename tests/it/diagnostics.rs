@@ -417,6 +417,20 @@ const CASES: &[Case] = &[
         "4:8",
         "white noise must enter `x'` linearly",
     ),
+    case(
+        "vector operand in a guard",
+        "model m\nstate h = 1, x = [1; 0]\nflow { h' = -1 }\njump r when h <= 0 && x <= 0 { h+ = 1 }\n",
+        "E0304",
+        "4:23",
+        "expected a condition such as `h >= 0`, found a 2×1 vector",
+    ),
+    case(
+        "vector operand in a flow set",
+        "model m\nstate h = 1, v = 0, x = [1; 0]\nflow { h' = v } in !(h >= 0 || x >= 0)\n",
+        "E0304",
+        "3:32",
+        "expected a condition such as `h >= 0`, found a 2×1 vector",
+    ),
     Case {
         name: "override of an unknown name",
         src: "model m\nparam lambda = 0.8\nstate x = 0\n",
@@ -723,4 +737,122 @@ mod no_panic {
             front_end(&format!("model m\n{}", soup.join(" ")));
         }
     }
+}
+
+/// A `for` header is evaluated in each pass over the model; an error in it
+/// (a range bound that is not an integer, in the file or from `--set`) is
+/// reported once, not once per pass.
+#[test]
+fn an_error_in_a_loop_header_is_reported_once() {
+    let src = SourceFile::new(
+        "m.hyb",
+        "model m\nparam N = 3\nstate h = 1\nfor i in 1..2.5 { state z[i] = 0 }\n\
+         for i in 1..N { state y[i] = 0 }\nflow { h' = -h }\n",
+    );
+    let diags = diagnostics(&src, &[]);
+    let at: Vec<_> = diags
+        .iter()
+        .map(|d| (d.code, d.line_col(&src).map(|lc| lc.to_string())))
+        .collect();
+    assert_eq!(at, [("E0304", Some("4:13".to_string()))], "{diags:#?}");
+    let diags = diagnostics(&src, &["N=2.5"]);
+    let at: Vec<_> = diags
+        .iter()
+        .map(|d| (d.code, d.line_col(&src).map(|lc| lc.to_string())))
+        .collect();
+    assert_eq!(
+        at,
+        [
+            ("E0304", Some("4:13".to_string())),
+            ("E0304", Some("5:13".to_string()))
+        ],
+        "{diags:#?}"
+    );
+}
+
+/// The hint of an unknown `--set` name is a name `--set` accepts: never a
+/// family, a member of one or an instance family's parameter, which it
+/// refuses (`fam[2].x0` once suggested `fam.x0`, which suggested `fam.x`,
+/// which suggested `fam.xa`, all refused). A name that designates a family
+/// says so.
+#[test]
+fn override_hints_name_only_what_set_accepts() {
+    let text = "model m\nparam lambda = 0.8, N = 3\n\
+        subsystem Room(a = 0.5, xa = 5, x0 = 20) { state x = x0; flow { x' = -a * (x - xa) } }\n\
+        r1 = Room()\nfor i in 1..N { fam[i] = Room(x0 = 18 + i) }\n\
+        for i in 1..N { state z[i] = i; param p[i] = 2 * i }\n\
+        flow { for i in 1..N { z[i]' = -p[i] * z[i] } }\n";
+    let src = SourceFile::new("m.hyb", text);
+    assert!(diagnostics(&src, &[]).is_empty());
+    for (set, help) in [
+        ("lamda=0.5", "did you mean `lambda`?"),
+        ("r1.x00=1", "did you mean `r1.x0`?"),
+        ("fam[2].x0=21", "`fam.x0` is a family"),
+        ("fam.x0[2]=21", "`fam.x0` is a family"),
+        ("fam.x=[1; 2; 3]", "`fam.x` is a family"),
+        ("z[2]=1", "`z` is a family"),
+        ("p=1", "`p` is a family"),
+    ] {
+        let d = diagnostics(&src, &[set]);
+        assert_eq!(d.len(), 1, "{set}: {d:#?}");
+        assert_eq!(d[0].code, "E0204", "{set}");
+        let h = d[0].help.clone().unwrap_or_default();
+        assert!(h.starts_with(help), "{set}: {h}");
+        // A suggested name is accepted.
+        if let Some(name) = h
+            .strip_prefix("did you mean `")
+            .and_then(|r| r.split('`').next())
+        {
+            let again = diagnostics(&src, &[&format!("{name}=1")]);
+            assert!(again.is_empty(), "{set} suggests `{name}`: {again:#?}");
+        }
+    }
+}
+
+/// An instance without a value for one of its subsystem's parameters is
+/// that error alone: the parameter's uses in the subsystem's body (and the
+/// states initialized from it) do not become unknown names.
+#[test]
+fn a_missing_instance_parameter_does_not_cascade() {
+    let src = SourceFile::new(
+        "m.hyb",
+        "model m\nsubsystem S(k) { state y = k; flow { y' = -k * y } }\ns1 = S(kk = 2)\n",
+    );
+    let diags = diagnostics(&src, &[]);
+    let codes: Vec<_> = diags.iter().map(|d| (d.code, d.message.as_str())).collect();
+    assert_eq!(
+        codes,
+        [
+            (
+                "E0512",
+                "`kk` is neither a parameter nor an input of subsystem `S`"
+            ),
+            ("E0512", "parameter `k` of `s1` (S) has no value"),
+        ],
+        "{diags:#?}"
+    );
+}
+
+/// A design constraint's error underlines the constraint alone: its span
+/// once ran on to the next statement (the blanks before an optional `;`).
+#[test]
+fn a_design_constraint_is_underlined_without_the_next_line() {
+    let text = "model l\ndesign d {\n    sym P[2]; full U[2, 1]\n    nonsym: [1, 2; 3, 4] * P <= 0   # not symmetric\n    nonsq: U >= 0\n    P > 0\n}\nstate x = 1\n";
+    let src = SourceFile::new("m.hyb", text);
+    let diags = diagnostics(&src, &[]);
+    let spans: Vec<_> = diags
+        .iter()
+        .map(|d| {
+            let s = d.labels[0].span;
+            (d.code, &text[s.start..s.end])
+        })
+        .collect();
+    assert_eq!(
+        spans,
+        [
+            ("E0702", "nonsym: [1, 2; 3, 4] * P <= 0"),
+            ("E0703", "nonsq: U >= 0")
+        ],
+        "{diags:#?}"
+    );
 }

@@ -609,3 +609,56 @@ fn states_and_outputs_named_t_or_j_are_located_errors() {
         }
     }
 }
+
+/// The rules of a family of subsystem instances (`f.fire[1]`, `f.fire[2]`)
+/// are selected as a family, `f.fire`, and one member as `f.fire[2]` or as
+/// the language reads it, `f[2].fire`: in `--log-rules`, `--log-marks` and a
+/// `log` block alike (`f.fire` was refused as "no jump rule of the model has
+/// that name" while `count(f.fire)` counted them).
+#[test]
+fn rules_of_a_family_of_instances_are_selected_as_a_family() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let model = "model flock
+subsystem Clock(p = 0.1) {
+    state tau = 0
+    flow { tau' = 1 }
+    jump fire when tau >= p { tau+ = 0 }
+}
+solo = Clock(p = 0.25)
+for i in 1..2 { f[i] = Clock(p = 0.15 * i) }
+sim { T = 1; J = 1000 }
+";
+    let path = d.join("flock.hyb");
+    std::fs::write(&path, model).unwrap();
+    let path = path.to_str().unwrap();
+    let all = result_jumps(&run(d, path, &[]).0);
+    assert_eq!((all["f.fire[1]"], all["f.fire[2]"]), (6, 3), "{all:?}");
+    let logged = |args: &[&str]| rules_of(&messages(&run(d, path, args).0).0);
+    let family = logged(&["--log-rules", "f.fire"]);
+    let expect: BTreeMap<String, usize> = ["f.fire[1]", "f.fire[2]"]
+        .iter()
+        .map(|r| (r.to_string(), all[*r] as usize))
+        .collect();
+    assert_eq!(family, expect);
+    for member in ["f.fire[2]", "f[2].fire", "f[ 2 ].fire"] {
+        let one = logged(&["--log-rules", member]);
+        assert_eq!(one.keys().collect::<Vec<_>>(), ["f.fire[2]"], "{member}");
+    }
+    // Marks: the family's records stay, alone.
+    let marked = logged(&["--log-rules", "solo.fire", "--log-marks", "f.fire"]);
+    assert_eq!(marked.len(), 3, "{marked:?}");
+    // The same names in a `log` block.
+    std::fs::write(
+        d.join("flock.hyb"),
+        format!("{model}log {{ rules = [f.fire] }}\n"),
+    )
+    .unwrap();
+    assert_eq!(logged(&[]), expect);
+    std::fs::write(
+        d.join("flock.hyb"),
+        format!("{model}log {{ rules = [f[2].fire] }}\n"),
+    )
+    .unwrap();
+    assert_eq!(logged(&[]).keys().collect::<Vec<_>>(), ["f.fire[2]"]);
+}

@@ -236,3 +236,45 @@ fn the_shipped_models_properties_hold_over_many_cases() {
         1
     );
 }
+
+/// `at jumps RULE P` names the rules of subsystem instances as every output
+/// names them: `ball.impact`, a member of an instance family `f.fire[2]`, or
+/// as the language reads it, `f[2].fire` (these were parse errors: "`post(...)`
+/// indexes in MATLAB").
+#[test]
+fn at_jumps_names_the_rules_of_subsystem_instances() {
+    let text = "model flock
+subsystem Clock(p = 0.1) {
+    state tau = 0, n = 0
+    flow { tau' = 1 }
+    jump fire when tau >= p { tau+ = 0; n+ = n + 1 }
+}
+solo = Clock(p = 0.25)
+for i in 1..2 { f[i] = Clock(p = 0.1 + 0.15 * i) }
+property solo_resets: at jumps solo.fire post(solo.tau) == 0
+property second: at jumps f.fire[2] post(f[2].n) == f[2].n + 1
+property second_read: at jumps f[2].fire post(f.n[2]) == f.n[2] + 1
+property wrong: at jumps f[2].fire post(f.n[1]) == f.n[1] + 1
+sim { T = 1 }
+";
+    let m = lang::compile(&SourceFile::new("flock.hyb", text), &[])
+        .unwrap_or_else(|d| panic!("{d:#?}"));
+    let (x0, mut rng) = m.start(0);
+    let arc = simulate_arc(&m, &x0, &m.settings(), &mut rng).unwrap();
+    let props = m.properties();
+    let check = |name: &str| props.iter().find(|p| p.name() == name).unwrap().check(&arc);
+    for name in ["solo_resets", "second", "second_read"] {
+        assert!(check(name).is_ok(), "{name}");
+    }
+    // f[2] fires alone at t = 0.4 (f[1] at 0.25, 0.5): its own n moves, f[1]'s not.
+    let v = check("wrong").unwrap_err();
+    assert!((v.at.t - 0.4).abs() < 1e-9, "{v}");
+    // An unknown member is located, with the rule's name as the model writes it.
+    let bad = text.replace(
+        "at jumps f[2].fire post(f.n[1])",
+        "at jumps f[3].fire post(f.n[1])",
+    );
+    let d = lang::check_only(&SourceFile::new("flock.hyb", &bad), &[]);
+    assert_eq!(d.len(), 1, "{d:#?}");
+    assert_eq!(d[0].message, "unknown name `f.fire[3]`");
+}
