@@ -733,7 +733,7 @@ fn sizes_over_their_limits_are_refused_before_allocating() {
         (
             vec!["run", "fam.hyb", "--dt-out", "1e-300", "-q", "-o", "x.mcap"],
             "output grid points",
-            "--set dt_out:1:8".into(),
+            "--set sim.dt_out:1:12".into(),
         ),
         (
             vec![
@@ -746,14 +746,14 @@ fn sizes_over_their_limits_are_refused_before_allocating() {
                 "x.mcap",
             ],
             "integrator steps forced by max_step",
-            "--set max_step:1:10".into(),
+            "--set sim.max_step:1:14".into(),
         ),
         (
             vec![
                 "run", "fam.hyb", "--T", "1e300", "--dt-out", "1", "-q", "-o", "x.mcap",
             ],
             "output grid points",
-            "--set dt_out:1:8".into(),
+            "--set sim.dt_out:1:12".into(),
         ),
     ];
     for (args, says, at) in &cases {
