@@ -1042,6 +1042,31 @@ fn a_discrete_model_without_j_is_told_to_set_j() {
     );
 }
 
+/// A relay without hysteresis (`x <= 0` and `x >= 0` meet) chatters at x = 0 without time
+/// passing: W0606 told it only what a discrete-time system needs (`J`); it also says what
+/// chattering at one instant means for a system meant to flow.
+#[test]
+fn a_relay_chattering_at_one_instant_is_told_to_check_its_guards() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    std::fs::write(
+        d.join("relay.hyb"),
+        "model relay\nstate x = 1, u = 1\nflow { x' = -u }\n\
+         jump down when u == 1 && x <= 0 { u+ = -1 }\n\
+         jump up when u == -1 && x >= 0 { u+ = 1 }\nsim { T = 2 }\n",
+    )
+    .unwrap();
+    let out = hybsim(d, &["run", "relay.hyb", "--no-mcap"]);
+    let err = stderr(&out);
+    assert_eq!(code(&out), 0, "{err}");
+    assert!(
+        err.contains("W0606")
+            && err.contains("chattering at one instant")
+            && err.contains("check the guards and resets"),
+        "{err}"
+    );
+}
+
 /// Issue 24, the front end linear in the model's size: a long matrix literal (each element used
 /// to copy the growing matrix: 300 000 elements took about 19 s) and many unknown names among many
 /// declared ones (each error compared its name with every declared one for a "did you mean":
