@@ -212,6 +212,27 @@ const SIM_KEYS: &[&str] = &[
     "jit",
 ];
 
+/// The canonical name of a `sim` key (`horizon_t` is `T`).
+fn canonical_sim_key(key: &str) -> &str {
+    match key {
+        "horizon_t" => "T",
+        "horizon_j" => "J",
+        "zeno_max_rate" => "zeno_rate",
+        k => k,
+    }
+}
+
+/// The canonical `sim` key an override names, and whether it names it explicitly
+/// (`sim.T`: `sim` is a keyword, so no declaration of the model has that name).
+fn sim_key(name: &str) -> Option<(&'static str, bool)> {
+    let (key, explicit) = match name.strip_prefix("sim.") {
+        Some(key) => (key, true),
+        None => (name, false),
+    };
+    let key = SIM_KEYS.iter().find(|k| **k == key)?;
+    Some((canonical_sim_key(key), explicit))
+}
+
 /// A component reset in a `together` group: by which rule, where, and the
 /// rule's part of the composite jump.
 type GroupReset = (String, Span, Option<usize>);
@@ -338,9 +359,9 @@ pub(crate) fn check_model(
     let metrics = collector.finish(&mut m.c);
     let sweep = super::sweep::check_sweeps(&mut m.c, &model.items, &m.settable);
     let log = super::log::check_logs(&mut m.c, &model.items, &m.rules);
-    let (settings, seed, jit) = m.settings();
+    let (settings, seed, jit) = m.settings(overrides);
     for o in overrides {
-        if !m.used.iter().any(|u| u == &o.name) && !SIM_KEYS.contains(&o.name.as_str()) {
+        if !m.used.iter().any(|u| u == &o.name) && sim_key(&o.name).is_none() {
             // A family (`z`, `z[2]`, an instance family's `f[2].x0`) is declared but not
             // settable; any other hint names what `--set` accepts, never a name it refuses.
             let family = family_named(&o.name, &m.c.syms);
@@ -1752,29 +1773,28 @@ impl ModelChecker<'_> {
         }
     }
 
-    fn sim_number(&mut self, key: &str, e: &Expr) -> Option<f64> {
-        let ov = self.overrides.get(key).copied();
-        let e = match ov {
-            Some(o) => {
-                self.used.push(key.to_string());
-                &o.expr
-            }
-            None => e,
-        };
-        self.c.const_scalar(e, &format!("`{key}`"))
-    }
-
-    fn settings(&mut self) -> (SimSettings, u64, Option<bool>) {
+    fn settings<'s>(&mut self, overrides: &'s [Override]) -> (SimSettings, u64, Option<bool>) {
         let mut s = SimSettings::default();
         let mut seed = 0u64;
         let mut jit = None;
         let mut solver_name: Option<(String, Span)> = None;
         let (mut rtol, mut atol, mut h) = (None, None, None);
         let mut items = std::mem::take(&mut self.sim);
-        // Sim keys given only as overrides.
+        // The overrides of settings by canonical key. A name the model declares (`param T`,
+        // `state h`) is that declaration's, not the setting's, which `sim.T` (or `horizon_t`)
+        // still names; of several overrides of one setting (`T`, `horizon_t`) the last wins.
+        let mut by_key: HashMap<&str, &'s Override> = HashMap::default();
+        for o in overrides {
+            if let Some((key, explicit)) = sim_key(&o.name)
+                && (explicit || !self.used.contains(&o.name))
+            {
+                by_key.insert(key, o);
+            }
+        }
+        // Settings given only as overrides.
         for key in SIM_KEYS {
-            if let Some(o) = self.overrides.get(key)
-                && !items.iter().any(|(k, _, _)| k == key)
+            if let Some(o) = by_key.get(key)
+                && !items.iter().any(|(k, _, _)| canonical_sim_key(k) == *key)
             {
                 items.push((key.to_string(), o.expr.clone(), Span::default()));
             }
@@ -1782,17 +1802,11 @@ impl ModelChecker<'_> {
         let mut seen: HashMap<String, Span> = HashMap::default();
         // Per canonical key: where its value is, for the checks of the settings as a whole.
         let mut values: HashMap<String, (Span, Option<&Override>)> = HashMap::default();
-        let overrides = self.overrides.clone();
         for (key, e, span) in &items {
             if key.starts_with("max_") && Limits::quantity(key).is_some() {
                 continue; // applied by `limit_keys`
             }
-            let canon = match key.as_str() {
-                "horizon_t" => "T",
-                "horizon_j" => "J",
-                "zeno_max_rate" => "zeno_rate",
-                k => k,
-            };
+            let canon = canonical_sim_key(key);
             if let Some(&first) = seen.get(canon) {
                 self.c.err(CheckError::Duplicate {
                     name: key.clone(),
@@ -1804,7 +1818,10 @@ impl ModelChecker<'_> {
             seen.insert(canon.to_string(), *span);
             // An override's value replaces the block's; its spans are in the override's text,
             // so the errors about it are located there.
-            let ov = overrides.get(key.as_str()).copied();
+            let ov = by_key.get(canon).copied();
+            if let Some(o) = ov {
+                self.used.push(o.name.clone());
+            }
             let e = ov.map_or(e, |o| &o.expr);
             values.insert(canon.to_string(), (e.span, ov));
             let before = self.c.errors.len();
@@ -1816,69 +1833,38 @@ impl ModelChecker<'_> {
                         span: e.span,
                     })
                 };
-                let word = |this: &Self| -> Option<String> {
-                    let e = match this.overrides.get(key.as_str()) {
-                        Some(o) => &o.expr,
-                        None => e,
-                    };
-                    match &e.kind {
-                        ExprKind::Name(n) => Some(n.clone()),
-                        _ => None,
-                    }
+                let word = match &e.kind {
+                    ExprKind::Name(n) => Some(n.as_str()),
+                    _ => None,
                 };
                 match canon {
-                    "solver" => {
-                        if self.overrides.contains_key("solver") {
-                            self.used.push("solver".into());
-                        }
-                        match word(self) {
-                            Some(w) => solver_name = Some((w, e.span)),
-                            None => bad(self, format!("write one of {}", SOLVER_NAMES)),
-                        }
-                    }
-                    "priority" => {
-                        if self.overrides.contains_key("priority") {
-                            self.used.push("priority".into());
-                        }
-                        match word(self).as_deref() {
-                            Some("jumps") => s.priority = Priority::Jumps,
-                            Some("flows") => s.priority = Priority::Flows,
-                            Some("random") => s.priority = Priority::Random,
-                            _ => bad(self, "write one of jumps, flows, random".into()),
-                        }
-                    }
-                    "exact_affine" => {
-                        if self.overrides.contains_key("exact_affine") {
-                            self.used.push("exact_affine".into());
-                        }
-                        match word(self).as_deref() {
-                            Some("auto") => s.exact_affine = ExactAffine::Auto,
-                            Some("on") => s.exact_affine = ExactAffine::On,
-                            Some("off") => s.exact_affine = ExactAffine::Off,
-                            _ => bad(self, "write one of auto, on, off".into()),
-                        }
-                    }
-                    "linear_solver" => {
-                        if self.overrides.contains_key("linear_solver") {
-                            self.used.push("linear_solver".into());
-                        }
-                        match word(self).as_deref().and_then(LinearSolver::from_name) {
-                            Some(l) => s.linear_solver = l,
-                            None => bad(self, "write one of auto, dense, sparse".into()),
-                        }
-                    }
-                    "jit" => {
-                        if self.overrides.contains_key("jit") {
-                            self.used.push("jit".into());
-                        }
-                        match word(self).as_deref() {
-                            Some("on") => jit = Some(true),
-                            Some("off") => jit = Some(false),
-                            _ => bad(self, "write on or off".into()),
-                        }
-                    }
+                    "solver" => match word {
+                        Some(w) => solver_name = Some((w.to_string(), e.span)),
+                        None => bad(self, format!("write one of {}", SOLVER_NAMES)),
+                    },
+                    "priority" => match word {
+                        Some("jumps") => s.priority = Priority::Jumps,
+                        Some("flows") => s.priority = Priority::Flows,
+                        Some("random") => s.priority = Priority::Random,
+                        _ => bad(self, "write one of jumps, flows, random".into()),
+                    },
+                    "exact_affine" => match word {
+                        Some("auto") => s.exact_affine = ExactAffine::Auto,
+                        Some("on") => s.exact_affine = ExactAffine::On,
+                        Some("off") => s.exact_affine = ExactAffine::Off,
+                        _ => bad(self, "write one of auto, on, off".into()),
+                    },
+                    "linear_solver" => match word.and_then(LinearSolver::from_name) {
+                        Some(l) => s.linear_solver = l,
+                        None => bad(self, "write one of auto, dense, sparse".into()),
+                    },
+                    "jit" => match word {
+                        Some("on") => jit = Some(true),
+                        Some("off") => jit = Some(false),
+                        _ => bad(self, "write on or off".into()),
+                    },
                     _ => {
-                        let Some(x) = self.sim_number(key, e) else {
+                        let Some(x) = self.c.const_scalar(e, &format!("`{key}`")) else {
                             break 'key;
                         };
                         match canon {

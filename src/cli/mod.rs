@@ -230,8 +230,7 @@ impl JitMode {
     fn apply(mode: Option<Self>, overrides: &mut Vec<Override>) {
         if let Some(mode) = mode {
             let word = if mode == JitMode::On { "on" } else { "off" };
-            overrides.retain(|o| o.name != "jit");
-            overrides.push(format!("jit={word}").parse().expect("a valid override"));
+            overrides.push(format!("sim.jit={word}").parse().expect("a valid override"));
         }
     }
 }
@@ -263,14 +262,17 @@ impl GuardArgs {
         let mut all = set.to_vec();
         all.extend(
             self.set_tol
-                .map(|x| format!("set_tol={}", float_override(x))),
+                .map(|x| format!("sim.set_tol={}", float_override(x))),
         );
         all.extend(
             self.zeno_rate
-                .map(|x| format!("zeno_rate={}", float_override(x))),
+                .map(|x| format!("sim.zeno_rate={}", float_override(x))),
         );
-        all.extend(self.zeno_window.map(|n| format!("zeno_window={n}")));
-        all.extend(self.max_total_jumps.map(|n| format!("max_total_jumps={n}")));
+        all.extend(self.zeno_window.map(|n| format!("sim.zeno_window={n}")));
+        all.extend(
+            self.max_total_jumps
+                .map(|n| format!("sim.max_total_jumps={n}")),
+        );
         all
     }
 }

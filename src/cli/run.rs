@@ -311,16 +311,17 @@ fn solver_from_flags(current: Solver, args: &RunArgs) -> Result<Solver, String> 
 
 impl RunArgs {
     /// The user's `--set`s followed by the flags that are `sim` keys (`--T`, `--J`, `--dt-out`,
-    /// `--max-step` and the guard flags), so that a flag wins over a `--set` and the checker
+    /// `--max-step` and the guard flags), named `sim.KEY` so that they set the setting even where
+    /// the model declares a name `T` or `J`, and a flag wins over a `--set`; the checker
     /// validates it and applies the resource limits (output points, forced steps) as it does
     /// for the model's own `sim` block.
     fn overrides(&self) -> Vec<String> {
         let mut all = self.guard.with_overrides(&self.set);
         let float = |key: &str, x: Option<f64>| x.map(|x| format!("{key}={}", float_override(x)));
-        all.extend(float("T", self.horizon_t));
-        all.extend(float("J", self.horizon_j));
-        all.extend(float("dt_out", self.dt_out));
-        all.extend(float("max_step", self.max_step));
+        all.extend(float("sim.T", self.horizon_t));
+        all.extend(float("sim.J", self.horizon_j));
+        all.extend(float("sim.dt_out", self.dt_out));
+        all.extend(float("sim.max_step", self.max_step));
         all
     }
 }

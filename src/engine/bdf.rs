@@ -29,7 +29,7 @@
 // Orders and components are written as in the method's formulas.
 #![allow(clippy::needless_range_loop)]
 
-use super::dopri5::{Failure, Rhs};
+use super::dopri5::{Failure, NonFiniteRate, Rhs};
 use super::events::StepPath;
 use super::implicit::{
     Jac, Jacobian, LinearAlgebra, NewtonLu, initial_step, newton_tol, rms_scaled,
@@ -108,6 +108,9 @@ pub(crate) struct Bdf {
     path_order: usize,
     /// Evaluations of f, LU factorizations.
     pub fevals: u64,
+    /// The last non-finite rate met by a rejected attempt since the last
+    /// accepted step.
+    pub non_finite: Option<NonFiniteRate>,
     pub factorizations: u64,
 }
 
@@ -137,6 +140,7 @@ impl Bdf {
             h_step: 0.0,
             path_order: 1,
             fevals: 0,
+            non_finite: None,
             factorizations: 0,
         }
     }
@@ -420,6 +424,7 @@ impl Bdf {
             } else {
                 h_new
             };
+            self.non_finite = None;
             return Ok(h);
         }
     }
@@ -435,6 +440,7 @@ impl Bdf {
             f(s_new, &self.y_new, &mut self.f_iter);
             self.fevals += 1;
             if self.f_iter.iter().any(|v| !v.is_finite()) {
+                self.non_finite = NonFiniteRate::find(s_new, &self.f_iter).or(self.non_finite);
                 return None;
             }
             for i in 0..n {

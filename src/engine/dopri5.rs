@@ -63,6 +63,29 @@ const STIFF_COUNT: u32 = 15;
 /// The flow in local time: `f(s, y, dy)` writes ẏ at (s, y) into `dy`.
 pub(crate) type Rhs<'a> = dyn FnMut(f64, &[f64], &mut [f64]) + 'a;
 
+/// A non-finite value of the flow met at a stage of a rejected step
+/// attempt: where (local time), which component, what value. A step size
+/// that then collapses is reported as this value (the flow is NaN or ±∞
+/// past that point), not as a collapse blamed on the fastest component.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct NonFiniteRate {
+    pub s: f64,
+    pub component: usize,
+    pub value: f64,
+}
+
+impl NonFiniteRate {
+    /// The first non-finite component of the rate `dy` evaluated at `s`.
+    pub fn find(s: f64, dy: &[f64]) -> Option<Self> {
+        let component = crate::num::first_non_finite(dy)?;
+        Some(Self {
+            s,
+            component,
+            value: dy[component],
+        })
+    }
+}
+
 /// Why a step attempt failed for good.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub(crate) enum Failure {
@@ -101,6 +124,8 @@ pub(crate) struct Dopri5 {
     h_old: f64,
     /// Evaluations of f since construction.
     pub fevals: u64,
+    /// The last non-finite stage rate since the last accepted step.
+    pub non_finite: Option<NonFiniteRate>,
 }
 
 impl Dopri5 {
@@ -123,6 +148,7 @@ impl Dopri5 {
             s_old: 0.0,
             h_old: 0.0,
             fevals: 0,
+            non_finite: None,
         }
     }
 
@@ -267,7 +293,15 @@ impl Dopri5 {
             let fac = fac_free.clamp(1.0 / FAC_MAX, 1.0 / FAC_MIN);
             let mut h_new = h / fac;
             if !err.is_finite() {
-                // A non-finite stage: retry much smaller.
+                // A non-finite stage: retry much smaller, remembering the
+                // first one in time (k6 and k7 are both at s + h).
+                let stages = [(C2, &*k2), (C3, &*k3), (C4, &*k4), (C5, &*k5), (1.0, &*k6)];
+                let found = stages
+                    .iter()
+                    .find_map(|&(c, k)| NonFiniteRate::find(s + c * h, k));
+                self.non_finite = found
+                    .or_else(|| NonFiniteRate::find(s_new, k7))
+                    .or(self.non_finite);
                 self.h_next = h * FAC_MIN;
                 rejected = true;
                 continue;
@@ -313,6 +347,7 @@ impl Dopri5 {
             };
             self.s_old = s;
             self.h_old = h;
+            self.non_finite = None;
             return Ok(h);
         }
     }

@@ -20,7 +20,7 @@ use ode_solvers::{Dop853, Dopri5, OutputType, Rk4, System, dop_shared::Integrati
 use super::HybridSystem;
 use super::bdf::{Bdf, BdfPath};
 use super::clock::TimeSum;
-use super::dopri5::{Dopri5 as OwnDopri5, DopriPath, Failure};
+use super::dopri5::{Dopri5 as OwnDopri5, DopriPath, Failure, NonFiniteRate};
 use super::error::SimError;
 use super::events::{EventKind, Hermite, Linear, StepPath, Watcher, at_step_end};
 use super::implicit::LinearAlgebra;
@@ -911,26 +911,61 @@ fn tolerances(solver: Solver) -> (f64, f64) {
     solver.tolerances().unwrap_or((0.0, 1.0))
 }
 
-/// The component of the flow at (`t`, `x`) that changes fastest relative
-/// to the tolerances, |ẋᵢ| / (atol + rtol·|xᵢ|) (a non-finite derivative
-/// counts as infinite), with its name: what an integrator that gave up
-/// most likely struggled with.
-fn fastest_component<S: HybridSystem + ?Sized>(
+/// How an integrator gives up.
+#[derive(Clone, Copy)]
+enum GaveUp {
+    /// The step size fell below the resolution of t (last accepted step `h`).
+    Collapse { h: f64 },
+    /// The stiffness test fired.
+    Stiff,
+}
+
+/// The error of an integrator that gave up at `stopped`, `(at, x)` its last accepted point,
+/// where a rejected attempt met the non-finite rate `ahead` (if any; its `s` relative to `at`).
+/// A flow that is NaN or ±∞ there or ahead is that error (`NonFinite` at its equation: the
+/// steps shrank to nothing in front of it); otherwise the collapse or stiffness names the
+/// component changing fastest relative to the tolerances, |ẋᵢ| / (atol + rtol·|xᵢ|): what the
+/// integrator most likely struggled with.
+fn gave_up<S: HybridSystem + ?Sized>(
     sys: &S,
-    at: HybridTime,
-    x: &[f64],
-    (rtol, atol): (f64, f64),
-) -> (usize, String) {
+    (at, x): (HybridTime, &[f64]),
+    stopped: HybridTime,
+    ahead: Option<NonFiniteRate>,
+    solver: Solver,
+    how: GaveUp,
+) -> SimError {
+    let name = |k: usize| sys.state_names().get(k).cloned().unwrap_or_default();
     let mut dx = vec![0.0; x.len()];
     sys.flow_map(at, x, &mut dx);
-    let rate = |i: usize| {
-        let r = dx[i].abs() / (atol + rtol * x[i].abs());
-        if r.is_nan() { f64::INFINITY } else { r }
-    };
-    let k = (0..x.len())
+    let here = NonFiniteRate::find(0.0, &dx).map(|r| (at, r));
+    let ahead = ahead.map(|r| (HybridTime::new(at.t + r.s, at.j), r));
+    if let Some((at, r)) = here.or(ahead) {
+        return SimError::NonFinite {
+            at,
+            component: r.component,
+            name: name(r.component),
+            value: r.value,
+            rule: None,
+        };
+    }
+    let (rtol, atol) = tolerances(solver);
+    let rate = |i: usize| dx[i].abs() / (atol + rtol * x[i].abs());
+    let component = (0..x.len())
         .max_by(|&a, &b| rate(a).total_cmp(&rate(b)))
         .unwrap_or(0);
-    (k, sys.state_names().get(k).cloned().unwrap_or_default())
+    match how {
+        GaveUp::Collapse { h } => SimError::StepSizeCollapse {
+            at: stopped,
+            h,
+            component,
+            name: name(component),
+        },
+        GaveUp::Stiff => SimError::Stiff {
+            at: stopped,
+            component,
+            name: name(component),
+        },
+    }
 }
 
 impl Flows {
@@ -1281,26 +1316,14 @@ impl Flows {
                 Ok(h) => h,
                 Err(Failure::Stiff) if auto => return Ok(Stepped::Switch(s)),
                 Err(failure) => {
-                    let (component, name) = fastest_component(
-                        sys,
-                        HybridTime::new(t0 + s, j),
-                        &self.y_prev,
-                        tolerances(solver),
-                    );
+                    // A non-finite rate ahead is relative to the attempt's start `s`.
+                    let ahead = st.non_finite().map(|r| NonFiniteRate { s: r.s - s, ..r });
+                    let how = match failure {
+                        Failure::Underflow => GaveUp::Collapse { h: st.proposal() },
+                        Failure::Stiff => GaveUp::Stiff,
+                    };
                     let at = HybridTime::new(t0 + s, j);
-                    return Err(match failure {
-                        Failure::Underflow => SimError::StepSizeCollapse {
-                            at,
-                            h: st.proposal(),
-                            component,
-                            name,
-                        },
-                        Failure::Stiff => SimError::Stiff {
-                            at,
-                            component,
-                            name,
-                        },
-                    });
+                    return Err(gave_up(sys, (at, &self.y_prev), at, ahead, solver, how));
                 }
             };
             let last = h >= remaining;
@@ -1390,6 +1413,7 @@ impl Flows {
             reach_why,
             f_is_start,
             fevals: std::cell::Cell::new(0),
+            non_finite: std::cell::Cell::new(None),
             s_prev: 0.0,
             end: None,
         };
@@ -1453,6 +1477,11 @@ impl Flows {
             }
         };
         let (s_prev, end) = (step.s_prev, step.end.take());
+        // Relative to the last accepted point, as `gave_up` takes it.
+        let ahead = (step.non_finite.get()).map(|r| NonFiniteRate {
+            s: r.s - s_prev,
+            ..r
+        });
         self.fevals += step.fevals.get();
         match (end, result) {
             (Some(end), _) => end,
@@ -1466,31 +1495,28 @@ impl Flows {
                 })
             }
             (None, Err(IntegrationError::StepSizeUnderflow { x })) => {
-                let (component, name) = fastest_component(
+                let last = (HybridTime::new(t0 + s_prev, j), &self.y_prev[..]);
+                let how = GaveUp::Collapse { h: self.last_h };
+                Err(gave_up(
                     sys,
-                    HybridTime::new(t0 + s_prev, j),
-                    &self.y_prev,
-                    tolerances(solver),
-                );
-                Err(SimError::StepSizeCollapse {
-                    at: HybridTime::new(t0 + x, j),
-                    h: self.last_h,
-                    component,
-                    name,
-                })
+                    last,
+                    HybridTime::new(t0 + x, j),
+                    ahead,
+                    solver,
+                    how,
+                ))
             }
             (None, Err(IntegrationError::StiffnessDetected { x })) => {
-                let (component, name) = fastest_component(
+                let last = (HybridTime::new(t0 + s_prev, j), &self.y_prev[..]);
+                let how = GaveUp::Stiff;
+                Err(gave_up(
                     sys,
-                    HybridTime::new(t0 + s_prev, j),
-                    &self.y_prev,
-                    tolerances(solver),
-                );
-                Err(SimError::Stiff {
-                    at: HybridTime::new(t0 + x, j),
-                    component,
-                    name,
-                })
+                    last,
+                    HybridTime::new(t0 + x, j),
+                    ahead,
+                    solver,
+                    how,
+                ))
             }
         }
     }
@@ -1843,6 +1869,8 @@ struct Stepper<'f, 'o, S: ?Sized> {
     f_is_start: bool,
     /// Evaluations of f (`System::system` takes `&self`).
     fevals: std::cell::Cell<u64>,
+    /// The last non-finite rate an attempt met since the last accepted step.
+    non_finite: std::cell::Cell<Option<NonFiniteRate>>,
     s_prev: f64,
     end: Option<Result<SegmentEnd, SimError>>,
 }
@@ -1856,6 +1884,7 @@ impl<S: HybridSystem + ?Sized> Stepper<'_, '_, S> {
     /// After each accepted step ending at local time `s` with state `y`;
     /// returns `true` to stop the stepper.
     fn on_step(&mut self, s: f64, y: &[f64], dy: &[f64]) -> bool {
+        self.non_finite.set(None);
         if let Some(e) = check_finite(self.sys, HybridTime::new(self.t0 + s, self.j), y, None) {
             return self.finish(Err(e));
         }
@@ -1908,6 +1937,9 @@ impl<S: HybridSystem + ?Sized> System<f64, DVector<f64>> for &mut Stepper<'_, '_
             y.as_slice(),
             dy.as_mut_slice(),
         );
+        if let Some(r) = NonFiniteRate::find(s, dy.as_slice()) {
+            self.non_finite.set(Some(r));
+        }
     }
 
     fn solout(&mut self, s: f64, y: &DVector<f64>, dy: &DVector<f64>) -> bool {

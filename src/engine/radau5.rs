@@ -29,7 +29,7 @@
 
 use nalgebra::{Complex, ComplexField};
 
-use super::dopri5::{Failure, Rhs};
+use super::dopri5::{Failure, NonFiniteRate, Rhs};
 use super::events::{MAX_CONTROL, StepPath, bernstein_points};
 use super::implicit::{Jac, Jacobian, LinearAlgebra, NewtonLu, initial_step, newton_tol};
 
@@ -157,6 +157,9 @@ pub(crate) struct Radau5 {
     q_valid: bool,
     /// Evaluations of f and of the Jacobian, LU factorization pairs.
     pub fevals: u64,
+    /// The last non-finite rate met by a rejected attempt since the last
+    /// accepted step.
+    pub non_finite: Option<NonFiniteRate>,
     pub factorizations: u64,
 }
 
@@ -190,6 +193,7 @@ impl Radau5 {
             h_old: 0.0,
             q_valid: false,
             fevals: 0,
+            non_finite: None,
             factorizations: 0,
         }
     }
@@ -299,6 +303,10 @@ impl Radau5 {
             }
             self.fevals += 3;
             if self.fs.iter().flatten().any(|v| !v.is_finite()) {
+                // The stages in time order (C ascending).
+                self.non_finite = (0..3)
+                    .find_map(|st| NonFiniteRate::find(s + C[st] * h, &self.fs[st]))
+                    .or(self.non_finite);
                 return (false, it + 1, rate);
             }
             let [f1, f2, f3] = &self.fs;
@@ -486,6 +494,7 @@ impl Radau5 {
             } else {
                 self.jac.fresh = false;
             }
+            self.non_finite = None;
             return Ok(h);
         }
     }

@@ -4,7 +4,7 @@
 //! [`Dopri5`] and the implicit [`Radau5`] and [`Bdf`] for stiff flows.
 
 use super::bdf::{Bdf, BdfPath};
-use super::dopri5::{Dopri5, DopriPath, Failure, Rhs};
+use super::dopri5::{Dopri5, DopriPath, Failure, NonFiniteRate, Rhs};
 use super::flow::DensePath;
 use super::implicit::Jac;
 use super::radau5::{Radau5, RadauPath};
@@ -45,6 +45,10 @@ pub(crate) trait OwnStepper {
 
     /// Evaluations of f so far.
     fn fevals(&self) -> u64;
+
+    /// The last non-finite value of the flow a rejected attempt met since
+    /// the last accepted step (what a following step-size collapse is).
+    fn non_finite(&self) -> Option<NonFiniteRate>;
 
     /// `Solver::Auto`'s test after an accepted step of an implicit method:
     /// `Some(true)` if the flow is no longer stiff there; `None` if not
@@ -92,6 +96,10 @@ impl OwnStepper for Dopri5 {
     fn fevals(&self) -> u64 {
         self.fevals
     }
+
+    fn non_finite(&self) -> Option<NonFiniteRate> {
+        self.non_finite
+    }
 }
 
 impl OwnStepper for Radau5 {
@@ -130,6 +138,10 @@ impl OwnStepper for Radau5 {
 
     fn fevals(&self) -> u64 {
         self.fevals
+    }
+
+    fn non_finite(&self) -> Option<NonFiniteRate> {
+        self.non_finite
     }
 
     fn nonstiff(&mut self, jac: &mut Jac<'_>, fresh_only: bool) -> Option<bool> {
@@ -173,5 +185,9 @@ impl OwnStepper for Bdf {
 
     fn fevals(&self) -> u64 {
         self.fevals
+    }
+
+    fn non_finite(&self) -> Option<NonFiniteRate> {
+        self.non_finite
     }
 }

@@ -977,6 +977,12 @@ impl CompiledModel {
                  its `sim` block (or `--J 100`); to make it jump at one instant without `J`, \
                  `zeno_rate = inf` with a budget `max_total_jumps = N` (or `--zeno-rate inf \
                  --max-total-jumps N`)",
+            )
+            .note(
+                "a system meant to flow here is instead chattering at one instant: each jump \
+                 lands in a jump set again (guards that meet, such as `x <= 0` and `x >= 0`, or \
+                 a reset that does not leave its own guard); check the guards and resets of the \
+                 rules that fire at this t",
             );
             return Some(match self.rule_span(*rule) {
                 Some(span) => d.primary(span, "this rule").locate(&self.imports),

@@ -90,6 +90,36 @@ fn the_jump_horizon_flag_takes_what_the_sim_block_takes() {
     );
 }
 
+/// `--T` and `--J` set the horizons, not the model's own `T` and `J`: a sampling period
+/// `param T` became the horizon too (`--T 3` made a model that ticks every 0.5 end with no
+/// tick), and a `--set` of the state `h` stays the state's when `hybsim test` replays it.
+#[test]
+fn horizon_flags_leave_parameters_named_t_and_j() {
+    let dir = tempfile::tempdir().unwrap();
+    let model = write(
+        dir.path(),
+        "tick.hyb",
+        "model tick\nparam T = 0.5, J = 2\nstate h = 1, n = 0\nflow { h' = -1/J }\n\
+         every T { n+ = n + 1 }\nsim { T = 10 }\n",
+    );
+    let m = model.to_str().unwrap();
+    let out = hybsim(
+        dir.path(),
+        &["run", m, "--no-mcap", "--json", "--T", "3", "--set", "h=0"],
+    );
+    assert_eq!(code(&out), 0, "{}", stderr(&out));
+    let v: Value = serde_json::from_str(&crate::util::stdout(&out)).unwrap();
+    assert_eq!(v["end"]["t"], 3.0);
+    assert_eq!(v["jumps"]["step"], 5, "ticks every 0.5 before t = 3");
+    let out = hybsim(dir.path(), &["run", m, "--no-mcap", "--json", "--J", "3"]);
+    assert_eq!(code(&out), 0, "{}", stderr(&out));
+    let v: Value = serde_json::from_str(&crate::util::stdout(&out)).unwrap();
+    assert_eq!(
+        (v["end"]["t"].as_f64(), v["end"]["j"].as_u64()),
+        (Some(1.5), Some(3))
+    );
+}
+
 /// A `--solver` that cannot integrate the model's white noise is a usage
 /// error naming the flag and the solver to use (exit 2), not a failed run
 /// (it was exit 1 with "ended at (no sample)" and the Rust API's

@@ -72,6 +72,56 @@ fn overrides_change_parameters_and_settings() {
     assert_eq!(m.parameters_json()["lambda"], serde_json::json!(0.5));
 }
 
+/// A `--set` of a name the model declares sets that declaration only, not the `sim` key of
+/// the same name: `param T` (a period), `state h` (a height), `param J` (an inertia) were also
+/// taken as the horizon T, the fixed step h and the horizon J (`--set T=0.25` ended the run at
+/// 0.25; `--set h=0` was refused as a step size). `sim.T` (and `horizon_t`) name the setting;
+/// of several overrides of one setting, in any spelling, the last wins (`horizon_t` beside a
+/// `sim { T = … }` was "declared twice").
+#[test]
+fn overrides_of_names_the_model_declares_leave_the_settings_of_that_name() {
+    let text = "model clash\nparam T = 0.5, J = 2\nstate h = 1, n = 0\n\
+                flow { h' = -1/J }\nevery T { n+ = n + 1 }\nsim { T = 10 }\n";
+    let src = SourceFile::new("clash.hyb", text);
+    let compile = |set: &[&str]| {
+        let ov: Vec<Override> = set.iter().map(|s| s.parse().unwrap()).collect();
+        lang::compile(&src, &ov)
+            .unwrap_or_else(|d| panic!("{}", hybsim::diagnostics::render(&d, &src, false)))
+    };
+    let m = compile(&["T=0.25", "J=4", "h=0"]);
+    let s = m.settings();
+    assert_eq!(
+        (s.horizon_t, s.horizon_j),
+        (10.0, u64::MAX),
+        "the settings kept"
+    );
+    assert_eq!(m.parameters_json()["T"], serde_json::json!(0.25));
+    assert_eq!(m.parameters_json()["J"], serde_json::json!(4.0));
+    let arc = run(&m);
+    assert_eq!(arc.jumps().len(), 39, "every 0.25 up to t = 10");
+    assert_eq!(arc.sample_at(0).unwrap().x[0], 0.0, "h(0) = 0");
+    // The settings by their explicit names; the last of several spellings wins.
+    let m = compile(&["sim.T=3", "T=0.25"]);
+    assert_eq!(m.settings().horizon_t, 3.0);
+    assert_eq!(run(&m).jumps().len(), 11);
+    for set in [
+        &["horizon_t=2"][..],
+        &["sim.T=5", "horizon_t=2"],
+        &["horizon_t=5", "sim.T=2"],
+    ] {
+        assert_eq!(compile(set).settings().horizon_t, 2.0, "{set:?}");
+    }
+    // A model without such a declaration: `T` is the setting, as before.
+    let ball = load("bouncing_ball.hyb", &["T=1.5", "horizon_t=2"]);
+    assert_eq!(ball.settings().horizon_t, 2.0);
+    // An unknown `sim.` key is an unknown override.
+    let ov: Vec<Override> = vec!["sim.TT=1".parse().unwrap()];
+    let Err(d) = lang::compile(&src, &ov) else {
+        panic!("`sim.TT` accepted")
+    };
+    assert!(d.iter().any(|d| d.message.contains("sim.TT")), "{d:?}");
+}
+
 #[test]
 fn control_functions_compute_parameters() {
     let src = SourceFile::new(

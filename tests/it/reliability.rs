@@ -732,7 +732,7 @@ fn sizes_over_their_limits_are_refused_before_allocating() {
         (
             vec!["run", "fam.hyb", "--dt-out", "1e-300", "-q", "-o", "x.mcap"],
             "output grid points",
-            "--set dt_out:1:8".into(),
+            "--set sim.dt_out:1:12".into(),
         ),
         (
             vec![
@@ -745,14 +745,14 @@ fn sizes_over_their_limits_are_refused_before_allocating() {
                 "x.mcap",
             ],
             "integrator steps forced by max_step",
-            "--set max_step:1:10".into(),
+            "--set sim.max_step:1:14".into(),
         ),
         (
             vec![
                 "run", "fam.hyb", "--T", "1e300", "--dt-out", "1", "-q", "-o", "x.mcap",
             ],
             "output grid points",
-            "--set dt_out:1:8".into(),
+            "--set sim.dt_out:1:12".into(),
         ),
     ];
     for (args, says, at) in &cases {
@@ -1037,6 +1037,31 @@ fn a_discrete_model_without_j_is_told_to_set_j() {
     assert!(
         String::from_utf8_lossy(&out.stdout).contains("Zeno behaviour suspected")
             && !err.contains("W0606"),
+        "{err}"
+    );
+}
+
+/// A relay without hysteresis (`x <= 0` and `x >= 0` meet) chatters at x = 0 without time
+/// passing: W0606 told it only what a discrete-time system needs (`J`); it also says what
+/// chattering at one instant means for a system meant to flow.
+#[test]
+fn a_relay_chattering_at_one_instant_is_told_to_check_its_guards() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    std::fs::write(
+        d.join("relay.hyb"),
+        "model relay\nstate x = 1, u = 1\nflow { x' = -u }\n\
+         jump down when u == 1 && x <= 0 { u+ = -1 }\n\
+         jump up when u == -1 && x >= 0 { u+ = 1 }\nsim { T = 2 }\n",
+    )
+    .unwrap();
+    let out = hybsim(d, &["run", "relay.hyb", "--no-mcap"]);
+    let err = stderr(&out);
+    assert_eq!(code(&out), 0, "{err}");
+    assert!(
+        err.contains("W0606")
+            && err.contains("chattering at one instant")
+            && err.contains("check the guards and resets"),
         "{err}"
     );
 }

@@ -94,6 +94,45 @@ fn a_non_finite_reset_names_the_jump() {
     );
 }
 
+/// The flow of `z` is NaN past t = 1.2 (`sqrt` of a negative number); `x` and `y` are
+/// declared first, `y` the fastest.
+const NAN_FLOW: &str = "model nanflow
+state x = 0, y = 1, z = 0
+flow {
+    x' = 1
+    y' = -50 * y
+    z' = sqrt(1.2 - t) + 0 * x
+}
+sim { T = 3 }
+";
+
+/// A flow that turns NaN is that error, at the flow equation that produced it, whatever the
+/// adaptive solver: the steps shrank to nothing in front of the NaN and the run was reported
+/// as a step-size collapse blamed on the fastest state (`y`, another line).
+#[test]
+fn a_flow_that_turns_nan_names_its_equation_on_every_adaptive_solver() {
+    for solver in ["dopri5", "radau5", "bdf", "auto"] {
+        let text = NAN_FLOW.replace("T = 3", &format!("T = 3; solver = {solver}"));
+        let (err, d, src) = fail("nanflow.hyb", &text);
+        let SimError::NonFinite {
+            at,
+            component,
+            rule,
+            value,
+            ..
+        } = err
+        else {
+            panic!("{solver}: expected a non-finite flow, got {err:?}")
+        };
+        assert_eq!((component, rule, at.j), (2, None, 0), "{solver}");
+        assert!(value.is_nan(), "{solver}: {value}");
+        assert!((at.t - 1.2).abs() < 1e-6, "{solver}: {at}");
+        assert_eq!(d.code, "E0602", "{solver}");
+        let lc = d.line_col(&src).unwrap();
+        assert_eq!(lc.line, 6, "{solver}: at `z' = …`");
+    }
+}
+
 #[test]
 fn the_cli_prints_file_line_and_caret() {
     let dir = tempfile::tempdir().unwrap();
