@@ -172,7 +172,8 @@ impl Layout {
     /// (`h`, `xhat`), or one member of a family (`xhat[2]`, `e[1,3]`, a
     /// family restricted to that member). `None` if nothing has that name.
     pub fn find(&self, name: &str) -> Option<Entry> {
-        let name = name.trim();
+        let name = instance_index_last(name.trim());
+        let name = name.as_str();
         let (base, label) = match name.strip_suffix(']').and_then(|n| n.split_once('[')) {
             Some((base, label)) => (base.trim(), Some(label.replace(' ', ""))),
             None => (name, None),
@@ -289,6 +290,20 @@ impl Layout {
             }
         }
     }
+}
+
+/// A member of a family of subsystem instances as the language reads it,
+/// `f[2].x`, written as the model names it, `f.x[2]` (instance families index
+/// their states and outputs first by the instance); other names unchanged.
+pub fn instance_index_last(name: &str) -> String {
+    if let Some((head, field)) = name.rsplit_once("].")
+        && let Some((base, label)) = head.split_once('[')
+        && !label.contains(['[', ']'])
+        && !field.contains(['[', ']'])
+    {
+        return format!("{base}.{field}[{label}]");
+    }
+    name.to_string()
 }
 
 /// The name of a top-level entry.

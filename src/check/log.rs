@@ -228,9 +228,10 @@ fn label_of(c: &mut Checker, n: &LogName) -> Option<Option<String>> {
 fn var_name(c: &mut Checker, n: &LogName) -> Option<String> {
     let mut name = n.target.name.name.clone();
     if let Some(suffix) = &n.suffix {
-        // A state or output of a subsystem instance: `ball.h`.
+        // A state or output of a subsystem instance: `ball.h`; of a member of a family of
+        // instances, `f[2].x` (the family `f.x`, indexed first by the instance).
         let dotted = format!("{name}.{}", suffix.name);
-        if !n.target.indices.is_empty() || !c.syms.contains_key(&dotted) {
+        if !c.syms.contains_key(&dotted) {
             c.err(CheckError::Expected {
                 expected: "a state or an output (`x`, `xh[2]`, `ball.h`)".into(),
                 found: format!("`{}`", dotted),

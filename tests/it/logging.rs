@@ -662,3 +662,36 @@ sim { T = 1; J = 1000 }
     .unwrap();
     assert_eq!(logged(&[]).keys().collect::<Vec<_>>(), ["f.fire[2]"]);
 }
+
+/// A member of a family of instances' state is selected as the language
+/// reads it, `f[2].tau`, or as the model names it, `f.tau[2]`, in
+/// `--log-vars` and a `log` block (`f[2].tau` was refused in both).
+#[test]
+fn a_member_of_a_family_of_instances_is_logged_by_either_name() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let model = "model flock
+subsystem Clock(p = 0.1) {
+    state tau = 0
+    flow { tau' = 1 }
+    jump fire when tau >= p { tau+ = 0 }
+}
+for i in 1..3 { f[i] = Clock(p = 0.15 * i) }
+sim { T = 1 }
+";
+    let path = d.join("flock.hyb");
+    std::fs::write(&path, model).unwrap();
+    let path = path.to_str().unwrap();
+    let header = |csv: &str| csv.lines().next().unwrap().to_string();
+    for name in ["f[2].tau", "f.tau[2]"] {
+        let (_, csv) = run(d, path, &["--log-vars", name]);
+        assert_eq!(header(&csv), "t,j,kind,f.tau[2]", "{name}");
+    }
+    std::fs::write(
+        d.join("flock.hyb"),
+        format!("{model}log {{ vars = [f[2].tau] }}\n"),
+    )
+    .unwrap();
+    let (_, csv) = run(d, path, &[]);
+    assert_eq!(header(&csv), "t,j,kind,f.tau[2]");
+}
