@@ -49,6 +49,16 @@ pub enum CheckError {
         /// The closest declared name.
         suggestion: Option<String>,
     },
+    /// An assignment (`y' =`, `y+ =`) to a name that is not declared.
+    #[error("unknown name `{name}`")]
+    UnknownTarget {
+        /// The name.
+        name: String,
+        /// Where.
+        span: Span,
+        /// The closest declared name.
+        suggestion: Option<String>,
+    },
     /// A name declared twice.
     #[error("`{name}` is declared twice")]
     Duplicate {
@@ -392,6 +402,7 @@ impl CheckError {
         use CheckError::*;
         match self {
             UnknownName { span, .. }
+            | UnknownTarget { span, .. }
             | Duplicate { span, .. }
             | UnknownFunction { span, .. }
             | NotAFunction { span, .. }
@@ -431,7 +442,7 @@ impl CheckError {
     pub fn code(&self) -> &'static str {
         use CheckError::*;
         match self {
-            UnknownName { .. } => "E0201",
+            UnknownName { .. } | UnknownTarget { .. } => "E0201",
             Duplicate { .. } => "E0202",
             UnknownFunction { .. } => "E0203",
             UnknownSetting { .. } | UnknownOverride { .. } => "E0204",
@@ -470,6 +481,15 @@ impl CheckError {
         use CheckError::*;
         let d = Diagnostic::error(self.code(), self.to_string());
         match self {
+            UnknownTarget {
+                name,
+                span,
+                suggestion,
+            } => d.primary(*span, "not declared").help(
+                did_you_mean(suggestion).unwrap_or_else(|| {
+                    format!("only states are assigned: declare it first, e.g. `state {name} = 0`")
+                }),
+            ),
             UnknownName {
                 span, suggestion, ..
             }

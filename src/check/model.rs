@@ -1395,7 +1395,7 @@ impl ModelChecker<'_> {
             None => {
                 if !quiet {
                     let suggestion = self.c.suggest_visible(name);
-                    self.c.err(CheckError::UnknownName {
+                    self.c.err(CheckError::UnknownTarget {
                         name: name.clone(),
                         span: t.name.span,
                         suggestion,

@@ -479,7 +479,8 @@ pub fn settings_json(s: &SimSettings) -> Value {
     };
     json!({
         "horizon_t": num(s.horizon_t),
-        "horizon_j": s.horizon_j,
+        // Unbounded (u64::MAX) as "inf", the spelling `--J` takes.
+        "horizon_j": if s.horizon_j == u64::MAX { json!("inf") } else { json!(s.horizon_j) },
         "solver": solver,
         "priority": priority,
         "dt_out": s.dt_out.map(num),
@@ -1213,6 +1214,13 @@ mod tests {
     use hybsim::engine::models::BouncingBall;
 
     use super::*;
+
+    #[test]
+    fn an_unbounded_jump_horizon_is_logged_as_inf() {
+        assert_eq!(settings_json(&SimSettings::default())["horizon_j"], "inf");
+        let bounded = SimSettings::default().horizon_j(5);
+        assert_eq!(settings_json(&bounded)["horizon_j"], 5);
+    }
 
     fn ball_info() -> RunInfo {
         let mut info = RunInfo::new("ball", &["h", "v"], &["impact"]);

@@ -426,6 +426,9 @@ pub fn simulate<S: HybridSystem + ?Sized>(
             }
             Some(_) => {}
         }
+        if horizon_bound {
+            d_end = to_horizon(time, settings.horizon_t);
+        }
         // A failed evaluation in the flow map makes its NaN an integrator
         // failure; the fault says why.
         let end = flows
@@ -506,6 +509,27 @@ fn fault(f: SystemFault) -> SimError {
         site: f.site,
         what: f.what,
     }
+}
+
+/// The flow time from `time` to the horizon `horizon_t`, rounded so that the
+/// clock lands on the horizon exactly (`horizon_t − t` alone can leave it an
+/// ulp short after segments of rounded lengths, and the run would end at
+/// 0.29999999999999993 for T = 0.3).
+fn to_horizon(time: TimeSum, horizon_t: f64) -> f64 {
+    let mut d = horizon_t - time.value();
+    // The clock is monotone in d and moves by at least an ulp of the sum per
+    // ulp of d near the horizon: a step or two settles it.
+    for _ in 0..4 {
+        let at = time.at(d);
+        if at < horizon_t {
+            d = d.next_up();
+        } else if at > horizon_t && d.next_down() > 0.0 && time.at(d.next_down()) >= horizon_t {
+            d = d.next_down();
+        } else {
+            break;
+        }
+    }
+    d
 }
 
 /// Like [`simulate`], collecting the solution in memory.

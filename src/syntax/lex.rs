@@ -62,10 +62,14 @@ pub fn tokens(text: &str) -> Vec<Token<'_>> {
         let src = src.strip_suffix('\r').unwrap_or(src);
         let mut rest = src;
         let mut spaced = false;
+        // The column in characters, counted as the line is consumed (counting
+        // from the line's start at each token made long lines quadratic).
+        let mut col = 0;
         while let Some(c) = rest.chars().next() {
             let at = src.len() - rest.len();
             if c.is_whitespace() || c == '\u{feff}' {
                 rest = &rest[c.len_utf8()..];
+                col += 1;
                 spaced = true;
                 continue;
             }
@@ -91,9 +95,10 @@ pub fn tokens(text: &str) -> Vec<Token<'_>> {
                 text: &rest[..len],
                 offset: offset0 + at,
                 line,
-                col: src[..at].chars().count(),
+                col,
                 spaced,
             });
+            col += rest[..len].chars().count();
             rest = &rest[len..];
             spaced = false;
         }

@@ -177,6 +177,13 @@ const CASES: &[Case] = &[
         "unknown name `zzz`",
     ),
     case(
+        "flow of an undeclared state",
+        "model m\nstate x = 1\nflow { x' = 1; y' = 2 }\n",
+        "E0201",
+        "3:16",
+        "unknown name `y`",
+    ),
+    case(
         "parameter used before its declaration",
         "model m\nparam a = b + 1\nparam b = 2\n",
         "E0201",
@@ -525,6 +532,10 @@ const RENDERED: &[(&str, &str)] = &[
     (
         "unknown name with a suggestion",
         "error[E0201]: unknown name `gravty`\n  ┌─ m.hyb:4:22\n  │\n4 │ flow { h' = v; v' = -gravty }\n  │                      ^^^^^^ not found\n  │\n  = help: did you mean `gravity`?\n\n",
+    ),
+    (
+        "flow of an undeclared state",
+        "error[E0201]: unknown name `y`\n  ┌─ m.hyb:3:16\n  │\n3 │ flow { x' = 1; y' = 2 }\n  │                ^ not declared\n  │\n  = help: only states are assigned: declare it first, e.g. `state y = 0`\n\n",
     ),
     (
         "matrix times vector of the wrong length",

@@ -1158,3 +1158,27 @@ fn check_arc_refuses_time_running_backwards() {
     let err = check_arc(&m, &arc, &settings).expect_err("t decreases");
     assert!(err.to_string().contains("runs backwards"), "{err}");
 }
+
+/// A run that reaches its horizon after jumps ends exactly at T, not an ulp
+/// short of it (the last segment's length `T − t` is rounded so that the
+/// clock lands on T): the ball below ended at t = 0.29999999999999993 for
+/// T = 0.3, on each flow path.
+#[test]
+fn a_run_ends_exactly_at_its_horizon_after_jumps() {
+    let src = "model m\nstate y = 0, v = -1\nflow { y' = v; v' = -9.81 } in y >= 0\n\
+               jump bounce when y <= 0 && v < 0 { v+ = -0.8 * v }\nsim { T = 0.3 }\n";
+    let m = compile(src);
+    // Below the Zeno time 0.8155 of the impacts.
+    for horizon in [0.3, 0.45, 0.7, 0.8] {
+        for exact in [ExactAffine::Auto, ExactAffine::On, ExactAffine::Off] {
+            let mut settings = m.settings();
+            settings.horizon_t = horizon;
+            settings.exact_affine = exact;
+            let arc = run_with(&m, &settings);
+            assert!(!arc.jumps().is_empty(), "{horizon} {exact:?}: no jump");
+            let end = arc.termination().expect("a termination").at;
+            assert_eq!(end.t, horizon, "{exact:?}: ended at {end:?}");
+            assert_eq!(arc.last().expect("samples").at.t, horizon, "{exact:?}");
+        }
+    }
+}
