@@ -211,6 +211,12 @@ class Model:
     """
 
     def __init__(self, native: "_hybsim.Model"):
+        # `Model("ball.hyb")` is a natural first guess: say what to call.
+        if not isinstance(native, _hybsim.Model):
+            raise TypeError(
+                "hybsim.Model is made by hybsim.load(path_or_source, set=...), "
+                f"not from a {type(native).__name__}: write hybsim.load({native!r})"
+            )
         self._native = native
 
     @property

@@ -129,3 +129,9 @@ sim { T = 2 }
     # The solution up to the failure.
     assert isinstance(err.partial, hybsim.Solution)
     assert len(err.partial) > 0 and err.partial.t[-1] < 1.0 + 1e-3
+
+
+def test_model_from_a_path_says_to_load_it():
+    # A first guess of new users: the class itself, with a path.
+    with pytest.raises(TypeError, match=r"hybsim\.load\('ball\.hyb'\)"):
+        hybsim.Model("ball.hyb")
