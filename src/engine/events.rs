@@ -43,7 +43,7 @@
 use super::HybridSystem;
 use super::clock::TimeSum;
 use super::settings::{Priority, SimSettings};
-use super::system::{AffineAtom, Cmp, GuardKind, SetAtoms, SetRef, TruthTable};
+use super::system::{AffineAtom, Atom, Cmp, GuardKind, SetAtoms, SetRef, TruthTable};
 use crate::arc::{FailedAtom, HybridTime};
 
 /// x(s) on one step `[s0, s1]`.
@@ -674,8 +674,11 @@ pub(crate) struct Watcher {
     /// was found for (`a` NaN: none).
     found: Vec<(f64, f64, i8, f64)>,
     /// Per watched atom: whether it needs localizing in the current round
-    /// of [`Watcher::resolve`] ([`Watcher::needs_localizing`]).
+    /// of [`Watcher::resolve`] ([`Watcher::mark_needs`]).
     need: Vec<bool>,
+    /// Per set: how many of its watched atoms change class between the
+    /// cursor and the checkpoint in the current round ([`Watcher::mark_needs`]).
+    changing: Vec<u32>,
     /// Per watched atom: an earlier one with the same function `g`
     /// ([`Atom::g_id`](super::system::Atom::g_id)).
     twin: Vec<Option<usize>>,
@@ -884,6 +887,7 @@ impl Watcher {
         });
         let flat_watched = (0..sets.len()).all(|i| !sets[i].source || flat_off[i].is_some());
         let n = x0.len();
+        let set_count = sets.len();
         Self {
             sets,
             flow,
@@ -900,6 +904,7 @@ impl Watcher {
             sure_pts: vec![None; watched.len()],
             found: vec![(f64::NAN, f64::NAN, 0, 0.0); watched.len()],
             need: vec![false; watched.len()],
+            changing: vec![0; set_count],
             watched,
             timers,
             twin,
@@ -1572,9 +1577,9 @@ impl Watcher {
         }
         for _ in 0..MAX_CANDIDATES {
             let mut best: Option<(f64, f64, bool)> = None;
+            // Decided once per atom and round (twins read theirs).
+            self.mark_needs();
             for w in 0..self.watched.len() {
-                // Decided once per atom and round (twins read theirs).
-                self.need[w] = self.needs_localizing(w);
                 if !self.need[w] || self.shares_zero(w) {
                     continue;
                 }
@@ -1660,40 +1665,66 @@ impl Watcher {
         self.twin[w].is_some_and(|u| unrelaxed(u) && unrelaxed(w) && self.need[u])
     }
 
-    /// Whether watched atom `w` changed sign class between the cursor and
-    /// the checkpoint in a way that can change its set's value. It cannot
-    /// when the set's other atoms keep their class over the interval and
-    /// the set's value does not depend on `w` there: the ball's apex (`v`
+    /// Whether each watched atom changed sign class between the cursor and
+    /// the checkpoint in a way that can change its set's value, into
+    /// `need`. It cannot when the set's other atoms keep their class over
+    /// the interval and the set's value does not depend on it there
+    /// ([`depends_alone`](Self::depends_alone)): the ball's apex (`v`
     /// crossing 0 while `h > 0` decides C = {h ≥ 0 ∨ v ≥ 0} and
-    /// D = {h ≤ 0 ∧ v < 0}) is then not localized at all.
-    fn needs_localizing(&self, w: usize) -> bool {
-        if self.cls[w] == self.cls_s[w] {
-            return false;
+    /// D = {h ≤ 0 ∧ v < 0}) is then not localized at all. One pass counts
+    /// the changing atoms of each set.
+    fn mark_needs(&mut self) {
+        self.changing.fill(0);
+        for (w, wa) in self.watched.iter().enumerate() {
+            let changes = self.cls[w] != self.cls_s[w];
+            self.need[w] = changes;
+            self.changing[wa.set] += u32::from(changes);
         }
+        for w in 0..self.watched.len() {
+            if self.need[w] && self.changing[self.watched[w].set] == 1 {
+                self.need[w] = self.depends_alone(w);
+            }
+        }
+    }
+
+    /// Whether the value of watched atom `w`'s set depends on `w` with its
+    /// other atoms at their truth at the checkpoint (unchanged since the
+    /// cursor); `true` for a set without atoms.
+    fn depends_alone(&self, w: usize) -> bool {
         let WAtom { set, atom, .. } = self.watched[w];
-        let others_change = self
-            .watched
-            .iter()
-            .enumerate()
-            .any(|(u, wu)| u != w && wu.set == set && self.cls[u] != self.cls_s[u]);
         let ws = &self.sets[set];
-        let Some(spec) = ws.spec.as_ref().filter(|_| !others_change) else {
+        let Some(spec) = ws.spec.as_ref() else {
             return true;
         };
         // The set's value with `w` true and false, the other atoms at their
         // (unchanged) truth at the checkpoint.
-        let truth = |k: usize| {
-            if k == atom {
-                None
-            } else if !spec.atoms[k].watched() {
-                Some(ws.start_truth[k])
+        let other = |(a, ((&v, &relax), &start)): (&Atom, ((&f64, &f64), &bool))| {
+            if a.watched() {
+                a.cmp.holds_within(v, relax)
             } else {
-                Some(spec.atoms[k].cmp.holds_within(ws.vs[k], ws.relax[k]))
+                start
             }
+        };
+        let truth = |k: usize| {
+            (k != atom).then(|| {
+                other((
+                    &spec.atoms[k],
+                    ((&ws.vs[k], &ws.relax[k]), &ws.start_truth[k]),
+                ))
+            })
         };
         match ws.table {
             Some(t) => {
-                let m = TruthTable::mask(spec.atoms.len(), |k| truth(k).unwrap_or(false));
+                // The truth table's index with `w` false, in one pass over
+                // the atoms (a table covers at most `MAX_ATOMS` of them).
+                let atoms = spec
+                    .atoms
+                    .iter()
+                    .zip(ws.vs.iter().zip(&ws.relax).zip(&ws.start_truth));
+                let mut m = 0u32;
+                for (k, entry) in atoms.enumerate().take(TruthTable::MAX_ATOMS) {
+                    m |= u32::from(k != atom && other(entry)) << k;
+                }
                 t.value(m | 1 << atom) != t.value(m)
             }
             None => {
