@@ -383,6 +383,13 @@ const CASES: &[Case] = &[
         "invalid `T`: -1 is out of range: the horizon T is a positive finite time",
     ),
     case(
+        "if-expression as a jump condition",
+        "model m\nstate x = 0\nflow { x' = 1 }\njump r when if x > 0 then 1 else 2   { x+ = 0 }\n",
+        "E0304",
+        "4:13",
+        "expected a condition such as `h >= 0`, found a number",
+    ),
+    case(
         "empty uniform range",
         "model m\nstate x = 0\njump r when x <= 0 { x+ = uniform(1, 0) }\n",
         "E0304",
@@ -552,6 +559,11 @@ const RENDERED: &[(&str, &str)] = &[
     (
         "reset twice in one rule",
         "error[E0502]: `x` is reset twice in rule `r`\n  ┌─ m.hyb:3:38\n  │\n3 │ jump r when x >= 1 { x+ = 0; y+ = 1; x+ = 2 }\n  │                      -               ^ reset again here\n  │                      │                \n  │                      first reset here\n  │\n  = help: keep one reset per state in each rule\n\n",
+    ),
+    (
+        // The caret ends with the else branch, not at the spaces after it.
+        "if-expression as a jump condition",
+        "error[E0304]: expected a condition such as `h >= 0`, found a number\n  ┌─ m.hyb:4:13\n  │\n4 │ jump r when if x > 0 then 1 else 2   { x+ = 0 }\n  │             ^^^^^^^^^^^^^^^^^^^^^^ expected a condition such as `h >= 0`\n\n",
     ),
     (
         "family member out of range",
