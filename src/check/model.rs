@@ -57,6 +57,9 @@ pub struct CheckedRule {
     pub timer: Option<(usize, f64)>,
     /// Reset components and their new values (over pre-jump values).
     pub resets: Vec<(usize, NodeId)>,
+    /// The assignment (`x+ = …`) of each of `resets` (an `every` timer's: the rule's head), for
+    /// run-time errors of the value it computes.
+    pub reset_spans: Vec<Span>,
     /// The `together` block the rule belongs to (numbered in source
     /// order, one per block instance), if any.
     pub group: Option<usize>,
@@ -1585,6 +1588,7 @@ impl ModelChecker<'_> {
         self.rule_names.insert(name.clone(), span);
         let mut assigned: HashMap<usize, Span> = HashMap::default();
         let mut out: Vec<(usize, NodeId)> = Vec::new();
+        let mut spans: Vec<Span> = Vec::new();
         let (guard, timer) = match trigger {
             Trigger::When(e) => match self.condition(e) {
                 Some(g) => (g, None),
@@ -1612,12 +1616,13 @@ impl ModelChecker<'_> {
                 let th = self.c.dag.konst(period);
                 let g = self.c.dag.bin(BinFn::Ge, x, th);
                 out.push((k, zero));
+                spans.push(span);
                 assigned.insert(k, span);
                 (g, Some((k, period)))
             }
         };
         for r in resets {
-            self.reset(&name, r, &mut assigned, &mut out);
+            self.reset(&name, r, &mut assigned, &mut out, &mut spans);
         }
         if let Some(g) = self.group {
             self.check_group_resets(g, &name, &out, &assigned);
@@ -1627,6 +1632,7 @@ impl ModelChecker<'_> {
             guard,
             timer,
             resets: out,
+            reset_spans: spans,
             group: self.group,
             part: self.part,
             span,
@@ -1674,11 +1680,12 @@ impl ModelChecker<'_> {
         r: &ResetStmt,
         assigned: &mut HashMap<usize, Span>,
         out: &mut Vec<(usize, NodeId)>,
+        spans: &mut Vec<Span>,
     ) {
         match r {
             ResetStmt::For(b, body) => self.c_for(b, &mut |this| {
                 for r in body {
-                    this.reset(rule, r, assigned, out);
+                    this.reset(rule, r, assigned, out, spans);
                 }
             }),
             ResetStmt::Eq(d) => {
@@ -1720,6 +1727,7 @@ impl ModelChecker<'_> {
                     }
                     assigned.insert(k, d.target.span);
                     out.push((k, n));
+                    spans.push(Span::new(d.target.span.start, d.value.span.end));
                 }
             }
         }

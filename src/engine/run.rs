@@ -352,7 +352,7 @@ pub fn simulate<S: HybridSystem + ?Sized>(
                         if let Some(f) = sys.take_fault() {
                             return Err(fault(f));
                         }
-                        if let Some(e) = check_jump_finite(sys, post, &x_rule, r) {
+                        if let Some(e) = check_jump_finite(sys, at, &x_rule, r) {
                             return Err(e);
                         }
                         for &k in &rules[r].writes {
@@ -366,7 +366,7 @@ pub fn simulate<S: HybridSystem + ?Sized>(
                     if let Some(f) = sys.take_fault() {
                         return Err(fault(f));
                     }
-                    if let Some(e) = check_jump_finite(sys, post, &x_plus, rule) {
+                    if let Some(e) = check_jump_finite(sys, at, &x_plus, rule) {
                         return Err(e);
                     }
                 }
