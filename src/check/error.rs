@@ -364,13 +364,18 @@ pub enum CheckError {
         /// The equation.
         span: Span,
     },
-    /// An error inside a `--set name=value` override.
-    #[error("in override `{name}={value}`: {message}")]
+    /// An error inside a `--set name=value` override (or a flag that is one, `--T 0`).
+    #[error("in {}: {message}", match .flag {
+        Some(flag) => format!("`{flag}`"),
+        None => format!("override `{name}={value}`"),
+    })]
     Override {
         /// The overridden name.
         name: String,
         /// The value text.
         value: String,
+        /// The command-line flag it stands for, as typed (see [`super::Override::flag`]).
+        flag: Option<String>,
         /// The underlying message.
         message: String,
         /// Where in the value (a byte range of `value`), when known.
@@ -630,6 +635,21 @@ impl CheckError {
             RecursiveSubsystem { span, .. } => d
                 .primary(*span, "this instance closes the chain")
                 .help("a subsystem cannot contain an instance of itself"),
+            Override {
+                flag: Some(flag),
+                advice,
+                ..
+            } => {
+                // The value as typed: the flag's words after its name (`0` of `--T 0`).
+                let (word, typed) = flag.split_once(' ').unwrap_or((flag.as_str(), ""));
+                let start = flag.len() - typed.len();
+                d.primary(Span::new(start, flag.len()), "here")
+                    .help(advice.as_deref().map_or_else(
+                        || format!("fix the value given with {word}"),
+                        str::to_string,
+                    ))
+                    .in_flag(word, flag)
+            }
             Override {
                 name,
                 value,

@@ -24,6 +24,20 @@ pub struct Override {
     pub value: String,
     /// The parsed value.
     pub expr: Expr,
+    /// The command-line flag it stands for, as typed (`--T 0` for `sim.T=0e0`), which
+    /// diagnostics show instead of `name=value`; `None` for a `--set`.
+    pub flag: Option<String>,
+}
+
+impl Override {
+    /// This override as the command-line flag `flag` the user typed (`--T 0`).
+    #[must_use]
+    pub fn from_flag(self, flag: impl Into<String>) -> Self {
+        Self {
+            flag: Some(flag.into()),
+            ..self
+        }
+    }
 }
 
 /// A state field: a named scalar, vector or matrix in the flat state.
@@ -535,6 +549,7 @@ impl ModelChecker<'_> {
             self.c.err(CheckError::Override {
                 name: o.name.clone(),
                 value: o.value.clone(),
+                flag: o.flag.clone(),
                 message: err.to_string(),
                 at: (at.end <= o.value.len() && at != Span::default()).then_some(at),
                 advice: err.to_diagnostic().help,

@@ -728,11 +728,12 @@ fn sizes_over_their_limits_are_refused_before_allocating() {
             "scalar states",
             "fam.hyb:4:11".into(),
         ),
-        // The run flags that are `sim` keys are limited like the model's own values.
+        // The run flags that are `sim` keys are limited like the model's own values, the error
+        // in the flag as typed.
         (
             vec!["run", "fam.hyb", "--dt-out", "1e-300", "-q", "-o", "x.mcap"],
-            "output grid points",
-            "--set sim.dt_out:1:12".into(),
+            "in `--dt-out 1e-300`: 1.00e300 output grid points",
+            "--dt-out:1:10".into(),
         ),
         (
             vec![
@@ -745,14 +746,14 @@ fn sizes_over_their_limits_are_refused_before_allocating() {
                 "x.mcap",
             ],
             "integrator steps forced by max_step",
-            "--set sim.max_step:1:14".into(),
+            "--max-step:1:12".into(),
         ),
         (
             vec![
                 "run", "fam.hyb", "--T", "1e300", "--dt-out", "1", "-q", "-o", "x.mcap",
             ],
             "output grid points",
-            "--set sim.dt_out:1:12".into(),
+            "--dt-out:1:10".into(),
         ),
     ];
     for (args, says, at) in &cases {
