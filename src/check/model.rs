@@ -365,7 +365,10 @@ pub(crate) fn check_model(
     }
     m.c.lower_signals();
     m.outputs = m.c.take_outputs();
-    let rule_names = RuleNames::new(m.rules.iter().map(|r| r.name.clone()).collect());
+    let rule_names = RuleNames::new(
+        m.rules.iter().map(|r| r.name.clone()).collect(),
+        super::rule_names::declared_families(&model.items),
+    );
     let properties =
         super::property::check_properties(&mut m.c, &model.items, &rule_names, m.init.len());
     let mut collector =
