@@ -656,6 +656,7 @@ impl Checker {
                 Some(match op {
                     UnOp::Neg => self.map(&v, UnFn::Neg),
                     UnOp::Not => {
+                        self.logical_operand(&v, "`!`", a.span)?;
                         let mut r = self.map(&v, UnFn::Not);
                         r.boolean = true;
                         r
@@ -673,7 +674,14 @@ impl Checker {
                     _ => None,
                 };
                 let r = self.under(cond, |this| this.expr(b, ctx));
-                self.binary(*op, l?, r?, e.span)
+                let (l, r) = (l?, r?);
+                if let BinOp::And | BinOp::Or = op {
+                    let sym = format!("`{}`", op.symbol());
+                    let left = self.logical_operand(&l, &sym, a.span);
+                    self.logical_operand(&r, &sym, b.span)?;
+                    left?;
+                }
+                self.binary(*op, l, r, e.span)
             }
             ExprKind::If(c, a, b) => {
                 let cv = self.expr(c, ctx);
@@ -760,6 +768,25 @@ impl Checker {
         }
     }
 
+    /// `Some(())` if `v`, an operand of the logical operator `op` (`&&`, `||`, `!`), is a
+    /// condition (`x >= 0`, `true`, a parameter set to one, …); otherwise the error at `span`:
+    /// a number is not read as true where non-zero.
+    fn logical_operand(&mut self, v: &Val, op: &str, span: Span) -> Option<()> {
+        if v.boolean {
+            return Some(());
+        }
+        self.err(CheckError::Expected {
+            expected: format!("a condition such as `h >= 0` as operand of {op}"),
+            found: if v.is_scalar() {
+                "a number".into()
+            } else {
+                format!("{} of numbers", dims_words(v.dims()))
+            },
+            span,
+        });
+        None
+    }
+
     /// `[a, b; c, d]`: the blocks of each row side by side, the rows stacked. Built once from all
     /// blocks (not by joining pairs, which copied the growing matrix per element: quadratic in the
     /// literal's length).
@@ -824,7 +851,8 @@ impl Checker {
             rows: total_rows,
             cols,
             e,
-            boolean: joined.len() == 1 && joined[0].boolean,
+            // A matrix of conditions (`[x > 0; y > 0]`, `[true, false]`) is one.
+            boolean: !joined.is_empty() && joined.iter().all(|r| r.boolean),
         })
     }
 
@@ -1893,11 +1921,12 @@ fn side_by_side(mut blocks: Vec<Val>, cols: usize) -> Option<Val> {
             e.extend_from_slice(&b.e[r * b.cols..(r + 1) * b.cols]);
         }
     }
+    let boolean = blocks.iter().all(|b| b.boolean);
     Some(Val {
         rows,
         cols,
         e,
-        boolean: false,
+        boolean,
     })
 }
 

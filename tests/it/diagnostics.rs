@@ -411,6 +411,27 @@ const CASES: &[Case] = &[
         "expected a probability in [0, 1] in bernoulli(p), found bernoulli(1.5)",
     ),
     case(
+        "number as an operand of &&",
+        "model m\nstate x = 0\nflow { x' = 1 }\njump r when x > 0 && 1 { x+ = 0 }\n",
+        "E0304",
+        "4:22",
+        "expected a condition such as `h >= 0` as operand of `&&`, found a number",
+    ),
+    case(
+        "vector of numbers as an operand of ||",
+        "model m\nstate x = [0; 0]\nflow { x' = [1; 1] }\njump r when x > 0 || x { x+ = [0; 0] }\n",
+        "E0304",
+        "4:22",
+        "expected a condition such as `h >= 0` as operand of `||`, found a 2×1 vector of numbers",
+    ),
+    case(
+        "number negated with !",
+        "model m\nstate x = 0\nflow { x' = 1 } in !x\n",
+        "E0304",
+        "3:21",
+        "expected a condition such as `h >= 0` as operand of `!`, found a number",
+    ),
+    case(
         "unknown solver",
         "model m\nstate x = 0\nsim { solver = rk5 }\n",
         "E0506",
@@ -517,6 +538,20 @@ fn unknown_names_come_with_the_closest_declared_name() {
         let d = diagnostics(&SourceFile::new("m.hyb", c.src), c.overrides);
         assert_eq!(d[0].help.as_deref(), Some(help), "{name}");
     }
+}
+
+/// Conditions are what `&&`, `||` and `!` take: comparisons, `true`/`false`, parameters and
+/// outputs set to one, members of a matrix of them (a number there is E0304, above).
+#[test]
+fn logical_operators_take_every_kind_of_condition() {
+    let src = SourceFile::new(
+        "m.hyb",
+        "model m\nparam on = true, ok = [true; false], both = [true, false; false, true]\n\
+         state x = 1\noutput inside = x > 0\nflow { x' = -1 } in !(x < -5) || on\n\
+         jump r when (ok[1] && inside) || (both[2, 2] && !(x > 0)) { x+ = 1 }\n",
+    );
+    let d = diagnostics(&src, &[]);
+    assert!(d.is_empty(), "{}", render(&d, &src, false));
 }
 
 /// The whole rendering: file:line:col, the line, the caret and its label,
