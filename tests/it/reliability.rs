@@ -159,6 +159,68 @@ fn sigterm_and_sighup_complete_the_files_like_ctrl_c() {
     }
 }
 
+/// Ctrl-C ends the files as any run ends them: the last CSV row and the last MCAP state are a
+/// `final` sample of the state where the run stopped, at the time the summary names, however
+/// thinned the log (`--log-every`) or wherever the last grid point fell (`--dt-out`); the row
+/// was missing, the last one an earlier flow sample.
+#[test]
+fn ctrl_c_ends_the_csv_and_the_mcap_with_the_state_at_the_stop() {
+    for thinning in [&["--log-every", "1000"][..], &["--dt-out", "0.37"]] {
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::write(
+            dir.path().join("slow.hyb"),
+            "model slow\nstate x = 1\nstate v = 0\nflow { x' = v; v' = -sin(x) }\n",
+        )
+        .unwrap();
+        let child = Command::new(BIN)
+            .args([
+                "run", "slow.hyb", "-q", "--json", "--csv", "slow.csv", "--T", "1e6",
+            ])
+            .args(["--solver", "rk4", "--step", "1e-3"])
+            .args(thinning)
+            .current_dir(dir.path())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap();
+        let start = Instant::now();
+        while temp_files(dir.path()).len() < 2 && start.elapsed() < Duration::from_secs(5) {
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        std::thread::sleep(Duration::from_millis(100));
+        // SAFETY: signalling our own child by its process id.
+        unsafe {
+            libc::kill(child.id() as i32, libc::SIGINT);
+        }
+        let out = child.wait_with_output().unwrap();
+        assert_eq!(out.status.code(), Some(130), "{}", stderr(&out));
+        let summary: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+        assert_eq!(summary["cause"], "interrupted");
+        let end_t = summary["end"]["t"].as_f64().unwrap();
+        let csv = std::fs::read_to_string(dir.path().join("slow.csv")).unwrap();
+        let last: Vec<&str> = csv.lines().last().unwrap().split(',').collect();
+        assert_eq!(last[2], "final", "{thinning:?}: {last:?}");
+        assert_eq!(last[0].parse::<f64>().unwrap(), end_t, "{thinning:?}");
+        let message = summary["message"].as_str().unwrap();
+        assert!(
+            message.contains(&format!("(t = {end_t}, j = 0)")),
+            "{message}"
+        );
+        // The MCAP's last state message is the same sample.
+        let bytes = std::fs::read(dir.path().join("slow.mcap")).unwrap();
+        let mut decoder = hybsim::sinks::mcap_read::MessageDecoder::default();
+        let last_state = mcap::MessageStream::new(&bytes)
+            .unwrap()
+            .map(|m| m.unwrap())
+            .filter(|m| m.channel.topic == "/hybsim/state")
+            .last()
+            .map(|m| decoder.decode(&m).unwrap())
+            .unwrap();
+        assert_eq!(last_state["t"].as_f64().unwrap(), end_t, "{thinning:?}");
+        assert_eq!(last_state["x"].as_f64(), last[3].parse::<f64>().ok());
+    }
+}
+
 #[test]
 fn a_closed_pipe_ends_quietly() {
     let dir = tempfile::tempdir().unwrap();
