@@ -3,7 +3,7 @@
 
 use super::dag::{BinFn, BlockKind, Dist, NodeId, UnFn};
 use super::error::{CheckError, Dims};
-use super::limits::Quantity;
+use super::limits::{Limits, Quantity};
 use super::{Checker, Sym};
 use crate::source::Span;
 use crate::syntax::ast::{BinOp, Binder, Expr, ExprKind, IndexArg, IndexSet, UnOp};
@@ -129,22 +129,36 @@ impl Checker {
     /// anything of that size is allocated.
     pub(crate) fn within_limit(&mut self, q: Quantity, estimate: f64, span: Span) -> bool {
         let limit = self.limits.get(q);
-        if estimate <= limit as f64 {
+        // A limit raised past the memory there is does not let a size through that would abort
+        // the process when allocated (the defaults need a few GB at most).
+        let over_memory = (estimate > Limits::TABLE[q as usize].3 as f64)
+            .then(|| Some((q.bytes(estimate)?, super::limits::memory_ceiling()?)))
+            .flatten()
+            .filter(|&(bytes, available)| bytes > available as f64);
+        if estimate <= limit as f64 && over_memory.is_none() {
             return true;
         }
         // One error per quantity (a family over the limit would repeat it per member).
-        if self
-            .errors
-            .iter()
-            .any(|e| matches!(e, CheckError::Limit { quantity, .. } if *quantity == q))
-        {
+        if self.errors.iter().any(|e| {
+            matches!(e, CheckError::Limit { quantity, .. } | CheckError::Memory { quantity, .. }
+                if *quantity == q)
+        }) {
             return false;
         }
-        self.err(CheckError::Limit {
-            quantity: q,
-            estimate,
-            limit,
-            span,
+        self.err(match over_memory {
+            Some((bytes, available)) if estimate <= limit as f64 => CheckError::Memory {
+                quantity: q,
+                estimate,
+                bytes,
+                available,
+                span,
+            },
+            _ => CheckError::Limit {
+                quantity: q,
+                estimate,
+                limit,
+                span,
+            },
         });
         // Stop here: every later loop and expression fails fast on the spent budget (a family
         // cut short would otherwise give one error per missing member), and `check_model`

@@ -1240,15 +1240,6 @@ impl ModelChecker<'_> {
             });
             return;
         }
-        if self.c.dag.any_reachable(&v.e, |n| {
-            matches!(n, Node::State(_) | Node::Time | Node::Jumps)
-        }) {
-            self.c.err(CheckError::NotConstant {
-                what: format!("the initial value of `{name}`"),
-                span: init_expr.span,
-            });
-            return;
-        }
         // The engine's work and memory (the implicit solver's Jacobian is n × n) grow with the
         // number of scalar states.
         let states = (self.init.len() + v.rows * v.cols) as f64;
@@ -1256,6 +1247,15 @@ impl ModelChecker<'_> {
             .c
             .within_limit(Quantity::States, states, sd.target.span)
         {
+            return;
+        }
+        if self.c.dag.any_reachable(&v.e, |n| {
+            matches!(n, Node::State(_) | Node::Time | Node::Jumps)
+        }) {
+            self.c.err(CheckError::NotConstant {
+                what: format!("the initial value of `{name}`"),
+                span: init_expr.span,
+            });
             return;
         }
         let field_idx = self.c.fields.len();

@@ -1266,3 +1266,49 @@ fn output_errors_name_their_cause_once() {
     }
     assert!(temp_files(d).is_empty());
 }
+
+/// Limits lifted to 1e10 do not let through what cannot be allocated: each of these aborted
+/// ("memory allocation of 24000000000 bytes failed") within the 1 GiB address space; the
+/// checker now compares what a size needs with the memory there is (here the address space)
+/// and refuses it the same way, E0307 at the construct.
+#[test]
+fn sizes_past_the_memory_are_refused_when_the_limits_are_lifted() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let lifted: Vec<String> = ["states", "matrix_elements", "iterations", "ops"]
+        .iter()
+        .map(|q| format!("max_{q}=1e10"))
+        .collect();
+    for (name, text, at) in [
+        (
+            "family",
+            "model m\nparam N = 1e9\nfor i in 1..N {\n    state x[i] = 0\n}\n",
+            "m.hyb:3:5",
+        ),
+        (
+            "sum",
+            "model m\nstate x = sum(i in 1..1e9: i)\n",
+            "m.hyb:2:15",
+        ),
+        (
+            "eye",
+            "model m\nparam A = eye(1e5)\nstate x = 0\n",
+            "m.hyb:2:11",
+        ),
+        ("zeros", "model m\nstate x = zeros(1e7, 1)\n", "m.hyb:2:7"),
+    ] {
+        std::fs::write(d.join("m.hyb"), text).unwrap();
+        let mut args = vec!["check", "m.hyb"];
+        for l in &lifted {
+            args.extend(["--set", l.as_str()]);
+        }
+        let (code, err, took) = measured(d, &args);
+        assert_eq!(code, 2, "{name}: {err}");
+        assert!(
+            err.contains("error[E0307]") && err.contains("more memory than there is"),
+            "{name}: {err}"
+        );
+        assert!(err.contains(at), "{name} not at {at}: {err}");
+        assert!(took < Duration::from_secs(2), "{name} took {took:?} CPU");
+    }
+}
