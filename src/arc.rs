@@ -167,7 +167,8 @@ pub enum TerminationCause {
         /// The state.
         state: Vec<f64>,
     },
-    /// The sink asked to stop (e.g. a file limit or a user interrupt).
+    /// The sink asked to stop (e.g. a file limit or a user interrupt); the
+    /// sinks still get the `Final` sample of the state where the run stopped.
     StoppedBySink,
 }
 

@@ -127,13 +127,25 @@ impl Diagnostic {
     /// around the primary label, its file named with the window's columns
     /// (`--set x (columns 1961–2081 of 40002)`), so that a 100 kB value
     /// does not flood the terminal.
-    pub fn in_set_argument(mut self, name: &str, text: &str, shift: usize) -> Self {
+    pub fn in_set_argument(self, name: &str, text: &str, shift: usize) -> Self {
         // Named after the override, so that two overrides are two files when rendered.
-        let mut file = if name.is_empty() {
+        let file = if name.is_empty() {
             "--set".to_string()
         } else {
             format!("--set {name}")
         };
+        self.in_argument(file, text, shift)
+    }
+
+    /// Points the labels into the command-line flag `text` as typed (`--T 0`), named `flag`
+    /// (`--T`): `spans` are byte ranges of `text`.
+    pub fn in_flag(self, flag: &str, text: &str) -> Self {
+        self.in_argument(flag.to_string(), text, 0)
+    }
+
+    /// Points the labels into the command-line argument `text`, shown as the file `file`
+    /// (see [`in_set_argument`](Self::in_set_argument)).
+    fn in_argument(mut self, mut file: String, text: &str, shift: usize) -> Self {
         let mut shown = text.to_string();
         // (start, end, bytes of the leading ellipsis) of the part shown.
         let mut window = None;

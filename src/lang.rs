@@ -60,7 +60,12 @@ impl FromStr for Override {
             .help("the value must be an expression such as 2.5, -1e-3 or [1, 2; 3, 4]")
             .in_override(&name, &value)
         })?;
-        Ok(Override { name, value, expr })
+        Ok(Override {
+            name,
+            value,
+            expr,
+            flag: None,
+        })
     }
 }
 

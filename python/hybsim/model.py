@@ -246,7 +246,9 @@ class Model:
 
     @property
     def state_names(self) -> List[str]:
-        """One name per scalar state component (``h``, ``x[2]``, ``P[1,2]``)."""
+        """One name per scalar state component (``h``, ``x[2]``, ``P[1,2]``)
+        the model declares, as ``Solution.names``: not the timers the language
+        adds for ``every`` and held ``noise``."""
         return self._native.state_names
 
     @property

@@ -160,7 +160,9 @@ class Solution:
     j : ndarray (n,) of int64
         Jump count of each sample.
     x : ndarray (n, d)
-        States, one column per scalar component, named by ``names``.
+        States, one column per scalar component, named by ``names``: the
+        states the model declares, in the order of ``hybsim run --csv``
+        (not the timers the language adds for ``every`` and held ``noise``).
     y : ndarray (n, m)
         Outputs (the model's ``output`` declarations), named by
         ``output_names``.
@@ -191,8 +193,7 @@ class Solution:
         self.names: List[str] = list(data["names"])
         self.output_names: List[str] = list(data["output_names"])
         self.rule_names: List[str] = list(data["rule_names"])
-        # Indices into `names` / `output_names` of the CSV's columns, in its order.
-        self._state_columns: List[int] = list(data.get("state_columns", range(len(self.names))))
+        # Indices into `output_names` of the CSV's columns, in its order (`x` is in that order).
         self._output_columns: List[int] = list(
             data.get("output_columns", range(len(self.output_names)))
         )
@@ -292,8 +293,8 @@ class Solution:
 
     def _table(self) -> Dict[str, Any]:
         cols: Dict[str, Any] = {"t": self.t, "j": self.j, "kind": self.kind}
-        for k in self._state_columns:
-            cols[self.names[k]] = self.x[:, k]
+        for k, n in enumerate(self.names):
+            cols[n] = self.x[:, k]
         for k in self._output_columns:
             n = self.output_names[k]
             if n not in cols:
@@ -334,7 +335,6 @@ class Solution:
                 "outputs": self._output_map,
                 "names": self.names,
                 "output_names": self.output_names,
-                "state_columns": self._state_columns,
                 "output_columns": self._output_columns,
                 "rule_names": self.rule_names,
                 "parameters": self.parameters,
@@ -458,7 +458,6 @@ class Solution:
                 "outputs": self._output_map,
                 "names": self.names,
                 "output_names": self.output_names,
-                "state_columns": self._state_columns,
                 "output_columns": self._output_columns,
                 "rule_names": self.rule_names,
                 "parameters": self.parameters,

@@ -12,12 +12,12 @@ use hybsim::props::{
 };
 use hybsim::source::SourceFile;
 use numpy::{PyArray1, PyReadonlyArray1, PyReadonlyArray2};
-use pyo3::exceptions::PyValueError;
+use pyo3::exceptions::{PyMemoryError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList};
 
 use crate::convert::{columns, diagnostics_error, json, matrix};
-use crate::record::Recorder;
+use crate::record::{Recorder, user_states};
 use crate::{ModelError, SimulationError, settings};
 
 /// A compiled `.hyb` model (see `hybsim.load`).
@@ -104,30 +104,29 @@ fn solution_dict<'py>(
     rec: Recorder,
 ) -> PyResult<Bound<'py, PyDict>> {
     let n = rec.len();
-    let dim = rec.dim;
+    let width = rec.columns.len();
     let out = PyDict::new(py);
     out.set_item("model", model.name())?;
     out.set_item("seed", seed)?;
     out.set_item("t", PyArray1::from_vec(py, rec.t))?;
     out.set_item("j", PyArray1::from_vec(py, rec.j))?;
     out.set_item("kind", PyArray1::from_vec(py, rec.kind))?;
-    out.set_item("x", columns(py, rec.x, n, dim)?)?;
+    // The user's states in the order of `hybsim run --csv` (the recorder kept only those).
+    out.set_item("x", columns(py, rec.x, n, width)?)?;
+    out.set_item("names", user_states(model).1)?;
     out.set_item(
         "outputs",
         OutputMap {
             model: model.clone(),
+            states: rec.columns,
         },
     )?;
-    out.set_item("names", model.state_names())?;
     out.set_item("output_names", model.output_names())?;
-    // The columns of `hybsim run --csv`, in its order: the declared states (not the timers the
-    // language adds for `every` and `noise`) and the outputs, families grouped as the layouts
-    // group them (`r.x[1]`, `r.x[2]`, `r.q[1]`, … where the state vector interleaves members).
-    let columns = |layout: &hybsim::layout::Layout| -> Vec<usize> {
-        layout.components().into_iter().map(|(k, _)| k).collect()
-    };
-    out.set_item("state_columns", columns(model.state_layout()))?;
-    out.set_item("output_columns", columns(model.output_layout()))?;
+    // The outputs in the order of the CSV: families grouped as the layout groups them.
+    let output_columns: Vec<usize> = (model.output_layout().components().into_iter())
+        .map(|(k, _)| k)
+        .collect();
+    out.set_item("output_columns", output_columns)?;
     out.set_item("rule_names", model.rule_names())?;
     let jumps = PyDict::new(py);
     jumps.set_item("rule", PyArray1::from_vec(py, rec.jump_rule))?;
@@ -158,6 +157,9 @@ fn solution_dict<'py>(
 #[pyclass(frozen, module = "hybsim._hybsim")]
 pub struct OutputMap {
     model: Arc<CompiledModel>,
+    /// The state component of each column of the `x` it is given (a solution's: the user's
+    /// states, no timers; outputs do not read timers, which stay 0).
+    states: Vec<usize>,
 }
 
 #[pymethods]
@@ -188,10 +190,10 @@ impl OutputMap {
                 "outputs need j of shape ({n},) like t"
             )));
         }
-        if t.len() != n || d != self.model.state_dim() {
+        if t.len() != n || d != self.states.len() {
             return Err(PyValueError::new_err(format!(
                 "outputs need t of shape (n,) and x of shape (n, {}); got {} and {:?}",
-                self.model.state_dim(),
+                self.states.len(),
                 t.len(),
                 (n, d)
             )));
@@ -200,11 +202,11 @@ impl OutputMap {
         let model = &self.model;
         let y = py.detach(|| {
             let mut y = vec![0.0; n * m];
-            let mut row = vec![0.0; d];
+            let mut row = vec![0.0; model.state_dim()];
             if m > 0 {
                 for (i, out) in y.chunks_exact_mut(m).enumerate() {
-                    for (r, v) in row.iter_mut().zip(x.row(i)) {
-                        *r = *v;
+                    for (&k, v) in self.states.iter().zip(x.row(i)) {
+                        row[k] = *v;
                     }
                     let jumps = j.as_ref().map_or(0, |j| j[i].max(0) as u64);
                     model.outputs(HybridTime::new(t[i], jumps), &row, out);
@@ -267,10 +269,11 @@ impl Model {
             .collect()
     }
 
-    /// One name per scalar state component (`h`, `x[2]`, `P[1,2]`).
+    /// One name per scalar state component (`h`, `x[2]`, `P[1,2]`) the model declares (not the
+    /// timers the language adds), in the order of `Solution.names`.
     #[getter]
     fn state_names(&self) -> Vec<String> {
-        self.model.state_names()
+        user_states(&self.model).1
     }
 
     /// One name per scalar output component.
@@ -338,7 +341,7 @@ impl Model {
         let settings = settings::apply(model, &sim.cloned().unwrap_or(PyDict::new(py)))?;
         let (result, mut rec, diagnostic) = py.detach(|| {
             let (x0, mut rng) = model.start(seed);
-            let mut rec = Recorder::new(model.state_dim());
+            let mut rec = Recorder::new(user_states(model).0, model.state_dim());
             let result = simulate(model, &x0, &settings, &mut rng, &mut rec);
             // The diagnostic reads where the fault happened: on this thread, now.
             let diagnostic = result
@@ -349,6 +352,16 @@ impl Model {
         });
         if let Some(e) = rec.interrupt.raised.take() {
             return Err(e);
+        }
+        if rec.out_of_memory {
+            return Err(PyMemoryError::new_err(format!(
+                "the solution does not fit in memory: it was stopped after {} samples of {} \
+                 states at t = {}; sample it more sparsely (`dt_out`), shorten the horizon, or \
+                 stream it to files with `hybsim run`",
+                rec.len(),
+                rec.columns.len(),
+                rec.t.last().copied().unwrap_or(0.0)
+            )));
         }
         let solution = solution_dict(py, &shared, seed, rec)?;
         match (result, diagnostic) {

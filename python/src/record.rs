@@ -5,6 +5,7 @@ use std::ops::ControlFlow;
 use std::time::{Duration, Instant};
 
 use hybsim::arc::{ArcSink, HybridTime, SampleKind, SolverSwitch, Termination};
+use hybsim::lang::CompiledModel;
 use pyo3::prelude::*;
 
 /// Names of the sample kinds, indexed by the codes of [`kind_code`] (the
@@ -68,7 +69,10 @@ impl Interrupt {
 
 /// A solution as columns: what `Model.run` turns into numpy arrays.
 pub struct Recorder {
-    pub dim: usize,
+    /// The state components recorded, in order: the user's states (see [`user_states`]).
+    pub columns: Vec<usize>,
+    /// `columns` is every component in state order (no timers): rows are copied whole.
+    whole: bool,
     pub t: Vec<f64>,
     pub j: Vec<i64>,
     pub kind: Vec<u8>,
@@ -86,12 +90,25 @@ pub struct Recorder {
     /// The integrator changes of `solver = auto`, in order.
     pub switches: Vec<SolverSwitch>,
     pub interrupt: Interrupt,
+    /// The samples stopped fitting in memory: the run was stopped there (a failed allocation
+    /// would abort the interpreter).
+    pub out_of_memory: bool,
+}
+
+/// The state components a solution shows and their names, as `hybsim run --csv` writes them:
+/// the model's state layout, which leaves out the timers the language adds for `every` and held
+/// `noise`, and groups the members of instance families.
+pub fn user_states(model: &CompiledModel) -> (Vec<usize>, Vec<String>) {
+    model.state_layout().components().into_iter().unzip()
 }
 
 impl Recorder {
-    pub fn new(dim: usize) -> Self {
+    /// Records the state components `columns` of a system with `dim` of them.
+    pub fn new(columns: Vec<usize>, dim: usize) -> Self {
+        let whole = columns.len() == dim && columns.iter().enumerate().all(|(i, &k)| i == k);
         Self {
-            dim,
+            columns,
+            whole,
             t: Vec::new(),
             j: Vec::new(),
             kind: Vec::new(),
@@ -103,7 +120,16 @@ impl Recorder {
             termination: None,
             switches: Vec::new(),
             interrupt: Interrupt::new(),
+            out_of_memory: false,
         }
+    }
+
+    /// Room for one more sample in every column, or `false` if the memory is not there.
+    fn room(&mut self) -> bool {
+        self.t.try_reserve(1).is_ok()
+            && self.j.try_reserve(1).is_ok()
+            && self.kind.try_reserve(1).is_ok()
+            && self.x.try_reserve(self.columns.len()).is_ok()
     }
 
     /// Number of samples.
@@ -114,24 +140,40 @@ impl Recorder {
 
 impl ArcSink for Recorder {
     fn sample(&mut self, at: HybridTime, x: &[f64], kind: SampleKind) -> ControlFlow<()> {
+        if self.out_of_memory || !self.room() {
+            self.out_of_memory = true;
+            return ControlFlow::Break(());
+        }
         self.t.push(at.t);
         // numpy's default integer; j < 2^63 always.
         self.j.push(at.j as i64);
         self.kind.push(kind_code(kind));
-        self.x.extend_from_slice(x);
+        if self.whole {
+            self.x.extend_from_slice(x);
+        } else {
+            self.x.extend(self.columns.iter().map(|&k| x[k]));
+        }
         self.interrupt.poll()
     }
 
     fn jump(&mut self, at: HybridTime, rule: usize, pre: &[f64], _post: &[f64]) -> ControlFlow<()> {
+        let room = self.jump_rule.try_reserve(1).is_ok()
+            && self.jump_t.try_reserve(1).is_ok()
+            && self.jump_j.try_reserve(1).is_ok()
+            && self.jump_row.try_reserve(1).is_ok();
+        if self.out_of_memory || !room {
+            self.out_of_memory = true;
+            return ControlFlow::Break(());
+        }
         self.jump_rule.push(rule as i64);
         self.jump_t.push(at.t);
         self.jump_j.push(at.j as i64);
         // The pre-jump sample is the last row; the post-jump sample comes next.
         let row = self.t.len().saturating_sub(1);
         debug_assert!(
-            self.x[row * self.dim..]
+            self.x[row * self.columns.len()..]
                 .iter()
-                .zip(pre)
+                .zip(self.columns.iter().map(|&k| pre[k]))
                 .all(|(a, b)| a.to_bits() == b.to_bits())
         );
         self.jump_row.push(row as i64);

@@ -23,10 +23,7 @@ def run_csv(hybsim_bin, model, tmp_path, *flags):
 
 def assert_same_as_csv(sol, header, rows):
     assert header[:3] == ["t", "j", "kind"]
-    # The CSV leaves out the timers the language adds for `every` and held `noise` (`step.timer`,
-    # `v.redraw.timer`); the arrays keep every state component.
-    logged = [n for n in sol.names if not n.endswith(".timer")]
-    assert header[3:] == logged + sol.output_names
+    assert header[3:] == sol.names + sol.output_names
     assert len(rows) == len(sol)
     # float() of Rust's shortest round-trip text is the exact value.
     cols = list(zip(*rows))
@@ -139,6 +136,33 @@ def test_to_pandas_is_the_csv_of_a_model_with_families_and_timers(hybsim_bin, tm
         else:
             expect = np.array([float(v) for v in cols[k]])
             assert df[name].to_numpy(dtype=float).tobytes() == expect.tobytes(), name
+
+
+def test_solutions_show_only_the_declared_states(hybsim_bin, tmp_path):
+    # The timers the language adds for `every` and held `noise` (`step.timer`, `d.redraw.timer`)
+    # are not states of the user's: not in `names`, `x`, the jump table, nor the model's names.
+    model = tmp_path / "rooms.hyb"
+    model.write_text(FAMILY_MODEL)
+    m = hybsim.load(model)
+    sol = m.run()
+    header, _ = run_csv(hybsim_bin, model, tmp_path, "--log-rules", "*")
+    states = header[3 : 3 + len(sol.names)]
+    assert sol.names == states == m.state_names
+    assert not any("timer" in n for n in sol.names)
+    assert sol.x.shape == (len(sol), len(sol.names))
+    np.testing.assert_array_equal(sol["n"], sol.x[:, sol.names.index("n")])
+    jumps = sol.jumps.to_pandas()
+    assert list(jumps.columns) == ["rule", "t", "j"] + [f"pre.{n}" for n in states] + [
+        f"post.{n}" for n in states
+    ]
+    assert sol.jumps.pre.shape == (len(sol.jumps), len(states))
+    # `every 1 { n+ = n + 1 }`: n counts the `step` jumps.
+    steps = jumps[jumps.rule == "step"]
+    np.testing.assert_array_equal(steps["post.n"], steps["pre.n"] + 1)
+    # The outputs are still evaluated from these states.
+    np.testing.assert_array_equal(sol["r.heating[1]"], sol["r.q[1]"])
+    part = sol.restrict_t(1.0, 2.0)
+    assert part.names == sol.names and part.x.shape[1] == len(states)
 
 
 def test_to_pandas_has_the_csv_columns(hybsim_bin, models, tmp_path):

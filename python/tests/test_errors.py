@@ -135,3 +135,31 @@ def test_model_from_a_path_says_to_load_it():
     # A first guess of new users: the class itself, with a path.
     with pytest.raises(TypeError, match=r"hybsim\.load\('ball\.hyb'\)"):
         hybsim.Model("ball.hyb")
+
+
+def test_a_solution_past_the_memory_is_a_memory_error():
+    # With the output grid's limit lifted, a trillion samples cannot be held in memory: the run
+    # stops with MemoryError where a failed allocation aborted the interpreter. In a child
+    # process whose address space is capped, so that the machine's memory is not at stake.
+    import subprocess
+    import sys
+    import textwrap
+
+    code = textwrap.dedent(
+        """
+        import resource
+        import hybsim
+        resource.setrlimit(resource.RLIMIT_AS, (3 << 30, 3 << 30))
+        m = hybsim.load(
+            "model big\\nstate x = zeros(100, 1)\\nflow { x' = -x }\\n"
+            "sim { T = 1e9; dt_out = 1e-3; max_output_points = 1e13 }\\n"
+        )
+        try:
+            m.run()
+        except MemoryError as e:
+            print("MemoryError:", e)
+        """
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert "MemoryError: the solution does not fit in memory" in out.stdout, out.stdout

@@ -831,12 +831,17 @@ impl Dag {
     /// Marks every node reachable from `roots` (inputs included).
     pub fn reachable(&self, roots: &[NodeId]) -> Vec<bool> {
         let mut seen = vec![false; self.nodes.len()];
-        let mut stack: Vec<NodeId> = roots.to_vec();
-        while let Some(id) = stack.pop() {
-            if std::mem::replace(&mut seen[id as usize], true) {
-                continue;
+        // Root by root: a copy of the roots (a billion entries of a huge constant matrix) is
+        // not needed.
+        let mut stack: Vec<NodeId> = Vec::new();
+        for &root in roots {
+            stack.push(root);
+            while let Some(id) = stack.pop() {
+                if std::mem::replace(&mut seen[id as usize], true) {
+                    continue;
+                }
+                self.inputs(id, |i| stack.push(i));
             }
-            self.inputs(id, |i| stack.push(i));
         }
         seen
     }

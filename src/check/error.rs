@@ -32,6 +32,15 @@ fn estimate_words(x: f64) -> String {
     }
 }
 
+/// Bytes in words: `32.0 GB`, `512 MB`.
+fn bytes_words(b: f64) -> String {
+    if b >= 1e9 {
+        format!("{:.1} GB", b / 1e9)
+    } else {
+        format!("{:.0} MB", (b / 1e6).ceil())
+    }
+}
+
 fn did_you_mean(s: &Option<String>) -> Option<String> {
     s.as_ref().map(|s| format!("did you mean `{s}`?"))
 }
@@ -347,6 +356,26 @@ pub enum CheckError {
         /// The construct that asks for it.
         span: Span,
     },
+    /// A size within its (raised) limit that needs more memory than the machine (or the
+    /// process's `ulimit -v`) has, found before allocating it.
+    #[error(
+        "{} {quantity} need about {}, more memory than there is ({})",
+        estimate_words(*estimate),
+        bytes_words(*bytes),
+        bytes_words(*available as f64)
+    )]
+    Memory {
+        /// What is counted.
+        quantity: super::limits::Quantity,
+        /// The estimated size.
+        estimate: f64,
+        /// The bytes it needs at least.
+        bytes: f64,
+        /// The memory there is.
+        available: u64,
+        /// The construct that asks for it.
+        span: Span,
+    },
     /// A flow equation affine in the state with an infinite or NaN coefficient.
     #[error("the flow equation of `{target}` has a coefficient that is not finite (inf or NaN)")]
     NonFiniteFlow {
@@ -364,13 +393,18 @@ pub enum CheckError {
         /// The equation.
         span: Span,
     },
-    /// An error inside a `--set name=value` override.
-    #[error("in override `{name}={value}`: {message}")]
+    /// An error inside a `--set name=value` override (or a flag that is one, `--T 0`).
+    #[error("in {}: {message}", match .flag {
+        Some(flag) => format!("`{flag}`"),
+        None => format!("override `{name}={value}`"),
+    })]
     Override {
         /// The overridden name.
         name: String,
         /// The value text.
         value: String,
+        /// The command-line flag it stands for, as typed (see [`super::Override::flag`]).
+        flag: Option<String>,
         /// The underlying message.
         message: String,
         /// Where in the value (a byte range of `value`), when known.
@@ -391,7 +425,9 @@ impl CheckError {
     /// stopped short, so later errors are its echoes and are dropped.
     pub fn is_size_limit(&self) -> bool {
         match self {
-            CheckError::Limit { .. } | CheckError::TooLarge { .. } => true,
+            CheckError::Limit { .. } | CheckError::TooLarge { .. } | CheckError::Memory { .. } => {
+                true
+            }
             CheckError::Override { size_limit, .. } => *size_limit,
             _ => false,
         }
@@ -428,6 +464,7 @@ impl CheckError {
             | Compute { span, .. }
             | TooLarge { span, .. }
             | Limit { span, .. }
+            | Memory { span, .. }
             | NonFiniteFlow { span, .. }
             | NoiseNotAffine { span, .. } => *span,
             Design(e) => e.span(),
@@ -453,7 +490,7 @@ impl CheckError {
             Expected { .. } => "E0304",
             NotConstant { .. } => "E0305",
             Compute { .. } => "E0306",
-            TooLarge { .. } | Limit { .. } => "E0307",
+            TooLarge { .. } | Limit { .. } | Memory { .. } => "E0307",
             IndexOutOfRange { .. } => "E0401",
             FamilyOutOfRange { .. } => "E0402",
             FamilyIndex { .. } => "E0403",
@@ -569,6 +606,11 @@ impl CheckError {
                     quantity.remedy(),
                     key = quantity.key()
                 )),
+            Memory { span, quantity, .. } => d.primary(*span, "asked for here").help(format!(
+                "use {}: the limit `max_{}` lets it through, the memory does not",
+                quantity.remedy(),
+                quantity.key()
+            )),
             IndexOutOfRange { span, .. } => d.primary(*span, "out of range"),
             FamilyOutOfRange { span, members, .. } => d
                 .primary(*span, "no such member")
@@ -630,6 +672,21 @@ impl CheckError {
             RecursiveSubsystem { span, .. } => d
                 .primary(*span, "this instance closes the chain")
                 .help("a subsystem cannot contain an instance of itself"),
+            Override {
+                flag: Some(flag),
+                advice,
+                ..
+            } => {
+                // The value as typed: the flag's words after its name (`0` of `--T 0`).
+                let (word, typed) = flag.split_once(' ').unwrap_or((flag.as_str(), ""));
+                let start = flag.len() - typed.len();
+                d.primary(Span::new(start, flag.len()), "here")
+                    .help(advice.as_deref().map_or_else(
+                        || format!("fix the value given with {word}"),
+                        str::to_string,
+                    ))
+                    .in_flag(word, flag)
+            }
             Override {
                 name,
                 value,

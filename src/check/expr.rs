@@ -3,7 +3,7 @@
 
 use super::dag::{BinFn, BlockKind, Dist, NodeId, UnFn};
 use super::error::{CheckError, Dims};
-use super::limits::Quantity;
+use super::limits::{Limits, Quantity};
 use super::{Checker, Sym};
 use crate::source::Span;
 use crate::syntax::ast::{BinOp, Binder, Expr, ExprKind, IndexArg, IndexSet, UnOp};
@@ -129,22 +129,36 @@ impl Checker {
     /// anything of that size is allocated.
     pub(crate) fn within_limit(&mut self, q: Quantity, estimate: f64, span: Span) -> bool {
         let limit = self.limits.get(q);
-        if estimate <= limit as f64 {
+        // A limit raised past the memory there is does not let a size through that would abort
+        // the process when allocated (the defaults need a few GB at most).
+        let over_memory = (estimate > Limits::TABLE[q as usize].3 as f64)
+            .then(|| Some((q.bytes(estimate)?, super::limits::memory_ceiling()?)))
+            .flatten()
+            .filter(|&(bytes, available)| bytes > available as f64);
+        if estimate <= limit as f64 && over_memory.is_none() {
             return true;
         }
         // One error per quantity (a family over the limit would repeat it per member).
-        if self
-            .errors
-            .iter()
-            .any(|e| matches!(e, CheckError::Limit { quantity, .. } if *quantity == q))
-        {
+        if self.errors.iter().any(|e| {
+            matches!(e, CheckError::Limit { quantity, .. } | CheckError::Memory { quantity, .. }
+                if *quantity == q)
+        }) {
             return false;
         }
-        self.err(CheckError::Limit {
-            quantity: q,
-            estimate,
-            limit,
-            span,
+        self.err(match over_memory {
+            Some((bytes, available)) if estimate <= limit as f64 => CheckError::Memory {
+                quantity: q,
+                estimate,
+                bytes,
+                available,
+                span,
+            },
+            _ => CheckError::Limit {
+                quantity: q,
+                estimate,
+                limit,
+                span,
+            },
         });
         // Stop here: every later loop and expression fails fast on the spent budget (a family
         // cut short would otherwise give one error per missing member), and `check_model`
@@ -656,6 +670,7 @@ impl Checker {
                 Some(match op {
                     UnOp::Neg => self.map(&v, UnFn::Neg),
                     UnOp::Not => {
+                        self.logical_operand(&v, "`!`", a.span)?;
                         let mut r = self.map(&v, UnFn::Not);
                         r.boolean = true;
                         r
@@ -673,7 +688,14 @@ impl Checker {
                     _ => None,
                 };
                 let r = self.under(cond, |this| this.expr(b, ctx));
-                self.binary(*op, l?, r?, e.span)
+                let (l, r) = (l?, r?);
+                if let BinOp::And | BinOp::Or = op {
+                    let sym = format!("`{}`", op.symbol());
+                    let left = self.logical_operand(&l, &sym, a.span);
+                    self.logical_operand(&r, &sym, b.span)?;
+                    left?;
+                }
+                self.binary(*op, l, r, e.span)
             }
             ExprKind::If(c, a, b) => {
                 let cv = self.expr(c, ctx);
@@ -760,6 +782,25 @@ impl Checker {
         }
     }
 
+    /// `Some(())` if `v`, an operand of the logical operator `op` (`&&`, `||`, `!`), is a
+    /// condition (`x >= 0`, `true`, a parameter set to one, …); otherwise the error at `span`:
+    /// a number is not read as true where non-zero.
+    fn logical_operand(&mut self, v: &Val, op: &str, span: Span) -> Option<()> {
+        if v.boolean {
+            return Some(());
+        }
+        self.err(CheckError::Expected {
+            expected: format!("a condition such as `h >= 0` as operand of {op}"),
+            found: if v.is_scalar() {
+                "a number".into()
+            } else {
+                format!("{} of numbers", dims_words(v.dims()))
+            },
+            span,
+        });
+        None
+    }
+
     /// `[a, b; c, d]`: the blocks of each row side by side, the rows stacked. Built once from all
     /// blocks (not by joining pairs, which copied the growing matrix per element: quadratic in the
     /// literal's length).
@@ -824,7 +865,8 @@ impl Checker {
             rows: total_rows,
             cols,
             e,
-            boolean: joined.len() == 1 && joined[0].boolean,
+            // A matrix of conditions (`[x > 0; y > 0]`, `[true, false]`) is one.
+            boolean: !joined.is_empty() && joined.iter().all(|r| r.boolean),
         })
     }
 
@@ -1893,11 +1935,12 @@ fn side_by_side(mut blocks: Vec<Val>, cols: usize) -> Option<Val> {
             e.extend_from_slice(&b.e[r * b.cols..(r + 1) * b.cols]);
         }
     }
+    let boolean = blocks.iter().all(|b| b.boolean);
     Some(Val {
         rows,
         cols,
         e,
-        boolean: false,
+        boolean,
     })
 }
 

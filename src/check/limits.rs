@@ -45,6 +45,29 @@ impl Quantity {
         Limits::TABLE[self as usize].2
     }
 
+    /// A lower bound of the bytes that `n` of this quantity take once built (the checker's
+    /// nodes and the run's vectors), for the quantities that are held in memory; `None` for the
+    /// budgets of time (`ops`, `step_count`) and what is streamed (`output_points`).
+    pub fn bytes(self, n: f64) -> Option<f64> {
+        match self {
+            // The design's Schur matrix: m² doubles.
+            Quantity::DesignVars => Some(8.0 * n * n),
+            // A dense block: d² doubles.
+            Quantity::LmiSize => Some(8.0 * n * n),
+            // The checker's nodes and the engine's state vectors (state, steps, buffers).
+            Quantity::States => Some(200.0 * n),
+            // A node id per entry, and as much again to walk them.
+            Quantity::Elements => Some(8.0 * n),
+            // A member's index list.
+            Quantity::Iterations => Some(32.0 * n),
+            Quantity::LmiBlocks
+            | Quantity::LmiRows
+            | Quantity::Ops
+            | Quantity::OutputPoints
+            | Quantity::Steps => None,
+        }
+    }
+
     /// What makes it smaller.
     pub fn remedy(self) -> &'static str {
         match self {
@@ -167,6 +190,39 @@ impl Limits {
     }
 }
 
+/// The memory a check may plan for: the machine's physical memory, or the process's
+/// address-space limit (`ulimit -v`) when lower; `None` where neither is known. A size whose
+/// limit was raised past what this holds is refused (E0307) before it is allocated: an
+/// allocation that fails aborts the process, one the system overcommits gets it killed.
+pub(crate) fn memory_ceiling() -> Option<u64> {
+    #[cfg(unix)]
+    {
+        // SAFETY: sysconf and getrlimit read process and system parameters into plain values.
+        let (pages, page) = unsafe {
+            (
+                libc::sysconf(libc::_SC_PHYS_PAGES),
+                libc::sysconf(libc::_SC_PAGESIZE),
+            )
+        };
+        let ram = (pages > 0 && page > 0).then(|| (pages as u64).saturating_mul(page as u64));
+        let mut rl = libc::rlimit {
+            rlim_cur: 0,
+            rlim_max: 0,
+        };
+        // SAFETY: `rl` is a valid rlimit for getrlimit to fill.
+        let ok = unsafe { libc::getrlimit(libc::RLIMIT_AS, &mut rl) } == 0;
+        let address_space = (ok && rl.rlim_cur != libc::RLIM_INFINITY).then_some(rl.rlim_cur);
+        match (ram, address_space) {
+            (Some(a), Some(b)) => Some(a.min(b)),
+            (a, b) => a.or(b),
+        }
+    }
+    #[cfg(not(unix))]
+    {
+        None
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -185,6 +241,10 @@ mod tests {
         for (i, row) in Limits::TABLE.iter().enumerate() {
             assert_eq!(row.0 as usize, i, "TABLE in the order of Quantity");
             assert_eq!(row.0.key(), row.1);
+            // Every default fits a few GB where the size is held in memory.
+            let default = row.0.bytes(row.3 as f64).unwrap_or(0.0);
+            assert!(default <= 4e9, "{}: {default} bytes", row.1);
         }
+        assert!(memory_ceiling().is_some_and(|m| m > 1 << 28));
     }
 }

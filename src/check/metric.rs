@@ -368,7 +368,8 @@ impl Checker {
         }
         let name = key.unwrap_or(base);
         let found = rules.matching(&name);
-        if found.is_empty() {
+        // A family over an empty range (`--set N=0`) is declared: its count is 0.
+        if found.is_empty() && !rules.is_family(&name) {
             let suggestion = self
                 .hints
                 .charge(rules.names().len())

@@ -24,6 +24,20 @@ pub struct Override {
     pub value: String,
     /// The parsed value.
     pub expr: Expr,
+    /// The command-line flag it stands for, as typed (`--T 0` for `sim.T=0e0`), which
+    /// diagnostics show instead of `name=value`; `None` for a `--set`.
+    pub flag: Option<String>,
+}
+
+impl Override {
+    /// This override as the command-line flag `flag` the user typed (`--T 0`).
+    #[must_use]
+    pub fn from_flag(self, flag: impl Into<String>) -> Self {
+        Self {
+            flag: Some(flag.into()),
+            ..self
+        }
+    }
 }
 
 /// A state field: a named scalar, vector or matrix in the flat state.
@@ -57,6 +71,9 @@ pub struct CheckedRule {
     pub timer: Option<(usize, f64)>,
     /// Reset components and their new values (over pre-jump values).
     pub resets: Vec<(usize, NodeId)>,
+    /// The assignment (`x+ = …`) of each of `resets` (an `every` timer's: the rule's head), for
+    /// run-time errors of the value it computes.
+    pub reset_spans: Vec<Span>,
     /// The `together` block the rule belongs to (numbered in source
     /// order, one per block instance), if any.
     pub group: Option<usize>,
@@ -348,7 +365,10 @@ pub(crate) fn check_model(
     }
     m.c.lower_signals();
     m.outputs = m.c.take_outputs();
-    let rule_names = RuleNames::new(m.rules.iter().map(|r| r.name.clone()).collect());
+    let rule_names = RuleNames::new(
+        m.rules.iter().map(|r| r.name.clone()).collect(),
+        super::rule_names::declared_families(&model.items),
+    );
     let properties =
         super::property::check_properties(&mut m.c, &model.items, &rule_names, m.init.len());
     let mut collector =
@@ -532,6 +552,7 @@ impl ModelChecker<'_> {
             self.c.err(CheckError::Override {
                 name: o.name.clone(),
                 value: o.value.clone(),
+                flag: o.flag.clone(),
                 message: err.to_string(),
                 at: (at.end <= o.value.len() && at != Span::default()).then_some(at),
                 advice: err.to_diagnostic().help,
@@ -1219,15 +1240,6 @@ impl ModelChecker<'_> {
             });
             return;
         }
-        if self.c.dag.any_reachable(&v.e, |n| {
-            matches!(n, Node::State(_) | Node::Time | Node::Jumps)
-        }) {
-            self.c.err(CheckError::NotConstant {
-                what: format!("the initial value of `{name}`"),
-                span: init_expr.span,
-            });
-            return;
-        }
         // The engine's work and memory (the implicit solver's Jacobian is n × n) grow with the
         // number of scalar states.
         let states = (self.init.len() + v.rows * v.cols) as f64;
@@ -1235,6 +1247,15 @@ impl ModelChecker<'_> {
             .c
             .within_limit(Quantity::States, states, sd.target.span)
         {
+            return;
+        }
+        if self.c.dag.any_reachable(&v.e, |n| {
+            matches!(n, Node::State(_) | Node::Time | Node::Jumps)
+        }) {
+            self.c.err(CheckError::NotConstant {
+                what: format!("the initial value of `{name}`"),
+                span: init_expr.span,
+            });
             return;
         }
         let field_idx = self.c.fields.len();
@@ -1585,6 +1606,7 @@ impl ModelChecker<'_> {
         self.rule_names.insert(name.clone(), span);
         let mut assigned: HashMap<usize, Span> = HashMap::default();
         let mut out: Vec<(usize, NodeId)> = Vec::new();
+        let mut spans: Vec<Span> = Vec::new();
         let (guard, timer) = match trigger {
             Trigger::When(e) => match self.condition(e) {
                 Some(g) => (g, None),
@@ -1612,12 +1634,13 @@ impl ModelChecker<'_> {
                 let th = self.c.dag.konst(period);
                 let g = self.c.dag.bin(BinFn::Ge, x, th);
                 out.push((k, zero));
+                spans.push(span);
                 assigned.insert(k, span);
                 (g, Some((k, period)))
             }
         };
         for r in resets {
-            self.reset(&name, r, &mut assigned, &mut out);
+            self.reset(&name, r, &mut assigned, &mut out, &mut spans);
         }
         if let Some(g) = self.group {
             self.check_group_resets(g, &name, &out, &assigned);
@@ -1627,6 +1650,7 @@ impl ModelChecker<'_> {
             guard,
             timer,
             resets: out,
+            reset_spans: spans,
             group: self.group,
             part: self.part,
             span,
@@ -1674,11 +1698,12 @@ impl ModelChecker<'_> {
         r: &ResetStmt,
         assigned: &mut HashMap<usize, Span>,
         out: &mut Vec<(usize, NodeId)>,
+        spans: &mut Vec<Span>,
     ) {
         match r {
             ResetStmt::For(b, body) => self.c_for(b, &mut |this| {
                 for r in body {
-                    this.reset(rule, r, assigned, out);
+                    this.reset(rule, r, assigned, out, spans);
                 }
             }),
             ResetStmt::Eq(d) => {
@@ -1720,6 +1745,7 @@ impl ModelChecker<'_> {
                     }
                     assigned.insert(k, d.target.span);
                     out.push((k, n));
+                    spans.push(Span::new(d.target.span.start, d.value.span.end));
                 }
             }
         }

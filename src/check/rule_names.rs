@@ -4,19 +4,25 @@
 
 use std::collections::HashMap;
 
+use crate::syntax::ast::Item;
+
 /// The rules' names in declaration order, indexed by name and by family.
 #[derive(Debug, Clone, Default)]
 pub(crate) struct RuleNames {
     names: Vec<String>,
     index: HashMap<String, usize>,
-    /// Family name (`fire` of `fire[2]`) → its members, in declaration order.
+    /// Family name (`fire` of `fire[2]`) → its members, in declaration order; a family declared
+    /// over an empty range has none.
     families: HashMap<String, Vec<usize>>,
 }
 
 impl RuleNames {
-    pub(crate) fn new(names: Vec<String>) -> Self {
+    /// The rules `names`, and the families the model declares ([`declared_families`]), which
+    /// may have no member.
+    pub(crate) fn new(names: Vec<String>, declared: Vec<String>) -> Self {
         let mut index = HashMap::with_capacity(names.len());
-        let mut families: HashMap<String, Vec<usize>> = HashMap::new();
+        let mut families: HashMap<String, Vec<usize>> =
+            declared.into_iter().map(|f| (f, Vec::new())).collect();
         for (k, name) in names.iter().enumerate() {
             // A name declared twice is an error reported elsewhere; the first counts.
             index.entry(name.clone()).or_insert(k);
@@ -41,6 +47,11 @@ impl RuleNames {
         self.index.get(name).copied()
     }
 
+    /// Whether `name` is a declared family of rules (possibly empty).
+    pub(crate) fn is_family(&self, name: &str) -> bool {
+        self.families.contains_key(name)
+    }
+
     /// The rules `name` stands for: the rule of that name and, for a family
     /// name, every member, in declaration order.
     pub(crate) fn matching(&self, name: &str) -> Vec<usize> {
@@ -56,6 +67,27 @@ impl RuleNames {
     }
 }
 
+/// The families of jump rules `items` (a flat model: instances elaborated) declare, members or
+/// not: `fire` of `for i in 1..N { jump fire[i] … }` and `f.fire` of a family of instances
+/// `f[i]` are families even when N = 0 (so `count(fire)` is 0 rather than an unknown name).
+pub(crate) fn declared_families(items: &[Item]) -> Vec<String> {
+    let mut out = Vec::new();
+    for it in items {
+        match it {
+            Item::Jump(j) => {
+                if let Some(t) = j.name.as_ref().filter(|t| !t.indices.is_empty()) {
+                    out.push(t.name.name.clone());
+                }
+            }
+            Item::For(_, body) | Item::Together(body, _) | Item::Part(_, body) => {
+                out.extend(declared_families(body));
+            }
+            _ => {}
+        }
+    }
+    out
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -66,6 +98,7 @@ mod tests {
             ["fire[1]", "reset", "fire[2]", "fire", "fire[1,2]"]
                 .map(String::from)
                 .to_vec(),
+            vec!["fire".into(), "none".into()],
         );
         assert_eq!(r.get("fire[2]"), Some(2));
         assert_eq!(r.get("fire[3]"), None);
@@ -74,5 +107,8 @@ mod tests {
         assert_eq!(r.matching("reset"), [1]);
         assert!(r.matching("fir").is_empty());
         assert_eq!(r.names().len(), 5);
+        // A family declared over an empty range: known, no member.
+        assert!(r.is_family("none") && r.matching("none").is_empty());
+        assert!(!r.is_family("reset"));
     }
 }

@@ -51,28 +51,29 @@ fn report(diags: &[Diagnostic], src: &SourceFile, format: MessageFormat) {
 
 /// `hybsim check`.
 pub fn execute(args: CheckArgs) -> anyhow::Result<u8> {
-    let (src, overrides) = match super::read_inputs(&args.model, &args.set) {
-        Ok(loaded) => loaded,
-        Err(LoadError::Unreadable(message)) => {
-            match args.message_format {
-                MessageFormat::Human => eprintln!("error: {message}"),
-                MessageFormat::Json => println!(
-                    "{}",
-                    serde_json::json!({
-                        "code": null, "severity": "error", "message": message,
-                        "file": args.model.display().to_string(), "line": null,
-                        "column": null, "end_line": null, "end_column": null,
-                        "labels": [], "notes": [], "help": null,
-                    })
-                ),
+    let (src, overrides) =
+        match super::read_inputs(&args.model, &super::ArgOverride::set(&args.set)) {
+            Ok(loaded) => loaded,
+            Err(LoadError::Unreadable(message)) => {
+                match args.message_format {
+                    MessageFormat::Human => eprintln!("error: {message}"),
+                    MessageFormat::Json => println!(
+                        "{}",
+                        serde_json::json!({
+                            "code": null, "severity": "error", "message": message,
+                            "file": args.model.display().to_string(), "line": null,
+                            "column": null, "end_line": null, "end_column": null,
+                            "labels": [], "notes": [], "help": null,
+                        })
+                    ),
+                }
+                return Ok(EXIT_MODEL_ERROR);
             }
-            return Ok(EXIT_MODEL_ERROR);
-        }
-        Err(LoadError::Overrides(src, problems)) => {
-            report(&problems, &src, args.message_format);
-            return Ok(EXIT_MODEL_ERROR);
-        }
-    };
+            Err(LoadError::Overrides(src, problems)) => {
+                report(&problems, &src, args.message_format);
+                return Ok(EXIT_MODEL_ERROR);
+            }
+        };
     let diags = lang::check_only(&src, &overrides);
     report(&diags, &src, args.message_format);
     let errors = diags

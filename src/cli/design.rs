@@ -55,7 +55,8 @@ pub fn format_results(report: &DesignReport) -> String {
 
 /// `hybsim design`.
 pub fn execute(args: DesignArgs) -> anyhow::Result<u8> {
-    let Some((src, overrides)) = super::load(&args.model, &args.set)? else {
+    let Some((src, overrides)) = super::load(&args.model, &super::ArgOverride::set(&args.set))?
+    else {
         return Ok(EXIT_MODEL_ERROR);
     };
     let reports = match lang::design_only_with(&src, &overrides, &args.sdp.options()) {

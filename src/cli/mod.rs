@@ -230,8 +230,76 @@ impl JitMode {
     fn apply(mode: Option<Self>, overrides: &mut Vec<Override>) {
         if let Some(mode) = mode {
             let word = if mode == JitMode::On { "on" } else { "off" };
-            overrides.push(format!("sim.jit={word}").parse().expect("a valid override"));
+            let o: Override = format!("sim.jit={word}").parse().expect("a valid override");
+            overrides.push(o.from_flag(format!("--jit {word}")));
         }
+    }
+}
+
+/// A number given to a flag that is a `sim` key (`--T 0`): its value, and its text as typed,
+/// which diagnostics show.
+#[derive(Debug, Clone, PartialEq)]
+pub struct NumberArg {
+    /// The number.
+    pub value: f64,
+    /// As typed.
+    pub text: String,
+}
+
+impl std::str::FromStr for NumberArg {
+    type Err = std::num::ParseFloatError;
+
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        Ok(Self {
+            value: s.trim().parse()?,
+            text: s.to_string(),
+        })
+    }
+}
+
+/// An override of the command line: a `--set name=value` as typed, or a flag that is a `sim`
+/// key as the override it stands for (`sim.T=0e0`) with the flag as typed (`--T 0`), which
+/// diagnostics show.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ArgOverride {
+    /// `name=value`.
+    pub text: String,
+    /// The flag as typed, for a flag.
+    pub flag: Option<String>,
+}
+
+impl ArgOverride {
+    /// The `--set` arguments `set`.
+    pub fn set(set: &[String]) -> Vec<Self> {
+        set.iter()
+            .map(|s| Self {
+                text: s.clone(),
+                flag: None,
+            })
+            .collect()
+    }
+
+    /// The flag `--FLAG` (`flag`) that sets the `sim` key `key`, if given: its value `value` in the
+    /// override (all its digits), `typed` as the user wrote it.
+    fn flag(flag: &str, key: &str, value: Option<(String, String)>) -> Option<Self> {
+        value.map(|(value, typed)| Self {
+            text: format!("{key}={value}"),
+            flag: Some(format!("{flag} {typed}")),
+        })
+    }
+
+    /// A number flag (`--T 0`).
+    fn number(flag: &str, key: &str, value: Option<&NumberArg>) -> Option<Self> {
+        Self::flag(
+            flag,
+            key,
+            value.map(|n| (float_override(n.value), n.text.clone())),
+        )
+    }
+
+    /// A whole-number flag (`--zeno-window 3`).
+    fn count(flag: &str, key: &str, value: Option<u64>) -> Option<Self> {
+        Self::flag(flag, key, value.map(|n| (n.to_string(), n.to_string())))
     }
 }
 
@@ -243,11 +311,11 @@ pub struct GuardArgs {
     /// Tolerance on the flow set's atoms when deciding whether a state may
     /// flow (the `sim` key `set_tol`; default 1e-9).
     #[arg(long, value_name = "TOL")]
-    pub set_tol: Option<f64>,
+    pub set_tol: Option<NumberArg>,
     /// Zeno guard: most jumps per unit of t over the window (`inf`
     /// disables it); applies only when J is unbounded (`sim` key `zeno_rate`).
     #[arg(long, value_name = "RATE")]
-    pub zeno_rate: Option<f64>,
+    pub zeno_rate: Option<NumberArg>,
     /// Zeno guard: number of jumps over which the rate is measured (≥ 2).
     #[arg(long, value_name = "N")]
     pub zeno_window: Option<u32>,
@@ -257,29 +325,36 @@ pub struct GuardArgs {
 }
 
 impl GuardArgs {
-    /// `set` followed by the flags as `sim`-key overrides (`name=value`).
-    pub fn with_overrides(&self, set: &[String]) -> Vec<String> {
-        let mut all = set.to_vec();
-        all.extend(
-            self.set_tol
-                .map(|x| format!("sim.set_tol={}", float_override(x))),
-        );
-        all.extend(
-            self.zeno_rate
-                .map(|x| format!("sim.zeno_rate={}", float_override(x))),
-        );
-        all.extend(self.zeno_window.map(|n| format!("sim.zeno_window={n}")));
-        all.extend(
-            self.max_total_jumps
-                .map(|n| format!("sim.max_total_jumps={n}")),
-        );
+    /// `set` followed by the flags as `sim`-key overrides.
+    pub fn with_overrides(&self, set: &[String]) -> Vec<ArgOverride> {
+        let mut all = ArgOverride::set(set);
+        all.extend(ArgOverride::number(
+            "--set-tol",
+            "sim.set_tol",
+            self.set_tol.as_ref(),
+        ));
+        all.extend(ArgOverride::number(
+            "--zeno-rate",
+            "sim.zeno_rate",
+            self.zeno_rate.as_ref(),
+        ));
+        all.extend(ArgOverride::count(
+            "--zeno-window",
+            "sim.zeno_window",
+            self.zeno_window.map(u64::from),
+        ));
+        all.extend(ArgOverride::count(
+            "--max-total-jumps",
+            "sim.max_total_jumps",
+            self.max_total_jumps,
+        ));
         all
     }
 }
 
 /// A flag's float as the value of an override: `{:e}` keeps every digit, `inf` is the
 /// language's spelling of +∞.
-pub(crate) fn float_override(x: f64) -> String {
+fn float_override(x: f64) -> String {
     if x.is_infinite() && x > 0.0 {
         "inf".to_string()
     } else {
@@ -374,7 +449,7 @@ enum LoadError {
 /// Reads the model file and parses the `--set` overrides.
 fn read_inputs(
     path: &std::path::Path,
-    set: &[String],
+    set: &[ArgOverride],
 ) -> Result<(SourceFile, Vec<Override>), LoadError> {
     let src = read_model(path).map_err(|e| {
         LoadError::Unreadable(format!("cannot read model file `{}`: {e}", path.display()))
@@ -382,8 +457,11 @@ fn read_inputs(
     let mut overrides = Vec::new();
     let mut problems = Vec::new();
     for s in set {
-        match s.parse::<Override>() {
-            Ok(o) => overrides.push(o),
+        match s.text.parse::<Override>() {
+            Ok(o) => overrides.push(match &s.flag {
+                Some(flag) => o.from_flag(flag),
+                None => o,
+            }),
             Err(d) => problems.push(d),
         }
     }
@@ -398,7 +476,7 @@ fn read_inputs(
 /// problem and returns `None` if either fails (exit code 2).
 fn load(
     path: &std::path::Path,
-    set: &[String],
+    set: &[ArgOverride],
 ) -> anyhow::Result<Option<(SourceFile, Vec<Override>)>> {
     match read_inputs(path, set) {
         Ok(loaded) => Ok(Some(loaded)),
@@ -455,8 +533,8 @@ mod tests {
         let Command::Run(a) = cli.command else {
             panic!("not run")
         };
-        assert_eq!(a.horizon_t, Some(5.0));
-        assert_eq!(a.horizon_j, Some(30.0));
+        assert_eq!(a.horizon_t.map(|n| n.value), Some(5.0));
+        assert_eq!(a.horizon_j.map(|n| n.value), Some(30.0));
         assert_eq!(a.seed, Some(3));
         assert_eq!(a.set, ["g=9.8", "K=[1, 2]"]);
         assert_eq!(

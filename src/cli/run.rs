@@ -27,8 +27,8 @@ use serde_json::{Value, json};
 
 use super::progress::{Progress, interrupt_flag};
 use super::{
-    EXIT_FAILED, EXIT_INTERRUPTED, EXIT_MODEL_ERROR, EXIT_OK, GuardArgs, JitMode, SdpKind,
-    float_override,
+    ArgOverride, EXIT_FAILED, EXIT_INTERRUPTED, EXIT_MODEL_ERROR, EXIT_OK, GuardArgs, JitMode,
+    NumberArg, SdpKind,
 };
 
 /// Arguments of `hybsim run`.
@@ -45,15 +45,15 @@ pub struct RunArgs {
     pub no_mcap: bool,
     /// Horizon T in ordinary time (overrides the model's `sim` block).
     #[arg(long = "T", value_name = "T")]
-    pub horizon_t: Option<f64>,
+    pub horizon_t: Option<NumberArg>,
     /// Horizon J in jumps (overrides the model's `sim` block): a whole
     /// number (`1e6` too), or `inf` for no bound; checked as the block's `J`.
     #[arg(long = "J", value_name = "J")]
-    pub horizon_j: Option<f64>,
+    pub horizon_j: Option<NumberArg>,
     /// Output grid: flow samples at t = k·DT instead of every integrator step
     /// (overrides the model's `sim` block).
     #[arg(long, value_name = "DT")]
-    pub dt_out: Option<f64>,
+    pub dt_out: Option<NumberArg>,
     /// Integrator for flows (overrides the model's).
     #[arg(long, value_enum)]
     pub solver: Option<SolverKind>,
@@ -69,7 +69,7 @@ pub struct RunArgs {
     pub step: Option<f64>,
     /// Largest integrator step of the adaptive solvers.
     #[arg(long, value_name = "H")]
-    pub max_step: Option<f64>,
+    pub max_step: Option<NumberArg>,
     /// What to do when the state is in both C and D.
     #[arg(long, value_enum)]
     pub priority: Option<PriorityKind>,
@@ -315,13 +315,20 @@ impl RunArgs {
     /// the model declares a name `T` or `J`, and a flag wins over a `--set`; the checker
     /// validates it and applies the resource limits (output points, forced steps) as it does
     /// for the model's own `sim` block.
-    fn overrides(&self) -> Vec<String> {
+    fn overrides(&self) -> Vec<ArgOverride> {
         let mut all = self.guard.with_overrides(&self.set);
-        let float = |key: &str, x: Option<f64>| x.map(|x| format!("{key}={}", float_override(x)));
-        all.extend(float("sim.T", self.horizon_t));
-        all.extend(float("sim.J", self.horizon_j));
-        all.extend(float("sim.dt_out", self.dt_out));
-        all.extend(float("sim.max_step", self.max_step));
+        all.extend(ArgOverride::number("--T", "sim.T", self.horizon_t.as_ref()));
+        all.extend(ArgOverride::number("--J", "sim.J", self.horizon_j.as_ref()));
+        all.extend(ArgOverride::number(
+            "--dt-out",
+            "sim.dt_out",
+            self.dt_out.as_ref(),
+        ));
+        all.extend(ArgOverride::number(
+            "--max-step",
+            "sim.max_step",
+            self.max_step.as_ref(),
+        ));
         all
     }
 }

@@ -79,7 +79,7 @@ pub fn execute(args: SweepArgs) -> anyhow::Result<u8> {
         };
     }
     let model_path = args.model.clone().expect("clap requires the model");
-    let Some((src, fixed)) = super::load(&model_path, &args.set)? else {
+    let Some((src, fixed)) = super::load(&model_path, &super::ArgOverride::set(&args.set))? else {
         return Ok(EXIT_MODEL_ERROR);
     };
     let usage = |e: &dyn std::fmt::Display| {

@@ -42,9 +42,13 @@ pub enum SimError {
         noise_dim: usize,
     },
     /// A state component became NaN or infinite.
-    #[error("state component {component} (`{name}`) became {value} at {at}")]
+    #[error(
+        "state component {component} (`{name}`) became {value} {} {at}",
+        if .rule.is_some() { "in the jump at" } else { "at" }
+    )]
     NonFinite {
-        /// Hybrid time of the first non-finite state seen.
+        /// Hybrid time of the first non-finite state seen; for a jump map's, the jump's (its
+        /// pre-jump point: the run ends there, the post-jump state is not part of it).
         at: HybridTime,
         /// Index of the component.
         component: usize,

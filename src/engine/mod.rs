@@ -157,7 +157,8 @@
 //! is set (interpolated as above); a
 //! `PreJump` sample, the jump, a `PostJump` sample for each jump, and a
 //! `Final` sample (which may repeat the last point). A sink may stop the
-//! run ([`TerminationCause::StoppedBySink`]).
+//! run ([`TerminationCause::StoppedBySink`]); the sinks then still get the
+//! `Final` sample of the state where it stopped.
 //!
 //! # Example: a bouncing ball defined in Rust
 //!

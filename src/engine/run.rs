@@ -241,14 +241,15 @@ pub fn simulate<S: HybridSystem + ?Sized>(
     let mut timer_d = vec![f64::INFINITY; timers.len()];
     let mut inside = vec![false; rules.len()];
 
+    // Every run ends with a final sample of the state where it ended, a run a sink stopped too
+    // (Ctrl-C): the sample that stopped it may lie before that point (a grid or dense point of
+    // the last step) or be thinned out of a log.
     let finish = |out: &mut Output<'_>, at: HybridTime, x: &[f64], cause: TerminationCause| {
         let term = Termination { at, cause };
-        if term.cause != TerminationCause::StoppedBySink {
-            let _ = out.sink.sample(at, x, SampleKind::Final);
-            // The final sample's outputs.
-            if let Some(f) = sys.take_fault() {
-                return Err(fault(f));
-            }
+        let _ = out.sink.sample(at, x, SampleKind::Final);
+        // The final sample's outputs.
+        if let Some(f) = sys.take_fault() {
+            return Err(fault(f));
         }
         out.sink.finish(&term);
         Ok(term)
@@ -352,7 +353,7 @@ pub fn simulate<S: HybridSystem + ?Sized>(
                         if let Some(f) = sys.take_fault() {
                             return Err(fault(f));
                         }
-                        if let Some(e) = check_jump_finite(sys, post, &x_rule, r) {
+                        if let Some(e) = check_jump_finite(sys, at, &x_rule, r) {
                             return Err(e);
                         }
                         for &k in &rules[r].writes {
@@ -366,7 +367,7 @@ pub fn simulate<S: HybridSystem + ?Sized>(
                     if let Some(f) = sys.take_fault() {
                         return Err(fault(f));
                     }
-                    if let Some(e) = check_jump_finite(sys, post, &x_plus, rule) {
+                    if let Some(e) = check_jump_finite(sys, at, &x_plus, rule) {
                         return Err(e);
                     }
                 }

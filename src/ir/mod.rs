@@ -222,6 +222,8 @@ struct RuleCode {
     map: Program,
     /// State component of each output of `map`.
     targets: Vec<usize>,
+    /// The assignment computing each of `targets`.
+    target_spans: Vec<Span>,
     span: Span,
 }
 
@@ -508,6 +510,7 @@ impl CompiledModel {
                 ),
                 map: Program::compile(&m.dag, frame, &values).scatter_to(&writes),
                 targets: writes,
+                target_spans: r.reset_spans.clone(),
                 span: r.span,
             });
         }
@@ -1103,24 +1106,35 @@ impl CompiledModel {
             rule: Some(rule),
             ..
         } = err
-            && let Some(span) = self.rule_span(*rule)
+            && let Some(code) = self.rule_code.get(*rule)
         {
-            // The jump map made it non-finite: point at the rule.
+            // The jump map made it non-finite: point at the assignment that computed it, and at
+            // the rule.
             d.code = "E0602";
             let name = self
                 .state_names()
                 .get(*component)
                 .cloned()
                 .unwrap_or_default();
+            let assignment = (code.targets.iter().position(|k| k == component))
+                .and_then(|i| code.target_spans.get(i).copied());
+            let (span, what) = match assignment {
+                Some(span) => (span, "assignment"),
+                None => (code.span, "jump"),
+            };
             let label = format!(
-                "this jump made `{name}` non-finite at (t, j) = ({}, {})",
+                "this {what} made `{name}` non-finite in the jump at (t, j) = ({}, {})",
                 at.t, at.j
             );
-            return if d.labels.is_empty() {
+            d = if d.labels.is_empty() {
                 d.primary(span, label)
             } else {
                 d.secondary(span, label)
             };
+            if assignment.is_some() {
+                d = d.secondary(code.span, "in this jump");
+            }
+            return d;
         }
         if let SimError::StepSizeCollapse {
             component,

@@ -18,7 +18,7 @@
 //! | channel `/hybsim/outputs` | one message per logged sample: `{t, j, <outputs>}` (if the model has outputs) |
 //! | channel `/hybsim/jumps` | one message per jump: `{t, j, rule, rule_id, index?}`, with `pre, post` (the states) if [`McapOptions::jump_states`] |
 //! | channel `/hybsim/log` | run start and end, and each change of integrator of `solver = auto` (`foxglove.Log`) |
-//! | metadata `hybsim.result` | `termination`, `message`, `status` (`completed`, `ended`, `failed`), `t_end`, `j_end`, `jumps` (per rule), `samples_logged`; with `solver = auto` also `solver_switches` (JSON `[{at: {t, j}, to}]`, the first 1000) and `solver_switches_total` |
+//! | metadata `hybsim.result` | `termination`, `message`, `status` (`completed`, `ended`, `failed`), `t_end`, `j_end`, `jumps` (per rule), `jumps_total`, `samples` (the solution's, before the log's selection: README, "samples"); with `solver = auto` also `solver_switches` (JSON `[{at: {t, j}, to}]`, the first 1000) and `solver_switches_total` |
 //! | metadata `hybsim.metrics` | one entry per `metric` of the model (its value), when it has any ([`McapSink::set_metrics`]) |
 //!
 //! `log_time = publish_time = round((t − t0)·10⁹)` ns, with t0 the time of

@@ -244,6 +244,10 @@ pub struct Panel {
     /// Lines over the hybrid time domain: a panel with any is drawn as 3-D
     /// axes t, j and `y_label` (its 2-D `series` are then not drawn).
     pub series_3d: Vec<Series3>,
+    /// The x axis counts (the jump count j): whole-number tick labels only.
+    pub x_integers: bool,
+    /// The y axis (a 3-D panel's depth axis) counts: whole-number tick labels only.
+    pub y_integers: bool,
 }
 
 impl Panel {
@@ -284,6 +288,17 @@ impl Panel {
         Self { log_y, ..self }
     }
 
+    /// The x axis counts (j): its tick labels are whole numbers (`5`, not `5.0`), and
+    /// ticks between them have none.
+    pub fn x_integers(self, x_integers: bool) -> Self {
+        Self { x_integers, ..self }
+    }
+
+    /// As [`x_integers`](Self::x_integers) for the y axis.
+    pub fn y_integers(self, y_integers: bool) -> Self {
+        Self { y_integers, ..self }
+    }
+
     /// Adds a series.
     pub fn series(mut self, series: Series) -> Self {
         self.series.push(series);
@@ -315,6 +330,17 @@ impl Default for Figure {
             width: 900,
             panel_height: 260,
         }
+    }
+}
+
+/// The tick label of an axis that counts (the jump count j): `5` at a whole number, nothing
+/// between two (plotters places ticks at 2.5 on a short range).
+fn integer_label(v: &f64) -> String {
+    let k = v.round();
+    if (v - k).abs() <= 1e-9 * k.abs().max(1.0) {
+        format!("{k:.0}")
+    } else {
+        String::new()
     }
 }
 
@@ -524,13 +550,17 @@ where
         .y_label_area_size(70)
         .build_cartesian_2d(x_range.0..x_range.1, y_range)
         .map_err(|e| err(&e))?;
-    chart
-        .configure_mesh()
-        .x_desc(panel.x_label.as_str())
+    let mut mesh = chart.configure_mesh();
+    mesh.x_desc(panel.x_label.as_str())
         .y_desc(panel.y_label.as_str())
-        .light_line_style(RGBColor(235, 235, 235))
-        .draw()
-        .map_err(|e| err(&e))?;
+        .light_line_style(RGBColor(235, 235, 235));
+    if panel.x_integers {
+        mesh.x_label_formatter(&integer_label);
+    }
+    if panel.y_integers {
+        mesh.y_label_formatter(&integer_label);
+    }
+    mesh.draw().map_err(|e| err(&e))?;
     for (k, s) in panel.series.iter().take(shown).enumerate() {
         let color = COLORS[k % COLORS.len()];
         let line = color.stroke_width(2);
@@ -601,12 +631,14 @@ fn draw_panel_3d<DB: DrawingBackend>(
         p.scale = 0.8;
         p.into_matrix()
     });
-    chart
-        .configure_axes()
-        .light_grid_style(RGBColor(235, 235, 235))
-        .max_light_lines(4)
-        .draw()
-        .map_err(|e| err(&e))?;
+    let mut axes = chart.configure_axes();
+    axes.light_grid_style(RGBColor(235, 235, 235))
+        .max_light_lines(4);
+    if panel.y_integers {
+        // The depth axis is j.
+        axes.z_formatter(&integer_label);
+    }
+    axes.draw().map_err(|e| err(&e))?;
     let font = ("sans-serif", 14).into_font();
     let mid = |r: (f64, f64)| (r.0 + r.1) / 2.0;
     // Axis names beside the middle of the edges that carry the tick labels.
@@ -1168,6 +1200,7 @@ impl<'a> PlotSink<'a> {
                     Panel::new(format!("{}: hybrid time domain", self.model_name))
                         .x_label("t")
                         .y_label("j")
+                        .y_integers(true)
                         .series(Series::hybrid_points("(t, j)", &points)),
                 )
             }
@@ -1188,7 +1221,9 @@ impl<'a> PlotSink<'a> {
                     spec.total
                 ));
             }
-            let mut panel = Panel::new(title).x_label(if over_j { "j" } else { "t" });
+            let mut panel = Panel::new(title)
+                .x_label(if over_j { "j" } else { "t" })
+                .x_integers(over_j);
             for (label, _, _) in &spec.series {
                 let points: Vec<(HybridTime, (f64, f64))> = self
                     .column(col)
@@ -1213,6 +1248,7 @@ impl<'a> PlotSink<'a> {
             let mut panel = Panel::new(format!("{}: {}", self.model_name, spec.title))
                 .x_label("t")
                 .y_label("j")
+                .y_integers(true)
                 .z_label(spec.title.as_str());
             for (label, _, _) in &spec.series {
                 let samples: Vec<(HybridTime, f64)> = self.column(col).collect();

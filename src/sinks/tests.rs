@@ -478,3 +478,50 @@ fn figures_render_linear_and_log_panels() {
     // The log panel skipped the zero: no NaN coordinates anywhere.
     assert!(!svg.contains("NaN") && !svg.contains("inf"));
 }
+
+/// An axis of the jump count j is labelled with whole numbers (`5`, not `5.0`), on the x axis
+/// (`jumps` plots) and the y axis (`domain` plots); ticks between two whole numbers get none.
+#[test]
+fn j_axes_have_whole_number_labels() {
+    // The texts of the SVG's `<text>` elements.
+    let texts = |svg: &str| -> Vec<String> {
+        svg.split("<text")
+            .skip(1)
+            .filter_map(|s| {
+                let body = &s[s.find('>')? + 1..];
+                Some(body[..body.find("</text>")?].trim().to_string())
+            })
+            .collect()
+    };
+    // j from 0 to 7 against values in [0.123, 0.13], whose labels are never whole numbers.
+    let values: Vec<(f64, f64)> = (0..8)
+        .map(|j| (j as f64, 0.123 + 0.001 * j as f64))
+        .collect();
+    let swapped: Vec<(f64, f64)> = values.iter().map(|&(j, v)| (v, j)).collect();
+    for (panel, label) in [
+        (
+            Panel::new("jumps")
+                .x_label("j")
+                .x_integers(true)
+                .series(Series::line("v", values)),
+            "x",
+        ),
+        (
+            Panel::new("domain")
+                .y_label("j")
+                .y_integers(true)
+                .series(Series::line("v", swapped)),
+            "y",
+        ),
+    ] {
+        let svg = Figure::new().panel(panel).to_svg_string().unwrap();
+        let labels = texts(&svg);
+        let numbers: Vec<&String> = labels.iter().filter(|t| t.parse::<f64>().is_ok()).collect();
+        let whole: Vec<&&String> = numbers.iter().filter(|t| !t.contains('.')).collect();
+        assert!(whole.len() >= 3, "{label}: {numbers:?}");
+        assert!(
+            !numbers.iter().any(|t| t.ends_with(".0")),
+            "{label}: {numbers:?}"
+        );
+    }
+}

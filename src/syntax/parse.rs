@@ -232,9 +232,8 @@ fn item(p: Pair<'_, Rule>) -> Res<Item> {
         }
         Rule::jump_decl => {
             let name = target(first(&mut inner, span)?)?;
-            let trig = first(&mut inner, span)?;
-            let head = Span::new(span.start, trig.as_span().end());
-            let trigger = trigger(trig)?;
+            let trigger = trigger(first(&mut inner, span)?)?;
+            let head = head_span(span, &trigger);
             let resets = reset_block(first(&mut inner, span)?)?;
             Item::Jump(JumpDecl {
                 name: Some(name),
@@ -244,9 +243,8 @@ fn item(p: Pair<'_, Rule>) -> Res<Item> {
             })
         }
         Rule::every_decl => {
-            let trig = first(&mut inner, span)?;
-            let head = Span::new(span.start, trig.as_span().end());
-            let trigger = trigger(trig)?;
+            let trigger = trigger(first(&mut inner, span)?)?;
+            let head = head_span(span, &trigger);
             let resets = reset_block(first(&mut inner, span)?)?;
             Item::Jump(JumpDecl {
                 name: None,
@@ -508,6 +506,13 @@ fn flow_stmt(p: Pair<'_, Rule>) -> Res<FlowStmt> {
     }
 }
 
+/// A rule's head: from `jump`/`every` to the end of its condition or period (the trigger's pair
+/// also holds the whitespace before `{`).
+fn head_span(decl: Span, trigger: &Trigger) -> Span {
+    let (Trigger::When(e) | Trigger::Every(e)) = trigger;
+    Span::new(decl.start, e.span.end)
+}
+
 fn trigger(p: Pair<'_, Rule>) -> Res<Trigger> {
     let span = p.as_span().into();
     let rule = p.as_rule();
@@ -687,6 +692,9 @@ fn expr_d(p: Pair<'_, Rule>) -> Res<(Expr, usize)> {
             let (a, da) = expr_d(first(&mut it, span)?)?;
             let (b, db) = expr_d(first(&mut it, span)?)?;
             let d = deeper(dc.max(da).max(db), span)?;
+            // From `if` to the end of the else branch: the pair's span also holds the
+            // whitespace pest skipped after it (before an optional operator that did not follow).
+            let span = Span::new(span.start, b.span.end);
             Ok((
                 mk(ExprKind::If(Box::new(c), Box::new(a), Box::new(b)), span),
                 d,

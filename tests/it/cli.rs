@@ -740,3 +740,37 @@ fn run_prints_its_summary_as_json() {
     assert!(v["written"][0].as_str().unwrap().ends_with("b.csv"));
     assert!(!stderr(&out).contains("wrote"));
 }
+
+/// An error in a flag that is a `sim` key names the flag as the user typed it (`--T 0`), not
+/// the override it is passed as (`sim.T=0e0`, all digits).
+#[test]
+fn an_invalid_flag_value_is_shown_as_typed() {
+    let dir = tempfile::tempdir().unwrap();
+    let ball = ball_model();
+    let ball = ball.to_str().unwrap();
+    for (args, says, at) in [
+        (
+            &["--T", "0"][..],
+            "in `--T 0`: invalid `T`: 0 is out of range",
+            "┌─ --T:1:5",
+        ),
+        (
+            &["--T", "1e400"],
+            "in `--T 1e400`: invalid `T`: inf",
+            "┌─ --T:1:5",
+        ),
+        (
+            &["--zeno-window", "1"],
+            "in `--zeno-window 1`: invalid `zeno_window`",
+            "┌─ --zeno-window:1:15",
+        ),
+    ] {
+        let mut all = vec!["run", ball, "--no-mcap"];
+        all.extend(args);
+        let out = hybsim(dir.path(), &all);
+        assert_eq!(code(&out), 2, "{args:?}");
+        let err = stderr(&out);
+        assert!(err.contains(says) && err.contains(at), "{args:?}: {err}");
+        assert!(!err.contains("sim.") && !err.contains("--set"), "{err}");
+    }
+}

@@ -383,6 +383,13 @@ const CASES: &[Case] = &[
         "invalid `T`: -1 is out of range: the horizon T is a positive finite time",
     ),
     case(
+        "if-expression as a jump condition",
+        "model m\nstate x = 0\nflow { x' = 1 }\njump r when if x > 0 then 1 else 2   { x+ = 0 }\n",
+        "E0304",
+        "4:13",
+        "expected a condition such as `h >= 0`, found a number",
+    ),
+    case(
         "empty uniform range",
         "model m\nstate x = 0\njump r when x <= 0 { x+ = uniform(1, 0) }\n",
         "E0304",
@@ -402,6 +409,27 @@ const CASES: &[Case] = &[
         "E0304",
         "3:27",
         "expected a probability in [0, 1] in bernoulli(p), found bernoulli(1.5)",
+    ),
+    case(
+        "number as an operand of &&",
+        "model m\nstate x = 0\nflow { x' = 1 }\njump r when x > 0 && 1 { x+ = 0 }\n",
+        "E0304",
+        "4:22",
+        "expected a condition such as `h >= 0` as operand of `&&`, found a number",
+    ),
+    case(
+        "vector of numbers as an operand of ||",
+        "model m\nstate x = [0; 0]\nflow { x' = [1; 1] }\njump r when x > 0 || x { x+ = [0; 0] }\n",
+        "E0304",
+        "4:22",
+        "expected a condition such as `h >= 0` as operand of `||`, found a 2×1 vector of numbers",
+    ),
+    case(
+        "number negated with !",
+        "model m\nstate x = 0\nflow { x' = 1 } in !x\n",
+        "E0304",
+        "3:21",
+        "expected a condition such as `h >= 0` as operand of `!`, found a number",
     ),
     case(
         "unknown solver",
@@ -512,6 +540,20 @@ fn unknown_names_come_with_the_closest_declared_name() {
     }
 }
 
+/// Conditions are what `&&`, `||` and `!` take: comparisons, `true`/`false`, parameters and
+/// outputs set to one, members of a matrix of them (a number there is E0304, above).
+#[test]
+fn logical_operators_take_every_kind_of_condition() {
+    let src = SourceFile::new(
+        "m.hyb",
+        "model m\nparam on = true, ok = [true; false], both = [true, false; false, true]\n\
+         state x = 1\noutput inside = x > 0\nflow { x' = -1 } in !(x < -5) || on\n\
+         jump r when (ok[1] && inside) || (both[2, 2] && !(x > 0)) { x+ = 1 }\n",
+    );
+    let d = diagnostics(&src, &[]);
+    assert!(d.is_empty(), "{}", render(&d, &src, false));
+}
+
 /// The whole rendering: file:line:col, the line, the caret and its label,
 /// the second place involved, and the help.
 #[test]
@@ -552,6 +594,11 @@ const RENDERED: &[(&str, &str)] = &[
     (
         "reset twice in one rule",
         "error[E0502]: `x` is reset twice in rule `r`\n  ┌─ m.hyb:3:38\n  │\n3 │ jump r when x >= 1 { x+ = 0; y+ = 1; x+ = 2 }\n  │                      -               ^ reset again here\n  │                      │                \n  │                      first reset here\n  │\n  = help: keep one reset per state in each rule\n\n",
+    ),
+    (
+        // The caret ends with the else branch, not at the spaces after it.
+        "if-expression as a jump condition",
+        "error[E0304]: expected a condition such as `h >= 0`, found a number\n  ┌─ m.hyb:4:13\n  │\n4 │ jump r when if x > 0 then 1 else 2   { x+ = 0 }\n  │             ^^^^^^^^^^^^^^^^^^^^^^ expected a condition such as `h >= 0`\n\n",
     ),
     (
         "family member out of range",

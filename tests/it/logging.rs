@@ -695,3 +695,41 @@ sim { T = 1 }
     let (_, csv) = run(d, path, &[]);
     assert_eq!(header(&csv), "t,j,kind,f.tau[2]");
 }
+
+/// `samples` (summary, `--json`, the MCAP's `hybsim.result`) counts the solution's samples before
+/// the log's selection (README): `--log-every` thins the files, not the count.
+#[test]
+fn samples_counts_the_solution_not_the_log() {
+    let dir = tempfile::tempdir().unwrap();
+    let model = write_model(dir.path(), "");
+    let summary = |args: &[&str]| -> (u64, Vec<u8>, String) {
+        let mut all = vec![
+            "run", &model, "-o", "out.mcap", "--csv", "out.csv", "--quiet", "--json",
+        ];
+        all.extend(args);
+        let o = hybsim(dir.path(), &all);
+        assert_eq!(code(&o), 0, "{}", stderr(&o));
+        let v: Value = serde_json::from_slice(&o.stdout).unwrap();
+        let mcap = std::fs::read(dir.path().join("out.mcap")).unwrap();
+        let csv = std::fs::read_to_string(dir.path().join("out.csv")).unwrap();
+        (v["samples"].as_u64().unwrap(), mcap, csv)
+    };
+    let (all, bytes, csv) = summary(&[]);
+    let (thinned, thin_bytes, thin_csv) = summary(&["--log-every", "5"]);
+    assert_eq!(all, thinned);
+    let result = |bytes: &[u8]| -> String {
+        let summary = mcap::Summary::read(bytes).unwrap().unwrap();
+        (summary.metadata_indexes.iter())
+            .map(|i| mcap::read::metadata(bytes, i).unwrap())
+            .find(|m| m.name == "hybsim.result")
+            .unwrap()
+            .metadata["samples"]
+            .clone()
+    };
+    assert_eq!(result(&thin_bytes), all.to_string());
+    let states = |bytes: &[u8]| messages(bytes).0["/hybsim/state"].len();
+    // Every sample is logged by default (redraws' sides as flow samples but the post-jump one).
+    let rows = |csv: &str| csv.lines().count() - 1;
+    assert!(states(&bytes) == rows(&csv) && rows(&csv) as u64 <= all);
+    assert!(states(&thin_bytes) == rows(&thin_csv) && rows(&thin_csv) < rows(&csv));
+}

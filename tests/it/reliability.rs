@@ -159,6 +159,68 @@ fn sigterm_and_sighup_complete_the_files_like_ctrl_c() {
     }
 }
 
+/// Ctrl-C ends the files as any run ends them: the last CSV row and the last MCAP state are a
+/// `final` sample of the state where the run stopped, at the time the summary names, however
+/// thinned the log (`--log-every`) or wherever the last grid point fell (`--dt-out`); the row
+/// was missing, the last one an earlier flow sample.
+#[test]
+fn ctrl_c_ends_the_csv_and_the_mcap_with_the_state_at_the_stop() {
+    for thinning in [&["--log-every", "1000"][..], &["--dt-out", "0.37"]] {
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::write(
+            dir.path().join("slow.hyb"),
+            "model slow\nstate x = 1\nstate v = 0\nflow { x' = v; v' = -sin(x) }\n",
+        )
+        .unwrap();
+        let child = Command::new(BIN)
+            .args([
+                "run", "slow.hyb", "-q", "--json", "--csv", "slow.csv", "--T", "1e6",
+            ])
+            .args(["--solver", "rk4", "--step", "1e-3"])
+            .args(thinning)
+            .current_dir(dir.path())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap();
+        let start = Instant::now();
+        while temp_files(dir.path()).len() < 2 && start.elapsed() < Duration::from_secs(5) {
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        std::thread::sleep(Duration::from_millis(100));
+        // SAFETY: signalling our own child by its process id.
+        unsafe {
+            libc::kill(child.id() as i32, libc::SIGINT);
+        }
+        let out = child.wait_with_output().unwrap();
+        assert_eq!(out.status.code(), Some(130), "{}", stderr(&out));
+        let summary: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+        assert_eq!(summary["cause"], "interrupted");
+        let end_t = summary["end"]["t"].as_f64().unwrap();
+        let csv = std::fs::read_to_string(dir.path().join("slow.csv")).unwrap();
+        let last: Vec<&str> = csv.lines().last().unwrap().split(',').collect();
+        assert_eq!(last[2], "final", "{thinning:?}: {last:?}");
+        assert_eq!(last[0].parse::<f64>().unwrap(), end_t, "{thinning:?}");
+        let message = summary["message"].as_str().unwrap();
+        assert!(
+            message.contains(&format!("(t = {end_t}, j = 0)")),
+            "{message}"
+        );
+        // The MCAP's last state message is the same sample.
+        let bytes = std::fs::read(dir.path().join("slow.mcap")).unwrap();
+        let mut decoder = hybsim::sinks::mcap_read::MessageDecoder::default();
+        let last_state = mcap::MessageStream::new(&bytes)
+            .unwrap()
+            .map(|m| m.unwrap())
+            .filter(|m| m.channel.topic == "/hybsim/state")
+            .last()
+            .map(|m| decoder.decode(&m).unwrap())
+            .unwrap();
+        assert_eq!(last_state["t"].as_f64().unwrap(), end_t, "{thinning:?}");
+        assert_eq!(last_state["x"].as_f64(), last[3].parse::<f64>().ok());
+    }
+}
+
 #[test]
 fn a_closed_pipe_ends_quietly() {
     let dir = tempfile::tempdir().unwrap();
@@ -728,11 +790,12 @@ fn sizes_over_their_limits_are_refused_before_allocating() {
             "scalar states",
             "fam.hyb:4:11".into(),
         ),
-        // The run flags that are `sim` keys are limited like the model's own values.
+        // The run flags that are `sim` keys are limited like the model's own values, the error
+        // in the flag as typed.
         (
             vec!["run", "fam.hyb", "--dt-out", "1e-300", "-q", "-o", "x.mcap"],
-            "output grid points",
-            "--set sim.dt_out:1:12".into(),
+            "in `--dt-out 1e-300`: 1.00e300 output grid points",
+            "--dt-out:1:10".into(),
         ),
         (
             vec![
@@ -745,14 +808,14 @@ fn sizes_over_their_limits_are_refused_before_allocating() {
                 "x.mcap",
             ],
             "integrator steps forced by max_step",
-            "--set sim.max_step:1:14".into(),
+            "--max-step:1:12".into(),
         ),
         (
             vec![
                 "run", "fam.hyb", "--T", "1e300", "--dt-out", "1", "-q", "-o", "x.mcap",
             ],
             "output grid points",
-            "--set sim.dt_out:1:12".into(),
+            "--dt-out:1:10".into(),
         ),
     ];
     for (args, says, at) in &cases {
@@ -1202,4 +1265,50 @@ fn output_errors_name_their_cause_once() {
         assert_eq!(err.matches(cause).count(), 1, "{args:?}: {err}");
     }
     assert!(temp_files(d).is_empty());
+}
+
+/// Limits lifted to 1e10 do not let through what cannot be allocated: each of these aborted
+/// ("memory allocation of 24000000000 bytes failed") within the 1 GiB address space; the
+/// checker now compares what a size needs with the memory there is (here the address space)
+/// and refuses it the same way, E0307 at the construct.
+#[test]
+fn sizes_past_the_memory_are_refused_when_the_limits_are_lifted() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let lifted: Vec<String> = ["states", "matrix_elements", "iterations", "ops"]
+        .iter()
+        .map(|q| format!("max_{q}=1e10"))
+        .collect();
+    for (name, text, at) in [
+        (
+            "family",
+            "model m\nparam N = 1e9\nfor i in 1..N {\n    state x[i] = 0\n}\n",
+            "m.hyb:3:5",
+        ),
+        (
+            "sum",
+            "model m\nstate x = sum(i in 1..1e9: i)\n",
+            "m.hyb:2:15",
+        ),
+        (
+            "eye",
+            "model m\nparam A = eye(1e5)\nstate x = 0\n",
+            "m.hyb:2:11",
+        ),
+        ("zeros", "model m\nstate x = zeros(1e7, 1)\n", "m.hyb:2:7"),
+    ] {
+        std::fs::write(d.join("m.hyb"), text).unwrap();
+        let mut args = vec!["check", "m.hyb"];
+        for l in &lifted {
+            args.extend(["--set", l.as_str()]);
+        }
+        let (code, err, took) = measured(d, &args);
+        assert_eq!(code, 2, "{name}: {err}");
+        assert!(
+            err.contains("error[E0307]") && err.contains("more memory than there is"),
+            "{name}: {err}"
+        );
+        assert!(err.contains(at), "{name} not at {at}: {err}");
+        assert!(took < Duration::from_secs(2), "{name} took {took:?} CPU");
+    }
 }

@@ -69,8 +69,11 @@ fn a_step_size_collapse_names_the_flow_equation_of_the_fastest_state() {
     );
 }
 
+/// A reset that computes NaN is reported at its assignment (the rule's head a secondary
+/// label), at the hybrid time of the jump attempted: (1, 0), where the run ends, as the
+/// summary says (the post-jump point (1, 1) is not part of the solution).
 #[test]
-fn a_non_finite_reset_names_the_jump() {
+fn a_non_finite_reset_names_its_assignment_and_the_jump() {
     let (err, d, src) = fail("nanjump.hyb", NAN_JUMP);
     let SimError::NonFinite {
         at,
@@ -81,14 +84,56 @@ fn a_non_finite_reset_names_the_jump() {
     else {
         panic!("expected a non-finite state, got {err:?}")
     };
-    assert_eq!((component, rule, at.j), (1, Some(0), 1));
+    assert_eq!((component, rule, at.t, at.j), (1, Some(0), 1.0, 0));
     assert_eq!(d.code, "E0602");
+    assert_eq!(
+        d.message,
+        "state component 1 (`y`) became -inf in the jump at (t = 1, j = 0)"
+    );
     let lc = d.line_col(&src).unwrap();
-    assert_eq!(lc.line, 4, "at the jump `reset`");
+    assert_eq!((lc.line, lc.col), (6, 5), "at `y+ = log(x)`");
+    let text = hybsim::diagnostics::render(&[d], &src, false);
+    for want in [
+        "6 │     y+ = log(x)\n  │     ^^^^^^^^^^^ this assignment made `y` non-finite in the jump at (t, j) = (1, 0)",
+        "4 │ jump reset when x <= 0 {\n  │ ---------------------- in this jump\n",
+    ] {
+        assert!(text.contains(want), "missing {want:?} in\n{text}");
+    }
+    // The summary line ends the run where the message says the jump failed.
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::write(dir.path().join("nanjump.hyb"), NAN_JUMP).unwrap();
+    let out = hybsim(dir.path(), &["run", "nanjump.hyb", "--no-mcap", "--json"]);
+    assert_eq!(code(&out), 1);
+    let summary: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(summary["end"], serde_json::json!({"t": 1.0, "j": 0}));
     assert!(
-        d.labels[0]
-            .message
-            .contains("this jump made `y` non-finite"),
+        (summary["message"].as_str().unwrap()).contains("in the jump at (t = 1, j = 0)"),
+        "{summary}"
+    );
+}
+
+/// The reset of a member of a family inside `for`: the assignment of that member.
+#[test]
+fn a_non_finite_reset_in_a_loop_names_its_assignment() {
+    let text = "model loop
+state x = 1
+for i in 1..3 { state y[i] = 1 }
+flow { x' = -1 }
+jump reset when x <= 0 {
+    x+ = 1
+    for i in 1..3 { y[i]+ = log(abs(i - 2) + x) }
+}
+sim { T = 3 }
+";
+    let (err, d, src) = fail("loop.hyb", text);
+    assert!(
+        matches!(err, SimError::NonFinite { rule: Some(0), .. }),
+        "{err:?}"
+    );
+    let lc = d.line_col(&src).unwrap();
+    assert_eq!((lc.line, lc.col), (7, 21), "at `y[i]+ = log(…)`");
+    assert!(
+        d.labels[0].message.contains("made `y[2]` non-finite"),
         "{:?}",
         d.labels
     );

@@ -91,6 +91,53 @@ sim { T = 12 }
     assert!(m[4].1.is_nan(), "a mean over no time is NaN");
 }
 
+/// A family of rules over an empty range (`--set N=0`) is declared, with no member: `count` of
+/// it is 0, for a plain family and for a family of instances' rules (`f.fire`) alike (it was
+/// E0201 "unknown name"); an undeclared name is still that error.
+#[test]
+fn count_over_an_empty_family_is_zero() {
+    let text = "model empty
+param N = 2
+subsystem Clock(p = 1) {
+    state tau = 0
+    flow { tau' = 1 }
+    jump fire when tau >= p { tau+ = 0 }
+}
+for i in 1..N {
+    f[i] = Clock(p = i)
+    state x[i] = 0
+    flow { x[i]' = 1 }
+    jump tick[i] when x[i] >= 1 { x[i]+ = 0 }
+}
+state z = 0
+flow { z' = 1 }
+metric fires = count(f.fire), ticks = count(tick), late = count(f.fire, t > 2.5)
+sim { T = 3.5 }
+";
+    let metrics = |set: &[&str]| {
+        let src = SourceFile::new("m.hyb", text);
+        let set: Vec<lang::Override> = set.iter().map(|s| s.parse().unwrap()).collect();
+        let model = lang::compile(&src, &set).unwrap_or_else(|d| {
+            panic!("{}", hybsim::diagnostics::render(&d, &src, false));
+        });
+        let (x0, mut rng) = model.start(model.seed());
+        let mut sink = model.metrics().sink();
+        hybsim::engine::simulate(&model, &x0, &model.settings(), &mut rng, &mut sink).unwrap();
+        sink.named_values()
+    };
+    let values = |m: Vec<(String, f64)>| m.into_iter().map(|(_, v)| v).collect::<Vec<_>>();
+    // Clocks of periods 1 and 2 over 3.5: 3 + 1 jumps, 1 after t = 2.5; ticks at 1, 2, 3 each.
+    assert_eq!(values(metrics(&[])), [4.0, 6.0, 1.0]);
+    assert_eq!(values(metrics(&["N=0"])), [0.0, 0.0, 0.0]);
+    let src = SourceFile::new("m.hyb", text.replace("count(tick)", "count(tock)"));
+    let d = lang::check_only(&src, &["N=0".parse().unwrap()]);
+    assert_eq!(d.len(), 1, "{d:?}");
+    assert_eq!(
+        (d[0].code, d[0].message.as_str()),
+        ("E0201", "unknown name `tock`")
+    );
+}
+
 #[test]
 fn samples_after_jumps_that_leave_the_metrics_unchanged_give_the_same_metrics() {
     // The sink reuses the pre-jump values after a jump writing nothing its
