@@ -502,13 +502,15 @@ impl<'p, 'i> PropertySink<'p, 'i> {
 
 impl ArcSink for PropertySink<'_, '_> {
     fn sample(&mut self, at: HybridTime, x: &[f64], kind: SampleKind) -> ControlFlow<()> {
+        // The run ends at the violation: what the engine sends after it (the
+        // final sample of the stopped run) is not forwarded.
+        if self.violation.is_some() {
+            return ControlFlow::Break(());
+        }
         let inner = match &mut self.inner {
             Some(s) => s.sample(at, x, kind),
             None => ControlFlow::Continue(()),
         };
-        if self.violation.is_some() {
-            return ControlFlow::Break(());
-        }
         let result = self
             .monitors
             .iter_mut()
@@ -518,13 +520,15 @@ impl ArcSink for PropertySink<'_, '_> {
     }
 
     fn jump(&mut self, at: HybridTime, rule: usize, pre: &[f64], post: &[f64]) -> ControlFlow<()> {
+        // The run ends at the violation: what the engine sends after it (the
+        // final sample of the stopped run) is not forwarded.
+        if self.violation.is_some() {
+            return ControlFlow::Break(());
+        }
         let inner = match &mut self.inner {
             Some(s) => s.jump(at, rule, pre, post),
             None => ControlFlow::Continue(()),
         };
-        if self.violation.is_some() {
-            return ControlFlow::Break(());
-        }
         let result = self
             .monitors
             .iter_mut()
