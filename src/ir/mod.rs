@@ -208,7 +208,7 @@ impl AllAtoms {
         joint.extend_from_slice(&all);
         joint.extend_from_slice(&conds);
         AllAtoms {
-            sets: Program::compile(dag, frame, &joint),
+            sets: Program::compile(dag, frame, &joint).into_buffer(),
             all: Program::compile(dag, frame, &all).into_buffer(),
             flowing: Program::compile(dag, frame, &flowing).scatter_to(&flowing_pos),
             conds: Program::compile(dag, frame, &conds),
@@ -1547,14 +1547,18 @@ impl HybridSystem for CompiledModel {
         atoms: &mut [f64],
     ) -> bool {
         let p = &self.atoms.sets;
-        let (vals, conds) = p.outs.split_at(p.outs.len() - inside.len());
-        with_regs(self.nregs, |regs| {
-            p.run_at(regs, at, x, None);
-            for (v, &r) in atoms.iter_mut().zip(vals) {
-                *v = regs[r as usize];
-            }
-            for (b, &r) in inside.iter_mut().zip(conds) {
-                *b = regs[r as usize] != 0.0;
+        // The outputs written in place after the registers (machine code
+        // stores each once), the atoms then copied in one piece.
+        let len = p.outs.len();
+        with_regs(self.nregs + len, |regs| {
+            let (regs, out) = regs.split_at_mut(self.nregs);
+            let out = &mut out[..len];
+            p.run_into(regs, at, x, None, out);
+            let (vals, conds) = out.split_at(len - inside.len());
+            let k = atoms.len().min(vals.len());
+            atoms[..k].copy_from_slice(&vals[..k]);
+            for (b, &c) in inside.iter_mut().zip(conds) {
+                *b = c != 0.0;
             }
         });
         true
