@@ -1274,29 +1274,36 @@ impl Watcher {
         let flat =
             self.flat_ok && self.flat_checks && sys.all_atom_values(at, x, true, &mut self.flat);
         if flat && self.flat_watched {
-            // Only the watched atoms' values are read at a checkpoint.
-            for w in &self.watched {
+            // Only the watched atoms' values are read at a checkpoint; their
+            // classes in the same pass (as `classes_from_vs`).
+            let mut changed = false;
+            let pass = self.watched.iter().zip(&mut self.cls_s).zip(&self.cls);
+            for ((w, c), &c0) in pass {
                 let off = self.flat_off[w.set].unwrap_or_default();
-                self.sets[w.set].vs[w.atom] = self.flat[off + w.atom];
+                let ws = &mut self.sets[w.set];
+                let g = self.flat[off + w.atom];
+                ws.vs[w.atom] = g;
+                *c = class(watched_value(w.cmp, g, ws.relax[w.atom]));
+                changed |= *c != c0;
             }
-        } else {
-            for (i, ws) in self.sets.iter_mut().enumerate() {
-                if !ws.source {
-                    continue;
-                }
-                match self.flat_off[i] {
-                    Some(off) if flat => {
-                        for k in 0..ws.vs.len() {
-                            if ws.watched(k) {
-                                ws.vs[k] = self.flat[off + k];
-                            }
+            return changed;
+        }
+        for (i, ws) in self.sets.iter_mut().enumerate() {
+            if !ws.source {
+                continue;
+            }
+            match self.flat_off[i] {
+                Some(off) if flat => {
+                    for k in 0..ws.vs.len() {
+                        if ws.watched(k) {
+                            ws.vs[k] = self.flat[off + k];
                         }
                     }
-                    _ => {
-                        let mut vals = std::mem::take(&mut ws.vs);
-                        atom_values(sys, ws, at, x, true, &mut vals);
-                        ws.vs = vals;
-                    }
+                }
+                _ => {
+                    let mut vals = std::mem::take(&mut ws.vs);
+                    atom_values(sys, ws, at, x, true, &mut vals);
+                    ws.vs = vals;
                 }
             }
         }
