@@ -271,7 +271,7 @@ fn set_value(spec: &SetAtoms, table: Option<TruthTable>, truth: impl Fn(usize) -
 /// the segment, or with `on`, the timers crossed there on their thresholds.
 fn timer_set_value(ws: &WSet, spec: &SetAtoms, on: bool) -> bool {
     set_value(spec, ws.table, |k| {
-        let atom = spec.atoms[k];
+        let atom = &spec.atoms[k];
         if on && ws.on_threshold[k] {
             atom.cmp.holds(0.0)
         } else if atom.watched() {
@@ -359,6 +359,8 @@ struct WAtom {
 struct TimerAtom {
     set: usize,
     atom: usize,
+    /// The atom's comparison (`<=` or `>=`).
+    cmp: Cmp,
     index: usize,
     threshold: f64,
     /// Local time at which the timer reaches its threshold (∞: never).
@@ -824,6 +826,7 @@ impl Watcher {
                         timers.push(TimerAtom {
                             set: i,
                             atom: k,
+                            cmp: a.cmp,
                             index,
                             threshold,
                             d: f64::INFINITY,
@@ -978,9 +981,7 @@ impl Watcher {
         let mut first = f64::INFINITY;
         let mut changed = false;
         for ta in &mut self.timers {
-            let (v, rate, thr) = (x[ta.index], f[ta.index], ta.threshold);
-            let ws = &mut self.sets[ta.set];
-            let cmp = ws.cmp(ta.atom);
+            let (v, rate, thr, cmp) = (x[ta.index], f[ta.index], ta.threshold, ta.cmp);
             ta.d = if (rate > 0.0 && v < thr) || (rate < 0.0 && v > thr) {
                 (thr - v) / rate
             } else {
@@ -994,6 +995,7 @@ impl Watcher {
             let away = (rate > 0.0 && v >= thr) || (rate < 0.0 && v <= thr);
             if away {
                 let after = cmp.holds(rate);
+                let ws = &mut self.sets[ta.set];
                 if ws.start_truth[ta.atom] != after {
                     ws.start_truth[ta.atom] = after;
                     changed = true;
