@@ -19,6 +19,7 @@
 mod analysis;
 mod describe;
 mod inputs;
+mod interval;
 mod jacobian;
 pub mod jit;
 pub mod metric;

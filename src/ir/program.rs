@@ -704,7 +704,7 @@ impl Program {
     }
 
     /// The position of each output in [`run_into`](Self::run_into)'s buffer.
-    fn positions(&self) -> impl Iterator<Item = (usize, u32)> + '_ {
+    pub(super) fn positions(&self) -> impl Iterator<Item = (usize, u32)> + '_ {
         self.outs.iter().enumerate().map(|(k, &r)| {
             let d = self.dest.as_ref().map_or(k, |d| d[k] as usize);
             (d, r)
