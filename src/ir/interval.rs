@@ -97,7 +97,7 @@ impl Interval {
         if v.is_nan() {
             self.nan
         } else {
-            self.lo <= v && v <= self.hi
+            (self.lo..=self.hi).contains(&v)
         }
     }
 
@@ -184,6 +184,15 @@ fn corners(
 
 fn mul(a: Interval, b: Interval) -> Interval {
     corners(a, b, |x, y| x * y, Interval::rounded)
+}
+
+/// `a·c` for a constant `c` (the rows of `A·x`): two products.
+fn mul_const(a: Interval, c: f64) -> Interval {
+    let (p, q) = (a.lo * c, a.hi * c);
+    if p.is_nan() || q.is_nan() {
+        return mul(a, Interval::point(c));
+    }
+    Interval::rounded(p.min(q), p.max(q), a.nan)
 }
 
 fn div(a: Interval, b: Interval) -> Interval {
@@ -455,7 +464,7 @@ fn bin(f: BinFn, a: Interval, b: Interval) -> Interval {
                 (apart, same)
             };
             if a.nan || b.nan {
-                Interval::boolean((apart).then_some(f == BinFn::Ne))
+                Interval::boolean(apart.then_some(f == BinFn::Ne))
             } else {
                 cmp(yes, no)
             }
@@ -581,9 +590,7 @@ impl Program {
                 Op::AddC { d, a, c } => {
                     regs[d as usize] = add(regs[a as usize], Interval::point(c))
                 }
-                Op::MulC { d, a, c } => {
-                    regs[d as usize] = mul(regs[a as usize], Interval::point(c))
-                }
+                Op::MulC { d, a, c } => regs[d as usize] = mul_const(regs[a as usize], c),
                 Op::BinRC { d, f, a, c } => {
                     regs[d as usize] = bin(f, regs[a as usize], Interval::point(c))
                 }
@@ -622,7 +629,7 @@ impl Program {
                         if r == CONST_TERM {
                             Interval::point(c)
                         } else {
-                            mul(regs[r as usize], Interval::point(c))
+                            mul_const(regs[r as usize], c)
                         }
                     };
                     let mut acc = term(&terms[0]);

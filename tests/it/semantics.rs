@@ -1182,3 +1182,52 @@ fn a_run_ends_exactly_at_its_horizon_after_jumps() {
         }
     }
 }
+
+/// A guard's atom that changes sign and back between two checkpoints of
+/// one step is found by its interval bounds (`HybridSystem::atom_bounds`):
+/// a sawtooth `mod(t, 1)` whose checkpoints (at 1.05, 2.1, 3.15, 4.2 on a
+/// step spanning the horizon) all fall below 0.5, and a dip of
+/// `1 + 0.5·sin(t)` below a constant `x` narrower than the checkpoint
+/// spacing. On the exact polynomial path and on Dopri5's.
+#[test]
+fn a_sign_change_between_checkpoints_is_found() {
+    let saw = compile(
+        "model saw\nstate x = 0, n = 0\nflow { x' = 1 }\n\
+         jump a when mod(t, 1) >= 0.5 && n < floor(t) + 1 { n+ = n + 1 }\nsim { T = 4.2 }\n",
+    );
+    let dip = compile(
+        "model dip\nstate x = 1.499, n = 0\n\
+         jump hit when n == 0 && x <= 1 + 0.5*sin(t) { n+ = 1 }\nsim { T = 3 }\n",
+    );
+    for exact in [ExactAffine::Auto, ExactAffine::Off] {
+        let mut settings = saw.settings();
+        settings.exact_affine = exact;
+        let arc = run_with(&saw, &settings);
+        assert_times(&arc, &[0.5, 1.5, 2.5, 3.5], &format!("sawtooth, {exact:?}"));
+        let mut settings = dip.settings();
+        settings.exact_affine = exact;
+        let arc = run_with(&dip, &settings);
+        assert_times(&arc, &[0.998f64.asin()], &format!("dip, {exact:?}"));
+    }
+}
+
+/// Atoms whose bounds stay away from zero between the checkpoints never
+/// make a jump: the dip above with `x` 0.001 above the curve's top, and a
+/// sawtooth that stays below its threshold.
+#[test]
+fn an_atom_bounded_away_from_zero_never_jumps() {
+    for src in [
+        "model dip\nstate x = 1.501, n = 0\n\
+         jump hit when n == 0 && x <= 1 + 0.5*sin(t) { n+ = 1 }\nsim { T = 3 }\n",
+        "model saw\nstate x = 0, n = 0\nflow { x' = 1 }\n\
+         jump a when mod(t, 1) >= 1.01 * abs(sin(t)) + 1 { n+ = n + 1 }\nsim { T = 4.2 }\n",
+    ] {
+        let m = compile(src);
+        for exact in [ExactAffine::Auto, ExactAffine::Off] {
+            let mut settings = m.settings();
+            settings.exact_affine = exact;
+            let arc = run_with(&m, &settings);
+            assert_times(&arc, &[], &format!("{exact:?}: {src}"));
+        }
+    }
+}
