@@ -558,6 +558,13 @@ pub trait HybridSystem {
         false
     }
 
+    /// The state components whose boxes [`atom_bounds`](Self::atom_bounds)
+    /// reads (increasing); the others' boxes may be anything, and the
+    /// engine computes none for them. `None` (the default): all of them.
+    fn atom_bound_inputs(&self) -> Option<Vec<usize>> {
+        None
+    }
+
     /// [`jump_sets`](Self::jump_sets) and [`all_atom_values`](Self::all_atom_values)
     /// (all atoms) at one point in one evaluation: each rule's membership
     /// into `inside`, every set's atoms into `atoms` in `all_atom_values`'

@@ -1556,6 +1556,10 @@ impl HybridSystem for CompiledModel {
         })
     }
 
+    fn atom_bound_inputs(&self) -> Option<Vec<usize>> {
+        Some(self.atoms.flowing.state_reads())
+    }
+
     fn jump_sets(&self, at: HybridTime, x: &[f64], inside: &mut [bool]) -> bool {
         let conds = &self.atoms.conds;
         // One rule: its own program is as cheap.
