@@ -495,7 +495,7 @@ fn lookup(table: &Table, row: Interval, col: Interval) -> Interval {
         let lo = i.lo.ceil().max(1.0);
         let hi = i.hi.floor().min(n as f64);
         let bad = i.nan || !i.is_point() || i.lo < 1.0 || i.hi > n as f64 || i.lo.fract() != 0.0;
-        (lo <= hi).then(|| (lo as usize, hi as usize, bad))
+        (lo <= hi).then_some((lo as usize, hi as usize, bad))
     };
     let (Some((r0, r1, rbad)), Some((c0, c1, cbad))) =
         (range(row, table.rows), range(col, table.cols))

@@ -9,11 +9,18 @@
 //! on the atom's side of zero proves its sign kept; otherwise the interval
 //! is halved, the atom evaluated at the midpoint, and the halves bounded in
 //! turn (time order first), until a point of the other class is found, the
-//! pieces are proved, or the budget is spent. The first point found
+//! pieces are proved, or the budget is spent (then the interval is passed
+//! undecided: a change there can be missed). The first point found
 //! becomes a checkpoint of a second scan of the interval, where the usual
-//! localization takes it: a sawtooth (`mod(t, 1)`)
-//! or a brief dip (`x ≤ 1 + 0.5·sin(t)`) that comes back before the next
-//! checkpoint is found, not skipped.
+//! localization takes it: a sawtooth (`mod(t, 1)`) or a brief dip
+//! (`x ≤ 1 + 0.5·sin(t)`) that comes back before the next checkpoint is
+//! found, not skipped.
+//!
+//! The whole step is bounded first, through a [`Window`]: bounds over a
+//! box a few steps ahead serve the steps inside it, so that where the
+//! atoms stay far from zero most steps need no evaluation of their own.
+//! Only the state components the atoms read get boxes
+//! ([`HybridSystem::atom_bound_inputs`]).
 
 use super::{Buf, EventKind, MAX_CONTROL, StepPath, Watcher, class, split, split_left};
 use crate::engine::HybridSystem;
@@ -62,6 +69,10 @@ impl Window {
     }
 }
 
+/// What identifies a step: its span, its segment's start time and jump
+/// count.
+type StepKey = ((f64, f64), f64, u64);
+
 /// The search's state and buffers (kept, so that it does not allocate).
 #[derive(Default)]
 pub(super) struct Hidden {
@@ -72,7 +83,7 @@ pub(super) struct Hidden {
     reads: Option<Vec<usize>>,
     /// The step whose control points `ctrl` holds (its span, its
     /// segment's start time and jump count), and whether it has them.
-    step: Option<(((f64, f64), f64, u64), bool)>,
+    step: Option<(StepKey, bool)>,
     /// The watched atoms searched by bounds ([`Watcher::boundable`]),
     /// once asked.
     boundable: Vec<usize>,
@@ -222,9 +233,8 @@ impl Watcher {
         h.window.bounds = vec![(0.0, 0.0); atoms];
     }
 
-    /// What identifies the step being scanned: its span, its segment's
-    /// start time and jump count.
-    fn step_key(&self) -> ((f64, f64), f64, u64) {
+    /// The step being scanned.
+    fn step_key(&self) -> StepKey {
         (self.span, self.clock.value(), self.j)
     }
 
@@ -439,7 +449,8 @@ impl Watcher {
             let (p, k, err) = &h.ctrl[i];
             let p = &p[..*k];
             let mut piece = [0.0; MAX_CONTROL];
-            let piece = if ta > 0.0 || tb < 1.0 {
+            let part = ta > 0.0 || tb < 1.0;
+            let piece = if part {
                 piece[..*k].copy_from_slice(p);
                 if ta > 0.0 {
                     piece = split(p, ta).1;
@@ -460,10 +471,10 @@ impl Watcher {
             // The control points' error, and de Casteljau's (convex
             // combinations: a few roundings of the largest point per row;
             // none on the whole step).
-            let size = if piece.len() == p.len() && piece.as_ptr() == p.as_ptr() {
-                lo.abs().max(hi.abs())
-            } else {
+            let size = if part {
                 p.iter().fold(0.0f64, |m, v| m.max(v.abs()))
+            } else {
+                lo.abs().max(hi.abs())
             };
             let e = err + 4.0 * (*k as f64) * f64::EPSILON * size;
             h.xbox[i] = (lo - e, hi + e);
