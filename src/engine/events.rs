@@ -46,6 +46,8 @@ use super::settings::{Priority, SimSettings};
 use super::system::{AffineAtom, Atom, Cmp, GuardKind, SetAtoms, SetRef, TruthTable};
 use crate::arc::{FailedAtom, HybridTime};
 
+mod hidden;
+
 /// x(s) on one step `[s0, s1]`.
 pub(crate) trait StepPath {
     /// Whether the path is the straight line between the step's ends (an
@@ -756,6 +758,8 @@ pub(crate) struct Watcher {
     /// First rule (declaration order) whose jump set holds at the last
     /// event.
     rule_at_event: Option<usize>,
+    /// The search for sign changes between checkpoints ([`hidden`]).
+    hidden: hidden::Hidden,
 }
 
 impl Watcher {
@@ -931,6 +935,7 @@ impl Watcher {
             bracket_start_read,
             event_state: vec![0.0; n],
             rule_at_event: None,
+            hidden: hidden::Hidden::default(),
         }
     }
 
@@ -1436,6 +1441,11 @@ impl Watcher {
                 // classes again (`classes_at` left them otherwise).
                 if self.relaxed != relaxed {
                     self.classes_from_vs();
+                }
+            } else if let Some(found) = self.hidden_change(sys, path, (prev, s), last, y1) {
+                // A change between the checkpoints, scanned.
+                if found.is_some() {
+                    return found;
                 }
             }
             if !self.timers.is_empty() {

@@ -536,6 +536,35 @@ pub trait HybridSystem {
         false
     }
 
+    /// Bounds of the watched atoms over a box of hybrid time: for `t` in
+    /// `[t.0, t.1]`, jump count `j` and each state component `x[k]` in
+    /// `[x[k].0, x[k].1]`, writes into `out`, in the layout of
+    /// [`all_atom_values`](Self::all_atom_values) (only the watched atoms
+    /// need be written), an interval `(lo, hi)` that contains the value
+    /// `all_atom_values` computes at every point of the box, to the last
+    /// bit — `(−∞, ∞)` where it may be NaN — and returns `true`; or
+    /// returns `false` (the default) if the system cannot bound them. The
+    /// engine uses it after a step on which no watched atom without an
+    /// affine form changed sign at the checkpoints, to prove that none did
+    /// between them (or to find where one did: a sawtooth `mod(t, 1)`, a
+    /// brief dip of `sin(t)`), on the steps whose path is a polynomial.
+    fn atom_bounds(
+        &self,
+        _t: (f64, f64),
+        _j: u64,
+        _x: &[(f64, f64)],
+        _out: &mut [(f64, f64)],
+    ) -> bool {
+        false
+    }
+
+    /// The state components whose boxes [`atom_bounds`](Self::atom_bounds)
+    /// reads (increasing); the others' boxes may be anything, and the
+    /// engine computes none for them. `None` (the default): all of them.
+    fn atom_bound_inputs(&self) -> Option<Vec<usize>> {
+        None
+    }
+
     /// [`jump_sets`](Self::jump_sets) and [`all_atom_values`](Self::all_atom_values)
     /// (all atoms) at one point in one evaluation: each rule's membership
     /// into `inside`, every set's atoms into `atoms` in `all_atom_values`'

@@ -19,6 +19,7 @@
 mod analysis;
 mod describe;
 mod inputs;
+mod interval;
 mod jacobian;
 pub mod jit;
 pub mod metric;
@@ -43,11 +44,19 @@ use crate::engine::{
 };
 use crate::layout::{Declared, Layout, Shape};
 use crate::source::{SourceFile, SourceMap, Span};
+use interval::{Interval, IntervalRegs};
 pub use outputs::OutputSubset;
 use program::{Frame, Program};
 
 thread_local! {
     static REGS: RefCell<Vec<f64>> = const { RefCell::new(Vec::new()) };
+}
+
+thread_local! {
+    /// The interval register file of [`HybridSystem::atom_bounds`], its
+    /// state box and its results.
+    static INTERVALS: RefCell<(IntervalRegs, Vec<Interval>, Vec<Interval>)> =
+        RefCell::default();
 }
 
 /// Runs `f` with a register file of at least `need` registers.
@@ -1522,6 +1531,33 @@ impl HybridSystem for CompiledModel {
         };
         with_regs(self.nregs, |regs| p.run_into(regs, at, x, None, out));
         true
+    }
+
+    fn atom_bounds(&self, t: (f64, f64), j: u64, x: &[(f64, f64)], out: &mut [(f64, f64)]) -> bool {
+        let p = &self.atoms.flowing;
+        INTERVALS.with(|cell| {
+            let Ok(mut cell) = cell.try_borrow_mut() else {
+                return false;
+            };
+            let (file, xs, bounds) = &mut *cell;
+            xs.clear();
+            xs.extend(x.iter().map(|&(lo, hi)| Interval::new(lo, hi, false)));
+            bounds.clear();
+            bounds.resize(out.len(), Interval::ENTIRE);
+            p.bound_into(file, Interval::new(t.0, t.1, false), j as f64, xs, bounds);
+            for (o, b) in out.iter_mut().zip(bounds.iter()) {
+                *o = if b.nan {
+                    (f64::NEG_INFINITY, f64::INFINITY)
+                } else {
+                    (b.lo, b.hi)
+                };
+            }
+            true
+        })
+    }
+
+    fn atom_bound_inputs(&self) -> Option<Vec<usize>> {
+        Some(self.atoms.flowing.state_reads())
     }
 
     fn jump_sets(&self, at: HybridTime, x: &[f64], inside: &mut [bool]) -> bool {

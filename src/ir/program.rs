@@ -665,6 +665,52 @@ impl Program {
         }
     }
 
+    /// Whether `op` reads a register for which `f` holds.
+    pub(super) fn reads(&self, op: &Op, mut f: impl FnMut(u32) -> bool) -> bool {
+        match *op {
+            Op::Const { .. } => false,
+            Op::Add { a, b, .. }
+            | Op::Sub { a, b, .. }
+            | Op::Mul { a, b, .. }
+            | Op::Div { a, b, .. }
+            | Op::Bin { a, b, .. }
+            | Op::Rand { a, b, .. } => f(a) || f(b),
+            Op::AddC { a, .. }
+            | Op::MulC { a, .. }
+            | Op::BinRC { a, .. }
+            | Op::Neg { a, .. }
+            | Op::Un { a, .. } => f(a),
+            Op::BinCR { b, .. } => f(b),
+            Op::Select { c, a, b, .. } => f(c) || f(a) || f(b),
+            Op::Lookup { row, col, when, .. } => {
+                let n = self.state_regs as u32;
+                f(row) || f(col) || f(when) || f(n) || f(n + 1)
+            }
+            Op::Interp { x, .. } => f(x),
+            Op::Lin { t0, len, .. } => self.lin[t0 as usize..(t0 + len) as usize]
+                .iter()
+                .any(|&(r, _)| r != CONST_TERM && f(r)),
+            Op::Block { g0, len, .. } => self.gather[g0 as usize..(g0 + len) as usize]
+                .iter()
+                .any(|&r| f(r)),
+        }
+    }
+
+    /// The state components the program reads (increasing).
+    pub(crate) fn state_reads(&self) -> Vec<usize> {
+        let n = self.state_regs;
+        let mut read = vec![false; n];
+        for op in &self.ops {
+            self.reads(op, |r| {
+                if let Some(x) = read.get_mut(r as usize) {
+                    *x = true;
+                }
+                false
+            });
+        }
+        (0..n).filter(|&k| read[k]).collect()
+    }
+
     /// Whether [`run`](Self::run) executes machine code.
     #[cfg(test)]
     pub fn is_native(&self) -> bool {
@@ -704,7 +750,7 @@ impl Program {
     }
 
     /// The position of each output in [`run_into`](Self::run_into)'s buffer.
-    fn positions(&self) -> impl Iterator<Item = (usize, u32)> + '_ {
+    pub(super) fn positions(&self) -> impl Iterator<Item = (usize, u32)> + '_ {
         self.outs.iter().enumerate().map(|(k, &r)| {
             let d = self.dest.as_ref().map_or(k, |d| d[k] as usize);
             (d, r)

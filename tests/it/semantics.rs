@@ -1182,3 +1182,119 @@ fn a_run_ends_exactly_at_its_horizon_after_jumps() {
         }
     }
 }
+
+/// A guard's atom that changes sign and back between two checkpoints of
+/// one step is found by its interval bounds (`HybridSystem::atom_bounds`):
+/// a sawtooth `mod(t, 1)` whose checkpoints (at 1.05, 2.1, 3.15, 4.2 on a
+/// step spanning the horizon) all fall below 0.5, and a dip of
+/// `1 + 0.5·sin(t)` below a constant `x` narrower than the checkpoint
+/// spacing. On the exact polynomial path and on Dopri5's.
+#[test]
+fn a_sign_change_between_checkpoints_is_found() {
+    let saw = compile(
+        "model saw\nstate x = 0, n = 0\nflow { x' = 1 }\n\
+         jump a when mod(t, 1) >= 0.5 && n < floor(t) + 1 { n+ = n + 1 }\nsim { T = 4.2 }\n",
+    );
+    let dip = compile(
+        "model dip\nstate x = 1.499, n = 0\n\
+         jump hit when n == 0 && x <= 1 + 0.5*sin(t) { n+ = 1 }\nsim { T = 3 }\n",
+    );
+    for exact in [ExactAffine::Auto, ExactAffine::Off] {
+        let mut settings = saw.settings();
+        settings.exact_affine = exact;
+        let arc = run_with(&saw, &settings);
+        assert_times(&arc, &[0.5, 1.5, 2.5, 3.5], &format!("sawtooth, {exact:?}"));
+        let mut settings = dip.settings();
+        settings.exact_affine = exact;
+        let arc = run_with(&dip, &settings);
+        assert_times(&arc, &[0.998f64.asin()], &format!("dip, {exact:?}"));
+    }
+}
+
+/// Atoms whose bounds stay away from zero between the checkpoints never
+/// make a jump: the dip above with `x` 0.001 above the curve's top, and a
+/// sawtooth that stays below its threshold.
+#[test]
+fn an_atom_bounded_away_from_zero_never_jumps() {
+    for src in [
+        "model dip\nstate x = 1.501, n = 0\n\
+         jump hit when n == 0 && x <= 1 + 0.5*sin(t) { n+ = 1 }\nsim { T = 3 }\n",
+        "model saw\nstate x = 0, n = 0\nflow { x' = 1 }\n\
+         jump a when mod(t, 1) >= 1.01 * abs(sin(t)) + 1 { n+ = n + 1 }\nsim { T = 4.2 }\n",
+    ] {
+        let m = compile(src);
+        for exact in [ExactAffine::Auto, ExactAffine::Off] {
+            let mut settings = m.settings();
+            settings.exact_affine = exact;
+            let arc = run_with(&m, &settings);
+            assert_times(&arc, &[], &format!("{exact:?}: {src}"));
+        }
+    }
+}
+
+/// The dip `x ≤ 1 + 0.5·sin(t)` with `x` constant: below the curve's top
+/// it jumps at the first `t` with `sin(t) = 2(x − 1)` (1.2: 0.41, 1.499:
+/// 1.508, a dip of 0.09 where the checkpoints of the long exact steps are
+/// ~1 apart); 1e-9 above the top it never does. On the exact polynomial
+/// path and on Dopri5's.
+#[test]
+fn a_dip_of_a_time_varying_guard_is_found_and_a_near_miss_is_not() {
+    for (x, expected) in [
+        ("1.2", vec![0.4f64.asin()]),
+        ("1.499", vec![0.998f64.asin()]),
+        ("1.500000001", vec![]),
+    ] {
+        let m = compile(&format!(
+            "model dip\nstate x = {x}, n = 0\n\
+             jump hit when n == 0 && x <= 1 + 0.5*sin(t) {{ n+ = 1 }}\nsim {{ T = 15 }}\n"
+        ));
+        for exact in [ExactAffine::Auto, ExactAffine::Off] {
+            let mut settings = m.settings();
+            settings.exact_affine = exact;
+            let arc = run_with(&m, &settings);
+            assert_times(&arc, &expected, &format!("x = {x}, {exact:?}"));
+        }
+    }
+}
+
+/// The sawtooth `mod(t, 1) ≥ 0.5` with `x' = 1` jumps at each half
+/// however long the steps: the same four jumps as with `max_step = 0.1`.
+#[test]
+fn a_sawtooth_guard_jumps_as_with_short_steps() {
+    let m = compile(
+        "model saw\nstate x = 0, n = 0\nflow { x' = 1 }\n\
+         jump a when mod(t, 1) >= 0.5 && n < floor(t) + 1 { n+ = n + 1 }\nsim { T = 4.2 }\n",
+    );
+    for max_step in [f64::INFINITY, 0.1] {
+        for exact in [ExactAffine::Auto, ExactAffine::Off] {
+            let mut settings = m.settings();
+            settings.exact_affine = exact;
+            settings.max_step = max_step;
+            let arc = run_with(&m, &settings);
+            let what = format!("max_step {max_step}, {exact:?}");
+            assert_times(&arc, &[0.5, 1.5, 2.5, 3.5], &what);
+        }
+    }
+}
+
+/// A vector state passing through a small disc between two checkpoints:
+/// `x = (t, 0.099)` is inside `|x − (2, 0)| ≤ 0.1` for 0.028 around t = 2
+/// and jumps where it enters; a path 0.101 from the centre never does.
+#[test]
+fn a_vector_state_crossing_a_disc_between_checkpoints_jumps() {
+    for (y, expected) in [
+        ("0.099", vec![2.0 - (0.01f64 - 0.099 * 0.099).sqrt()]),
+        ("0.101", vec![]),
+    ] {
+        let m = compile(&format!(
+            "model disc\nparam c = [2, 0]\nstate x = [0, {y}], n = 0\nflow {{ x' = [1, 0] }}\n\
+             jump hit when n == 0 && norm(x - c) <= 0.1 {{ n+ = 1 }}\nsim {{ T = 4.2 }}\n"
+        ));
+        for exact in [ExactAffine::Auto, ExactAffine::Off] {
+            let mut settings = m.settings();
+            settings.exact_affine = exact;
+            let arc = run_with(&m, &settings);
+            assert_times(&arc, &expected, &format!("y = {y}, {exact:?}"));
+        }
+    }
+}

@@ -495,7 +495,7 @@ impl Emit<'_, '_> {
                 pending[d as usize] = true;
                 continue;
             }
-            if !sums.is_empty() && reads(p, op, |r| pending[r as usize]) {
+            if !sums.is_empty() && p.reads(op, |r| pending[r as usize]) {
                 self.sums(p, &mut sums, &mut pending);
             }
             self.op(p, op, blocks, &mut next_block);
@@ -716,36 +716,5 @@ impl Emit<'_, '_> {
                 }
             }
         }
-    }
-}
-
-/// Whether `op` reads a register for which `f` holds.
-fn reads(p: &Program, op: &Op, mut f: impl FnMut(u32) -> bool) -> bool {
-    match *op {
-        Op::Const { .. } => false,
-        Op::Add { a, b, .. }
-        | Op::Sub { a, b, .. }
-        | Op::Mul { a, b, .. }
-        | Op::Div { a, b, .. }
-        | Op::Bin { a, b, .. }
-        | Op::Rand { a, b, .. } => f(a) || f(b),
-        Op::AddC { a, .. }
-        | Op::MulC { a, .. }
-        | Op::BinRC { a, .. }
-        | Op::Neg { a, .. }
-        | Op::Un { a, .. } => f(a),
-        Op::BinCR { b, .. } => f(b),
-        Op::Select { c, a, b, .. } => f(c) || f(a) || f(b),
-        Op::Lookup { row, col, when, .. } => {
-            let n = p.state_regs as u32;
-            f(row) || f(col) || f(when) || f(n) || f(n + 1)
-        }
-        Op::Interp { x, .. } => f(x),
-        Op::Lin { t0, len, .. } => p.lin[t0 as usize..(t0 + len) as usize]
-            .iter()
-            .any(|&(r, _)| r != CONST_TERM && f(r)),
-        Op::Block { g0, len, .. } => p.gather[g0 as usize..(g0 + len) as usize]
-            .iter()
-            .any(|&r| f(r)),
     }
 }
