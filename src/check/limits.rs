@@ -22,7 +22,8 @@ pub enum Quantity {
     LmiRows,
     /// Scalar states of the model.
     States,
-    /// Entries of one matrix built by `eye`, `zeros` or `ones`.
+    /// Entries of one matrix: limited for `eye`, `zeros`, `ones` and `table("…")`; for a
+    /// product, `kron`, `diag` or `blkdiag` (whose work `ops` bounds) only against the memory.
     Elements,
     /// Members of one family (`param`, `state`, `output` families) or iterations of one loop.
     Iterations,
@@ -135,7 +136,7 @@ impl Limits {
         (
             Quantity::Elements,
             "matrix_elements",
-            "entries of one `eye`/`zeros`/`ones` matrix",
+            "entries of one matrix",
             1_000_000,
         ),
         (
