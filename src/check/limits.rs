@@ -31,7 +31,7 @@ pub enum Quantity {
     Ops,
     /// Samples on the output grid (T / dt_out).
     OutputPoints,
-    /// Integrator steps forced by `max_step` (T / max_step).
+    /// Integrator steps forced by `max_step` or a fixed-step solver's `h` (T / max_step, T / h).
     Steps,
 }
 
@@ -73,7 +73,7 @@ impl Quantity {
     pub fn remedy(self) -> &'static str {
         match self {
             Quantity::OutputPoints => "a larger `dt_out` (or a shorter horizon T)",
-            Quantity::Steps => "a larger `max_step` (or a shorter horizon T)",
+            Quantity::Steps => "a larger `max_step` or `h` (or a shorter horizon T)",
             Quantity::Iterations => "a shorter range",
             _ => "smaller dimensions or fewer family members",
         }
@@ -160,7 +160,7 @@ impl Limits {
         (
             Quantity::Steps,
             "step_count",
-            "integrator steps forced by max_step (T / max_step)",
+            "integrator steps forced by max_step or a fixed step h (T / max_step, T / h)",
             1_000_000_000,
         ),
     ];

@@ -2016,15 +2016,26 @@ impl ModelChecker<'_> {
             bad(self, key, reason);
             return;
         }
-        // The output grid and the steps `max_step` forces, relative to the horizon.
+        // The output grid and the steps `max_step` or a fixed-step solver's `h` force, relative
+        // to the horizon (`h = 1e-300` ran for ever).
+        let fixed_step = match s.solver {
+            Solver::Rk4 { h } | Solver::EulerMaruyama { h } => Some(h),
+            _ => None,
+        };
         for (key, q, dt) in [
             ("dt_out", Quantity::OutputPoints, s.dt_out),
             ("max_step", Quantity::Steps, Some(s.max_step)),
+            ("h", Quantity::Steps, fixed_step),
         ] {
             let Some(dt) = dt.filter(|d| d.is_finite()) else {
                 continue;
             };
-            let (span, ov) = values.get(key).copied().unwrap_or_default();
+            // A default `h` is located at the horizon or the solver that makes it too small.
+            let (span, ov) = [key, "T", "solver"]
+                .iter()
+                .find_map(|k| values.get(*k))
+                .copied()
+                .unwrap_or_default();
             let before = self.c.errors.len();
             if !self.c.within_limit(q, (s.horizon_t / dt).ceil(), span)
                 && let Some(o) = ov

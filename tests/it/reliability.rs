@@ -729,7 +729,14 @@ fn sizes_over_their_limits_are_refused_before_allocating() {
         ),
     )
     .unwrap();
-    for (name, sim) in [("dt", "dt_out = 1e-300"), ("step", "max_step = 1e-300")] {
+    for (name, sim) in [
+        ("dt", "dt_out = 1e-300"),
+        ("step", "max_step = 1e-300"),
+        // A fixed step forces T / h steps (h = 1e-300 ran for ever); a default h is located at
+        // the horizon that makes it too small.
+        ("rk", "solver = rk4; h = 1e-300"),
+        ("rkT", "solver = rk4; max_step_count = 100"),
+    ] {
         std::fs::write(
             d.join(format!("{name}.hyb")),
             format!("model t\nstate x = 1\nflow {{ x' = -x }}\nsim {{ T = 1; {sim} }}\n"),
@@ -809,6 +816,16 @@ fn sizes_over_their_limits_are_refused_before_allocating() {
             ],
             "integrator steps forced by max_step",
             "--max-step:1:12".into(),
+        ),
+        (
+            vec!["check", "rk.hyb"],
+            "integrator steps forced by max_step or a fixed step h",
+            "rk.hyb:4:32".into(),
+        ),
+        (
+            vec!["check", "rkT.hyb"],
+            "1000 integrator steps",
+            "rkT.hyb:4:11".into(),
         ),
         (
             vec![
