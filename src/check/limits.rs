@@ -191,6 +191,29 @@ impl Limits {
     }
 }
 
+/// The sizes a run's settings force relative to its horizon, as (`sim` key, quantity, estimate):
+/// the output grid `T / dt_out`, the steps `T / max_step` and a fixed-step solver's `T / h`.
+/// The checker limits them for the model's `sim` block and `--set`; settings changed after
+/// the check (`hybsim run --solver/--step`, Python's `run(**kw)`) are held to the same limits.
+pub fn forced_sizes(s: &crate::engine::SimSettings) -> Vec<(&'static str, Quantity, f64)> {
+    use crate::engine::Solver;
+    let fixed_step = match s.solver {
+        Solver::Rk4 { h } | Solver::EulerMaruyama { h } => Some(h),
+        _ => None,
+    };
+    [
+        ("dt_out", Quantity::OutputPoints, s.dt_out),
+        ("max_step", Quantity::Steps, Some(s.max_step)),
+        ("h", Quantity::Steps, fixed_step),
+    ]
+    .into_iter()
+    .filter_map(|(key, q, dt)| {
+        let dt = dt.filter(|d| d.is_finite())?;
+        Some((key, q, (s.horizon_t / dt).ceil()))
+    })
+    .collect()
+}
+
 /// The memory a check may plan for: the machine's physical memory, or the process's
 /// address-space limit (`ulimit -v`) when lower; `None` where neither is known. A size whose
 /// limit was raised past what this holds is refused (E0307) before it is allocated: an

@@ -849,6 +849,20 @@ fn sizes_over_their_limits_are_refused_before_allocating() {
         );
         assert!(took < Duration::from_secs(2), "{args:?} took {took:?} CPU");
     }
+    // `--solver`/`--step` set the fixed step after the check: held to the same limit (it ran
+    // for ever), a usage error.
+    let (code, err, took) = measured(
+        d,
+        &[
+            "run", "fam.hyb", "--solver", "rk4", "--step", "1e-300", "-q", "-o", "x.mcap",
+        ],
+    );
+    assert_eq!(code, 2, "{err}");
+    assert!(
+        err.contains("`--step`: 1.000e300 integrator steps"),
+        "{err}"
+    );
+    assert!(took < Duration::from_secs(2), "took {took:?} CPU");
     assert!(!d.join("x.mcap").exists());
     // Raised (in `sim` or by --set), the same sizes are accepted.
     let (code, err, ..) = measured(
