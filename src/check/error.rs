@@ -373,6 +373,9 @@ pub enum CheckError {
         bytes: f64,
         /// The memory there is.
         available: u64,
+        /// The limit that lets the size through: its own, or `ops` for the result of an
+        /// operation (a product's entries).
+        lifted: super::limits::Quantity,
         /// The construct that asks for it.
         span: Span,
     },
@@ -606,10 +609,15 @@ impl CheckError {
                     quantity.remedy(),
                     key = quantity.key()
                 )),
-            Memory { span, quantity, .. } => d.primary(*span, "asked for here").help(format!(
+            Memory {
+                span,
+                quantity,
+                lifted,
+                ..
+            } => d.primary(*span, "asked for here").help(format!(
                 "use {}: the limit `max_{}` lets it through, the memory does not",
                 quantity.remedy(),
-                quantity.key()
+                lifted.key()
             )),
             IndexOutOfRange { span, .. } => d.primary(*span, "out of range"),
             FamilyOutOfRange { span, members, .. } => d

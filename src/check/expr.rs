@@ -128,7 +128,25 @@ impl Checker {
     /// False (and an error at `span`) when `estimate` of `q` is over its limit. Called before
     /// anything of that size is allocated.
     pub(crate) fn within_limit(&mut self, q: Quantity, estimate: f64, span: Span) -> bool {
-        let limit = self.limits.get(q);
+        self.within(q, estimate, true, span)
+    }
+
+    /// False (and E0307 at `span`) when `estimate` of `q` needs more memory than there is,
+    /// whatever its limit: for sizes that an operation computes from its operands (a matrix
+    /// product, `kron`, `diag`, `blkdiag`), whose work the `ops` budget bounds but whose result
+    /// a lifted budget would otherwise let through to an allocation that aborts the process.
+    pub(crate) fn within_memory(&mut self, q: Quantity, estimate: f64, span: Span) -> bool {
+        self.within(q, estimate, false, span)
+    }
+
+    /// The checks of `within_limit` (`limited`: `q` has its own limit) and `within_memory`
+    /// (only the memory: the `ops` budget gates the size).
+    fn within(&mut self, q: Quantity, estimate: f64, limited: bool, span: Span) -> bool {
+        let limit = if limited {
+            self.limits.get(q)
+        } else {
+            u64::MAX
+        };
         // A limit raised past the memory there is does not let a size through that would abort
         // the process when allocated (the defaults need a few GB at most).
         let over_memory = (estimate > Limits::TABLE[q as usize].3 as f64)
@@ -151,6 +169,7 @@ impl Checker {
                 estimate,
                 bytes,
                 available,
+                lifted: if limited { q } else { Quantity::Ops },
                 span,
             },
             _ => CheckError::Limit {
@@ -973,8 +992,10 @@ impl Checker {
                     elem(self, a, b, BinFn::Mul, false)
                 } else if a.cols == b.rows {
                     let cost = (a.rows * a.cols) as u64 * b.cols as u64;
-                    self.within_budget(2 * cost, span)
-                        .then(|| self.matmul(&a, &b))
+                    let entries = a.rows as f64 * b.cols as f64;
+                    (self.within_budget(2 * cost, span)
+                        && self.within_memory(Quantity::Elements, entries, span))
+                    .then(|| self.matmul(&a, &b))
                 } else {
                     self.err(CheckError::ShapeMismatch {
                         op: "*".into(),
@@ -1442,7 +1463,9 @@ impl Checker {
                 let v = self.expr(&args[0], ctx)?;
                 if v.rows == 1 || v.cols == 1 {
                     let k = v.e.len();
-                    if !self.within_budget(k as u64 * k as u64, span) {
+                    if !self.within_budget(k as u64 * k as u64, span)
+                        || !self.within_memory(Quantity::Elements, k as f64 * k as f64, span)
+                    {
                         return None;
                     }
                     let zero = self.dag.konst(0.0);
@@ -1474,7 +1497,9 @@ impl Checker {
                 let vs = vs?;
                 let rows: usize = vs.iter().map(|v| v.rows).sum();
                 let cols: usize = vs.iter().map(|v| v.cols).sum();
-                if !self.within_budget(rows as u64 * cols as u64, span) {
+                if !self.within_budget(rows as u64 * cols as u64, span)
+                    || !self.within_memory(Quantity::Elements, rows as f64 * cols as f64, span)
+                {
                     return None;
                 }
                 let zero = self.dag.konst(0.0);
@@ -1502,7 +1527,9 @@ impl Checker {
                 let b = self.expr(&args[1], ctx);
                 let (a, b) = (a?, b?);
                 let (rows, cols) = (a.rows * b.rows, a.cols * b.cols);
-                if !self.within_budget(rows as u64 * cols as u64, span) {
+                if !self.within_budget(rows as u64 * cols as u64, span)
+                    || !self.within_memory(Quantity::Elements, rows as f64 * cols as f64, span)
+                {
                     return None;
                 }
                 let mut e = Vec::with_capacity(rows * cols);

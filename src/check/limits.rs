@@ -22,7 +22,8 @@ pub enum Quantity {
     LmiRows,
     /// Scalar states of the model.
     States,
-    /// Entries of one matrix built by `eye`, `zeros` or `ones`.
+    /// Entries of one matrix: limited for `eye`, `zeros`, `ones` and `table("…")`; for a
+    /// product, `kron`, `diag` or `blkdiag` (whose work `ops` bounds) only against the memory.
     Elements,
     /// Members of one family (`param`, `state`, `output` families) or iterations of one loop.
     Iterations,
@@ -30,7 +31,7 @@ pub enum Quantity {
     Ops,
     /// Samples on the output grid (T / dt_out).
     OutputPoints,
-    /// Integrator steps forced by `max_step` (T / max_step).
+    /// Integrator steps forced by `max_step` or a fixed-step solver's `h` (T / max_step, T / h).
     Steps,
 }
 
@@ -72,7 +73,7 @@ impl Quantity {
     pub fn remedy(self) -> &'static str {
         match self {
             Quantity::OutputPoints => "a larger `dt_out` (or a shorter horizon T)",
-            Quantity::Steps => "a larger `max_step` (or a shorter horizon T)",
+            Quantity::Steps => "a larger `max_step` or `h` (or a shorter horizon T)",
             Quantity::Iterations => "a shorter range",
             _ => "smaller dimensions or fewer family members",
         }
@@ -135,7 +136,7 @@ impl Limits {
         (
             Quantity::Elements,
             "matrix_elements",
-            "entries of one `eye`/`zeros`/`ones` matrix",
+            "entries of one matrix",
             1_000_000,
         ),
         (
@@ -159,7 +160,7 @@ impl Limits {
         (
             Quantity::Steps,
             "step_count",
-            "integrator steps forced by max_step (T / max_step)",
+            "integrator steps forced by max_step or a fixed step h (T / max_step, T / h)",
             1_000_000_000,
         ),
     ];
@@ -188,6 +189,29 @@ impl Limits {
             .collect::<Vec<_>>()
             .join(", ")
     }
+}
+
+/// The sizes a run's settings force relative to its horizon, as (`sim` key, quantity, estimate):
+/// the output grid `T / dt_out`, the steps `T / max_step` and a fixed-step solver's `T / h`.
+/// The checker limits them for the model's `sim` block and `--set`; settings changed after
+/// the check (`hybsim run --solver/--step`, Python's `run(**kw)`) are held to the same limits.
+pub fn forced_sizes(s: &crate::engine::SimSettings) -> Vec<(&'static str, Quantity, f64)> {
+    use crate::engine::Solver;
+    let fixed_step = match s.solver {
+        Solver::Rk4 { h } | Solver::EulerMaruyama { h } => Some(h),
+        _ => None,
+    };
+    [
+        ("dt_out", Quantity::OutputPoints, s.dt_out),
+        ("max_step", Quantity::Steps, Some(s.max_step)),
+        ("h", Quantity::Steps, fixed_step),
+    ]
+    .into_iter()
+    .filter_map(|(key, q, dt)| {
+        let dt = dt.filter(|d| d.is_finite())?;
+        Some((key, q, (s.horizon_t / dt).ceil()))
+    })
+    .collect()
 }
 
 /// The memory a check may plan for: the machine's physical memory, or the process's

@@ -160,6 +160,8 @@ pub struct CheckedModel {
     pub log: super::log::LogDecl,
     /// The files read by `table("…")` (path and SHA-256).
     pub tables: Vec<crate::tables::TableFile>,
+    /// The resource limits in force (after the `sim` block and `--set`).
+    pub limits: super::limits::Limits,
 }
 
 const FLOW_CTX: Ctx = Ctx {
@@ -467,6 +469,7 @@ pub(crate) fn check_model(
         sweep,
         log,
         tables: m.tables,
+        limits: m.c.limits,
     })
 }
 
@@ -2016,17 +2019,17 @@ impl ModelChecker<'_> {
             bad(self, key, reason);
             return;
         }
-        // The output grid and the steps `max_step` forces, relative to the horizon.
-        for (key, q, dt) in [
-            ("dt_out", Quantity::OutputPoints, s.dt_out),
-            ("max_step", Quantity::Steps, Some(s.max_step)),
-        ] {
-            let Some(dt) = dt.filter(|d| d.is_finite()) else {
-                continue;
-            };
-            let (span, ov) = values.get(key).copied().unwrap_or_default();
+        // The output grid and the steps `max_step` or a fixed-step solver's `h` force, relative
+        // to the horizon (`h = 1e-300` ran for ever).
+        for (key, q, estimate) in super::limits::forced_sizes(s) {
+            // A default `h` is located at the horizon or the solver that makes it too small.
+            let (span, ov) = [key, "T", "solver"]
+                .iter()
+                .find_map(|k| values.get(*k))
+                .copied()
+                .unwrap_or_default();
             let before = self.c.errors.len();
-            if !self.c.within_limit(q, (s.horizon_t / dt).ceil(), span)
+            if !self.c.within_limit(q, estimate, span)
                 && let Some(o) = ov
             {
                 self.locate_in_override(before, o, true);

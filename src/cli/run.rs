@@ -372,6 +372,11 @@ pub fn settings_from_flags(
         ),
         e => format!("{e}; {}", e.help()),
     })?;
+    // `--solver`/`--step` change the fixed step after the check: held to its limits.
+    if let Some((key, why)) = model.over_limit(&settings) {
+        let flag = if key == "h" { "--step" } else { key };
+        return Err(format!("`{flag}`: {why}"));
+    }
     Ok(settings)
 }
 

@@ -349,6 +349,8 @@ pub struct CompiledModel {
     /// The files read by `table("…")`.
     tables: Vec<crate::tables::TableFile>,
     settings: SimSettings,
+    /// The resource limits the model was checked with.
+    limits: crate::check::limits::Limits,
     seed: u64,
     params: Vec<(String, (usize, usize), Vec<f64>)>,
     inputs: Vec<crate::props::Input>,
@@ -612,6 +614,7 @@ impl CompiledModel {
             block_spans: m.block_spans,
             tables: m.tables,
             settings: m.settings,
+            limits: m.limits,
             seed: m.seed,
             params: m.params,
             inputs,
@@ -721,6 +724,29 @@ impl CompiledModel {
     /// Simulation settings from the `sim` block after overrides.
     pub fn settings(&self) -> SimSettings {
         self.settings.clone()
+    }
+
+    /// `settings` changed after the check (run flags, Python keywords) held to the limits the
+    /// model was checked with: the first size over its limit as (`sim` key, message).
+    pub fn over_limit(&self, settings: &SimSettings) -> Option<(&'static str, String)> {
+        use crate::check::limits::forced_sizes;
+        forced_sizes(settings)
+            .into_iter()
+            .find_map(|(key, q, estimate)| {
+                let limit = self.limits.get(q);
+                (estimate > limit as f64).then(|| {
+                    (
+                        key,
+                        format!(
+                            "{estimate:.3e} {q}: over the limit of {limit}; use {}, or raise the \
+                         limit (`max_{} = N` in `sim` or `--set max_{}=N`)",
+                            q.remedy(),
+                            q.key(),
+                            q.key()
+                        ),
+                    )
+                })
+            })
     }
 
     /// The run's seed (`sim { seed = N }`, default 0).

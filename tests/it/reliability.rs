@@ -729,7 +729,14 @@ fn sizes_over_their_limits_are_refused_before_allocating() {
         ),
     )
     .unwrap();
-    for (name, sim) in [("dt", "dt_out = 1e-300"), ("step", "max_step = 1e-300")] {
+    for (name, sim) in [
+        ("dt", "dt_out = 1e-300"),
+        ("step", "max_step = 1e-300"),
+        // A fixed step forces T / h steps (h = 1e-300 ran for ever); a default h is located at
+        // the horizon that makes it too small.
+        ("rk", "solver = rk4; h = 1e-300"),
+        ("rkT", "solver = rk4; max_step_count = 100"),
+    ] {
         std::fs::write(
             d.join(format!("{name}.hyb")),
             format!("model t\nstate x = 1\nflow {{ x' = -x }}\nsim {{ T = 1; {sim} }}\n"),
@@ -757,7 +764,7 @@ fn sizes_over_their_limits_are_refused_before_allocating() {
         ),
         (
             vec!["check", &platoon, "--set", "M=100000"],
-            "9999800001 entries of one `eye`/`zeros`/`ones` matrix: over the limit of 1000000",
+            "9999800001 entries of one matrix: over the limit of 1000000",
             "platoon.hyb:29:13".into(),
         ),
         (
@@ -767,7 +774,7 @@ fn sizes_over_their_limits_are_refused_before_allocating() {
         ),
         (
             vec!["check", &fireflies, "--set", "N=100000"],
-            "10000000000 entries of one `eye`/`zeros`/`ones` matrix",
+            "10000000000 entries of one matrix",
             "fireflies.hyb:13:11".into(),
         ),
         (
@@ -811,6 +818,16 @@ fn sizes_over_their_limits_are_refused_before_allocating() {
             "--max-step:1:12".into(),
         ),
         (
+            vec!["check", "rk.hyb"],
+            "integrator steps forced by max_step or a fixed step h",
+            "rk.hyb:4:32".into(),
+        ),
+        (
+            vec!["check", "rkT.hyb"],
+            "1000 integrator steps",
+            "rkT.hyb:4:11".into(),
+        ),
+        (
             vec![
                 "run", "fam.hyb", "--T", "1e300", "--dt-out", "1", "-q", "-o", "x.mcap",
             ],
@@ -832,6 +849,20 @@ fn sizes_over_their_limits_are_refused_before_allocating() {
         );
         assert!(took < Duration::from_secs(2), "{args:?} took {took:?} CPU");
     }
+    // `--solver`/`--step` set the fixed step after the check: held to the same limit (it ran
+    // for ever), a usage error.
+    let (code, err, took) = measured(
+        d,
+        &[
+            "run", "fam.hyb", "--solver", "rk4", "--step", "1e-300", "-q", "-o", "x.mcap",
+        ],
+    );
+    assert_eq!(code, 2, "{err}");
+    assert!(
+        err.contains("`--step`: 1.000e300 integrator steps"),
+        "{err}"
+    );
+    assert!(took < Duration::from_secs(2), "took {took:?} CPU");
     assert!(!d.join("x.mcap").exists());
     // Raised (in `sim` or by --set), the same sizes are accepted.
     let (code, err, ..) = measured(
@@ -1270,7 +1301,7 @@ fn output_errors_name_their_cause_once() {
 /// Limits lifted to 1e10 do not let through what cannot be allocated: each of these aborted
 /// ("memory allocation of 24000000000 bytes failed") within the 1 GiB address space; the
 /// checker now compares what a size needs with the memory there is (here the address space)
-/// and refuses it the same way, E0307 at the construct.
+/// and refuses it the same way, E0307 at the construct, also for the result of an operation.
 #[test]
 fn sizes_past_the_memory_are_refused_when_the_limits_are_lifted() {
     let dir = tempfile::tempdir().unwrap();
@@ -1296,6 +1327,33 @@ fn sizes_past_the_memory_are_refused_when_the_limits_are_lifted() {
             "m.hyb:2:11",
         ),
         ("zeros", "model m\nstate x = zeros(1e7, 1)\n", "m.hyb:2:7"),
+        // Results computed from smaller operands: their work is within the lifted `ops`, their
+        // 2.5·10⁹ entries (20 GB) are not (a product of states aborted on a 40 GB allocation).
+        (
+            "product",
+            "model m\nparam a = ones(5e4, 1)\nparam M = a * a'\nstate x = 0\n",
+            "m.hyb:3:11",
+        ),
+        (
+            "product of states",
+            "model m\nstate a = ones(5e4, 1)\noutput M = a * a'\n",
+            "m.hyb:3:12",
+        ),
+        (
+            "kron",
+            "model m\nparam a = ones(5e4, 1)\nparam M = kron(a, a')\nstate x = 0\n",
+            "m.hyb:3:11",
+        ),
+        (
+            "diag",
+            "model m\nparam M = diag(ones(5e4, 1))\nstate x = 0\n",
+            "m.hyb:2:11",
+        ),
+        (
+            "blkdiag",
+            "model m\nparam a = ones(5e4, 1)\nparam M = blkdiag(a, a')\nstate x = 0\n",
+            "m.hyb:3:11",
+        ),
     ] {
         std::fs::write(d.join("m.hyb"), text).unwrap();
         let mut args = vec!["check", "m.hyb"];
