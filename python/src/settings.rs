@@ -124,6 +124,12 @@ pub fn apply(model: &CompiledModel, sim: &Bound<'_, PyDict>) -> PyResult<SimSett
         }
         e => PyValueError::new_err(format!("{e}; {}", e.help())),
     })?;
+    // Keywords change the horizon and steps after the check: held to its limits
+    // (a `dt_out` of 1e-300 would otherwise run for ever).
+    if let Some((key, why)) = model.over_limit(&settings) {
+        let kw = if key == "h" { "step" } else { key };
+        return Err(PyValueError::new_err(format!("`{kw}`: {why}")));
+    }
     Ok(settings)
 }
 

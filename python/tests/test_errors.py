@@ -107,6 +107,21 @@ def test_bad_settings():
         m.run(linear_solver="lu")
 
 
+@pytest.mark.parametrize(
+    "kwargs, key",
+    [
+        ({"dt_out": 1e-300}, "dt_out"),
+        ({"max_step": 1e-300}, "max_step"),
+        ({"solver": "rk4", "step": 1e-300}, "step"),
+    ],
+)
+def test_sizes_forced_by_keywords_are_refused_before_running(kwargs, key):
+    # Was a run that never ended: the keywords apply after the model's check.
+    m = hybsim.load(GOOD)
+    with pytest.raises(ValueError, match=f"`{key}`: .*over the limit of"):
+        m.run(**kwargs)
+
+
 def test_a_solver_that_cannot_integrate_white_noise_is_a_value_error():
     # Was a SimulationError naming the Rust API's `Solver::EulerMaruyama { h }`.
     ou = hybsim.load("model ou\nnoise w ~ wiener(1)\nstate x = 0\nflow { x' = -x + w }\nsim { T = 0.1 }\n")
