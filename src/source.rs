@@ -53,10 +53,26 @@ impl fmt::Display for LineCol {
 pub const MAX_SOURCE_BYTES: u64 = 16 << 20;
 
 /// The UTF-8 text `reader` gives, refused with [`std::io::ErrorKind::FileTooLarge`] past
-/// [`MAX_SOURCE_BYTES`] (without reading more than one byte beyond it).
+/// [`MAX_SOURCE_BYTES`] (without reading more than one byte beyond it), and with
+/// [`std::io::ErrorKind::InvalidData`] naming the line and column of the first byte that is not
+/// UTF-8.
 pub fn read_text(reader: impl std::io::Read) -> std::io::Result<String> {
-    let mut text = String::new();
-    std::io::Read::read_to_string(&mut reader.take(MAX_SOURCE_BYTES + 1), &mut text)?;
+    let mut bytes = Vec::new();
+    std::io::Read::read_to_end(&mut reader.take(MAX_SOURCE_BYTES + 1), &mut bytes)?;
+    let text = String::from_utf8(bytes).map_err(|e| {
+        let valid = &e.as_bytes()[..e.utf8_error().valid_up_to()];
+        // The valid prefix is text: its lines and characters place the bad byte.
+        let prefix = std::str::from_utf8(valid).unwrap_or_default();
+        let line = prefix.matches('\n').count() + 1;
+        let col = prefix.rsplit('\n').next().map_or(0, |l| l.chars().count()) + 1;
+        let byte = e.as_bytes()[valid.len()];
+        std::io::Error::new(
+            std::io::ErrorKind::InvalidData,
+            format!(
+                "line {line}, column {col}: byte 0x{byte:02x} is not UTF-8 (save the file as UTF-8)"
+            ),
+        )
+    })?;
     if text.len() as u64 > MAX_SOURCE_BYTES {
         return Err(std::io::Error::new(
             std::io::ErrorKind::FileTooLarge,
@@ -215,5 +231,17 @@ mod tests {
         assert_eq!(f.line_col(7), LineCol { line: 4, col: 1 });
         assert_eq!(f.line_col(9), LineCol { line: 4, col: 2 });
         assert_eq!(f.line_col(999), LineCol { line: 4, col: 3 });
+    }
+
+    #[test]
+    fn text_that_is_not_utf8_is_refused_at_its_line_and_column() {
+        let e = read_text(&b"model m\n# caf\xc3\xa9 \xff\n"[..]).unwrap_err();
+        assert_eq!(e.kind(), std::io::ErrorKind::InvalidData);
+        assert!(
+            e.to_string()
+                .starts_with("line 2, column 8: byte 0xff is not UTF-8"),
+            "{e}"
+        );
+        assert_eq!(read_text(&b"a\nb"[..]).unwrap(), "a\nb");
     }
 }
