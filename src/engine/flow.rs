@@ -1306,13 +1306,16 @@ impl Flows {
         let mut since_test = 0;
         loop {
             let remaining = d_end - s;
-            let h = match st.step(
-                s,
-                &self.y_prev,
-                remaining.min(self.max_step),
-                &mut f,
-                &mut jac,
-            ) {
+            // A segment end a rounding error beyond `max_step` is reached in
+            // one step: a step of `max_step` would leave a sliver the stepper
+            // cannot take (`T = 4.2` in steps of 0.1 from 4).
+            let slack = 1e-9 * self.max_step + 64.0 * f64::EPSILON * d_end.abs();
+            let h_max = if remaining <= self.max_step + slack {
+                remaining
+            } else {
+                self.max_step
+            };
+            let h = match st.step(s, &self.y_prev, h_max, &mut f, &mut jac) {
                 Ok(h) => h,
                 Err(Failure::Stiff) if auto => return Ok(Stepped::Switch(s)),
                 Err(failure) => {

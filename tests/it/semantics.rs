@@ -5,7 +5,7 @@
 
 use crate::util::simulate_arc;
 use hybsim::arc::{FailedAtom, HybridArc, TerminationCause};
-use hybsim::engine::{ExactAffine, SimSettings, check_arc};
+use hybsim::engine::{ExactAffine, SimSettings, Solver, check_arc};
 use hybsim::ir::CompiledModel;
 use hybsim::lang;
 use hybsim::source::SourceFile;
@@ -1180,6 +1180,40 @@ fn a_run_ends_exactly_at_its_horizon_after_jumps() {
             assert_eq!(end.t, horizon, "{exact:?}: ended at {end:?}");
             assert_eq!(arc.last().expect("samples").at.t, horizon, "{exact:?}");
         }
+    }
+}
+
+/// A segment whose end lies a rounding error beyond a whole number of
+/// `max_step` steps reaches it: `T = 4.2` in steps of 0.1 from the event at
+/// x = 4 (where `mod(x, 1)` falls back to 0) used to leave a sliver of
+/// 9e-16 that every solver refused as a collapsed step size.
+#[test]
+fn a_segment_end_a_rounding_error_past_whole_max_steps_is_reached() {
+    let m = compile(
+        "model saw\nstate x = 0, n = 0\nflow { x' = 1 }\n\
+         jump tick when mod(x, 1) >= 0.5 && n < floor(x) + 1 { n+ = n + 1 }\n\
+         sim { T = 4.2; max_step = 0.1 }\n",
+    );
+    for solver in [
+        Solver::Dopri5 {
+            rtol: 1e-6,
+            atol: 1e-9,
+        },
+        Solver::Radau5 {
+            rtol: 1e-6,
+            atol: 1e-9,
+        },
+    ] {
+        let mut settings = m.settings();
+        settings.exact_affine = ExactAffine::Off;
+        settings.solver = solver;
+        let arc = run_with(&m, &settings);
+        assert_eq!(
+            arc.termination().expect("a termination").cause,
+            TerminationCause::HorizonT,
+            "{solver:?}"
+        );
+        assert_times(&arc, &[0.5, 1.5, 2.5, 3.5], &format!("{solver:?}"));
     }
 }
 
