@@ -126,7 +126,7 @@ fn sigterm_and_sighup_complete_the_files_like_ctrl_c() {
         )
         .unwrap();
         let child = Command::new(BIN)
-            .args(["run", "slow.hyb", "-q", "--csv", "slow.csv", "--T", "1e9"])
+            .args(["run", "slow.hyb", "-q", "--csv", "slow.csv", "--T", "1e6"])
             .args(["--solver", "rk4", "--step", "1e-3"])
             .current_dir(dir.path())
             .stdout(Stdio::null())

@@ -490,7 +490,7 @@ fn bad_sweep_arguments_are_reported() {
 }
 
 /// A pendulum (not affine: stepped, no exact propagator) with a metric;
-/// `T = 1e9` is a run that does not end within any test.
+/// `T = 1e6` (10⁹ steps, the step limit) is a run that does not end within any test.
 const PENDULUM: &str = "model pendulum
 state x = 1, v = 0
 flow { x' = v; v' = -sin(x) }
@@ -507,7 +507,7 @@ fn an_interrupted_sweep_keeps_the_runs_that_finished() {
     std::fs::write(d.join("p.hyb"), PENDULUM).unwrap();
     // One thread takes the runs in grid order: three short ones, then one
     // that cannot end before the signal.
-    let grid = "T=[0.5, 0.6, 0.7, 1e9]";
+    let grid = "T=[0.5, 0.6, 0.7, 1e6]";
     let child = Command::new(crate::util::BIN)
         .args(["sweep", "p.hyb", "--grid", grid, "--threads", "1", "-q"])
         .args(["-o", "part"])
