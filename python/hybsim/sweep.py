@@ -117,5 +117,8 @@ def sweep_model(
     threads: Optional[int],
 ) -> Sweep:
     """The body of :meth:`Model.sweep`."""
+    from .model import _check_seed
+
+    _check_seed(seed)
     axes = None if grid is None else _axes(grid)
     return Sweep(_hybsim.sweep(native, axes, runs, seed, threads))

@@ -3,7 +3,7 @@
 
 use hybsim::engine::{LinearSolver, Priority, SimError, SimSettings, Solver};
 use hybsim::ir::CompiledModel;
-use pyo3::exceptions::{PyTypeError, PyValueError};
+use pyo3::exceptions::{PyOverflowError, PyTypeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
@@ -33,7 +33,13 @@ fn get<'py, T: FromPyObjectOwned<'py>>(sim: &Bound<'py, PyDict>, key: &str) -> P
         Some(v) if v.is_none() => Ok(None),
         Some(v) => v.extract::<T>().map(Some).map_err(|e| {
             let e: PyErr = e.into();
-            PyTypeError::new_err(format!("`{key}`: {}", e.value(sim.py())))
+            let msg = format!("`{key}`: {}", e.value(sim.py()));
+            // An int outside the keyword's range (`J=-1`) is the right type with a wrong value.
+            if e.is_instance_of::<PyOverflowError>(sim.py()) {
+                PyValueError::new_err(msg)
+            } else {
+                PyTypeError::new_err(msg)
+            }
         }),
     }
 }

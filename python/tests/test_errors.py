@@ -122,6 +122,24 @@ def test_sizes_forced_by_keywords_are_refused_before_running(kwargs, key):
         m.run(**kwargs)
 
 
+def test_integers_out_of_range_are_value_errors_naming_the_keyword():
+    # Were OverflowError / TypeError "can't convert negative int to unsigned".
+    m = hybsim.load(GOOD)
+    for kwargs, key in [
+        ({"J": -1}, "J"),
+        ({"guard_checks": -2}, "guard_checks"),
+        ({"seed": -1}, "seed"),
+        ({"seed": 2**64}, "seed"),
+    ]:
+        with pytest.raises(ValueError, match=f"`{key}`"):
+            m.run(**kwargs)
+    with pytest.raises(ValueError, match="`seed`"):
+        m.sweep(runs=2, seed=-5)
+    with pytest.raises(TypeError, match="`seed`"):
+        m.run(seed=1.5)
+    assert m.run(seed=2**64 - 1).seed == 2**64 - 1
+
+
 def test_a_solver_that_cannot_integrate_white_noise_is_a_value_error():
     # Was a SimulationError naming the Rust API's `Solver::EulerMaruyama { h }`.
     ou = hybsim.load("model ou\nnoise w ~ wiener(1)\nstate x = 0\nflow { x' = -x + w }\nsim { T = 0.1 }\n")
