@@ -379,6 +379,14 @@ pub enum CheckError {
         /// The construct that asks for it.
         span: Span,
     },
+    /// A set condition that reads a NaN value (it would never hold).
+    #[error("{set} compares with NaN, so it never holds")]
+    NanCondition {
+        /// The set (`the flow set`, ``the jump set of `r` ``).
+        set: String,
+        /// The flow block or the rule's head.
+        span: Span,
+    },
     /// A flow equation affine in the state with an infinite or NaN coefficient.
     #[error("the flow equation of `{target}` has a coefficient that is not finite (inf or NaN)")]
     NonFiniteFlow {
@@ -469,6 +477,7 @@ impl CheckError {
             | Limit { span, .. }
             | Memory { span, .. }
             | NonFiniteFlow { span, .. }
+            | NanCondition { span, .. }
             | NoiseNotAffine { span, .. } => *span,
             Design(e) => e.span(),
             Table(e) => e.span(),
@@ -511,6 +520,7 @@ impl CheckError {
             Instance { .. } => "E0512",
             RecursiveSubsystem { .. } => "E0513",
             NonFiniteFlow { .. } => "E0514",
+            NanCondition { .. } => "E0515",
             Design(e) => e.code(),
             Table(e) => e.code(),
         }
@@ -712,6 +722,9 @@ impl CheckError {
             NonFiniteFlow { span, .. } => d
                 .primary(*span, "inf or NaN in this equation")
                 .help("check the parameters it uses (a division by zero, an overflow, `inf`)"),
+            NanCondition { span, .. } => d
+                .primary(*span, "its condition reads a NaN value")
+                .help("check the parameters it uses (`0/0`, `inf - inf`, `0*inf`); write `inf` for a threshold that is never reached"),
             NoiseNotAffine { span, .. } => d
                 .primary(*span, "a nonlinear function of white noise")
                 .note("flows with noise are read as x' = f(x) + G(x) w, w white noise")

@@ -1309,15 +1309,44 @@ fn output_layout(outputs: &[crate::check::OutputField]) -> (Layout, usize) {
 /// in which white noise does not enter affinely (the diffusion is computed
 /// as f(x, e_k) − f(x, 0), which is only right for `f(x) + G(x) w`).
 pub fn structural_errors(m: &CheckedModel) -> Vec<crate::check::CheckError> {
-    if m.wiener_dim == 0 {
-        return non_finite_flows(m);
+    let mut errors = if m.wiener_dim == 0 {
+        non_finite_flows(m)
+    } else {
+        flow_equation_errors(
+            m,
+            analysis::Vars::Wiener,
+            |form| form.is_none(),
+            |target, span| crate::check::CheckError::NoiseNotAffine { target, span },
+        )
+    };
+    errors.extend(nan_conditions(m));
+    errors
+}
+
+/// Sets (the flow set, each rule's jump set) whose condition reads a NaN constant (a parameter
+/// `0/0`, `inf - inf`): a comparison with NaN never holds, so such a set would silently be
+/// empty. `inf` is allowed (`x >= inf` is a rule that never fires, on purpose).
+fn nan_conditions(m: &CheckedModel) -> Vec<crate::check::CheckError> {
+    let is_nan = |n: Node| matches!(n, Node::Const(b) if f64::from_bits(b).is_nan());
+    let sets: Vec<(NodeId, Span, String)> = m
+        .flow_set
+        .iter()
+        .map(|&(cond, span)| (cond, span, "the flow set".to_string()))
+        .chain(
+            m.rules
+                .iter()
+                .map(|r| (r.guard, r.span, format!("the jump set of `{}`", r.name))),
+        )
+        .collect();
+    // One pass over all conditions; the sets one by one only when one of them has a NaN.
+    let roots: Vec<NodeId> = sets.iter().map(|s| s.0).collect();
+    if !m.dag.any_reachable(&roots, is_nan) {
+        return Vec::new();
     }
-    flow_equation_errors(
-        m,
-        analysis::Vars::Wiener,
-        |form| form.is_none(),
-        |target, span| crate::check::CheckError::NoiseNotAffine { target, span },
-    )
+    sets.into_iter()
+        .filter(|(cond, ..)| m.dag.any_reachable(&[*cond], is_nan))
+        .map(|(_, span, set)| crate::check::CheckError::NanCondition { set, span })
+        .collect()
 }
 
 /// Flow equations affine in the state with a coefficient or constant that is not finite
@@ -1392,8 +1421,8 @@ fn detect_timer(m: &CheckedModel, cond: crate::check::dag::NodeId) -> Option<Gua
         BinFn::Le => rate < 0.0,
         _ => false,
     };
-    // A non-finite threshold (`tau >= 0/0`) is not a timer the engine can schedule: such a
-    // guard is evaluated as written (a comparison with NaN never holds).
+    // A non-finite threshold (`tau >= inf`) is not a timer the engine can schedule: such a
+    // guard is evaluated as written (a NaN one is refused by the check, E0515).
     (ok && m.wiener_dim == 0 && threshold.is_finite()).then_some(GuardKind::Timer {
         index: k as usize,
         threshold,

@@ -599,12 +599,20 @@ fn defects_found_by_mutation_end_quickly_with_located_results() {
         "{:?}",
         run(norms)
     );
-    // A timer guard against NaN never holds (it was an unlocated "invalid system" at run time).
+    // A timer guard against NaN (it was an unlocated "invalid system" at run time, then a rule
+    // that silently never fired): a located E0515.
     let nan_timer = "model m\nstate tau = 0\nflow { tau' = 1 }\njump j when tau >= 0/0 { tau+ = 0 }\nsim { T = 1 }\n";
     assert!(
-        matches!(run(nan_timer), Ok(Outcome::Ran { .. })),
+        matches!(run(nan_timer), Ok(Outcome::Rejected { errors: 1 })),
         "{:?}",
         run(nan_timer)
+    );
+    let diags = hybsim::lang::check_only(&SourceFile::new("m.hyb", nan_timer), &[]);
+    assert!(
+        diags
+            .iter()
+            .any(|d| d.code == "E0515" && d.primary_span().is_some()),
+        "{diags:?}"
     );
     let cpu = thread_cpu() - t0;
     assert!(cpu < Duration::from_secs(2), "{cpu:?} CPU");

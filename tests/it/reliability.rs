@@ -918,6 +918,13 @@ fn check_rejects_what_run_would_with_located_errors() {
             "not finite",
             ":7:8",
         ),
+        (
+            "nan",
+            "param a = 0/0\njump r when x <= a { x+ = 1 }\n",
+            "E0515",
+            "the jump set of `r` compares with NaN, so it never holds",
+            ":6:1",
+        ),
     ];
     for (name, extra, code_, says, at) in cases {
         let file = format!("{name}.hyb");
