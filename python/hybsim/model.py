@@ -12,23 +12,12 @@ import numpy as np
 
 from . import _hybsim
 from .solution import Solution
-from .sweep import Grid, Sweep, sweep_model
+from .sweep import Grid, Sweep, check_seed, sweep_model
 
 ModelError = _hybsim.ModelError
 SimulationError = _hybsim.SimulationError
 
 PathOrSource = Union[str, "os.PathLike[str]"]
-
-
-def _check_seed(seed: Optional[int]) -> None:
-    """A seed is None or an int in [0, 2^64): anything else is refused
-    here, named, rather than by the conversion to the engine's u64."""
-    if seed is None:
-        return
-    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)):
-        raise TypeError(f"`seed`: an int, got {type(seed).__name__}")
-    if not 0 <= int(seed) < 2**64:
-        raise ValueError(f"`seed`: must be from 0 to 2^64 - 1, got {int(seed)}")
 
 
 def _expression(value: Any) -> str:
@@ -326,7 +315,7 @@ class Model:
             sim["T"] = T
         if J is not None:
             sim["J"] = J
-        _check_seed(seed)
+        check_seed(seed)
         try:
             data = self._native.run(seed, sim)
         except SimulationError as e:

@@ -109,6 +109,17 @@ class Sweep:
         )
 
 
+def check_seed(seed: Optional[int]) -> None:
+    """A seed is None or an int in [0, 2^64): anything else is refused
+    here, named, rather than by the conversion to the engine's u64."""
+    if seed is None:
+        return
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)):
+        raise TypeError(f"`seed`: an int, got {type(seed).__name__}")
+    if not 0 <= int(seed) < 2**64:
+        raise ValueError(f"`seed`: must be from 0 to 2^64 - 1, got {int(seed)}")
+
+
 def sweep_model(
     native: "_hybsim.Model",
     grid: Optional[Grid],
@@ -117,8 +128,6 @@ def sweep_model(
     threads: Optional[int],
 ) -> Sweep:
     """The body of :meth:`Model.sweep`."""
-    from .model import _check_seed
-
-    _check_seed(seed)
+    check_seed(seed)
     axes = None if grid is None else _axes(grid)
     return Sweep(_hybsim.sweep(native, axes, runs, seed, threads))
