@@ -305,6 +305,8 @@ pub(crate) struct Affine {
     /// gives them.
     cache: Vec<(u64, Vec<f64>)>,
     next_slot: usize,
+    /// The slot the last lookup found (checked first).
+    last_hit: usize,
     /// Longest step between guard checks: 1/‖A‖∞.
     watch_step: f64,
     /// Rows of `[A, b]` with a nonzero entry, if at most half of them: the
@@ -418,6 +420,7 @@ impl Affine {
             n,
             cache: Vec::with_capacity(AFFINE_CACHE),
             next_slot: 0,
+            last_hit: 0,
             watch_step,
             scratch: vec![0.0; n],
             one_off: Vec::new(),
@@ -487,19 +490,31 @@ impl Affine {
     /// Cache slot of the propagator for a step `h` (computed on a miss).
     fn propagator(&mut self, h: f64) -> usize {
         let key = h.to_bits();
-        if let Some(i) = self.cache.iter().position(|(k, _)| *k == key) {
-            return i;
+        // Periodic sampling asks for the same step again and again.
+        if self
+            .cache
+            .get(self.last_hit)
+            .is_some_and(|(k, _)| *k == key)
+        {
+            return self.last_hit;
         }
-        let p = self.exp_step(h);
-        if self.cache.len() < AFFINE_CACHE {
-            self.cache.push((key, p));
-            self.cache.len() - 1
-        } else {
-            let slot = self.next_slot;
-            self.cache[slot] = (key, p);
-            self.next_slot = (slot + 1) % AFFINE_CACHE;
-            slot
-        }
+        let slot = match self.cache.iter().position(|(k, _)| *k == key) {
+            Some(i) => i,
+            None => {
+                let p = self.exp_step(h);
+                if self.cache.len() < AFFINE_CACHE {
+                    self.cache.push((key, p));
+                    self.cache.len() - 1
+                } else {
+                    let slot = self.next_slot;
+                    self.cache[slot] = (key, p);
+                    self.next_slot = (slot + 1) % AFFINE_CACHE;
+                    slot
+                }
+            }
+        };
+        self.last_hit = slot;
+        slot
     }
 
     /// The propagator of a step `h`: the first n rows `[Φ, γ]` of
@@ -579,10 +594,11 @@ impl Affine {
         g
     }
 
-    /// `out` = the flow from `x` after a step `h`.
-    fn advance(&mut self, h: f64, x: &[f64], out: &mut [f64]) {
+    /// `out` = the flow from `x` (finite) after a step `h`; whether `out`
+    /// is finite.
+    fn advance(&mut self, h: f64, x: &[f64], out: &mut [f64]) -> bool {
         let slot = self.propagator(h);
-        self.apply(&self.cache[slot].1, x, out);
+        self.apply(&self.cache[slot].1, x, out)
     }
 
     /// Component `i` of `A x + b`: its row's nonzero entries in column
@@ -651,27 +667,38 @@ impl Affine {
     /// [`exp_step`](Self::exp_step) (all rows, or the active ones: the
     /// other components are copied from `x`). Each row is γ plus Φ's terms
     /// in column order, as a column-major gemv adds them (the same bits);
-    /// the rows go [`APPLY_BLOCK`] at a time, held in registers.
-    fn apply(&self, p: &[f64], x: &[f64], out: &mut [f64]) {
+    /// the rows go [`APPLY_BLOCK`] at a time, held in registers. Returns
+    /// whether every component written is finite (decided in the same pass:
+    /// `v − v` is 0 for a finite `v`, NaN otherwise), so that a step needs
+    /// no second pass over the state.
+    #[allow(clippy::eq_op)] // `a - a` is the finiteness test
+    fn apply(&self, p: &[f64], x: &[f64], out: &mut [f64]) -> bool {
         let n = self.n;
         let kp = p.len() / (n + 1);
         if self.active.is_some() {
             out.copy_from_slice(x);
         }
-        if kp == 0 {
-            return;
-        }
         let (phi, gamma) = p.split_at(n * kp);
-        for start in (0..kp).step_by(APPLY_BLOCK) {
-            let block = |c: &[f64]| -> [f64; APPLY_BLOCK] {
-                c[start..start + APPLY_BLOCK].try_into().expect("a block")
-            };
-            let mut acc = block(gamma);
-            for (col, &xc) in phi.chunks_exact(kp).zip(x) {
-                for (a, v) in acc.iter_mut().zip(block(col)) {
-                    *a += v * xc;
+        let x = &x[..n];
+        let mut nan = 0.0;
+        let mut start = 0;
+        while start < kp {
+            let mut acc: [f64; APPLY_BLOCK] = gamma[start..start + APPLY_BLOCK]
+                .try_into()
+                .expect("a block");
+            // Column c's block starts at c·kp + start: one bounds check per
+            // column, the block's updates unrolled.
+            let mut at = start;
+            for &xc in x {
+                let col: &[f64; APPLY_BLOCK] =
+                    phi[at..at + APPLY_BLOCK].try_into().expect("a block");
+                for r in 0..APPLY_BLOCK {
+                    acc[r] += col[r] * xc;
                 }
+                at += kp;
             }
+            // Padding rows are 0 (finite): the sum over the block decides.
+            nan += acc.iter().fold(0.0, |s, &a| s + (a - a));
             match &self.active {
                 Some(rows) => {
                     for (&r, &a) in rows[start..].iter().zip(&acc) {
@@ -679,12 +706,13 @@ impl Affine {
                     }
                 }
                 None => {
-                    for (o, &a) in out[start..n].iter_mut().zip(&acc) {
-                        *o = a;
-                    }
+                    let m = APPLY_BLOCK.min(n - start);
+                    out[start..start + m].copy_from_slice(&acc[..m]);
                 }
             }
+            start += APPLY_BLOCK;
         }
+        nan == 0.0
     }
 }
 
@@ -710,7 +738,7 @@ impl StepPath for AffinePath<'_> {
         }
         let mut p = std::mem::take(&mut self.aff.one_off);
         self.aff.exp_step_into(s - self.s0, &mut p);
-        self.aff.apply(&p, self.y0, out);
+        let _ = self.aff.apply(&p, self.y0, out);
         self.aff.one_off = p;
     }
 }
@@ -732,7 +760,7 @@ impl DensePath for AffinePath<'_> {
 
     fn mid(&mut self, s0: f64, s1: f64, out: &mut [f64]) {
         debug_assert_eq!(s0, self.s0);
-        self.aff.advance(0.5 * self.span(s0, s1), self.y0, out);
+        let _ = self.aff.advance(0.5 * self.span(s0, s1), self.y0, out);
     }
 
     fn grid(
@@ -749,7 +777,7 @@ impl DensePath for AffinePath<'_> {
         prev.copy_from_slice(self.y0);
         let mut flow = ControlFlow::Continue(());
         for k in 1..m {
-            self.aff.apply(&self.aff.cache[slot].1, &prev, buf);
+            let _ = self.aff.apply(&self.aff.cache[slot].1, &prev, buf);
             flow = emit(s0 + k as f64 * delta, buf);
             if flow.is_break() {
                 break;
@@ -1642,8 +1670,9 @@ trait ExactFlow {
     const CACHED: bool;
 
     /// `y1` = the flow from `y0` after `h`; the step whose path
-    /// [`path`](Self::path) then gives.
-    fn advance(&mut self, h: f64, y0: &[f64], y1: &mut [f64]);
+    /// [`path`](Self::path) then gives. Returns `true` if `y1` is known to
+    /// be finite (`false`: unknown, the caller checks).
+    fn advance(&mut self, h: f64, y0: &[f64], y1: &mut [f64]) -> bool;
 
     /// The path of the step just advanced by `h`, `[s0, s1]` from `y0` to
     /// `y1`.
@@ -1661,8 +1690,8 @@ impl ExactFlow for Affine {
     type Path<'a> = AffinePath<'a>;
     const CACHED: bool = true;
 
-    fn advance(&mut self, h: f64, y0: &[f64], y1: &mut [f64]) {
-        Affine::advance(self, h, y0, y1);
+    fn advance(&mut self, h: f64, y0: &[f64], y1: &mut [f64]) -> bool {
+        Affine::advance(self, h, y0, y1)
     }
 
     fn path<'a>(
@@ -1688,9 +1717,10 @@ impl ExactFlow for PolynomialFlow {
     type Path<'a> = PolynomialPath<'a>;
     const CACHED: bool = false;
 
-    fn advance(&mut self, h: f64, y0: &[f64], y1: &mut [f64]) {
+    fn advance(&mut self, h: f64, y0: &[f64], y1: &mut [f64]) -> bool {
         self.set_step(y0, h);
         self.eval_at(1.0, y1);
+        false
     }
 
     fn path<'a>(
@@ -1735,8 +1765,9 @@ impl ExactSteps<'_> {
         loop {
             let (s1, h, last) = exact_step_end(out, t0, s, hw, d_end);
             let h = if F::CACHED { h } else { s1 - s };
-            flow.advance(h, self.y_prev, self.y1);
-            if let Some(e) = check_finite(sys, HybridTime::new(t0 + s1, j), self.y1, None) {
+            if !flow.advance(h, self.y_prev, self.y1)
+                && let Some(e) = check_finite(sys, HybridTime::new(t0 + s1, j), self.y1, None)
+            {
                 return Err(e);
             }
             let mut path = flow.path(s, s1, h, self.y_prev, self.y1);

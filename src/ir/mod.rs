@@ -1617,8 +1617,9 @@ impl HybridSystem for CompiledModel {
 
     fn jump_sets(&self, at: HybridTime, x: &[f64], inside: &mut [bool]) -> bool {
         let conds = &self.atoms.conds;
-        // One rule: its own program is as cheap.
-        if conds.outs.len() < 2 {
+        // One rule too: as cheap as its own program, and the engine then
+        // makes one call instead of two.
+        if conds.outs.is_empty() {
             return false;
         }
         with_regs(self.nregs, |regs| {
