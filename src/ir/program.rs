@@ -277,6 +277,14 @@ impl Frame {
 }
 
 /// The register of node `id`, materializing a constant on first use.
+/// The jump count as a register value: through `i64`, one conversion
+/// instruction where `u64` takes several (the same value below 2⁶³, and a
+/// run makes fewer jumps than that).
+#[inline(always)]
+fn jumps_value(j: u64) -> f64 {
+    i64::try_from(j).map_or(j as f64, |j| j as f64)
+}
+
 fn as_reg(dag: &Dag, id: NodeId, reg: &mut [u32], ops: &mut Vec<Op>, next: &mut u32) -> u32 {
     if reg[id as usize] == u32::MAX
         && let Some(c) = dag.as_const(id)
@@ -804,19 +812,31 @@ impl Program {
     /// the frame's `n`), with `regs` as the register file (its other fixed
     /// registers already filled). Machine code reads `x` where it is; the
     /// interpreter copies it into `regs` first.
-    #[inline]
+    #[inline(always)]
     pub fn run_at(&self, regs: &mut [f64], at: HybridTime, x: &[f64], rng: Option<&mut SimRng>) {
         let n = self.state_regs;
         let frame = Frame { n, m: 0 };
         regs[frame.time_reg()] = at.t;
-        regs[frame.jumps_reg()] = at.j as f64;
+        regs[frame.jumps_reg()] = jumps_value(at.j);
+        // The engine's hot path, small enough to inline into each caller;
+        // the rest (tier-up, the interpreter) out of line.
+        match self.tier.attached() {
+            Some(native) if self.dest.is_none() => native.run_at(regs, &x[..n], rng),
+            _ => self.run_at_slow(regs, &x[..n], rng),
+        }
+    }
+
+    /// [`run_at`](Self::run_at) without attached code for it to call
+    /// directly (the time registers already filled).
+    #[inline(never)]
+    fn run_at_slow(&self, regs: &mut [f64], x: &[f64], rng: Option<&mut SimRng>) {
         match self.tier.code(self) {
             Some(native) if self.dest.is_some() => {
-                self.run_native_to_regs(native, regs, Some(&x[..n]), rng)
+                self.run_native_to_regs(native, regs, Some(x), rng)
             }
-            Some(native) => native.run_at(regs, &x[..n], rng),
+            Some(native) => native.run_at(regs, x, rng),
             None => {
-                regs[..n].copy_from_slice(&x[..n]);
+                regs[..x.len()].copy_from_slice(x);
                 self.interpret(regs, rng)
             }
         }
@@ -829,7 +849,7 @@ impl Program {
     ///
     /// # Panics
     /// If `out` is shorter than the positions need.
-    #[inline]
+    #[inline(always)]
     pub fn run_into(
         &self,
         regs: &mut [f64],
@@ -841,15 +861,32 @@ impl Program {
         let n = self.state_regs;
         let frame = Frame { n, m: 0 };
         regs[frame.time_reg()] = at.t;
-        regs[frame.jumps_reg()] = at.j as f64;
-        match self.tier.code(self) {
+        regs[frame.jumps_reg()] = jumps_value(at.j);
+        // As in `run_at`: the attached code's call inline, the rest not.
+        match self.tier.attached() {
             Some(native) if self.dest.is_some() => native.run_into(regs, &x[..n], rng, out),
+            _ => self.run_into_slow(regs, &x[..n], rng, out),
+        }
+    }
+
+    /// [`run_into`](Self::run_into) without attached code for it to call
+    /// directly (the time registers already filled).
+    #[inline(never)]
+    fn run_into_slow(
+        &self,
+        regs: &mut [f64],
+        x: &[f64],
+        rng: Option<&mut SimRng>,
+        out: &mut [f64],
+    ) {
+        match self.tier.code(self) {
+            Some(native) if self.dest.is_some() => native.run_into(regs, x, rng, out),
             Some(native) => {
-                native.run_at(regs, &x[..n], rng);
+                native.run_at(regs, x, rng);
                 self.gather_into(regs, out);
             }
             None => {
-                regs[..n].copy_from_slice(&x[..n]);
+                regs[..x.len()].copy_from_slice(x);
                 self.interpret(regs, rng);
                 self.gather_into(regs, out);
             }

@@ -307,6 +307,13 @@ impl Tier {
         self.code.get()
     }
 
+    /// The machine code attached, without counting the call or compiling
+    /// (the callers' inlined fast path; [`code`](Self::code) does the rest).
+    #[inline]
+    pub fn attached(&self) -> Option<&Native> {
+        self.code.get()
+    }
+
     /// Whether no machine code is attached yet.
     pub fn code_is_unset(&self) -> bool {
         self.code.get().is_none()
