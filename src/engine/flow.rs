@@ -307,6 +307,9 @@ pub(crate) struct Affine {
     next_slot: usize,
     /// The slot the last lookup found (checked first).
     last_hit: usize,
+    /// Rows of a propagator's columns: the active rows (or all), padded to
+    /// a multiple of [`APPLY_BLOCK`].
+    padded_rows: usize,
     /// Longest step between guard checks: 1/‖A‖∞.
     watch_step: f64,
     /// Rows of `[A, b]` with a nonzero entry, if at most half of them: the
@@ -421,6 +424,12 @@ impl Affine {
             cache: Vec::with_capacity(AFFINE_CACHE),
             next_slot: 0,
             last_hit: 0,
+            padded_rows: if 2 * active.len() <= n {
+                active.len()
+            } else {
+                n
+            }
+            .next_multiple_of(APPLY_BLOCK),
             watch_step,
             scratch: vec![0.0; n],
             one_off: Vec::new(),
@@ -531,7 +540,7 @@ impl Affine {
     fn exp_step_into(&self, h: f64, rows: &mut Vec<f64>) {
         let p = self.exp_rows(h);
         let k = self.active.as_ref().map_or(self.n, Vec::len);
-        let pad = k.next_multiple_of(APPLY_BLOCK) - k;
+        let pad = self.padded_rows - k;
         // `p` is column-major with p.nrows() rows; its first k rows.
         let (ps, ld) = (p.as_slice(), p.nrows());
         rows.clear();
@@ -673,8 +682,8 @@ impl Affine {
     /// no second pass over the state.
     #[allow(clippy::eq_op)] // `a - a` is the finiteness test
     fn apply(&self, p: &[f64], x: &[f64], out: &mut [f64]) -> bool {
-        let n = self.n;
-        let kp = p.len() / (n + 1);
+        let (n, kp) = (self.n, self.padded_rows);
+        debug_assert!(p.is_empty() || p.len() == kp * (n + 1));
         if self.active.is_some() {
             out.copy_from_slice(x);
         }
