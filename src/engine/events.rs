@@ -269,21 +269,40 @@ fn set_value(spec: &SetAtoms, table: Option<TruthTable>, truth: impl Fn(usize) -
     }
 }
 
-/// The value of the set `ws` (with atoms) at a checkpoint where timers
+/// The values of the set `ws` (with atoms) at a checkpoint where timers
 /// pass their thresholds ([`Watcher::cross_timers`]): its watched atoms at
 /// their checkpoint values `vs`, the others at their truth for the rest of
-/// the segment, or with `on`, the timers crossed there where they land.
-fn timer_set_value(ws: &WSet, spec: &SetAtoms, on: bool) -> bool {
-    set_value(spec, ws.table, |k| {
+/// the segment (past the thresholds), and the same with the timers crossed
+/// there where they land. With a truth table, both in one pass.
+fn timer_set_values(ws: &WSet, spec: &SetAtoms) -> (bool, bool) {
+    let past = |k: usize| {
         let atom = &spec.atoms[k];
-        if on && ws.on_threshold[k] {
-            ws.landed[k]
-        } else if atom.watched() {
+        if atom.watched() {
             atom.cmp.holds_within(ws.vs[k], ws.relax[k])
         } else {
             ws.start_truth[k]
         }
-    })
+    };
+    let on = |k: usize| {
+        if ws.on_threshold[k] {
+            ws.landed[k]
+        } else {
+            past(k)
+        }
+    };
+    match ws.table {
+        Some(t) => {
+            let (mut mp, mut mo) = (0u32, 0u32);
+            for k in 0..spec.atoms.len() {
+                let p = past(k);
+                let o = if ws.on_threshold[k] { ws.landed[k] } else { p };
+                mp |= u32::from(p) << k;
+                mo |= u32::from(o) << k;
+            }
+            (t.value(mp), t.value(mo))
+        }
+        None => (spec.expr.eval_with(&past), spec.expr.eval_with(&on)),
+    }
 }
 
 /// Evaluates the atoms of `ws` at (t, j, x) into `out`.
@@ -375,6 +394,9 @@ struct TimerAtom {
     /// whether at the checkpoint being examined.
     crossed: bool,
     now: bool,
+    /// Whether a strict atom has the same timer (it may land past the
+    /// threshold: [`Watcher::landing`]).
+    strict_timer: bool,
 }
 
 /// How often [`first_other_sign`] halves a step at most: a change of sign
@@ -840,10 +862,17 @@ impl Watcher {
                             after: false,
                             crossed: false,
                             now: false,
+                            strict_timer: false,
                         });
                     }
                 }
             }
+        }
+        for i in 0..timers.len() {
+            let index = timers[i].index;
+            timers[i].strict_timer = timers
+                .iter()
+                .any(|t| t.index == index && matches!(t.cmp, Cmp::Lt | Cmp::Gt));
         }
         // An earlier watched atom with the same function: its zeros are
         // this one's.
@@ -1064,9 +1093,7 @@ impl Watcher {
         // differ only where one of its timers is crossed now), once.
         for ws in &mut self.sets {
             if let Some(spec) = ws.spec.as_ref().filter(|_| ws.source) {
-                let past = timer_set_value(ws, spec, false);
-                let on = ws.any_on_threshold && timer_set_value(ws, spec, true);
-                (ws.past, ws.on) = (past, if ws.any_on_threshold { on } else { past });
+                (ws.past, ws.on) = timer_set_values(ws, spec);
             }
         }
         let decided = |ws: &WSet| ws.source && ws.spec.is_some();
@@ -1121,8 +1148,14 @@ impl Watcher {
     /// float past its threshold, the first point where it holds.
     fn landing(&self, i: usize, due: impl Fn(&TimerAtom) -> bool) -> f64 {
         let TimerAtom {
-            index, threshold, ..
+            index,
+            threshold,
+            strict_timer,
+            ..
         } = self.timers[i];
+        if !strict_timer {
+            return threshold;
+        }
         let strict_past = |t: &TimerAtom| match t.cmp {
             Cmp::Gt if t.after => Some(t.threshold.next_up()),
             Cmp::Lt if t.after => Some(t.threshold.next_down()),
@@ -1140,10 +1173,11 @@ impl Watcher {
     /// exactly (its threshold, or the first float past it for a strict
     /// atom: [`landing`](Self::landing)).
     pub fn timers_due(&self, d_end: f64) -> impl Iterator<Item = (usize, f64)> + '_ {
-        let due = move |t: &TimerAtom| t.d == d_end;
-        (0..self.timers.len())
-            .filter(move |&i| due(&self.timers[i]))
-            .map(move |i| (self.timers[i].index, self.landing(i, due)))
+        self.timers
+            .iter()
+            .enumerate()
+            .filter(move |(_, a)| a.d == d_end)
+            .map(move |(i, a)| (a.index, self.landing(i, |t| t.d == d_end)))
     }
 
     /// Records the state at the start of a flow segment (local time 0,
