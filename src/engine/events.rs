@@ -223,9 +223,11 @@ struct WSet {
     vt: Vec<f64>,
     truth: Vec<bool>,
     /// Per atom: a timer atom crossed at the checkpoint being examined by
-    /// [`Watcher::cross_timers`] (any of them: `any_on_threshold`), and the
-    /// set's value there past the thresholds and on them.
+    /// [`Watcher::cross_timers`] (any of them: `any_on_threshold`), its
+    /// truth where its timer lands there ([`Watcher::landing`]), and the
+    /// set's value there past the thresholds and where the timers land.
     on_threshold: Vec<bool>,
+    landed: Vec<bool>,
     any_on_threshold: bool,
     past: bool,
     on: bool,
@@ -267,21 +269,40 @@ fn set_value(spec: &SetAtoms, table: Option<TruthTable>, truth: impl Fn(usize) -
     }
 }
 
-/// The value of the set `ws` (with atoms) at a checkpoint where timers
+/// The values of the set `ws` (with atoms) at a checkpoint where timers
 /// pass their thresholds ([`Watcher::cross_timers`]): its watched atoms at
 /// their checkpoint values `vs`, the others at their truth for the rest of
-/// the segment, or with `on`, the timers crossed there on their thresholds.
-fn timer_set_value(ws: &WSet, spec: &SetAtoms, on: bool) -> bool {
-    set_value(spec, ws.table, |k| {
+/// the segment (past the thresholds), and the same with the timers crossed
+/// there where they land. With a truth table, both in one pass.
+fn timer_set_values(ws: &WSet, spec: &SetAtoms) -> (bool, bool) {
+    let past = |k: usize| {
         let atom = &spec.atoms[k];
-        if on && ws.on_threshold[k] {
-            atom.cmp.holds(0.0)
-        } else if atom.watched() {
+        if atom.watched() {
             atom.cmp.holds_within(ws.vs[k], ws.relax[k])
         } else {
             ws.start_truth[k]
         }
-    })
+    };
+    let on = |k: usize| {
+        if ws.on_threshold[k] {
+            ws.landed[k]
+        } else {
+            past(k)
+        }
+    };
+    match ws.table {
+        Some(t) => {
+            let (mut mp, mut mo) = (0u32, 0u32);
+            for k in 0..spec.atoms.len() {
+                let p = past(k);
+                let o = if ws.on_threshold[k] { ws.landed[k] } else { p };
+                mp |= u32::from(p) << k;
+                mo |= u32::from(o) << k;
+            }
+            (t.value(mp), t.value(mo))
+        }
+        None => (spec.expr.eval_with(&past), spec.expr.eval_with(&on)),
+    }
 }
 
 /// Evaluates the atoms of `ws` at (t, j, x) into `out`.
@@ -354,14 +375,14 @@ struct WAtom {
     cmp: Cmp,
 }
 
-/// A timer atom `x[index] − threshold ⋈ 0` (`⋈` is `<=` or `>=`) of set
+/// A timer atom `x[index] − threshold ⋈ 0` (`⋈` an inequality) of set
 /// `set`: when it reaches zero is computed at each segment's start (`d`,
 /// local time; ∞: not in this segment), not watched.
 #[derive(Debug, Clone, Copy)]
 struct TimerAtom {
     set: usize,
     atom: usize,
-    /// The atom's comparison (`<=` or `>=`).
+    /// The atom's comparison (`<`, `<=`, `>` or `>=`).
     cmp: Cmp,
     index: usize,
     threshold: f64,
@@ -373,6 +394,9 @@ struct TimerAtom {
     /// whether at the checkpoint being examined.
     crossed: bool,
     now: bool,
+    /// Whether a strict atom has the same timer (it may land past the
+    /// threshold: [`Watcher::landing`]).
+    strict_timer: bool,
 }
 
 /// How often [`first_other_sign`] halves a step at most: a change of sign
@@ -785,6 +809,7 @@ impl Watcher {
                 vt: vec![0.0; n],
                 truth: vec![false; n],
                 on_threshold: vec![false; n],
+                landed: vec![false; n],
                 any_on_threshold: false,
                 past: false,
                 on: false,
@@ -837,10 +862,17 @@ impl Watcher {
                             after: false,
                             crossed: false,
                             now: false,
+                            strict_timer: false,
                         });
                     }
                 }
             }
+        }
+        for i in 0..timers.len() {
+            let index = timers[i].index;
+            timers[i].strict_timer = timers
+                .iter()
+                .any(|t| t.index == index && matches!(t.cmp, Cmp::Lt | Cmp::Gt));
         }
         // An earlier watched atom with the same function: its zeros are
         // this one's.
@@ -1045,12 +1077,15 @@ impl Watcher {
             return None;
         }
         // Past the thresholds for the rest of the segment, unless an event
-        // ends it here.
-        for ta in &self.timers {
+        // ends it here (where the timers land).
+        for i in 0..self.timers.len() {
+            let ta = self.timers[i];
             if ta.now {
+                let landed = ta.cmp.holds(self.landing(i, |t| t.now) - ta.threshold);
                 let ws = &mut self.sets[ta.set];
                 ws.start_truth[ta.atom] = ta.after;
                 ws.on_threshold[ta.atom] = true;
+                ws.landed[ta.atom] = landed;
                 ws.any_on_threshold = true;
             }
         }
@@ -1058,9 +1093,7 @@ impl Watcher {
         // differ only where one of its timers is crossed now), once.
         for ws in &mut self.sets {
             if let Some(spec) = ws.spec.as_ref().filter(|_| ws.source) {
-                let past = timer_set_value(ws, spec, false);
-                let on = ws.any_on_threshold && timer_set_value(ws, spec, true);
-                (ws.past, ws.on) = (past, if ws.any_on_threshold { on } else { past });
+                (ws.past, ws.on) = timer_set_values(ws, spec);
             }
         }
         let decided = |ws: &WSet| ws.source && ws.spec.is_some();
@@ -1100,21 +1133,51 @@ impl Watcher {
             _ => None,
         });
         self.event_state.copy_from_slice(x);
-        for ta in &self.timers {
-            if ta.now {
-                self.event_state[ta.index] = ta.threshold;
+        for i in 0..self.timers.len() {
+            if self.timers[i].now {
+                self.event_state[self.timers[i].index] = self.landing(i, |t| t.now);
             }
         }
         Some(kind)
     }
 
+    /// Where the timer of timer atom `i` lands when the segment ends at its
+    /// threshold with the timer atoms `due`: on the threshold (where a
+    /// non-strict atom holds), unless a strict atom of the same timer due
+    /// there holds past it (`tau > Ts`, `tau` rising): then on the first
+    /// float past its threshold, the first point where it holds.
+    fn landing(&self, i: usize, due: impl Fn(&TimerAtom) -> bool) -> f64 {
+        let TimerAtom {
+            index,
+            threshold,
+            strict_timer,
+            ..
+        } = self.timers[i];
+        if !strict_timer {
+            return threshold;
+        }
+        let strict_past = |t: &TimerAtom| match t.cmp {
+            Cmp::Gt if t.after => Some(t.threshold.next_up()),
+            Cmp::Lt if t.after => Some(t.threshold.next_down()),
+            _ => None,
+        };
+        self.timers
+            .iter()
+            .filter(|t| t.index == index && due(t))
+            .find_map(strict_past)
+            .unwrap_or(threshold)
+    }
+
     /// The timer atoms due at the end `d_end` of a segment reached by the
-    /// flow: `(index, threshold)` of each, to be set exactly.
+    /// flow: `(index, value)` of each, the value its timer is set to
+    /// exactly (its threshold, or the first float past it for a strict
+    /// atom: [`landing`](Self::landing)).
     pub fn timers_due(&self, d_end: f64) -> impl Iterator<Item = (usize, f64)> + '_ {
         self.timers
             .iter()
-            .filter(move |a| a.d == d_end)
-            .map(|a| (a.index, a.threshold))
+            .enumerate()
+            .filter(move |(_, a)| a.d == d_end)
+            .map(move |(i, a)| (a.index, self.landing(i, |t| t.d == d_end)))
     }
 
     /// Records the state at the start of a flow segment (local time 0,

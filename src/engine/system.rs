@@ -188,10 +188,12 @@ pub struct Atom {
     /// localizes their common zero once (`x >= 0` in C and `x <= 0` in D).
     pub g_id: Option<u64>,
     /// `Some((index, threshold))`: `g = x[index] − threshold` exactly, the
-    /// comparison is `<=` or `>=`, and state `index` has a constant rate
+    /// comparison is an inequality, and state `index` has a constant rate
     /// along every flow (a timer). The engine then computes when `g`
     /// reaches zero instead of watching it: a flow segment ends there, with
-    /// `x[index]` set to `threshold`, as for [`GuardKind::Timer`] rules.
+    /// `x[index]` set to `threshold`, as for [`GuardKind::Timer`] rules (a
+    /// strict atom that holds past its threshold, `tau > Ts` with `tau`
+    /// rising: to the first float past it, where it holds).
     pub timer: Option<(usize, f64)>,
 }
 

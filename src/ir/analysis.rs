@@ -125,8 +125,8 @@ fn nnf(dag: &mut Dag, cond: NodeId, neg: bool, atoms: &mut Vec<(Cmp, NodeId)>) -
     }
 }
 
-/// Atom `g ⋈ 0` as a timer atom if it is one: `⋈` is `<=` or `>=` and `g`
-/// is `±x[k] + c` (sums and differences of one such state and constants,
+/// Atom `g ⋈ 0` as a timer atom if it is one: `⋈` is an inequality
+/// (`<`, `<=`, `>`, `>=`) and `g` is `±x[k] + c` (sums and differences of one such state and constants,
 /// in any order) for a state `k` with `timers[k]` (a constant nonzero rate
 /// along every flow). Returns the atom written as `x[k] − θ ⋈' 0` (the
 /// comparison flipped with the sign: the same set up to the rounding of
@@ -137,7 +137,7 @@ pub(crate) fn timer_atom(
     g: NodeId,
     timers: &[bool],
 ) -> Option<(Cmp, NodeId, usize, f64)> {
-    if !matches!(cmp, Cmp::Le | Cmp::Ge) {
+    if !matches!(cmp, Cmp::Le | Cmp::Ge | Cmp::Lt | Cmp::Gt) {
         return None;
     }
     let (k, sign, offset) = match one_state_sum(dag, g, 0)? {
@@ -152,7 +152,9 @@ pub(crate) fn timer_atom(
     let cmp = match (sign > 0.0, cmp) {
         (true, c) => c,
         (false, Cmp::Le) => Cmp::Ge,
-        (false, _) => Cmp::Le,
+        (false, Cmp::Ge) => Cmp::Le,
+        (false, Cmp::Lt) => Cmp::Gt,
+        (false, _) => Cmp::Lt,
     };
     let (x, c) = (dag.state(k), dag.konst(threshold));
     Some((cmp, dag.bin(BinFn::Sub, x, c), k, threshold))

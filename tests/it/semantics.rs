@@ -1084,6 +1084,48 @@ fn timer_atoms_of_the_sets_are_scheduled_exactly() {
     );
 }
 
+/// Strict timer atoms (`tau > Ts`, `tau < 0`) are scheduled too: a jump set
+/// that holds only past the threshold is an event at the threshold's time,
+/// with the timer on the first float past it (where the set holds); C left
+/// through a strict atom ends the flow on the threshold itself, the first
+/// point outside it. On both paths: beside a watched atom (the threshold a
+/// checkpoint of a step) and alone (the segment ends there).
+#[test]
+fn strict_timer_atoms_land_where_their_set_holds() {
+    // Alone: `k < 1` is constant along the flow, so nothing is watched.
+    let src = "model m\nstate tau = 0, k = 0\nflow { tau' = 1; k' = 0 }\n\
+               jump go when tau > 1 && k < 1 { k+ = 1 }\nsim { T = 2 }\n";
+    let arc = run(&compile(src));
+    assert_eq!(jump_times(&arc), [1.0]);
+    assert_eq!(arc.jumps()[0].pre[0], 1.0f64.next_up());
+    // Beside a watched atom: the ball falls through h = 0 at t = 0.4515
+    // while tau <= 2, the jump waits for tau > 2.
+    let src = "model m\nstate tau = 0, h = 1, v = 0\n\
+               flow { tau' = 1; h' = v; v' = -9.81 }\n\
+               jump late when tau > 2 && h <= 0 { h+ = 1; v+ = 0; tau+ = 0 }\nsim { T = 2.5 }\n";
+    let arc = run(&compile(src));
+    assert_eq!(jump_times(&arc), [2.0]);
+    assert_eq!(arc.jumps()[0].pre[0], 2.0f64.next_up());
+    // A falling timer through `tau < 0`: just below zero.
+    let src = "model m\nstate tau = 0.5, y = 0\nflow { tau' = -1; y' = 1 }\n\
+               jump z when tau < 0 && y <= 10 { tau+ = 0.5 }\nsim { T = 1.2 }\n";
+    let arc = run(&compile(src));
+    assert_eq!(jump_times(&arc), [0.5, 1.0]);
+    assert!(arc.jumps().iter().all(|r| r.pre[0] == 0.0f64.next_down()));
+    // C = {tau < 1} left on its threshold.
+    for c in ["tau < 1", "tau < 1 && y <= 100"] {
+        let src = format!(
+            "model m\nstate tau = 0, y = 0\nflow {{ tau' = 1; y' = 1 }} in {c}\nsim {{ T = 5 }}\n"
+        );
+        let end = run(&compile(&src)).termination().unwrap().clone();
+        assert_eq!(end.at.t, 1.0, "{c}");
+        assert!(
+            matches!(&end.cause, TerminationCause::CannotFlowOrJump { leaving: true, state, .. } if state[0] == 1.0),
+            "{c}: {end:?}"
+        );
+    }
+}
+
 /// A timer atom whose threshold is passed while its set keeps its value (C =
 /// {h ≥ 0 ∨ tau ≤ 0.3} at tau = 0.3 with the ball in the air) changes
 /// nothing: the flow goes on through it, and the bounces are those of the
