@@ -108,13 +108,18 @@ pub enum CheckError {
         suggestion: Option<String>,
     },
     /// A `--set name=value` whose name is no parameter, state or `sim`
-    /// key of the model (located in the override).
-    #[error("unknown setting `{name}` in override `{name}={value}`")]
+    /// key of the model (located in the override, or in the flag it stands for).
+    #[error("unknown setting `{name}` in {}", match .flag {
+        Some(flag) => format!("`{flag}`"),
+        None => format!("override `{name}={value}`"),
+    })]
     UnknownOverride {
         /// The name.
         name: String,
         /// The value as given.
         value: String,
+        /// The command-line flag it stands for, as typed (see [`super::Override::flag`]).
+        flag: Option<String>,
         /// The closest name `--set` accepts.
         suggestion: Option<String>,
         /// The family the name designates (whole or a member), which `--set`
@@ -562,21 +567,30 @@ impl CheckError {
             UnknownOverride {
                 name,
                 value,
+                flag,
                 suggestion,
                 family,
             } => {
-                let d = d.primary(Span::new(0, name.len()), "not in the model");
+                // The flag's word (`--grid` for a sweep axis) and where the name starts in it.
+                let (word, start) = match flag {
+                    Some(f) => (f.split(' ').next().unwrap_or(f), f.find(' ').map_or(0, |i| i + 1)),
+                    None => ("--set", 0),
+                };
+                let d = d.primary(Span::new(start, start + name.len()), "not in the model");
                 let d = match (family, did_you_mean(suggestion)) {
                     (Some(f), _) => d.help(format!(
-                        "`{f}` is a family: --set gives single parameters and initial values, \
+                        "`{f}` is a family: {word} gives single parameters and initial values, \
                          not families or their members; set what the family is computed from"
                     )),
                     (None, Some(h)) => d.help(h),
-                    (None, None) => d.help(
-                        "--set names a parameter, a state (its initial value) or a `sim` key",
-                    ),
+                    (None, None) => d.help(format!(
+                        "{word} names a parameter, a state (its initial value) or a `sim` key"
+                    )),
                 };
-                d.in_set_argument(name, &format!("{name}={value}"), 0)
+                match flag {
+                    Some(f) => d.in_flag(word, f),
+                    None => d.in_set_argument(name, &format!("{name}={value}"), 0),
+                }
             }
             NotAFunction { span, name } => d
                 .primary(*span, "indexed with parentheses")

@@ -392,6 +392,7 @@ pub(crate) fn check_model(
             m.c.err(CheckError::UnknownOverride {
                 name: o.name.clone(),
                 value: o.value.clone(),
+                flag: o.flag.clone(),
                 suggestion,
                 family,
             });

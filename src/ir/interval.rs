@@ -368,7 +368,10 @@ fn pow(a: Interval, b: Interval) -> Interval {
 /// integer quotient is one value over the box, else the range of the
 /// remainder.
 fn modulo(a: Interval, b: Interval, floored: bool) -> Interval {
-    if b.contains_zero() || !(a.lo.is_finite() && a.hi.is_finite()) {
+    // An infinite divisor gives NaN (∞·0 in a − b·⌊a/b⌋) or ±∞.
+    if b.contains_zero()
+        || !(a.lo.is_finite() && a.hi.is_finite() && b.lo.is_finite() && b.hi.is_finite())
+    {
         return Interval::ENTIRE;
     }
     let q = div(a, b);

@@ -420,7 +420,8 @@ pub fn check_point(
     compile_point(src, fixed, spec, p, options, None).map(|_| ())
 }
 
-/// The overrides of grid point `p`: `fixed`, then the axes.
+/// The overrides of grid point `p`: `fixed`, then the axes, each standing for
+/// `--grid name=value` so that its errors name the grid, not a `--set`.
 fn point_overrides(
     fixed: &[Override],
     spec: &SweepSpec,
@@ -428,7 +429,8 @@ fn point_overrides(
 ) -> Result<Vec<Override>, Vec<crate::diagnostics::Diagnostic>> {
     let mut all = fixed.to_vec();
     for s in spec.point_sets(p) {
-        all.push(s.parse().map_err(|d| vec![d])?);
+        let o: Override = s.parse().map_err(|d| vec![d])?;
+        all.push(o.from_flag(format!("--grid {s}")));
     }
     Ok(all)
 }

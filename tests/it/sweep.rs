@@ -480,13 +480,41 @@ fn bad_sweep_arguments_are_reported() {
         (&["--shard", "3/2"][..], "invalid shard"),
         (&["--grid", "g=[1]", "--set", "g=2"][..], "set twice"),
         (&["--grid", "nosuch=[1, 2]"][..], "E0204"),
+        // Located in the grid axis the user gave, not in a `--set` they did not type.
+        (
+            &["--grid", "nosuch=[1, 2]"][..],
+            "unknown setting `nosuch` in `--grid nosuch=1`",
+        ),
+        (&["--grid", "nosuch=[1, 2]"][..], "┌─ --grid:1:8"),
+        (&["--grid", "nosuch=[1, 2]"][..], "--grid names a parameter"),
     ] {
         let mut all = vec!["sweep", "ball.hyb", "-o", "out", "-q"];
         all.extend_from_slice(args);
         let out = hybsim(d, &all);
         assert_eq!(code(&out), 2, "{args:?}");
         assert!(stderr(&out).contains(needle), "{args:?}: {}", stderr(&out));
+        assert!(!stderr(&out).contains("--set nosuch"), "{}", stderr(&out));
     }
+    // A grid value that makes its point invalid is that point's row, whose message names
+    // the grid axis.
+    let out = hybsim(
+        d,
+        &[
+            "sweep",
+            "ball.hyb",
+            "-o",
+            "out",
+            "-q",
+            "--grid",
+            "sim.T=[-1, 1]",
+        ],
+    );
+    assert_eq!(code(&out), 0, "{}", stderr(&out));
+    let runs = std::fs::read_to_string(d.join("out/runs.csv")).unwrap();
+    let failed = runs.lines().nth(1).unwrap();
+    assert!(failed.contains(",failed,"), "{runs}");
+    assert!(failed.contains("in `--grid sim.T=-1`"), "{runs}");
+    assert!(runs.contains("fix the value given with --grid"), "{runs}");
 }
 
 /// A pendulum (not affine: stepped, no exact propagator) with a metric;

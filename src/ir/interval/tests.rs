@@ -164,6 +164,16 @@ fn bounds_are_tight_where_the_function_is_simple() {
         -0.75,
         -0.25
     ));
+    // An infinite divisor: the scalar mod and rem are NaN there (∞·0), which the bound holds.
+    for f in [BinFn::Mod, BinFn::Rem] {
+        for b in [f64::NEG_INFINITY, f64::INFINITY] {
+            let bound = bin(f, Interval::point(-3.3), Interval::point(b));
+            assert!(
+                bound.contains(eval_bin(f, -3.3, b)),
+                "{f:?} by {b}: {bound:?}"
+            );
+        }
+    }
     // floor and friends are exact.
     assert_eq!(un(UnFn::Floor, iv(0.5, 2.5)), iv(0.0, 2.0));
     // Division by an interval holding 0.
