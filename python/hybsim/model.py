@@ -183,7 +183,8 @@ class TestReport:
         sampled = ", ".join(f"{n} ~ {d}" for n, d in self.inputs) or "no named input"
         lines = [
             f"testing {len(self.properties)} propert{'y' if len(self.properties) == 1 else 'ies'} "
-            f"of {self.model} on {self.cases} cases (master seed {self.seed}); sampled: {sampled}"
+            f"of {self.model} on {self.cases} case{'' if self.cases == 1 else 's'} "
+            f"(master seed {self.seed}); sampled: {sampled}"
         ]
         if self.outcome == "passed":
             lines += [f"  ok  {p}" for p in self.properties]
@@ -197,7 +198,8 @@ class TestReport:
             lines.append(f"replay: {shlex.join(self.error['replay'])}")
         lines.append(
             f"{self.outcome if self.outcome != 'failed' else 'counterexample'}: "
-            f"{self.cases_run} cases, {self.inconclusive} inconclusive"
+            f"{self.cases_run} case{'' if self.cases_run == 1 else 's'}, "
+            f"{self.inconclusive} inconclusive"
         )
         return "\n".join(lines)
 

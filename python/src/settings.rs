@@ -44,6 +44,28 @@ fn get<'py, T: FromPyObjectOwned<'py>>(sim: &Bound<'py, PyDict>, key: &str) -> P
     }
 }
 
+/// The keyword `J` as a `sim` block takes it: a whole number of jumps ≥ 0,
+/// an int or a float (`1e6`), or `inf` (no bound; counts from 2⁶⁴ up are
+/// that bound too).
+fn jump_horizon(sim: &Bound<'_, PyDict>) -> PyResult<Option<u64>> {
+    let Some(v) = sim.get_item("J")?.filter(|v| !v.is_none()) else {
+        return Ok(None);
+    };
+    if let Ok(j) = v.extract::<u64>() {
+        return Ok(Some(j));
+    }
+    match v.extract::<f64>() {
+        Ok(x) if x >= 0.0 && (x.fract() == 0.0 || x == f64::INFINITY) => {
+            Ok(Some(x.min(u64::MAX as f64) as u64))
+        }
+        Ok(x) => Err(PyValueError::new_err(format!(
+            "`J`: a whole number of jumps ≥ 0, or inf (no bound), got {x}"
+        ))),
+        // Not a number: the usual message.
+        Err(_) => get::<u64>(sim, "J"),
+    }
+}
+
 /// `model`'s settings with the keywords of `sim` applied, validated for the
 /// model (a `solver` that cannot integrate its white noise is a `ValueError`).
 pub fn apply(model: &CompiledModel, sim: &Bound<'_, PyDict>) -> PyResult<SimSettings> {
@@ -60,7 +82,7 @@ pub fn apply(model: &CompiledModel, sim: &Bound<'_, PyDict>) -> PyResult<SimSett
     if let Some(t) = get::<f64>(sim, "T")? {
         settings = settings.horizon_t(t);
     }
-    if let Some(j) = get::<u64>(sim, "J")? {
+    if let Some(j) = jump_horizon(sim)? {
         settings = settings.horizon_j(j);
     }
     if let Some(dt) = get::<f64>(sim, "dt_out")? {

@@ -196,3 +196,14 @@ def test_a_solution_past_the_memory_is_a_memory_error():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600)
     assert out.returncode == 0, out.stderr[-2000:]
     assert "MemoryError: the solution does not fit in memory" in out.stdout, out.stdout
+
+
+def test_jump_horizon_is_taken_as_a_sim_block_takes_it():
+    # `J = 1e6` and `J = inf` are valid in a sim block and on the command line;
+    # run(J=1e6) was a TypeError.
+    m = hybsim.load(GOOD)
+    assert len(m.run(J=3.0).jumps.t) == len(m.run(J=3).jumps.t) == 3
+    assert len(m.run(J=float("inf")).jumps.t) == len(m.run().jumps.t)
+    for bad in [2.5, -1.0, float("nan")]:
+        with pytest.raises(ValueError, match="`J`: a whole number of jumps"):
+            m.run(J=bad)

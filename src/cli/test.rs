@@ -108,11 +108,12 @@ pub fn execute(args: TestArgs) -> anyhow::Result<u8> {
         .map(|i| format!("{} ~ {}", i.name, i.dist))
         .collect();
     println!(
-        "testing {} propert{} of {} on {} cases (master seed {}); sampled: {}",
+        "testing {} propert{} of {} on {} case{} (master seed {}); sampled: {}",
         props.len(),
         if props.len() == 1 { "y" } else { "ies" },
         model.name(),
         config.cases,
+        if config.cases == 1 { "" } else { "s" },
         config.seed,
         if described.is_empty() {
             "no named input (other random draws come from each case's seed)".to_string()
@@ -124,8 +125,9 @@ pub fn execute(args: TestArgs) -> anyhow::Result<u8> {
     let report = run_tests(&subject, &props, &config);
     let summary = |verdict: &str| {
         format!(
-            "{verdict}: {} cases, {} inconclusive, {:.2} s",
+            "{verdict}: {} case{}, {} inconclusive, {:.2} s",
             report.cases_run,
+            if report.cases_run == 1 { "" } else { "s" },
             report.inconclusive,
             start.elapsed().as_secs_f64()
         )

@@ -231,3 +231,13 @@ fn model_errors_and_unknown_properties_exit_2() {
         2
     );
 }
+
+#[test]
+fn one_case_is_counted_in_the_singular() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = test_property(dir.path(), &test_model("ball_props.hyb"), "1", "ground");
+    let text = stdout(&out);
+    assert_eq!(code(&out), 0, "{text}");
+    assert!(text.contains(" on 1 case (master seed"), "{text}");
+    assert!(text.contains("passed: 1 case, 0 inconclusive"), "{text}");
+}
