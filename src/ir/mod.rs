@@ -69,16 +69,58 @@ fn with_regs<R>(need: usize, f: impl FnOnce(&mut [f64]) -> R) -> R {
     // SAFETY: a thread-local lives until its thread ends, and this call runs
     // on the thread that took the address, before returning.
     let cell = unsafe { &*cell };
-    match cell.try_borrow_mut() {
-        Ok(mut regs) => {
-            if regs.len() < need {
-                regs.resize(need, 0.0);
+    // `f` called in one place, so that it is inlined: the engine's calls of
+    // a model are this and a jump into machine code.
+    let (mut guard, mut private);
+    let regs: &mut [f64] = match cell.try_borrow_mut() {
+        Ok(regs) => {
+            guard = regs;
+            if guard.len() < need {
+                grow(&mut guard, need);
             }
-            f(&mut regs)
+            &mut guard
         }
         // Re-entrant use (not expected): a private register file.
-        Err(_) => f(&mut vec![0.0; need]),
+        Err(_) => {
+            private = private_regs(need);
+            &mut private
+        }
+    };
+    f(regs)
+}
+
+/// [`Program::run_into`] with the thread's register file of `nregs`
+/// registers, or without one where the program's machine code needs none
+/// (a flow map or jump map that reads neither `t` nor `j`, as most): then
+/// the call is a jump into that code.
+#[inline(always)]
+fn run_into(
+    p: &Program,
+    nregs: usize,
+    at: HybridTime,
+    x: &[f64],
+    rng: Option<&mut SimRng>,
+    out: &mut [f64],
+) {
+    match p.native_without_regs() {
+        Some(native) => native.run_into_without_regs(x, rng, out),
+        None => with_regs(nregs, |regs| p.run_into(regs, at, x, rng, out)),
     }
+}
+
+/// A register file of `need` zeros, out of line (see [`with_regs`]).
+#[cold]
+#[inline(never)]
+fn private_regs(need: usize) -> Vec<f64> {
+    vec![0.0; need]
+}
+
+/// Grows the register file (once per thread and model size): out of line,
+/// so that the calls keep a small frame.
+#[cold]
+#[inline(never)]
+fn grow(regs: &mut Vec<f64>, need: usize) {
+    regs.resize(need, 0.0);
 }
 
 /// A set compiled for the engine: its predicate, its continuous guard, and
@@ -1475,7 +1517,7 @@ impl HybridSystem for CompiledModel {
     }
 
     fn flow_map(&self, at: HybridTime, x: &[f64], dx: &mut [f64]) {
-        with_regs(self.nregs, |regs| self.flow.run_into(regs, at, x, None, dx));
+        run_into(&self.flow, self.nregs, at, x, None, dx);
     }
 
     /// The symbolic Jacobian (see [`CompiledModel::has_exact_jacobian`]),
@@ -1521,9 +1563,8 @@ impl HybridSystem for CompiledModel {
             return false;
         };
         values.copy_from_slice(&code.constants);
-        with_regs(self.nregs.max(code.program.nregs), |regs| {
-            code.program.run_into(regs, at, x, None, values);
-        });
+        let nregs = self.nregs.max(code.program.nregs);
+        run_into(&code.program, nregs, at, x, None, values);
         true
     }
 
@@ -1568,7 +1609,7 @@ impl HybridSystem for CompiledModel {
         } else {
             &code.all
         };
-        with_regs(self.nregs, |regs| p.run_into(regs, at, x, None, out));
+        run_into(p, self.nregs, at, x, None, out);
     }
 
     fn all_atom_values(
@@ -1584,7 +1625,7 @@ impl HybridSystem for CompiledModel {
         } else {
             &atoms.all
         };
-        with_regs(self.nregs, |regs| p.run_into(regs, at, x, None, out));
+        run_into(p, self.nregs, at, x, None, out);
         true
     }
 
@@ -1685,9 +1726,7 @@ impl HybridSystem for CompiledModel {
     ) {
         let code = &self.rule_code[rule];
         // `x_plus` holds `x` (the engine's contract): only the targets.
-        with_regs(self.nregs, |regs| {
-            code.map.run_into(regs, at, x, Some(rng), x_plus);
-        });
+        run_into(&code.map, self.nregs, at, x, Some(rng), x_plus);
     }
 
     fn flow_structure(&self) -> FlowStructure {
@@ -1699,8 +1738,6 @@ impl HybridSystem for CompiledModel {
     }
 
     fn diffusion(&self, at: HybridTime, x: &[f64], g: &mut [f64]) {
-        with_regs(self.nregs, |regs| {
-            self.diffusion.run_into(regs, at, x, None, g)
-        });
+        run_into(&self.diffusion, self.nregs, at, x, None, g);
     }
 }

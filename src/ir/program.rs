@@ -250,6 +250,11 @@ pub(crate) struct Program {
     /// Number of state registers (`x`, the frame's `n`): [`run_at`](Self::run_at)
     /// takes them from the state slice.
     pub(super) state_regs: usize,
+    /// Whether an instruction or output reads the time or jump-count
+    /// register: [`run_at`](Self::run_at) and [`run_into`](Self::run_into)
+    /// fill them only then (a flow map without `t`, as most, is then a
+    /// jump into its machine code).
+    pub(super) clock_reads: bool,
     /// Machine code for the same instructions (see [`super::jit`]),
     /// compiled when the program becomes hot and then used by
     /// [`run`](Self::run).
@@ -276,15 +281,25 @@ impl Frame {
     }
 }
 
-/// The register of node `id`, materializing a constant on first use.
 /// The jump count as a register value: through `i64`, one conversion
 /// instruction where `u64` takes several (the same value below 2⁶³, and a
-/// run makes fewer jumps than that).
+/// run makes fewer jumps than that; the unsigned conversion out of line,
+/// or the compiler merges both into the longer one).
 #[inline(always)]
 fn jumps_value(j: u64) -> f64 {
-    i64::try_from(j).map_or(j as f64, |j| j as f64)
+    match i64::try_from(j) {
+        Ok(j) => j as f64,
+        Err(_) => jumps_value_large(j),
+    }
 }
 
+#[cold]
+#[inline(never)]
+fn jumps_value_large(j: u64) -> f64 {
+    j as f64
+}
+
+/// The register of node `id`, materializing a constant on first use.
 fn as_reg(dag: &Dag, id: NodeId, reg: &mut [u32], ops: &mut Vec<Op>, next: &mut u32) -> u32 {
     if reg[id as usize] == u32::MAX
         && let Some(c) = dag.as_const(id)
@@ -659,7 +674,7 @@ impl Program {
             .map(|&o| as_reg(dag, o, reg, &mut ops, &mut next))
             .collect();
         scratch.reset(&order);
-        Program {
+        let mut p = Program {
             ops,
             gather,
             tables,
@@ -669,8 +684,13 @@ impl Program {
             outs,
             nregs: next as usize,
             state_regs: frame.n,
+            clock_reads: false,
             tier: Default::default(),
-        }
+        };
+        let clock = |r: u32| r as usize == frame.time_reg() || r as usize == frame.jumps_reg();
+        p.clock_reads =
+            p.outs.iter().any(|&o| clock(o)) || p.ops.iter().any(|op| p.reads(op, clock));
+        p
     }
 
     /// Whether `op` reads a register for which `f` holds.
@@ -815,14 +835,33 @@ impl Program {
     #[inline(always)]
     pub fn run_at(&self, regs: &mut [f64], at: HybridTime, x: &[f64], rng: Option<&mut SimRng>) {
         let n = self.state_regs;
-        let frame = Frame { n, m: 0 };
-        regs[frame.time_reg()] = at.t;
-        regs[frame.jumps_reg()] = jumps_value(at.j);
+        self.set_clock(regs, at);
         // The engine's hot path, small enough to inline into each caller;
         // the rest (tier-up, the interpreter) out of line.
         match self.tier.attached() {
             Some(native) if self.dest.is_none() => native.run_at(regs, &x[..n], rng),
             _ => self.run_at_slow(regs, &x[..n], rng),
+        }
+    }
+
+    /// The program's machine code, if it is attached and runs without a
+    /// register file ([`Native::runs_without_regs`](super::jit::Native::runs_without_regs)):
+    /// a caller then need not fetch one.
+    #[inline(always)]
+    pub fn native_without_regs(&self) -> Option<&super::jit::Native> {
+        self.tier.attached().filter(|n| n.runs_without_regs())
+    }
+
+    /// The time and jump-count registers, if the program reads them.
+    #[inline(always)]
+    fn set_clock(&self, regs: &mut [f64], at: HybridTime) {
+        if self.clock_reads {
+            let frame = Frame {
+                n: self.state_regs,
+                m: 0,
+            };
+            regs[frame.time_reg()] = at.t;
+            regs[frame.jumps_reg()] = jumps_value(at.j);
         }
     }
 
@@ -859,9 +898,7 @@ impl Program {
         out: &mut [f64],
     ) {
         let n = self.state_regs;
-        let frame = Frame { n, m: 0 };
-        regs[frame.time_reg()] = at.t;
-        regs[frame.jumps_reg()] = jumps_value(at.j);
+        self.set_clock(regs, at);
         // As in `run_at`: the attached code's call inline, the rest not.
         match self.tier.attached() {
             Some(native) if self.dest.is_some() => native.run_into(regs, &x[..n], rng, out),
@@ -1082,6 +1119,34 @@ mod tests {
             prop_assert!(fused.len() <= plain.len());
             prop_assert_eq!(run(&fused, &x), run(&plain, &x));
         }
+    }
+
+    /// The time and jump-count registers are filled for the programs that
+    /// read them (in an instruction or as an output) and left alone by the
+    /// others, which give the same values whatever the register file holds.
+    #[test]
+    fn clock_registers_are_filled_where_they_are_read() {
+        let frame = Frame { n: 2, m: 0 };
+        let at = HybridTime::new(2.5, 7);
+        let x = [3.0, -1.0];
+        let mut dag = Dag::default();
+        let (x0, t, j) = (dag.state(0), dag.time(), dag.jumps());
+        let tx = dag.bin(BinFn::Mul, t, x0);
+        let reads = Program::compile(&dag, frame, &[tx, j]);
+        let blind = Program::compile(&dag, frame, &[x0, tx]).scatter_to(&[0, 1]);
+        let plain = Program::compile(&dag, frame, &[x0]);
+        assert!(reads.clock_reads && blind.clock_reads && !plain.clock_reads);
+        let mut regs = vec![f64::NAN; 16];
+        reads.run_at(&mut regs, at, &x, None);
+        let outs: Vec<f64> = reads.outs.iter().map(|&o| regs[o as usize]).collect();
+        assert_eq!(outs, [7.5, 7.0]);
+        let mut out = [0.0; 2];
+        blind.run_into(&mut regs, at, &x, None, &mut out);
+        assert_eq!(out, [3.0, 7.5]);
+        let mut regs = vec![f64::NAN; 16];
+        plain.run_at(&mut regs, at, &x, None);
+        assert_eq!(regs[plain.outs[0] as usize], 3.0);
+        assert!(regs[frame.time_reg()].is_nan(), "not written");
     }
 
     /// The rows of a constant matrix times a state vector become one

@@ -97,6 +97,9 @@ struct Emit<'a, 'b> {
     b: &'b mut FunctionBuilder<'a>,
     ptr: Type,
     regs: Value,
+    /// Whether the code reads or writes the register file (`regs` asked
+    /// for through [`Emit::regs`]).
+    uses_regs: bool,
     /// Where the state registers are read from.
     x: Value,
     state_regs: u32,
@@ -142,13 +145,14 @@ impl Generator {
     }
 
     /// Defines `p` in `module`; `blocks` are its block descriptors (kept
-    /// alive by the caller as long as the code).
+    /// alive by the caller as long as the code). With the function: whether
+    /// its code touches the register file at all.
     pub fn define(
         &mut self,
         module: &mut JITModule,
         p: &Program,
         blocks: &[BlockDesc],
-    ) -> Result<FuncId, JitError> {
+    ) -> Result<(FuncId, bool), JitError> {
         let ptr = module.target_config().pointer_type();
         let entry_sig = sig(module, &[ptr, ptr, ptr, ptr], None);
         let name = format!("program{}", self.count);
@@ -158,6 +162,7 @@ impl Generator {
             .map_err(|e| JitError::Codegen(e.to_string()))?;
         module.clear_context(&mut self.ctx);
         self.ctx.func.signature = entry_sig;
+        let uses_regs;
         self.ctx.func.name = UserFuncName::user(0, id.as_u32());
         {
             let mut b = FunctionBuilder::new(&mut self.ctx.func, &mut self.fctx);
@@ -183,6 +188,7 @@ impl Generator {
                 b: &mut b,
                 ptr,
                 regs,
+                uses_regs: false,
                 x,
                 state_regs: p.state_regs as u32,
                 rng,
@@ -196,6 +202,7 @@ impl Generator {
                 tables: &mut self.tables,
             };
             e.program(p, blocks, out);
+            uses_regs = e.uses_regs;
             b.seal_all_blocks();
             b.finalize(module.target_config());
         }
@@ -203,7 +210,7 @@ impl Generator {
         module
             .define_function(id, &mut self.ctx)
             .map_err(|e| JitError::Codegen(format!("{e:?}")))?;
-        Ok(id)
+        Ok((id, uses_regs))
     }
 }
 
@@ -233,7 +240,7 @@ impl Emit<'_, '_> {
                 let base = if r < self.state_regs {
                     self.x
                 } else {
-                    self.regs
+                    self.regs()
                 };
                 let v = self
                     .b
@@ -282,9 +289,16 @@ impl Emit<'_, '_> {
     }
 
     fn store(&mut self, r: u32, v: Value) {
+        let regs = self.regs();
         self.b
             .ins()
-            .store(MemFlagsData::trusted(), v, self.regs, offset(r));
+            .store(MemFlagsData::trusted(), v, regs, offset(r));
+    }
+
+    /// The register file's address, noting that the code uses it.
+    fn regs(&mut self) -> Value {
+        self.uses_regs = true;
+        self.regs
     }
 
     /// `ops` (all [`Op::Lin`] without constant terms) as loop nests over
@@ -355,7 +369,7 @@ impl Emit<'_, '_> {
                 terms: terms.into_boxed_slice(),
             });
             let desc = self.address((&*nest as *const helpers::Nest).cast());
-            let (sig, regs) = (self.sigs.block, self.regs);
+            let (sig, regs) = (self.sigs.block, self.regs());
             let h = helpers::sums as helpers::Sums as *const u8;
             self.call(sig, h, &[desc, regs]);
             self.tables.push(nest);
@@ -698,14 +712,15 @@ impl Emit<'_, '_> {
             } => {
                 for k in 0..len {
                     let v = self.get(p.gather[(g0 + k) as usize]);
+                    let regs = self.regs();
                     self.b
                         .ins()
-                        .store(MemFlagsData::trusted(), v, self.regs, offset(inp + k));
+                        .store(MemFlagsData::trusted(), v, regs, offset(inp + k));
                 }
                 let desc = &blocks[*next_block] as *const BlockDesc as *const u8;
                 *next_block += 1;
                 let desc = self.address(desc);
-                let (sig, regs) = (self.sigs.block, self.regs);
+                let (sig, regs) = (self.sigs.block, self.regs());
                 let h = helpers::block as helpers::Block as *const u8;
                 self.call(sig, h, &[desc, regs]);
                 // The outputs are in the register file now.

@@ -121,6 +121,11 @@ pub(crate) struct Native {
     /// For a program with positions (`Program::scatter_to`), the length
     /// its output buffer needs; `None`: it writes into the registers.
     dest_len: Option<usize>,
+    /// Whether the code touches the register file: code that reads no
+    /// fixed register, calls no block or loop and writes its outputs to a
+    /// buffer keeps every value in machine registers or its own stack, and
+    /// runs without one ([`run_into_without_regs`](Self::run_into_without_regs)).
+    needs_regs: bool,
 }
 
 impl std::fmt::Debug for Native {
@@ -136,12 +141,9 @@ impl Native {
     /// contract as [`Program::run`].
     #[inline]
     pub fn run(&self, regs: &mut [f64], rng: Option<&mut SimRng>) {
-        assert!(
-            regs.len() >= self.nregs && self.dest_len.is_none(),
-            "register file of {} < {} registers, or outputs to a buffer",
-            regs.len(),
-            self.nregs
-        );
+        if regs.len() < self.nregs || self.dest_len.is_some() {
+            self.bad_call(regs.len(), regs.len(), None);
+        }
         let rng = rng.map_or(std::ptr::null_mut(), |r| r as *mut SimRng);
         let regs = regs.as_mut_ptr();
         // SAFETY: the code reads and writes `regs[..nregs]` only (offsets
@@ -155,15 +157,9 @@ impl Native {
     /// `regs`; same contract as [`Program::run_at`].
     #[inline]
     pub fn run_at(&self, regs: &mut [f64], x: &[f64], rng: Option<&mut SimRng>) {
-        assert!(
-            regs.len() >= self.nregs && x.len() >= self.state_regs && self.dest_len.is_none(),
-            "register file of {} < {} registers, state of {} < {} components, or outputs \
-             to a buffer",
-            regs.len(),
-            self.nregs,
-            x.len(),
-            self.state_regs
-        );
+        if regs.len() < self.nregs || x.len() < self.state_regs || self.dest_len.is_some() {
+            self.bad_call(regs.len(), x.len(), None);
+        }
         let rng = rng.map_or(std::ptr::null_mut(), |r| r as *mut SimRng);
         // SAFETY: as `run`; the code reads `x[..state_regs]` only (and
         // may copy it into `regs[..state_regs]`, as the interpreter does).
@@ -175,41 +171,70 @@ impl Native {
     /// contract as [`Program::run_into`].
     #[inline]
     pub fn run_into(&self, regs: &mut [f64], x: &[f64], rng: Option<&mut SimRng>, out: &mut [f64]) {
-        assert!(
-            regs.len() >= self.nregs
-                && x.len() >= self.state_regs
-                && self.dest_len.is_some_and(|d| out.len() >= d),
-            "register file of {} < {} registers, state of {} < {} components, or output \
-             buffer of {} < {:?}",
-            regs.len(),
-            self.nregs,
-            x.len(),
-            self.state_regs,
-            out.len(),
-            self.dest_len
-        );
+        // `usize::MAX` without positions: no buffer is long enough.
+        let need = self.dest_len.unwrap_or(usize::MAX);
+        if regs.len() < self.nregs || x.len() < self.state_regs || out.len() < need {
+            self.bad_call(regs.len(), x.len(), Some(out.len()));
+        }
         let rng = rng.map_or(std::ptr::null_mut(), |r| r as *mut SimRng);
         // SAFETY: as `run_at`; the code writes `out[..dest_len]` only
         // (positions fixed at compile time) and does not read it.
         unsafe { (self.entry)(regs.as_mut_ptr(), x.as_ptr(), rng, out.as_mut_ptr()) }
     }
 
+    /// Whether the code runs without a register file
+    /// ([`run_into_without_regs`](Self::run_into_without_regs)).
+    #[inline]
+    pub fn runs_without_regs(&self) -> bool {
+        !self.needs_regs && self.dest_len.is_some()
+    }
+
+    /// [`run_into`](Self::run_into) for code that touches no register file
+    /// ([`runs_without_regs`](Self::runs_without_regs)): no time or jump
+    /// count to fill, no thread-local buffer to borrow.
+    ///
+    /// # Panics
+    /// If the code needs a register file, or a buffer is too short.
+    #[inline]
+    pub fn run_into_without_regs(&self, x: &[f64], rng: Option<&mut SimRng>, out: &mut [f64]) {
+        let need = self.dest_len.unwrap_or(usize::MAX);
+        if self.needs_regs || x.len() < self.state_regs || out.len() < need {
+            self.bad_call(0, x.len(), Some(out.len()));
+        }
+        let rng = rng.map_or(std::ptr::null_mut(), |r| r as *mut SimRng);
+        let regs = std::ptr::NonNull::<f64>::dangling().as_ptr();
+        // SAFETY: as `run_into`; the code was generated without any access
+        // to the register file (`needs_regs` false), so the dangling
+        // pointer is never dereferenced.
+        unsafe { (self.entry)(regs, x.as_ptr(), rng, out.as_mut_ptr()) }
+    }
+
     /// The code of a program with positions: as [`run`](Self::run), with
     /// the outputs stored into `out` as by [`run_into`](Self::run_into).
     #[inline]
     pub fn run_regs_into(&self, regs: &mut [f64], rng: Option<&mut SimRng>, out: &mut [f64]) {
-        assert!(
-            regs.len() >= self.nregs && self.dest_len.is_some_and(|d| out.len() >= d),
-            "register file of {} < {} registers or output buffer of {} < {:?}",
-            regs.len(),
-            self.nregs,
-            out.len(),
-            self.dest_len
-        );
+        let need = self.dest_len.unwrap_or(usize::MAX);
+        if regs.len() < self.nregs || out.len() < need {
+            self.bad_call(regs.len(), regs.len(), Some(out.len()));
+        }
         let rng = rng.map_or(std::ptr::null_mut(), |r| r as *mut SimRng);
         let regs = regs.as_mut_ptr();
         // SAFETY: as `run` and `run_into`.
         unsafe { (self.entry)(regs, regs, rng, out.as_mut_ptr()) }
+    }
+
+    /// The panic of a call with buffers too short for the code, or of the
+    /// wrong kind of call for it (a bug of the caller): out of line, so
+    /// that each call's checks are a few compares.
+    #[cold]
+    #[inline(never)]
+    fn bad_call(&self, regs: usize, x: usize, out: Option<usize>) -> ! {
+        panic!(
+            "machine code of {} registers, {} state components and outputs to a buffer of \
+             {:?} called with a register file of {regs}, a state of {x} and an output buffer \
+             of {out:?}",
+            self.nregs, self.state_regs, self.dest_len
+        )
     }
 }
 
@@ -452,13 +477,14 @@ impl Jit {
         match built {
             Ok((code, entries)) => {
                 let code = Arc::new(code);
-                for (p, entry) in programs.iter().zip(entries) {
+                for (p, (entry, needs_regs)) in programs.iter().zip(entries) {
                     let native = Native {
                         _code: code.clone(),
                         entry,
                         nregs: p.nregs,
                         state_regs: p.state_regs,
                         dest_len: p.dest.as_ref().map(|_| p.dest_len),
+                        needs_regs,
                     };
                     if p.tier.code.set(native).is_ok() {
                         self.native.fetch_add(1, Ordering::Relaxed);
@@ -504,8 +530,9 @@ fn isa(allocator: &str) -> Result<OwnedTargetIsa, JitError> {
         .map_err(|e| JitError::Unsupported(e.to_string()))
 }
 
-/// Compiles `programs` into one code memory (`hot`: see [`Plan::hot`]).
-fn build(programs: &[&Program], hot: bool) -> Result<(Code, Vec<Entry>), JitError> {
+/// Compiles `programs` into one code memory (`hot`: see [`Plan::hot`]):
+/// each one's entry, and whether its code touches the register file.
+fn build(programs: &[&Program], hot: bool) -> Result<(Code, Vec<(Entry, bool)>), JitError> {
     let isa = isas()?[usize::from(!hot)].clone();
     let jb = JITBuilder::with_isa(isa, cranelift_module::default_libcall_names());
     let mut module = JITModule::new(jb);
@@ -516,20 +543,21 @@ fn build(programs: &[&Program], hot: bool) -> Result<(Code, Vec<Entry>), JitErro
     for p in programs {
         tables.extend(p.tables.iter().cloned());
         let descs = helpers::block_descs(p);
-        let id = generator.define(&mut module, p, &descs)?;
+        let (id, needs_regs) = generator.define(&mut module, p, &descs)?;
         blocks.push(descs);
-        ids.push(id);
+        ids.push((id, needs_regs));
     }
     module
         .finalize_definitions()
         .map_err(|e| JitError::Codegen(e.to_string()))?;
     let entries = ids
         .into_iter()
-        .map(|id| {
+        .map(|(id, needs_regs)| {
             let ptr = module.get_finalized_function(id);
             // SAFETY: the function was defined with the signature
             // `(ptr, ptr, ptr, ptr) -> ()` in the platform's C convention.
-            unsafe { std::mem::transmute::<*const u8, Entry>(ptr) }
+            let entry = unsafe { std::mem::transmute::<*const u8, Entry>(ptr) };
+            (entry, needs_regs)
         })
         .collect();
     Ok((

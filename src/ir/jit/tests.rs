@@ -7,7 +7,7 @@ use super::{FUNCTION_COST, Jit, MAX_TOTAL_OPS, instructions};
 use crate::arc::HybridTime;
 use crate::check::dag::{BinFn, BlockKind, Dag, Dist, NodeId, UnFn};
 use crate::engine::SimRng;
-use crate::ir::program::{Frame, Program};
+use crate::ir::program::{Frame, Op, Program};
 
 /// Every unary function (the match makes a new variant a compile error
 /// here until it is listed).
@@ -206,6 +206,64 @@ proptest! {
         let (i, j) = both(&p, &x);
         prop_assert_eq!(i, j);
     }
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(300))]
+    /// Machine code that touches no register file runs without one, to the
+    /// interpreter's bits; code that reads `t` or `j` (or calls a block or
+    /// a loop) always gets one.
+    #[test]
+    fn code_without_a_register_file_is_bit_identical(
+        steps in prop::collection::vec(
+            (0u8..6, 0u8..32, 0usize..64, 0usize..64, -3.0f64..3.0), 1..40),
+        x in prop::array::uniform4(-4.0f64..4.0),
+    ) {
+        let (dag, outs) = build(&steps);
+        let p = Program::compile(&dag, FRAME, &outs).into_buffer();
+        let jitted = compiled(&p, true);
+        let at = HybridTime { t: 0.5, j: 3 };
+        let bits = |out: &[f64]| -> Vec<u64> {
+            out.iter().map(|&v| if v.is_nan() { f64::NAN } else { v }.to_bits()).collect()
+        };
+        let mut regs = vec![f64::NAN; p.nregs.max(FRAME.fixed())];
+        let mut want = vec![0.0; outs.len()];
+        p.run_into(&mut regs, at, &x, None, &mut want);
+        // Without clock reads, loops or blocks nothing needs the registers.
+        let plain = !p.clock_reads
+            && !p.ops.iter().any(|op| matches!(op, Op::Lin { .. } | Op::Block { .. }));
+        match jitted.native_without_regs() {
+            Some(native) => {
+                prop_assert!(!p.clock_reads);
+                let mut got = vec![0.0; outs.len()];
+                native.run_into_without_regs(&x, None, &mut got);
+                prop_assert_eq!(bits(&got), bits(&want));
+            }
+            None => prop_assert!(!plain, "plain code given a register file"),
+        }
+    }
+}
+
+/// A flow map's usual code (states in, outputs to a buffer) runs without a
+/// register file; reading `t` makes it need one.
+#[test]
+fn plain_code_needs_no_register_file() {
+    let mut dag = Dag::default();
+    let x: Vec<NodeId> = (0..4).map(|k| dag.state(k)).collect();
+    let s = dag.un(UnFn::Sin, x[0]);
+    let y = dag.bin(BinFn::Mul, s, x[1]);
+    let t = dag.time();
+    let yt = dag.bin(BinFn::Mul, y, t);
+    let plain = compiled(&Program::compile(&dag, FRAME, &[y, s]).into_buffer(), true);
+    let timed = compiled(&Program::compile(&dag, FRAME, &[yt]).into_buffer(), true);
+    let native = plain
+        .native_without_regs()
+        .expect("no register file needed");
+    assert!(timed.native_without_regs().is_none());
+    let x = [0.3, -1.25, 2.0, 7.0];
+    let mut out = [0.0; 2];
+    native.run_into_without_regs(&x, None, &mut out);
+    assert_eq!(out, [0.3f64.sin() * -1.25, 0.3f64.sin()]);
 }
 
 /// `rows` sums, row `r` of `len` terms `cᵢ·vᵢ` (left-leaning, `+` or `−`)
