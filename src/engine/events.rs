@@ -940,6 +940,12 @@ impl Watcher {
         let flat_watched = (0..sets.len()).all(|i| !sets[i].source || flat_off[i].is_some());
         let n = x0.len();
         let set_count = sets.len();
+        // Room for a step's checkpoints from the start (a run's first steps
+        // would otherwise grow these): the early ones, the evenly spaced
+        // ones, each watched atom's first sure sign and changes, the timers.
+        let extra_room = watched.len() * (MAX_CHANGES + 1);
+        let points_room =
+            EARLY.len() + settings.guard_checks as usize + extra_room + timers.len() + 1;
         Self {
             sets,
             flow,
@@ -962,9 +968,9 @@ impl Watcher {
             timers,
             twin,
             affine,
-            points: Vec::new(),
-            extra: Vec::new(),
-            extra_many: Vec::new(),
+            points: Vec::with_capacity(points_room),
+            extra: Vec::with_capacity(extra_room),
+            extra_many: Vec::with_capacity(extra_room),
             relaxed: 0,
             checks: settings.guard_checks as usize,
             event_tol: settings.event_tol,
@@ -1476,7 +1482,7 @@ impl Watcher {
                 .map(|ta| ta.d),
         );
         if points.len() > evenly {
-            points.sort_by(f64::total_cmp);
+            points.sort_unstable_by(f64::total_cmp);
         }
         points.push(s1);
         let found = self.scan_points(sys, path, s0, &points, y1);
