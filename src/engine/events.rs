@@ -658,6 +658,15 @@ fn split_left(p: &[f64], t: f64) -> [f64; MAX_CONTROL] {
     left
 }
 
+/// The points of [`split`]'s second half alone (the rest of a step after
+/// a point of it).
+fn split_right(p: &[f64], t: f64) -> [f64; MAX_CONTROL] {
+    let n = p.len();
+    let mut right = [0.0; MAX_CONTROL];
+    de_casteljau(p, t, |r, _, last| right[n - 1 - r] = last);
+    right
+}
+
 /// De Casteljau's scheme at `t` on the points `p`: `row(r, first, last)`
 /// for each row `r` of the triangle, with its first and last entries.
 #[inline(always)]
@@ -744,6 +753,10 @@ pub(crate) struct Watcher {
     /// Per watched atom: its [`first_sure_sign`] on the step being scanned,
     /// once computed.
     sure_pts: Vec<Option<Option<(f64, f64)>>>,
+    /// Per watched atom: where and with which sign the search for its sign
+    /// changes on the step being scanned started, and whether it settled
+    /// them ([`affine_checkpoints`](Self::affine_checkpoints)), once done.
+    changes_from: Vec<Option<(f64, f64, bool)>>,
     buf_s: Vec<f64>,
     buf_a: Vec<f64>,
     buf_b: Vec<f64>,
@@ -927,6 +940,12 @@ impl Watcher {
         let flat_watched = (0..sets.len()).all(|i| !sets[i].source || flat_off[i].is_some());
         let n = x0.len();
         let set_count = sets.len();
+        // Room for a step's checkpoints from the start (a run's first steps
+        // would otherwise grow these): the early ones, the evenly spaced
+        // ones, each watched atom's first sure sign and changes, the timers.
+        let extra_room = watched.len() * (MAX_CHANGES + 1);
+        let points_room =
+            EARLY.len() + settings.guard_checks as usize + extra_room + timers.len() + 1;
         Self {
             sets,
             flow,
@@ -941,6 +960,7 @@ impl Watcher {
             cls_s: vec![0; watched.len()],
             form_pts: vec![None; watched.len()],
             sure_pts: vec![None; watched.len()],
+            changes_from: vec![None; watched.len()],
             found: vec![(f64::NAN, f64::NAN, 0, 0.0); watched.len()],
             need: vec![false; watched.len()],
             changing: vec![0; set_count],
@@ -948,9 +968,9 @@ impl Watcher {
             timers,
             twin,
             affine,
-            points: Vec::new(),
-            extra: Vec::new(),
-            extra_many: Vec::new(),
+            points: Vec::with_capacity(points_room),
+            extra: Vec::with_capacity(extra_room),
+            extra_many: Vec::with_capacity(extra_room),
             relaxed: 0,
             checks: settings.guard_checks as usize,
             event_tol: settings.event_tol,
@@ -1431,6 +1451,7 @@ impl Watcher {
         self.span = (s0, s1);
         self.form_pts.fill(None);
         self.sure_pts.fill(None);
+        self.changes_from.fill(None);
         // A segment that starts on a boundary (a post-jump state, a few ulp
         // on either side of an atom's zero) may cross it right away and
         // come back within the first interval: look early in the first
@@ -1461,7 +1482,7 @@ impl Watcher {
                 .map(|ta| ta.d),
         );
         if points.len() > evenly {
-            points.sort_by(f64::total_cmp);
+            points.sort_unstable_by(f64::total_cmp);
         }
         points.push(s1);
         let found = self.scan_points(sys, path, s0, &points, y1);
@@ -1570,7 +1591,7 @@ impl Watcher {
                 all = false;
                 continue;
             }
-            let (mut from, mut sign, mut rest) = (0.0, f64::from(cls), g);
+            let (mut from, mut sign) = (0.0, f64::from(cls));
             if relaxed || g[0] * sign <= tol {
                 // On the boundary at the start (within the tolerance of
                 // zero, or an atom of C that held only within `set_tol`:
@@ -1599,14 +1620,24 @@ impl Watcher {
                     self.extra.push(s0 + tau * (s1 - s0));
                 }
                 (from, sign) = (tau, sure);
-                if tau < 1.0 {
-                    rest = split(&g[..n], tau).1;
-                }
+            }
+            // A twin searched from the same point with the same sign (the
+            // same points) has the same changes, already checkpoints.
+            let twin = self.twin[w].and_then(|u| self.changes_from[u]);
+            if let Some((_, _, settled)) = twin.filter(|&(f, s, _)| (f, s) == (from, sign)) {
+                all &= settled;
+                continue;
             }
             // Each change of sign in turn: the first point of the other
             // sign, then the first after it of the sign before, … — between
             // two of them the atom does not change sign (beyond `tol`).
             let (mut budget, mut settled) = (SPLIT_BUDGET, false);
+            let start = (from, sign);
+            let mut rest = if from > 0.0 && from < 1.0 {
+                split_right(&g[..n], from)
+            } else {
+                g
+            };
             let first = self.extra.len();
             for _ in 0..MAX_CHANGES {
                 if from >= 1.0 {
@@ -1617,7 +1648,7 @@ impl Watcher {
                 {
                     Ok(Some(tau)) if tau < 1.0 => {
                         self.extra.push(s0 + tau * (s1 - s0));
-                        (from, sign, rest) = (tau, -sign, split(&g[..n], tau).1);
+                        (from, sign, rest) = (tau, -sign, split_right(&g[..n], tau));
                     }
                     Ok(_) => {
                         settled = true;
@@ -1626,6 +1657,7 @@ impl Watcher {
                     Err(()) => break,
                 }
             }
+            self.changes_from[w] = Some((start.0, start.1, settled));
             // Not settled: the checkpoints watch this atom too.
             all &= settled;
             // A single change stays visible at every later checkpoint; only
@@ -1975,7 +2007,10 @@ impl Watcher {
         // rounding noise in the atom's values.
         let clock = self.clock;
         let tol_at = |b: f64| event_tol.max(4.0 * f64::EPSILON * clock.at(b).abs());
-        let mut itp = Itp::new(a, b, tol_at(b));
+        // The ITP schedule of the initial bracket, made when first needed:
+        // the guided trials of an affine atom usually close it first.
+        let (a0, b0, tol0) = (a, b, tol_at(b));
+        let mut itp: Option<Itp> = None;
         let mut widths = [f64::INFINITY; 2];
         // Leaving an exact zero: the change is almost always right after a.
         let mut leaving_zero = c0 == 0;
@@ -2010,7 +2045,14 @@ impl Watcher {
             } else {
                 let fa = *fa.get_or_insert_with(|| self.watched_at(sys, w, path, a, Buf::A));
                 let fb = *fb.get_or_insert_with(|| self.watched_at(sys, w, path, b, Buf::B));
-                itp.next(a, b, fa, fb, c0 != 2 && !slow, tol)
+                itp.get_or_insert_with(|| Itp::new(a0, b0, tol0)).next(
+                    a,
+                    b,
+                    fa,
+                    fb,
+                    c0 != 2 && !slow,
+                    tol,
+                )
             };
             // Keep the trial strictly inside. A trial within `tol` of an end
             // means the estimate has converged there: step almost a full
@@ -2102,6 +2144,9 @@ struct Itp {
 const SLACK: i32 = 8;
 
 impl Itp {
+    /// Not inlined: its logarithm and power would be hoisted out of the
+    /// search loop that makes it only when the guided trials fail.
+    #[inline(never)]
     fn new(a: f64, b: f64, tol: f64) -> Self {
         let width = b - a;
         let n_half = (width / tol).log2().ceil().max(0.0) as i32;

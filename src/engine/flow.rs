@@ -1057,6 +1057,13 @@ impl Flows {
             .collect();
         timer_rows.sort_unstable();
         timer_rows.dedup();
+        // Exact flows that are always taken (polynomial ones under the auto
+        // choice too) never step on a solver: no Dopri5 is made for them.
+        let exact_only = match &method {
+            Method::Affine(_) => true,
+            Method::Auto(_, aff) => aff.poly.is_some(),
+            _ => false,
+        };
         let mut flows = Self {
             method,
             watcher,
@@ -1072,6 +1079,7 @@ impl Flows {
             last_h: 0.0,
             fevals: 0,
             dopri: match settings.solver {
+                _ if exact_only => None,
                 Solver::Dopri5 { rtol, atol } => Some(OwnDopri5::new(n, rtol, atol)),
                 Solver::Auto { rtol, atol } => {
                     Some(OwnDopri5::new(n, rtol, atol).stiffness_test_every(AUTO_STIFF_EVERY))
