@@ -91,8 +91,8 @@ fn with_regs<R>(need: usize, f: impl FnOnce(&mut [f64]) -> R) -> R {
 
 /// [`Program::run_into`] with the thread's register file of `nregs`
 /// registers, or without one where the program's machine code needs none
-/// (a flow map or jump map that reads neither `t` nor `j`, as most): then
-/// the call is a jump into that code.
+/// (no loop over long sums, no block call, no noise: most flow maps, jump
+/// maps and atoms): then the call is a jump into that code.
 #[inline(always)]
 fn run_into(
     p: &Program,
@@ -103,7 +103,7 @@ fn run_into(
     out: &mut [f64],
 ) {
     match p.native_without_regs() {
-        Some(native) => native.run_into_without_regs(x, rng, out),
+        Some(native) => native.run_into_without_regs(x, rng, out, Program::clock(at)),
         None => with_regs(nregs, |regs| p.run_into(regs, at, x, rng, out)),
     }
 }

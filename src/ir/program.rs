@@ -793,12 +793,12 @@ impl Program {
         &self,
         native: &super::jit::Native,
         regs: &mut [f64],
-        x: Option<&[f64]>,
+        x: Option<(&[f64], [f64; 2])>,
         rng: Option<&mut SimRng>,
     ) {
         let mut out = vec![0.0; self.dest_len];
         match x {
-            Some(x) => native.run_into(regs, x, rng, &mut out),
+            Some((x, clock)) => native.run_into(regs, x, rng, &mut out, clock),
             None => native.run_regs_into(regs, rng, &mut out),
         }
         for (d, r) in self.positions() {
@@ -834,13 +834,13 @@ impl Program {
     /// interpreter copies it into `regs` first.
     #[inline(always)]
     pub fn run_at(&self, regs: &mut [f64], at: HybridTime, x: &[f64], rng: Option<&mut SimRng>) {
-        let n = self.state_regs;
+        let (n, clock) = (self.state_regs, Self::clock(at));
         self.set_clock(regs, at);
         // The engine's hot path, small enough to inline into each caller;
         // the rest (tier-up, the interpreter) out of line.
         match self.tier.attached() {
-            Some(native) if self.dest.is_none() => native.run_at(regs, &x[..n], rng),
-            _ => self.run_at_slow(regs, &x[..n], rng),
+            Some(native) if self.dest.is_none() => native.run_at(regs, &x[..n], rng, clock),
+            _ => self.run_at_slow(regs, &x[..n], rng, clock),
         }
     }
 
@@ -852,7 +852,15 @@ impl Program {
         self.tier.attached().filter(|n| n.runs_without_regs())
     }
 
-    /// The time and jump-count registers, if the program reads them.
+    /// The time and jump count as the machine code takes them.
+    #[inline(always)]
+    pub fn clock(at: HybridTime) -> [f64; 2] {
+        [at.t, jumps_value(at.j)]
+    }
+
+    /// The time and jump-count registers, if the program reads them (the
+    /// interpreter does from there; machine code takes them as arguments,
+    /// and its loops over sums read their operands from the registers).
     #[inline(always)]
     fn set_clock(&self, regs: &mut [f64], at: HybridTime) {
         if self.clock_reads {
@@ -868,12 +876,12 @@ impl Program {
     /// [`run_at`](Self::run_at) without attached code for it to call
     /// directly (the time registers already filled).
     #[inline(never)]
-    fn run_at_slow(&self, regs: &mut [f64], x: &[f64], rng: Option<&mut SimRng>) {
+    fn run_at_slow(&self, regs: &mut [f64], x: &[f64], rng: Option<&mut SimRng>, clock: [f64; 2]) {
         match self.tier.code(self) {
             Some(native) if self.dest.is_some() => {
-                self.run_native_to_regs(native, regs, Some(x), rng)
+                self.run_native_to_regs(native, regs, Some((x, clock)), rng)
             }
-            Some(native) => native.run_at(regs, x, rng),
+            Some(native) => native.run_at(regs, x, rng, clock),
             None => {
                 regs[..x.len()].copy_from_slice(x);
                 self.interpret(regs, rng)
@@ -897,12 +905,12 @@ impl Program {
         rng: Option<&mut SimRng>,
         out: &mut [f64],
     ) {
-        let n = self.state_regs;
+        let (n, clock) = (self.state_regs, Self::clock(at));
         self.set_clock(regs, at);
         // As in `run_at`: the attached code's call inline, the rest not.
         match self.tier.attached() {
-            Some(native) if self.dest.is_some() => native.run_into(regs, &x[..n], rng, out),
-            _ => self.run_into_slow(regs, &x[..n], rng, out),
+            Some(native) if self.dest.is_some() => native.run_into(regs, &x[..n], rng, out, clock),
+            _ => self.run_into_slow(regs, &x[..n], rng, out, clock),
         }
     }
 
@@ -915,11 +923,12 @@ impl Program {
         x: &[f64],
         rng: Option<&mut SimRng>,
         out: &mut [f64],
+        clock: [f64; 2],
     ) {
         match self.tier.code(self) {
-            Some(native) if self.dest.is_some() => native.run_into(regs, x, rng, out),
+            Some(native) if self.dest.is_some() => native.run_into(regs, x, rng, out, clock),
             Some(native) => {
-                native.run_at(regs, x, rng);
+                native.run_at(regs, x, rng, clock);
                 self.gather_into(regs, out);
             }
             None => {

@@ -3,8 +3,9 @@
 //! Programs are straight-line code (a selection is a `select`, not a
 //! branch), so each becomes basic blocks in SSA form: a register's value
 //! is the Cranelift value that defined it; the state registers are loaded
-//! from the state pointer, the other fixed registers and the block outputs
-//! from the register file, on first use; each output is stored as soon
+//! from the state pointer, the time and jump count are arguments, the
+//! noise registers and the block outputs are loaded from the register
+//! file, on first use; each output is stored as soon
 //! as its register is defined, into the register file or, for a program
 //! given positions in its caller's buffer, there (stores at the end kept
 //! every output live through the whole function, which made Cranelift's
@@ -100,6 +101,9 @@ struct Emit<'a, 'b> {
     /// Whether the code reads or writes the register file (`regs` asked
     /// for through [`Emit::regs`]).
     uses_regs: bool,
+    /// The time and the jump count, passed as arguments: an instruction
+    /// that reads their registers reads these.
+    clock: [Value; 2],
     /// Where the state registers are read from.
     x: Value,
     state_regs: u32,
@@ -154,7 +158,8 @@ impl Generator {
         blocks: &[BlockDesc],
     ) -> Result<(FuncId, bool), JitError> {
         let ptr = module.target_config().pointer_type();
-        let entry_sig = sig(module, &[ptr, ptr, ptr, ptr], None);
+        let f64t = types::F64;
+        let entry_sig = sig(module, &[ptr, ptr, ptr, ptr, f64t, f64t], None);
         let name = format!("program{}", self.count);
         self.count += 1;
         let id = module
@@ -171,7 +176,7 @@ impl Generator {
             b.switch_to_block(block);
             let params = b.block_params(block);
             let (regs, x, rng, out) = (params[0], params[1], params[2], params[3]);
-            let f64t = types::F64;
+            let clock = [params[4], params[5]];
             let sigs = Sigs {
                 un: b.import_signature(sig(module, &[f64t], Some(f64t))),
                 bin: b.import_signature(sig(module, &[f64t, f64t], Some(f64t))),
@@ -189,6 +194,7 @@ impl Generator {
                 ptr,
                 regs,
                 uses_regs: false,
+                clock,
                 x,
                 state_regs: p.state_regs as u32,
                 rng,
@@ -236,6 +242,9 @@ impl Emit<'_, '_> {
     fn get(&mut self, r: u32) -> Value {
         match self.vals[r as usize] {
             Some(v) => v,
+            None if r == self.state_regs || r == self.state_regs + 1 => {
+                self.clock[(r - self.state_regs) as usize]
+            }
             None => {
                 let base = if r < self.state_regs {
                     self.x

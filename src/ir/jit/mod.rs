@@ -106,10 +106,12 @@ impl Drop for Code {
     }
 }
 
-/// `fn(regs, x, rng, out)`: state register `k < state_regs` is read from `x[k]`,
-/// every other register from `regs`; output `k` is written to its register,
-/// or to `out[dest[k]]` for a program with positions (`out` unused otherwise).
-type Entry = unsafe extern "C" fn(*mut f64, *const f64, *mut SimRng, *mut f64);
+/// `fn(regs, x, rng, out, t, j)`: state register `k < state_regs` is read
+/// from `x[k]`, the time and jump-count registers are `t` and `j`, every
+/// other register is read from `regs`; output `k` is written to its
+/// register, or to `out[dest[k]]` for a program with positions (`out`
+/// unused otherwise).
+type Entry = unsafe extern "C" fn(*mut f64, *const f64, *mut SimRng, *mut f64, f64, f64);
 
 /// A program's machine code.
 #[derive(Clone)]
@@ -144,42 +146,62 @@ impl Native {
         if regs.len() < self.nregs || self.dest_len.is_some() {
             self.bad_call(regs.len(), regs.len(), None);
         }
+        let [t, j] = self.clock_in(regs);
         let rng = rng.map_or(std::ptr::null_mut(), |r| r as *mut SimRng);
         let regs = regs.as_mut_ptr();
         // SAFETY: the code reads and writes `regs[..nregs]` only (offsets
         // fixed at compile time; a state register is only written with the
         // value read from it), `rng` is null or a live exclusive reference,
         // and `_code` keeps the code memory alive.
-        unsafe { (self.entry)(regs, regs, rng, std::ptr::null_mut()) }
+        unsafe { (self.entry)(regs, regs, rng, std::ptr::null_mut(), t, j) }
     }
 
-    /// Runs the code with the state registers read from `x` instead of
-    /// `regs`; same contract as [`Program::run_at`].
+    /// Runs the code with the state registers read from `x` and the time
+    /// and jump count `clock` instead of `regs`; same contract as
+    /// [`Program::run_at`].
     #[inline]
-    pub fn run_at(&self, regs: &mut [f64], x: &[f64], rng: Option<&mut SimRng>) {
+    pub fn run_at(&self, regs: &mut [f64], x: &[f64], rng: Option<&mut SimRng>, clock: [f64; 2]) {
         if regs.len() < self.nregs || x.len() < self.state_regs || self.dest_len.is_some() {
             self.bad_call(regs.len(), x.len(), None);
         }
         let rng = rng.map_or(std::ptr::null_mut(), |r| r as *mut SimRng);
+        let [t, j] = clock;
         // SAFETY: as `run`; the code reads `x[..state_regs]` only (and
         // may copy it into `regs[..state_regs]`, as the interpreter does).
-        unsafe { (self.entry)(regs.as_mut_ptr(), x.as_ptr(), rng, std::ptr::null_mut()) }
+        unsafe {
+            (self.entry)(
+                regs.as_mut_ptr(),
+                x.as_ptr(),
+                rng,
+                std::ptr::null_mut(),
+                t,
+                j,
+            )
+        }
     }
 
     /// The code of a program with positions: as [`run_at`](Self::run_at),
     /// with the outputs stored into `out` at their positions; same
     /// contract as [`Program::run_into`].
     #[inline]
-    pub fn run_into(&self, regs: &mut [f64], x: &[f64], rng: Option<&mut SimRng>, out: &mut [f64]) {
+    pub fn run_into(
+        &self,
+        regs: &mut [f64],
+        x: &[f64],
+        rng: Option<&mut SimRng>,
+        out: &mut [f64],
+        clock: [f64; 2],
+    ) {
         // `usize::MAX` without positions: no buffer is long enough.
         let need = self.dest_len.unwrap_or(usize::MAX);
         if regs.len() < self.nregs || x.len() < self.state_regs || out.len() < need {
             self.bad_call(regs.len(), x.len(), Some(out.len()));
         }
         let rng = rng.map_or(std::ptr::null_mut(), |r| r as *mut SimRng);
+        let [t, j] = clock;
         // SAFETY: as `run_at`; the code writes `out[..dest_len]` only
         // (positions fixed at compile time) and does not read it.
-        unsafe { (self.entry)(regs.as_mut_ptr(), x.as_ptr(), rng, out.as_mut_ptr()) }
+        unsafe { (self.entry)(regs.as_mut_ptr(), x.as_ptr(), rng, out.as_mut_ptr(), t, j) }
     }
 
     /// Whether the code runs without a register file
@@ -190,23 +212,30 @@ impl Native {
     }
 
     /// [`run_into`](Self::run_into) for code that touches no register file
-    /// ([`runs_without_regs`](Self::runs_without_regs)): no time or jump
-    /// count to fill, no thread-local buffer to borrow.
+    /// ([`runs_without_regs`](Self::runs_without_regs)): no thread-local
+    /// buffer to borrow.
     ///
     /// # Panics
     /// If the code needs a register file, or a buffer is too short.
     #[inline]
-    pub fn run_into_without_regs(&self, x: &[f64], rng: Option<&mut SimRng>, out: &mut [f64]) {
+    pub fn run_into_without_regs(
+        &self,
+        x: &[f64],
+        rng: Option<&mut SimRng>,
+        out: &mut [f64],
+        clock: [f64; 2],
+    ) {
         let need = self.dest_len.unwrap_or(usize::MAX);
         if self.needs_regs || x.len() < self.state_regs || out.len() < need {
             self.bad_call(0, x.len(), Some(out.len()));
         }
         let rng = rng.map_or(std::ptr::null_mut(), |r| r as *mut SimRng);
         let regs = std::ptr::NonNull::<f64>::dangling().as_ptr();
+        let [t, j] = clock;
         // SAFETY: as `run_into`; the code was generated without any access
         // to the register file (`needs_regs` false), so the dangling
         // pointer is never dereferenced.
-        unsafe { (self.entry)(regs, x.as_ptr(), rng, out.as_mut_ptr()) }
+        unsafe { (self.entry)(regs, x.as_ptr(), rng, out.as_mut_ptr(), t, j) }
     }
 
     /// The code of a program with positions: as [`run`](Self::run), with
@@ -217,10 +246,19 @@ impl Native {
         if regs.len() < self.nregs || out.len() < need {
             self.bad_call(regs.len(), regs.len(), Some(out.len()));
         }
+        let [t, j] = self.clock_in(regs);
         let rng = rng.map_or(std::ptr::null_mut(), |r| r as *mut SimRng);
         let regs = regs.as_mut_ptr();
         // SAFETY: as `run` and `run_into`.
-        unsafe { (self.entry)(regs, regs, rng, out.as_mut_ptr()) }
+        unsafe { (self.entry)(regs, regs, rng, out.as_mut_ptr(), t, j) }
+    }
+
+    /// The time and jump count in a register file the caller filled (a
+    /// program's registers include its fixed ones: `nregs ≥ state_regs + 2`,
+    /// checked by the callers).
+    #[inline]
+    fn clock_in(&self, regs: &[f64]) -> [f64; 2] {
+        [regs[self.state_regs], regs[self.state_regs + 1]]
     }
 
     /// The panic of a call with buffers too short for the code, or of the

@@ -210,9 +210,9 @@ proptest! {
 
 proptest! {
     #![proptest_config(ProptestConfig::with_cases(300))]
-    /// Machine code that touches no register file runs without one, to the
-    /// interpreter's bits; code that reads `t` or `j` (or calls a block or
-    /// a loop) always gets one.
+    /// Machine code that touches no register file runs without one (the
+    /// time and jump count as arguments), to the interpreter's bits; code
+    /// with a loop or a block call always gets one.
     #[test]
     fn code_without_a_register_file_is_bit_identical(
         steps in prop::collection::vec(
@@ -229,14 +229,12 @@ proptest! {
         let mut regs = vec![f64::NAN; p.nregs.max(FRAME.fixed())];
         let mut want = vec![0.0; outs.len()];
         p.run_into(&mut regs, at, &x, None, &mut want);
-        // Without clock reads, loops or blocks nothing needs the registers.
-        let plain = !p.clock_reads
-            && !p.ops.iter().any(|op| matches!(op, Op::Lin { .. } | Op::Block { .. }));
+        // Without loops or blocks nothing needs the registers.
+        let plain = !p.ops.iter().any(|op| matches!(op, Op::Lin { .. } | Op::Block { .. }));
         match jitted.native_without_regs() {
             Some(native) => {
-                prop_assert!(!p.clock_reads);
                 let mut got = vec![0.0; outs.len()];
-                native.run_into_without_regs(&x, None, &mut got);
+                native.run_into_without_regs(&x, None, &mut got, Program::clock(at));
                 prop_assert_eq!(bits(&got), bits(&want));
             }
             None => prop_assert!(!plain, "plain code given a register file"),
@@ -244,26 +242,45 @@ proptest! {
     }
 }
 
-/// A flow map's usual code (states in, outputs to a buffer) runs without a
-/// register file; reading `t` makes it need one.
+/// A flow map's usual code (states and time in, outputs to a buffer) runs
+/// without a register file; a loop over a long sum makes it need one.
 #[test]
 fn plain_code_needs_no_register_file() {
     let mut dag = Dag::default();
-    let x: Vec<NodeId> = (0..4).map(|k| dag.state(k)).collect();
-    let s = dag.un(UnFn::Sin, x[0]);
-    let y = dag.bin(BinFn::Mul, s, x[1]);
+    let states: Vec<NodeId> = (0..4).map(|k| dag.state(k)).collect();
+    let s = dag.un(UnFn::Sin, states[0]);
+    let y = dag.bin(BinFn::Mul, s, states[1]);
     let t = dag.time();
     let yt = dag.bin(BinFn::Mul, y, t);
-    let plain = compiled(&Program::compile(&dag, FRAME, &[y, s]).into_buffer(), true);
-    let timed = compiled(&Program::compile(&dag, FRAME, &[yt]).into_buffer(), true);
+    let plain = compiled(&Program::compile(&dag, FRAME, &[yt, s]).into_buffer(), true);
     let native = plain
         .native_without_regs()
         .expect("no register file needed");
-    assert!(timed.native_without_regs().is_none());
     let x = [0.3, -1.25, 2.0, 7.0];
     let mut out = [0.0; 2];
-    native.run_into_without_regs(&x, None, &mut out);
-    assert_eq!(out, [0.3f64.sin() * -1.25, 0.3f64.sin()]);
+    let at = HybridTime { t: 0.5, j: 3 };
+    native.run_into_without_regs(&x, None, &mut out, Program::clock(at));
+    assert_eq!(out, [0.3f64.sin() * -1.25 * 0.5, 0.3f64.sin()]);
+    // Sums of more than `LOOP_TERMS` terms in all: a loop over the registers.
+    // (As `looped_code_grows_with_the_rows`: each coefficient once.)
+    let pick: Vec<u8> = (0..39).filter(|p| p % 5 != 3).collect();
+    let coef: Vec<f64> = (0..100).map(|i| 0.1 + f64::from(i) * 1e-3).collect();
+    let (dag, outs) = sums(10, 10, &pick, &coef);
+    let p = Program::compile(&dag, FRAME, &outs).into_buffer();
+    let terms: usize = p
+        .ops
+        .iter()
+        .map(|op| match op {
+            Op::Lin { len, .. } => *len as usize,
+            _ => 0,
+        })
+        .sum();
+    assert!(terms >= LOOP_TERMS, "{terms} terms");
+    let looped = compiled(&p, true);
+    assert!(
+        looped.native_without_regs().is_none(),
+        "a loop reads the registers"
+    );
 }
 
 /// `rows` sums, row `r` of `len` terms `cᵢ·vᵢ` (left-leaning, `+` or `−`)
