@@ -1082,8 +1082,9 @@ impl Watcher {
     /// past the thresholds and the scan goes on. The event's state is `x`
     /// with the timers crossed there set exactly to their thresholds.
     fn cross_timers(&mut self, s: f64, x: &[f64]) -> Option<EventKind> {
-        // `now` is read below only, after this pass.
-        if !(self.next_due <= s) {
+        // None due by `s` (nor any, for a NaN `s`); `now` is read below only,
+        // after this pass.
+        if self.next_due.partial_cmp(&s).is_none_or(|o| o.is_gt()) {
             return None;
         }
         let mut next = f64::INFINITY;
