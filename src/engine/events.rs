@@ -706,6 +706,9 @@ pub(crate) struct Watcher {
     watched: Vec<WAtom>,
     /// The event sources' timer atoms ([`Atom::timer`](super::system::Atom::timer)).
     timers: Vec<TimerAtom>,
+    /// The earliest local time `d` of the timer atoms not crossed yet in
+    /// the segment (∞: none due): a checkpoint before it crosses none.
+    next_due: f64,
     /// Per watched atom: the bracket `(a, b)` of its first change found in
     /// the current [`Watcher::resolve`], with the class and relaxation it
     /// was found for (`a` NaN: none).
@@ -966,6 +969,7 @@ impl Watcher {
             changing: vec![0; set_count],
             watched,
             timers,
+            next_due: f64::INFINITY,
             twin,
             affine,
             points: Vec::with_capacity(points_room),
@@ -1034,7 +1038,17 @@ impl Watcher {
     /// the segment goes on there unless a set changes (the ball's apex, a
     /// timer atom of C = {h ≥ 0 ∨ v ≥ 0} passed while h > 0, costs no new
     /// segment). Without, the segment ends at the first threshold.
+    #[inline]
     pub fn schedule(&mut self, x: &[f64], f: &[f64]) -> Option<f64> {
+        // No timer atom (as in most systems): nothing due, C not left.
+        if self.timers.is_empty() {
+            return Some(f64::INFINITY);
+        }
+        self.schedule_atoms(x, f)
+    }
+
+    /// [`schedule`](Self::schedule) with timer atoms.
+    fn schedule_atoms(&mut self, x: &[f64], f: &[f64]) -> Option<f64> {
         let mut first = f64::INFINITY;
         let mut changed = false;
         for ta in &mut self.timers {
@@ -1044,14 +1058,14 @@ impl Watcher {
             } else {
                 f64::INFINITY
             };
-            ta.after = cmp.holds(rate);
+            let after = cmp.holds(rate);
+            ta.after = after;
             ta.crossed = false;
             first = first.min(ta.d);
             // On (or past) the threshold and moving away from it: the truth
             // just after the start is that of `g` with the rate's sign.
             let away = (rate > 0.0 && v >= thr) || (rate < 0.0 && v <= thr);
             if away {
-                let after = cmp.holds(rate);
                 let ws = &mut self.sets[ta.set];
                 if ws.start_truth[ta.atom] != after {
                     ws.start_truth[ta.atom] = after;
@@ -1059,6 +1073,7 @@ impl Watcher {
                 }
             }
         }
+        self.next_due = first;
         if changed {
             for (i, ws) in self.sets.iter_mut().enumerate() {
                 if let Some(spec) = &ws.spec {
@@ -1087,15 +1102,20 @@ impl Watcher {
     /// past the thresholds and the scan goes on. The event's state is `x`
     /// with the timers crossed there set exactly to their thresholds.
     fn cross_timers(&mut self, s: f64, x: &[f64]) -> Option<EventKind> {
-        let mut any = false;
+        // None due by `s` (nor any, for a NaN `s`); `now` is read below only,
+        // after this pass.
+        if self.next_due.partial_cmp(&s).is_none_or(|o| o.is_gt()) {
+            return None;
+        }
+        let mut next = f64::INFINITY;
         for ta in &mut self.timers {
             ta.now = !ta.crossed && ta.d <= s;
             ta.crossed |= ta.now;
-            any |= ta.now;
+            if !ta.crossed {
+                next = next.min(ta.d);
+            }
         }
-        if !any {
-            return None;
-        }
+        self.next_due = next;
         // Past the thresholds for the rest of the segment, unless an event
         // ends it here (where the timers land).
         for i in 0..self.timers.len() {
@@ -1203,8 +1223,8 @@ impl Watcher {
     /// Records the state at the start of a flow segment (local time 0,
     /// global hybrid time `at`): constant atoms' truth, relaxations of C's
     /// atoms on its boundary, each set's value and each watched atom's sign.
+    #[inline]
     pub fn start<S: HybridSystem + ?Sized>(&mut self, sys: &S, clock: TimeSum, j: u64, x: &[f64]) {
-        let at = HybridTime::new(clock.value(), j);
         self.clock = clock;
         self.j = j;
         // Nothing watched and nothing scheduled: no step is scanned and no
@@ -1213,16 +1233,22 @@ impl Watcher {
         if self.watched.is_empty() && self.timers.is_empty() {
             return;
         }
+        self.start_sets(sys, HybridTime::new(clock.value(), j), x);
+    }
+
+    /// [`start`](Self::start) with something watched or scheduled.
+    fn start_sets<S: HybridSystem + ?Sized>(&mut self, sys: &S, at: HybridTime, x: &[f64]) {
         let set_tol = self.set_tol;
         if std::mem::take(&mut self.prefetched) != Some(at) {
             self.flat_ok = sys.all_atom_values(at, x, false, &mut self.flat);
         }
         self.relaxed = 0;
-        for (i, ws) in self.sets.iter_mut().enumerate() {
+        let sets = self.sets.iter_mut().zip(&self.flat_off).enumerate();
+        for (i, (ws, &flat_off)) in sets {
             let is_flow = self.flow == Some(i);
             // The set's values from the prefetched ones (copied by the pass
             // below: a call to memcpy for 3 or 4 values cost more), or its own.
-            let flat = match self.flat_off[i] {
+            let flat = match flat_off {
                 Some(off) if self.flat_ok => Some(&self.flat[off..off + ws.vs.len()]),
                 _ => {
                     let mut vals = std::mem::take(&mut ws.vs);
@@ -1238,14 +1264,28 @@ impl Watcher {
                 // A jump set's atoms are never relaxed (`relax` stays 0):
                 // one pass of comparisons, the per-segment common case.
                 Some(spec) if !is_flow => {
-                    let atoms = spec.atoms.iter().zip(&mut ws.vs).zip(&mut ws.start_truth);
-                    for (k, ((a, v), truth)) in atoms.enumerate() {
-                        let g = flat.map_or(*v, |f| f[k]);
-                        *v = g;
-                        let holds = a.cmp.holds(g);
-                        *truth = holds;
+                    let n = ws.vs.len();
+                    let (vs, truth, atoms) =
+                        (&mut ws.vs[..], &mut ws.start_truth[..n], &spec.atoms[..n]);
+                    let mut pass = |k: usize, g: f64| {
+                        let holds = atoms[k].cmp.holds(g);
+                        truth[k] = holds;
                         if k < TruthTable::MAX_ATOMS {
                             mask |= u32::from(holds) << k;
+                        }
+                    };
+                    // One loop per source of the values, without a test per atom.
+                    match flat {
+                        Some(f) => {
+                            for (k, (v, &g)) in vs.iter_mut().zip(f).enumerate() {
+                                *v = g;
+                                pass(k, g);
+                            }
+                        }
+                        None => {
+                            for (k, &g) in vs.iter().enumerate() {
+                                pass(k, g);
+                            }
                         }
                     }
                 }
@@ -1475,12 +1515,14 @@ impl Watcher {
         let evenly = points.len();
         points.extend_from_slice(&self.extra);
         // The timers' thresholds reached on the step (`cross_timers`).
-        points.extend(
-            self.timers
-                .iter()
-                .filter(|ta| !ta.crossed && ta.d > s0 && ta.d < s1)
-                .map(|ta| ta.d),
-        );
+        if self.next_due < s1 {
+            points.extend(
+                self.timers
+                    .iter()
+                    .filter(|ta| !ta.crossed && ta.d > s0 && ta.d < s1)
+                    .map(|ta| ta.d),
+            );
+        }
         if points.len() > evenly {
             points.sort_unstable_by(f64::total_cmp);
         }
