@@ -104,8 +104,22 @@ fn run_into(
 ) {
     match p.native_without_regs() {
         Some(native) => native.run_into_without_regs(x, rng, out, Program::clock(at)),
-        None => with_regs(nregs, |regs| p.run_into(regs, at, x, rng, out)),
+        None => run_into_with_regs(p, nregs, at, x, rng, out),
     }
+}
+
+/// [`run_into`] with the thread's register file: out of line, so that the
+/// call without one needs no frame.
+#[inline(never)]
+fn run_into_with_regs(
+    p: &Program,
+    nregs: usize,
+    at: HybridTime,
+    x: &[f64],
+    rng: Option<&mut SimRng>,
+    out: &mut [f64],
+) {
+    with_regs(nregs, |regs| p.run_into(regs, at, x, rng, out));
 }
 
 /// A register file of `need` zeros, out of line (see [`with_regs`]).

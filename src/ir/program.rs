@@ -282,21 +282,12 @@ impl Frame {
 }
 
 /// The jump count as a register value: through `i64`, one conversion
-/// instruction where `u64` takes several (the same value below 2⁶³, and a
-/// run makes fewer jumps than that; the unsigned conversion out of line,
-/// or the compiler merges both into the longer one).
+/// instruction where `u64` takes several, and no call (a call on the path
+/// makes each program call save registers). The same value below 2⁶³; a
+/// run makes fewer jumps than that (2⁶³ and beyond read as 2⁶³).
 #[inline(always)]
 fn jumps_value(j: u64) -> f64 {
-    match i64::try_from(j) {
-        Ok(j) => j as f64,
-        Err(_) => jumps_value_large(j),
-    }
-}
-
-#[cold]
-#[inline(never)]
-fn jumps_value_large(j: u64) -> f64 {
-    j as f64
+    j.min(i64::MAX as u64) as i64 as f64
 }
 
 /// The register of node `id`, materializing a constant on first use.
