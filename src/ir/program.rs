@@ -252,8 +252,9 @@ pub(crate) struct Program {
     pub(super) state_regs: usize,
     /// Whether an instruction or output reads the time or jump-count
     /// register: [`run_at`](Self::run_at) and [`run_into`](Self::run_into)
-    /// fill them only then (a flow map without `t`, as most, is then a
-    /// jump into its machine code).
+    /// fill them only then (for the interpreter, and for machine code whose
+    /// loops read them there; otherwise machine code takes them as
+    /// arguments).
     pub(super) clock_reads: bool,
     /// Machine code for the same instructions (see [`super::jit`]),
     /// compiled when the program becomes hot and then used by
@@ -826,7 +827,7 @@ impl Program {
     #[inline(always)]
     pub fn run_at(&self, regs: &mut [f64], at: HybridTime, x: &[f64], rng: Option<&mut SimRng>) {
         let (n, clock) = (self.state_regs, Self::clock(at));
-        self.set_clock(regs, at);
+        self.set_clock(regs, clock);
         // The engine's hot path, small enough to inline into each caller;
         // the rest (tier-up, the interpreter) out of line.
         match self.tier.attached() {
@@ -853,14 +854,14 @@ impl Program {
     /// interpreter does from there; machine code takes them as arguments,
     /// and its loops over sums read their operands from the registers).
     #[inline(always)]
-    fn set_clock(&self, regs: &mut [f64], at: HybridTime) {
+    fn set_clock(&self, regs: &mut [f64], [t, j]: [f64; 2]) {
         if self.clock_reads {
             let frame = Frame {
                 n: self.state_regs,
                 m: 0,
             };
-            regs[frame.time_reg()] = at.t;
-            regs[frame.jumps_reg()] = jumps_value(at.j);
+            regs[frame.time_reg()] = t;
+            regs[frame.jumps_reg()] = j;
         }
     }
 
@@ -897,7 +898,7 @@ impl Program {
         out: &mut [f64],
     ) {
         let (n, clock) = (self.state_regs, Self::clock(at));
-        self.set_clock(regs, at);
+        self.set_clock(regs, clock);
         // As in `run_at`: the attached code's call inline, the rest not.
         match self.tier.attached() {
             Some(native) if self.dest.is_some() => native.run_into(regs, &x[..n], rng, out, clock),
