@@ -240,6 +240,11 @@ impl Checker {
     /// The constant integer value of an expression.
     pub(crate) fn const_int(&mut self, e: &Expr, what: &str) -> Option<i64> {
         let x = self.const_scalar(e, what)?;
+        self.int_of(x, e, what)
+    }
+
+    /// `x`, the constant value of `e`, as an integer (else an error at `e`).
+    fn int_of(&mut self, x: f64, e: &Expr, what: &str) -> Option<i64> {
         if x.fract() != 0.0 || x.abs() > 1e15 {
             self.err(CheckError::Expected {
                 expected: format!("an integer for {what}"),
@@ -1104,8 +1109,24 @@ impl Checker {
     /// Resolves one index argument against a dimension of length `len`:
     /// the 0-based positions it selects.
     pub(crate) fn selection(&mut self, a: &IndexArg, len: usize) -> Option<Vec<usize>> {
+        self.selection_known(a, len, None)
+    }
+
+    /// [`selection`](Self::selection) of an argument whose single index
+    /// already has the constant value `known` (evaluated by the caller; an
+    /// index is evaluated once, or nested indices `a[a[a[i]]]` cost
+    /// 2^depth evaluations).
+    fn selection_known(
+        &mut self,
+        a: &IndexArg,
+        len: usize,
+        known: Option<f64>,
+    ) -> Option<Vec<usize>> {
         let check = |this: &mut Self, e: &Expr| -> Option<usize> {
-            let i = this.const_int(e, "an index")?;
+            let i = match known {
+                Some(x) => this.int_of(x, e, "an index")?,
+                None => this.const_int(e, "an index")?,
+            };
             if i < 1 || i as usize > len {
                 this.err(CheckError::IndexOutOfRange {
                     index: i,
@@ -1150,24 +1171,28 @@ impl Checker {
     /// Constant indices take the constant path ([`index`](Self::index)).
     fn index_in(&mut self, v: &Val, args: &[IndexArg], span: Span, ctx: &Ctx) -> Option<Val> {
         let mut dynamic: Vec<Option<NodeId>> = Vec::with_capacity(args.len());
+        // The value of each single index that is a constant scalar.
+        let mut known: Vec<Option<f64>> = Vec::with_capacity(args.len());
         for a in args {
-            let mut node = None;
+            let (mut node, mut value) = (None, None);
             if let IndexArg::One(e) = a {
                 let i = self.expr(e, ctx)?;
-                if i.is_scalar() && self.dag.as_const(i.e[0]).is_none() {
-                    node = Some(i.e[0]);
+                if i.is_scalar() {
+                    value = self.dag.as_const(i.e[0]);
+                    node = value.is_none().then_some(i.e[0]);
                 }
             }
             dynamic.push(node);
+            known.push(value);
         }
         if dynamic.iter().all(Option::is_none) {
-            return self.index(v, args, span);
+            return self.index_known(v, args, span, &known);
         }
         let vector = v.cols == 1 || v.rows == 1;
         let (rows, cols) = match args.len() {
             1 if vector => (v.e.len(), 1),
             2 => (v.rows, v.cols),
-            _ => return self.index(v, args, span),
+            _ => return self.index_known(v, args, span, &known),
         };
         let Some(table) = self.dag.table(&v.e, rows, cols) else {
             let at = args
@@ -1192,7 +1217,7 @@ impl Checker {
             let len = if k == 0 { rows } else { cols };
             sel.push(match d {
                 Some(n) => Ok(*n),
-                None => Err(self.selection(a, len)?),
+                None => Err(self.selection_known(a, len, known[k])?),
             });
         }
         if sel.len() == 1 {
@@ -1327,10 +1352,24 @@ impl Checker {
     }
 
     pub(crate) fn index(&mut self, v: &Val, args: &[IndexArg], span: Span) -> Option<Val> {
+        self.index_known(v, args, span, &[])
+    }
+
+    /// [`index`](Self::index) with the constant values of the indices the
+    /// caller has evaluated already (`known[k]` for `args[k]`; missing or
+    /// `None`: evaluated here).
+    fn index_known(
+        &mut self,
+        v: &Val,
+        args: &[IndexArg],
+        span: Span,
+        known: &[Option<f64>],
+    ) -> Option<Val> {
+        let known = |k: usize| known.get(k).copied().flatten();
         match args.len() {
             1 if v.cols == 1 || v.rows == 1 => {
                 let len = v.e.len();
-                let sel = self.selection(&args[0], len)?;
+                let sel = self.selection_known(&args[0], len, known(0))?;
                 let e: Vec<NodeId> = sel.iter().map(|&k| v.e[k]).collect();
                 let n = e.len();
                 let (rows, cols) = if v.cols == 1 { (n, 1) } else { (1, n) };
@@ -1342,8 +1381,8 @@ impl Checker {
                 })
             }
             2 => {
-                let rs = self.selection(&args[0], v.rows);
-                let cs = self.selection(&args[1], v.cols);
+                let rs = self.selection_known(&args[0], v.rows, known(0));
+                let cs = self.selection_known(&args[1], v.cols, known(1));
                 let (rs, cs) = (rs?, cs?);
                 let mut e = Vec::with_capacity(rs.len() * cs.len());
                 for &r in &rs {

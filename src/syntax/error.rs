@@ -734,7 +734,7 @@ fn describe(rule: Rule) -> Option<&'static str> {
         Rule::reset_post => "`+`",
         Rule::sim_setting | Rule::log_setting | Rule::log_key => "a setting `key = value`",
         Rule::index_list => "`[`",
-        Rule::index_arg | Rule::slice | Rule::colon_all => "an index",
+        Rule::index_arg | Rule::slice_hi | Rule::colon_all => "an index",
         Rule::transpose => "`'`",
         Rule::op_or | Rule::op_and | Rule::cmp_op | Rule::add_op | Rule::mul_op | Rule::op_pow => {
             "an operator"

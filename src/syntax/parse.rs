@@ -474,16 +474,15 @@ pub(super) fn index_list(p: Pair<'_, Rule>) -> Res<Vec<IndexArg>> {
     p.into_inner()
         .map(|a| {
             let aspan: Span = a.as_span().into();
-            let q = first(&mut a.into_inner(), aspan)?;
-            Ok(match q.as_rule() {
-                Rule::colon_all => IndexArg::All(aspan),
-                Rule::slice => {
-                    let mut it = q.into_inner();
-                    let lo = expr(first(&mut it, aspan)?)?;
-                    let hi = expr(first(&mut it, aspan)?)?;
-                    IndexArg::Slice(lo, hi)
+            let mut it = a.into_inner();
+            let q = first(&mut it, aspan)?;
+            Ok(match (q.as_rule(), it.next()) {
+                (Rule::colon_all, _) => IndexArg::All(aspan),
+                (_, Some(hi)) => {
+                    let hi = expr(first(&mut hi.into_inner(), aspan)?)?;
+                    IndexArg::Slice(expr(q)?, hi)
                 }
-                _ => IndexArg::One(expr(q)?),
+                (_, None) => IndexArg::One(expr(q)?),
             })
         })
         .collect()
