@@ -26,8 +26,6 @@ pub mod metric;
 mod outputs;
 mod program;
 mod property;
-#[cfg(test)]
-mod tests;
 
 use std::cell::RefCell;
 use std::collections::HashMap;
