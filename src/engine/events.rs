@@ -680,6 +680,9 @@ fn split_right(p: &[f64], t: f64) -> [f64; MAX_CONTROL] {
 #[inline(always)]
 fn de_casteljau(p: &[f64], t: f64, mut row: impl FnMut(usize, f64, f64)) {
     let n = p.len();
+    if n == 0 {
+        return;
+    }
     // The first row from `p` itself (a copy of a few points into `work`
     // would be a call to memcpy).
     row(0, p[0], p[n - 1]);
