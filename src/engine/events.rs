@@ -223,12 +223,11 @@ struct WSet {
     vt: Vec<f64>,
     truth: Vec<bool>,
     /// Per atom: a timer atom crossed at the checkpoint being examined by
-    /// [`Watcher::cross_timers`] (any of them: `any_on_threshold`), its
-    /// truth where its timer lands there ([`Watcher::landing`]), and the
-    /// set's value there past the thresholds and where the timers land.
+    /// [`Watcher::cross_timers`], its truth where its timer lands there
+    /// ([`Watcher::landing`]); the set's value there past the thresholds
+    /// and where the timers land.
     on_threshold: Vec<bool>,
     landed: Vec<bool>,
-    any_on_threshold: bool,
     past: bool,
     on: bool,
     /// The set's value at the cursor, and at the candidate being examined.
@@ -373,6 +372,9 @@ struct WAtom {
     set: usize,
     atom: usize,
     cmp: Cmp,
+    /// Its index in the layout of [`HybridSystem::all_atom_values`] (read
+    /// where [`Watcher::flat_watched`]).
+    flat: usize,
 }
 
 /// A timer atom `x[index] − threshold ⋈ 0` (`⋈` an inequality) of set
@@ -501,6 +503,12 @@ fn first_sure_sign(p: &[f64], tol: f64) -> Option<(f64, f64)> {
     for _ in 0..=SPLIT_DEPTH {
         if let Some(sure) = sure_on(&piece[..n]) {
             return Some((tau, sure));
+        }
+        // Points all within `tol` of zero stay so in every half (each the
+        // rounded mean of two, `tol/2` exact above the subnormals): no end
+        // beyond `tol` is left to find.
+        if tol >= 4.0 * f64::MIN_POSITIVE && piece[..n].iter().all(|v| v.abs() <= tol) {
+            return None;
         }
         piece = split_left(&piece[..n], 0.5);
         tau *= 0.5;
@@ -672,12 +680,36 @@ fn split_right(p: &[f64], t: f64) -> [f64; MAX_CONTROL] {
 #[inline(always)]
 fn de_casteljau(p: &[f64], t: f64, mut row: impl FnMut(usize, f64, f64)) {
     let n = p.len();
+    if n == 0 {
+        return;
+    }
+    // The first row from `p` itself (a copy of a few points into `work`
+    // would be a call to memcpy).
+    row(0, p[0], p[n - 1]);
     let mut work = [0.0; MAX_CONTROL];
-    work[..n].copy_from_slice(p);
-    for r in 0..n {
+    for i in 0..n - 1 {
+        work[i] = (1.0 - t) * p[i] + t * p[i + 1];
+    }
+    for r in 1..n {
         row(r, work[0], work[n - 1 - r]);
         for i in 0..n - 1 - r {
             work[i] = (1.0 - t) * work[i] + t * work[i + 1];
+        }
+    }
+}
+
+/// Sorts a step's checkpoints (by [`f64::total_cmp`]): inline insertion
+/// for the few of most steps (a call to the library's sort cost more).
+fn sort_points(points: &mut [f64]) {
+    if points.len() > 8 {
+        points.sort_unstable_by(f64::total_cmp);
+        return;
+    }
+    for i in 1..points.len() {
+        let mut k = i;
+        while k > 0 && points[k - 1].total_cmp(&points[k]).is_gt() {
+            points.swap(k - 1, k);
+            k -= 1;
         }
     }
 }
@@ -826,7 +858,6 @@ impl Watcher {
                 truth: vec![false; n],
                 on_threshold: vec![false; n],
                 landed: vec![false; n],
-                any_on_threshold: false,
                 past: false,
                 on: false,
                 cur: false,
@@ -857,6 +888,7 @@ impl Watcher {
                             set: i,
                             atom: k,
                             cmp: ws.cmp(k),
+                            flat: 0,
                         });
                     }
                 }
@@ -932,6 +964,9 @@ impl Watcher {
                 watched_sets += usize::from(ws.source);
             }
         }
+        for w in &mut watched {
+            w.flat = flat_off[w.set].unwrap_or_default() + w.atom;
+        }
         let flat_checks = watched_sets >= 2 && 2 * watched.len() >= flowing;
         let bracket_start_read = sets.iter().any(|ws| {
             ws.spec.as_ref().is_some_and(|spec| {
@@ -987,7 +1022,8 @@ impl Watcher {
             buf_a: vec![0.0; n],
             buf_b: vec![0.0; n],
             buf_t: vec![0.0; n],
-            best_a: vec![0.0; n],
+            // Read only with equality atoms.
+            best_a: vec![0.0; if bracket_start_read { n } else { 0 }],
             bracket_start_read,
             event_state: vec![0.0; n],
             rule_at_event: None,
@@ -1101,12 +1137,8 @@ impl Watcher {
     /// exactly on it) or C fails past it, else each set takes its value
     /// past the thresholds and the scan goes on. The event's state is `x`
     /// with the timers crossed there set exactly to their thresholds.
+    /// Called only when some are due (`next_due <= s`).
     fn cross_timers(&mut self, s: f64, x: &[f64]) -> Option<EventKind> {
-        // None due by `s` (nor any, for a NaN `s`); `now` is read below only,
-        // after this pass.
-        if self.next_due.partial_cmp(&s).is_none_or(|o| o.is_gt()) {
-            return None;
-        }
         let mut next = f64::INFINITY;
         for ta in &mut self.timers {
             ta.now = !ta.crossed && ta.d <= s;
@@ -1118,30 +1150,33 @@ impl Watcher {
         self.next_due = next;
         // Past the thresholds for the rest of the segment, unless an event
         // ends it here (where the timers land).
-        for i in 0..self.timers.len() {
-            let ta = self.timers[i];
+        for (i, ta) in self.timers.iter().enumerate() {
             if ta.now {
                 let landed = ta.cmp.holds(self.landing(i, |t| t.now) - ta.threshold);
                 let ws = &mut self.sets[ta.set];
                 ws.start_truth[ta.atom] = ta.after;
                 ws.on_threshold[ta.atom] = true;
                 ws.landed[ta.atom] = landed;
-                ws.any_on_threshold = true;
             }
         }
         // Each source set's value past the thresholds and on them (which
-        // differ only where one of its timers is crossed now), once.
+        // differ only where one of its timers is crossed now), once; the
+        // first jump set met on the thresholds.
+        let mut kind = None;
         for ws in &mut self.sets {
             if let Some(spec) = ws.spec.as_ref().filter(|_| ws.source) {
                 (ws.past, ws.on) = timer_set_values(ws, spec);
+                if let SetRef::Jump(r) = ws.set
+                    && kind.is_none()
+                    && !ws.cur
+                    && ws.on
+                {
+                    kind = Some(EventKind::Jump(r));
+                }
             }
         }
         let decided = |ws: &WSet| ws.source && ws.spec.is_some();
-        // A jump set met on the thresholds, or C left past them.
-        let kind = self.sets.iter().find_map(|ws| match ws.set {
-            SetRef::Jump(r) if !ws.cur && decided(ws) && ws.on => Some(EventKind::Jump(r)),
-            _ => None,
-        });
+        // Or C left past them.
         let kind = kind.or_else(|| {
             let ws = &self.sets[self.flow?];
             (decided(ws) && !ws.past).then_some(EventKind::LeftFlowSet)
@@ -1163,7 +1198,6 @@ impl Watcher {
             if ta.now {
                 let ws = &mut self.sets[ta.set];
                 ws.on_threshold[ta.atom] = false;
-                ws.any_on_threshold = false;
             }
         }
         let kind = kind?;
@@ -1290,11 +1324,12 @@ impl Watcher {
                     }
                 }
                 _ => {
-                    if let Some(f) = flat {
-                        ws.vs.copy_from_slice(f);
-                    }
                     let atoms = ws.spec.as_ref().map(|s| &s.atoms[..]);
-                    for (k, &g) in ws.vs.iter().enumerate() {
+                    for k in 0..ws.vs.len() {
+                        if let Some(f) = flat {
+                            ws.vs[k] = f[k];
+                        }
+                        let g = ws.vs[k];
                         let cmp = atoms.map_or(Cmp::Ge, |a| a[k].cmp);
                         let holds = cmp.holds(g);
                         // Relaxed: C's atoms that hold only within set_tol
@@ -1409,9 +1444,8 @@ impl Watcher {
             let mut changed = false;
             let pass = self.watched.iter().zip(&mut self.cls_s).zip(&self.cls);
             for ((w, c), &c0) in pass {
-                let off = self.flat_off[w.set].unwrap_or_default();
                 let ws = &mut self.sets[w.set];
-                let g = self.flat[off + w.atom];
+                let g = self.flat[w.flat];
                 ws.vs[w.atom] = g;
                 *c = class(watched_value(w.cmp, g, ws.relax[w.atom]));
                 changed |= *c != c0;
@@ -1456,8 +1490,16 @@ impl Watcher {
     /// Ends the relaxation of C's atoms that hold exactly at the point
     /// whose values are in `vs` (`vb` with `at_candidate`); their sign is
     /// then that of `g` itself.
+    #[inline]
     fn settle_relaxed(&mut self, at_candidate: bool) {
-        let Some(fi) = self.flow.filter(|_| self.relaxed > 0) else {
+        if self.relaxed > 0 {
+            self.settle_relaxed_atoms(at_candidate);
+        }
+    }
+
+    /// [`settle_relaxed`](Self::settle_relaxed) with relaxed atoms.
+    fn settle_relaxed_atoms(&mut self, at_candidate: bool) {
+        let Some(fi) = self.flow else {
             return;
         };
         for (w, c) in self.watched.iter().zip(self.cls.iter_mut()) {
@@ -1524,7 +1566,7 @@ impl Watcher {
             );
         }
         if points.len() > evenly {
-            points.sort_unstable_by(f64::total_cmp);
+            sort_points(&mut points);
         }
         points.push(s1);
         let found = self.scan_points(sys, path, s0, &points, y1);
@@ -1574,7 +1616,9 @@ impl Watcher {
                     return found;
                 }
             }
-            if !self.timers.is_empty() {
+            // Timers due by `s` (none for a NaN `s`); `now` is read only
+            // after `cross_timers`' first pass.
+            if self.next_due.partial_cmp(&s).is_some_and(|o| o.is_le()) {
                 let xs = std::mem::take(&mut self.buf_s);
                 let crossed = self.cross_timers(s, if last { y1 } else { &xs });
                 self.buf_s = xs;
@@ -1611,7 +1655,7 @@ impl Watcher {
                 all = false;
                 continue;
             };
-            let WAtom { set, atom, cmp } = self.watched[w];
+            let WAtom { set, atom, cmp, .. } = self.watched[w];
             let (cls, relaxed) = (self.cls[w], self.sets[set].relax[atom] > 0.0);
             if cls == 2 {
                 all = false;
@@ -1658,8 +1702,10 @@ impl Watcher {
                     all = false;
                     continue;
                 }
-                if tau < 1.0 && (relaxed || sure != sign) {
-                    self.extra.push(s0 + tau * (s1 - s0));
+                // Once for twins (the scan would pass the copy).
+                let at = s0 + tau * (s1 - s0);
+                if tau < 1.0 && (relaxed || sure != sign) && !self.extra.contains(&at) {
+                    self.extra.push(at);
                 }
                 (from, sign) = (tau, sure);
             }
@@ -1813,6 +1859,7 @@ impl Watcher {
     /// watched atom that is localized does (same function, neither
     /// relaxed), so that its localization would repeat that one's to the
     /// last bit. The earlier atoms' [`need`](Self::need) is this round's.
+    #[inline]
     fn shares_zero(&self, w: usize) -> bool {
         let unrelaxed = |w: usize| {
             let WAtom { set, atom, .. } = self.watched[w];
@@ -1830,7 +1877,11 @@ impl Watcher {
     /// D = {h ≤ 0 ∧ v < 0}) is then not localized at all. One pass counts
     /// the changing atoms of each set.
     fn mark_needs(&mut self) {
-        self.changing.fill(0);
+        // Only the watched atoms' sets are counted (a fill of all of them
+        // would be a call to memset).
+        for wa in &self.watched {
+            self.changing[wa.set] = 0;
+        }
         for (w, wa) in self.watched.iter().enumerate() {
             let changes = self.cls[w] != self.cls_s[w];
             self.need[w] = changes;
@@ -1903,26 +1954,29 @@ impl Watcher {
             && (!read_a || sys.all_atom_values(ta, xa, false, &mut self.flat))
             && sys.all_atom_values(tb, xb, false, &mut self.flat_b);
         for (i, ws) in self.sets.iter_mut().enumerate() {
+            // The values from the evaluation of all sets (copied in the
+            // pass below: a call to memcpy for a few values cost more), or
+            // the set's own.
+            let flat_off = self.flat_off[i].filter(|_| flat);
             let mut va = std::mem::take(&mut ws.va);
             let mut vb = std::mem::take(&mut ws.vb);
-            match self.flat_off[i] {
-                Some(off) if flat => {
-                    let len = va.len();
-                    if read_a {
-                        va.copy_from_slice(&self.flat[off..off + len]);
-                    }
-                    vb.copy_from_slice(&self.flat_b[off..off + len]);
+            if flat_off.is_none() {
+                if read_a {
+                    atom_values(sys, ws, ta, xa, false, &mut va);
                 }
-                _ => {
-                    if read_a {
-                        atom_values(sys, ws, ta, xa, false, &mut va);
-                    }
-                    atom_values(sys, ws, tb, xb, false, &mut vb);
-                }
+                atom_values(sys, ws, tb, xb, false, &mut vb);
             }
             ws.new = match (&ws.spec, ws.set) {
                 (Some(spec), _) => {
+                    // The truth table's index as the atoms are decided.
+                    let mut mask = 0u32;
                     for k in 0..vb.len() {
+                        if let Some(off) = flat_off {
+                            if read_a {
+                                va[k] = self.flat[off + k];
+                            }
+                            vb[k] = self.flat_b[off + k];
+                        }
                         let atom = spec.atoms[k];
                         ws.truth[k] = if !atom.watched() {
                             ws.start_truth[k]
@@ -1935,8 +1989,14 @@ impl Watcher {
                                 c => c.holds(vb[k]),
                             }
                         };
+                        if k < TruthTable::MAX_ATOMS {
+                            mask |= u32::from(ws.truth[k]) << k;
+                        }
                     }
-                    set_value(spec, ws.table, |k| ws.truth[k])
+                    match ws.table {
+                        Some(t) => t.value(mask),
+                        None => spec.expr.eval_with(&|k| ws.truth[k]),
+                    }
                 }
                 (None, SetRef::Jump(r)) => sys.jump_set(r, tb, xb),
                 (None, SetRef::Flow) => {
@@ -1957,7 +2017,7 @@ impl Watcher {
         s: f64,
         which: Buf,
     ) -> f64 {
-        let WAtom { set, atom, cmp } = self.watched[w];
+        let WAtom { set, atom, cmp, .. } = self.watched[w];
         let buf = match which {
             Buf::A => &mut self.buf_a,
             Buf::B => &mut self.buf_b,
@@ -1991,7 +2051,7 @@ impl Watcher {
         tol: f64,
     ) -> Option<f64> {
         let form = self.affine[w].as_ref()?;
-        let WAtom { set, atom, cmp } = self.watched[w];
+        let WAtom { set, atom, cmp, .. } = self.watched[w];
         let relax = self.sets[set].relax[atom];
         let shift = match cmp {
             _ if relax <= 0.0 => 0.0,
@@ -2667,6 +2727,26 @@ pub(crate) mod tests {
                 out[0],
                 y(s)
             );
+        }
+    }
+
+    /// The scan's inline sort orders checkpoints as the library's does
+    /// (signed zeros and NaN too).
+    #[test]
+    fn checkpoints_are_sorted_as_the_library_sorts_them() {
+        let many: Vec<f64> = (0..12).map(|k| f64::from((k * 7) % 12) - 5.5).collect();
+        let cases: [&[f64]; 4] = [
+            &[],
+            &[0.5, 0.25, 0.75, 0.25],
+            &[1.0, 0.0, -0.0, f64::NAN, 0.3, -1e-300, 0.3],
+            &many,
+        ];
+        for case in cases {
+            let (mut ours, mut lib) = (case.to_vec(), case.to_vec());
+            sort_points(&mut ours);
+            lib.sort_unstable_by(f64::total_cmp);
+            let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+            assert_eq!(bits(&ours), bits(&lib), "{case:?}");
         }
     }
 

@@ -145,6 +145,7 @@ pub enum Cmp {
 
 impl Cmp {
     /// Whether `g ⋈ 0` holds exactly (`false` for NaN, except `≠`).
+    #[inline]
     pub fn holds(self, g: f64) -> bool {
         match self {
             Cmp::Lt => g < 0.0,
@@ -159,6 +160,7 @@ impl Cmp {
     /// Whether `g` is within `tol ≥ 0` of the set `{g ⋈ 0}`: `g ≥ −tol`
     /// for `≥`, `g > −tol` for `>`, `|g| ≤ tol` for `=`; `≠` is not relaxed
     /// (a point exactly on its excluded level set is not a rounding case).
+    #[inline]
     pub fn holds_within(self, g: f64, tol: f64) -> bool {
         if tol <= 0.0 {
             return self.holds(g);
@@ -203,6 +205,7 @@ impl Atom {
     /// change along a flow (`k < 3` with `k` a counter, `j < 3`) is tested
     /// exactly: on its boundary it fails on the whole flow, not by rounding,
     /// and relaxed it would make `<` a `<=` for every integer-valued mode.
+    #[inline]
     pub fn holds_within(&self, g: f64, tol: f64) -> bool {
         if !self.flows && matches!(self.cmp, Cmp::Lt | Cmp::Gt) {
             self.cmp.holds(g)
@@ -214,6 +217,7 @@ impl Atom {
     /// Whether the engine watches the atom along flows (at checkpoints,
     /// localizing its sign changes): it can change along a flow and is not
     /// a [`timer`](Self::timer).
+    #[inline]
     pub fn watched(&self) -> bool {
         self.flows && self.timer.is_none()
     }

@@ -79,7 +79,8 @@ pub(super) struct Hidden {
     /// The system cannot bound its atoms (it said so once).
     unavailable: bool,
     /// The state components the bounds read
-    /// ([`HybridSystem::atom_bound_inputs`]), once asked.
+    /// ([`HybridSystem::atom_bound_inputs`]), once asked (none asked for
+    /// when no atom is searched).
     reads: Option<Vec<usize>>,
     /// The step whose control points `ctrl` holds (its span, its
     /// segment's start time and jump count), and whether it has them.
@@ -216,13 +217,19 @@ impl Watcher {
     /// What the search needs once per run: the components the bounds
     /// read, the atoms searched, unbounded boxes.
     fn first_bounds<S: HybridSystem + ?Sized>(&self, sys: &S, h: &mut Hidden) {
+        h.boundable = (0..self.watched.len())
+            .filter(|&w| self.boundable(w))
+            .collect();
+        // No atom searched (every watched one affine, as the ball's): the
+        // rest is never read.
+        if h.boundable.is_empty() {
+            h.reads = Some(Vec::new());
+            return;
+        }
         let n = self.buf_t.len();
         let mut reads = sys.atom_bound_inputs().unwrap_or_else(|| (0..n).collect());
         reads.retain(|&i| i < n);
         h.reads = Some(reads);
-        h.boundable = (0..self.watched.len())
-            .filter(|&w| self.boundable(w))
-            .collect();
         let all = (f64::NEG_INFINITY, f64::INFINITY);
         h.xbox = vec![all; n];
         h.window.xbox = vec![all; n];
