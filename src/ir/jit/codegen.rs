@@ -25,18 +25,26 @@
 //! operand that so far lives only in a machine register (or in the state)
 //! is stored there first, once per program; its results are written to
 //! the register file.
+//!
+//! **Pairs.** Two isomorphic instructions that [`pairs::plan`] pairs are
+//! emitted together, at the first one's place, as one `F64X2` instruction
+//! on packed operands (see [`Emit::pack`]); a register computed in a lane
+//! stays in its vector until a scalar instruction or a store needs it.
 
 use cranelift_codegen::Context;
 use cranelift_codegen::ir::condcodes::FloatCC;
 use cranelift_codegen::ir::{
-    AbiParam, InstBuilder, MemFlagsData, SigRef, Signature, Type, UserFuncName, Value, types,
+    AbiParam, ConstantData, InstBuilder, MemFlagsData, SigRef, Signature, Type, UserFuncName,
+    Value, types,
 };
 use cranelift_frontend::{FunctionBuilder, FunctionBuilderContext};
 use cranelift_jit::JITModule;
 use cranelift_module::{FuncId, Linkage, Module};
+use rustc_hash::FxHashMap as HashMap;
 
 use super::JitError;
 use super::helpers::{self, BlockDesc};
+use super::pairs::{self, Slot};
 use crate::check::dag::{BinFn, UnFn};
 use crate::ir::program::{CONST_TERM, Op, Program};
 
@@ -109,6 +117,12 @@ struct Emit<'a, 'b> {
     state_regs: u32,
     rng: Value,
     vals: Vec<Option<Value>>,
+    /// The vector and lane of each register a pair of instructions
+    /// computed (see [`pairs`]); its scalar is extracted into `vals` when
+    /// an instruction of one lane reads it.
+    lanes: Vec<Option<(Value, u8)>>,
+    /// Splats and gathers of two registers, made once.
+    packed: HashMap<(u32, u32), Value>,
     /// Registers whose value so far lives only in `vals` (not yet stored
     /// into the register file).
     dirty: Vec<bool>,
@@ -199,6 +213,8 @@ impl Generator {
                 state_regs: p.state_regs as u32,
                 rng,
                 vals: vec![None; p.nregs],
+                lanes: vec![None; p.nregs],
+                packed: HashMap::default(),
                 dirty: vec![false; p.nregs],
                 copied: vec![false; p.state_regs],
                 outputs: outputs(p),
@@ -232,6 +248,9 @@ fn outputs(p: &Program) -> Vec<(u32, u32)> {
     outputs
 }
 
+/// Vector accesses: two `f64` are 8-byte aligned, not 16.
+const UNALIGNED: MemFlagsData = MemFlagsData::new().with_notrap();
+
 fn offset(r: u32) -> i32 {
     // Register files are far below 2³¹ / 8 registers (`Program` indexes
     // them with u32 and the JIT's size limit bounds them further).
@@ -240,6 +259,12 @@ fn offset(r: u32) -> i32 {
 
 impl Emit<'_, '_> {
     fn get(&mut self, r: u32) -> Value {
+        if self.vals[r as usize].is_none()
+            && let Some((v, lane)) = self.lanes[r as usize]
+        {
+            let v = self.b.ins().extractlane(v, lane);
+            self.vals[r as usize] = Some(v);
+        }
         match self.vals[r as usize] {
             Some(v) => v,
             None if r == self.state_regs || r == self.state_regs + 1 => {
@@ -392,6 +417,141 @@ impl Emit<'_, '_> {
         }
     }
 
+    /// Two operands in one vector, lane 0 `s` and lane 1 `t`: an earlier
+    /// pair's vector, a splat, one load of two adjacent state components,
+    /// a constant or, failing those, the two scalars gathered.
+    fn pack(&mut self, s: Slot, t: Slot) -> Value {
+        let (a, b) = match (s, t) {
+            (Slot::Imm(a), Slot::Imm(b)) => return self.vconst(a, b),
+            (Slot::Reg(a), Slot::Reg(b)) => (a, b),
+            _ => unreachable!("pairs pack registers with registers"),
+        };
+        if let (Some((v, 0)), Some((w, 1))) = (self.lanes[a as usize], self.lanes[b as usize])
+            && v == w
+        {
+            return v;
+        }
+        if b == a + 1 && b < self.state_regs {
+            return self
+                .b
+                .ins()
+                .load(types::F64X2, UNALIGNED, self.x, offset(a));
+        }
+        if let Some(&v) = self.packed.get(&(a, b)) {
+            return v;
+        }
+        // A splat, or `b` inserted into lane 1 of `a`'s vector or splat.
+        let v = match self.lanes[a as usize] {
+            Some((v, 0)) if a != b => v,
+            _ => {
+                let x = self.get(a);
+                self.b.ins().splat(types::F64X2, x)
+            }
+        };
+        let v = if a == b {
+            v
+        } else {
+            let y = self.get(b);
+            self.b.ins().insertlane(v, y, 1)
+        };
+        self.packed.insert((a, b), v);
+        v
+    }
+
+    fn vconst(&mut self, a: f64, b: f64) -> Value {
+        let bytes: Vec<u8> = a.to_le_bytes().into_iter().chain(b.to_le_bytes()).collect();
+        let c = self.b.func.dfg.constants.insert(ConstantData::from(bytes));
+        self.b.ins().vconst(types::F64X2, c)
+    }
+
+    /// Emits the pair of instructions `x` (lane 0) and `y` (lane 1; its
+    /// operands swapped if `swap`) as vector instructions.
+    fn pair(&mut self, p: &Program, x: &Op, y: &Op, swap: bool) {
+        let ops = |e: &mut Self, k: usize| {
+            let t = if swap { 1 - k } else { k };
+            e.pack(pairs::slot(p, x, k), pairs::slot(p, y, t))
+        };
+        let v = match (*x, *y) {
+            (Op::Lin { t0, len, .. }, Op::Lin { t0: u0, .. }) => {
+                let (tx, ty) = (t0 as usize, u0 as usize);
+                // As the scalar code (`Op::Lin` in `op`), lane by lane: a
+                // coefficient pair other than (1, 1) or (−1, −1) multiplies,
+                // and `x · 1 = x`, `s + x · (−1) = s − x` exactly.
+                let mut acc: Option<Value> = None;
+                for k in 0..len as usize {
+                    let ((rx, cx), (_, cy)) = (p.lin[tx + k], p.lin[ty + k]);
+                    let v = ops(self, k);
+                    if rx != CONST_TERM && cx == cy && (cx == 1.0 || cx == -1.0) {
+                        acc = Some(match (acc, cx == 1.0) {
+                            (None, true) => v,
+                            (None, false) => self.b.ins().fneg(v),
+                            (Some(s), true) => self.b.ins().fadd(s, v),
+                            (Some(s), false) => self.b.ins().fsub(s, v),
+                        });
+                        continue;
+                    }
+                    let term = if rx == CONST_TERM {
+                        v
+                    } else {
+                        let c = self.vconst(cx, cy);
+                        self.b.ins().fmul(v, c)
+                    };
+                    acc = Some(match acc {
+                        None => term,
+                        Some(s) => self.b.ins().fadd(s, term),
+                    });
+                }
+                acc.expect("a sum has terms")
+            }
+            (Op::Neg { .. }, _) => {
+                let a = ops(self, 0);
+                self.b.ins().fneg(a)
+            }
+            _ => {
+                let (a, b) = (ops(self, 0), ops(self, 1));
+                match *x {
+                    Op::Add { .. } | Op::AddC { .. } => self.b.ins().fadd(a, b),
+                    Op::Sub { .. } => self.b.ins().fsub(a, b),
+                    Op::Mul { .. } | Op::MulC { .. } => self.b.ins().fmul(a, b),
+                    Op::Div { .. } => self.b.ins().fdiv(a, b),
+                    _ => unreachable!("{x:?} does not pair"),
+                }
+            }
+        };
+        let (d0, d1) = (pairs::dest(x), pairs::dest(y));
+        self.lanes[d0 as usize] = Some((v, 0));
+        self.lanes[d1 as usize] = Some((v, 1));
+        self.dirty[d0 as usize] = true;
+        self.dirty[d1 as usize] = true;
+        // Two outputs at adjacent positions: one store.
+        let at = |e: &Self, r: u32| {
+            let first = e.outputs.partition_point(|&(o, _)| o < r);
+            let mut at = e.outputs[first..].iter().take_while(|&&(o, _)| o == r);
+            match (at.next(), at.next()) {
+                (Some(&(_, d)), None) => Some(d),
+                _ => None,
+            }
+        };
+        if let (Some(p0), Some(p1)) = (at(self, d0), at(self, d1))
+            && p1 == p0 + 1
+        {
+            let base = match self.out {
+                Some(out) => out,
+                None => {
+                    self.dirty[d0 as usize] = false;
+                    self.dirty[d1 as usize] = false;
+                    self.regs()
+                }
+            };
+            self.b.ins().store(UNALIGNED, v, base, offset(p0));
+            self.stored[d0 as usize] = true;
+            self.stored[d1 as usize] = true;
+            return;
+        }
+        self.defined(d0, false);
+        self.defined(d1, false);
+    }
+
     fn konst(&mut self, c: f64) -> Value {
         self.b.ins().f64const(c)
     }
@@ -510,7 +670,11 @@ impl Emit<'_, '_> {
         // operands, so the order does not change any result.
         let mut sums: Vec<Op> = Vec::new();
         let mut pending = vec![false; p.nregs];
-        for op in &p.ops {
+        let plan = pairs::plan(p, |op| loopable(p, op));
+        for (i, op) in p.ops.iter().enumerate() {
+            if plan.follows(i) {
+                continue;
+            }
             if let Op::Lin { d, .. } = *op
                 && loopable(p, op)
             {
@@ -518,10 +682,17 @@ impl Emit<'_, '_> {
                 pending[d as usize] = true;
                 continue;
             }
-            if !sums.is_empty() && p.reads(op, |r| pending[r as usize]) {
+            let partner = plan.partner(i).map(|(j, swap)| (&p.ops[j as usize], swap));
+            if !sums.is_empty()
+                && (p.reads(op, |r| pending[r as usize])
+                    || partner.is_some_and(|(y, _)| p.reads(y, |r| pending[r as usize])))
+            {
                 self.sums(p, &mut sums, &mut pending);
             }
-            self.op(p, op, blocks, &mut next_block);
+            match partner {
+                Some((y, swap)) => self.pair(p, op, y, swap),
+                None => self.op(p, op, blocks, &mut next_block),
+            }
         }
         self.sums(p, &mut sums, &mut pending);
         match &p.dest {

@@ -25,7 +25,10 @@
 //! [`eval_un`](crate::check::dag::eval_un) / [`eval_bin`](crate::check::dag::eval_bin),
 //! so both call the same libm functions (the unary ones through a small per-thread memo of
 //! their last results: the same argument's bits give the same value). Random draws and matrix blocks
-//! call the interpreter's own helpers too.
+//! call the interpreter's own helpers too. Two instructions computed
+//! together in the lanes of a vector ([`pairs`]: neighbouring entries of a
+//! matrix product) each get their own lane's IEEE operation, in the same
+//! order, so vectors change no bit either.
 //!
 //! **Safety.** Generated code addresses only the register file, at offsets
 //! below the program's register count fixed at compile time; `Native::run`
@@ -37,6 +40,7 @@
 
 mod codegen;
 mod helpers;
+mod pairs;
 
 use std::sync::atomic::{AtomicBool, AtomicU32, AtomicU64, AtomicUsize, Ordering};
 use std::sync::{Arc, OnceLock};

@@ -596,3 +596,126 @@ fn tier_up_is_shared_and_budgeted() {
     assert!(!programs[fit].is_native());
     assert_eq!(run_bits(&programs[fit + 2], &x), reference);
 }
+
+/// Values the matrix tests draw states and coefficients from: ±1 (the
+/// coefficients the scalar code does not multiply by), signed zeros,
+/// infinities, NaN and ordinary numbers.
+const MATRIX_VALUES: [f64; 12] = [
+    1.0,
+    -1.0,
+    0.0,
+    -0.0,
+    0.5,
+    -2.75,
+    3.0,
+    1e300,
+    f64::INFINITY,
+    f64::NEG_INFINITY,
+    f64::NAN,
+    3.0e-310,
+];
+
+/// A random sequence of 2 × 2 matrix operations (entries row-major) over
+/// the states, the states swapped and earlier results, as the checker
+/// scalarizes them: products (products summed), sums, differences,
+/// scaled and shifted matrices, negations, quotients and products with
+/// a constant matrix (sums with a coefficient per term). Entries `(i, 0)`
+/// and `(i, 1)` are isomorphic instructions, which pair.
+fn matrices(steps: &[(u8, usize, usize, usize, usize)]) -> (Dag, Vec<NodeId>) {
+    let mut dag = Dag::default();
+    let x: Vec<NodeId> = (0..4).map(|k| dag.state(k)).collect();
+    let mut mats = vec![x.clone(), vec![x[1], x[0], x[3], x[2]]];
+    for &(kind, i, j, c0, c1) in steps {
+        let (a, b) = (mats[i % mats.len()].clone(), mats[j % mats.len()].clone());
+        let (c0, c1) = (
+            MATRIX_VALUES[c0 % MATRIX_VALUES.len()],
+            MATRIX_VALUES[c1 % MATRIX_VALUES.len()],
+        );
+        let (k0, k1) = (dag.konst(c0), dag.konst(c1));
+        let m: Vec<NodeId> = (0..4)
+            .map(|e| {
+                let (r, c) = (e / 2, e % 2);
+                match kind % 8 {
+                    0 => {
+                        let p = dag.bin(BinFn::Mul, a[2 * r], b[c]);
+                        let q = dag.bin(BinFn::Mul, a[2 * r + 1], b[2 + c]);
+                        dag.bin(BinFn::Add, p, q)
+                    }
+                    1 => dag.bin(BinFn::Add, a[e], b[e]),
+                    2 => dag.bin(BinFn::Sub, a[e], b[e]),
+                    3 => dag.bin(BinFn::Mul, a[e], k0),
+                    4 => dag.un(UnFn::Neg, a[e]),
+                    5 => dag.bin(BinFn::Div, a[e], b[e]),
+                    6 => {
+                        // A · [c0 c1; c1 c0]: a coefficient per term.
+                        let (u, v) = if c == 0 { (k0, k1) } else { (k1, k0) };
+                        let p = dag.bin(BinFn::Mul, u, a[2 * r]);
+                        let q = dag.bin(BinFn::Mul, a[2 * r + 1], v);
+                        let s = dag.bin(BinFn::Sub, p, q);
+                        dag.bin(BinFn::Add, s, k1)
+                    }
+                    _ => dag.bin(BinFn::Add, a[e], k1),
+                }
+            })
+            .collect();
+        mats.push(m);
+    }
+    let outs = mats.iter().rev().take(3).flatten().copied().collect();
+    (dag, outs)
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(300))]
+    /// Matrix work, whose instructions go in pairs through vector
+    /// instructions, computes the interpreter's results to the last bit,
+    /// its outputs in the register file or at positions in a buffer.
+    #[test]
+    fn paired_instructions_are_bit_identical(
+        steps in prop::collection::vec(
+            (0u8..8, 0usize..16, 0usize..16, 0usize..12, 0usize..12), 8..32),
+        x in prop::array::uniform4(0usize..12),
+    ) {
+        let (dag, outs) = matrices(&steps);
+        let x = x.map(|k| MATRIX_VALUES[k]);
+        let p = Program::compile(&dag, FRAME, &outs);
+        let (i, j) = both(&p, &x);
+        prop_assert_eq!(&i, &j);
+        let [interpreted, native, at] = both_into(&p, &x);
+        prop_assert_eq!(&interpreted, &i);
+        prop_assert_eq!(&native, &i);
+        prop_assert_eq!(&at, &i);
+        let q = p.clone().into_buffer();
+        let jitted = compiled(&q, true);
+        let hybrid = HybridTime { t: 0.5, j: 3 };
+        let mut regs = vec![f64::NAN; q.nregs.max(FRAME.fixed())];
+        let mut got = vec![0.0; outs.len()];
+        jitted.run_into(&mut regs, hybrid, &x, None, &mut got);
+        let bits: Vec<u64> =
+            got.iter().map(|&v| if v.is_nan() { f64::NAN } else { v }.to_bits()).collect();
+        prop_assert_eq!(&bits, &i);
+    }
+}
+
+/// The entries of matrix products go in pairs: fewer instructions than
+/// the scalar code, the same bits.
+#[test]
+fn matrix_products_pair() {
+    let steps: Vec<(u8, usize, usize, usize, usize)> = vec![
+        (3, 0, 0, 6, 0),
+        (0, 2, 0, 0, 0),
+        (0, 3, 2, 0, 0),
+        (6, 4, 0, 4, 5),
+        (2, 5, 3, 0, 0),
+    ];
+    let (dag, outs) = matrices(&steps);
+    let p = Program::compile(&dag, FRAME, &outs);
+    let plan = super::pairs::plan(&p, |_| false);
+    let pairs = (0..p.ops.len())
+        .filter(|&i| plan.partner(i).is_some())
+        .count();
+    assert!(pairs >= 8, "{pairs} pairs in {:?}", p.ops);
+    for x in [[0.3, -1.1, 2.5, 0.7], [f64::NAN, -0.0, f64::INFINITY, 1.0]] {
+        let (i, j) = both(&p, &x);
+        assert_eq!(i, j, "x = {x:?}");
+    }
+}
