@@ -11,8 +11,10 @@
 //! immediates (a constant), and within a budget of [`MAX_COST`]
 //! instructions per pair the same register (a splat) or two unrelated
 //! scalars (gathered), each made once. The scalar code's instructions
-//! that read one lane extract it (lane 0 costs nothing). Each lane performs the IEEE operation of its scalar instruction, in the
-//! same order, so the results are the same bits.
+//! that read one lane extract it (lane 0 costs nothing). Each lane
+//! performs the IEEE operation of its scalar instruction, in the same
+//! order, so the results are the same bits (a NaN's payload aside: `a + b`
+//! may pair with `d + c`, as the interpreter's sums already treat NaNs).
 //!
 //! [`plan`] chooses the pairs greedily in program order: each instruction
 //! takes the cheapest partner of its kind among the next [`WINDOW`]
