@@ -26,9 +26,10 @@
 //! so both call the same libm functions (the unary ones through a small per-thread memo of
 //! their last results: the same argument's bits give the same value). Random draws and matrix blocks
 //! call the interpreter's own helpers too. Two instructions computed
-//! together in the lanes of a vector ([`pairs`]: neighbouring entries of a
+//! together in the lanes of a vector (`pairs.rs`: neighbouring entries of a
 //! matrix product) each get their own lane's IEEE operation, in the same
-//! order, so vectors change no bit either.
+//! order, so vectors change no bit either (a NaN's payload aside, as in
+//! the sums).
 //!
 //! **Safety.** Generated code addresses only the register file, at offsets
 //! below the program's register count fixed at compile time; `Native::run`
