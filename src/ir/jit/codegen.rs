@@ -481,25 +481,15 @@ impl Emit<'_, '_> {
                 for k in 0..len as usize {
                     let ((rx, cx), (_, cy)) = (p.lin[tx + k], p.lin[ty + k]);
                     let v = ops(self, k);
-                    if rx != CONST_TERM && cx == cy && (cx == 1.0 || cx == -1.0) {
-                        acc = Some(match (acc, cx == 1.0) {
-                            (None, true) => v,
-                            (None, false) => self.b.ins().fneg(v),
-                            (Some(s), true) => self.b.ins().fadd(s, v),
-                            (Some(s), false) => self.b.ins().fsub(s, v),
-                        });
-                        continue;
-                    }
-                    let term = if rx == CONST_TERM {
+                    let unit = (rx != CONST_TERM && cx == cy && (cx == 1.0 || cx == -1.0))
+                        .then_some(cx == 1.0);
+                    let term = if unit.is_some() || rx == CONST_TERM {
                         v
                     } else {
                         let c = self.vconst(cx, cy);
                         self.b.ins().fmul(v, c)
                     };
-                    acc = Some(match acc {
-                        None => term,
-                        Some(s) => self.b.ins().fadd(s, term),
-                    });
+                    acc = Some(self.accumulate(acc, term, unit));
                 }
                 acc.expect("a sum has terms")
             }
@@ -550,6 +540,19 @@ impl Emit<'_, '_> {
         }
         self.defined(d0, false);
         self.defined(d1, false);
+    }
+
+    /// `acc` plus a sum's next term, for scalars and vectors alike: `unit`
+    /// (`Some(plus)`) for a coefficient ±1, added or subtracted without a
+    /// multiplication (`x · 1 = x`, `s + x · (−1) = s − x` exactly), else
+    /// `term` is the product already.
+    fn accumulate(&mut self, acc: Option<Value>, term: Value, unit: Option<bool>) -> Value {
+        match (acc, unit) {
+            (None, Some(false)) => self.b.ins().fneg(term),
+            (None, _) => term,
+            (Some(s), Some(false)) => self.b.ins().fsub(s, term),
+            (Some(s), _) => self.b.ins().fadd(s, term),
+        }
     }
 
     fn konst(&mut self, c: f64) -> Value {
@@ -857,27 +860,19 @@ impl Emit<'_, '_> {
                 // whose sign bit is not kept anyway).
                 let mut acc: Option<Value> = None;
                 for &(r, c) in terms {
-                    if r != CONST_TERM && (c == 1.0 || c == -1.0) {
-                        let x = self.get(r);
-                        acc = Some(match (acc, c == 1.0) {
-                            (None, true) => x,
-                            (None, false) => self.b.ins().fneg(x),
-                            (Some(s), true) => self.b.ins().fadd(s, x),
-                            (Some(s), false) => self.b.ins().fsub(s, x),
-                        });
-                        continue;
-                    }
-                    let k = self.konst(c);
-                    let term = if r == CONST_TERM {
-                        k
+                    let unit = (r != CONST_TERM && (c == 1.0 || c == -1.0)).then_some(c == 1.0);
+                    let term = if unit.is_some() {
+                        self.get(r)
                     } else {
-                        let x = self.get(r);
-                        self.b.ins().fmul(x, k)
+                        let k = self.konst(c);
+                        if r == CONST_TERM {
+                            k
+                        } else {
+                            let x = self.get(r);
+                            self.b.ins().fmul(x, k)
+                        }
                     };
-                    acc = Some(match acc {
-                        None => term,
-                        Some(s) => self.b.ins().fadd(s, term),
-                    });
+                    acc = Some(self.accumulate(acc, term, unit));
                 }
                 let v = acc.expect("a sum has terms");
                 self.set(d, v);
