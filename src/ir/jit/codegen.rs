@@ -123,6 +123,10 @@ struct Emit<'a, 'b> {
     lanes: Vec<Option<(Value, u8)>>,
     /// Splats and gathers of two registers, made once.
     packed: HashMap<(u32, u32), Value>,
+    /// Scalar and vector constants by their bits, each made once: the code
+    /// is one block, so a value made anywhere dominates every later use.
+    consts: HashMap<u64, Value>,
+    vconsts: HashMap<(u64, u64), Value>,
     /// Registers whose value so far lives only in `vals` (not yet stored
     /// into the register file).
     dirty: Vec<bool>,
@@ -215,6 +219,8 @@ impl Generator {
                 vals: vec![None; p.nregs],
                 lanes: vec![None; p.nregs],
                 packed: HashMap::default(),
+                consts: HashMap::default(),
+                vconsts: HashMap::default(),
                 dirty: vec![false; p.nregs],
                 copied: vec![false; p.state_regs],
                 outputs: outputs(p),
@@ -459,9 +465,15 @@ impl Emit<'_, '_> {
     }
 
     fn vconst(&mut self, a: f64, b: f64) -> Value {
+        let key = (a.to_bits(), b.to_bits());
+        if let Some(&v) = self.vconsts.get(&key) {
+            return v;
+        }
         let bytes: Vec<u8> = a.to_le_bytes().into_iter().chain(b.to_le_bytes()).collect();
         let c = self.b.func.dfg.constants.insert(ConstantData::from(bytes));
-        self.b.ins().vconst(types::F64X2, c)
+        let v = self.b.ins().vconst(types::F64X2, c);
+        self.vconsts.insert(key, v);
+        v
     }
 
     /// Emits the pair of instructions `x` (lane 0) and `y` (lane 1; its
@@ -556,7 +568,13 @@ impl Emit<'_, '_> {
     }
 
     fn konst(&mut self, c: f64) -> Value {
-        self.b.ins().f64const(c)
+        let key = c.to_bits();
+        if let Some(&v) = self.consts.get(&key) {
+            return v;
+        }
+        let v = self.b.ins().f64const(c);
+        self.consts.insert(key, v);
+        v
     }
 
     fn b2f(&mut self, cond: Value) -> Value {

@@ -559,7 +559,7 @@ fn isa(allocator: &str) -> Result<OwnedTargetIsa, JitError> {
         f.set(k, v)
             .map_err(|e| JitError::Codegen(format!("flag {k}: {e}")))
     };
-    set(&mut flags, "opt_level", "speed")?;
+    set(&mut flags, "opt_level", "none")?;
     set(&mut flags, "regalloc_algorithm", allocator)?;
     // The generator's output is checked by the tests; verifying every
     // function again costs a fifth of the compile time.
