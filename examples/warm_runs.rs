@@ -60,6 +60,9 @@ fn measured(m: &CompiledModel, settings: &SimSettings, runs: usize) -> anyhow::R
 }
 
 fn main() -> anyhow::Result<()> {
+    // As the `hybsim` binary: OpenBLAS's idle workers would spin beside
+    // the measured runs.
+    hybsim::design::blas::pin();
     let mut args = std::env::args().skip(1);
     let (mut path, mut runs, mut sets) = (None, 10, Vec::new());
     while let Some(a) = args.next() {

@@ -39,6 +39,10 @@ create_exception!(
 /// The native module.
 #[pymodule]
 fn _hybsim(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    // As the `hybsim` binary: one OpenBLAS thread, and the worker threads
+    // it started when the extension loaded (spinning on `sched_yield`
+    // for their timeout) stopped at import.
+    hybsim::design::blas::pin();
     let py = m.py();
     m.add("ModelError", py.get_type::<ModelError>())?;
     m.add("SimulationError", py.get_type::<SimulationError>())?;
