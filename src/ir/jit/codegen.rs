@@ -309,14 +309,23 @@ impl Emit<'_, '_> {
         match self.out {
             Some(out) => {
                 let v = self.get(r);
+                // A register written to many places (a constant: the zero
+                // rates of modes and held values) fills neighbouring
+                // positions two at a time.
+                let mut both = None;
                 let mut k = first;
                 while let Some(&(o, d)) = self.outputs.get(k)
                     && o == r
                 {
-                    self.b
-                        .ins()
-                        .store(MemFlagsData::trusted(), v, out, offset(d));
-                    k += 1;
+                    let pair = self.outputs.get(k + 1) == Some(&(r, d + 1));
+                    let (w, flags) = if pair {
+                        let w = *both.get_or_insert_with(|| self.b.ins().splat(types::F64X2, v));
+                        (w, UNALIGNED)
+                    } else {
+                        (v, MemFlagsData::trusted())
+                    };
+                    self.b.ins().store(flags, w, out, offset(d));
+                    k += if pair { 2 } else { 1 };
                 }
             }
             None if !in_regs => {

@@ -433,6 +433,35 @@ fn outputs_land_at_their_positions() {
     assert!(result.is_err(), "a buffer of 9 for position 9");
 }
 
+/// A register written to neighbouring positions (a constant rate of many
+/// components) is stored two at a time: every position gets its value,
+/// odd runs and gaps included, and nothing past the outputs is touched.
+#[test]
+fn repeated_outputs_fill_their_positions() {
+    let mut dag = Dag::new();
+    let (x0, k) = (dag.state(0), dag.konst(2.5));
+    let s = dag.un(UnFn::Sin, x0);
+    let outs = [k, k, x0, k, k, k, s, s, k, x0, k];
+    let dest = [0, 1, 2, 3, 4, 5, 6, 7, 9, 10, 11];
+    let p = Program::compile(&dag, FRAME, &outs).scatter_to(&dest);
+    let x = [0.75, -2.0, 1.5, 3.0];
+    let run = |p: &Program| {
+        let mut regs = vec![f64::NAN; p.nregs.max(FRAME.fixed())];
+        let mut out = vec![7.5; 13];
+        p.run_into(&mut regs, HybridTime { t: 0.5, j: 3 }, &x, None, &mut out);
+        out.iter().map(|v| v.to_bits()).collect::<Vec<_>>()
+    };
+    let reference = run(&p);
+    assert_eq!(reference[3], 2.5f64.to_bits());
+    assert_eq!(
+        (reference[8], reference[12]),
+        (7.5f64.to_bits(), 7.5f64.to_bits())
+    );
+    for hot in [true, false] {
+        assert_eq!(run(&compiled(&p, hot)), reference, "hot: {hot}");
+    }
+}
+
 /// A matrix product's code grows with its rows, not with its entries:
 /// an n × n constant times the state (plus temporaries) is looped, and
 /// four times the rows is at most four times the instructions (sixteen
