@@ -334,18 +334,26 @@ pub(crate) struct Affine {
     /// The series' term and its next one.
     term: Vec<f64>,
     term_next: Vec<f64>,
-    /// Estimated flops of one exponential.
-    exp_cost: f64,
-    /// Estimated flops of one evaluation of f on the solver path.
-    feval_cost: f64,
-    /// Solver work (flops, estimated) spent so far on whole segments of
+    /// Evaluations of f on the solver path that cost about as much as one
+    /// exponential (estimated flops of each, divided and rounded up).
+    exp_fevals: u64,
+    /// Solver work (evaluations of f) spent so far on whole segments of
     /// each recent duration (bits of the duration), for the auto choice:
     /// the durations (`NO_DURATION` in unused slots), the work on each,
     /// and the slot the next new duration takes (oldest first). Fixed
     /// arrays: every segment looks its duration up.
     spent_keys: [u64; AFFINE_SPENT],
-    spent_work: [f64; AFFINE_SPENT],
+    spent_fevals: [u64; AFFINE_SPENT],
     next_spent: usize,
+    /// How many of `spent_keys` fall in each bucket of [`spent_bucket`]
+    /// (unused slots as `NO_DURATION`): a zero count answers a lookup
+    /// without scanning, so durations that never repeat (random timers)
+    /// cost O(1) each.
+    spent_count: [u8; SPENT_BUCKETS],
+    /// Whether the work on some duration has reached `exp_fevals` (kept once
+    /// set). Until then, and while no propagator is cached, no duration is
+    /// [`worth`](Self::worth) the exact path.
+    spent_ripe: bool,
     /// The flow as a polynomial in time, where `A` is structurally
     /// nilpotent: then every segment takes it (exact, and cheaper than
     /// an exponential or a solver's step, guards watched or not).
@@ -360,6 +368,15 @@ const AFFINE_SPENT: usize = 16;
 /// An unused slot of the remembered durations: the bits of a NaN that no
 /// arithmetic produces (a duration is never NaN anyway).
 const NO_DURATION: u64 = u64::MAX;
+/// Buckets of [`spent_bucket`] (a power of two, 16× `AFFINE_SPENT`: most
+/// lookups of a new duration find its bucket empty).
+const SPENT_BUCKETS: usize = 256;
+
+/// The bucket of a remembered duration's bits (Fibonacci hashing: the top
+/// bits of the product depend on every bit of the key).
+fn spent_bucket(key: u64) -> usize {
+    (key.wrapping_mul(0x9E37_79B9_7F4A_7C15) >> (64 - SPENT_BUCKETS.trailing_zeros())) as usize
+}
 
 impl Affine {
     pub fn new(n: usize, a: &[f64], b: &[f64]) -> Result<Self, SimError> {
@@ -438,22 +455,30 @@ impl Affine {
             norm,
             term: vec![0.0; n],
             term_next: vec![0.0; n],
-            // Scaling and squaring with a degree-13 Padé approximant: about
-            // 20 products of m × m matrices, 2m³ flops each.
-            exp_cost: {
+            exp_fevals: {
+                // Scaling and squaring with a degree-13 Padé approximant:
+                // about 20 products of m × m matrices, 2m³ flops each.
                 let m = if 2 * active.len() <= n {
                     2 * active.len()
                 } else {
                     n + 1
-                } as f64;
-                40.0 * m * m * m
+                } as u64;
+                // The products of f, and the vector updates of a
+                // Runge–Kutta stage (about 12 flops per component).
+                let feval = 2 * nnz as u64 + 12 * n as u64;
+                m.saturating_pow(3)
+                    .saturating_mul(40)
+                    .div_ceil(feval.max(1))
             },
-            // The products of f, and the vector updates of a Runge–Kutta
-            // stage (about 12 flops per component).
-            feval_cost: 2.0 * nnz as f64 + 12.0 * n as f64,
             spent_keys: [NO_DURATION; AFFINE_SPENT],
-            spent_work: [0.0; AFFINE_SPENT],
+            spent_fevals: [0; AFFINE_SPENT],
             next_spent: 0,
+            spent_count: {
+                let mut count = [0; SPENT_BUCKETS];
+                count[spent_bucket(NO_DURATION)] = AFFINE_SPENT as u8;
+                count
+            },
+            spent_ripe: false,
             active: (2 * active.len() <= n).then_some(active),
             poly,
         })
@@ -467,11 +492,19 @@ impl Affine {
         self.cache.iter().any(|(k, _)| *k == key)
             || self
                 .spent_slot(key)
-                .is_some_and(|i| self.spent_work[i] >= self.exp_cost)
+                .is_some_and(|i| self.spent_fevals[i] >= self.exp_fevals)
+    }
+
+    /// Whether some duration may be [`worth`](Self::worth) the exact path.
+    fn may_be_worth(&self) -> bool {
+        self.spent_ripe || !self.cache.is_empty()
     }
 
     /// The slot of `spent_keys` holding `key`, if any.
     fn spent_slot(&self, key: u64) -> Option<usize> {
+        if self.spent_count[spent_bucket(key)] == 0 {
+            return None;
+        }
         // Branch-free over the whole array (a key is in one slot at most).
         let mut slot = AFFINE_SPENT;
         for (i, &k) in self.spent_keys.iter().enumerate() {
@@ -486,14 +519,18 @@ impl Affine {
     /// duration `d`.
     fn spend(&mut self, d: f64, fevals: u64) {
         let key = d.to_bits();
-        let w = fevals as f64 * self.feval_cost;
-        if let Some(i) = self.spent_slot(key) {
-            self.spent_work[i] += w;
+        let i = if let Some(i) = self.spent_slot(key) {
+            self.spent_fevals[i] += fevals;
+            i
         } else {
             let i = self.next_spent;
-            (self.spent_keys[i], self.spent_work[i]) = (key, w);
+            self.spent_count[spent_bucket(self.spent_keys[i])] -= 1;
+            self.spent_count[spent_bucket(key)] += 1;
+            (self.spent_keys[i], self.spent_fevals[i]) = (key, fevals);
             self.next_spent = (i + 1) % AFFINE_SPENT;
-        }
+            i
+        };
+        self.spent_ripe |= self.spent_fevals[i] >= self.exp_fevals;
     }
 
     /// Cache slot of the propagator for a step `h` (computed on a miss).
@@ -619,6 +656,15 @@ impl Affine {
             _ => (row, 0.0),
         };
         b + terms.iter().map(|&(_, c, a)| a * x[c]).sum::<f64>()
+    }
+
+    /// [`rate`](Self::rate) of a component whose row of A is zero (the
+    /// same at every state), if it is.
+    fn constant_rate(&self, i: usize) -> Option<f64> {
+        let row = &self.entries[self.row_start[i]..self.row_start[i + 1]];
+        row.iter()
+            .all(|&(_, c, _)| c == self.n)
+            .then(|| self.rate(i, &[]))
     }
 
     /// `out` = the flow from `x` after `h`, by the Taylor series of the
@@ -803,15 +849,20 @@ impl DensePath for AffinePath<'_> {
 pub(crate) struct Flows {
     pub method: Method,
     pub watcher: Watcher,
-    /// State indices of the timers of timer rules.
+    /// State indices of the timers of timer rules (on the exact path,
+    /// those not in `timer_rates`).
     timer_rows: Vec<usize>,
+    /// On the exact path, the timers whose row of A is zero (clocks) and
+    /// their rates, the same at every state.
+    timer_rates: Vec<(usize, f64)>,
     max_step: f64,
     y_prev: Vec<f64>,
     f_prev: Vec<f64>,
     f_cur: Vec<f64>,
     y_end: Vec<f64>,
-    /// Whether `f_prev` holds only the timers' rates (the auto choice
-    /// before it picked the solver).
+    /// Whether `f_prev` holds only the timers' rates: exact flows, and the
+    /// auto choice while it is open (it completes f if it picks the
+    /// solver).
     f_prev_partial: bool,
     noise_g: Vec<f64>,
     noise_dw: Vec<f64>,
@@ -1057,6 +1108,14 @@ impl Flows {
             .collect();
         timer_rows.sort_unstable();
         timer_rows.dedup();
+        let mut timer_rates = Vec::new();
+        if let Method::Affine(aff) | Method::Auto(_, aff) = &method {
+            timer_rows.retain(|&i| {
+                let rate = aff.constant_rate(i);
+                timer_rates.extend(rate.map(|r| (i, r)));
+                rate.is_none()
+            });
+        }
         // Exact flows that are always taken (polynomial ones under the auto
         // choice too) never step on a solver: no Dopri5 is made for them.
         let exact_only = match &method {
@@ -1068,6 +1127,7 @@ impl Flows {
             method,
             watcher,
             timer_rows,
+            timer_rates,
             max_step: settings.max_step,
             y_prev: vec![0.0; n],
             f_prev: vec![0.0; n],
@@ -1137,24 +1197,32 @@ impl Flows {
         x: &[f64],
     ) -> &[f64] {
         let at = HybridTime::new(clock.value(), j);
-        self.f_prev_partial = false;
-        match &self.method {
-            // Exact flows need no interpolant: only the timers' rates, one
-            // row of [A, b] each. So do polynomial flows (always exact), and
-            // the auto choice without watched guards until it picks the
-            // solver (`segment` then completes f).
-            Method::Affine(aff) | Method::Auto(_, aff)
-                if matches!(self.method, Method::Affine(_))
-                    || self.watcher.is_empty()
-                    || aff.poly.is_some() =>
+        // Exact flows need no interpolant: only the timers' rates, one row
+        // of [A, b] each. So do polynomial flows (always exact), and the
+        // auto choice without watched guards while some duration may be
+        // worth the exact path; otherwise it takes the solver whatever the
+        // duration, and f is computed once here.
+        let rates = match &self.method {
+            Method::Affine(aff) => Some(aff),
+            Method::Auto(_, aff)
+                if aff.poly.is_some() || (self.watcher.is_empty() && aff.may_be_worth()) =>
             {
-                self.f_prev_partial = matches!(self.method, Method::Auto(..));
+                Some(aff)
+            }
+            _ => None,
+        };
+        self.f_prev_partial = rates.is_some();
+        match rates {
+            Some(aff) => {
+                for &(i, rate) in &self.timer_rates {
+                    self.f_prev[i] = rate;
+                }
                 for &i in &self.timer_rows {
                     self.f_prev[i] = aff.rate(i, x);
                 }
             }
             // Timer rates and the Hermite interpolant (guards, output).
-            _ => sys.flow_map(at, x, &mut self.f_prev),
+            None => sys.flow_map(at, x, &mut self.f_prev),
         }
         self.watcher.start(sys, clock, j, x);
         &self.f_prev
@@ -1194,7 +1262,8 @@ impl Flows {
             }
             Method::Auto(solver, aff) => {
                 let solver = *solver;
-                if self.watcher.is_empty() && aff.worth(d_end) {
+                // `start` decided whether the choice is open.
+                if self.f_prev_partial && aff.worth(d_end) {
                     self.affine_segment(sys, out, t0, j, d_end)?
                 } else {
                     if self.f_prev_partial {
