@@ -227,6 +227,12 @@ pub fn simulate<S: HybridSystem + ?Sized>(
     let mut x_plus = vec![0.0; n];
     let mut x_rule = vec![0.0; n];
     let mut firing: Vec<usize> = Vec::new();
+    // The rules of the last jump, if no flow has moved `x` since: `x_plus`
+    // then holds the pre-jump state, which differs from `x` only where
+    // they write (when they all say where), and the next jump refreshes
+    // only those components instead of copying the whole state.
+    let mut fired: Vec<usize> = Vec::new();
+    let mut x_plus_after_jump = false;
     let mut time = TimeSum::default();
     let mut j: u64 = 0;
     // Rule whose jump set the last flow segment reached (an equality atom
@@ -319,7 +325,15 @@ pub fn simulate<S: HybridSystem + ?Sized>(
             if out.sink.sample(at, &x, SampleKind::PreJump).is_break() {
                 return finish(&mut out, at, &x, TerminationCause::StoppedBySink);
             }
-            x_plus.copy_from_slice(&x);
+            if x_plus_after_jump && fired.iter().all(|&r| !rules[r].writes.is_empty()) {
+                for &r in &fired {
+                    for &k in &rules[r].writes {
+                        x_plus[k] = x[k];
+                    }
+                }
+            } else {
+                x_plus.copy_from_slice(&x);
+            }
             firing.clear();
             match groups.members_of(rules, rule) {
                 // One simultaneous jump: every enabled rule of the group,
@@ -381,6 +395,8 @@ pub fn simulate<S: HybridSystem + ?Sized>(
                 }
             }
             std::mem::swap(&mut x, &mut x_plus);
+            std::mem::swap(&mut fired, &mut firing);
+            x_plus_after_jump = true;
             j += 1;
             zeno.jumped(t);
             if stop.is_break() || out.sink.sample(post, &x, SampleKind::PostJump).is_break() {
@@ -432,6 +448,7 @@ pub fn simulate<S: HybridSystem + ?Sized>(
         }
         // A failed evaluation in the flow map makes its NaN an integrator
         // failure; the fault says why.
+        x_plus_after_jump = false;
         let end = flows
             .segment(sys, &mut out, rng, t, j, &mut x, d_end)
             .map_err(|e| sys.take_fault().map_or(e, fault))?;
