@@ -227,12 +227,11 @@ pub fn simulate<S: HybridSystem + ?Sized>(
     let mut x_plus = vec![0.0; n];
     let mut x_rule = vec![0.0; n];
     let mut firing: Vec<usize> = Vec::new();
-    // The rules of the last jump, if no flow has moved `x` since: `x_plus`
-    // then holds the pre-jump state, which differs from `x` only where
-    // they write (when they all say where), and the next jump refreshes
-    // only those components instead of copying the whole state.
-    let mut fired: Vec<usize> = Vec::new();
-    let mut x_plus_after_jump = false;
+    // The rule of the last jump, if it fired alone and no flow has moved
+    // `x` since: `x_plus` then holds the pre-jump state, which differs from
+    // `x` only where the rule writes (when it says where), and the next
+    // jump refreshes only those components instead of copying the state.
+    let mut last_alone: Option<usize> = None;
     let mut time = TimeSum::default();
     let mut j: u64 = 0;
     // Rule whose jump set the last flow segment reached (an equality atom
@@ -325,14 +324,13 @@ pub fn simulate<S: HybridSystem + ?Sized>(
             if out.sink.sample(at, &x, SampleKind::PreJump).is_break() {
                 return finish(&mut out, at, &x, TerminationCause::StoppedBySink);
             }
-            if x_plus_after_jump && fired.iter().all(|&r| !rules[r].writes.is_empty()) {
-                for &r in &fired {
-                    for &k in &rules[r].writes {
+            match last_alone.map(|r| &rules[r].writes) {
+                Some(writes) if !writes.is_empty() => {
+                    for &k in writes {
                         x_plus[k] = x[k];
                     }
                 }
-            } else {
-                x_plus.copy_from_slice(&x);
+                _ => x_plus.copy_from_slice(&x),
             }
             firing.clear();
             match groups.members_of(rules, rule) {
@@ -395,8 +393,10 @@ pub fn simulate<S: HybridSystem + ?Sized>(
                 }
             }
             std::mem::swap(&mut x, &mut x_plus);
-            std::mem::swap(&mut fired, &mut firing);
-            x_plus_after_jump = true;
+            last_alone = match firing[..] {
+                [r] => Some(r),
+                _ => None,
+            };
             j += 1;
             zeno.jumped(t);
             if stop.is_break() || out.sink.sample(post, &x, SampleKind::PostJump).is_break() {
@@ -446,9 +446,10 @@ pub fn simulate<S: HybridSystem + ?Sized>(
         if horizon_bound {
             d_end = to_horizon(time, settings.horizon_t);
         }
+        // The flow moves `x` (`x_plus` is no longer one jump from it).
+        last_alone = None;
         // A failed evaluation in the flow map makes its NaN an integrator
         // failure; the fault says why.
-        x_plus_after_jump = false;
         let end = flows
             .segment(sys, &mut out, rng, t, j, &mut x, d_end)
             .map_err(|e| sys.take_fault().map_or(e, fault))?;
