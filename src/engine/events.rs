@@ -1520,14 +1520,17 @@ impl Watcher {
     /// Looks for the first event on the step `[s0, s1]` (local times; global
     /// time `clock.at(s)`) whose end state is `y1`. On success the state at
     /// the event is in [`event_state`](Self::event_state) and the local time
-    /// and kind are returned.
+    /// and kind are returned. `end_counts`: whether an event at `s1` itself
+    /// counts; `false` when the segment ends at `s1` anyway, where the timer
+    /// atoms due are then not crossed (the next [`start`](Self::start)
+    /// finds them on or past their thresholds).
     pub fn scan<S: HybridSystem + ?Sized, P: StepPath>(
         &mut self,
         sys: &S,
         path: &mut P,
-        s0: f64,
-        s1: f64,
+        (s0, s1): (f64, f64),
         y1: &[f64],
+        end_counts: bool,
     ) -> Option<(f64, EventKind)> {
         let m = if P::STRAIGHT { 0 } else { self.checks };
         self.span = (s0, s1);
@@ -1569,7 +1572,7 @@ impl Watcher {
             sort_points(&mut points);
         }
         points.push(s1);
-        let found = self.scan_points(sys, path, s0, &points, y1);
+        let found = self.scan_points(sys, path, s0, &points, y1, end_counts);
         self.points = points;
         found
     }
@@ -1583,6 +1586,7 @@ impl Watcher {
         s0: f64,
         points: &[f64],
         y1: &[f64],
+        end_counts: bool,
     ) -> Option<(f64, EventKind)> {
         let mut prev = s0;
         for (k, &s) in points.iter().enumerate() {
@@ -1617,8 +1621,9 @@ impl Watcher {
                 }
             }
             // Timers due by `s` (none for a NaN `s`); `now` is read only
-            // after `cross_timers`' first pass.
-            if self.next_due.partial_cmp(&s).is_some_and(|o| o.is_le()) {
+            // after `cross_timers`' first pass. At an end whose event would
+            // not count, the scan ends without them.
+            if (end_counts || !last) && self.next_due.partial_cmp(&s).is_some_and(|o| o.is_le()) {
                 let xs = std::mem::take(&mut self.buf_s);
                 let crossed = self.cross_timers(s, if last { y1 } else { &xs });
                 self.buf_s = xs;

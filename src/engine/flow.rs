@@ -1983,7 +1983,7 @@ fn close_step_at<S: HybridSystem + ?Sized, P: DensePath>(
 ) -> Option<(SegmentEnd, bool)> {
     let clock = watcher.clock();
     if !watcher.is_empty()
-        && let Some((se, kind)) = watcher.scan(sys, path, s0, s1, y1)
+        && let Some((se, kind)) = watcher.scan(sys, path, (s0, s1), y1, reach.is_none())
         && !(reach.is_some() && se >= s1)
     {
         y_end.copy_from_slice(&watcher.event_state);

@@ -227,6 +227,11 @@ pub fn simulate<S: HybridSystem + ?Sized>(
     let mut x_plus = vec![0.0; n];
     let mut x_rule = vec![0.0; n];
     let mut firing: Vec<usize> = Vec::new();
+    // The rule of the last jump, if it fired alone and no flow has moved
+    // `x` since: `x_plus` then holds the pre-jump state, which differs from
+    // `x` only where the rule writes (when it says where), and the next
+    // jump refreshes only those components instead of copying the state.
+    let mut last_alone: Option<usize> = None;
     let mut time = TimeSum::default();
     let mut j: u64 = 0;
     // Rule whose jump set the last flow segment reached (an equality atom
@@ -319,7 +324,14 @@ pub fn simulate<S: HybridSystem + ?Sized>(
             if out.sink.sample(at, &x, SampleKind::PreJump).is_break() {
                 return finish(&mut out, at, &x, TerminationCause::StoppedBySink);
             }
-            x_plus.copy_from_slice(&x);
+            match last_alone.map(|r| &rules[r].writes) {
+                Some(writes) if !writes.is_empty() => {
+                    for &k in writes {
+                        x_plus[k] = x[k];
+                    }
+                }
+                _ => x_plus.copy_from_slice(&x),
+            }
             firing.clear();
             match groups.members_of(rules, rule) {
                 // One simultaneous jump: every enabled rule of the group,
@@ -381,6 +393,10 @@ pub fn simulate<S: HybridSystem + ?Sized>(
                 }
             }
             std::mem::swap(&mut x, &mut x_plus);
+            last_alone = match firing[..] {
+                [r] => Some(r),
+                _ => None,
+            };
             j += 1;
             zeno.jumped(t);
             if stop.is_break() || out.sink.sample(post, &x, SampleKind::PostJump).is_break() {
@@ -430,6 +446,8 @@ pub fn simulate<S: HybridSystem + ?Sized>(
         if horizon_bound {
             d_end = to_horizon(time, settings.horizon_t);
         }
+        // The flow moves `x` (`x_plus` is no longer one jump from it).
+        last_alone = None;
         // A failed evaluation in the flow map makes its NaN an integrator
         // failure; the fault says why.
         let end = flows

@@ -155,7 +155,7 @@ impl Watcher {
         } else {
             path.eval(b, &mut xb);
         }
-        let event = self.scan_points(sys, path, a, &[u, b], &xb);
+        let event = self.scan_points(sys, path, a, &[u, b], &xb, true);
         self.hidden.xb = xb;
         self.cls_s.copy_from_slice(&self.cls);
         Some(event)
