@@ -1415,14 +1415,19 @@ impl Watcher {
         x: &[f64],
         inside: &mut [bool],
     ) -> bool {
-        if (self.watched.is_empty() && self.timers.is_empty())
-            || !sys.jump_sets_and_atoms(at, x, inside, &mut self.flat)
-        {
+        if !self.prefetches() || !sys.jump_sets_and_atoms(at, x, inside, &mut self.flat) {
             return false;
         }
         self.flat_ok = true;
         self.prefetched = Some(at);
         true
+    }
+
+    /// Whether a segment's start reads atoms that
+    /// [`prefetch_sets`](Self::prefetch_sets) would evaluate with the jump
+    /// sets (watched atoms or the sets' timers).
+    pub fn prefetches(&self) -> bool {
+        !(self.watched.is_empty() && self.timers.is_empty())
     }
 
     /// Drops the atoms of [`prefetch_sets`](Self::prefetch_sets) (their

@@ -9,7 +9,7 @@ use super::error::SimError;
 use super::events::{EventKind, FlowSetTest, Watcher};
 use super::flow::{Affine, EndWhy, Flows, Method, Output, check_finite, check_jump_finite};
 use super::settings::{ExactAffine, Priority, SimSettings, Solver};
-use super::system::{FlowStructure, GuardKind, SimRng, SystemFault};
+use super::system::{Cmp, FlowStructure, GuardKind, SetExpr, SetRef, SimRng, SystemFault};
 use crate::arc::{
     ArcSink, HybridArc, HybridTime, SampleKind, Termination, TerminationCause, ZenoDetail,
 };
@@ -153,6 +153,33 @@ fn check_system<S: HybridSystem + ?Sized>(sys: &S, x0: &[f64]) -> Result<(), Sim
     Ok(())
 }
 
+/// Every rule's jump set, when each is one timer atom `x[index] − threshold
+/// ⋈ 0` ([`Atom::timer`](super::Atom::timer), exact by its contract): its
+/// membership is that comparison, decided without evaluating the system's
+/// sets (sample-and-hold loops, networks of agents' clocks).
+struct TimerSets(Vec<(usize, f64, Cmp)>);
+
+impl TimerSets {
+    fn new<S: HybridSystem + ?Sized>(sys: &S) -> Option<Self> {
+        let sets = (0..sys.jump_rules().len())
+            .map(|r| {
+                let spec = sys.set_atoms(SetRef::Jump(r))?;
+                match (&spec.expr, &spec.atoms[..]) {
+                    (SetExpr::Atom(0), [atom]) => atom.timer.map(|(k, c)| (k, c, atom.cmp)),
+                    _ => None,
+                }
+            })
+            .collect::<Option<Vec<_>>>()?;
+        (!sets.is_empty()).then_some(Self(sets))
+    }
+
+    /// Whether rule `r`'s jump set holds `x`.
+    fn holds(&self, r: usize, x: &[f64]) -> bool {
+        let (k, c, cmp) = self.0[r];
+        cmp.holds(x[k] - c)
+    }
+}
+
 /// The members of each group of simultaneous rules, in declaration order.
 struct Groups {
     /// (group label, members), sorted by label.
@@ -219,6 +246,7 @@ pub fn simulate<S: HybridSystem + ?Sized>(
             .collect()
     };
     let groups = Groups::new(rules);
+    let timer_sets = TimerSets::new(sys);
     let mut flow_set = FlowSetTest::new(sys);
     let mut flows = Flows::new(sys, settings, method, x0)?;
     let mut out = Output::new(sink, settings.dt_out, x0);
@@ -286,7 +314,15 @@ pub fn simulate<S: HybridSystem + ?Sized>(
         if j >= settings.horizon_j {
             return finish(&mut out, at, &x, TerminationCause::HorizonJ);
         }
-        let enabled = first_enabled(sys, at, &x, pending, &mut inside, &mut flows.watcher);
+        let enabled = first_enabled(
+            sys,
+            at,
+            &x,
+            pending,
+            &mut inside,
+            &mut flows.watcher,
+            timer_sets.as_ref(),
+        );
         pending = None;
         let after_event = std::mem::take(&mut from_event);
         let left_flow_set = std::mem::take(&mut cannot_flow);
@@ -499,7 +535,9 @@ pub fn simulate<S: HybridSystem + ?Sized>(
 /// asked one by one (none, for the first rule: a noise redraw); otherwise
 /// all sets at once if the system offers it (`inside` its scratch; with
 /// the atoms a flow segment started here reads, kept by `watcher`), else,
-/// or if that evaluation reported a fault, rule by rule.
+/// or if that evaluation reported a fault, rule by rule. With
+/// `timer_sets` every set is a comparison, made here unless the sets'
+/// evaluation also serves the segment's start.
 fn first_enabled<S: HybridSystem + ?Sized>(
     sys: &S,
     at: HybridTime,
@@ -507,9 +545,17 @@ fn first_enabled<S: HybridSystem + ?Sized>(
     pending: Option<usize>,
     inside: &mut [bool],
     watcher: &mut Watcher,
+    timer_sets: Option<&TimerSets>,
 ) -> Option<usize> {
+    let holds = |r: usize| match timer_sets {
+        Some(sets) => sets.holds(r, x),
+        None => sys.jump_set(r, at, x),
+    };
     if let Some(p) = pending {
-        return (0..p).find(|&r| sys.jump_set(r, at, x)).or(Some(p));
+        return (0..p).find(|&r| holds(r)).or(Some(p));
+    }
+    if timer_sets.is_some() && !watcher.prefetches() {
+        return (0..inside.len()).find(|&r| holds(r));
     }
     // On a fault, a set after the first enabled one may be what failed.
     if (watcher.prefetch_sets(sys, at, x, inside) || sys.jump_sets(at, x, inside))

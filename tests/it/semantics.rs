@@ -1158,6 +1158,43 @@ fn a_timer_threshold_that_changes_no_set_is_passed_within_the_flow() {
     }
 }
 
+/// Jump sets that are each one timer atom are decided by the timer's
+/// comparison, not by evaluating the sets: the same arc, bit for bit, as
+/// the same rules with a second atom (which the engine evaluates), a rising
+/// and a falling timer, and a jump enabled at once by the one before it.
+#[test]
+fn timer_sets_decided_by_their_comparison_give_the_evaluated_arc() {
+    let model = |extra: &str| {
+        format!(
+            "model m\nstate tau = 0, c = 5, n = 0\nflow {{ tau' = 1; c' = -1; n' = 0 }}\n\
+             jump lap when tau >= 1{extra} {{ tau+ = 0; c+ = 0; n+ = n + 1 }}\n\
+             jump rest when c <= 0{extra} {{ c+ = 2.5 }}\nsim {{ T = 4.5 }}\n"
+        )
+    };
+    for exact in ["auto", "on", "off"] {
+        let run_model = |extra: &str| {
+            let m = compile(&model(extra));
+            let mut settings = m.settings();
+            settings.exact_affine = match exact {
+                "on" => ExactAffine::On,
+                "off" => ExactAffine::Off,
+                _ => ExactAffine::Auto,
+            };
+            run_with(&m, &settings)
+        };
+        let (timers, evaluated) = (run_model(""), run_model(" && n >= 0"));
+        let rules = |arc: &HybridArc| arc.jumps().iter().map(|r| r.rule).collect::<Vec<_>>();
+        // `lap` at t = 1, 2, 3, 4, each followed at once by `rest` (c = 0).
+        assert_eq!(rules(&timers), [0, 1, 0, 1, 0, 1, 0, 1], "{exact}");
+        assert_times(&timers, &[1.0, 1.0, 2.0, 2.0, 3.0, 3.0, 4.0, 4.0], exact);
+        assert_eq!(rules(&timers), rules(&evaluated), "{exact}");
+        for (a, b) in timers.jumps().iter().zip(evaluated.jumps()) {
+            assert_eq!(a.at.t.to_bits(), b.at.t.to_bits(), "{exact}");
+            assert_eq!(a.post, b.post, "{exact}");
+        }
+    }
+}
+
 /// An event of a guard that depends on `t` is recorded at exactly the time
 /// its set was evaluated at. Ordinary time is a compensated sum of segment
 /// lengths; a localization that evaluated the guard at the naive `t0 + s`
