@@ -1,7 +1,26 @@
-//! Numbers: compact, lossless formatting for reports and messages, and the
-//! finiteness scan of state vectors.
+//! Numbers: compact, lossless formatting for reports and messages, the
+//! finiteness scan of state vectors, and the slot of a value's bits in a
+//! small cache.
 
 use std::fmt;
+
+/// The slot of 64 bits in a table of `slots` entries (a power of two):
+/// Fibonacci hashing, whose top bits depend on every bit of the key, so
+/// keys that differ only in their low bits (t and t + h) spread out.
+///
+/// ```
+/// use hybsim::num::hash_slot;
+/// assert!(hash_slot(1.5f64.to_bits(), 16) < 16);
+/// assert_eq!(hash_slot(7, 1), 0);
+/// ```
+#[inline]
+pub fn hash_slot(bits: u64, slots: usize) -> usize {
+    debug_assert!(slots.is_power_of_two());
+    // `checked_shr`: one slot leaves no bits to take (a shift by 64).
+    bits.wrapping_mul(0x9E37_79B9_7F4A_7C15)
+        .checked_shr(64 - slots.trailing_zeros())
+        .unwrap_or(0) as usize
+}
 
 /// The first non-finite component of `x`, if any.
 ///

@@ -504,8 +504,7 @@ impl Dag {
         if self.konst_ids.is_empty() {
             self.konst_ids = vec![(0, NO_NODE); KONST_CACHE];
         }
-        // Fibonacci hashing of the bits; the top bits index the cache.
-        let slot = (bits.wrapping_mul(0x9E37_79B9_7F4A_7C15) >> 58) as usize % KONST_CACHE;
+        let slot = crate::num::hash_slot(bits, KONST_CACHE);
         let (b, id) = self.konst_ids[slot];
         if b == bits && id != NO_NODE {
             self.ops += 1;

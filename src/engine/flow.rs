@@ -372,10 +372,9 @@ const NO_DURATION: u64 = u64::MAX;
 /// lookups of a new duration find its bucket empty).
 const SPENT_BUCKETS: usize = 256;
 
-/// The bucket of a remembered duration's bits (Fibonacci hashing: the top
-/// bits of the product depend on every bit of the key).
+/// The bucket of a remembered duration's bits.
 fn spent_bucket(key: u64) -> usize {
-    (key.wrapping_mul(0x9E37_79B9_7F4A_7C15) >> (64 - SPENT_BUCKETS.trailing_zeros())) as usize
+    crate::num::hash_slot(key, SPENT_BUCKETS)
 }
 
 impl Affine {

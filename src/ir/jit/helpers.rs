@@ -135,10 +135,8 @@ type Memo = [Cell<(u64, f64)>; MEMO_SLOTS];
 #[inline]
 fn memoized(memo: &'static LocalKey<Memo>, f: UnFn, a: f64) -> f64 {
     let bits = a.to_bits();
-    // The top bits of a multiplicative hash: nearby arguments (t, t + h)
-    // differ in their low bits.
-    let slot =
-        (bits.wrapping_mul(0x9E37_79B9_7F4A_7C15) >> (64 - MEMO_SLOTS.trailing_zeros())) as usize;
+    // Nearby arguments (t, t + h) differ in their low bits.
+    let slot = crate::num::hash_slot(bits, MEMO_SLOTS);
     memo.try_with(|m| {
         let (k, v) = m[slot].get();
         if k == bits {
