@@ -724,8 +724,8 @@ impl Affine {
     /// the rows go [`APPLY_BLOCK`] at a time, held in registers. Returns
     /// whether every component written is finite (decided in the same pass:
     /// `v − v` is 0 for a finite `v`, NaN otherwise), so that a step needs
-    /// no second pass over the state.
-    #[allow(clippy::eq_op)] // `a - a` is the finiteness test
+    /// no second pass over the state. With AVX where the processor has it
+    /// (as [`euler_step`]: the same products and sums, so the same bits).
     fn apply(&self, p: &[f64], x: &[f64], out: &mut [f64]) -> bool {
         let (n, kp) = (self.n, self.padded_rows);
         debug_assert!(p.is_empty() || p.len() == kp * (n + 1));
@@ -733,41 +733,82 @@ impl Affine {
             out.copy_from_slice(x);
         }
         let (phi, gamma) = p.split_at(n * kp);
-        let x = &x[..n];
-        let mut nan = 0.0;
-        let mut start = 0;
-        while start < kp {
-            let mut acc: [f64; APPLY_BLOCK] = gamma[start..start + APPLY_BLOCK]
-                .try_into()
-                .expect("a block");
-            // Column c's block starts at c·kp + start: one bounds check per
-            // column, the block's updates unrolled.
-            let mut at = start;
-            for &xc in x {
-                let col: &[f64; APPLY_BLOCK] =
-                    phi[at..at + APPLY_BLOCK].try_into().expect("a block");
-                for r in 0..APPLY_BLOCK {
-                    acc[r] += col[r] * xc;
-                }
-                at += kp;
+        let rows = self.active.as_deref();
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx") {
+            // SAFETY: the processor has AVX.
+            return unsafe { apply_avx(phi, gamma, &x[..n], rows, out) };
+        }
+        apply_lanes(phi, gamma, &x[..n], rows, out)
+    }
+}
+
+/// [`apply_lanes`] compiled for AVX.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx")]
+fn apply_avx(
+    phi: &[f64],
+    gamma: &[f64],
+    x: &[f64],
+    rows: Option<&[usize]>,
+    out: &mut [f64],
+) -> bool {
+    apply_lanes(phi, gamma, x, rows, out)
+}
+
+/// The body of [`Affine::apply`], inlined into each instruction set's copy:
+/// `phi` holds `x.len()` columns of `gamma.len()` rows (a multiple of
+/// [`APPLY_BLOCK`]); row `i` goes to `out[rows[i]]`, or to `out[i]` for the
+/// rows below `out.len()` without `rows`.
+#[inline(always)]
+#[allow(clippy::eq_op)] // `a - a` is the finiteness test
+fn apply_lanes(
+    phi: &[f64],
+    gamma: &[f64],
+    x: &[f64],
+    rows: Option<&[usize]>,
+    out: &mut [f64],
+) -> bool {
+    let kp = gamma.len();
+    let mut nan = [0.0; APPLY_BLOCK];
+    for (b, g) in gamma.chunks_exact(APPLY_BLOCK).enumerate() {
+        let start = b * APPLY_BLOCK;
+        let mut acc: [f64; APPLY_BLOCK] = g.try_into().expect("a block");
+        // The block's rows of each column in turn, its updates unrolled.
+        for (col, &xc) in phi.chunks_exact(kp).zip(x) {
+            let col: &[f64; APPLY_BLOCK] =
+                col[start..start + APPLY_BLOCK].try_into().expect("a block");
+            for r in 0..APPLY_BLOCK {
+                acc[r] += col[r] * xc;
             }
-            // Padding rows are 0 (finite): the sum over the block decides.
-            nan += acc.iter().fold(0.0, |s, &a| s + (a - a));
-            match &self.active {
-                Some(rows) => {
-                    for (&r, &a) in rows[start..].iter().zip(&acc) {
-                        out[r] = a;
+        }
+        // Padding rows are 0 (finite): the sums decide, lane by lane.
+        for r in 0..APPLY_BLOCK {
+            nan[r] += acc[r] - acc[r];
+        }
+        match rows {
+            Some(rows) => {
+                for (&r, &a) in rows[start..].iter().zip(&acc) {
+                    out[r] = a;
+                }
+            }
+            // A fixed-length copy for a whole block (a short memcpy call
+            // costs more than the products of a small model).
+            None if start + APPLY_BLOCK <= out.len() => {
+                out[start..start + APPLY_BLOCK].copy_from_slice(&acc);
+            }
+            None => {
+                let from = start.min(out.len());
+                let tail = &mut out[from..];
+                for r in 0..APPLY_BLOCK {
+                    if r < tail.len() {
+                        tail[r] = acc[r];
                     }
                 }
-                None => {
-                    let m = APPLY_BLOCK.min(n - start);
-                    out[start..start + m].copy_from_slice(&acc[..m]);
-                }
             }
-            start += APPLY_BLOCK;
         }
-        nan == 0.0
     }
+    nan.iter().sum::<f64>() == 0.0
 }
 
 /// The exact solution of an affine flow on one step.
