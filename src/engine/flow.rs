@@ -1929,7 +1929,7 @@ impl ExactSteps<'_> {
             }
             let mut path = flow.path(s, s1, h, self.y_prev, self.y1);
             let reach = last.then_some(EndWhy::Reached);
-            if let Some(end) = close_step(
+            if let Some((end, at_y1)) = close_step_at(
                 sys,
                 self.watcher,
                 self.y_end,
@@ -1940,6 +1940,11 @@ impl ExactSteps<'_> {
                 self.y1,
                 reach,
             ) {
+                drop(path);
+                // Moved to the end, not copied (as an Euler segment's).
+                if at_y1 {
+                    std::mem::swap(self.y_end, self.y1);
+                }
                 return Ok(end);
             }
             drop(path);
