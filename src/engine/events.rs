@@ -1561,7 +1561,9 @@ impl Watcher {
         let mut points = std::mem::take(&mut self.points);
         points.clear();
         points.extend(early.iter().map(|e| s0 + (s1 - s0) * e));
-        points.extend((1..=m).map(|i| s0 + (s1 - s0) * (i as f64 / (m + 1) as f64)));
+        if m > 0 {
+            points.extend((1..=m).map(|i| s0 + (s1 - s0) * (i as f64 / (m + 1) as f64)));
+        }
         let evenly = points.len();
         points.extend_from_slice(&self.extra);
         // The timers' thresholds reached on the step (`cross_timers`).
@@ -1892,10 +1894,10 @@ impl Watcher {
         for wa in &self.watched {
             self.changing[wa.set] = 0;
         }
-        for (w, wa) in self.watched.iter().enumerate() {
-            let changes = self.cls[w] != self.cls_s[w];
-            self.need[w] = changes;
-            self.changing[wa.set] += u32::from(changes);
+        let classes = self.cls.iter().zip(&self.cls_s);
+        for ((wa, need), (c0, c1)) in self.watched.iter().zip(&mut self.need).zip(classes) {
+            *need = c0 != c1;
+            self.changing[wa.set] += u32::from(*need);
         }
         for w in 0..self.watched.len() {
             if self.need[w] && self.changing[self.watched[w].set] == 1 {
@@ -2089,6 +2091,9 @@ impl Watcher {
     /// `cls[w]` at `a`, `cls_s[w]` at the checkpoint `b`) to the first
     /// change within the tolerance. Leaves x(b) in `buf_b`, and x(a) in
     /// `buf_a` if [`bracket_start_read`](Self::bracket_start_read).
+    /// Not inlined: kept out of the scan's loop, whose registers it would
+    /// crowd for a call made at most once per sign change.
+    #[inline(never)]
     fn localize<S: HybridSystem + ?Sized, P: StepPath>(
         &mut self,
         sys: &S,
@@ -2119,9 +2124,11 @@ impl Watcher {
         // rounding noise in the atom's values.
         let clock = self.clock;
         let tol_at = |b: f64| event_tol.max(4.0 * f64::EPSILON * clock.at(b).abs());
+        // The tolerance at the bracket's end `b`, kept as `b` moves.
+        let mut tol_b = tol_at(b);
         // The ITP schedule of the initial bracket, made when first needed:
         // the guided trials of an affine atom usually close it first.
-        let (a0, b0, tol0) = (a, b, tol_at(b));
+        let (a0, b0, tol0) = (a, b, tol_b);
         let mut itp: Option<Itp> = None;
         let mut widths = [f64::INFINITY; 2];
         // Leaving an exact zero: the change is almost always right after a.
@@ -2134,12 +2141,12 @@ impl Watcher {
             None
         } else {
             // The bracket's smaller tolerance: the zero's own may be either.
-            self.polynomial_zero(w, path, a, b, tol_at(a).min(tol_at(b)))
+            self.polynomial_zero(w, path, a, b, tol_at(a).min(tol_b))
         };
         let mut guided = guess.is_some();
         for _ in 0..400 {
             let width = b - a;
-            let tol = tol_at(b);
+            let tol = tol_b;
             if width <= tol {
                 break;
             }
@@ -2183,16 +2190,20 @@ impl Watcher {
                 }
             }
             let v = self.watched_at(sys, w, path, s, Buf::T);
+            let across = class(v) != c0;
+            if across {
+                // `b` moves to `s` below.
+                tol_b = tol_at(s);
+            }
             if std::mem::take(&mut guided) {
-                // With the tolerance at the bracket's new end (its `b` may
-                // have moved to `s`).
-                guess = Some(if class(v) != c0 {
-                    s - 0.5 * tol_at(s)
+                // With the tolerance at the bracket's new end.
+                guess = Some(if across {
+                    s - 0.5 * tol_b
                 } else {
                     s + 0.5 * tol
                 });
             }
-            if class(v) != c0 {
+            if across {
                 b = s;
                 fb = Some(v);
                 std::mem::swap(&mut self.buf_b, &mut self.buf_t);

@@ -24,8 +24,10 @@ pub(crate) struct PolynomialFlow {
     /// Rows of `A` or `b` with a nonzero entry (the components that move).
     active: Vec<usize>,
     /// The current step's coefficients in the step's own variable
-    /// `u = (s − s₀)/h ∈ [0, 1]`: `d[k·n + i] = hᵏ/k! (Gᵏ [x(s₀); 1])ᵢ`
-    /// (zero for k ≥ 1 outside `active`).
+    /// `u = (s − s₀)/h ∈ [0, 1]`, component after component (each one's
+    /// polynomial contiguous, as Horner's rule and the control points read
+    /// it): `d[i·(degree + 1) + k] = hᵏ/k! (Gᵏ [x(s₀); 1])ᵢ` (zero for
+    /// k ≥ 1 outside `active`).
     d: Vec<f64>,
 }
 
@@ -77,39 +79,37 @@ impl PolynomialFlow {
     /// Sets the step of length `h` from `y0`: its Taylor coefficients
     /// `d₀ = y0`, `d₁ = h (A y0 + b)`, `dₖ₊₁ = h/(k+1) · A dₖ`.
     pub fn set_step(&mut self, y0: &[f64], h: f64) {
-        let n = self.n;
-        self.d[..n].copy_from_slice(y0);
-        for k in 1..=self.degree {
-            let (lower, upper) = self.d.split_at_mut(k * n);
-            let (prev, cur) = (&lower[(k - 1) * n..], &mut upper[..n]);
+        let w = self.degree + 1;
+        let d = &mut self.d;
+        for (row, &y) in d.chunks_exact_mut(w).zip(&y0[..self.n]) {
+            row[0] = y;
+        }
+        for k in 1..w {
             for &r in &self.active {
-                cur[r] = 0.0;
+                d[r * w + k] = 0.0;
             }
             if k == 1 {
                 for &(r, v) in &self.b {
-                    cur[r] = v;
+                    d[r * w + 1] = v;
                 }
             }
             for &(r, c, v) in &self.a {
-                cur[r] += v * prev[c];
+                let term = v * d[c * w + k - 1];
+                d[r * w + k] += term;
             }
             let scale = h / k as f64;
             for &r in &self.active {
-                cur[r] *= scale;
+                d[r * w + k] *= scale;
             }
         }
     }
 
     /// The step's state at `u ∈ [0, 1]` (Horner's rule), into `out`.
     pub fn eval_at(&self, u: f64, out: &mut [f64]) {
-        let (n, m) = (self.n, self.degree);
-        let d = &self.d[..(m + 1) * n];
-        for (i, o) in out[..n].iter_mut().enumerate() {
-            let mut v = d[m * n + i];
-            for k in (0..m).rev() {
-                v = v * u + d[k * n + i];
-            }
-            *o = v;
+        let rows = self.d.chunks_exact(self.degree + 1);
+        for (o, row) in out[..self.n].iter_mut().zip(rows) {
+            let (&top, lower) = row.split_last().expect("degree + 1 coefficients");
+            *o = lower.iter().rev().fold(top, |v, &c| v * u + c);
         }
     }
 }
@@ -167,14 +167,10 @@ impl StepPath for PolynomialPath<'_> {
     }
 
     fn control_points(&self, i: usize, out: &mut [f64; MAX_CONTROL]) -> Option<(usize, f64)> {
-        let flow = self.flow;
-        let mut a = [0.0; MAX_CONTROL];
-        for (k, ak) in a.iter_mut().enumerate().take(flow.degree + 1) {
-            *ak = flow.d[k * flow.n + i];
-        }
+        let w = self.flow.degree + 1;
         // `eval` is Horner's rule on the same coefficients: within the
         // bound of their sum, as the points are.
-        Some(bernstein_points(&a[..=flow.degree], out))
+        Some(bernstein_points(&self.flow.d[i * w..(i + 1) * w], out))
     }
 }
 
