@@ -308,39 +308,39 @@ pub(crate) fn affine_forms(dag: &Dag, roots: &[NodeId]) -> Option<Vec<Lin>> {
 /// affine in them).
 pub(crate) fn affine_in(dag: &Dag, roots: &[NodeId], vars: Vars) -> Vec<Option<Lin>> {
     let reach = dag.reachable(roots);
-    let mut lin: HashMap<NodeId, Option<Lin>> = HashMap::new();
+    // By node id (a node's inputs come before it): the forms are read where they are, cloned
+    // only into the roots' answers.
+    let mut lin: Vec<Option<Lin>> = vec![None; dag.len()];
     // For `Vars::Wiener`: nodes that depend on no noise component.
-    let mut free: HashMap<NodeId, bool> = HashMap::new();
+    let mut free = vec![false; if vars == Vars::Wiener { dag.len() } else { 0 }];
     for id in 0..dag.len() as NodeId {
         if !reach[id as usize] {
             continue;
         }
-        let get = |x: NodeId, lin: &HashMap<NodeId, Option<Lin>>| lin.get(&x).cloned().flatten();
         if vars == Vars::Wiener {
             let node = dag.node(id);
+            let f = |x: NodeId| free[x as usize];
             let is_free = match node {
                 Node::Wiener(_) => false,
-                Node::Un(_, a) => free[&a],
-                Node::Bin(_, a, b) => free[&a] && free[&b],
-                Node::Select(c, a, b) => free[&c] && free[&a] && free[&b],
-                Node::BlockOut(b, _) => dag.block(b).inputs.iter().all(|i| free[i]),
-                Node::Rand(_, a, b, _) => free[&a] && free[&b],
-                Node::Lookup { row, col, when, .. } => free[&row] && free[&col] && free[&when],
-                Node::Interp { x, .. } => free[&x],
+                Node::Un(_, a) => f(a),
+                Node::Bin(_, a, b) => f(a) && f(b),
+                Node::Select(c, a, b) => f(c) && f(a) && f(b),
+                Node::BlockOut(b, _) => dag.block(b).inputs.iter().all(|&i| f(i)),
+                Node::Rand(_, a, b, _) => f(a) && f(b),
+                Node::Lookup { row, col, when, .. } => f(row) && f(col) && f(when),
+                Node::Interp { x, .. } => f(x),
                 Node::Const(_) | Node::State(_) | Node::Time | Node::Jumps => true,
             };
-            free.insert(id, is_free);
+            free[id as usize] = is_free;
             if is_free && !matches!(node, Node::Const(_)) {
-                lin.insert(
-                    id,
-                    Some(Lin {
-                        terms: Vec::new(),
-                        c: f64::NAN,
-                    }),
-                );
+                lin[id as usize] = Some(Lin {
+                    terms: Vec::new(),
+                    c: f64::NAN,
+                });
                 continue;
             }
         }
+        let get = |x: NodeId| lin[x as usize].as_ref();
         let l = match dag.node(id) {
             Node::Const(b) => Some(Lin {
                 terms: Vec::new(),
@@ -354,16 +354,16 @@ pub(crate) fn affine_in(dag: &Dag, roots: &[NodeId], vars: Vars) -> Vec<Option<L
                 terms: vec![(k, 1.0)],
                 c: 0.0,
             }),
-            Node::Un(UnFn::Neg, a) => get(a, &lin).map(|l| l.scale(-1.0)),
-            Node::Bin(BinFn::Add, a, b) => match (get(a, &lin), get(b, &lin)) {
-                (Some(x), Some(y)) => Some(x.add(&y, 1.0)),
+            Node::Un(UnFn::Neg, a) => get(a).map(|l| l.scale(-1.0)),
+            Node::Bin(BinFn::Add, a, b) => match (get(a), get(b)) {
+                (Some(x), Some(y)) => Some(x.add(y, 1.0)),
                 _ => None,
             },
-            Node::Bin(BinFn::Sub, a, b) => match (get(a, &lin), get(b, &lin)) {
-                (Some(x), Some(y)) => Some(x.add(&y, -1.0)),
+            Node::Bin(BinFn::Sub, a, b) => match (get(a), get(b)) {
+                (Some(x), Some(y)) => Some(x.add(y, -1.0)),
                 _ => None,
             },
-            Node::Bin(BinFn::Mul, a, b) => match (get(a, &lin), get(b, &lin)) {
+            Node::Bin(BinFn::Mul, a, b) => match (get(a), get(b)) {
                 (Some(x), Some(y)) => match (x.constant(), y.constant()) {
                     (Some(c), _) => Some(y.scale(c)),
                     (_, Some(c)) => Some(x.scale(c)),
@@ -371,28 +371,44 @@ pub(crate) fn affine_in(dag: &Dag, roots: &[NodeId], vars: Vars) -> Vec<Option<L
                 },
                 _ => None,
             },
-            Node::Bin(BinFn::Div, a, b) => match (get(a, &lin), get(b, &lin)) {
+            Node::Bin(BinFn::Div, a, b) => match (get(a), get(b)) {
                 (Some(x), Some(y)) => y.constant().map(|c| x.scale(1.0 / c)),
                 _ => None,
             },
             _ => None,
         };
-        lin.insert(id, l);
+        lin[id as usize] = l;
     }
-    roots
-        .iter()
-        .map(|r| lin.get(r).cloned().flatten())
-        .collect()
+    roots.iter().map(|&r| lin[r as usize].clone()).collect()
+}
+
+/// Which nodes depend on a white-noise component (by node id; a node's
+/// inputs come before it).
+pub(crate) fn on_wiener(dag: &Dag) -> Vec<bool> {
+    let mut on = Vec::with_capacity(dag.len());
+    for id in 0..dag.len() as NodeId {
+        let mut v = matches!(dag.node(id), Node::Wiener(_));
+        dag.inputs(id, |i| v |= on[i as usize]);
+        on.push(v);
+    }
+    on
 }
 
 /// Rebuilds `root` with white-noise components replaced by constants
-/// (`w[k] = value(k)`), folding as it goes.
+/// (`w[k] = value(k)`), folding as it goes. `noisy` is [`on_wiener`] of the
+/// graph: a node free of noise is its own rebuild (the graph's constructors
+/// return a node they made when given its inputs again), so it is kept
+/// without visiting it.
 pub(crate) fn substitute_wiener(
     dag: &mut Dag,
     root: NodeId,
     value: &dyn Fn(u32) -> f64,
+    noisy: &[bool],
     memo: &mut HashMap<NodeId, NodeId>,
 ) -> NodeId {
+    if !noisy[root as usize] {
+        return root;
+    }
     if let Some(&r) = memo.get(&root) {
         return r;
     }
@@ -401,7 +417,9 @@ pub(crate) fn substitute_wiener(
         // Leaves, draws and block outputs (matrix operations, never on
         // noise) stay as they are.
         _ => dag
-            .map_inputs(root, &mut |dag, c| substitute_wiener(dag, c, value, memo))
+            .map_inputs(root, &mut |dag, c| {
+                substitute_wiener(dag, c, value, noisy, memo)
+            })
             .unwrap_or(root),
     };
     memo.insert(root, r);

@@ -480,18 +480,19 @@ impl CompiledModel {
             m: m.wiener_dim,
         };
         // Flow: drift (noise = 0) and diffusion columns.
+        let noisy = analysis::on_wiener(&m.dag);
         let mut memo = HashMap::new();
         let drift: Vec<_> = m
             .flow
             .iter()
-            .map(|&f| analysis::substitute_wiener(&mut m.dag, f, &|_| 0.0, &mut memo))
+            .map(|&f| analysis::substitute_wiener(&mut m.dag, f, &|_| 0.0, &noisy, &mut memo))
             .collect();
         let mut diff = Vec::with_capacity(m.dim * m.wiener_dim);
         for (i, &f) in m.flow.iter().enumerate() {
             for k in 0..m.wiener_dim as u32 {
                 let mut memo = HashMap::new();
                 let unit = move |j: u32| if j == k { 1.0 } else { 0.0 };
-                let with = analysis::substitute_wiener(&mut m.dag, f, &unit, &mut memo);
+                let with = analysis::substitute_wiener(&mut m.dag, f, &unit, &noisy, &mut memo);
                 diff.push(m.dag.bin(crate::check::dag::BinFn::Sub, with, drift[i]));
             }
         }

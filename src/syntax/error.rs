@@ -659,12 +659,8 @@ fn describe(rule: Rule) -> Option<&'static str> {
         Rule::expr
         | Rule::if_expr
         | Rule::or_expr
-        | Rule::and_expr
-        | Rule::cmp_expr
         | Rule::add_expr
-        | Rule::mul_expr
         | Rule::unary
-        | Rule::power
         | Rule::postfix
         | Rule::paren
         | Rule::call

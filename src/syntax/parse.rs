@@ -1,5 +1,7 @@
 //! The pest binding and the conversion of pest pairs into the AST.
 
+use std::iter::Peekable;
+
 use pest::Parser;
 use pest::iterators::{Pair, Pairs};
 
@@ -130,7 +132,10 @@ fn is_ident_byte(b: u8) -> bool {
     b.is_ascii_alphanumeric() || b == b'_'
 }
 
-pub(super) fn first<'a>(pairs: &mut Pairs<'a, Rule>, parent: Span) -> Res<Pair<'a, Rule>> {
+pub(super) fn first<'a>(
+    pairs: &mut impl Iterator<Item = Pair<'a, Rule>>,
+    parent: Span,
+) -> Res<Pair<'a, Rule>> {
     pairs.next().ok_or_else(|| SyntaxError::Unexpected {
         span: parent,
         found: "an incomplete construct".into(),
@@ -154,6 +159,10 @@ pub(super) fn significant_span(p: &Pair<'_, Rule>) -> Span {
     loop {
         let body = text[..end].trim_end();
         let line_start = body.rfind('\n').map_or(0, |i| i + 1);
+        // A comment starts with `#` (lexing tells one in a string apart).
+        if !body[line_start..].contains('#') {
+            return Span::new(start, start + body.len());
+        }
         match super::lex::tokens(&body[line_start..]).last() {
             Some(t) if t.kind == super::lex::TokenKind::Comment => end = line_start + t.offset,
             _ => return Span::new(start, start + body.len()),
@@ -699,60 +708,8 @@ fn expr_d(p: Pair<'_, Rule>) -> Res<(Expr, usize)> {
                 d,
             ))
         }
-        Rule::or_expr
-        | Rule::and_expr
-        | Rule::cmp_expr
-        | Rule::add_expr
-        | Rule::mul_expr
-        | Rule::power => {
-            let (mut lhs, mut d) = expr_d(first(&mut it, span)?)?;
-            while let Some(op) = it.next() {
-                let (rhs, dr) = expr_d(first(&mut it, span)?)?;
-                d = deeper(d.max(dr), op.as_span().into())?;
-                let op = match op.as_str() {
-                    "||" => BinOp::Or,
-                    "&&" => BinOp::And,
-                    "<" => BinOp::Lt,
-                    "<=" => BinOp::Le,
-                    ">" => BinOp::Gt,
-                    ">=" => BinOp::Ge,
-                    "==" => BinOp::Eq,
-                    "!=" => BinOp::Ne,
-                    "+" => BinOp::Add,
-                    "-" => BinOp::Sub,
-                    "*" => BinOp::Mul,
-                    "/" => BinOp::Div,
-                    ".*" => BinOp::ElemMul,
-                    "./" => BinOp::ElemDiv,
-                    _ => BinOp::Pow,
-                };
-                let s = lhs.span.to(rhs.span);
-                lhs = mk(ExprKind::Binary(op, Box::new(lhs), Box::new(rhs)), s);
-            }
-            Ok((lhs, d))
-        }
-        Rule::unary => {
-            let parts: Vec<Pair<'_, Rule>> = it.collect();
-            let Some((last, prefixes)) = parts.split_last() else {
-                return Err(SyntaxError::Unexpected {
-                    span,
-                    found: "this".into(),
-                    expected: "an expression".into(),
-                });
-            };
-            let (mut e, mut d) = expr_d(last.clone())?;
-            for op in prefixes.iter().rev() {
-                d = deeper(d, op.as_span().into())?;
-                let uop = if op.as_str() == "-" {
-                    UnOp::Neg
-                } else {
-                    UnOp::Not
-                };
-                let s = Span::new(op.as_span().start(), e.span.end);
-                e = mk(ExprKind::Unary(uop, Box::new(e)), s);
-            }
-            Ok((e, d))
-        }
+        Rule::or_expr => climb(&mut it.peekable(), 0, span),
+        Rule::add_expr => climb(&mut it.peekable(), ARITHMETIC, span),
         Rule::postfix => {
             let (mut e, mut d) = expr_d(first(&mut it, span)?)?;
             for post in it {
@@ -828,6 +785,97 @@ fn expr_d(p: Pair<'_, Rule>) -> Res<(Expr, usize)> {
     }
 }
 
+/// The binary operators by precedence, lowest first. `or_expr` holds the
+/// first [`ARITHMETIC`] (its operands are `add_expr`s), `add_expr` the others
+/// (its operands `unary`s); the last, `^`, is right-associative and binds
+/// tighter than a prefix `-` or `!`.
+const BINARY: [Rule; 6] = [
+    Rule::op_or,
+    Rule::op_and,
+    Rule::cmp_op,
+    Rule::add_op,
+    Rule::mul_op,
+    Rule::op_pow,
+];
+/// The level of `+` and `-` in [`BINARY`].
+const ARITHMETIC: usize = 3;
+/// The level of `^` in [`BINARY`].
+const POWER: usize = BINARY.len() - 1;
+
+/// The expression of the operands and binary operators `it` starts with
+/// whose operators are at `level` of [`BINARY`] or above (precedence
+/// climbing over the flat children of `or_expr` or `add_expr`).
+fn climb(it: &mut Peekable<Pairs<'_, Rule>>, level: usize, span: Span) -> Res<(Expr, usize)> {
+    if level == POWER {
+        return power(it, span);
+    }
+    let (mut lhs, mut d) = climb(it, level + 1, span)?;
+    while let Some(op) = it.next_if(|p| p.as_rule() == BINARY[level]) {
+        let (rhs, dr) = climb(it, level + 1, span)?;
+        (lhs, d) = binary(&op, lhs, d, rhs, dr)?;
+    }
+    Ok((lhs, d))
+}
+
+/// The operand `it` starts with and the `^` chain after it, under the
+/// operand's prefix operators (`-a^b` is `-(a^b)`); an operand of `or_expr`
+/// (an `add_expr`) is built alone. `span` is the whole flat rule's.
+fn power(it: &mut Peekable<Pairs<'_, Rule>>, span: Span) -> Res<(Expr, usize)> {
+    let p = first(it, span)?;
+    if p.as_rule() != Rule::unary {
+        return expr_d(p);
+    }
+    // The prefix operators, then the operand.
+    let mut parts = p.into_inner();
+    let Some(operand) = parts.next_back() else {
+        return Err(SyntaxError::Unexpected {
+            span,
+            found: "this".into(),
+            expected: "an expression".into(),
+        });
+    };
+    let (mut e, mut d) = expr_d(operand)?;
+    if let Some(op) = it.next_if(|p| p.as_rule() == Rule::op_pow) {
+        let (rhs, dr) = power(it, span)?;
+        (e, d) = binary(&op, e, d, rhs, dr)?;
+    }
+    for op in parts.rev() {
+        d = deeper(d, op.as_span().into())?;
+        let uop = if op.as_str() == "-" {
+            UnOp::Neg
+        } else {
+            UnOp::Not
+        };
+        let s = Span::new(op.as_span().start(), e.span.end);
+        e = mk(ExprKind::Unary(uop, Box::new(e)), s);
+    }
+    Ok((e, d))
+}
+
+/// `lhs op rhs` (of depths `dl` and `dr`) and its depth.
+fn binary(op: &Pair<'_, Rule>, lhs: Expr, dl: usize, rhs: Expr, dr: usize) -> Res<(Expr, usize)> {
+    let d = deeper(dl.max(dr), op.as_span().into())?;
+    let op = match op.as_str() {
+        "||" => BinOp::Or,
+        "&&" => BinOp::And,
+        "<" => BinOp::Lt,
+        "<=" => BinOp::Le,
+        ">" => BinOp::Gt,
+        ">=" => BinOp::Ge,
+        "==" => BinOp::Eq,
+        "!=" => BinOp::Ne,
+        "+" => BinOp::Add,
+        "-" => BinOp::Sub,
+        "*" => BinOp::Mul,
+        "/" => BinOp::Div,
+        ".*" => BinOp::ElemMul,
+        "./" => BinOp::ElemDiv,
+        _ => BinOp::Pow,
+    };
+    let s = lhs.span.to(rhs.span);
+    Ok((mk(ExprKind::Binary(op, Box::new(lhs), Box::new(rhs)), s), d))
+}
+
 /// Rejects a binary `-` or `+` written `a -b` (space before, none after) at
 /// the top level of the matrix entry `entry`: MATLAB reads `[0 -1]` as two
 /// entries, hybsim's grammar as `0 - 1`, so either reading may be meant.
@@ -835,7 +883,7 @@ fn expr_d(p: Pair<'_, Rule>) -> Res<(Expr, usize)> {
 /// top level (`[f(a -b)]` is one entry in MATLAB too).
 pub(super) fn ambiguous_sign(entry: &Pair<'_, Rule>) -> Res<()> {
     fn walk(entry: &Pair<'_, Rule>, p: &Pair<'_, Rule>) -> Res<()> {
-        let mut children = p.clone().into_inner().peekable();
+        let mut children = p.clone().into_inner();
         while let Some(q) = children.next() {
             match q.as_rule() {
                 Rule::paren | Rule::call | Rule::index_list | Rule::matrix | Rule::sum_expr => {}
@@ -845,10 +893,17 @@ pub(super) fn ambiguous_sign(entry: &Pair<'_, Rule>) -> Res<()> {
                     let spaced_before = input[..span.start()].ends_with(char::is_whitespace);
                     let glued_after =
                         input[span.end()..].starts_with(|c: char| !c.is_whitespace() && c != '#');
-                    if let (true, true, Some(rhs)) = (spaced_before, glued_after, children.peek()) {
+                    // The term after the operator: the operands and operators of this
+                    // `add_expr` up to its next `+` or `-`.
+                    let mut term = children.clone().take_while(|r| r.as_rule() != Rule::add_op);
+                    if spaced_before
+                        && glued_after
+                        && let Some(first) = term.next()
+                    {
+                        let end = term.last().unwrap_or_else(|| first.clone()).as_span().end();
+                        let rhs = &input[first.as_span().start()..end];
                         let op = q.as_str();
                         let lhs = input[entry.as_span().start()..span.start()].trim_end();
-                        let rhs = rhs.as_str();
                         let (entry2, what) = if op == "-" {
                             (format!("-{rhs}"), "difference")
                         } else {
