@@ -1719,7 +1719,7 @@ impl HybridSystem for CompiledModel {
     }
 
     /// The atoms and conditions the rule can change (once it has jumped
-    /// often enough to be analysed: `ir::after_jump`), the others kept.
+    /// often enough to be analysed: [`after_jump`]), the others kept.
     fn jump_sets_and_atoms_after_jump(
         &self,
         rules: &[usize],
