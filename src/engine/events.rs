@@ -1406,54 +1406,16 @@ impl Watcher {
     /// ([`HybridSystem::jump_sets_and_atoms`]) kept for a
     /// [`prefetch`](Self::prefetch) or [`start`](Self::start) from that
     /// point: the engine's choice between flowing and jumping and the
-    /// segment's start share one evaluation. At the post-jump point of a
-    /// jump of the rules `fired` from the last such evaluation's point, with
-    /// `inside` as it left it, only what the jump can change is evaluated
-    /// ([`HybridSystem::jump_sets_and_atoms_after_jump`]). `false`
-    /// (nothing evaluated): the start evaluates nothing, or the system has
-    /// no such evaluation.
-    #[inline]
+    /// segment's start share one evaluation. `false` (nothing evaluated):
+    /// the start evaluates nothing, or the system has no such evaluation.
     pub fn prefetch_sets<S: HybridSystem + ?Sized>(
         &mut self,
         sys: &S,
         at: HybridTime,
         x: &[f64],
         inside: &mut [bool],
-        fired: &[usize],
     ) -> bool {
-        if !self.prefetches() {
-            return false;
-        }
-        // A prefetched point that a start has not taken is left only by a
-        // jump, to the next jump count: `prefetch` evaluates where no rule
-        // is enabled (a segment starts there), a fault drops the point, so
-        // this one's evaluation, and `inside`, are still there.
-        if self.prefetched.is_some_and(|p| p.j + 1 == at.j) {
-            return self.sets_after_jump(sys, at, x, inside, fired);
-        }
-        if !sys.jump_sets_and_atoms(at, x, inside, &mut self.flat) {
-            return false;
-        }
-        self.flat_ok = true;
-        self.prefetched = Some(at);
-        true
-    }
-
-    /// [`prefetch_sets`](Self::prefetch_sets) after a jump, by
-    /// [`HybridSystem::jump_sets_and_atoms_after_jump`]: out of line, so
-    /// that the engine's loop keeps the size it has for systems without
-    /// it.
-    #[inline(never)]
-    fn sets_after_jump<S: HybridSystem + ?Sized>(
-        &mut self,
-        sys: &S,
-        at: HybridTime,
-        x: &[f64],
-        inside: &mut [bool],
-        fired: &[usize],
-    ) -> bool {
-        if !sys.jump_sets_and_atoms_after_jump(fired, at, x, inside, &mut self.flat) {
-            self.prefetched = None;
+        if !self.prefetches() || !sys.jump_sets_and_atoms(at, x, inside, &mut self.flat) {
             return false;
         }
         self.flat_ok = true;

@@ -320,7 +320,6 @@ pub fn simulate<S: HybridSystem + ?Sized>(
             &x,
             pending,
             &mut inside,
-            &firing,
             &mut flows.watcher,
             timer_sets.as_ref(),
         );
@@ -534,21 +533,17 @@ pub fn simulate<S: HybridSystem + ?Sized>(
 /// `pending` (a rule known to hold: a timer on its threshold, a localized
 /// event) counting as holding. With a pending rule, the rules before it are
 /// asked one by one (none, for the first rule: a noise redraw); otherwise
-/// all sets at once if the system offers it (`inside` its scratch, as the
-/// last evaluation left it; with the atoms a flow segment started here
-/// reads, kept by `watcher`; after a jump of the rules `fired` from that
-/// evaluation's point, only what they can change), else, or if that
-/// evaluation reported a fault, rule by rule. With `timer_sets` every set
-/// is a comparison, made here unless the sets' evaluation also serves the
-/// segment's start.
-#[allow(clippy::too_many_arguments)]
+/// all sets at once if the system offers it (`inside` its scratch; with
+/// the atoms a flow segment started here reads, kept by `watcher`), else,
+/// or if that evaluation reported a fault, rule by rule. With
+/// `timer_sets` every set is a comparison, made here unless the sets'
+/// evaluation also serves the segment's start.
 fn first_enabled<S: HybridSystem + ?Sized>(
     sys: &S,
     at: HybridTime,
     x: &[f64],
     pending: Option<usize>,
     inside: &mut [bool],
-    fired: &[usize],
     watcher: &mut Watcher,
     timer_sets: Option<&TimerSets>,
 ) -> Option<usize> {
@@ -563,7 +558,7 @@ fn first_enabled<S: HybridSystem + ?Sized>(
         return (0..inside.len()).find(|&r| holds(r));
     }
     // On a fault, a set after the first enabled one may be what failed.
-    if (watcher.prefetch_sets(sys, at, x, inside, fired) || sys.jump_sets(at, x, inside))
+    if (watcher.prefetch_sets(sys, at, x, inside) || sys.jump_sets(at, x, inside))
         && sys.take_fault().is_none()
     {
         return (0..inside.len()).find(|&r| inside[r]);

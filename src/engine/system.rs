@@ -591,26 +591,6 @@ pub trait HybridSystem {
         false
     }
 
-    /// [`jump_sets_and_atoms`](Self::jump_sets_and_atoms) at the post-jump
-    /// point (`at`, `x`) of a jump in which the rules `rules` fired, with
-    /// `inside` and `atoms` holding that call's (or this one's) results at
-    /// the pre-jump point (the same `t`, `j` one less): only the entries
-    /// the jump can change need be written, the others are kept. A system
-    /// that knows what its sets read writes only those that read what the
-    /// rules write ([`JumpRule::writes`]) or `j`. The results must equal
-    /// `jump_sets_and_atoms`' to the last bit, and `false` means the same
-    /// (nothing written). Default: `jump_sets_and_atoms`.
-    fn jump_sets_and_atoms_after_jump(
-        &self,
-        _rules: &[usize],
-        at: HybridTime,
-        x: &[f64],
-        inside: &mut [bool],
-        atoms: &mut [f64],
-    ) -> bool {
-        self.jump_sets_and_atoms(at, x, inside, atoms)
-    }
-
     /// Structure of the flow map; [`FlowStructure::General`] by default.
     fn flow_structure(&self) -> FlowStructure {
         FlowStructure::General

@@ -16,7 +16,6 @@
 //! predicate) is also compiled to machine code ([`jit`]), which
 //! `Program::run` then executes instead of interpreting.
 
-mod after_jump;
 mod analysis;
 mod describe;
 mod inputs;
@@ -249,8 +248,6 @@ struct AllAtoms {
     /// `all`'s outputs, then `conds`': the choice and the atoms a flow
     /// segment from the point starts with, in one run.
     sets: Program,
-    /// The part of `sets` a jump of one rule can change.
-    after_jump: Arc<after_jump::AtomsAfterJump>,
 }
 
 impl AllAtoms {
@@ -260,7 +257,6 @@ impl AllAtoms {
         sets: impl Iterator<Item = &'a SetCode>,
         rules: &[RuleCode],
     ) -> Self {
-        let writes = rules.iter().map(|rc| rc.targets.clone()).collect();
         let (mut all, mut flowing, mut flowing_pos) = (Vec::new(), Vec::new(), Vec::new());
         let conds: Vec<NodeId> = rules.iter().map(|rc| rc.set.cond_node).collect();
         let mut joint = Vec::new();
@@ -274,12 +270,8 @@ impl AllAtoms {
         }
         joint.extend_from_slice(&all);
         joint.extend_from_slice(&conds);
-        let sets = Program::compile(dag, frame, &joint).into_buffer();
         AllAtoms {
-            after_jump: Arc::new(after_jump::AtomsAfterJump::new(
-                frame, &sets, &all, &conds, writes,
-            )),
-            sets,
+            sets: Program::compile(dag, frame, &joint).into_buffer(),
             all: Program::compile(dag, frame, &all).into_buffer(),
             flowing: Program::compile(dag, frame, &flowing).scatter_to(&flowing_pos),
             conds: Program::compile(dag, frame, &conds),
@@ -1716,28 +1708,6 @@ impl HybridSystem for CompiledModel {
             }
         });
         true
-    }
-
-    /// The atoms and conditions the rule can change (once it has jumped
-    /// often enough to be analysed: [`after_jump`]), the others kept.
-    fn jump_sets_and_atoms_after_jump(
-        &self,
-        rules: &[usize],
-        at: HybridTime,
-        x: &[f64],
-        inside: &mut [bool],
-        atoms: &mut [f64],
-    ) -> bool {
-        match self.atoms.after_jump.after(&self.jacobian, rules) {
-            Some(after_jump::AfterJump::Nothing) => true,
-            Some(after_jump::AfterJump::Some(changed)) => {
-                changed.eval(at, x, self.nregs, inside, atoms);
-                true
-            }
-            Some(after_jump::AfterJump::All) | None => {
-                self.jump_sets_and_atoms(at, x, inside, atoms)
-            }
-        }
     }
 
     #[inline]

@@ -3,20 +3,25 @@
 //! change them.
 //!
 //! A log writes the outputs at the pre-jump and at the post-jump sample of
-//! every logged jump. Both samples are at the same `t`: the post-jump
-//! sample keeps the components the jump cannot change
-//! ([`after_jump`](super::after_jump)) and evaluates only the others, with a
-//! program compiled for the rules that fired when that program is at most
-//! half the size of the whole subset's (a smaller saving does not repay its
-//! compilation).
+//! every logged jump. Both samples are at the same `t`; the jump changes
+//! only the components its rules write and the counter `j`. An output
+//! component that reads none of those (nor a random draw) has the same
+//! inputs on both sides, so the same instructions give the same value: the
+//! post-jump sample keeps it and evaluates only the others, with a program
+//! compiled for the rules that fired when that program is at most half the
+//! size of the whole subset's (a smaller saving does not repay its
+//! compilation). A set of rules is analysed once it has jumped
+//! [`DECIDE_AFTER`] times (until then every component is evaluated): a
+//! rule that fires a few times in a run with thousands of rules costs no
+//! analysis of the graph and no compilation.
 
-use std::sync::{Arc, Mutex};
+use std::sync::atomic::{AtomicU32, Ordering};
+use std::sync::{Arc, Mutex, OnceLock};
 
-use super::after_jump::{Decision, changed_nodes, written_by};
 use super::program::{Frame, Program};
 use super::{JacobianSource, jit, with_regs};
 use crate::arc::{HybridTime, OutputMap};
-use crate::check::dag::NodeId;
+use crate::check::dag::{Node, NodeId};
 
 /// Most sets of two or more simultaneously firing rules whose post-jump
 /// evaluation a subset keeps; jumps of other sets evaluate every component
@@ -24,8 +29,33 @@ use crate::check::dag::NodeId;
 /// for each).
 const MAX_JUMP_SETS: usize = 64;
 
+/// Jumps of a set of rules after which it is analysed (see the module).
+pub(crate) const DECIDE_AFTER: u32 = 16;
+
 /// A set of simultaneously firing rules (sorted) and its decision.
-type RuleSet = (Box<[usize]>, Arc<Decision<AfterJump>>);
+type RuleSet = (Box<[usize]>, Arc<Decision>);
+
+/// What the jumps of one set of rules evaluate, once decided.
+#[derive(Debug, Default)]
+struct Decision {
+    /// Jumps so far (counted up to [`DECIDE_AFTER`]).
+    seen: AtomicU32,
+    what: OnceLock<AfterJump>,
+}
+
+impl Decision {
+    /// What this jump evaluates: decided by `decide` at the
+    /// [`DECIDE_AFTER`]-th jump, everything before.
+    fn get(&self, decide: impl FnOnce() -> AfterJump) -> AfterJump {
+        if let Some(what) = self.what.get() {
+            return what.clone();
+        }
+        if self.seen.fetch_add(1, Ordering::Relaxed) + 1 < DECIDE_AFTER {
+            return AfterJump::All;
+        }
+        self.what.get_or_init(decide).clone()
+    }
+}
 
 /// Output components computed by one program.
 #[derive(Debug)]
@@ -86,7 +116,7 @@ pub struct OutputSubset {
     /// The state components each jump rule writes.
     writes: Vec<Vec<usize>>,
     /// What a jump of one rule evaluates, by rule.
-    after_rule: Box<[Decision<AfterJump>]>,
+    after_rule: Box<[Decision]>,
     /// The same for simultaneous jumps, by set of rules (sorted).
     after_rules: Mutex<Vec<RuleSet>>,
 }
@@ -145,10 +175,9 @@ impl OutputSubset {
             _ => None,
         };
         let what = match one {
-            Some(decision) => decision.get(|| self.decide(rules)).cloned(),
+            Some(decision) => decision.get(|| self.decide(rules)),
             None => self.after_rules(rules),
         };
-        let what = what.unwrap_or(AfterJump::All);
         match &what {
             AfterJump::Nothing => {}
             AfterJump::Some(code) => code.eval(at, x, out),
@@ -156,20 +185,19 @@ impl OutputSubset {
         }
     }
 
-    /// What a jump of several rules (or of an unknown one) evaluates
-    /// (`None`: everything, not decided yet).
-    fn after_rules(&self, rules: &[usize]) -> Option<AfterJump> {
+    /// What a jump of several rules (or of an unknown one) evaluates.
+    fn after_rules(&self, rules: &[usize]) -> AfterJump {
         let mut key: Vec<usize> = rules.to_vec();
         key.sort_unstable();
         key.dedup();
         // A poisoned lock only means that another thread panicked while
         // deciding: evaluate everything.
         let Ok(mut known) = self.after_rules.lock() else {
-            return None;
+            return AfterJump::All;
         };
         let decision = match known.iter().find(|(k, _)| **k == *key) {
             Some((_, d)) => d.clone(),
-            None if known.len() >= MAX_JUMP_SETS => return None,
+            None if known.len() >= MAX_JUMP_SETS => return AfterJump::All,
             None => {
                 let d = Arc::new(Decision::default());
                 known.push((key.clone().into_boxed_slice(), d.clone()));
@@ -178,7 +206,7 @@ impl OutputSubset {
         };
         // Decided without the lock held (the analysis walks the graph).
         drop(known);
-        decision.get(|| self.decide(&key)).cloned()
+        decision.get(|| self.decide(&key))
     }
 
     /// What a jump of `rules` evaluates: the components it can change, by
@@ -204,8 +232,31 @@ impl OutputSubset {
     /// The components a jump of `rules` can change, in the subset's order;
     /// `None` for a rule the subset does not know.
     fn changed_by(&self, rules: &[usize]) -> Option<Vec<usize>> {
-        let written = written_by(&self.writes, rules, self.frame.n)?;
-        let dirty = changed_nodes(&self.source.dag, &written);
+        let mut written = vec![false; self.frame.n];
+        for &r in rules {
+            for &k in self.writes.get(r)? {
+                *written.get_mut(k)? = true;
+            }
+        }
+        let dag = &self.source.dag;
+        // Nodes are created after their inputs, so one pass in id order
+        // settles every node.
+        let mut dirty = vec![false; dag.len()];
+        for id in 0..dag.len() {
+            let node = id as NodeId;
+            dirty[id] = match dag.node(node) {
+                Node::State(k) => written.get(k as usize).copied().unwrap_or(true),
+                Node::Jumps | Node::Rand(..) | Node::Wiener(_) => true,
+                _ => {
+                    let mut any = false;
+                    dag.inputs(node, |i| {
+                        debug_assert!(i < node, "a node's inputs precede it");
+                        any |= dirty[i as usize];
+                    });
+                    any
+                }
+            };
+        }
         Some(
             self.all
                 .components
@@ -229,9 +280,8 @@ impl OutputMap for OutputSubset {
 
 #[cfg(test)]
 mod tests {
-    use super::OutputSubset;
+    use super::{DECIDE_AFTER, OutputSubset};
     use crate::arc::HybridTime;
-    use crate::ir::after_jump::DECIDE_AFTER;
     use crate::lang;
     use crate::source::SourceFile;
 
