@@ -592,12 +592,12 @@ impl Checker {
         }
     }
 
-    /// True if `name` is unavailable after a failed `design` block; records
-    /// the block in [`Checker::poison_hit`] (the caller reports nothing).
+    /// True if `name`'s value is unavailable ([`Checker::poisoned`]);
+    /// records why in [`Checker::poison_hit`] (the caller reports nothing).
     pub(crate) fn is_poisoned(&mut self, name: &str) -> bool {
         match self.poisoned.get(name) {
-            Some(block) => {
-                self.poison_hit = Some(block.clone());
+            Some(cause) => {
+                self.poison_hit = Some(cause.clone());
                 true
             }
             None => false,

@@ -105,13 +105,13 @@ pub(crate) struct Checker {
     /// `Some(n)` (the state dimension) while checking an `at jumps`
     /// predicate, where `post(…)` is allowed.
     pub(crate) post_frame: Option<usize>,
-    /// Names whose value is unavailable because a `design` block failed:
-    /// name → that block. Uses of them record [`Checker::poison_hit`]
-    /// instead of an error, so one failed design gives one error, not a
-    /// cascade in everything computed from its results.
-    pub(crate) poisoned: HashMap<String, String>,
-    /// Set (to the failed block) when an expression used a poisoned name.
-    pub(crate) poison_hit: Option<String>,
+    /// Names whose value is unavailable, and why. Uses of them record
+    /// [`Checker::poison_hit`] instead of an error, so one failure (a
+    /// design block, a parameter's or an initial value's own error) gives
+    /// one error, not a cascade in everything computed from it.
+    pub(crate) poisoned: HashMap<String, Unavailable>,
+    /// Set (to the cause) when an expression used a poisoned name.
+    pub(crate) poison_hit: Option<Unavailable>,
     /// The interior-point method of the design blocks.
     pub(crate) backend: Backend,
     /// Set while a `metric` expression is lowered (outside reduction
@@ -130,6 +130,16 @@ pub(crate) struct Checker {
     pub(crate) reuse: Option<reuse::Reuse>,
     /// What is left of the budget for "did you mean" hints.
     pub(crate) hints: expr::Hints,
+}
+
+/// Why a name's value is unavailable ([`Checker::poisoned`]).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub(crate) enum Unavailable {
+    /// Design block `.0` failed (or used a failed block's results): the
+    /// name is listed in that block's error.
+    Design(String),
+    /// Its own definition failed, with an error there.
+    Failed,
 }
 
 /// Checks a parsed model with overrides; on success returns the checked

@@ -10,7 +10,7 @@ use super::error::{CheckError, Dims};
 use super::expr::{CONST_CTX, Ctx, Val, dims_words, key_label, suggest};
 use super::limits::{Limits, Quantity};
 use super::rule_names::RuleNames;
-use super::{Checker, DesignReport, Sym};
+use super::{Checker, DesignReport, Sym, Unavailable};
 use crate::engine::{ExactAffine, LinearSolver, Priority, SimError, SimSettings, Solver};
 use crate::source::Span;
 use crate::syntax::ast::*;
@@ -837,24 +837,19 @@ impl ModelChecker<'_> {
             return;
         }
         self.c.poison_hit = None;
+        let errors = self.c.errors.len();
         let v = if d.target.indices.is_empty() {
             self.value_with_override(&name, &d.value, &CONST_CTX)
         } else {
             self.c.expr(&d.value, &CONST_CTX)
         };
-        if let Some(block) = self.c.poison_hit.take() {
-            // Computed from the results of a failed design: unavailable too.
-            self.poison(&d.target, &block);
+        if let Some(cause) = self.c.poison_hit.take() {
+            // Computed from an unavailable value: unavailable too.
+            self.poison(&d.target, cause);
             return;
         }
         let Some(v) = v else {
-            // Declare anyway (as 0) so that later uses do not cascade.
-            let z = self.c.dag.konst(0.0);
-            let span = d.target.name.span;
-            self.declare(&d.target, |_| Sym::Param {
-                val: Rc::new(Val::scalar(z)),
-                span,
-            });
+            self.failed(&d.target, errors);
             return;
         };
         let vals: Option<Vec<f64>> = v.e.iter().map(|&n| self.c.dag.as_const(n)).collect();
@@ -945,8 +940,9 @@ impl ModelChecker<'_> {
             }
             Err(e) => {
                 self.c.err(CheckError::Table(e));
-                // Declared anyway (as 0) so that later uses do not cascade.
-                Val::scalar(self.c.dag.konst(0.0))
+                // Its shape is unknown: later uses report nothing.
+                self.poison(&target, Unavailable::Failed);
+                return;
             }
         };
         self.declare(&target, |_| Sym::Param {
@@ -1084,13 +1080,14 @@ impl ModelChecker<'_> {
             // (one failed design, one error). A block that failed because
             // it uses another failed block's results passes that block on.
             let failed = match self.c.poison_hit.take() {
-                Some(block) => {
+                Some(Unavailable::Design(block)) => {
                     let kind = if d.check { "check" } else { "design" };
                     let what = format!("{kind} `{}`", d.name.name);
                     self.unavailable.push((block.clone(), what));
-                    block
+                    Unavailable::Design(block)
                 }
-                None => d.name.name.clone(),
+                Some(Unavailable::Failed) => Unavailable::Failed,
+                None => Unavailable::Design(d.name.name.clone()),
             };
             self.design_results(&d.stmts, Some(&failed));
             return;
@@ -1114,7 +1111,7 @@ impl ModelChecker<'_> {
     /// Declares the results (`param` lines) of a design block, also those in
     /// its `for` loops and `if`s: evaluated, or (`failed`: the failed block)
     /// as unavailable, so that later uses do not cascade.
-    fn design_results(&mut self, stmts: &[DesignStmt], failed: Option<&str>) {
+    fn design_results(&mut self, stmts: &[DesignStmt], failed: Option<&Unavailable>) {
         let solved = failed.is_none();
         for s in stmts {
             match s {
@@ -1122,12 +1119,12 @@ impl ModelChecker<'_> {
                 DesignStmt::ParamTuple(t, v) if solved => self.param_tuple(t, v),
                 DesignStmt::Param(defs) => {
                     for d in defs {
-                        self.poison(&d.target, failed.unwrap_or_default());
+                        self.poison(&d.target, failed.cloned().unwrap_or(Unavailable::Failed));
                     }
                 }
                 DesignStmt::ParamTuple(t, _) => {
                     for t in t {
-                        self.poison(t, failed.unwrap_or_default());
+                        self.poison(t, failed.cloned().unwrap_or(Unavailable::Failed));
                     }
                 }
                 DesignStmt::For(b, body)
@@ -1148,27 +1145,45 @@ impl ModelChecker<'_> {
         }
     }
 
-    /// Declares `t` as a parameter whose value is unavailable because
-    /// design `block` failed: uses of it report nothing (see
-    /// [`Checker::poisoned`]); it is listed in the block's error.
-    fn poison(&mut self, t: &Target, block: &str) {
+    /// Declares `t` as a parameter whose value is unavailable (`cause`):
+    /// uses of it report nothing (see [`Checker::poisoned`]); after a
+    /// failed design it is listed in the block's error.
+    fn poison(&mut self, t: &Target, cause: Unavailable) {
         let z = self.c.dag.konst(0.0);
         let span = t.name.span;
         let shown = self.declare(t, |_| Sym::Param {
             val: Rc::new(Val::scalar(z)),
             span,
         });
-        self.c
-            .poisoned
-            .insert(t.name.name.clone(), block.to_string());
-        let what = format!("`{}`", shown.unwrap_or_else(|| t.name.name.clone()));
-        if !self.unavailable.iter().any(|(_, w)| *w == what) {
-            self.unavailable.push((block.to_string(), what));
+        self.c.poisoned.insert(t.name.name.clone(), cause.clone());
+        if let Unavailable::Design(block) = cause {
+            let what = format!("`{}`", shown.unwrap_or_else(|| t.name.name.clone()));
+            if !self.unavailable.iter().any(|(_, w)| *w == what) {
+                self.unavailable.push((block, what));
+            }
+        }
+    }
+
+    /// After parameter `t`'s definition gave no value: unavailable if that
+    /// recorded an error (more than `errors_before`), so that uses of it
+    /// (whose shape is unknown) report nothing more; otherwise declared as
+    /// 0, as before.
+    fn failed(&mut self, t: &Target, errors_before: usize) {
+        if self.c.errors.len() > errors_before {
+            self.poison(t, Unavailable::Failed);
+        } else {
+            let z = self.c.dag.konst(0.0);
+            let span = t.name.span;
+            self.declare(t, |_| Sym::Param {
+                val: Rc::new(Val::scalar(z)),
+                span,
+            });
         }
     }
 
     fn param_tuple(&mut self, targets: &[Target], value: &Expr) {
         self.c.poison_hit = None;
+        let errors = self.c.errors.len();
         let vals = match &value.kind {
             ExprKind::Call(f, args)
                 if matches!(f.name.as_str(), "c2d" | "dlqr" | "lqr" | "dare" | "care") =>
@@ -1184,22 +1199,30 @@ impl ModelChecker<'_> {
                 None
             }
         };
-        if let Some(block) = self.c.poison_hit.take() {
+        if let Some(cause) = self.c.poison_hit.take() {
             for t in targets {
-                self.poison(t, &block);
+                self.poison(t, cause.clone());
             }
             return;
         }
-        let Some(vals) = vals else { return };
-        if vals.len() != targets.len() {
-            self.c.err(CheckError::Arity {
-                func: "this destructuring".into(),
-                expected: format!("{} names", vals.len()),
-                found: targets.len(),
-                span: value.span,
-            });
+        let vals = vals.filter(|vals| {
+            let fits = vals.len() == targets.len();
+            if !fits {
+                self.c.err(CheckError::Arity {
+                    func: "this destructuring".into(),
+                    expected: format!("{} names", vals.len()),
+                    found: targets.len(),
+                    span: value.span,
+                });
+            }
+            fits
+        });
+        let Some(vals) = vals else {
+            for t in targets {
+                self.failed(t, errors);
+            }
             return;
-        }
+        };
         for (t, v) in targets.iter().zip(vals) {
             let vals: Vec<f64> = v.e.iter().filter_map(|&n| self.c.dag.as_const(n)).collect();
             let dims = v.dims();
@@ -1224,26 +1247,40 @@ impl ModelChecker<'_> {
             return;
         };
         self.c.poison_hit = None;
+        let errors = self.c.errors.len();
         let v = if sd.target.indices.is_empty() {
             self.value_with_override(&name, init_expr, &INIT_CTX)
         } else {
             self.c.expr(init_expr, &INIT_CTX)
         };
-        if let Some(block) = self.c.poison_hit.take() {
+        if let Some(cause) = self.c.poison_hit.take() {
             // Its shape is unknown: uses and equations of it report nothing.
-            self.c.poisoned.insert(name.clone(), block.clone());
-            self.unavailable.push((block, format!("state `{name}`")));
+            if let Unavailable::Design(block) = &cause {
+                self.unavailable
+                    .push((block.clone(), format!("state `{name}`")));
+            }
+            self.c.poisoned.insert(name, cause);
             return;
         }
-        let Some(v) = v else { return };
-        if v.rows * v.cols == 0 {
-            self.c.err(CheckError::Expected {
-                expected: "a non-empty initial value".into(),
-                found: dims_words(v.dims()),
-                span: init_expr.span,
-            });
+        let v = v.filter(|v| {
+            let empty = v.rows * v.cols == 0;
+            if empty {
+                self.c.err(CheckError::Expected {
+                    expected: "a non-empty initial value".into(),
+                    found: dims_words(v.dims()),
+                    span: init_expr.span,
+                });
+            }
+            !empty
+        });
+        let Some(v) = v else {
+            // Its own error is reported: uses and equations of it report
+            // nothing more.
+            if self.c.errors.len() > errors {
+                self.c.poisoned.insert(name, Unavailable::Failed);
+            }
             return;
-        }
+        };
         // The engine's work and memory (the implicit solver's Jacobian is n × n) grow with the
         // number of scalar states.
         let states = (self.init.len() + v.rows * v.cols) as f64;

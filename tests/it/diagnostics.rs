@@ -914,3 +914,51 @@ fn a_design_constraint_is_underlined_without_the_next_line() {
         "{diags:#?}"
     );
 }
+
+/// A parameter, graph, table or initial value whose own definition fails
+/// is that error alone: what is computed from it (parameters, loops over
+/// the graph, equations of the state, outputs, guards, resets) reports
+/// nothing more. Such a name was once declared as the scalar 0, whose uses
+/// became shape mismatches, and a failed state's as unknown names.
+#[test]
+fn a_failed_definition_does_not_cascade() {
+    let src = SourceFile::new(
+        "m.hyb",
+        "model m
+param A = [0, 1; 0, 0]
+param K = lqr(A, [0; 0], eye(2), 1)
+param M = inv([0, 0; 0, 0])
+param (Ad, Bd) = c2d(A, [0, 1], 0.1)
+param T = table(\"missing.csv\")
+graph G = [0, 1; 1]
+param Acl = A - [0; 1] * K
+state x = [1; 0] * [1; 0]
+state v = [1; 0]
+output y = v + [1; 2] * [3; 4]
+output w = y + 1
+flow {
+    x' = Acl * x
+    v' = Acl * v + M * v + Ad * v + T * v + sum(j in in(G, 1): v)
+}
+jump hit when w[1] <= 0 && x[1] >= 0 { x+ = -x; v+ = [0; 1] * K * v }
+",
+    );
+    let diags = diagnostics(&src, &[]);
+    let found: Vec<_> = diags
+        .iter()
+        .map(|d| (d.code, d.line_col(&src).unwrap().line))
+        .collect();
+    assert_eq!(
+        found,
+        [
+            ("E0306", 3),
+            ("E0306", 4),
+            ("E0306", 5),
+            ("E0802", 6),
+            ("E0301", 7),
+            ("E0301", 9),
+            ("E0301", 11),
+        ],
+        "{diags:#?}"
+    );
+}

@@ -68,7 +68,7 @@ pub enum ControlError {
         cols: usize,
     },
     /// A matrix has the wrong shape for the others.
-    #[error("{name} must be {}×{}, found {}×{}", expected.0, expected.1, found.0, found.1)]
+    #[error("{name} must {}, found {}×{}", shape_wanted(*expected, *found), found.0, found.1)]
     ShapeMismatch {
         /// Argument name.
         name: &'static str,
@@ -151,6 +151,17 @@ pub(crate) fn check_square(name: &'static str, m: &DMatrix<f64>) -> Result<usize
     }
     check_finite(name, m)?;
     Ok(m.nrows())
+}
+
+/// What a [`ControlError::ShapeMismatch`] asks for: the rows or the
+/// columns alone when only they are wrong (`B` of `n` rows may have any
+/// number of columns: "2×2" for a 1×2 `B` read as a demand for two columns).
+fn shape_wanted(expected: (usize, usize), found: (usize, usize)) -> String {
+    match (expected.0 == found.0, expected.1 == found.1) {
+        (false, true) => format!("have {} rows", expected.0),
+        (true, false) => format!("have {} columns", expected.1),
+        _ => format!("be {}×{}", expected.0, expected.1),
+    }
 }
 
 pub(crate) fn check_shape(

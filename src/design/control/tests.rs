@@ -44,10 +44,17 @@ fn c2d_double_integrator_closed_form() {
 #[test]
 fn bad_inputs_are_errors() {
     let a = dmatrix![1.0, 2.0; 3.0, 4.0];
+    let wrong_b = c2d(&a, &dmatrix![1.0; 2.0; 3.0], 0.1).unwrap_err();
     assert!(matches!(
-        c2d(&a, &dmatrix![1.0; 2.0; 3.0], 0.1),
-        Err(ControlError::ShapeMismatch { name: "B", .. })
+        wrong_b,
+        ControlError::ShapeMismatch { name: "B", .. }
     ));
+    // Only B's rows are fixed by A: the message asks for them alone.
+    assert_eq!(wrong_b.to_string(), "B must have 2 rows, found 3×1");
+    let wrong_q = lyap(&a, &dmatrix![1.0, 0.0, 0.0; 0.0, 1.0, 0.0]).unwrap_err();
+    assert_eq!(wrong_q.to_string(), "Q must have 2 columns, found 2×3");
+    let wrong_q = lyap(&a, &DMatrix::identity(3, 3)).unwrap_err();
+    assert_eq!(wrong_q.to_string(), "Q must be 2×2, found 3×3");
     assert!(matches!(
         c2d(&a, &dmatrix![1.0; 2.0], -1.0),
         Err(ControlError::BadSamplingTime { .. })
