@@ -616,11 +616,28 @@ impl ModelChecker<'_> {
                 }
             }
             Item::Noise(n) => self.noise_decl(n),
-            Item::For(b, items) => self.c_for(b, &mut |this| {
-                for it in items {
-                    this.pass1(it);
+            Item::For(b, items) => {
+                self.c.poison_hit = None;
+                let errors = self.c.errors.len();
+                let ran = self.c_for(b, &mut |this| {
+                    for it in items {
+                        this.pass1(it);
+                    }
+                });
+                // Its range failed (with an error, or from an unavailable
+                // value): what the body declares is unavailable too.
+                let cause = match self.c.poison_hit.take() {
+                    Some(cause) => Some(cause),
+                    None => (self.c.errors.len() > errors).then_some(Unavailable::Failed),
+                };
+                if let (false, Some(cause)) = (ran, cause) {
+                    let mut names = Vec::new();
+                    declared_names(items, &mut names);
+                    for name in names {
+                        self.c.poisoned.insert(name, cause.clone());
+                    }
                 }
-            }),
+            }
             Item::Design(d) => self.design(d),
             Item::Part(_, items) => {
                 for it in items {
@@ -667,11 +684,13 @@ impl ModelChecker<'_> {
                         .push((s.key.name.clone(), s.value.clone(), s.key.span));
                 }
             }
-            Item::For(b, items) => self.c_for(b, &mut |this| {
-                for it in items {
-                    this.pass2(it);
-                }
-            }),
+            Item::For(b, items) => {
+                self.c_for(b, &mut |this| {
+                    for it in items {
+                        this.pass2(it);
+                    }
+                });
+            }
             Item::Together(items, _) => {
                 let outer = self.group.replace(self.groups);
                 self.groups += 1;
@@ -729,11 +748,13 @@ impl ModelChecker<'_> {
                 }
             }
             Item::Signal(d) => self.c.register_signal(d, false),
-            Item::For(b, items) => self.c_for(b, &mut |this| {
-                for it in items {
-                    this.signals(it);
-                }
-            }),
+            Item::For(b, items) => {
+                self.c_for(b, &mut |this| {
+                    for it in items {
+                        this.signals(it);
+                    }
+                });
+            }
             Item::Part(_, items) | Item::Together(items, _) => {
                 for it in items {
                     self.signals(it);
@@ -763,38 +784,43 @@ impl ModelChecker<'_> {
                     m.metric(&mut self.c, d);
                 }
             }
-            Item::For(b, items) => self.c_for(b, &mut |this| {
-                for it in items {
-                    this.metrics(it, m);
-                }
-            }),
+            Item::For(b, items) => {
+                self.c_for(b, &mut |this| {
+                    for it in items {
+                        this.metrics(it, m);
+                    }
+                });
+            }
             _ => {}
         }
     }
 
     /// `for` over a binder with `self` (not just the inner checker).
-    fn c_for(&mut self, b: &Binder, body: &mut dyn FnMut(&mut Self)) {
+    /// Runs `body` for each member of `b`'s index set; false if the set
+    /// could not be formed.
+    fn c_for(&mut self, b: &Binder, body: &mut dyn FnMut(&mut Self)) -> bool {
         // The outermost loop keeps the statement values its body lowers
         // for reuse (`super::reuse`), until it ends.
         let outermost = self.c.reuse.is_none();
         if outermost {
             self.c.reuse = super::reuse::Reuse::start();
         }
-        self.c_for_members(b, body);
+        let ran = self.c_for_members(b, body);
         if outermost {
             self.c.reuse = None;
         }
+        ran
     }
 
-    fn c_for_members(&mut self, b: &Binder, body: &mut dyn FnMut(&mut Self)) {
+    fn c_for_members(&mut self, b: &Binder, body: &mut dyn FnMut(&mut Self)) -> bool {
         let Some(members) = self.c.index_set(b) else {
-            return;
+            return false;
         };
         let names: Vec<Rc<str>> = b.vars.iter().map(|v| Rc::from(v.name.as_str())).collect();
         for m in members {
             self.c.dag.charge(1);
             if !self.c.within_budget(0, b.span) {
-                return;
+                return true;
             }
             let depth = self.c.scopes.len();
             for (v, &i) in names.iter().zip(&m) {
@@ -821,6 +847,7 @@ impl ModelChecker<'_> {
             }
             self.c.scopes.truncate(depth);
         }
+        true
     }
 
     fn param(&mut self, d: &Definition, graph: bool) {
@@ -1131,7 +1158,7 @@ impl ModelChecker<'_> {
                     if !matches!(b.set, crate::syntax::ast::IndexSet::Subsets(_))
                         && has_results(body, true) =>
                 {
-                    self.c_for(b, &mut |this| this.design_results(body, failed));
+                    let _ = self.c_for(b, &mut |this| this.design_results(body, failed));
                 }
                 DesignStmt::If(c, body) if has_results(body, true) => {
                     if let Some(x) = self.c.const_scalar(c, "the condition of `if` in a design")
@@ -1512,11 +1539,13 @@ impl ModelChecker<'_> {
 
     fn flow_stmt(&mut self, s: &FlowStmt) {
         match s {
-            FlowStmt::For(b, body) => self.c_for(b, &mut |this| {
-                for s in body {
-                    this.flow_stmt(s);
-                }
-            }),
+            FlowStmt::For(b, body) => {
+                self.c_for(b, &mut |this| {
+                    for s in body {
+                        this.flow_stmt(s);
+                    }
+                });
+            }
             FlowStmt::Eq(d) => {
                 let target = self.resolve_state(&d.target, false);
                 let v = self.c.expr_reused(&d.value, &FLOW_CTX);
@@ -1742,11 +1771,13 @@ impl ModelChecker<'_> {
         spans: &mut Vec<Span>,
     ) {
         match r {
-            ResetStmt::For(b, body) => self.c_for(b, &mut |this| {
-                for r in body {
-                    this.reset(rule, r, assigned, out, spans);
-                }
-            }),
+            ResetStmt::For(b, body) => {
+                self.c_for(b, &mut |this| {
+                    for r in body {
+                        this.reset(rule, r, assigned, out, spans);
+                    }
+                });
+            }
             ResetStmt::Eq(d) => {
                 let target = self.resolve_state(&d.target, false);
                 let v = self.c.expr_reused(&d.value, &RESET_CTX);
@@ -2094,4 +2125,51 @@ fn has_results(stmts: &[DesignStmt], deep: bool) -> bool {
         DesignStmt::For(_, body) | DesignStmt::If(_, body) => has_results(body, true),
         _ => false,
     })
+}
+
+/// The names that `items` declare (parameters, graphs, tables, states,
+/// noises, outputs, a design block's results), in loops and instances too:
+/// made unavailable when a loop around them cannot run.
+fn declared_names(items: &[Item], out: &mut Vec<String>) {
+    fn design(stmts: &[DesignStmt], out: &mut Vec<String>) {
+        for s in stmts {
+            match s {
+                DesignStmt::Param(defs) => {
+                    out.extend(defs.iter().map(|d| d.target.name.name.clone()))
+                }
+                DesignStmt::ParamTuple(ts, _) => out.extend(ts.iter().map(|t| t.name.name.clone())),
+                DesignStmt::For(_, body) | DesignStmt::If(_, body) => design(body, out),
+                DesignStmt::Var(..) | DesignStmt::Objective(..) | DesignStmt::Constraint(_) => {}
+            }
+        }
+    }
+    for item in items {
+        match item {
+            Item::Param(defs) | Item::Output(defs) => {
+                out.extend(defs.iter().map(|d| d.target.name.name.clone()));
+            }
+            Item::RandomParam(d) | Item::Graph(d) | Item::Signal(d) => {
+                out.push(d.target.name.name.clone());
+            }
+            Item::ParamTuple(ts, _) => out.extend(ts.iter().map(|t| t.name.name.clone())),
+            Item::Table(t) => out.push(t.name.name.clone()),
+            Item::State(defs) => out.extend(defs.iter().map(|d| d.target.name.name.clone())),
+            Item::Noise(n) => out.push(n.target.name.name.clone()),
+            Item::Design(d) => design(&d.stmts, out),
+            Item::For(_, items) | Item::Part(_, items) | Item::Together(items, _) => {
+                declared_names(items, out);
+            }
+            Item::Flow(_)
+            | Item::Jump(_)
+            | Item::Sim(_)
+            | Item::Property(_)
+            | Item::Metric(_)
+            | Item::Sweep(_)
+            | Item::Import(_)
+            | Item::Subsystem(_)
+            | Item::Input(_)
+            | Item::Instance(_)
+            | Item::Log(_) => {}
+        }
+    }
 }

@@ -915,10 +915,10 @@ fn a_design_constraint_is_underlined_without_the_next_line() {
     );
 }
 
-/// A parameter, graph, table or initial value whose own definition fails
-/// is that error alone: what is computed from it (parameters, loops over
-/// the graph, equations of the state, outputs, guards, resets) reports
-/// nothing more. Such a name was once declared as the scalar 0, whose uses
+/// A parameter, graph, table, initial value or loop range whose own
+/// definition fails is that error alone: what is computed from it
+/// (parameters, loops over the graph, what the loop declares, equations of
+/// the state, outputs, guards, resets) reports nothing more. Such a name was once declared as the scalar 0, whose uses
 /// became shape mismatches, and a failed state's as unknown names.
 #[test]
 fn a_failed_definition_does_not_cascade() {
@@ -941,13 +941,22 @@ flow {
     v' = Acl * v + M * v + Ad * v + T * v + sum(j in in(G, 1): v)
 }
 jump hit when w[1] <= 0 && x[1] >= 0 { x+ = -x; v+ = [0; 1] * K * v }
+param N = [1, 2] * [3, 4]
+for i in 1..N {
+    state z[i] = 1
+    output o[i] = z[i]
+}
+flow { for i in 1..N { z[i]' = -z[i] } }
+output f = z[1] + o[2] + sum(i in 1..N: z[i])
 ",
     );
     let diags = diagnostics(&src, &[]);
-    let found: Vec<_> = diags
+    let mut found: Vec<_> = diags
         .iter()
         .map(|d| (d.code, d.line_col(&src).unwrap().line))
         .collect();
+    // In source order (outputs are checked when first used).
+    found.sort_by_key(|&(_, line)| line);
     assert_eq!(
         found,
         [
@@ -958,6 +967,7 @@ jump hit when w[1] <= 0 && x[1] >= 0 { x+ = -x; v+ = [0; 1] * K * v }
             ("E0301", 7),
             ("E0301", 9),
             ("E0301", 11),
+            ("E0301", 18),
         ],
         "{diags:#?}"
     );
