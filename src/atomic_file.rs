@@ -220,12 +220,13 @@ pub fn write(path: &Path, bytes: &[u8]) -> io::Result<()> {
 
 /// Whether `a` and `b` name the same file: the same inode when both exist
 /// (links followed), else the same absolute path after following links of
-/// the parts that exist. `-` (standard output) is the same only as `-`.
+/// the parts that exist. `-` (standard output) is the file `/dev/stdout`
+/// names.
 pub fn same_file(a: &Path, b: &Path) -> bool {
-    let stdout = |p: &Path| p.as_os_str() == STDOUT;
-    if stdout(a) || stdout(b) {
-        return stdout(a) && stdout(b);
+    if a.as_os_str() == STDOUT && b.as_os_str() == STDOUT {
+        return true;
     }
+    let (a, b) = (as_file(a), as_file(b));
     if let (Ok(ma), Ok(mb)) = (fs::metadata(a), fs::metadata(b)) {
         return ma.dev() == mb.dev() && ma.ino() == mb.ino();
     }
@@ -249,8 +250,12 @@ pub fn clash(inputs: &[(&str, &Path)], outputs: &[(&str, &Path)]) -> Option<Stri
                 ));
             }
         }
-        // Several outputs may go to one device (`/dev/null`), not to one file.
-        let device = fs::metadata(path).is_ok_and(|m| is_special(&m.file_type()));
+        // Several outputs may go to one device (`/dev/null`), not to one
+        // file or one stream (a pipe or socket would interleave them).
+        let device = fs::metadata(as_file(path)).is_ok_and(|m| {
+            let ft = m.file_type();
+            ft.is_char_device() || ft.is_block_device()
+        });
         for (other, earlier) in &outputs[..k] {
             if !device && same_file(path, earlier) {
                 return Some(format!(
@@ -262,6 +267,18 @@ pub fn clash(inputs: &[(&str, &Path)], outputs: &[(&str, &Path)]) -> Option<Stri
         }
     }
     None
+}
+
+/// `path`, with `-` as the file standard output is (a pipe, a terminal, a
+/// file after `> out`): `-o - --csv /dev/stdout` wrote both into one
+/// stream, and `-o /dev/stdout --csv - > out` replaced `out` by the MCAP
+/// while the CSV went to its unlinked inode.
+fn as_file(path: &Path) -> &Path {
+    if path.as_os_str() == STDOUT {
+        Path::new("/dev/stdout")
+    } else {
+        path
+    }
 }
 
 fn is_special(ft: &fs::FileType) -> bool {
@@ -322,7 +339,21 @@ fn temp_beside(dest: &Path, mode: Option<u32>) -> io::Result<NamedTempFile> {
         .prefix(&format!(".{name}."))
         .suffix(".tmp")
         .permissions(fs::Permissions::from_mode(0o666))
-        .tempfile_in(parent_dir(dest))?;
+        .tempfile_in(parent_dir(dest))
+        // `tempfile`'s error ends with the temporary file (`… at path
+        // "/d/.x.mcap.Ab12.tmp"`), which the user never asked for: name the
+        // folder that cannot hold it.
+        .map_err(|e| {
+            let text = e.to_string();
+            let cause = text.rsplit_once(" at path ").map_or(text.as_str(), |c| c.0);
+            io::Error::new(
+                e.kind(),
+                format!(
+                    "cannot create a file in `{}`: {cause}",
+                    parent_dir(dest).display()
+                ),
+            )
+        })?;
     if let Some(mode) = mode {
         tmp.as_file()
             .set_permissions(fs::Permissions::from_mode(mode))?;

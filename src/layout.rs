@@ -29,7 +29,8 @@ impl Shape {
         match *self {
             Shape::Scalar => 1,
             Shape::Vector(n) => n,
-            Shape::Matrix { rows, cols } => rows * cols,
+            // Saturating: a layout read back from a file may be damaged.
+            Shape::Matrix { rows, cols } => rows.saturating_mul(cols),
         }
     }
 

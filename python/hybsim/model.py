@@ -20,20 +20,40 @@ SimulationError = _hybsim.SimulationError
 PathOrSource = Union[str, "os.PathLike[str]"]
 
 
-def _expression(value: Any) -> str:
+def _overrides(set: Optional[Mapping[str, Any]]) -> List[Tuple[str, str]]:  # noqa: A002
+    """``load(..., set=...)`` as ``(name, expression)`` pairs."""
+    if set is None:
+        return []
+    if not isinstance(set, Mapping):
+        raise TypeError(
+            f"set= takes a dict of name: value, e.g. {{'lambda': 0.7}}, not {type(set).__name__}"
+        )
+    return [(str(k), _expression(str(k), v)) for k, v in set.items()]
+
+
+def _expression(name: str, value: Any) -> str:
     """A Python value as a `.hyb` expression: numbers in their shortest
     round-trip form, 1-D sequences as column vectors ``[a; b]``, 2-D as
     matrices ``[a, b; c, d]``; a str is taken as written (any expression,
-    e.g. ``"uniform(0, 2)"``)."""
+    e.g. ``"uniform(0, 2)"``). NaN has no `.hyb` spelling (``repr`` gives
+    ``nan``, an unknown name): a ``ValueError`` naming ``name``."""
     if isinstance(value, str):
         return value
     if isinstance(value, (bool, np.bool_)):
         return "1" if value else "0"
     if isinstance(value, (int, np.integer)):
         return str(int(value))
+    try:
+        arr = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError) as e:
+        raise TypeError(
+            f"set[{name!r}]: a number, a nested sequence or array of numbers, or an "
+            f"expression as str, not {type(value).__name__}"
+        ) from e
+    if np.isnan(arr).any():
+        raise ValueError(f"set[{name!r}]: NaN is not a value of the model language")
     if isinstance(value, (float, np.floating)):
         return repr(float(value))
-    arr = np.asarray(value, dtype=np.float64)
     if arr.ndim == 0:
         return repr(float(arr))
     if arr.ndim == 1:
@@ -73,7 +93,7 @@ def load(
     FileNotFoundError
         If ``model`` names no file.
     """
-    pairs = [(str(k), _expression(v)) for k, v in (set or {}).items()]
+    pairs = _overrides(set)
     if isinstance(model, os.PathLike) or (isinstance(model, str) and "\n" not in model):
         path = os.fspath(model)
         with open(path, encoding="utf-8") as f:

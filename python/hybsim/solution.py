@@ -244,6 +244,11 @@ class Solution:
         """The column of state or output component ``name`` (``"h"``,
         ``"x[2]"``, ``"P[1,2]"``); for a vector or matrix state ``"x"``, its
         columns ``x[1]``, ``x[2]``, … as an ``(n, k)`` array."""
+        if not isinstance(name, str):
+            raise TypeError(
+                f"a solution is indexed by a component's name (str), not "
+                f"{type(name).__name__}; columns by position are sol.x[:, k]"
+            )
         where = self._columns.get(name)
         if where is not None:
             arr, k = where

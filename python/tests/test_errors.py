@@ -2,6 +2,7 @@
 
 import re
 
+import numpy as np
 import pytest
 
 import hybsim
@@ -207,3 +208,19 @@ def test_jump_horizon_is_taken_as_a_sim_block_takes_it():
     for bad in [2.5, -1.0, float("nan")]:
         with pytest.raises(ValueError, match="`J`: a whole number of jumps"):
             m.run(J=bad)
+
+
+def test_misused_overrides_and_indices_are_typed_errors_naming_the_value():
+    # NaN has no spelling in the model language: it was sent as `nan`, an
+    # unknown name (E0508); a list of pairs failed with AttributeError.
+    for bad in (float("nan"), [1.0, float("nan")], np.float32("nan")):
+        with pytest.raises(ValueError, match=r"set\['g'\]: NaN"):
+            hybsim.load(GOOD, set={"g": bad})
+    with pytest.raises(TypeError, match="set= takes a dict"):
+        hybsim.load(GOOD, set=[("g", 1.0)])
+    with pytest.raises(TypeError, match=r"set\['g'\]: a number"):
+        hybsim.load(GOOD, set={"g": object()})
+    sol = hybsim.load(GOOD, set={"g": np.float64(9.81)}).run()
+    for key in (0, None, 1.5):
+        with pytest.raises(TypeError, match="indexed by a component's name"):
+            sol[key]

@@ -190,6 +190,16 @@ impl RunLog {
         let run: Value = serde_json::from_slice(&attachment.data)
             .map_err(|e| ReadError::Damaged(format!("`run.json`: {e}")))?;
         let info = run_info(&run).map_err(|e| ReadError::Damaged(format!("`run.json`: {e}")))?;
+        // Every sample is read into vectors of these lengths: a damaged
+        // `run.json` (`dim` 10¹³) aborted the process allocating them.
+        for (what, dim) in [("state", info.state_dim), ("outputs", info.output_dim)] {
+            if Vec::<f64>::new().try_reserve_exact(dim).is_err() {
+                return Err(ReadError::Damaged(format!(
+                    "`run.json`: `{what}.dim` is {dim}: a sample of that many numbers does not \
+                     fit in memory"
+                )));
+            }
+        }
         info.validate()
             .map_err(|e| ReadError::Damaged(format!("`run.json`: {e}")))?;
         Ok(Self { info, summary })
@@ -219,8 +229,13 @@ impl RunLog {
         let states = RecordReader::new(&info.state_layout, info.state_dim);
         let outputs = RecordReader::new(&info.output_layout, info.output_dim);
         let with_outputs = self.has_outputs();
-        let stream =
-            ::mcap::MessageStream::new(bytes).map_err(|e| ReadError::Damaged(e.to_string()))?;
+        // With the chunks' CRCs checked: a damaged chunk often still
+        // decompresses, into wrong numbers that would be plotted.
+        let stream = ::mcap::MessageStream::new_with_options(
+            bytes,
+            ::mcap::read::Options::ValidateChunkCrcs.into(),
+        )
+        .map_err(|e| ReadError::Damaged(e.to_string()))?;
         let mut decoders = MessageDecoder::default();
         // The sample being completed (its outputs follow its state), the one
         // before it (its kind needs the next j) and the j before that.

@@ -166,7 +166,8 @@ pub fn check_layout(layout: &Layout, dim: usize, what: &'static str) -> Result<(
     let mut covered = vec![false; dim];
     let err = |problem: String| SinkError::Layout { what, dim, problem };
     let mut mark = |f: &Field, prefix: &str| -> Result<(), SinkError> {
-        let end = f.offset + f.shape.len();
+        // Checked: the layout may come from a file (`hybsim plot`).
+        let end = f.offset.saturating_add(f.shape.len());
         if end > dim {
             return Err(err(format!(
                 "`{prefix}{}` spans components {}..{end}",

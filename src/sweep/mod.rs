@@ -68,7 +68,10 @@ pub enum SweepError {
     #[error("`{0}` is set twice (on two grid axes, or by a grid axis and --set)")]
     Twice(String),
     /// Too many runs.
-    #[error("{0} runs in total: at most {MAX_RUNS} per sweep (split it)")]
+    #[error(
+        "{0} runs in total: at most {MAX_RUNS} per sweep (each run's row is kept in memory, \
+         shards and merge included): split the grid into several sweeps"
+    )]
     TooMany(u128),
     /// No run per grid point.
     #[error("runs per grid point must be at least 1")]
@@ -94,8 +97,11 @@ pub enum SweepError {
     Merge(String),
 }
 
-/// Largest number of runs in one sweep.
-pub const MAX_RUNS: u64 = 1 << 40;
+/// Largest number of runs in one sweep: the rows of all runs are held in
+/// memory (about 1 KB each with the tables written, more with long
+/// messages), in `--merge` all of them at once, so 10⁷ runs take ~10 GB.
+/// Checked before anything is allocated.
+pub const MAX_RUNS: u64 = 10_000_000;
 
 /// A sweep: grid axes (the first varies slowest), runs per grid point and
 /// the base seed.
@@ -121,6 +127,20 @@ impl SweepSpec {
             return Err(SweepError::NoRuns);
         }
         for (k, a) in self.axes.iter().enumerate() {
+            // `--grid` refuses them as it parses; Python's grids and the
+            // library's axes arrive as numbers.
+            if let Some(v) = a.values.iter().find(|v| !v.is_finite()) {
+                return Err(SweepError::Grid {
+                    text: format!("{}={}", a.name, Num(*v)),
+                    message: format!("`{}` is not a finite number", Num(*v)),
+                });
+            }
+            if a.values.is_empty() {
+                return Err(SweepError::Grid {
+                    text: format!("{}=[]", a.name),
+                    message: "no values".into(),
+                });
+            }
             if self.axes[..k].iter().any(|b| b.name == a.name)
                 || fixed.iter().any(|o| o.name == a.name)
             {
@@ -353,11 +373,74 @@ fn run_with(
     let jobs: Vec<u64> = (0..spec.total_runs())
         .filter(|&i| shard.contains(i) && !(control.skip)(i))
         .collect();
-    let mut points: Vec<usize> = jobs.iter().map(|&i| (i / runs) as usize).collect();
-    points.dedup();
-    // One compiled model per grid point (design blocks solved once), the
-    // points in parallel.
-    let compiled: Vec<(usize, Result<Arc<CompiledModel>, String>)> = points
+    let rows = Mutex::new(Vec::with_capacity(jobs.len()));
+    // The jobs are in grid order; a batch is those of the next
+    // `POINTS_PER_BATCH` grid points, whose compiled models are dropped
+    // once its runs are done.
+    let mut start = 0;
+    while start < jobs.len() && !control.stop.load(Ordering::Relaxed) {
+        let mut points: Vec<usize> = Vec::new();
+        let mut end = start;
+        while let Some(&i) = jobs.get(end) {
+            let p = (i / runs) as usize;
+            if points.last() != Some(&p) {
+                if points.len() == POINTS_PER_BATCH {
+                    break;
+                }
+                points.push(p);
+            }
+            end += 1;
+        }
+        let compiled = compile_points(src, fixed, spec, &points, options, given);
+        jobs[start..end].par_iter().for_each(|&i| {
+            if control.stop.load(Ordering::Relaxed) {
+                return;
+            }
+            let (p, r) = ((i / runs) as usize, i % runs);
+            let k = compiled
+                .binary_search_by_key(&p, |c| c.0)
+                .expect("every point of a job was compiled");
+            let Some(row) = run_one(
+                src,
+                fixed,
+                spec,
+                p,
+                r,
+                &compiled[k].1,
+                options,
+                control.stop,
+            ) else {
+                return;
+            };
+            rows.lock()
+                .expect("no run panics while holding the lock")
+                .push(row);
+            (control.done)();
+        });
+        start = end;
+    }
+    let mut rows = rows.into_inner().expect("no run panicked");
+    rows.sort_by_key(|row| (row.point, row.run));
+    rows
+}
+
+/// Grid points whose compiled models are held at once (a model with large
+/// families or `design` results takes up to megabytes): a larger grid is
+/// run in batches of this many points, so memory is bounded by the rows.
+const POINTS_PER_BATCH: usize = 256;
+
+/// The models of grid points `points` (ascending), compiled in parallel
+/// (design blocks solved once per point): each point's model, or the
+/// message of its failed rows.
+fn compile_points(
+    src: &SourceFile,
+    fixed: &[Override],
+    spec: &SweepSpec,
+    points: &[usize],
+    options: &CheckOptions,
+    given: Given<'_>,
+) -> Vec<(usize, Result<Arc<CompiledModel>, String>)> {
+    points
         .par_iter()
         .map(|&p| {
             let model = match given.first {
@@ -377,36 +460,7 @@ fn run_with(
             });
             (p, model)
         })
-        .collect();
-    let rows = Mutex::new(Vec::with_capacity(jobs.len()));
-    jobs.par_iter().for_each(|&i| {
-        if control.stop.load(Ordering::Relaxed) {
-            return;
-        }
-        let (p, r) = ((i / runs) as usize, i % runs);
-        let k = compiled
-            .binary_search_by_key(&p, |c| c.0)
-            .expect("every point of a job was compiled");
-        let Some(row) = run_one(
-            src,
-            fixed,
-            spec,
-            p,
-            r,
-            &compiled[k].1,
-            options,
-            control.stop,
-        ) else {
-            return;
-        };
-        rows.lock()
-            .expect("no run panics while holding the lock")
-            .push(row);
-        (control.done)();
-    });
-    let mut rows = rows.into_inner().expect("no run panicked");
-    rows.sort_by_key(|row| (row.point, row.run));
-    rows
+        .collect()
 }
 
 /// Compiles grid point `p` as the sweep does: the diagnostics if it fails.
@@ -538,7 +592,15 @@ fn run_one(
     row.status = outcome.status;
     row.cause = outcome.cause;
     if row.status == RunStatus::Completed {
-        row.metrics = sink.inner.values();
+        // `runs.csv` writes any NaN as `NaN`, which `--merge` and `--resume`
+        // read back as the one quiet NaN: store that one (a NaN computed on
+        // x86, 0/0, has the sign bit set), so that Parquet holds the same bits.
+        row.metrics = sink
+            .inner
+            .values()
+            .into_iter()
+            .map(|v| if v.is_nan() { f64::NAN } else { v })
+            .collect();
     }
     Some(row)
 }

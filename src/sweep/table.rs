@@ -380,7 +380,7 @@ pub fn read_runs(path: &Path, m: &Manifest) -> Result<Vec<RunRow>, SweepError> {
                 .map(|k| float(5 + na + k))
                 .collect::<Result<_, _>>()?
         };
-        rows.push(RunRow {
+        let row = RunRow {
             point: int(0)? as usize,
             run: int(1)?,
             seed: int(2)?,
@@ -389,7 +389,27 @@ pub fn read_runs(path: &Path, m: &Manifest) -> Result<Vec<RunRow>, SweepError> {
             cause: rec[4 + na].to_string(),
             message: rec[5 + na + nm].to_string(),
             metrics,
-        });
+        };
+        // A row that is not the run its point and run index name (an edited
+        // or mixed-up file) would be merged or resumed as that run.
+        let ours = row.point < m.spec.points()
+            && row.run < m.spec.runs
+            && m.shard
+                .unwrap_or(Shard::ALL)
+                .contains(row.point as u64 * m.spec.runs + row.run)
+            && row.seed == m.spec.seed_of(row.point, row.run)
+            && row.values == m.spec.point(row.point);
+        if !ours {
+            return Err(bad(format!(
+                "row {}: point {}, run {} (seed {}) is not a run of this sweep.json: \
+                 its seed, grid values or shard differ",
+                line + 1,
+                row.point,
+                row.run,
+                row.seed
+            )));
+        }
+        rows.push(row);
     }
     Ok(rows)
 }

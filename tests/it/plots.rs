@@ -348,6 +348,29 @@ fn unreadable_files_and_unknown_names_exit_2() {
         assert!(stderr(&out).contains(says), "{file}: {}", stderr(&out));
         assert!(!stderr(&out).contains("panicked"), "{}", stderr(&out));
     }
+    // A damaged chunk is refused by its CRC: a byte changed in the compressed
+    // data often still decompresses, into other numbers (those were plotted).
+    let chunk = mcap::read::Summary::read(&bytes)
+        .unwrap()
+        .unwrap()
+        .chunk_indexes[0]
+        .clone();
+    let (start, len) = (
+        chunk.chunk_start_offset as usize,
+        chunk.chunk_length as usize,
+    );
+    for k in 0..24 {
+        let mut damaged = bytes.clone();
+        damaged[start + len / 4 + k * (len / 2) / 24] ^= 0x5a;
+        std::fs::write(d.join("damaged.mcap"), &damaged).unwrap();
+        let out = hybsim(d, &["plot", "damaged.mcap", "-o", "x.svg"]);
+        assert_eq!(code(&out), 2, "byte {k}: {}", stderr(&out));
+        assert!(
+            stderr(&out).contains("cannot be read back"),
+            "{}",
+            stderr(&out)
+        );
+    }
     let out = hybsim(d, &["plot", "b.mcap", "--vars", "h,nope", "-o", "x.svg"]);
     assert_eq!(code(&out), 2, "{}", stderr(&out));
     assert!(stderr(&out).contains("`--vars nope`"), "{}", stderr(&out));

@@ -1324,7 +1324,58 @@ fn output_errors_name_their_cause_once() {
         let err = stderr(&out);
         assert_eq!(code(&out), 1, "{args:?}: {err}");
         assert_eq!(err.matches(cause).count(), 1, "{args:?}: {err}");
+        // The temporary file the user never named is not the error's subject.
+        assert!(!err.contains(".tmp"), "{args:?}: {err}");
     }
+    let out = hybsim(d, &["run", "ball.hyb", "-q", "-o", "missing/x.mcap"]);
+    assert!(
+        stderr(&out).contains("cannot write `missing/x.mcap`: cannot create a file in `"),
+        "{}",
+        stderr(&out)
+    );
+    assert!(temp_files(d).is_empty());
+}
+
+/// `-` and `/dev/stdout` are one output: into a pipe the two files were
+/// interleaved, and with standard output a file (`> out`) the MCAP replaced
+/// it while the CSV went to the unlinked inode. `/dev/null` still takes any
+/// number of outputs.
+#[test]
+fn standard_output_named_twice_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    ball(d);
+    let run = |args: &[&str], stdout: Stdio| {
+        Command::new(BIN)
+            .args(["run", "ball.hyb", "-q"])
+            .args(args)
+            .current_dir(d)
+            .stdout(stdout)
+            .stderr(Stdio::piped())
+            .output()
+            .unwrap()
+    };
+    for args in [
+        &["-o", "-", "--csv", "/dev/stdout"][..],
+        &["-o", "/dev/stdout", "--csv", "-"],
+        &["--no-mcap", "--csv", "/dev/fd/1", "--plot", "-"],
+    ] {
+        let out = run(args, Stdio::piped());
+        assert_eq!(code(&out), 2, "{args:?}: {}", stderr(&out));
+        assert!(
+            stderr(&out).contains("are the same file"),
+            "{}",
+            stderr(&out)
+        );
+        assert!(out.stdout.is_empty());
+        let file = std::fs::File::create(d.join("out")).unwrap();
+        let out = run(args, Stdio::from(file));
+        assert_eq!(code(&out), 2, "{args:?} > out: {}", stderr(&out));
+        assert_eq!(std::fs::read(d.join("out")).unwrap(), b"");
+    }
+    let null = std::fs::File::create("/dev/null").unwrap();
+    let out = run(&["-o", "/dev/null", "--csv", "-"], Stdio::from(null));
+    assert_eq!(code(&out), 0, "{}", stderr(&out));
     assert!(temp_files(d).is_empty());
 }
 

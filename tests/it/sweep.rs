@@ -880,3 +880,162 @@ sim { T = 1 }
         "{runs}"
     );
 }
+
+/// A metric that is NaN by arithmetic (0/0 gives the NaN with the sign bit set
+/// on x86) is stored as the NaN `runs.csv` reads back as: the sharded and
+/// merged files, and the resumed ones, are byte for byte the unsharded ones
+/// (the Parquet tables held the other NaN's bits).
+#[test]
+fn a_nan_metric_gives_the_same_tables_sharded_merged_or_resumed() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let model = BALL.replace(
+        "metric bounces",
+        "metric none = count(impact, t > 100) / count(impact, t > 100), bounces",
+    );
+    std::fs::write(d.join("ball.hyb"), model).unwrap();
+    sweep(d, &["-o", "all"]);
+    for k in 1..=2 {
+        sweep(d, &["-o", &format!("s{k}"), "--shard", &format!("{k}/2")]);
+    }
+    let out = hybsim(d, &["sweep", "--merge", "s1", "s2", "-o", "merged"]);
+    assert_eq!(code(&out), 0, "{}", stderr(&out));
+    let all = files(&d.join("all"));
+    let runs_csv = all.iter().find(|(n, _)| n == "runs.csv").unwrap();
+    assert!(String::from_utf8_lossy(&runs_csv.1).contains(",NaN,"));
+    assert_eq!(all, files(&d.join("merged")));
+    // Resumed from the first half of the rows.
+    let part = d.join("part");
+    std::fs::create_dir(&part).unwrap();
+    let runs = std::fs::read_to_string(d.join("all/runs.csv")).unwrap();
+    let kept: Vec<&str> = runs.lines().take(13).collect();
+    std::fs::write(part.join("runs.csv"), kept.join("\n") + "\n").unwrap();
+    let manifest = std::fs::read_to_string(d.join("all/sweep.json")).unwrap();
+    let interrupted = manifest.replacen("{", "{\n  \"interrupted\": true,", 1);
+    std::fs::write(part.join("sweep.json"), interrupted).unwrap();
+    sweep(d, &["-o", "part", "--resume"]);
+    assert_eq!(all, files(&part));
+}
+
+/// A row of a shard that is not the run it names (its seed or grid values
+/// edited, or copied from another shard) is refused by `--merge` and
+/// `--resume`; it was merged as that run.
+#[test]
+fn merge_refuses_rows_that_are_not_the_runs_they_name() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    std::fs::write(d.join("ball.hyb"), BALL).unwrap();
+    for k in 1..=2 {
+        sweep(d, &["-o", &format!("s{k}"), "--shard", &format!("{k}/2")]);
+    }
+    let runs = std::fs::read_to_string(d.join("s1/runs.csv")).unwrap();
+    let first = runs.lines().nth(1).unwrap();
+    let fields: Vec<&str> = first.splitn(5, ',').collect();
+    let edits = [
+        // Another seed.
+        format!(
+            "{},{},123,{},{}",
+            fields[0], fields[1], fields[3], fields[4]
+        ),
+        // Another grid value.
+        format!(
+            "{},{},{},0.123,{}",
+            fields[0], fields[1], fields[2], fields[4]
+        ),
+        // Run 1 of point 0 belongs to shard 2/2.
+        format!("{},1,{},{},{}", fields[0], fields[2], fields[3], fields[4]),
+    ];
+    for edited in edits {
+        std::fs::write(d.join("s1/runs.csv"), runs.replacen(first, &edited, 1)).unwrap();
+        let out = hybsim(d, &["sweep", "--merge", "s1", "s2", "-o", "m"]);
+        assert_eq!(code(&out), 1, "{edited}: {}", stderr(&out));
+        assert!(
+            stderr(&out).contains("row 1: point 0, run ")
+                && stderr(&out).contains("is not a run of this sweep.json"),
+            "{edited}: {}",
+            stderr(&out)
+        );
+        assert!(!d.join("m").exists());
+    }
+}
+
+/// Sweeps too large to hold their rows are refused before anything is
+/// allocated (`--runs 1e10` ran until memory failed, three 1000-value axes
+/// aborted allocating 32 GB), and non-finite axis values given as numbers
+/// (Python, the library) are refused as `--grid` refuses them.
+#[test]
+fn sweeps_beyond_the_run_limit_and_non_finite_axes_are_refused() {
+    use hybsim::sweep::{Axis, MAX_RUNS, SweepSpec};
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    std::fs::write(d.join("ball.hyb"), BALL).unwrap();
+    let over = (MAX_RUNS + 1).to_string();
+    for args in [
+        &["--runs", &over][..],
+        &["--runs", "10000000000"],
+        &[
+            "--grid",
+            "lambda=0:1:999",
+            "--grid",
+            "g=0:1:999",
+            "--grid",
+            "T=1:1:1000",
+        ],
+    ] {
+        let mut all = vec!["sweep", "ball.hyb", "-q", "-o", "out"];
+        all.extend_from_slice(args);
+        let (out, cpu) = crate::util::hybsim_cpu(d, &all);
+        assert_eq!(code(&out), 2, "{args:?}: {}", stderr(&out));
+        assert!(
+            stderr(&out).contains(&format!("at most {MAX_RUNS} per sweep")),
+            "{args:?}: {}",
+            stderr(&out)
+        );
+        assert!(cpu < std::time::Duration::from_secs(2), "{cpu:?}");
+        assert!(!d.join("out").exists());
+    }
+    for v in [f64::NAN, f64::INFINITY] {
+        let axis = Axis {
+            name: "lambda".into(),
+            values: vec![0.5, v],
+        };
+        let err = SweepSpec::new(vec![axis], 1, 0).validate(&[]).unwrap_err();
+        assert!(err.to_string().contains("is not a finite number"), "{err}");
+    }
+}
+
+/// A grid of more points than are compiled at once (they are run in
+/// batches, so that memory is bounded by the rows, not by the compiled
+/// models of every point) gives the same files on 1 and 2 threads and in
+/// shards.
+#[test]
+fn a_grid_of_many_points_runs_in_batches_with_the_same_results() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    std::fs::write(d.join("ball.hyb"), BALL.replace("T = 2", "T = 0.2")).unwrap();
+    let grid = |extra: &[&str]| {
+        let mut args = vec![
+            "sweep",
+            "ball.hyb",
+            "--grid",
+            "lambda=0.5:0.001:0.8",
+            "--seed",
+            "2",
+            "-q",
+        ];
+        args.extend_from_slice(extra);
+        let out = hybsim(d, &args);
+        assert_eq!(code(&out), 0, "{}", stderr(&out));
+    };
+    grid(&["-o", "one", "--threads", "1"]);
+    grid(&["-o", "two", "--threads", "2"]);
+    grid(&["-o", "s1", "--shard", "1/2"]);
+    grid(&["-o", "s2", "--shard", "2/2"]);
+    let out = hybsim(d, &["sweep", "--merge", "s1", "s2", "-o", "merged"]);
+    assert_eq!(code(&out), 0, "{}", stderr(&out));
+    let one = files(&d.join("one"));
+    let runs = one.iter().find(|(n, _)| n == "runs.csv").unwrap();
+    assert_eq!(String::from_utf8_lossy(&runs.1).lines().count(), 1 + 301);
+    assert_eq!(one, files(&d.join("two")));
+    assert_eq!(one, files(&d.join("merged")));
+}
