@@ -322,12 +322,25 @@ fn temp_beside(dest: &Path, mode: Option<u32>) -> io::Result<NamedTempFile> {
         .prefix(&format!(".{name}."))
         .suffix(".tmp")
         .permissions(fs::Permissions::from_mode(0o666))
-        .tempfile_in(parent_dir(dest))?;
+        .tempfile_in(parent_dir(dest))
+        .map_err(without_path)?;
     if let Some(mode) = mode {
         tmp.as_file()
             .set_permissions(fs::Permissions::from_mode(mode))?;
     }
     Ok(tmp)
+}
+
+/// `tempfile`'s error without the path it appends (`… at path
+/// "dir/.x.csv.7co0Ld.tmp"`; its wrapper is private, so by its text):
+/// callers name the file asked for, and the temporary file's random name
+/// would make the message differ per run.
+fn without_path(e: io::Error) -> io::Error {
+    let text = e.to_string();
+    match text.split_once(" at path \"") {
+        Some((message, _)) if e.get_ref().is_some() => io::Error::new(e.kind(), message),
+        _ => e,
+    }
 }
 
 #[cfg(test)]
