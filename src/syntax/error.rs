@@ -256,7 +256,9 @@ impl SyntaxError {
             .filter_map(|e| e.strip_prefix('`')?.strip_suffix('`'))
             .filter(|k| KEYWORDS.contains(k))
             .collect();
-        let wants_name = expected.contains(&"a name");
+        // Only a name (`jump out when`): where a declaration may start too, a
+        // keyword there is a misplaced keyword (`flow { … } when x >= 0`).
+        let wants_name = expected == ["a name"];
         let expected = match expected.len() {
             0 => "something else".to_string(),
             1 => expected[0].to_string(),
