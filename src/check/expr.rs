@@ -248,7 +248,7 @@ impl Checker {
         if x.fract() != 0.0 || x.abs() > 1e15 {
             self.err(CheckError::Expected {
                 expected: format!("an integer for {what}"),
-                found: format!("{x}"),
+                found: crate::num::fmt_num(x),
                 span: e.span,
             });
             return None;
@@ -1845,6 +1845,9 @@ impl Checker {
         let non_finite = inputs
             .iter()
             .any(|&i| self.dag.as_const(i).is_some_and(|v| !v.is_finite()));
+        // Only `inv` and `solve` fail on a singular matrix; `expm` and `norm`
+        // of finite entries fail where the result overflows.
+        let singular = matches!(kind, BlockKind::Inv { .. } | BlockKind::Solve { .. });
         match self.dag.add_block(kind, inputs, origin) {
             Ok(e) => Some(Val {
                 rows,
@@ -1857,8 +1860,10 @@ impl Checker {
                     func: func.to_string(),
                     reason: if non_finite {
                         "the matrix has a non-finite entry (NaN or infinity)".into()
-                    } else {
+                    } else if singular {
                         "the matrix is singular".into()
+                    } else {
+                        "the result overflows (an entry beyond the range of a 64-bit float)".into()
                     },
                     span,
                 });

@@ -2,6 +2,7 @@
 
 use pest::error::{ErrorVariant, InputLocation};
 
+use super::KEYWORDS;
 use super::parse::Rule;
 use crate::diagnostics::Diagnostic;
 use crate::source::Span;
@@ -94,6 +95,28 @@ pub enum SyntaxError {
         /// What was found, in words.
         found: String,
     },
+    /// A word close to a keyword where the parser stopped: the first word of
+    /// a statement (`stat x = 1`, `flwo { … }`) or a word where a keyword was
+    /// expected (`jump r wen x <= 0`).
+    #[error("{message}")]
+    Misspelt {
+        /// The word.
+        span: Span,
+        /// The error.
+        message: String,
+        /// The label at the span.
+        label: String,
+        /// The keyword it is closest to.
+        keyword: &'static str,
+    },
+    /// A keyword where a name was expected (`jump out when …`).
+    #[error("`{word}` is a keyword, not a name")]
+    KeywordAsName {
+        /// The keyword.
+        span: Span,
+        /// Its text.
+        word: &'static str,
+    },
     /// A number literal that does not fit in an f64.
     #[error("number `{text}` is out of range")]
     BadNumber {
@@ -116,6 +139,8 @@ impl SyntaxError {
             | SyntaxError::FlowWithoutPrime { span, .. }
             | SyntaxError::Foreign { span, .. }
             | SyntaxError::Unclosed { span, .. }
+            | SyntaxError::Misspelt { span, .. }
+            | SyntaxError::KeywordAsName { span, .. }
             | SyntaxError::BadNumber { span, .. } => *span,
         }
     }
@@ -183,6 +208,27 @@ impl SyntaxError {
                     .secondary(*open, "this `{` is not closed")
                     .help("close the block with `}`")
             }
+            SyntaxError::Misspelt {
+                span,
+                message,
+                label,
+                keyword,
+            } => Diagnostic::error("E0101", message.clone())
+                .primary(*span, label.clone())
+                .help(format!("did you mean `{keyword}`?")),
+            SyntaxError::KeywordAsName { span, word } => {
+                Diagnostic::error("E0101", self.to_string())
+                    .primary(*span, "a name expected here")
+                    .note(format!(
+                        "keywords cannot be names: {}",
+                        KEYWORDS
+                            .iter()
+                            .map(|k| format!("`{k}`"))
+                            .collect::<Vec<_>>()
+                            .join(", ")
+                    ))
+                    .help(format!("choose another name than `{word}`"))
+            }
             SyntaxError::BadNumber { span, text } => {
                 Diagnostic::error("E0103", format!("number `{text}` is out of range"))
                     .primary(*span, "too large for a 64-bit float")
@@ -204,6 +250,15 @@ impl SyntaxError {
         };
         expected.sort_unstable();
         expected.dedup();
+        // The keywords among the expectations (`when` of "`when`").
+        let keywords: Vec<&'static str> = expected
+            .iter()
+            .filter_map(|e| e.strip_prefix('`')?.strip_suffix('`'))
+            .filter(|k| KEYWORDS.contains(k))
+            .collect();
+        // Only a name (`jump out when`): where a declaration may start too, a
+        // keyword there is a misplaced keyword (`flow { … } when x >= 0`).
+        let wants_name = expected == ["a name"];
         let expected = match expected.len() {
             0 => "something else".to_string(),
             1 => expected[0].to_string(),
@@ -242,12 +297,101 @@ impl SyntaxError {
                 found,
             };
         }
+        if let Some(err) = keyword_mistake(text, pos, &keywords, wants_name, &expected) {
+            return err;
+        }
         SyntaxError::Unexpected {
             span: Span::new(pos, pos + len),
             found,
             expected,
         }
     }
+}
+
+/// The words that start a declaration (keywords and contextual words), which
+/// a misspelt first word of a statement is compared with.
+const DECLARATION_WORDS: [&str; 20] = [
+    "param",
+    "graph",
+    "state",
+    "noise",
+    "flow",
+    "jump",
+    "every",
+    "output",
+    "sim",
+    "design",
+    "check",
+    "for",
+    "together",
+    "property",
+    "metric",
+    "sweep",
+    "log",
+    "import",
+    "subsystem",
+    "input",
+];
+
+/// The keyword closest to `word` (Jaro–Winkler ≥ 0.8), unless `word` is one.
+fn closest_keyword(word: &str, keywords: &[&'static str]) -> Option<&'static str> {
+    if word.len() < 2 || keywords.contains(&word) {
+        return None;
+    }
+    keywords
+        .iter()
+        .map(|k| (strsim::jaro_winkler(word, k), *k))
+        .filter(|(score, _)| *score >= 0.8)
+        .max_by(|a, b| a.0.total_cmp(&b.0))
+        .map(|(_, k)| k)
+}
+
+/// Where the parser stopped at `pos`: a keyword used as a name (`jump out
+/// when`), a word close to an expected keyword (`jump r wen`), or a
+/// statement's first word close to a declaration's keyword (`stat x = 1`
+/// stops at `x`, `stat` having been read as an instance's name).
+fn keyword_mistake(
+    text: &str,
+    pos: usize,
+    keywords: &[&'static str],
+    wants_name: bool,
+    expected: &str,
+) -> Option<SyntaxError> {
+    let is_word = |c: char| c.is_ascii_alphanumeric() || c == '_';
+    let (before, rest) = (text.get(..pos)?, text.get(pos..)?);
+    let here = &rest[..rest.find(|c: char| !is_word(c)).unwrap_or(rest.len())];
+    if wants_name && let Some(&word) = KEYWORDS.iter().find(|k| **k == here) {
+        return Some(SyntaxError::KeywordAsName {
+            span: Span::new(pos, pos + here.len()),
+            word,
+        });
+    }
+    if let Some(keyword) = closest_keyword(here, keywords) {
+        return Some(SyntaxError::Misspelt {
+            span: Span::new(pos, pos + here.len()),
+            message: format!("unexpected `{here}`; expected {expected}"),
+            label: format!("expected {expected} here"),
+            keyword,
+        });
+    }
+    let end = before.trim_end_matches([' ', '\t']).len();
+    let start = before[..end].trim_end_matches(is_word).len();
+    let word = &before[start..end];
+    let statement_start = before[..start]
+        .trim_end_matches([' ', '\t'])
+        .chars()
+        .next_back()
+        .is_none_or(|c| matches!(c, '\n' | '\r' | ';' | '{' | '}'));
+    if !statement_start || !word.starts_with(|c: char| c.is_ascii_alphabetic()) {
+        return None;
+    }
+    let keyword = closest_keyword(word, &DECLARATION_WORDS)?;
+    Some(SyntaxError::Misspelt {
+        span: Span::new(start, end),
+        message: format!("`{word}` does not start a declaration"),
+        label: "not a declaration's keyword".into(),
+        keyword,
+    })
 }
 
 /// A MATLAB operator at `pos` where the parser stopped, with its hybsim

@@ -28,13 +28,7 @@
 //! Only a file that parses is formatted.
 
 use crate::syntax::lex::{Token, TokenKind as Kind, tokens as lex};
-use crate::syntax::{SyntaxError, parse_model};
-
-/// Words of the grammar that are keywords (never called like functions).
-const KEYWORDS: &[&str] = &[
-    "model", "param", "graph", "state", "noise", "flow", "jump", "when", "every", "output", "sim",
-    "design", "for", "in", "if", "then", "else", "sum", "true", "false", "out", "edges",
-];
+use crate::syntax::{KEYWORDS, SyntaxError, parse_model};
 
 /// The contextual words of `property` declarations (`always (…)`, `eventually
 /// within 3 (…)`): never called, so a `(` after one keeps the user's spacing as

@@ -14,3 +14,9 @@ mod tests;
 pub use error::SyntaxError;
 pub use format::format_source;
 pub use parse::{MAX_EXPR_DEPTH, MAX_NESTING, parse_expr, parse_library, parse_model};
+
+/// The keywords of `grammar/hyb.pest` (its `keyword` rule): never names.
+pub(crate) const KEYWORDS: &[&str] = &[
+    "model", "param", "graph", "state", "noise", "flow", "jump", "when", "every", "output", "sim",
+    "design", "for", "in", "if", "then", "else", "sum", "true", "false", "out", "edges",
+];

@@ -36,6 +36,36 @@ fn help_and_usage_errors() {
     assert_eq!(code(&hybsim(dir.path(), &["run", "missing.hyb"])), 2);
 }
 
+/// An output file in a folder that does not exist is named as asked for,
+/// without the random name of the temporary file beside it (exit 1).
+#[test]
+fn an_unwritable_output_names_the_file_asked_for() {
+    let dir = tempfile::tempdir().unwrap();
+    let model = ball_model();
+    for flag in ["--csv", "-o", "--parquet"] {
+        let out = hybsim(
+            dir.path(),
+            &[
+                "run",
+                model.to_str().unwrap(),
+                flag,
+                "missing/run.out",
+                "--T",
+                "0.1",
+            ],
+        );
+        assert_eq!(code(&out), 1, "{flag}");
+        let text = stderr(&out);
+        assert!(
+            text.contains(
+                "cannot write `missing/run.out`: cannot create a file in `missing`: No such file or directory"
+            )
+                && !text.contains(".tmp"),
+            "{flag}: {text}"
+        );
+    }
+}
+
 /// The summary's final hybrid time is written as every other time of the
 /// line (compact and lossless): a horizon of 1e-300 ends "at (t = 1e-300,
 /// j = 0)", not at 300 digits of a decimal fraction.

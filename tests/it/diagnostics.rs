@@ -99,6 +99,34 @@ const CASES: &[Case] = &[
         "`elseif` is MATLAB's (and Julia's) spelling; hybsim writes `else if`",
     ),
     case(
+        "misspelt declaration keyword",
+        "model m\nstat x = 1\nflow { x' = -x }\n",
+        "E0101",
+        "2:1",
+        "`stat` does not start a declaration",
+    ),
+    case(
+        "misspelt flow keyword",
+        "model m\nstate x = 1; flwo { x' = -x }\n",
+        "E0101",
+        "2:14",
+        "`flwo` does not start a declaration",
+    ),
+    case(
+        "misspelt keyword where one is expected",
+        "model m\nstate x = 1\njump r wen x <= 0 { x+ = 1 }\n",
+        "E0101",
+        "3:8",
+        "unexpected `wen`; expected `[`, `every` or `when`",
+    ),
+    case(
+        "keyword as a rule name",
+        "model m\nstate x = 1\njump out when x <= 0 { x+ = 1 }\n",
+        "E0101",
+        "3:6",
+        "`out` is a keyword, not a name",
+    ),
+    case(
         "power of a vector",
         "model m\nstate x = [1; 2]\nflow { x' = -x^2 }\n",
         "E0301",
@@ -288,6 +316,20 @@ const CASES: &[Case] = &[
         "E0305",
         "3:7",
         "the period of `every` must be a constant",
+    ),
+    case(
+        "overflowing matrix exponential in a parameter",
+        "model m\nparam E = expm(1e308 * eye(2))\n",
+        "E0306",
+        "2:11",
+        "cannot compute `expm`: the result overflows (an entry beyond the range of a 64-bit float)",
+    ),
+    case(
+        "huge dimension",
+        "model m\nparam N = 1e300\nstate x = zeros(N, 1)\n",
+        "E0304",
+        "3:17",
+        "expected an integer for a dimension, found 1e300",
     ),
     case(
         "singular matrix in a parameter",
@@ -533,6 +575,13 @@ fn unknown_names_come_with_the_closest_declared_name() {
         ("unknown function with a suggestion", "did you mean `sqrt`?"),
         ("unknown sim key with a suggestion", "did you mean `seed`?"),
         ("override of an unknown name", "did you mean `lambda`?"),
+        ("misspelt declaration keyword", "did you mean `state`?"),
+        ("misspelt flow keyword", "did you mean `flow`?"),
+        (
+            "misspelt keyword where one is expected",
+            "did you mean `when`?",
+        ),
+        ("keyword as a rule name", "choose another name than `out`"),
     ] {
         let c = find(name);
         let d = diagnostics(&SourceFile::new("m.hyb", c.src), c.overrides);
