@@ -17,7 +17,7 @@ use hybsim::ir::CompiledModel;
 use hybsim::ir::metric::Metrics;
 use hybsim::lang;
 use hybsim::sinks::csv::CsvSink;
-use hybsim::sinks::mcap::{Compression, Encoding, McapOptions, McapSink};
+use hybsim::sinks::mcap::{Compression, Encoding, McapOptions, McapSink, NonFiniteStop};
 use hybsim::sinks::parquet::ParquetSink;
 use hybsim::sinks::plot::{ImageFormat, PlotKind, PlotSink};
 use hybsim::sinks::{
@@ -452,6 +452,8 @@ pub struct Report {
     /// The solver of the run (its switches, under `solver = auto`, are in
     /// the tally).
     pub solver: Solver,
+    /// The non-finite value at which the MCAP log stopped the run.
+    pub stopped: Option<NonFiniteStop>,
 }
 
 /// The outcome of a run for the logs.
@@ -631,11 +633,13 @@ pub fn simulate_to_files<S: HybridSystem + ?Sized>(
     let metric_values = metric_sink.map(|m| m.named_values()).unwrap_or_default();
     let mut written = Vec::new();
     let mut first_error: Option<anyhow::Error> = None;
+    let mut stopped = None;
     if let Some(mut sink) = mcap {
         sink.set_metrics(metric_values.clone());
         match sink.finish(&outcome) {
             Ok(summary) => {
                 outcome = summary.outcome;
+                stopped = summary.stopped;
                 written.push(summary.path);
             }
             Err(e) => {
@@ -690,6 +694,7 @@ pub fn simulate_to_files<S: HybridSystem + ?Sized>(
         interrupted,
         metrics: metric_values,
         solver: settings.solver,
+        stopped,
     };
     Ok((report, error))
 }
@@ -1044,6 +1049,10 @@ pub fn execute(args: RunArgs) -> anyhow::Result<u8> {
             "{}",
             render(&[model.runtime_diagnostic(e)], &src, super::color())
         );
+    }
+    if let Some(stop) = report.stopped.filter(|s| s.what == "output") {
+        let d = model.non_finite_output_diagnostic(stop.component, stop.value, stop.at);
+        eprint!("{}", render(&[d], &src, super::color()));
     }
     if let Some(d) = report
         .termination

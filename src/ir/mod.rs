@@ -386,6 +386,8 @@ pub struct CompiledModel {
     state_layout: Layout,
     output_layout: Layout,
     output_dim: usize,
+    /// Each output's first component and its definition, in order.
+    output_spans: Vec<(usize, Span)>,
     fields: Vec<StateField>,
     flow: Program,
     diffusion: Program,
@@ -618,6 +620,13 @@ impl CompiledModel {
         nregs = nregs.max(frame.fixed());
         let state_layout = state_layout(&m.fields, false);
         let (output_layout, output_dim) = output_layout(&m.outputs);
+        let output_spans = (m.outputs.iter())
+            .scan(0, |first, o| {
+                let at = *first;
+                *first += o.rows * o.cols;
+                Some((at, o.span))
+            })
+            .collect();
         let inputs = inputs::random_inputs(&m);
         let param_inputs = m.random_params.len();
         let param_draws = m.random_params.iter().map(|i| i.dist).collect();
@@ -654,6 +663,7 @@ impl CompiledModel {
             state_layout,
             output_layout,
             output_dim,
+            output_spans,
             fields: m.fields,
             flow,
             diffusion,
@@ -1163,6 +1173,33 @@ impl CompiledModel {
     pub fn with_imports(mut self, imports: SourceMap) -> Self {
         self.imports = imports;
         self
+    }
+
+    /// The diagnostic of a run stopped because output component `k` had
+    /// the non-finite `value` at `at` (a log that holds finite numbers only
+    /// stopped it): E0602 at the output's definition.
+    pub fn non_finite_output_diagnostic(&self, k: usize, value: f64, at: HybridTime) -> Diagnostic {
+        let name = self.output_names().get(k).cloned().unwrap_or_default();
+        let d = Diagnostic::error(
+            "E0602",
+            format!("output `{name}` is not finite ({value}) at {at}"),
+        )
+        .help(
+            "the MCAP log holds finite numbers only: check the output's definition there, \
+             or log without it (`--log-vars`)",
+        );
+        // The last output starting at or before k defines it.
+        let span = self
+            .output_spans
+            .iter()
+            .rev()
+            .find(|(first, _)| *first <= k);
+        match span {
+            Some(&(_, span)) => d
+                .primary(span, format!("not finite at (t, j) = ({}, {})", at.t, at.j))
+                .locate(&self.imports),
+            None => d,
+        }
     }
 
     fn runtime_diagnostic_here(&self, err: &SimError) -> Diagnostic {

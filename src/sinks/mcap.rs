@@ -161,6 +161,22 @@ pub struct McapSummary {
     /// The outcome written to `hybsim.result` (the caller's, or
     /// `non_finite` if this sink stopped the run on a non-finite value).
     pub outcome: RunOutcome,
+    /// The non-finite value that stopped the run, if this sink did.
+    pub stopped: Option<NonFiniteStop>,
+}
+
+/// A non-finite value that stopped a run ([`SinkError::NonFinite`]), for
+/// a diagnostic at its definition.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct NonFiniteStop {
+    /// `state` or `output`.
+    pub what: &'static str,
+    /// The component's index in the state or the outputs.
+    pub component: usize,
+    /// The value.
+    pub value: f64,
+    /// Where on the hybrid time domain.
+    pub at: HybridTime,
 }
 
 struct Channels {
@@ -533,6 +549,7 @@ impl<'a> McapSink<'a> {
         if let Some((k, value)) = self.non_finite_state(x) {
             return Err(SinkError::NonFinite {
                 what: "state",
+                component: k,
                 name: self.info.component_name("state", k),
                 value,
                 at,
@@ -545,6 +562,7 @@ impl<'a> McapSink<'a> {
         if let Some((k, value)) = first_non_finite_in(&self.logged_outputs, y) {
             return Err(SinkError::NonFinite {
                 what: "output",
+                component: k,
                 name: self.info.component_name("output", k),
                 value,
                 at,
@@ -586,6 +604,7 @@ impl<'a> McapSink<'a> {
             if let Some((k, value)) = self.non_finite_state(x) {
                 return Err(SinkError::NonFinite {
                     what: "state",
+                    component: k,
                     name: self.info.component_name("state", k),
                     value,
                     at,
@@ -635,12 +654,13 @@ impl<'a> McapSink<'a> {
             }
             _ => outcome.clone(),
         };
-        if let Some(e) = error
-            && !matches!(e, SinkError::NonFinite { .. })
-        {
-            // The writer itself failed: the file cannot be trusted.
-            self.discard();
-            return Err(e);
+        if let Some(e) = error {
+            if !matches!(e, SinkError::NonFinite { .. }) {
+                // The writer itself failed: the file cannot be trusted.
+                self.discard();
+                return Err(e);
+            }
+            self.error = Some(e);
         }
         self.complete(&outcome).inspect_err(|_| self.discard())
     }
@@ -735,6 +755,21 @@ impl<'a> McapSink<'a> {
             messages: summary.messages,
             tally: self.tally.clone(),
             outcome: outcome.clone(),
+            stopped: match self.error {
+                Some(SinkError::NonFinite {
+                    what,
+                    component,
+                    value,
+                    at,
+                    ..
+                }) => Some(NonFiniteStop {
+                    what,
+                    component,
+                    value,
+                    at,
+                }),
+                _ => None,
+            },
         })
     }
 

@@ -103,6 +103,8 @@ pub enum SinkError {
     NonFinite {
         /// `state` or `output`.
         what: &'static str,
+        /// The component's index in the state or the outputs.
+        component: usize,
         /// Flat name of the component (e.g. `P[1,2]`).
         name: String,
         /// The offending value.

@@ -804,3 +804,38 @@ fn an_invalid_flag_value_is_shown_as_typed() {
         assert!(!err.contains("sim.") && !err.contains("--set"), "{err}");
     }
 }
+
+/// A logged output that becomes non-finite stops a run logging to MCAP
+/// (which holds finite numbers only) with a run-time error at the output's
+/// definition and (t, j), as a non-finite state does (exit 1); the file
+/// records the run up to there.
+#[test]
+fn a_non_finite_output_is_an_error_at_its_definition() {
+    let dir = tempfile::tempdir().unwrap();
+    let model = write(
+        dir.path(),
+        "nanout.hyb",
+        "model nanout\nstate x = 3\noutput e[1] = x\noutput e[2] = log(x - 2)\n\
+         flow { x' = -x }\nsim { T = 2 }\n",
+    );
+    let out = hybsim(
+        dir.path(),
+        &[
+            "run",
+            model.to_str().unwrap(),
+            "-o",
+            "run.mcap",
+            "--color",
+            "never",
+        ],
+    );
+    assert_eq!(code(&out), 1);
+    let text = stderr(&out);
+    assert!(
+        text.contains("error[E0602]: output `e[2]` is not finite (NaN) at (t = ")
+            && text.contains("nanout.hyb:4:8")
+            && text.contains("output e[2] = log(x - 2)"),
+        "{text}"
+    );
+    assert!(dir.path().join("run.mcap").exists());
+}
