@@ -744,6 +744,20 @@ const EARLY: [f64; 3] = [
     1.0 / 1024.0,
 ];
 
+/// What the scan of one step has computed for one watched atom, each
+/// `None` until computed (a twin reads its earlier atom's).
+#[derive(Clone, Copy, Default)]
+struct StepFacts {
+    /// Its affine form's points on the step ([`form_points`]).
+    form_pts: Option<FormPoints>,
+    /// Its [`first_sure_sign`] on the step.
+    sure_pts: Option<Option<(f64, f64)>>,
+    /// Where and with which sign the search for its sign changes on the
+    /// step started, and whether it settled them
+    /// ([`affine_checkpoints`](Watcher::affine_checkpoints)).
+    changes_from: Option<(f64, f64, bool)>,
+}
+
 /// Watches the sets along a flow segment; see the module docs.
 pub(crate) struct Watcher {
     sets: Vec<WSet>,
@@ -796,16 +810,9 @@ pub(crate) struct Watcher {
     near_start: bool,
     /// The step being scanned, `[s0, s1]`.
     span: (f64, f64),
-    /// Per watched atom: its affine form's points on the step being
-    /// scanned ([`form_points`]), once computed.
-    form_pts: Vec<Option<FormPoints>>,
-    /// Per watched atom: its [`first_sure_sign`] on the step being scanned,
-    /// once computed.
-    sure_pts: Vec<Option<Option<(f64, f64)>>>,
-    /// Per watched atom: where and with which sign the search for its sign
-    /// changes on the step being scanned started, and whether it settled
-    /// them ([`affine_checkpoints`](Self::affine_checkpoints)), once done.
-    changes_from: Vec<Option<(f64, f64, bool)>>,
+    /// Per watched atom: what is known of it on the step being scanned
+    /// ([`StepFacts`], cleared at each step in one pass).
+    step: Vec<StepFacts>,
     buf_s: Vec<f64>,
     buf_a: Vec<f64>,
     buf_b: Vec<f64>,
@@ -1004,9 +1011,7 @@ impl Watcher {
             prefetched: None,
             cls: vec![0; watched.len()],
             cls_s: vec![0; watched.len()],
-            form_pts: vec![None; watched.len()],
-            sure_pts: vec![None; watched.len()],
-            changes_from: vec![None; watched.len()],
+            step: vec![StepFacts::default(); watched.len()],
             found: vec![(f64::NAN, f64::NAN, 0, 0.0); watched.len()],
             need: vec![false; watched.len()],
             changing: vec![0; set_count],
@@ -1550,9 +1555,7 @@ impl Watcher {
     ) -> Option<(f64, EventKind)> {
         let m = if P::STRAIGHT { 0 } else { self.checks };
         self.span = (s0, s1);
-        self.form_pts.fill(None);
-        self.sure_pts.fill(None);
-        self.changes_from.fill(None);
+        self.step.fill(StepFacts::default());
         // A segment that starts on a boundary (a post-jump state, a few ulp
         // on either side of an atom's zero) may cross it right away and
         // come back within the first interval: look early in the first
@@ -1685,7 +1688,7 @@ impl Watcher {
                 continue;
             }
             // An earlier atom with the same function has the same points.
-            let points = match self.twin[w].and_then(|u| self.form_pts[u]) {
+            let points = match self.twin[w].and_then(|u| self.step[u].form_pts) {
                 Some(points) => points,
                 None => {
                     let Some(points) = form_points(form, path) else {
@@ -1694,7 +1697,7 @@ impl Watcher {
                     points
                 }
             };
-            self.form_pts[w] = Some(points);
+            self.step[w].form_pts = Some(points);
             let (g, n, tol) = points;
             if !tol.is_finite() {
                 all = false;
@@ -1709,11 +1712,11 @@ impl Watcher {
                 // on. Before it the atom never has the other sign beyond
                 // `tol`, so a change of class there is seen at that point.
                 // A twin's (the same points) is this atom's.
-                let found = match self.twin[w].and_then(|u| self.sure_pts[u]) {
+                let found = match self.twin[w].and_then(|u| self.step[u].sure_pts) {
                     Some(found) => found,
                     None => first_sure_sign(&g[..n], tol),
                 };
-                self.sure_pts[w] = Some(found);
+                self.step[w].sure_pts = Some(found);
                 let Some((tau, sure)) = found else {
                     all = false;
                     continue;
@@ -1734,7 +1737,7 @@ impl Watcher {
             }
             // A twin searched from the same point with the same sign (the
             // same points) has the same changes, already checkpoints.
-            let twin = self.twin[w].and_then(|u| self.changes_from[u]);
+            let twin = self.twin[w].and_then(|u| self.step[u].changes_from);
             if let Some((_, _, settled)) = twin.filter(|&(f, s, _)| (f, s) == (from, sign)) {
                 all &= settled;
                 continue;
@@ -1768,7 +1771,7 @@ impl Watcher {
                     Err(()) => break,
                 }
             }
-            self.changes_from[w] = Some((start.0, start.1, settled));
+            self.step[w].changes_from = Some((start.0, start.1, settled));
             // Not settled: the checkpoints watch this atom too.
             all &= settled;
             // A single change stays visible at every later checkpoint; only
@@ -2074,7 +2077,7 @@ impl Watcher {
             Cmp::Ne => 0.0,
             Cmp::Eq => return None,
         };
-        let (mut g, n, _) = match self.form_pts[w] {
+        let (mut g, n, _) = match self.step[w].form_pts {
             Some(points) => points,
             None => form_points(form, path)?,
         };
