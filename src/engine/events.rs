@@ -304,11 +304,8 @@ fn timer_set_values(ws: &WSet, spec: &SetAtoms) -> (bool, bool) {
             let (mut mp, mut mo) = (0u32, 0u32);
             for k in 0..spec.atoms.len() {
                 let p = past(k);
-                let o = if ws.state[k].on_threshold {
-                    ws.state[k].landed
-                } else {
-                    p
-                };
+                let st = &ws.state[k];
+                let o = if st.on_threshold { st.landed } else { p };
                 mp |= u32::from(p) << k;
                 mo |= u32::from(o) << k;
             }
@@ -1353,16 +1350,13 @@ impl Watcher {
                             None => cmp.holds_within(g, set_tol),
                         };
                         let outside = !holds && within;
-                        let edge = holds && ws.state[k].noisy && g.abs() <= set_tol;
+                        let st = &mut ws.state[k];
+                        let edge = holds && st.noisy && g.abs() <= set_tol;
                         let relaxed = is_flow && (outside || edge);
-                        ws.state[k].relax = if relaxed { set_tol } else { 0.0 };
-                        ws.state[k].settle = if relaxed && ws.state[k].noisy {
-                            set_tol
-                        } else {
-                            0.0
-                        };
+                        st.relax = if relaxed { set_tol } else { 0.0 };
+                        st.settle = if relaxed && st.noisy { set_tol } else { 0.0 };
                         self.relaxed += usize::from(relaxed);
-                        ws.state[k].start_truth = holds || relaxed;
+                        st.start_truth = holds || relaxed;
                         if k < TruthTable::MAX_ATOMS {
                             mask |= u32::from(holds || relaxed) << k;
                         }
@@ -1995,10 +1989,11 @@ impl Watcher {
                             vb[k] = self.flat_b[off + k];
                         }
                         let atom = spec.atoms[k];
-                        ws.state[k].truth = if !atom.watched() {
-                            ws.state[k].start_truth
-                        } else if ws.state[k].relax > 0.0 {
-                            atom.cmp.holds_within(vb[k], ws.state[k].relax)
+                        let st = &mut ws.state[k];
+                        st.truth = if !atom.watched() {
+                            st.start_truth
+                        } else if st.relax > 0.0 {
+                            atom.cmp.holds_within(vb[k], st.relax)
                         } else {
                             match atom.cmp {
                                 Cmp::Eq => eq_met(va[k], vb[k]),
@@ -2007,7 +2002,7 @@ impl Watcher {
                             }
                         };
                         if k < TruthTable::MAX_ATOMS {
-                            mask |= u32::from(ws.state[k].truth) << k;
+                            mask |= u32::from(st.truth) << k;
                         }
                     }
                     match ws.table {
