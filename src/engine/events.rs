@@ -199,40 +199,50 @@ struct WSet {
     table: Option<TruthTable>,
     /// Whether a change of this set ends a segment.
     source: bool,
-    /// Per atom: relaxation (C's atoms that held only within `set_tol` at
-    /// the segment's start, or that start on their boundary and are
-    /// `noisy`), truth at the segment's start.
-    relax: Vec<f64>,
-    /// Per atom: how far inside its set a relaxed atom must be for its
-    /// relaxation to end (0: where it holds exactly; `set_tol` for a
-    /// `noisy` atom).
-    settle: Vec<f64>,
-    /// Per atom: a watched inequality atom of C without an affine form.
-    /// Its sign near its zero is rounding noise (`h ≥ A·sin(ω·t)`: the
-    /// rounding of `ω·t` alone), which the checkpoints cannot tell from a
-    /// change of sign; so where the segment starts on its boundary (within
-    /// `set_tol` on either side: a jump onto it) it is watched relaxed,
-    /// until it holds by `set_tol` (a flow that points out of C leaves it
-    /// at `−set_tol`, as any relaxed atom's).
-    noisy: Vec<bool>,
-    start_truth: Vec<bool>,
+    /// Per atom: its state along the segment ([`AtomState`]), in one
+    /// array (one allocation, one bounds check per atom).
+    state: Vec<AtomState>,
     /// Atom values at the checkpoint, at the bracket ends, at a trial point.
     vs: Vec<f64>,
     va: Vec<f64>,
     vb: Vec<f64>,
     vt: Vec<f64>,
-    truth: Vec<bool>,
-    /// Per atom: a timer atom crossed at the checkpoint being examined by
-    /// [`Watcher::cross_timers`], its truth where its timer lands there
-    /// ([`Watcher::landing`]); the set's value there past the thresholds
-    /// and where the timers land.
-    on_threshold: Vec<bool>,
-    landed: Vec<bool>,
+    /// The set's value past the thresholds and where the timers land
+    /// ([`Watcher::cross_timers`]).
     past: bool,
     on: bool,
     /// The set's value at the cursor, and at the candidate being examined.
     cur: bool,
     new: bool,
+}
+
+/// One atom of a [`WSet`] as the watcher tracks it along a segment.
+#[derive(Debug, Clone, Copy, Default)]
+struct AtomState {
+    /// Relaxation (C's atoms that held only within `set_tol` at the
+    /// segment's start, or that start on their boundary and are `noisy`).
+    relax: f64,
+    /// How far inside its set a relaxed atom must be for its relaxation to
+    /// end (0: where it holds exactly; `set_tol` for a `noisy` atom).
+    settle: f64,
+    /// A watched inequality atom of C without an affine form. Its sign near
+    /// its zero is rounding noise (`h ≥ A·sin(ω·t)`: the rounding of `ω·t`
+    /// alone), which the checkpoints cannot tell from a change of sign; so
+    /// where the segment starts on its boundary (within `set_tol` on either
+    /// side: a jump onto it) it is watched relaxed, until it holds by
+    /// `set_tol` (a flow that points out of C leaves it at `−set_tol`, as
+    /// any relaxed atom's).
+    noisy: bool,
+    /// Truth at the segment's start (for an atom that cannot change along
+    /// the flow, its truth on the whole segment).
+    start_truth: bool,
+    /// Truth on the bracket being examined ([`Watcher::evaluate_sets`]).
+    truth: bool,
+    /// A timer atom crossed at the checkpoint being examined by
+    /// [`Watcher::cross_timers`], and its truth where its timer lands there
+    /// ([`Watcher::landing`]).
+    on_threshold: bool,
+    landed: bool,
 }
 
 impl WSet {
@@ -277,14 +287,14 @@ fn timer_set_values(ws: &WSet, spec: &SetAtoms) -> (bool, bool) {
     let past = |k: usize| {
         let atom = &spec.atoms[k];
         if atom.watched() {
-            atom.cmp.holds_within(ws.vs[k], ws.relax[k])
+            atom.cmp.holds_within(ws.vs[k], ws.state[k].relax)
         } else {
-            ws.start_truth[k]
+            ws.state[k].start_truth
         }
     };
     let on = |k: usize| {
-        if ws.on_threshold[k] {
-            ws.landed[k]
+        if ws.state[k].on_threshold {
+            ws.state[k].landed
         } else {
             past(k)
         }
@@ -294,7 +304,8 @@ fn timer_set_values(ws: &WSet, spec: &SetAtoms) -> (bool, bool) {
             let (mut mp, mut mo) = (0u32, 0u32);
             for k in 0..spec.atoms.len() {
                 let p = past(k);
-                let o = if ws.on_threshold[k] { ws.landed[k] } else { p };
+                let st = &ws.state[k];
+                let o = if st.on_threshold { st.landed } else { p };
                 mp |= u32::from(p) << k;
                 mo |= u32::from(o) << k;
             }
@@ -730,6 +741,20 @@ const EARLY: [f64; 3] = [
     1.0 / 1024.0,
 ];
 
+/// What the scan of one step has computed for one watched atom, each
+/// `None` until computed (a twin reads its earlier atom's).
+#[derive(Clone, Copy, Default)]
+struct StepFacts {
+    /// Its affine form's points on the step ([`form_points`]).
+    form_pts: Option<FormPoints>,
+    /// Its [`first_sure_sign`] on the step.
+    sure_pts: Option<Option<(f64, f64)>>,
+    /// Where and with which sign the search for its sign changes on the
+    /// step started, and whether it settled them
+    /// ([`affine_checkpoints`](Watcher::affine_checkpoints)).
+    changes_from: Option<(f64, f64, bool)>,
+}
+
 /// Watches the sets along a flow segment; see the module docs.
 pub(crate) struct Watcher {
     sets: Vec<WSet>,
@@ -782,16 +807,9 @@ pub(crate) struct Watcher {
     near_start: bool,
     /// The step being scanned, `[s0, s1]`.
     span: (f64, f64),
-    /// Per watched atom: its affine form's points on the step being
-    /// scanned ([`form_points`]), once computed.
-    form_pts: Vec<Option<FormPoints>>,
-    /// Per watched atom: its [`first_sure_sign`] on the step being scanned,
-    /// once computed.
-    sure_pts: Vec<Option<Option<(f64, f64)>>>,
-    /// Per watched atom: where and with which sign the search for its sign
-    /// changes on the step being scanned started, and whether it settled
-    /// them ([`affine_checkpoints`](Self::affine_checkpoints)), once done.
-    changes_from: Vec<Option<(f64, f64, bool)>>,
+    /// Per watched atom: what is known of it on the step being scanned
+    /// ([`StepFacts`], cleared at each step in one pass).
+    step: Vec<StepFacts>,
     buf_s: Vec<f64>,
     buf_a: Vec<f64>,
     buf_b: Vec<f64>,
@@ -847,17 +865,11 @@ impl Watcher {
                 table: truth_table(spec.as_ref()),
                 spec,
                 source,
-                relax: vec![0.0; n],
-                settle: vec![0.0; n],
-                noisy: vec![false; n],
-                start_truth: vec![false; n],
+                state: vec![AtomState::default(); n],
                 vs: vec![0.0; n],
                 va: vec![0.0; n],
                 vb: vec![0.0; n],
                 vt: vec![0.0; n],
-                truth: vec![false; n],
-                on_threshold: vec![false; n],
-                landed: vec![false; n],
                 past: false,
                 on: false,
                 cur: false,
@@ -945,7 +957,7 @@ impl Watcher {
         for (w, form) in watched.iter().zip(&affine) {
             let inequality = matches!(w.cmp, Cmp::Ge | Cmp::Gt | Cmp::Le | Cmp::Lt);
             if Some(w.set) == flow && form.is_none() && inequality {
-                sets[w.set].noisy[w.atom] = true;
+                sets[w.set].state[w.atom].noisy = true;
             }
         }
         // The layout of `all_atom_values`: C's atoms, then each rule's.
@@ -996,9 +1008,7 @@ impl Watcher {
             prefetched: None,
             cls: vec![0; watched.len()],
             cls_s: vec![0; watched.len()],
-            form_pts: vec![None; watched.len()],
-            sure_pts: vec![None; watched.len()],
-            changes_from: vec![None; watched.len()],
+            step: vec![StepFacts::default(); watched.len()],
             found: vec![(f64::NAN, f64::NAN, 0, 0.0); watched.len()],
             need: vec![false; watched.len()],
             changing: vec![0; set_count],
@@ -1103,8 +1113,8 @@ impl Watcher {
             let away = (rate > 0.0 && v >= thr) || (rate < 0.0 && v <= thr);
             if away {
                 let ws = &mut self.sets[ta.set];
-                if ws.start_truth[ta.atom] != after {
-                    ws.start_truth[ta.atom] = after;
+                if ws.state[ta.atom].start_truth != after {
+                    ws.state[ta.atom].start_truth = after;
                     changed = true;
                 }
             }
@@ -1113,7 +1123,7 @@ impl Watcher {
         if changed {
             for (i, ws) in self.sets.iter_mut().enumerate() {
                 if let Some(spec) = &ws.spec {
-                    let value = set_value(spec, ws.table, |k| ws.start_truth[k]);
+                    let value = set_value(spec, ws.table, |k| ws.state[k].start_truth);
                     if self.flow == Some(i) {
                         if !value {
                             return None;
@@ -1154,9 +1164,9 @@ impl Watcher {
             if ta.now {
                 let landed = ta.cmp.holds(self.landing(i, |t| t.now) - ta.threshold);
                 let ws = &mut self.sets[ta.set];
-                ws.start_truth[ta.atom] = ta.after;
-                ws.on_threshold[ta.atom] = true;
-                ws.landed[ta.atom] = landed;
+                ws.state[ta.atom].start_truth = ta.after;
+                ws.state[ta.atom].on_threshold = true;
+                ws.state[ta.atom].landed = landed;
             }
         }
         // Each source set's value past the thresholds and on them (which
@@ -1197,7 +1207,7 @@ impl Watcher {
         for ta in &self.timers {
             if ta.now {
                 let ws = &mut self.sets[ta.set];
-                ws.on_threshold[ta.atom] = false;
+                ws.state[ta.atom].on_threshold = false;
             }
         }
         let kind = kind?;
@@ -1299,11 +1309,10 @@ impl Watcher {
                 // one pass of comparisons, the per-segment common case.
                 Some(spec) if !is_flow => {
                     let n = ws.vs.len();
-                    let (vs, truth, atoms) =
-                        (&mut ws.vs[..], &mut ws.start_truth[..n], &spec.atoms[..n]);
+                    let (vs, state, atoms) = (&mut ws.vs[..], &mut ws.state[..n], &spec.atoms[..n]);
                     let mut pass = |k: usize, g: f64| {
                         let holds = atoms[k].cmp.holds(g);
-                        truth[k] = holds;
+                        state[k].start_truth = holds;
                         if k < TruthTable::MAX_ATOMS {
                             mask |= u32::from(holds) << k;
                         }
@@ -1341,12 +1350,13 @@ impl Watcher {
                             None => cmp.holds_within(g, set_tol),
                         };
                         let outside = !holds && within;
-                        let edge = holds && ws.noisy[k] && g.abs() <= set_tol;
+                        let st = &mut ws.state[k];
+                        let edge = holds && st.noisy && g.abs() <= set_tol;
                         let relaxed = is_flow && (outside || edge);
-                        ws.relax[k] = if relaxed { set_tol } else { 0.0 };
-                        ws.settle[k] = if relaxed && ws.noisy[k] { set_tol } else { 0.0 };
+                        st.relax = if relaxed { set_tol } else { 0.0 };
+                        st.settle = if relaxed && st.noisy { set_tol } else { 0.0 };
                         self.relaxed += usize::from(relaxed);
-                        ws.start_truth[k] = holds || relaxed;
+                        st.start_truth = holds || relaxed;
                         if k < TruthTable::MAX_ATOMS {
                             mask |= u32::from(holds || relaxed) << k;
                         }
@@ -1358,7 +1368,7 @@ impl Watcher {
                 _ if is_flow => true,
                 (Some(spec), _) => match ws.table {
                     Some(t) => t.value(mask),
-                    None => spec.expr.eval_with(&|k| ws.start_truth[k]),
+                    None => spec.expr.eval_with(&|k| ws.state[k].start_truth),
                 },
                 (None, SetRef::Jump(r)) => sys.jump_set(r, at, x),
                 (None, SetRef::Flow) => true,
@@ -1368,7 +1378,7 @@ impl Watcher {
         self.near_start = false;
         for (w, c) in self.watched.iter().zip(self.cls.iter_mut()) {
             let ws = &self.sets[w.set];
-            let v = watched_value(w.cmp, ws.vs[w.atom], ws.relax[w.atom]);
+            let v = watched_value(w.cmp, ws.vs[w.atom], ws.state[w.atom].relax);
             self.near_start |= v.abs() <= 2.0 * near;
             *c = class(v);
         }
@@ -1452,7 +1462,7 @@ impl Watcher {
                 let ws = &mut self.sets[w.set];
                 let g = self.flat[w.flat];
                 ws.vs[w.atom] = g;
-                *c = class(watched_value(w.cmp, g, ws.relax[w.atom]));
+                *c = class(watched_value(w.cmp, g, ws.state[w.atom].relax));
                 changed |= *c != c0;
             }
             return changed;
@@ -1486,7 +1496,7 @@ impl Watcher {
         let mut changed = false;
         for ((w, c), &c0) in self.watched.iter().zip(&mut self.cls_s).zip(&self.cls) {
             let ws = &self.sets[w.set];
-            *c = class(watched_value(w.cmp, ws.vs[w.atom], ws.relax[w.atom]));
+            *c = class(watched_value(w.cmp, ws.vs[w.atom], ws.state[w.atom].relax));
             changed |= *c != c0;
         }
         changed
@@ -1514,8 +1524,8 @@ impl Watcher {
             let ws = &mut self.sets[fi];
             let vals = if at_candidate { &ws.vb } else { &ws.vs };
             let (cmp, g) = (w.cmp, vals[w.atom]);
-            if ws.relax[w.atom] > 0.0 && holds_by(cmp, g, ws.settle[w.atom]) {
-                ws.relax[w.atom] = 0.0;
+            if ws.state[w.atom].relax > 0.0 && holds_by(cmp, g, ws.state[w.atom].settle) {
+                ws.state[w.atom].relax = 0.0;
                 self.relaxed -= 1;
                 *c = class(g);
             }
@@ -1539,9 +1549,7 @@ impl Watcher {
     ) -> Option<(f64, EventKind)> {
         let m = if P::STRAIGHT { 0 } else { self.checks };
         self.span = (s0, s1);
-        self.form_pts.fill(None);
-        self.sure_pts.fill(None);
-        self.changes_from.fill(None);
+        self.step.fill(StepFacts::default());
         // A segment that starts on a boundary (a post-jump state, a few ulp
         // on either side of an atom's zero) may cross it right away and
         // come back within the first interval: look early in the first
@@ -1668,13 +1676,13 @@ impl Watcher {
                 continue;
             };
             let WAtom { set, atom, cmp, .. } = self.watched[w];
-            let (cls, relaxed) = (self.cls[w], self.sets[set].relax[atom] > 0.0);
+            let (cls, relaxed) = (self.cls[w], self.sets[set].state[atom].relax > 0.0);
             if cls == 2 {
                 all = false;
                 continue;
             }
             // An earlier atom with the same function has the same points.
-            let points = match self.twin[w].and_then(|u| self.form_pts[u]) {
+            let points = match self.twin[w].and_then(|u| self.step[u].form_pts) {
                 Some(points) => points,
                 None => {
                     let Some(points) = form_points(form, path) else {
@@ -1683,7 +1691,7 @@ impl Watcher {
                     points
                 }
             };
-            self.form_pts[w] = Some(points);
+            self.step[w].form_pts = Some(points);
             let (g, n, tol) = points;
             if !tol.is_finite() {
                 all = false;
@@ -1698,11 +1706,11 @@ impl Watcher {
                 // on. Before it the atom never has the other sign beyond
                 // `tol`, so a change of class there is seen at that point.
                 // A twin's (the same points) is this atom's.
-                let found = match self.twin[w].and_then(|u| self.sure_pts[u]) {
+                let found = match self.twin[w].and_then(|u| self.step[u].sure_pts) {
                     Some(found) => found,
                     None => first_sure_sign(&g[..n], tol),
                 };
-                self.sure_pts[w] = Some(found);
+                self.step[w].sure_pts = Some(found);
                 let Some((tau, sure)) = found else {
                     all = false;
                     continue;
@@ -1723,7 +1731,7 @@ impl Watcher {
             }
             // A twin searched from the same point with the same sign (the
             // same points) has the same changes, already checkpoints.
-            let twin = self.twin[w].and_then(|u| self.changes_from[u]);
+            let twin = self.twin[w].and_then(|u| self.step[u].changes_from);
             if let Some((_, _, settled)) = twin.filter(|&(f, s, _)| (f, s) == (from, sign)) {
                 all &= settled;
                 continue;
@@ -1757,7 +1765,7 @@ impl Watcher {
                     Err(()) => break,
                 }
             }
-            self.changes_from[w] = Some((start.0, start.1, settled));
+            self.step[w].changes_from = Some((start.0, start.1, settled));
             // Not settled: the checkpoints watch this atom too.
             all &= settled;
             // A single change stays visible at every later checkpoint; only
@@ -1798,7 +1806,7 @@ impl Watcher {
                     continue;
                 }
                 let WAtom { set, atom, .. } = self.watched[w];
-                let relax = self.sets[set].relax[atom];
+                let relax = self.sets[set].state[atom].relax;
                 let (a, b, fresh) = match self.found[w] {
                     (a, b, c, r) if a >= cursor && c == self.cls[w] && r == relax => (a, b, false),
                     _ => {
@@ -1851,7 +1859,7 @@ impl Watcher {
             }
             for (w, c) in self.watched.iter().zip(self.cls.iter_mut()) {
                 let ws = &self.sets[w.set];
-                *c = class(watched_value(w.cmp, ws.vb[w.atom], ws.relax[w.atom]));
+                *c = class(watched_value(w.cmp, ws.vb[w.atom], ws.state[w.atom].relax));
             }
             // Ended relaxations change the checkpoint's classes too.
             let relaxed = self.relaxed;
@@ -1875,7 +1883,7 @@ impl Watcher {
     fn shares_zero(&self, w: usize) -> bool {
         let unrelaxed = |w: usize| {
             let WAtom { set, atom, .. } = self.watched[w];
-            self.sets[set].relax[atom] == 0.0
+            self.sets[set].state[atom].relax == 0.0
         };
         self.twin[w].is_some_and(|u| unrelaxed(u) && unrelaxed(w) && self.need[u])
     }
@@ -1917,29 +1925,20 @@ impl Watcher {
         };
         // The set's value with `w` true and false, the other atoms at their
         // (unchanged) truth at the checkpoint.
-        let other = |(a, ((&v, &relax), &start)): (&Atom, ((&f64, &f64), &bool))| {
+        let other = |(a, (&v, st)): (&Atom, (&f64, &AtomState))| {
             if a.watched() {
-                a.cmp.holds_within(v, relax)
+                a.cmp.holds_within(v, st.relax)
             } else {
-                start
+                st.start_truth
             }
         };
-        let truth = |k: usize| {
-            (k != atom).then(|| {
-                other((
-                    &spec.atoms[k],
-                    ((&ws.vs[k], &ws.relax[k]), &ws.start_truth[k]),
-                ))
-            })
-        };
+        let truth =
+            |k: usize| (k != atom).then(|| other((&spec.atoms[k], (&ws.vs[k], &ws.state[k]))));
         match ws.table {
             Some(t) => {
                 // The truth table's index with `w` false, in one pass over
                 // the atoms (a table covers at most `MAX_ATOMS` of them).
-                let atoms = spec
-                    .atoms
-                    .iter()
-                    .zip(ws.vs.iter().zip(&ws.relax).zip(&ws.start_truth));
+                let atoms = spec.atoms.iter().zip(ws.vs.iter().zip(&ws.state));
                 let mut m = 0u32;
                 for (k, entry) in atoms.enumerate().take(TruthTable::MAX_ATOMS) {
                     m |= u32::from(k != atom && other(entry)) << k;
@@ -1990,10 +1989,11 @@ impl Watcher {
                             vb[k] = self.flat_b[off + k];
                         }
                         let atom = spec.atoms[k];
-                        ws.truth[k] = if !atom.watched() {
-                            ws.start_truth[k]
-                        } else if ws.relax[k] > 0.0 {
-                            atom.cmp.holds_within(vb[k], ws.relax[k])
+                        let st = &mut ws.state[k];
+                        st.truth = if !atom.watched() {
+                            st.start_truth
+                        } else if st.relax > 0.0 {
+                            atom.cmp.holds_within(vb[k], st.relax)
                         } else {
                             match atom.cmp {
                                 Cmp::Eq => eq_met(va[k], vb[k]),
@@ -2002,17 +2002,17 @@ impl Watcher {
                             }
                         };
                         if k < TruthTable::MAX_ATOMS {
-                            mask |= u32::from(ws.truth[k]) << k;
+                            mask |= u32::from(st.truth) << k;
                         }
                     }
                     match ws.table {
                         Some(t) => t.value(mask),
-                        None => spec.expr.eval_with(&|k| ws.truth[k]),
+                        None => spec.expr.eval_with(&|k| ws.state[k].truth),
                     }
                 }
                 (None, SetRef::Jump(r)) => sys.jump_set(r, tb, xb),
                 (None, SetRef::Flow) => {
-                    sys.flow_set(tb, xb) || (ws.relax[0] > 0.0 && vb[0] >= -ws.relax[0])
+                    sys.flow_set(tb, xb) || (ws.state[0].relax > 0.0 && vb[0] >= -ws.state[0].relax)
                 }
             };
             ws.va = va;
@@ -2046,7 +2046,7 @@ impl Watcher {
             true,
             &mut vt,
         );
-        let v = watched_value(cmp, vt[atom], ws.relax[atom]);
+        let v = watched_value(cmp, vt[atom], ws.state[atom].relax);
         ws.vt = vt;
         v
     }
@@ -2064,7 +2064,7 @@ impl Watcher {
     ) -> Option<f64> {
         let form = self.affine[w].as_ref()?;
         let WAtom { set, atom, cmp, .. } = self.watched[w];
-        let relax = self.sets[set].relax[atom];
+        let relax = self.sets[set].state[atom].relax;
         let shift = match cmp {
             _ if relax <= 0.0 => 0.0,
             Cmp::Ge | Cmp::Gt => relax,
@@ -2072,7 +2072,7 @@ impl Watcher {
             Cmp::Ne => 0.0,
             Cmp::Eq => return None,
         };
-        let (mut g, n, _) = match self.form_pts[w] {
+        let (mut g, n, _) = match self.step[w].form_pts {
             Some(points) => points,
             None => form_points(form, path)?,
         };
