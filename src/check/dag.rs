@@ -41,6 +41,14 @@ pub enum UnFn {
     Atan,
     /// tanh a
     Tanh,
+    /// asin a (NaN outside [−1, 1])
+    Asin,
+    /// acos a (NaN outside [−1, 1])
+    Acos,
+    /// sinh a
+    Sinh,
+    /// cosh a
+    Cosh,
     /// sign a (−1, 0, 1)
     Sign,
     /// ⌊a⌋
@@ -394,6 +402,10 @@ pub fn eval_un(f: UnFn, a: f64) -> f64 {
         UnFn::Tan => a.tan(),
         UnFn::Atan => a.atan(),
         UnFn::Tanh => a.tanh(),
+        UnFn::Asin => a.asin(),
+        UnFn::Acos => a.acos(),
+        UnFn::Sinh => a.sinh(),
+        UnFn::Cosh => a.cosh(),
         UnFn::Sign => {
             if a > 0.0 {
                 1.0

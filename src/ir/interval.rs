@@ -305,6 +305,26 @@ fn un(f: UnFn, a: Interval) -> Interval {
             monotone_approx(a, f64::atan).clamp(-lim, lim)
         }
         UnFn::Tanh => monotone_approx(a, f64::tanh).clamp(-1.0, 1.0),
+        UnFn::Asin | UnFn::Acos => {
+            if a.hi < -1.0 || a.lo > 1.0 {
+                return Interval::ENTIRE;
+            }
+            let nan = a.nan || a.lo < -1.0 || a.hi > 1.0;
+            let (lo, hi) = (a.lo.max(-1.0), a.hi.min(1.0));
+            if f == UnFn::Asin {
+                let lim = FRAC_PI_2.next_up();
+                Interval::approx(lo.asin(), hi.asin(), nan).clamp(-lim, lim)
+            } else {
+                // Decreasing.
+                Interval::approx(hi.acos(), lo.acos(), nan).clamp(0.0, PI.next_up())
+            }
+        }
+        UnFn::Sinh => monotone_approx(a, f64::sinh),
+        UnFn::Cosh => {
+            // Even, least (1) at 0.
+            let (lo, hi) = a.abs_range();
+            Interval::approx(lo.cosh(), hi.cosh(), a.nan).clamp(1.0, f64::INFINITY)
+        }
         UnFn::Sign => {
             let s = |v: f64| crate::check::dag::eval_un(UnFn::Sign, v);
             let r = Interval::new(s(a.lo), s(a.hi), false);

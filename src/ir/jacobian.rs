@@ -260,6 +260,21 @@ fn tangent(dag: &mut Dag, id: NodeId, c: u32, tan: &[NodeId], zero: NodeId) -> N
                     let one = dag.konst(1.0);
                     dag.bin(Sub, one, sq)
                 }
+                UnFn::Asin | UnFn::Acos => {
+                    // ±1 / √(1 − a²)
+                    let sq = dag.bin(Mul, a, a);
+                    let one = dag.konst(1.0);
+                    let rest = dag.bin(Sub, one, sq);
+                    let den = dag.un(UnFn::Sqrt, rest);
+                    let d = dag.bin(Div, da, den);
+                    return if f == UnFn::Asin {
+                        d
+                    } else {
+                        dag.un(UnFn::Neg, d)
+                    };
+                }
+                UnFn::Sinh => dag.un(UnFn::Cosh, a),
+                UnFn::Cosh => dag.un(UnFn::Sinh, a),
                 UnFn::Sign | UnFn::Floor | UnFn::Ceil | UnFn::Round | UnFn::Not => {
                     return zero;
                 }

@@ -4,7 +4,7 @@ use super::*;
 use crate::check::dag::{Dag, NodeId, eval_bin, eval_un};
 use crate::ir::program::Frame;
 
-const UNS: [UnFn; 15] = [
+const UNS: [UnFn; 19] = [
     UnFn::Neg,
     UnFn::Abs,
     UnFn::Sqrt,
@@ -15,6 +15,10 @@ const UNS: [UnFn; 15] = [
     UnFn::Tan,
     UnFn::Atan,
     UnFn::Tanh,
+    UnFn::Asin,
+    UnFn::Acos,
+    UnFn::Sinh,
+    UnFn::Cosh,
     UnFn::Sign,
     UnFn::Floor,
     UnFn::Ceil,

@@ -169,6 +169,10 @@ memo_helpers!(
     un_tan = Tan,
     un_atan = Atan,
     un_tanh = Tanh,
+    un_asin = Asin,
+    un_acos = Acos,
+    un_sinh = Sinh,
+    un_cosh = Cosh,
 );
 
 bin_helpers!(
@@ -190,6 +194,10 @@ pub(super) fn un_helper(f: UnFn) -> Option<Un> {
         UnFn::Tan => Some(un_tan),
         UnFn::Atan => Some(un_atan),
         UnFn::Tanh => Some(un_tanh),
+        UnFn::Asin => Some(un_asin),
+        UnFn::Acos => Some(un_acos),
+        UnFn::Sinh => Some(un_sinh),
+        UnFn::Cosh => Some(un_cosh),
         // Cranelift's `nearest` rounds halves to even, `f64::round` away
         // from zero: a call.
         UnFn::Round => Some(un_round),

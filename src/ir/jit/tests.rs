@@ -14,12 +14,13 @@ use crate::ir::program::{Frame, Op, Program};
 fn all_un() -> Vec<UnFn> {
     use UnFn::*;
     let all = vec![
-        Neg, Abs, Sqrt, Exp, Log, Sin, Cos, Tan, Atan, Tanh, Sign, Floor, Ceil, Round, Not,
+        Neg, Abs, Sqrt, Exp, Log, Sin, Cos, Tan, Atan, Tanh, Asin, Acos, Sinh, Cosh, Sign, Floor,
+        Ceil, Round, Not,
     ];
     for f in &all {
         match f {
-            Neg | Abs | Sqrt | Exp | Log | Sin | Cos | Tan | Atan | Tanh | Sign | Floor | Ceil
-            | Round | Not => {}
+            Neg | Abs | Sqrt | Exp | Log | Sin | Cos | Tan | Atan | Tanh | Asin | Acos | Sinh
+            | Cosh | Sign | Floor | Ceil | Round | Not => {}
         }
     }
     all
