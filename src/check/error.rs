@@ -545,6 +545,10 @@ impl CheckError {
                     format!("only states are assigned: declare it first, e.g. `state {name} = 0`")
                 }),
             ),
+            // `nan` (as `--set g=nan` or in a model) is no constant: say how to write NaN.
+            UnknownName { name, span, .. } if name.eq_ignore_ascii_case("nan") => d
+                .primary(*span, "not found")
+                .help("there is no `nan` constant: write `0/0` for NaN (`inf` is a constant)"),
             UnknownName {
                 span, suggestion, ..
             }

@@ -517,6 +517,14 @@ const CASES: &[Case] = &[
         message: "unknown setting `lamda` in override `lamda=0.5`",
     },
     Case {
+        name: "override with nan",
+        src: "model m\nparam g = 1\nstate x = 0\n",
+        overrides: &["g=nan"],
+        code: "E0508",
+        at: "1:3", // of `--set g=nan`
+        message: "in override `g=nan`: unknown name `nan`",
+    },
+    Case {
         name: "override that is not an expression",
         src: "model m\nparam g = 1\nstate x = 0\n",
         overrides: &["g=[1,"],
@@ -575,6 +583,10 @@ fn unknown_names_come_with_the_closest_declared_name() {
         ("unknown function with a suggestion", "did you mean `sqrt`?"),
         ("unknown sim key with a suggestion", "did you mean `seed`?"),
         ("override of an unknown name", "did you mean `lambda`?"),
+        (
+            "override with nan",
+            "there is no `nan` constant: write `0/0` for NaN (`inf` is a constant)",
+        ),
         ("misspelt declaration keyword", "did you mean `state`?"),
         ("misspelt flow keyword", "did you mean `flow`?"),
         (
