@@ -35,7 +35,59 @@ pub enum ReadError {
     Damaged(String),
 }
 
-/// One channel of the file.
+/// Checks every chunk the summary indexes before the mcap reader decodes
+/// it: decompressed here, bounded by its declared size, against its CRC.
+/// The reader reserves what a damaged chunk's data claim, which can abort
+/// the process (one flipped byte in LZ4 data asked for 3·10¹⁸ bytes). A
+/// file without a readable summary is left to the reader, which reports it.
+fn check_chunks(bytes: &[u8]) -> Result<(), ReadError> {
+    use std::io::Read;
+    let Ok(Some(summary)) = ::mcap::read::Summary::read(bytes) else {
+        return Ok(());
+    };
+    for c in &summary.chunk_indexes {
+        let damaged = |why: String| {
+            ReadError::Damaged(format!("the chunk at byte {}: {why}", c.chunk_start_offset))
+        };
+        let span = |a: u64, n: u64| {
+            let a = usize::try_from(a).ok()?;
+            bytes.get(a..a.checked_add(usize::try_from(n).ok()?)?)
+        };
+        let record = span(c.chunk_start_offset, c.chunk_length)
+            .ok_or_else(|| damaged("it lies outside the file".into()))?;
+        let data = c
+            .compressed_data_offset()
+            .ok()
+            .and_then(|at| span(at, c.compressed_size))
+            .filter(|d| d.len() < record.len())
+            .ok_or_else(|| damaged("its data lie outside the record".into()))?;
+        // The record: opcode, length, start and end times, size, CRC.
+        let crc = u32::from_le_bytes(record[33..37].try_into().expect("four bytes"));
+        let mut out = Vec::new();
+        let bound = c.uncompressed_size.saturating_add(1);
+        let read = match c.compression.as_str() {
+            "" => {
+                out.extend_from_slice(data);
+                Ok(0)
+            }
+            "lz4" => lz4::Decoder::new(data).and_then(|d| d.take(bound).read_to_end(&mut out)),
+            "zstd" => zstd::stream::read::Decoder::new(data)
+                .and_then(|d| d.take(bound).read_to_end(&mut out)),
+            other => return Err(damaged(format!("unknown compression `{other}`"))),
+        };
+        read.map_err(|e| damaged(format!("its data do not decompress: {e}")))?;
+        if out.len() as u64 != c.uncompressed_size {
+            return Err(damaged("its data do not decompress to its size".into()));
+        }
+        // 0: no CRC written.
+        if crc != 0 && crc32fast::hash(&out) != crc {
+            return Err(damaged("its CRC does not match its data".into()));
+        }
+    }
+    Ok(())
+}
+
+/// One channel of the file./// One channel of the file.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ChannelInfo {
     /// Topic, e.g. `/hybsim/state`.
@@ -229,6 +281,7 @@ impl RunLog {
         let states = RecordReader::new(&info.state_layout, info.state_dim);
         let outputs = RecordReader::new(&info.output_layout, info.output_dim);
         let with_outputs = self.has_outputs();
+        check_chunks(bytes)?;
         // With the chunks' CRCs checked: a damaged chunk often still
         // decompresses, into wrong numbers that would be plotted.
         let stream = ::mcap::MessageStream::new_with_options(
