@@ -87,7 +87,7 @@ fn check_chunks(bytes: &[u8]) -> Result<(), ReadError> {
     Ok(())
 }
 
-/// One channel of the file./// One channel of the file.
+/// One channel of the file.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ChannelInfo {
     /// Topic, e.g. `/hybsim/state`.
