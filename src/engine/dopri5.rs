@@ -86,6 +86,47 @@ impl NonFiniteRate {
     }
 }
 
+/// Hairer's initial step estimate (HINIT) for a method of order `order`
+/// from `y` with `f0 = f(0, y)`, with one evaluation of f (`scratch`: room
+/// for a state and its rate).
+pub(crate) fn initial_step(
+    order: i32,
+    (rtol, atol): (f64, f64),
+    y: &[f64],
+    f0: &[f64],
+    (y1, f1): (&mut [f64], &mut [f64]),
+    f: &mut Rhs<'_>,
+) -> f64 {
+    let n = y.len() as f64;
+    let sk = |i: usize| atol + rtol * y[i].abs();
+    let (mut dnf, mut dny) = (0.0, 0.0);
+    for (i, yi) in y.iter().enumerate() {
+        dnf += (f0[i] / sk(i)).powi(2);
+        dny += (yi / sk(i)).powi(2);
+    }
+    let h = if dnf <= 1e-10 || dny <= 1e-10 {
+        1e-6
+    } else {
+        (dny / dnf).sqrt() * 0.01
+    };
+    for (i, yi) in y.iter().enumerate() {
+        y1[i] = yi + h * f0[i];
+    }
+    f(h, y1, f1);
+    let mut der2: f64 = 0.0;
+    for i in 0..y.len() {
+        der2 += ((f1[i] - f0[i]) / sk(i)).powi(2);
+    }
+    let der2 = der2.sqrt() / h;
+    let der12 = der2.abs().max((dnf / n).sqrt());
+    let h1 = if der12 <= 1e-15 {
+        (h * 1e-3).max(1e-6)
+    } else {
+        (0.01 / der12).powf(1.0 / f64::from(order))
+    };
+    (100.0 * h).min(h1)
+}
+
 /// Why a step attempt failed for good.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub(crate) enum Failure {
@@ -172,42 +213,11 @@ impl Dopri5 {
     pub fn start(&mut self, y: &[f64], f0: &[f64], f: &mut Rhs<'_>) {
         self.k[0].copy_from_slice(f0);
         if self.h_next <= 0.0 {
-            self.h_next = self.initial_step(y, f);
+            let [k1, k2, ..] = &mut self.k;
+            let tol = (self.rtol, self.atol);
+            self.h_next = initial_step(5, tol, y, k1, (&mut self.y_stage, k2), f);
+            self.fevals += 1;
         }
-    }
-
-    /// Hairer's initial step estimate (HINIT), with one evaluation of f.
-    fn initial_step(&mut self, y: &[f64], f: &mut Rhs<'_>) -> f64 {
-        let n = y.len() as f64;
-        let sk = |i: usize| self.atol + self.rtol * y[i].abs();
-        let (mut dnf, mut dny) = (0.0, 0.0);
-        for (i, yi) in y.iter().enumerate() {
-            dnf += (self.k[0][i] / sk(i)).powi(2);
-            dny += (yi / sk(i)).powi(2);
-        }
-        let mut h = if dnf <= 1e-10 || dny <= 1e-10 {
-            1e-6
-        } else {
-            (dny / dnf).sqrt() * 0.01
-        };
-        for (i, yi) in y.iter().enumerate() {
-            self.y_stage[i] = yi + h * self.k[0][i];
-        }
-        f(h, &self.y_stage, &mut self.k[1]);
-        self.fevals += 1;
-        let mut der2: f64 = 0.0;
-        for i in 0..y.len() {
-            der2 += ((self.k[1][i] - self.k[0][i]) / sk(i)).powi(2);
-        }
-        let der2 = der2.sqrt() / h;
-        let der12 = der2.abs().max((dnf / n).sqrt());
-        let h1 = if der12 <= 1e-15 {
-            (h * 1e-3).max(1e-6)
-        } else {
-            (0.01 / der12).powf(0.2)
-        };
-        h = (100.0 * h).min(h1);
-        h
     }
 
     /// The proposal for the next step.

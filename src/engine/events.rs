@@ -7,8 +7,9 @@
 //! cause an event (C, and the general rules' D_i unless the priority is
 //! [`Priority::Flows`]) are watched individually: on each step `[s0, s1]`
 //! their sign (−, 0, + or NaN) is evaluated at `guard_checks` interior
-//! points and at `s1` on a [`StepPath`] (cubic Hermite interpolant of the
-//! step ends, or the exact solution of an affine flow; an Euler–Maruyama
+//! points and at `s1` on a [`StepPath`] (the stepper's dense output, the
+//! cubic Hermite interpolant of the step ends of Rk4, or the exact
+//! solution of an affine flow; an Euler–Maruyama
 //! step, a straight line between points of a sampled path, only at its
 //! ends). Each sign change
 //! is bracketed and shrunk (the ITP method, with bisection where the values
@@ -726,7 +727,8 @@ fn sort_points(points: &mut [f64]) {
 }
 
 /// The most sign changes of one affine atom looked for on one step (a
-/// polynomial of degree 4 changes sign at most 4 times).
+/// polynomial of degree 7, Dop853's interpolant, changes sign at most 7
+/// times).
 const MAX_CHANGES: usize = 8;
 
 /// At most this many candidates are examined between two checkpoints (an

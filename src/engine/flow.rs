@@ -1,10 +1,12 @@
 //! Flow segments: advancing the state from local time 0 to the first event,
 //! the segment end `d_end` (next timer event or horizon), or a chunk end.
 //!
-//! Three methods share the event watcher and the output logic:
-//! - ode_solvers steppers (Dopri5, Dop853, Rk4) driven through `solout`
-//!   with sparse output; events are localized on the cubic Hermite
-//!   interpolant of the step ends;
+//! Four methods share the event watcher and the output logic:
+//! - the engine's own steppers ([`OwnStepper`]: Dopri5, Dop853, Radau5,
+//!   Bdf), one step at a time; events are localized on each step's dense
+//!   output;
+//! - ode_solvers' Rk4 driven through `solout` with sparse output; events
+//!   are localized on the cubic Hermite interpolant of the step ends;
 //! - exact advance of affine flows `ẋ = A x + b` by the exponential of the
 //!   augmented matrix `[[A, b], [0, 0]]`, cached per distinct step length,
 //!   or, where `A` is structurally nilpotent, by the flow's own polynomial
@@ -15,11 +17,12 @@
 use std::ops::ControlFlow;
 
 use nalgebra::{DMatrix, DVector};
-use ode_solvers::{Dop853, Dopri5, OutputType, Rk4, System, dop_shared::IntegrationError};
+use ode_solvers::{Rk4, System};
 
 use super::HybridSystem;
 use super::bdf::{Bdf, BdfPath};
 use super::clock::TimeSum;
+use super::dop853::{Dop853, Dop853Path};
 use super::dopri5::{Dopri5 as OwnDopri5, DopriPath, Failure, NonFiniteRate};
 use super::error::SimError;
 use super::events::{EventKind, Hermite, Linear, StepPath, Watcher, at_step_end};
@@ -32,11 +35,9 @@ use super::stepper::OwnStepper;
 use super::system::SimRng;
 use crate::arc::{ArcSink, HybridTime, SampleKind, SolverSwitch};
 
-/// Steps per ode_solvers stepper before it is restarted from its last state
-/// (bounds the memory of its sparse output and of `Rk4`'s preallocation).
+/// Steps per `Rk4` stepper before it is restarted from its last state
+/// (bounds the memory of its output and preallocation).
 const MAX_STEPS_PER_STEPPER: u32 = 10_000;
-
-const CARRY_STEP: bool = option_env!("HYBSIM_NO_CARRY").is_none();
 
 /// Why a flow segment ended.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -108,6 +109,11 @@ impl DensePath for Hermite<'_> {
     }
 }
 impl DensePath for DopriPath<'_> {
+    fn start(&self) -> Option<&[f64]> {
+        Some(self.start())
+    }
+}
+impl DensePath for Dop853Path<'_> {
     fn start(&self) -> Option<&[f64]> {
         Some(self.start())
     }
@@ -884,8 +890,8 @@ impl DensePath for AffinePath<'_> {
     }
 }
 
-/// Buffers reused across segments (no allocation per segment besides the
-/// ode_solvers stepper's own).
+/// Buffers reused across segments (no allocation per segment besides
+/// `Rk4`'s own).
 pub(crate) struct Flows {
     pub method: Method,
     pub watcher: Watcher,
@@ -906,13 +912,14 @@ pub(crate) struct Flows {
     f_prev_partial: bool,
     noise_g: Vec<f64>,
     noise_dw: Vec<f64>,
-    /// Last full accepted step of an adaptive solver, for diagnostics.
-    last_h: f64,
     /// Evaluations of f by the solver in the current segment.
     fevals: u64,
     /// The engine's Dopri5 stepper, if the solver is Dopri5 (kept across
     /// segments: buffers and the step proposal).
     dopri: Option<OwnDopri5>,
+    /// The engine's Dop853 stepper, if the solver is Dop853 (kept across
+    /// segments likewise).
+    dop853: Option<Dop853>,
     /// The Radau IIA stepper, if the solver is Radau5 (kept across
     /// segments: buffers, step proposal, Jacobian and factorizations).
     radau: Option<Radau5>,
@@ -1176,7 +1183,6 @@ impl Flows {
             f_prev_partial: false,
             noise_g: vec![0.0; n * m],
             noise_dw: vec![0.0; m],
-            last_h: 0.0,
             fevals: 0,
             dopri: match settings.solver {
                 _ if exact_only => None,
@@ -1184,6 +1190,10 @@ impl Flows {
                 Solver::Auto { rtol, atol } => {
                     Some(OwnDopri5::new(n, rtol, atol).stiffness_test_every(AUTO_STIFF_EVERY))
                 }
+                _ => None,
+            },
+            dop853: match settings.solver {
+                Solver::Dop853 { rtol, atol } if !exact_only => Some(Dop853::new(n, rtol, atol)),
                 _ => None,
             },
             radau: None,
@@ -1261,7 +1271,8 @@ impl Flows {
                     self.f_prev[i] = aff.rate(i, x);
                 }
             }
-            // Timer rates and the Hermite interpolant (guards, output).
+            // Timer rates, the steppers' first stage and Rk4's Hermite
+            // interpolant (guards, output).
             None => sys.flow_map(at, x, &mut self.f_prev),
         }
         self.watcher.start(sys, clock, j, x);
@@ -1328,9 +1339,9 @@ impl Flows {
         Ok(end)
     }
 
-    /// A segment on the solver: the engine's Dopri5, Radau5 or Bdf (or
-    /// Dopri5 and Radau5 in turn for `Solver::Auto`), or ode_solvers'
-    /// others.
+    /// A segment on the solver: the engine's Dopri5, Dop853, Radau5 or Bdf
+    /// (or Dopri5 and Radau5 in turn for `Solver::Auto`), or ode_solvers'
+    /// Rk4.
     fn solver_segment<S: HybridSystem + ?Sized>(
         &mut self,
         sys: &S,
@@ -1347,6 +1358,10 @@ impl Flows {
             let result = self.own_segment(sys, out, &mut st, solver, (t0, j), 0.0, d_end);
             self.dopri = Some(st);
             result
+        } else if let Some(mut st) = self.dop853.take() {
+            let result = self.own_segment(sys, out, &mut st, solver, (t0, j), 0.0, d_end);
+            self.dop853 = Some(st);
+            result
         } else if let Some(mut st) = self.radau.take() {
             let result = self.own_segment(sys, out, &mut st, solver, (t0, j), 0.0, d_end);
             self.radau = Some(st);
@@ -1356,7 +1371,10 @@ impl Flows {
             self.bdf = Some(st);
             result
         } else {
-            return self.ode_segment(sys, out, solver, t0, j, d_end);
+            let Solver::Rk4 { h } = solver else {
+                unreachable!("the adaptive solvers run on the engine's own steppers")
+            };
+            return self.rk4_segment(sys, out, h, t0, j, d_end);
         };
         match stepped? {
             Stepped::End(end) => Ok(end),
@@ -1544,7 +1562,6 @@ impl Flows {
                 return Ok(Stepped::End(end));
             }
             drop(path);
-            self.last_h = h;
             self.y_prev.copy_from_slice(st.y_new());
             s = s1;
             if auto {
@@ -1560,35 +1577,26 @@ impl Flows {
         }
     }
 
-    fn ode_segment<S: HybridSystem + ?Sized>(
+    /// A segment on ode_solvers' `Rk4` with step `h` (at most
+    /// [`MAX_STEPS_PER_STEPPER`] steps, then a partial end), driven
+    /// through `solout`.
+    fn rk4_segment<S: HybridSystem + ?Sized>(
         &mut self,
         sys: &S,
         out: &mut Output<'_>,
-        solver: Solver,
+        h: f64,
         t0: f64,
         j: u64,
         d_end: f64,
     ) -> Result<SegmentEnd, SimError> {
         let y0 = DVector::from_column_slice(&self.y_prev);
-        let (d_stop, reach_why, last_from, f_is_start, h_fixed) = match solver {
-            Solver::Rk4 { h } => {
-                let chunk = d_end.min(h * f64::from(MAX_STEPS_PER_STEPPER));
-                let steps = (chunk / h).ceil().max(1.0);
-                let h_eff = chunk / steps;
-                let why = if chunk < d_end {
-                    EndWhy::Partial
-                } else {
-                    EndWhy::Reached
-                };
-                (chunk, why, chunk - 0.5 * h_eff, true, h_eff)
-            }
-            _ => (
-                d_end,
-                EndWhy::Reached,
-                d_end - 4.0 * f64::EPSILON * d_end,
-                false,
-                0.0,
-            ),
+        let chunk = d_end.min(h * f64::from(MAX_STEPS_PER_STEPPER));
+        let steps = (chunk / h).ceil().max(1.0);
+        let h_eff = chunk / steps;
+        let reach_why = if chunk < d_end {
+            EndWhy::Partial
+        } else {
+            EndWhy::Reached
         };
         let mut step = Stepper {
             sys,
@@ -1596,117 +1604,26 @@ impl Flows {
             out,
             t0,
             j,
-            d_stop,
-            last_from,
+            d_stop: chunk,
+            last_from: chunk - 0.5 * h_eff,
             reach_why,
-            f_is_start,
             fevals: std::cell::Cell::new(0),
-            non_finite: std::cell::Cell::new(None),
             s_prev: 0.0,
             end: None,
         };
-        let h_max = step.fl.max_step.min(d_end);
-        // First step: the last full step of the previous segment, or
-        // ode_solvers' own estimate (2 more f-evaluations) for the first.
-        let h_init = if CARRY_STEP {
-            step.fl.last_h.min(d_stop)
-        } else {
-            0.0
-        };
-        let result = match solver {
-            Solver::Dopri5 { rtol, atol } => {
-                let mut st = Dopri5::from_param(
-                    &mut step,
-                    0.0,
-                    d_stop,
-                    d_stop,
-                    y0,
-                    rtol,
-                    atol,
-                    0.9,
-                    0.04,
-                    0.2,
-                    10.0,
-                    h_max,
-                    h_init,
-                    MAX_STEPS_PER_STEPPER,
-                    1000,
-                    OutputType::Sparse,
-                );
-                st.integrate().map(|_| ())
-            }
-            Solver::Dop853 { rtol, atol } => {
-                let mut st = Dop853::from_param(
-                    &mut step,
-                    0.0,
-                    d_stop,
-                    d_stop,
-                    y0,
-                    rtol,
-                    atol,
-                    0.9,
-                    0.0,
-                    0.333,
-                    6.0,
-                    h_max,
-                    h_init,
-                    MAX_STEPS_PER_STEPPER,
-                    1000,
-                    OutputType::Sparse,
-                );
-                st.integrate().map(|_| ())
-            }
-            Solver::Radau5 { .. } | Solver::Bdf { .. } | Solver::Auto { .. } => {
-                unreachable!("the implicit and automatic solvers run on the engine's own steppers")
-            }
-            Solver::Rk4 { .. } | Solver::EulerMaruyama { .. } => {
-                let mut st = Rk4::new(&mut step, 0.0, y0, d_stop, h_fixed);
-                st.integrate().map(|_| ())
-            }
-        };
-        let (s_prev, end) = (step.s_prev, step.end.take());
-        // Relative to the last accepted point, as `gave_up` takes it.
-        let ahead = (step.non_finite.get()).map(|r| NonFiniteRate {
-            s: r.s - s_prev,
-            ..r
-        });
-        self.fevals += step.fevals.get();
-        match (end, result) {
-            (Some(end), _) => end,
-            (None, Ok(())) | (None, Err(IntegrationError::MaxNumStepReached { .. })) => {
-                // Ended without our last-step test firing (or hit the step
-                // limit): continue from the last accepted step end.
-                self.y_end.copy_from_slice(&self.y_prev);
-                Ok(SegmentEnd {
-                    s: s_prev,
-                    why: EndWhy::Partial,
-                })
-            }
-            (None, Err(IntegrationError::StepSizeUnderflow { x })) => {
-                let last = (HybridTime::new(t0 + s_prev, j), &self.y_prev[..]);
-                let how = GaveUp::Collapse { h: self.last_h };
-                Err(gave_up(
-                    sys,
-                    last,
-                    HybridTime::new(t0 + x, j),
-                    ahead,
-                    solver,
-                    how,
-                ))
-            }
-            (None, Err(IntegrationError::StiffnessDetected { x })) => {
-                let last = (HybridTime::new(t0 + s_prev, j), &self.y_prev[..]);
-                let how = GaveUp::Stiff;
-                Err(gave_up(
-                    sys,
-                    last,
-                    HybridTime::new(t0 + x, j),
-                    ahead,
-                    solver,
-                    how,
-                ))
-            }
-        }
+        // `Rk4` never fails: it stops at `chunk`, or where `solout` asks.
+        let _ = Rk4::new(&mut step, 0.0, y0, chunk, h_eff).integrate();
+        let (s_prev, end, fevals) = (step.s_prev, step.end.take(), step.fevals.get());
+        self.fevals += fevals;
+        end.unwrap_or_else(|| {
+            // Ended without our last-step test firing: continue from the
+            // last step end.
+            self.y_end.copy_from_slice(&self.y_prev);
+            Ok(SegmentEnd {
+                s: s_prev,
+                why: EndWhy::Partial,
+            })
+        })
     }
 
     /// A segment on the exact path: matrix exponentials, or the flow's
@@ -2050,8 +1967,8 @@ fn close_step_at<S: HybridSystem + ?Sized, P: DensePath>(
     reach.map(|why| (SegmentEnd { s: s1, why }, true))
 }
 
-/// The `ode_solvers::System` seen by the steppers: the flow map in local
-/// time, and `solout` doing event detection and output after each step.
+/// The `ode_solvers::System` seen by `Rk4`: the flow map in local time,
+/// and `solout` doing event detection and output after each step.
 struct Stepper<'f, 'o, S: ?Sized> {
     sys: &'f S,
     fl: &'f mut Flows,
@@ -2061,12 +1978,8 @@ struct Stepper<'f, 'o, S: ?Sized> {
     d_stop: f64,
     last_from: f64,
     reach_why: EndWhy,
-    /// `Rk4` passes f at the step's start to `solout`; Dopri5/Dop853 at its end.
-    f_is_start: bool,
     /// Evaluations of f (`System::system` takes `&self`).
     fevals: std::cell::Cell<u64>,
-    /// The last non-finite rate an attempt met since the last accepted step.
-    non_finite: std::cell::Cell<Option<NonFiniteRate>>,
     s_prev: f64,
     end: Option<Result<SegmentEnd, SimError>>,
 }
@@ -2077,22 +1990,19 @@ impl<S: HybridSystem + ?Sized> Stepper<'_, '_, S> {
         true
     }
 
-    /// After each accepted step ending at local time `s` with state `y`;
-    /// returns `true` to stop the stepper.
-    fn on_step(&mut self, s: f64, y: &[f64], dy: &[f64]) -> bool {
-        self.non_finite.set(None);
+    /// After each step ending at local time `s` with state `y`; returns
+    /// `true` to stop the stepper.
+    fn on_step(&mut self, s: f64, y: &[f64]) -> bool {
         if let Some(e) = check_finite(self.sys, HybridTime::new(self.t0 + s, self.j), y, None) {
             return self.finish(Err(e));
         }
         let last = s >= self.last_from;
         let s1 = if last { self.d_stop } else { s };
         let fl = &mut *self.fl;
-        if self.f_is_start {
-            self.sys
-                .flow_map(HybridTime::new(self.t0 + s1, self.j), y, &mut fl.f_cur);
-        } else {
-            fl.f_cur.copy_from_slice(dy);
-        }
+        // `Rk4` passes f at the step's start to `solout`: f at its end is
+        // evaluated here.
+        self.sys
+            .flow_map(HybridTime::new(self.t0 + s1, self.j), y, &mut fl.f_cur);
         let mut path = Hermite {
             s0: self.s_prev,
             s1,
@@ -2115,9 +2025,6 @@ impl<S: HybridSystem + ?Sized> Stepper<'_, '_, S> {
         ) {
             return self.finish(Ok(end));
         }
-        if s1 - self.s_prev > 0.0 {
-            fl.last_h = s1 - self.s_prev;
-        }
         self.s_prev = s1;
         fl.y_prev.copy_from_slice(y);
         std::mem::swap(&mut fl.f_prev, &mut fl.f_cur);
@@ -2133,13 +2040,10 @@ impl<S: HybridSystem + ?Sized> System<f64, DVector<f64>> for &mut Stepper<'_, '_
             y.as_slice(),
             dy.as_mut_slice(),
         );
-        if let Some(r) = NonFiniteRate::find(s, dy.as_slice()) {
-            self.non_finite.set(Some(r));
-        }
     }
 
-    fn solout(&mut self, s: f64, y: &DVector<f64>, dy: &DVector<f64>) -> bool {
-        self.on_step(s, y.as_slice(), dy.as_slice())
+    fn solout(&mut self, s: f64, y: &DVector<f64>, _dy: &DVector<f64>) -> bool {
+        self.on_step(s, y.as_slice())
     }
 }
 

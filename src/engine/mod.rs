@@ -133,9 +133,10 @@
 //! order 1 after each jump), [`Solver::Auto`] (Dopri5, switching to Radau5
 //! while the flow is stiff; each switch reported to the sink,
 //! [`ArcSink::solver_switch`](crate::arc::ArcSink::solver_switch)),
-//! [`Solver::Dop853`] or [`Solver::Rk4`] from
-//! `ode_solvers` (events on the cubic Hermite interpolant of the step ends:
-//! exact for polynomial flows such as free fall; O(h⁴) otherwise), each
+//! [`Solver::Dop853`] (the engine's own 8(5,3) stepper, events on its
+//! order-7 interpolant), or [`Solver::Rk4`] from `ode_solvers` (events on
+//! the cubic Hermite interpolant of the step ends: exact for polynomial
+//! flows such as free fall; O(h⁴) otherwise), each
 //! segment integrated in local time `[0, d]` while t is kept as a
 //! compensated sum of segment lengths. Flows
 //! declared [`FlowStructure::Affine`] can be advanced exactly by the
@@ -203,6 +204,7 @@
 
 mod bdf;
 mod clock;
+mod dop853;
 mod dopri5;
 mod error;
 mod events;

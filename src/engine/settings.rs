@@ -14,7 +14,8 @@ pub const DEFAULT_FIXED_STEP: f64 = 1e-3;
 /// exactly instead, unless [`SimSettings::exact_affine`] is off.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum Solver {
-    /// Dormand–Prince 5(4), adaptive step (ode_solvers `Dopri5`). The default,
+    /// Dormand–Prince 5(4), adaptive step (the engine's own stepper, events
+    /// and dense output on its order-4 interpolant). The default,
     /// with `rtol = 1e-6`, `atol = 1e-9`.
     Dopri5 {
         /// Relative tolerance of the local error (dimensionless).
@@ -22,8 +23,9 @@ pub enum Solver {
         /// Absolute tolerance of the local error (state units).
         atol: f64,
     },
-    /// Dormand–Prince 8(5,3), adaptive step (ode_solvers `Dop853`): for tight
-    /// tolerances.
+    /// Dormand–Prince 8(5,3), adaptive step (the engine's own stepper, events
+    /// and dense output on its order-7 interpolant, three more evaluations
+    /// of f per step): for tight tolerances.
     Dop853 {
         /// Relative tolerance of the local error (dimensionless).
         rtol: f64,

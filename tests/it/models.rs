@@ -98,16 +98,17 @@ fn thermostat_switches_at_the_closed_form_instants() {
     for s in arc.samples().filter(|s| s.at.t > expect[0].0 + 1e-9) {
         assert!((18.0 - 1e-9..=22.0 + 1e-9).contains(&s.x[0]), "{:?}", s);
     }
-    // The same with a general-purpose integrator (the flow as a black box).
-    let s = m.settings().exact_affine(false).solver(Solver::Dopri5 {
-        rtol: 1e-10,
-        atol: 1e-12,
-    });
-    let (x0, mut rng) = m.start(m.seed());
-    let arc = simulate_arc(&m, &x0, &s, &mut rng).unwrap();
-    assert_eq!(arc.jumps().len(), expect.len());
-    for (jr, &(t, _, _)) in arc.jumps().iter().zip(&expect) {
-        assert!((jr.at.t - t).abs() < 1e-7, "dopri5: {} vs {t}", jr.at.t);
+    // The same with the general-purpose integrators (the flow as a black
+    // box), events on their interpolants.
+    let (rtol, atol) = (1e-10, 1e-12);
+    for solver in [Solver::Dopri5 { rtol, atol }, Solver::Dop853 { rtol, atol }] {
+        let s = m.settings().exact_affine(false).solver(solver);
+        let (x0, mut rng) = m.start(m.seed());
+        let arc = simulate_arc(&m, &x0, &s, &mut rng).unwrap();
+        assert_eq!(arc.jumps().len(), expect.len());
+        for (jr, &(t, _, _)) in arc.jumps().iter().zip(&expect) {
+            assert!((jr.at.t - t).abs() < 1e-7, "{solver:?}: {} vs {t}", jr.at.t);
+        }
     }
 }
 
