@@ -9,8 +9,10 @@
 //!
 //! Coefficients, the error estimate (the order-5 and order-3 estimates
 //! combined), the controller and the stiffness test follow Hairer,
-//! Nørsett & Wanner, *Solving ODEs I*, II.5 and II.10 (DOP853 and its
-//! dense output CONTD8), with the digits of Hairer's `dop853.f`.
+//! Nørsett & Wanner, *Solving ODEs I* (2nd ed.: DOP853 and its dense
+//! output CONTD8), with the digits of Hairer's `dop853.f`. (ode_solvers'
+//! `Dop853`, used before, gave `solout` only the step ends, and evaluated
+//! stage 12 at the step's start instead of its end.)
 
 // The coefficients keep the published digits, checkable against the source.
 #![allow(clippy::excessive_precision)]

@@ -1164,7 +1164,7 @@ impl Flows {
             });
         }
         // Exact flows that are always taken (polynomial ones under the auto
-        // choice too) never step on a solver: no Dopri5 is made for them.
+        // choice too) never step on a solver: no stepper is made for them.
         let exact_only = match &method {
             Method::Affine(_) => true,
             Method::Auto(_, aff) => aff.poly.is_some(),
