@@ -464,7 +464,8 @@ fn every_shipped_model_plots_from_its_file() {
 /// `Damaged` error or the run itself, never an abort. The mcap reader
 /// reserved what damaged LZ4 data claimed (one flip asked for 3·10¹⁸ bytes
 /// and aborted the process); chunks are now checked against their declared
-/// size and CRC first.
+/// size and CRC first. The opcode too: the reader skipped a record whose
+/// opcode is not a chunk's, losing its samples without an error.
 #[test]
 fn every_damaged_chunk_byte_is_an_error_not_an_abort() {
     use hybsim::sinks::mcap_read::RunLog;
@@ -480,10 +481,11 @@ fn every_damaged_chunk_byte_is_an_error_not_an_abort() {
         .clone();
     let start = chunk.chunk_start_offset as usize;
     let mut refused = 0;
-    for pos in start + 1..start + chunk.chunk_length as usize {
+    for pos in start..start + chunk.chunk_length as usize {
         let mut damaged = bytes.clone();
         damaged[pos] ^= 0x5a;
         let read = RunLog::read(&damaged).and_then(|log| log.replay(&damaged, |_, _, _, _| {}));
+        assert!(pos != start || read.is_err(), "a flipped opcode is read as the run");
         refused += usize::from(read.is_err());
     }
     // A flip in the chunk's data or CRC cannot go unnoticed.
