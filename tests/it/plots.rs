@@ -495,3 +495,50 @@ fn every_damaged_chunk_byte_is_an_error_not_an_abort() {
         chunk.chunk_length
     );
 }
+
+/// A damaged chunk is an error of `hybsim info` as of `hybsim plot` (exit
+/// 2), whatever byte is hit: its data (the summary alone passed `info`),
+/// its opcode (the reader skipped a record that is not a chunk: `plot`
+/// drew the run without that chunk's samples, exit 0), or its header
+/// fields.
+#[test]
+fn info_and_plot_refuse_a_damaged_chunk() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let ball = model("bouncing_ball.hyb");
+    ok(d, &["run", ball.to_str().unwrap(), "-q", "-o", "b.mcap"]);
+    ok(d, &["info", "b.mcap"]);
+    let bytes = std::fs::read(d.join("b.mcap")).unwrap();
+    let chunk = mcap::read::Summary::read(&bytes)
+        .unwrap()
+        .unwrap()
+        .chunk_indexes[0]
+        .clone();
+    let start = chunk.chunk_start_offset as usize;
+    let len = chunk.chunk_length as usize;
+    // Opcode, record length, uncompressed size, compression name, data.
+    for (what, pos) in [
+        ("opcode", start),
+        ("length", start + 1),
+        ("size", start + 25),
+        ("compression", start + 41),
+        ("data", start + len / 2),
+    ] {
+        let mut damaged = bytes.clone();
+        damaged[pos] ^= 0x5a;
+        std::fs::write(d.join("damaged.mcap"), &damaged).unwrap();
+        for args in [
+            &["info", "damaged.mcap"][..],
+            &["info", "--json", "damaged.mcap"],
+            &["plot", "damaged.mcap", "-o", "x.svg"],
+        ] {
+            let out = hybsim(d, args);
+            assert_eq!(code(&out), 2, "{what}, {args:?}: {}", stderr(&out));
+            assert!(
+                stderr(&out).contains("cannot be read back"),
+                "{what}, {args:?}: {}",
+                stderr(&out)
+            );
+        }
+    }
+}
