@@ -485,7 +485,10 @@ fn every_damaged_chunk_byte_is_an_error_not_an_abort() {
         let mut damaged = bytes.clone();
         damaged[pos] ^= 0x5a;
         let read = RunLog::read(&damaged).and_then(|log| log.replay(&damaged, |_, _, _, _| {}));
-        assert!(pos != start || read.is_err(), "a flipped opcode is read as the run");
+        assert!(
+            pos != start || read.is_err(),
+            "a flipped opcode is read as the run"
+        );
         refused += usize::from(read.is_err());
     }
     // A flip in the chunk's data or CRC cannot go unnoticed.
