@@ -100,15 +100,12 @@ pub fn compile_with(
     options: &CheckOptions,
 ) -> Result<CompiledModel, Vec<Diagnostic>> {
     let (model, map) = parse(src)?;
-    let located = |d: Diagnostic| d.locate(&map);
-    let checked = check::check_with(&model, overrides, options).map_err(|errs| {
-        errs.iter()
-            .map(|e| located(e.to_diagnostic()))
-            .collect::<Vec<_>>()
-    })?;
+    let report = |diags: Vec<Diagnostic>| report(diags, src, &model, &map, overrides);
+    let checked = check::check_with(&model, overrides, options)
+        .map_err(|errs| report(errs.iter().map(|e| e.to_diagnostic()).collect()))?;
     let errs = crate::ir::structural_errors(&checked);
     if !errs.is_empty() {
-        return Err(errs.iter().map(|e| located(e.to_diagnostic())).collect());
+        return Err(report(errs.iter().map(|e| e.to_diagnostic()).collect()));
     }
     Ok(CompiledModel::new(checked, src.clone()).with_imports(map))
 }
@@ -199,16 +196,16 @@ pub fn check_only_with(
 ) -> Vec<Diagnostic> {
     match parse(src) {
         Err(diags) => diags,
-        Ok((model, map)) => match check::check_with(&model, overrides, options) {
-            Ok(checked) => crate::ir::structural_errors(&checked)
-                .iter()
-                .map(|e| e.to_diagnostic().locate(&map))
-                .collect(),
-            Err(errs) => errs
-                .iter()
-                .map(|e| e.to_diagnostic().locate(&map))
-                .collect(),
-        },
+        Ok((model, map)) => {
+            let diags = match check::check_with(&model, overrides, options) {
+                Ok(checked) => crate::ir::structural_errors(&checked)
+                    .iter()
+                    .map(|e| e.to_diagnostic())
+                    .collect(),
+                Err(errs) => errs.iter().map(|e| e.to_diagnostic()).collect(),
+            };
+            report(diags, src, &model, &map, overrides)
+        }
     }
 }
 
@@ -237,8 +234,129 @@ pub fn design_only_with(
     check::check_with(&model, overrides, &options)
         .map(|m| m.designs)
         .map_err(|errs| {
-            errs.iter()
-                .map(|e| e.to_diagnostic().locate(&map))
-                .collect()
+            let diags = errs.iter().map(|e| e.to_diagnostic()).collect();
+            report(diags, src, &model, &map, overrides)
         })
+}
+
+/// The checker's diagnostics as reported: each with the notes of
+/// [`override_notes`], then located in its file.
+fn report(
+    diags: Vec<Diagnostic>,
+    src: &SourceFile,
+    model: &syntax::ast::Model,
+    map: &SourceMap,
+    overrides: &[Override],
+) -> Vec<Diagnostic> {
+    let sources = override_sources(src, model, overrides);
+    diags
+        .into_iter()
+        .map(|d| override_notes(d, src, &sources, overrides).locate(map))
+        .collect()
+}
+
+/// For each parameter of the model whose value an override decides: the
+/// overrides it comes from (indices in `overrides`). Parameters are
+/// declared before use, so one pass in declaration order follows every
+/// chain (`h = Ts / 2` after `--set Ts=0`).
+type OverrideSources<'m> = std::collections::HashMap<&'m str, Vec<usize>>;
+
+fn override_sources<'m>(
+    src: &'m SourceFile,
+    model: &'m syntax::ast::Model,
+    overrides: &[Override],
+) -> OverrideSources<'m> {
+    use syntax::ast::Item;
+    let mut sources = OverrideSources::default();
+    if overrides.is_empty() {
+        return sources;
+    }
+    let mut define = |targets: &mut dyn Iterator<Item = &'m syntax::ast::Target>, value: Span| {
+        let read: Vec<usize> = names_read(src, value, &sources)
+            .into_iter()
+            .map(|(k, _)| k)
+            .collect();
+        for t in targets.filter(|t| t.indices.is_empty()) {
+            let name = t.name.name.as_str();
+            if let Some(k) = overrides.iter().rposition(|o| o.name == name) {
+                sources.insert(name, vec![k]);
+            } else if !read.is_empty() {
+                sources.insert(name, read.clone());
+            }
+        }
+    };
+    for it in &model.items {
+        match it {
+            Item::Param(defs) => {
+                for d in defs {
+                    define(&mut std::iter::once(&d.target), d.value.span);
+                }
+            }
+            Item::ParamTuple(targets, value) => define(&mut targets.iter(), value.span),
+            _ => {}
+        }
+    }
+    sources
+}
+
+/// The overrides behind the names in the model's text `span` (lexed: the
+/// span of any error), each with the first name there that reads it.
+fn names_read<'m>(
+    src: &'m SourceFile,
+    span: Span,
+    sources: &OverrideSources<'m>,
+) -> Vec<(usize, &'m str)> {
+    let mut found: Vec<(usize, &'m str)> = Vec::new();
+    let Some(text) = src.text().get(span.start..span.end) else {
+        return found;
+    };
+    for t in syntax::lex::tokens(text) {
+        for &k in sources.get(t.text).into_iter().flatten() {
+            if !found.iter().any(|&(f, _)| f == k) {
+                found.push((k, t.text));
+            }
+        }
+    }
+    found
+}
+
+/// `d` with a note for each override behind a value its primary label reads
+/// in the model's text (`` Ts = 0 comes from `--set Ts=0` ``): the error is
+/// in the model's text, the value that causes it is on the command line.
+fn override_notes(
+    mut d: Diagnostic,
+    src: &SourceFile,
+    sources: &OverrideSources<'_>,
+    overrides: &[Override],
+) -> Diagnostic {
+    let Some(span) = d
+        .labels
+        .iter()
+        .find(|l| l.primary && l.file.is_none())
+        .map(|l| l.span)
+    else {
+        return d;
+    };
+    // A long value (a matrix) is shortened: the note names it, the flag holds it.
+    let shown = |s: &str| -> String {
+        let short: String = s.chars().take(40).collect();
+        if short.len() < s.len() {
+            short + "…"
+        } else {
+            short
+        }
+    };
+    for (k, name) in names_read(src, span, sources) {
+        let o = &overrides[k];
+        let origin = match &o.flag {
+            Some(flag) => shown(flag),
+            None => format!("--set {}={}", o.name, shown(&o.value)),
+        };
+        let mut note = format!("{} = {} comes from `{origin}`", o.name, shown(&o.value));
+        if name != o.name {
+            note.push_str(&format!(" (`{name}` is computed from it)"));
+        }
+        d.notes.push(note);
+    }
+    d
 }

@@ -12,7 +12,7 @@ import numpy as np
 
 from . import _hybsim
 from .solution import Solution
-from .sweep import Grid, Sweep, check_seed, sweep_model
+from .sweep import Grid, Sweep, check_count, check_seed, sweep_model
 
 ModelError = _hybsim.ModelError
 SimulationError = _hybsim.SimulationError
@@ -413,8 +413,12 @@ class Model:
         Returns a :class:`TestReport`; ``report.counterexample`` has the
         failing time, state, shrunk inputs and the replay command.
         Raises ValueError if the model declares no property or a name is
-        unknown.
+        unknown, if ``cases`` < 1 (as ``--cases 0``, it would pass
+        vacuously), ``max_shrink`` < 0 or ``seed`` is outside [0, 2^64).
         """
+        check_count("cases", cases, 1)
+        check_count("max_shrink", max_shrink, 0)
+        check_seed(seed)
         if isinstance(properties, str):
             properties = [properties]
         d = self._native.test(

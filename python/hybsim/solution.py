@@ -10,7 +10,7 @@ pre-jump sample ``(t, j)`` is followed by the post-jump sample
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any, Dict, List, Optional, Sequence, Union
+from typing import Any, Dict, List, Optional, Sequence, Tuple, Union
 
 import numpy as np
 
@@ -20,6 +20,22 @@ from . import _hybsim
 SAMPLE_KINDS = tuple(_hybsim.SAMPLE_KINDS)
 
 _AT_JUMP = ("start", "end", "both", "nan")
+
+
+def _interval(var: str, lo: Any, hi: Any, below: Any, above: Any) -> Tuple[Any, Any]:
+    """The bounds of ``restrict_t``/``restrict_j`` (None: ``below``,
+    ``above``); a reversed interval or a NaN bound selects nothing, which
+    is a mistake, not an empty solution."""
+    lo = below if lo is None else lo
+    hi = above if hi is None else hi
+    if np.isnan(lo) or np.isnan(hi):
+        raise ValueError(f"restrict_{var}: a bound is NaN ({var}_min={lo}, {var}_max={hi})")
+    if lo > hi:
+        raise ValueError(
+            f"restrict_{var}: {var}_min = {lo} is greater than {var}_max = {hi}; "
+            f"the interval is {var}_min <= {var} <= {var}_max"
+        )
+    return lo, hi
 
 
 @dataclass(frozen=True)
@@ -352,9 +368,9 @@ class Solution:
     def restrict_t(self, t_min: Optional[float] = None, t_max: Optional[float] = None) -> "Solution":
         """The samples with ``t_min <= t <= t_max`` (either bound may be
         None) and the jumps at those times, as a new Solution (HyEQ's
-        ``restrictT``)."""
-        lo = -np.inf if t_min is None else t_min
-        hi = np.inf if t_max is None else t_max
+        ``restrictT``). ValueError for ``t_min > t_max`` or a NaN bound
+        (no sample would be kept)."""
+        lo, hi = _interval("t", t_min, t_max, -np.inf, np.inf)
         return self._subset(
             (self.t >= lo) & (self.t <= hi), (self.jumps.t >= lo) & (self.jumps.t <= hi)
         )
@@ -362,9 +378,9 @@ class Solution:
     def restrict_j(self, j_min: Optional[int] = None, j_max: Optional[int] = None) -> "Solution":
         """The samples with ``j_min <= j <= j_max`` (either bound may be
         None) and the jumps between them (from ``(t, j)`` to ``(t, j + 1)``
-        with both ends inside), as a new Solution (HyEQ's ``restrictJ``)."""
-        lo = np.iinfo(np.int64).min if j_min is None else j_min
-        hi = np.iinfo(np.int64).max if j_max is None else j_max
+        with both ends inside), as a new Solution (HyEQ's ``restrictJ``).
+        ValueError for ``j_min > j_max``."""
+        lo, hi = _interval("j", j_min, j_max, np.iinfo(np.int64).min, np.iinfo(np.int64).max)
         return self._subset(
             (self.j >= lo) & (self.j <= hi), (self.jumps.j >= lo) & (self.jumps.j + 1 <= hi)
         )

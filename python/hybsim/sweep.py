@@ -109,6 +109,19 @@ class Sweep:
         )
 
 
+def check_count(name: str, value: Optional[int], minimum: int) -> None:
+    """A count is None or an int of at least ``minimum`` that the engine's
+    unsigned integers hold: anything else is refused here, named, rather
+    than by the conversion (``OverflowError`` for -1, a vacuous pass for
+    ``cases=0``)."""
+    if value is None:
+        return
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+        raise TypeError(f"`{name}`: an int, got {type(value).__name__}")
+    if not minimum <= int(value) < 2**63:
+        raise ValueError(f"`{name}`: must be at least {minimum} (and below 2^63), got {int(value)}")
+
+
 def check_seed(seed: Optional[int]) -> None:
     """A seed is None or an int in [0, 2^64): anything else is refused
     here, named, rather than by the conversion to the engine's u64."""
@@ -129,5 +142,7 @@ def sweep_model(
 ) -> Sweep:
     """The body of :meth:`Model.sweep`."""
     check_seed(seed)
+    check_count("runs", runs, 1)
+    check_count("threads", threads, 1)
     axes = None if grid is None else _axes(grid)
     return Sweep(_hybsim.sweep(native, axes, runs, seed, threads))

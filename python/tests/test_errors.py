@@ -141,6 +141,26 @@ def test_integers_out_of_range_are_value_errors_naming_the_keyword():
     assert m.run(seed=2**64 - 1).seed == 2**64 - 1
 
 
+def test_counts_out_of_range_are_value_errors_naming_the_argument():
+    # `test(cases=-1)` was an OverflowError, `cases=0` a vacuous pass.
+    m = hybsim.load(GOOD + "property up: always h >= -1e-9\n")
+    for kwargs, key in [
+        ({"cases": -1}, "cases"),
+        ({"cases": 0}, "cases"),
+        ({"cases": 2**64}, "cases"),
+        ({"max_shrink": -1}, "max_shrink"),
+        ({"seed": -1}, "seed"),
+    ]:
+        with pytest.raises(ValueError, match=f"`{key}`: must be"):
+            m.test(**kwargs)
+    with pytest.raises(TypeError, match="`cases`"):
+        m.test(cases=2.5)
+    for kwargs, key in [({"runs": -1}, "runs"), ({"runs": 0}, "runs"), ({"threads": -1}, "threads")]:
+        with pytest.raises(ValueError, match=f"`{key}`: must be"):
+            m.sweep(**kwargs)
+    assert m.test(cases=1, max_shrink=0).cases_run == 1
+
+
 def test_a_solver_that_cannot_integrate_white_noise_is_a_value_error():
     # Was a SimulationError naming the Rust API's `Solver::EulerMaruyama { h }`.
     ou = hybsim.load("model ou\nnoise w ~ wiener(1)\nstate x = 0\nflow { x' = -x + w }\nsim { T = 0.1 }\n")

@@ -50,6 +50,18 @@ def test_restrict(sol):
     assert r.j.min() == 3 and len(r) == np.count_nonzero(sol.j >= 3)
 
 
+def test_reversed_or_nan_intervals_are_value_errors(sol):
+    # Were empty solutions, silently.
+    with pytest.raises(ValueError, match="t_min = 2 is greater than t_max = 1"):
+        sol.restrict_t(2, 1)
+    with pytest.raises(ValueError, match="NaN"):
+        sol.restrict_t(float("nan"), 1)
+    with pytest.raises(ValueError, match="j_min = 3 is greater than j_max = 1"):
+        sol.restrict_j(3, 1)
+    # A one-point interval is not reversed.
+    assert len(sol.restrict_t(0, 0)) == 1 and set(sol.restrict_j(2, 2).j) == {2}
+
+
 def test_interpolate_exact_at_samples_and_linear_between(sol):
     flow = sol.kind == "flow"
     ts = sol.t[flow][:20]

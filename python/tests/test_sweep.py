@@ -122,6 +122,9 @@ def test_bad_grids_raise(ball_file):
         model.sweep(grid=["lambda=0.5:-0.1:0.9"])
     with pytest.raises(ValueError, match="at least 1"):
         model.sweep(runs=0)
+    # A grid point given twice would run twice.
+    with pytest.raises(ValueError, match="axis `lambda`: the value 0.5 is given twice"):
+        model.sweep(grid={"lambda": [0.5, 0.8, 0.5]})
     with pytest.raises(ValueError, match="set twice"):
         hybsim.load(ball_file, set={"lambda": 0.7}).sweep()
 

@@ -92,14 +92,17 @@ fn check_block(c: &mut Checker, b: &SweepBlock, settable: &[String]) -> SweepDec
             });
             continue;
         }
+        let whole = match &axis.values {
+            AxisValues::Range(a, _, stop) => Span::new(a.span.start, stop.span.end),
+            AxisValues::List(e) => e.span,
+        };
         let values = match &axis.values {
             AxisValues::Range(a, step, stop) => {
                 let what = "a sweep range";
-                let (a, step, stop, whole) = (
+                let (a, step, stop) = (
                     c.const_scalar(a, what),
                     c.const_scalar(step, what),
                     c.const_scalar(stop, what),
-                    Span::new(a.span.start, stop.span.end),
                 );
                 let (Some(a), Some(step), Some(stop)) = (a, step, stop) else {
                     continue;
@@ -135,6 +138,11 @@ fn check_block(c: &mut Checker, b: &SweepBlock, settable: &[String]) -> SweepDec
                 xs
             }
         };
+        if let Some(v) = crate::sweep::grid::repeated_value(&values) {
+            let reason = format!("the value {} is given twice", crate::num::Num(v));
+            c.bad_setting(name, reason, whole);
+            continue;
+        }
         d.axes.push((name.to_string(), values));
     }
     let mut keys: HashMap<&str, Span> = HashMap::new();

@@ -5,7 +5,7 @@
 use std::path::PathBuf;
 
 use clap::Args;
-use hybsim::sinks::mcap_read::RunSummary;
+use hybsim::sinks::mcap_read::{RunSummary, check_chunks};
 
 use super::{EXIT_MODEL_ERROR, EXIT_OK, shell_word};
 
@@ -19,8 +19,9 @@ pub struct InfoArgs {
     pub json: bool,
 }
 
-/// `hybsim info`. An unreadable, truncated, foreign or non-MCAP file is
-/// an error with exit code 2.
+/// `hybsim info`. An unreadable, truncated, foreign or non-MCAP file, or
+/// one with a damaged chunk (checked as `hybsim plot` checks them), is an
+/// error with exit code 2.
 pub fn execute(args: InfoArgs) -> anyhow::Result<u8> {
     let bytes = match super::read_mcap_input(&args.file) {
         Ok(b) => b,
@@ -29,8 +30,10 @@ pub fn execute(args: InfoArgs) -> anyhow::Result<u8> {
             return Ok(EXIT_MODEL_ERROR);
         }
     };
-    let run = match RunSummary::read(&bytes) {
-        Ok(run) => run,
+    // The summary alone would pass a file whose data `hybsim plot` refuses.
+    let read = RunSummary::read(&bytes).and_then(|run| Ok((run, check_chunks(&bytes)?)));
+    let (run, chunks) = match read {
+        Ok(read) => read,
         Err(e) => {
             eprintln!("error: `{}`: {e}", args.file.display());
             return Ok(EXIT_MODEL_ERROR);
@@ -70,6 +73,7 @@ pub fn execute(args: InfoArgs) -> anyhow::Result<u8> {
     if run.metadata.contains_key("hybsim.design") {
         println!("design      {}", pairs("hybsim.design"));
     }
+    println!("chunks      {chunks}, each checked (record, size, CRC, message count)");
     println!("channels");
     for c in &run.channels {
         println!(

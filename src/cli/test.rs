@@ -1,6 +1,7 @@
 //! `hybsim test`: sample cases of a model's random initial values, check
 //! its `property` declarations on each (in parallel), shrink the first
-//! failure and print it with the `hybsim run` command that replays it.
+//! failure of each failing property and print it with the `hybsim run`
+//! command that replays it.
 
 use std::path::PathBuf;
 use std::time::Instant;
@@ -122,68 +123,88 @@ pub fn execute(args: TestArgs) -> anyhow::Result<u8> {
         }
     );
     let start = Instant::now();
-    let report = run_tests(&subject, &props, &config);
-    let summary = |verdict: &str| {
-        format!(
-            "{verdict}: {} case{}, {} inconclusive, {:.2} s",
-            report.cases_run,
-            if report.cases_run == 1 { "" } else { "s" },
-            report.inconclusive,
-            start.elapsed().as_secs_f64()
-        )
-    };
-    match &report.outcome {
-        Outcome::Passed => {
-            for p in &props {
-                println!("  ok  {p}");
+    // One pass per failing property: a case stops at its first violation,
+    // so the properties not yet failed are tested again without those that
+    // did, until they pass; every failure is reported, not only the first.
+    let mut remaining = props;
+    let (mut failed, mut errored, mut cases_run, mut inconclusive) = (0usize, false, 0, 0);
+    loop {
+        let report = run_tests(&subject, &remaining, &config);
+        cases_run = cases_run.max(report.cases_run);
+        inconclusive = inconclusive.max(report.inconclusive);
+        match &report.outcome {
+            Outcome::Passed => {
+                for p in &remaining {
+                    println!("  ok  {p}");
+                }
+                break;
             }
-            println!("{}", summary("passed"));
-            Ok(EXIT_OK)
-        }
-        Outcome::Failed(cx) => {
-            let p = props.iter().find(|p| p.name() == cx.violation.property);
-            if let Some(p) = p {
-                println!("FAILED  {p}");
-            }
-            print!("{}", cx.describe(inputs, &subject.state_names()));
-            let mut cmd = vec![
-                "hybsim".to_string(),
-                "run".to_string(),
-                args.model.display().to_string(),
-            ];
-            for o in subject.overrides() {
-                if !inputs.iter().any(|i| i.name == o.name) {
-                    cmd.push("--set".into());
-                    cmd.push(format!("{}={}", o.name, o.value));
+            Outcome::Failed(cx) => {
+                failed += 1;
+                let name = cx.violation.property.clone();
+                if let Some(p) = remaining.iter().find(|p| p.name() == name) {
+                    println!("FAILED  {p}");
+                }
+                print!("{}", cx.describe(inputs, &subject.state_names()));
+                let mut cmd = vec![
+                    "hybsim".to_string(),
+                    "run".to_string(),
+                    args.model.display().to_string(),
+                ];
+                for o in subject.overrides() {
+                    if !inputs.iter().any(|i| i.name == o.name) {
+                        cmd.push("--set".into());
+                        cmd.push(format!("{}={}", o.name, o.value));
+                    }
+                }
+                cmd.extend(replay_args(&cx.case, inputs));
+                if args.sdp != SdpKind::Auto {
+                    let sdp = clap::ValueEnum::to_possible_value(&args.sdp).expect("not skipped");
+                    cmd.extend(["--sdp".to_string(), sdp.get_name().to_string()]);
+                }
+                cmd.extend(["-o".to_string(), "replay.mcap".to_string()]);
+                let cmd: Vec<String> = cmd.iter().map(|a| shell_word(a)).collect();
+                println!("replay: {}", cmd.join(" "));
+                remaining.retain(|p| p.name() != name);
+                if remaining.is_empty() {
+                    break;
                 }
             }
-            cmd.extend(replay_args(&cx.case, inputs));
-            if args.sdp != SdpKind::Auto {
-                let sdp = clap::ValueEnum::to_possible_value(&args.sdp).expect("not skipped");
-                cmd.extend(["--sdp".to_string(), sdp.get_name().to_string()]);
-            }
-            cmd.extend(["-o".to_string(), "replay.mcap".to_string()]);
-            let cmd: Vec<String> = cmd.iter().map(|a| shell_word(a)).collect();
-            println!("replay: {}", cmd.join(" "));
-            println!("{}", summary("counterexample"));
-            Ok(EXIT_FAILED)
-        }
-        Outcome::Error { index, case, error } => {
-            match error {
-                ModelRunError::Compile(diags) => eprint!("{}", render(diags, &src, color)),
-                ModelRunError::Sim(e) => {
-                    eprint!("{}", render(&[model.runtime_diagnostic(e)], &src, color))
+            Outcome::Error { index, case, error } => {
+                match error {
+                    ModelRunError::Compile(diags) => eprint!("{}", render(diags, &src, color)),
+                    ModelRunError::Sim(e) => {
+                        eprint!("{}", render(&[model.runtime_diagnostic(e)], &src, color))
+                    }
                 }
+                eprintln!(
+                    "error: case {index} (seed {}) could not run; replay flags: {}",
+                    case.seed,
+                    replay_args(case, inputs).join(" ")
+                );
+                errored = true;
+                break;
             }
-            eprintln!(
-                "error: case {index} (seed {}) could not run; replay flags: {}",
-                case.seed,
-                replay_args(case, inputs).join(" ")
-            );
-            println!("{}", summary("error"));
-            Ok(EXIT_MODEL_ERROR)
         }
     }
+    let verdict = match failed {
+        _ if errored => "error".to_string(),
+        0 => "passed".to_string(),
+        1 => "counterexample".to_string(),
+        n => format!("{n} counterexamples"),
+    };
+    println!(
+        "{verdict}: {} case{}, {} inconclusive, {:.2} s",
+        cases_run,
+        if cases_run == 1 { "" } else { "s" },
+        inconclusive,
+        start.elapsed().as_secs_f64()
+    );
+    Ok(match failed {
+        _ if errored => EXIT_MODEL_ERROR,
+        0 => EXIT_OK,
+        _ => EXIT_FAILED,
+    })
 }
 
 #[cfg(test)]

@@ -36,15 +36,22 @@ pub enum ReadError {
 }
 
 /// Checks every chunk the summary indexes before the mcap reader decodes
-/// it: decompressed here, bounded by its declared size, against its CRC.
-/// The reader reserves what a damaged chunk's data claim, which can abort
-/// the process (one flipped byte in LZ4 data asked for 3·10¹⁸ bytes). A
-/// file without a readable summary is left to the reader, which reports it.
-fn check_chunks(bytes: &[u8]) -> Result<(), ReadError> {
+/// it: the record there is a chunk (its opcode, length, size and
+/// compression those of the index; the reader skips a record whose opcode
+/// is not a chunk's, so a flipped opcode lost the chunk's samples without
+/// an error), its data decompress, bounded by its declared size, and match
+/// its CRC, its records fill it exactly, and the chunks hold as many
+/// messages as the statistics count. The reader reserves what a damaged
+/// chunk's data claim, which can abort the process (one flipped byte in LZ4
+/// data asked for 3·10¹⁸ bytes). A file without a readable summary is left
+/// to the reader, which reports it. Returns the number of chunks checked.
+pub fn check_chunks(bytes: &[u8]) -> Result<usize, ReadError> {
+    use super::mcap_writer::op;
     use std::io::Read;
     let Ok(Some(summary)) = ::mcap::read::Summary::read(bytes) else {
-        return Ok(());
+        return Ok(0);
     };
+    let mut messages = 0u64;
     for c in &summary.chunk_indexes {
         let damaged = |why: String| {
             ReadError::Damaged(format!("the chunk at byte {}: {why}", c.chunk_start_offset))
@@ -55,13 +62,26 @@ fn check_chunks(bytes: &[u8]) -> Result<(), ReadError> {
         };
         let record = span(c.chunk_start_offset, c.chunk_length)
             .ok_or_else(|| damaged("it lies outside the file".into()))?;
-        let data = c
-            .compressed_data_offset()
-            .ok()
-            .and_then(|at| span(at, c.compressed_size))
-            .filter(|d| d.len() < record.len())
-            .ok_or_else(|| damaged("its data lie outside the record".into()))?;
-        // The record: opcode, length, start and end times, size, CRC.
+        // The record: opcode, length, start and end times, size, CRC,
+        // compression (u32 length, name), data (u64 length, bytes).
+        let name_len = c.compression.len();
+        let head = 49 + name_len;
+        let data = record
+            .get(head..)
+            .filter(|d| d.len() as u64 == c.compressed_size)
+            .ok_or_else(|| damaged("its data do not fill the record".into()))?;
+        let u64_at = |k: usize| u64::from_le_bytes(record[k..k + 8].try_into().expect("8 bytes"));
+        if record[0] != op::CHUNK
+            || u64_at(1) != c.chunk_length - 9
+            || u64_at(25) != c.uncompressed_size
+            || record[37..41] != (name_len as u32).to_le_bytes()
+            || &record[41..41 + name_len] != c.compression.as_bytes()
+            || u64_at(41 + name_len) != c.compressed_size
+        {
+            return Err(damaged(
+                "the record there is not the chunk the index describes".into(),
+            ));
+        }
         let crc = u32::from_le_bytes(record[33..37].try_into().expect("four bytes"));
         let mut out = Vec::new();
         let bound = c.uncompressed_size.saturating_add(1);
@@ -83,8 +103,29 @@ fn check_chunks(bytes: &[u8]) -> Result<(), ReadError> {
         if crc != 0 && crc32fast::hash(&out) != crc {
             return Err(damaged("its CRC does not match its data".into()));
         }
+        // Its records (opcode, u64 length, content) end where the data end.
+        let mut at = 0usize;
+        while at < out.len() {
+            let len = out
+                .get(at + 1..at + 9)
+                .map(|b| u64::from_le_bytes(b.try_into().expect("8 bytes")))
+                .and_then(|n| usize::try_from(n).ok())
+                .and_then(|n| (at + 9).checked_add(n))
+                .filter(|&end| end <= out.len())
+                .ok_or_else(|| damaged("its records overrun its data".into()))?;
+            messages += u64::from(out[at] == op::MESSAGE);
+            at = len;
+        }
     }
-    Ok(())
+    if let Some(stats) = &summary.stats
+        && stats.message_count != messages
+    {
+        return Err(ReadError::Damaged(format!(
+            "its chunks hold {messages} messages, its statistics count {}",
+            stats.message_count
+        )));
+    }
+    Ok(summary.chunk_indexes.len())
 }
 
 /// One channel of the file.

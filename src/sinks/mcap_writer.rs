@@ -79,7 +79,7 @@ const MESSAGE_HEAD: usize = 1 + 8 + 2 + 4 + 8 + 8;
 const MAGIC: &[u8] = &[0x89, b'M', b'C', b'A', b'P', 0x30, b'\r', b'\n'];
 
 /// Record opcodes of the MCAP specification.
-mod op {
+pub(super) mod op {
     pub const HEADER: u8 = 0x01;
     pub const FOOTER: u8 = 0x02;
     pub const SCHEMA: u8 = 0x03;

@@ -104,6 +104,16 @@ pub fn range_values(a: f64, step: f64, b: f64) -> Result<Vec<f64>, String> {
     Ok((0..count as usize).map(|k| a + k as f64 * step).collect())
 }
 
+/// A value that `values` holds twice, if any: a grid point given twice
+/// would run twice, its rows duplicated (and its seeds repeated). Ranges
+/// repeat a value where the step is below the spacing of the doubles
+/// (`1e10:1e-7:1.000000000001e10`).
+pub fn repeated_value(values: &[f64]) -> Option<f64> {
+    let mut sorted = values.to_vec();
+    sorted.sort_by(f64::total_cmp);
+    sorted.windows(2).find(|w| w[0] == w[1]).map(|w| w[0])
+}
+
 /// A deterministic part of a sweep: shard `k` of `n` (1 ≤ k ≤ n) runs the
 /// runs whose index `i` (in grid order, runs of a point consecutive) has
 /// `i mod n = k − 1`.

@@ -121,7 +121,8 @@ impl SweepSpec {
         Self { axes, runs, seed }
     }
 
-    /// Checks names (no axis twice, none also in `fixed`) and the size.
+    /// Checks names (no axis twice, none also in `fixed`), values (finite,
+    /// at least one, none twice) and the size.
     pub fn validate(&self, fixed: &[Override]) -> Result<(), SweepError> {
         if self.runs == 0 {
             return Err(SweepError::NoRuns);
@@ -139,6 +140,12 @@ impl SweepSpec {
                 return Err(SweepError::Grid {
                     text: format!("{}=[]", a.name),
                     message: "no values".into(),
+                });
+            }
+            if let Some(v) = grid::repeated_value(&a.values) {
+                return Err(SweepError::Grid {
+                    text: a.name.clone(),
+                    message: format!("the value {} is given twice", Num(v)),
                 });
             }
             if self.axes[..k].iter().any(|b| b.name == a.name)

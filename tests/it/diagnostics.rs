@@ -928,6 +928,40 @@ fn override_hints_name_only_what_set_accepts() {
     }
 }
 
+/// An error in the model's text caused by a value given on the command line
+/// says where that value comes from: `every Ts` with `--set Ts=0` was
+/// E0304 at `Ts` with nothing about the override. Also through the
+/// parameters computed from it, and for a sweep's grid value (an override
+/// standing for `--grid`); `k=3`, read by no error, is in no note.
+#[test]
+fn an_error_caused_by_an_override_names_it() {
+    let src = SourceFile::new(
+        "m.hyb",
+        "model m\nparam Ts = 0.1, k = 2\nparam h = Ts / 2\nstate x = 0\n\
+         flow { x' = 1 }\nevery Ts { x+ = 0 }\nevery h { x+ = 1 }\njump up when x >= k { x+ = 0 }\n",
+    );
+    assert!(diagnostics(&src, &[]).is_empty());
+    let d = diagnostics(&src, &["Ts=0", "k=3"]);
+    let notes: Vec<(&str, Vec<String>)> = d.iter().map(|d| (d.code, d.notes.clone())).collect();
+    assert_eq!(
+        notes,
+        [
+            ("E0304", vec!["Ts = 0 comes from `--set Ts=0`".to_string()]),
+            (
+                "E0304",
+                vec!["Ts = 0 comes from `--set Ts=0` (`h` is computed from it)".to_string()]
+            ),
+        ],
+        "{d:#?}"
+    );
+    let text = render(&d, &src, false);
+    assert!(text.contains("= Ts = 0 comes from `--set Ts=0`"), "{text}");
+    // A grid point's value names the grid.
+    let grid: Override = "Ts=0".parse().unwrap();
+    let d = lang::check_only(&src, &[grid.from_flag("--grid Ts=0")]);
+    assert_eq!(d[0].notes, ["Ts = 0 comes from `--grid Ts=0`"], "{d:#?}");
+}
+
 /// An instance without a value for one of its subsystem's parameters is
 /// that error alone: the parameter's uses in the subsystem's body (and the
 /// states initialized from it) do not become unknown names.

@@ -464,7 +464,8 @@ fn every_shipped_model_plots_from_its_file() {
 /// `Damaged` error or the run itself, never an abort. The mcap reader
 /// reserved what damaged LZ4 data claimed (one flip asked for 3·10¹⁸ bytes
 /// and aborted the process); chunks are now checked against their declared
-/// size and CRC first.
+/// size and CRC first. The opcode too: the reader skipped a record whose
+/// opcode is not a chunk's, losing its samples without an error.
 #[test]
 fn every_damaged_chunk_byte_is_an_error_not_an_abort() {
     use hybsim::sinks::mcap_read::RunLog;
@@ -480,10 +481,14 @@ fn every_damaged_chunk_byte_is_an_error_not_an_abort() {
         .clone();
     let start = chunk.chunk_start_offset as usize;
     let mut refused = 0;
-    for pos in start + 1..start + chunk.chunk_length as usize {
+    for pos in start..start + chunk.chunk_length as usize {
         let mut damaged = bytes.clone();
         damaged[pos] ^= 0x5a;
         let read = RunLog::read(&damaged).and_then(|log| log.replay(&damaged, |_, _, _, _| {}));
+        assert!(
+            pos != start || read.is_err(),
+            "a flipped opcode is read as the run"
+        );
         refused += usize::from(read.is_err());
     }
     // A flip in the chunk's data or CRC cannot go unnoticed.
@@ -492,4 +497,51 @@ fn every_damaged_chunk_byte_is_an_error_not_an_abort() {
         "{refused} of {}",
         chunk.chunk_length
     );
+}
+
+/// A damaged chunk is an error of `hybsim info` as of `hybsim plot` (exit
+/// 2), whatever byte is hit: its data (the summary alone passed `info`),
+/// its opcode (the reader skipped a record that is not a chunk: `plot`
+/// drew the run without that chunk's samples, exit 0), or its header
+/// fields.
+#[test]
+fn info_and_plot_refuse_a_damaged_chunk() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let ball = model("bouncing_ball.hyb");
+    ok(d, &["run", ball.to_str().unwrap(), "-q", "-o", "b.mcap"]);
+    ok(d, &["info", "b.mcap"]);
+    let bytes = std::fs::read(d.join("b.mcap")).unwrap();
+    let chunk = mcap::read::Summary::read(&bytes)
+        .unwrap()
+        .unwrap()
+        .chunk_indexes[0]
+        .clone();
+    let start = chunk.chunk_start_offset as usize;
+    let len = chunk.chunk_length as usize;
+    // Opcode, record length, uncompressed size, compression name, data.
+    for (what, pos) in [
+        ("opcode", start),
+        ("length", start + 1),
+        ("size", start + 25),
+        ("compression", start + 41),
+        ("data", start + len / 2),
+    ] {
+        let mut damaged = bytes.clone();
+        damaged[pos] ^= 0x5a;
+        std::fs::write(d.join("damaged.mcap"), &damaged).unwrap();
+        for args in [
+            &["info", "damaged.mcap"][..],
+            &["info", "--json", "damaged.mcap"],
+            &["plot", "damaged.mcap", "-o", "x.svg"],
+        ] {
+            let out = hybsim(d, args);
+            assert_eq!(code(&out), 2, "{what}, {args:?}: {}", stderr(&out));
+            assert!(
+                stderr(&out).contains("cannot be read back"),
+                "{what}, {args:?}: {}",
+                stderr(&out)
+            );
+        }
+    }
 }

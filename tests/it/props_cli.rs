@@ -241,3 +241,46 @@ fn one_case_is_counted_in_the_singular() {
     assert!(text.contains(" on 1 case (master seed"), "{text}");
     assert!(text.contains("passed: 1 case, 0 inconclusive"), "{text}");
 }
+
+/// Every failing property is reported, each with its own shrunk
+/// counterexample and replay command, and the passing ones are listed: the
+/// run stopped at the first failure (`below`) and said nothing of `slow`,
+/// which fails too, nor of the two that hold.
+#[test]
+fn every_failing_property_is_reported() {
+    let dir = tempfile::tempdir().unwrap();
+    let model = "model pt
+param g = 9.81
+state h ~ uniform(0, 2), v = 0
+flow { h' = v; v' = -g } in h >= 0
+jump impact when h <= 0 && v <= 0 { v+ = -0.8 * v }
+property ground: always h >= -1e-9
+property below: always h <= 1.5
+property slow: always v >= -3
+property bounce: at jumps impact post(v) >= 0
+sim { T = 2 }
+";
+    std::fs::write(dir.path().join("pt.hyb"), model).unwrap();
+    let out = hybsim(
+        dir.path(),
+        &["test", "pt.hyb", "--cases", "50", "--seed", "1"],
+    );
+    let text = stdout(&out);
+    assert_eq!(code(&out), 1, "{text}");
+    for line in [
+        "FAILED  below: always h <= 1.5\n",
+        "FAILED  slow: always v >= -3\n",
+        "  ok  ground: always h >= -1e-9\n",
+        "  ok  bounce: at jumps impact post(v) >= 0\n",
+    ] {
+        assert!(text.contains(line), "{line:?} in:\n{text}");
+    }
+    assert_eq!(text.matches("replay: hybsim run").count(), 2, "{text}");
+    assert!(
+        text.lines()
+            .last()
+            .unwrap()
+            .starts_with("2 counterexamples: "),
+        "{text}"
+    );
+}

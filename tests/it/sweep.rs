@@ -487,6 +487,11 @@ fn bad_sweep_arguments_are_reported() {
         ),
         (&["--grid", "nosuch=[1, 2]"][..], "┌─ --grid:1:8"),
         (&["--grid", "nosuch=[1, 2]"][..], "--grid names a parameter"),
+        // A value twice would be a grid point run twice (duplicate rows).
+        (
+            &["--grid", "lambda=[0.5, 0.8, 0.5]"][..],
+            "invalid grid axis `lambda`: the value 0.5 is given twice",
+        ),
     ] {
         let mut all = vec!["sweep", "ball.hyb", "-o", "out", "-q"];
         all.extend_from_slice(args);
@@ -715,6 +720,26 @@ for i in 1..2 { sweep { k in [1] } }
     assert!(text.contains("did you mean `runs`?"), "{text}");
     assert!(text.contains("did you mean `k in [values]`?"), "{text}");
     assert!(text.contains("does not lead from 1 to 3"), "{text}");
+    // A value twice (a grid point run twice), in a list or a range whose
+    // step is below the doubles' spacing.
+    for (axis, value) in [
+        ("k in [1, 2, 1]", "1"),
+        ("k in 1e10:1e-7:1.000000000001e10", "10000000000"),
+    ] {
+        let src = SourceFile::new(
+            "dup.hyb",
+            format!(
+                "model dup\nparam k = 2\nstate x = 1\nflow {{ x' = -k * x }}\nsweep {{ {axis} }}\n"
+            ),
+        );
+        let text = hybsim::diagnostics::render(&lang::check_only(&src, &[]), &src, false);
+        assert!(
+            text.contains("error[E0506]")
+                && text.contains("dup.hyb:5:14")
+                && text.contains(&format!("the value {value} is given twice")),
+            "{axis}:\n{text}"
+        );
+    }
     // `sweep` stays usable as a name.
     let src = SourceFile::new(
         "ok.hyb",
