@@ -3,7 +3,7 @@
 use pest::error::{ErrorVariant, InputLocation};
 
 use super::KEYWORDS;
-use super::parse::Rule;
+use super::parse::{HybParser, Rule};
 use crate::diagnostics::Diagnostic;
 use crate::source::Span;
 
@@ -237,7 +237,9 @@ impl SyntaxError {
     }
 
     /// Translates a pest error on `text`.
-    pub(crate) fn from_pest(err: pest::error::Error<Rule>, text: &str) -> Self {
+    /// `rule` is the rule `text` was parsed as (re-parsed with a missing
+    /// operator supplied, for [`missing_operator`]).
+    pub(crate) fn from_pest(err: pest::error::Error<Rule>, text: &str, rule: Rule) -> Self {
         let pos = match err.location {
             InputLocation::Pos(p) => p,
             InputLocation::Span((s, _)) => s,
@@ -288,6 +290,9 @@ impl SyntaxError {
         }
         if let Some(foreign) = foreign_spelling(text, pos) {
             return foreign;
+        }
+        if let Some(missing) = missing_operator(text, pos, rule) {
+            return missing;
         }
         let (found, len) = found_at(text, pos);
         if let Some(open) = unclosed_before_declaration(text, pos) {
@@ -686,6 +691,88 @@ fn foreign_spelling(text: &str, pos: usize) -> Option<SyntaxError> {
             "`,` expected before this entry",
             "write `[0, 1; -1, 0]` for MATLAB's `[0 1; -1 0]`",
         );
+    }
+    None
+}
+
+/// Two operands side by side with no operator between them (`-k x`, `2 pi`,
+/// a product written as in mathematics) on the line where the parse stopped
+/// at `pos` (or the line before, when it stopped at the next one): the pair
+/// nearest `pos` whose `*` lets `text` parse as `rule` past that line (so
+/// `state x = 1 y = 2`, a missing `,`, is not taken for a product). The parse
+/// may stop well after the pair (`x' = -k x }` reads `x` as the next
+/// equation and stops at `}`), so each candidate is checked by re-parsing.
+fn missing_operator(text: &str, pos: usize, rule: Rule) -> Option<SyntaxError> {
+    use pest::Parser;
+    let is_word = |c: char| c.is_ascii_alphanumeric() || c == '_' || c == '.';
+    let before = text.get(..pos)?;
+    // From the start of the line holding the last token before `pos`.
+    let last = before.trim_end().len();
+    let line_start = before[..last].rfind('\n').map_or(0, |i| i + 1);
+    let line_end = text[pos..].find('\n').map_or(text.len(), |i| pos + i);
+    let line = &text[line_start..line_end];
+    let line = &line[..line.find('#').unwrap_or(line.len())];
+    // Gaps of spaces between an operand's end and an operand's start, last
+    // first (a handful: each costs a parse).
+    let bytes = line.as_bytes();
+    let gaps = (1..line.len())
+        .rev()
+        .filter(|&i| {
+            let (prev, next) = (bytes[i - 1] as char, bytes[i] as char);
+            line_start + i <= pos
+                && matches!(prev, ' ' | '\t')
+                && (is_word(next) || next == '(')
+                && line[..i]
+                    .trim_end()
+                    .chars()
+                    .next_back()
+                    .is_some_and(|c| is_word(c) || matches!(c, ')' | ']' | '\''))
+        })
+        .take(4);
+    let token = |s: &str, from_end: bool| -> String {
+        if from_end {
+            let t = s.trim_end();
+            let start = t.trim_end_matches(is_word).len();
+            if start == t.len() {
+                t[t.len() - 1..].to_string()
+            } else {
+                t[start..].to_string()
+            }
+        } else {
+            let end = s.find(|c: char| !is_word(c)).unwrap_or(s.len());
+            if end == 0 {
+                s[..1].to_string()
+            } else {
+                s[..end].to_string()
+            }
+        }
+    };
+    for i in gaps {
+        let (a, b) = (token(&line[..i], true), token(&line[i..], false));
+        if [&a, &b].iter().any(|w| KEYWORDS.contains(&w.as_str())) {
+            continue;
+        }
+        let end_a = line_start + line[..i].trim_end().len();
+        let fixed = format!("{}*{}", &text[..end_a], &text[end_a..]);
+        let further = match HybParser::parse(rule, &fixed) {
+            Ok(_) => true,
+            Err(e) => match e.location {
+                InputLocation::Pos(p) | InputLocation::Span((p, _)) => p > line_end + 1,
+            },
+        };
+        if further {
+            let at = line_start + i;
+            return Some(SyntaxError::Foreign {
+                span: Span::new(at, at + b.len()),
+                message: format!(
+                    "an operator is missing between `{a}` and `{b}`: hybsim does not multiply by juxtaposition"
+                ),
+                label: "an operator expected before this".into(),
+                help: format!(
+                    "write `{a}*{b}` for the product (or separate two entries with `,`, two statements with `;` or a new line)"
+                ),
+            });
+        }
     }
     None
 }
