@@ -698,8 +698,10 @@ fn foreign_spelling(text: &str, pos: usize) -> Option<SyntaxError> {
 /// Two operands side by side with no operator between them (`-k x`, `2 pi`,
 /// a product written as in mathematics) on the line where the parse stopped
 /// at `pos` (or the line before, when it stopped at the next one): the pair
-/// nearest `pos` whose `*` lets `text` parse as `rule` past that line (so
-/// `state x = 1 y = 2`, a missing `,`, is not taken for a product). The parse
+/// nearest `pos` whose `*` lets `text` parse as `rule` past that line, else
+/// the nearest of several that do so together (`sin(2 pi t)`); a `*` that
+/// leaves an error on the line is no fix (`state x = 1 y = 2`, a missing
+/// `,`, is not taken for a product). The parse
 /// may stop well after the pair (`x' = -k x }` reads `x` as the next
 /// equation and stops at `}`), so each candidate is checked by re-parsing.
 fn missing_operator(text: &str, pos: usize, rule: Rule) -> Option<SyntaxError> {
@@ -712,27 +714,16 @@ fn missing_operator(text: &str, pos: usize, rule: Rule) -> Option<SyntaxError> {
     let line_end = text[pos..].find('\n').map_or(text.len(), |i| pos + i);
     let line = &text[line_start..line_end];
     let line = &line[..line.find('#').unwrap_or(line.len())];
-    // Gaps of spaces between an operand's end and an operand's start, last
-    // first (a handful: each costs a parse).
+    // Gaps of spaces between an operand's end and an operand's start that
+    // are not keywords (`0 then`), on the whole line, nearest `pos` first (a
+    // handful: each costs a parse).
     let bytes = line.as_bytes();
-    let gaps = (1..line.len())
-        .rev()
-        .filter(|&i| {
-            let (prev, next) = (bytes[i - 1] as char, bytes[i] as char);
-            line_start + i <= pos
-                && matches!(prev, ' ' | '\t')
-                && (is_word(next) || next == '(')
-                && line[..i]
-                    .trim_end()
-                    .chars()
-                    .next_back()
-                    .is_some_and(|c| is_word(c) || matches!(c, ')' | ']' | '\''))
-        })
-        .take(4);
     let token = |s: &str, from_end: bool| -> String {
         if from_end {
+            // The operand's last name or number with its transposes (`A'`).
             let t = s.trim_end();
-            let start = t.trim_end_matches(is_word).len();
+            let w = t.trim_end_matches('\'');
+            let start = w.trim_end_matches(is_word).len();
             if start == t.len() {
                 t[t.len() - 1..].to_string()
             } else {
@@ -740,41 +731,69 @@ fn missing_operator(text: &str, pos: usize, rule: Rule) -> Option<SyntaxError> {
             }
         } else {
             let end = s.find(|c: char| !is_word(c)).unwrap_or(s.len());
-            if end == 0 {
-                s[..1].to_string()
-            } else {
-                s[..end].to_string()
-            }
+            s[..end.max(1)].to_string()
         }
     };
-    for i in gaps {
-        let (a, b) = (token(&line[..i], true), token(&line[i..], false));
-        if [&a, &b].iter().any(|w| KEYWORDS.contains(&w.as_str())) {
-            continue;
+    let mut at: Vec<usize> = (1..line.len())
+        .filter(|&i| {
+            let (prev, next) = (bytes[i - 1] as char, bytes[i] as char);
+            matches!(prev, ' ' | '\t')
+                && (is_word(next) || next == '(')
+                && line[..i]
+                    .trim_end()
+                    .chars()
+                    .next_back()
+                    .is_some_and(|c| is_word(c) || matches!(c, ')' | ']' | '\''))
+        })
+        .collect();
+    at.sort_by_key(|&i| (line_start + i).abs_diff(pos));
+    let gaps: Vec<(usize, String, String)> = at
+        .into_iter()
+        .map(|i| (i, token(&line[..i], true), token(&line[i..], false)))
+        .filter(|(_, a, b)| !KEYWORDS.contains(&a.as_str()) && !KEYWORDS.contains(&b.as_str()))
+        .take(4)
+        .collect();
+    // Whether `text` with a `*` after the first operand of each gap in
+    // `with` parses past the line.
+    let parses = |with: &[&(usize, String, String)]| {
+        let mut ends: Vec<usize> = with
+            .iter()
+            .map(|(i, ..)| line_start + line[..*i].trim_end().len())
+            .collect();
+        ends.sort_unstable();
+        let mut fixed = String::with_capacity(text.len() + ends.len());
+        let mut from = 0;
+        for e in ends {
+            fixed.push_str(&text[from..e]);
+            fixed.push('*');
+            from = e;
         }
-        let end_a = line_start + line[..i].trim_end().len();
-        let fixed = format!("{}*{}", &text[..end_a], &text[end_a..]);
-        let further = match HybParser::parse(rule, &fixed) {
+        fixed.push_str(&text[from..]);
+        match HybParser::parse(rule, &fixed) {
             Ok(_) => true,
             Err(e) => match e.location {
-                InputLocation::Pos(p) | InputLocation::Span((p, _)) => p > line_end + 1,
+                InputLocation::Pos(p) | InputLocation::Span((p, _)) => p > line_end + with.len(),
             },
-        };
-        if further {
-            let at = line_start + i;
-            return Some(SyntaxError::Foreign {
-                span: Span::new(at, at + b.len()),
-                message: format!(
-                    "an operator is missing between `{a}` and `{b}`: hybsim does not multiply by juxtaposition"
-                ),
-                label: "an operator expected before this".into(),
-                help: format!(
-                    "write `{a}*{b}` for the product (or separate two entries with `,`, two statements with `;` or a new line)"
-                ),
-            });
         }
-    }
-    None
+    };
+    // One product (`-k x`), else all of them (`sin(2 pi t)`), named at the
+    // gap nearest where the parse stopped.
+    let found = gaps
+        .iter()
+        .find(|g| parses(&[g]))
+        .or_else(|| (gaps.len() > 1 && parses(&gaps.iter().collect::<Vec<_>>())).then(|| &gaps[0]));
+    let (i, a, b) = found?;
+    let at = line_start + i;
+    Some(SyntaxError::Foreign {
+        span: Span::new(at, at + b.len()),
+        message: format!(
+            "an operator is missing between `{a}` and `{b}`: hybsim does not multiply by juxtaposition"
+        ),
+        label: "an operator expected before this".into(),
+        help: format!(
+            "write `{a}*{b}` for the product (or separate two entries with `,`, two statements with `;` or a new line)"
+        ),
+    })
 }
 
 /// MATLAB's `end` at `at`.

@@ -108,6 +108,13 @@ const CASES: &[Case] = &[
         "an operator is missing between `2` and `y`: hybsim does not multiply by juxtaposition",
     ),
     case(
+        "several juxtaposed operands",
+        "model m\nstate x = 1\nflow { x' = sin(2 pi t) }\n",
+        "E0109",
+        "3:19",
+        "an operator is missing between `2` and `pi`: hybsim does not multiply by juxtaposition",
+    ),
+    case(
         "juxtaposed operands in a parameter",
         "model m\nparam w = 2 pi, a = 1\n",
         "E0109",
