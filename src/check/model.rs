@@ -1990,7 +1990,10 @@ impl ModelChecker<'_> {
                             "max_total_jumps" if x >= 1.0 && x.fract() == 0.0 => {
                                 s.max_total_jumps = x.min(u64::MAX as f64) as u64
                             }
-                            "zeno_window" => bad(self, format!("{x} is not an integer ≥ 2")),
+                            "zeno_window" => bad(
+                                self,
+                                format!("{x} is not a whole number in 2..={}", u32::MAX),
+                            ),
                             "max_total_jumps" => bad(self, format!("{x} is not an integer ≥ 1")),
                             "T" | "J" | "rtol" | "atol" | "h" | "dt_out" | "seed" | "max_step"
                             | "event_tol" | "set_tol" | "zeno_rate" => {

@@ -96,7 +96,9 @@ pub fn color() -> bool {
 #[allow(clippy::large_enum_variant)] // built once per process
 pub enum Command {
     /// Simulate a model and log the solution (MCAP by default; CSV and SVG on request).
-    #[command(after_help = EXAMPLES)]
+    // Negative numbers are values (`--T -1` is refused by the checker as
+    // a bad `T`, not by clap as an unknown flag `-1`).
+    #[command(after_help = EXAMPLES, allow_negative_numbers = true)]
     Run(run::RunArgs),
     /// Parse and check a model without simulating it.
     Check(check::CheckArgs),
@@ -104,6 +106,7 @@ pub enum Command {
     Design(design::DesignArgs),
     /// Check the model's `property` declarations on sampled cases; shrink and
     /// print the first counterexample with a command that replays it.
+    #[command(allow_negative_numbers = true)]
     Test(test::TestArgs),
     /// Run a grid of parameter values × seeded runs and collect the model's
     /// metrics (per run and per grid point; CSV and SVG); `--shard k/n` runs a
@@ -296,11 +299,6 @@ impl ArgOverride {
             value.map(|n| (float_override(n.value), n.text.clone())),
         )
     }
-
-    /// A whole-number flag (`--zeno-window 3`).
-    fn count(flag: &str, key: &str, value: Option<u64>) -> Option<Self> {
-        Self::flag(flag, key, value.map(|n| (n.to_string(), n.to_string())))
-    }
 }
 
 /// The event and Zeno guard flags of `run` and `test`. Each is the `sim` key
@@ -316,12 +314,14 @@ pub struct GuardArgs {
     /// disables it); applies only when J is unbounded (`sim` key `zeno_rate`).
     #[arg(long, value_name = "RATE")]
     pub zeno_rate: Option<NumberArg>,
-    /// Zeno guard: number of jumps over which the rate is measured (≥ 2).
+    /// Zeno guard: number of jumps over which the rate is measured (a whole
+    /// number ≥ 2, `1e3` too).
     #[arg(long, value_name = "N")]
-    pub zeno_window: Option<u32>,
-    /// Zeno guard: jump budget of a run with unbounded J (≥ 1).
+    pub zeno_window: Option<NumberArg>,
+    /// Zeno guard: jump budget of a run with unbounded J (a whole number
+    /// ≥ 1, `1e7` too).
     #[arg(long, value_name = "N")]
-    pub max_total_jumps: Option<u64>,
+    pub max_total_jumps: Option<NumberArg>,
 }
 
 impl GuardArgs {
@@ -338,15 +338,15 @@ impl GuardArgs {
             "sim.zeno_rate",
             self.zeno_rate.as_ref(),
         ));
-        all.extend(ArgOverride::count(
+        all.extend(ArgOverride::number(
             "--zeno-window",
             "sim.zeno_window",
-            self.zeno_window.map(u64::from),
+            self.zeno_window.as_ref(),
         ));
-        all.extend(ArgOverride::count(
+        all.extend(ArgOverride::number(
             "--max-total-jumps",
             "sim.max_total_jumps",
-            self.max_total_jumps,
+            self.max_total_jumps.as_ref(),
         ));
         all
     }

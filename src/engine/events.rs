@@ -135,12 +135,15 @@ impl StepPath for Hermite<'_> {
         let th = (s - self.s0) / h;
         let th2 = th * th;
         let th3 = th2 * th;
-        let h00 = 2.0 * th3 - 3.0 * th2 + 1.0;
         let h10 = (th3 - 2.0 * th2 + th) * h;
         let h01 = -2.0 * th3 + 3.0 * th2;
         let h11 = (th3 - th2) * h;
+        // h00·y0 + h01·y1 written as y0 + h01·(y1 − y0): a component that
+        // does not move (a mode, a counter: y1 = y0, f = 0) keeps its value
+        // to the bit, where h00 + h01 rounds away from 1 (a gear index read
+        // as 2.9999999999999996 mid-step).
         for (i, o) in out.iter_mut().enumerate() {
-            *o = h00 * self.y0[i] + h10 * self.f0[i] + h01 * self.y1[i] + h11 * self.f1[i];
+            *o = self.y0[i] + h01 * (self.y1[i] - self.y0[i]) + h10 * self.f0[i] + h11 * self.f1[i];
         }
     }
 

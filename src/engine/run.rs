@@ -29,7 +29,10 @@ impl ZenoWatch {
     fn new(s: &SimSettings) -> Self {
         let window = s.zeno_window as usize;
         Self {
-            times: VecDeque::with_capacity(window + 1),
+            // Grown as jumps come: a window may be as long as `u32::MAX`
+            // (34 GB of times allocated up front aborted the process), and
+            // the run ends after `max_total_jumps` anyway.
+            times: VecDeque::with_capacity(window.min(64) + 1),
             window,
             max_rate: s.zeno_max_rate,
             max_total: s.max_total_jumps,

@@ -3,7 +3,7 @@
 use pest::error::{ErrorVariant, InputLocation};
 
 use super::KEYWORDS;
-use super::parse::Rule;
+use super::parse::{HybParser, Rule};
 use crate::diagnostics::Diagnostic;
 use crate::source::Span;
 
@@ -237,7 +237,9 @@ impl SyntaxError {
     }
 
     /// Translates a pest error on `text`.
-    pub(crate) fn from_pest(err: pest::error::Error<Rule>, text: &str) -> Self {
+    /// `rule` is the rule `text` was parsed as (re-parsed with a missing
+    /// operator supplied, for [`missing_operator`]).
+    pub(crate) fn from_pest(err: pest::error::Error<Rule>, text: &str, rule: Rule) -> Self {
         let pos = match err.location {
             InputLocation::Pos(p) => p,
             InputLocation::Span((s, _)) => s,
@@ -288,6 +290,9 @@ impl SyntaxError {
         }
         if let Some(foreign) = foreign_spelling(text, pos) {
             return foreign;
+        }
+        if let Some(missing) = missing_operator(text, pos, rule) {
+            return missing;
         }
         let (found, len) = found_at(text, pos);
         if let Some(open) = unclosed_before_declaration(text, pos) {
@@ -688,6 +693,107 @@ fn foreign_spelling(text: &str, pos: usize) -> Option<SyntaxError> {
         );
     }
     None
+}
+
+/// Two operands side by side with no operator between them (`-k x`, `2 pi`,
+/// a product written as in mathematics) on the line where the parse stopped
+/// at `pos` (or the line before, when it stopped at the next one): the pair
+/// nearest `pos` whose `*` lets `text` parse as `rule` past that line, else
+/// the nearest of several that do so together (`sin(2 pi t)`); a `*` that
+/// leaves an error on the line is no fix (`state x = 1 y = 2`, a missing
+/// `,`, is not taken for a product). The parse
+/// may stop well after the pair (`x' = -k x }` reads `x` as the next
+/// equation and stops at `}`), so each candidate is checked by re-parsing.
+fn missing_operator(text: &str, pos: usize, rule: Rule) -> Option<SyntaxError> {
+    use pest::Parser;
+    let is_word = |c: char| c.is_ascii_alphanumeric() || c == '_' || c == '.';
+    let before = text.get(..pos)?;
+    // From the start of the line holding the last token before `pos`.
+    let last = before.trim_end().len();
+    let line_start = before[..last].rfind('\n').map_or(0, |i| i + 1);
+    let line_end = text[pos..].find('\n').map_or(text.len(), |i| pos + i);
+    let line = &text[line_start..line_end];
+    let line = &line[..line.find('#').unwrap_or(line.len())];
+    // Gaps of spaces between an operand's end and an operand's start that
+    // are not keywords (`0 then`), on the whole line, nearest `pos` first (a
+    // handful: each costs a parse).
+    let bytes = line.as_bytes();
+    let token = |s: &str, from_end: bool| -> String {
+        if from_end {
+            // The operand's last name or number with its transposes (`A'`).
+            let t = s.trim_end();
+            let w = t.trim_end_matches('\'');
+            let start = w.trim_end_matches(is_word).len();
+            if start == t.len() {
+                t[t.len() - 1..].to_string()
+            } else {
+                t[start..].to_string()
+            }
+        } else {
+            let end = s.find(|c: char| !is_word(c)).unwrap_or(s.len());
+            s[..end.max(1)].to_string()
+        }
+    };
+    let mut at: Vec<usize> = (1..line.len())
+        .filter(|&i| {
+            let (prev, next) = (bytes[i - 1] as char, bytes[i] as char);
+            matches!(prev, ' ' | '\t')
+                && (is_word(next) || next == '(')
+                && line[..i]
+                    .trim_end()
+                    .chars()
+                    .next_back()
+                    .is_some_and(|c| is_word(c) || matches!(c, ')' | ']' | '\''))
+        })
+        .collect();
+    at.sort_by_key(|&i| (line_start + i).abs_diff(pos));
+    let gaps: Vec<(usize, String, String)> = at
+        .into_iter()
+        .map(|i| (i, token(&line[..i], true), token(&line[i..], false)))
+        .filter(|(_, a, b)| !KEYWORDS.contains(&a.as_str()) && !KEYWORDS.contains(&b.as_str()))
+        .take(4)
+        .collect();
+    // Whether `text` with a `*` after the first operand of each gap in
+    // `with` parses past the line.
+    let parses = |with: &[&(usize, String, String)]| {
+        let mut ends: Vec<usize> = with
+            .iter()
+            .map(|(i, ..)| line_start + line[..*i].trim_end().len())
+            .collect();
+        ends.sort_unstable();
+        let mut fixed = String::with_capacity(text.len() + ends.len());
+        let mut from = 0;
+        for e in ends {
+            fixed.push_str(&text[from..e]);
+            fixed.push('*');
+            from = e;
+        }
+        fixed.push_str(&text[from..]);
+        match HybParser::parse(rule, &fixed) {
+            Ok(_) => true,
+            Err(e) => match e.location {
+                InputLocation::Pos(p) | InputLocation::Span((p, _)) => p > line_end + with.len(),
+            },
+        }
+    };
+    // One product (`-k x`), else all of them (`sin(2 pi t)`), named at the
+    // gap nearest where the parse stopped.
+    let found = gaps
+        .iter()
+        .find(|g| parses(&[g]))
+        .or_else(|| (gaps.len() > 1 && parses(&gaps.iter().collect::<Vec<_>>())).then(|| &gaps[0]));
+    let (i, a, b) = found?;
+    let at = line_start + i;
+    Some(SyntaxError::Foreign {
+        span: Span::new(at, at + b.len()),
+        message: format!(
+            "an operator is missing between `{a}` and `{b}`: hybsim does not multiply by juxtaposition"
+        ),
+        label: "an operator expected before this".into(),
+        help: format!(
+            "write `{a}*{b}` for the product (or separate two entries with `,`, two statements with `;` or a new line)"
+        ),
+    })
 }
 
 /// MATLAB's `end` at `at`.

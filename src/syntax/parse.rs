@@ -32,8 +32,8 @@ pub(super) type Res<T> = Result<T, SyntaxError>;
 /// Parses a whole model.
 pub fn parse_model(text: &str) -> Result<Model, SyntaxError> {
     check_depth(text)?;
-    let mut pairs =
-        HybParser::parse(Rule::model, text).map_err(|e| SyntaxError::from_pest(e, text))?;
+    let mut pairs = HybParser::parse(Rule::model, text)
+        .map_err(|e| SyntaxError::from_pest(e, text, Rule::model))?;
     let model = first(&mut pairs, Span::new(0, text.len()))?;
     let span = model.as_span().into();
     let mut inner = model.into_inner();
@@ -52,8 +52,8 @@ pub fn parse_model(text: &str) -> Result<Model, SyntaxError> {
 /// imports (returned as [`Item::Subsystem`] and [`Item::Import`] items).
 pub fn parse_library(text: &str) -> Result<Vec<Item>, SyntaxError> {
     check_depth(text)?;
-    let mut pairs =
-        HybParser::parse(Rule::library, text).map_err(|e| SyntaxError::from_pest(e, text))?;
+    let mut pairs = HybParser::parse(Rule::library, text)
+        .map_err(|e| SyntaxError::from_pest(e, text, Rule::library))?;
     let lib = first(&mut pairs, Span::new(0, text.len()))?;
     lib.into_inner()
         .filter(|p| p.as_rule() != Rule::EOI)
@@ -65,7 +65,7 @@ pub fn parse_library(text: &str) -> Result<Vec<Item>, SyntaxError> {
 pub fn parse_expr(text: &str) -> Result<Expr, SyntaxError> {
     check_depth(text)?;
     let mut pairs = HybParser::parse(Rule::override_value, text)
-        .map_err(|e| SyntaxError::from_pest(e, text))?;
+        .map_err(|e| SyntaxError::from_pest(e, text, Rule::override_value))?;
     let span = Span::new(0, text.len());
     let top = first(&mut pairs, span)?;
     expr(first(&mut top.into_inner(), span)?)

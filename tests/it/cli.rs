@@ -410,26 +410,32 @@ fn zeno_flags_of_run_and_test() {
     assert_eq!(code(&out), 0, "{}", stderr(&out));
     let summary = String::from_utf8_lossy(&out.stdout);
     assert!(summary.contains("after 4 jumps"), "{summary}");
-    let out = hybsim(
-        dir.path(),
-        &[
-            "run",
-            m,
-            "--no-mcap",
-            "--zeno-rate",
-            "inf",
-            "--max-total-jumps",
-            "30",
-            "-q",
-        ],
-    );
-    let summary = String::from_utf8_lossy(&out.stdout);
-    assert!(summary.contains("30 jumps in total"), "{summary}");
-    let out = hybsim(
-        dir.path(),
-        &["test", m, "--cases", "2", "--zeno-window", "3"],
-    );
-    assert_eq!(code(&out), 0, "{}", stderr(&out));
+    // The counts take what their `sim` keys take: `1e7` as well as 10000000
+    // (clap once refused `3e1`: "invalid digit found in string").
+    for budget in ["30", "3e1"] {
+        let out = hybsim(
+            dir.path(),
+            &[
+                "run",
+                m,
+                "--no-mcap",
+                "--zeno-rate",
+                "inf",
+                "--max-total-jumps",
+                budget,
+                "-q",
+            ],
+        );
+        let summary = String::from_utf8_lossy(&out.stdout);
+        assert!(summary.contains("30 jumps in total"), "{summary}");
+    }
+    for window in ["3", "3e0"] {
+        let out = hybsim(
+            dir.path(),
+            &["test", m, "--cases", "2", "--zeno-window", window],
+        );
+        assert_eq!(code(&out), 0, "{}", stderr(&out));
+    }
 }
 
 /// `hybsim check --message-format json`: one object per diagnostic and line on
@@ -793,6 +799,24 @@ fn an_invalid_flag_value_is_shown_as_typed() {
             &["--zeno-window", "1"],
             "in `--zeno-window 1`: invalid `zeno_window`",
             "┌─ --zeno-window:1:15",
+        ),
+        // A whole number past the range is named as such, not "not an integer".
+        (
+            &["--zeno-window", "1e20"],
+            "in `--zeno-window 1e20`: invalid `zeno_window`: 100000000000000000000 is not a whole number in 2..=4294967295",
+            "┌─ --zeno-window:1:15",
+        ),
+        // Negative numbers reach the checker (clap took `-1` for a flag and
+        // suggested `-- -1`).
+        (
+            &["--J", "-1"],
+            "in `--J -1`: invalid `J`: -1 is out of range",
+            "┌─ --J:1:5",
+        ),
+        (
+            &["--dt-out", "-0.5"],
+            "in `--dt-out -0.5`: invalid `dt_out`: -0.5 is out of range",
+            "┌─ --dt-out:1:10",
         ),
     ] {
         let mut all = vec!["run", ball, "--no-mcap"];

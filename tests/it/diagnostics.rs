@@ -91,6 +91,36 @@ const CASES: &[Case] = &[
         "2:14",
         "ambiguous `-` inside `[ ]`: MATLAB reads `0 -1` as two entries, hybsim as a difference",
     ),
+    // Operands side by side (a product written as in mathematics): the
+    // parse stopped after them (at the `}`, "expected `[`") or at the second.
+    case(
+        "juxtaposed operands in a flow",
+        "model m\nparam k = 2\nstate x = 1\nflow { x' = -k x }\n",
+        "E0109",
+        "4:16",
+        "an operator is missing between `k` and `x`: hybsim does not multiply by juxtaposition",
+    ),
+    case(
+        "juxtaposed operands in a guard",
+        "model m\nstate x = 1, y = 0\nflow { x' = -1 }\njump r when x <= 2 y { y+ = 1 }\n",
+        "E0109",
+        "4:20",
+        "an operator is missing between `2` and `y`: hybsim does not multiply by juxtaposition",
+    ),
+    case(
+        "several juxtaposed operands",
+        "model m\nstate x = 1\nflow { x' = sin(2 pi t) }\n",
+        "E0109",
+        "3:19",
+        "an operator is missing between `2` and `pi`: hybsim does not multiply by juxtaposition",
+    ),
+    case(
+        "juxtaposed operands in a parameter",
+        "model m\nparam w = 2 pi, a = 1\n",
+        "E0109",
+        "2:13",
+        "an operator is missing between `2` and `pi`: hybsim does not multiply by juxtaposition",
+    ),
     case(
         "MATLAB's elseif",
         "model m\nparam p = if 1 > 2 then 1 elseif 1 > 0 then 2 else 3\n",

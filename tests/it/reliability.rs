@@ -1088,6 +1088,33 @@ fn a_spent_jump_budget_is_a_located_warning() {
     assert!(err.contains("raise `max_total_jumps`"), "{err}");
 }
 
+/// The Zeno window's jump times are kept as the jumps come: the largest window
+/// (`u32::MAX`) once allocated 34 GB up front and aborted the process.
+#[test]
+fn the_longest_zeno_window_is_not_allocated_up_front() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    std::fs::write(
+        d.join("chat.hyb"),
+        "model chat\nstate tau = 0\nflow { tau' = 1 }\n\
+         jump tick when tau >= 2e-6 { tau+ = 0 }\nsim { T = 1e9; max_total_jumps = 2000 }\n",
+    )
+    .unwrap();
+    let out = hybsim(
+        d,
+        &[
+            "run",
+            "chat.hyb",
+            "--no-mcap",
+            "--set",
+            "zeno_window=4294967295",
+        ],
+    );
+    let err = stderr(&out);
+    assert_eq!(code(&out), 0, "{err}");
+    assert!(err.contains("2000 jumps in total"), "{err}");
+}
+
 /// A discrete-time model (empty flow set) without `J` meets the Zeno guard at t = 0: the run
 /// says, at the rule's line, that it needs a jump horizon and how to lift the guard (W0606);
 /// with `J` it makes J jumps. A model whose jumps are only fast (Δt > 0) gets no W0606.
