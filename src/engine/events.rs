@@ -825,6 +825,12 @@ pub(crate) struct Watcher {
     /// atom at its post-change end), so without them neither the state
     /// nor the atoms there are computed.
     bracket_start_read: bool,
+    /// With [`Priority::Flows`], the number of jump rules asked at the last
+    /// point found in C when the flow leaves it (0 otherwise): a solution
+    /// that cannot flow on jumps there if it may, not one rounding step
+    /// (or, with relaxed atoms, `set_tol`) outside C, where it may no
+    /// longer be in any set.
+    exit_rules: usize,
     /// Offset of each set's atoms in the layout of
     /// [`HybridSystem::all_atom_values`] (`None`: a set without atoms).
     flat_off: Vec<Option<usize>>,
@@ -985,6 +991,11 @@ impl Watcher {
             w.flat = flat_off[w.set].unwrap_or_default() + w.atom;
         }
         let flat_checks = watched_sets >= 2 && 2 * watched.len() >= flowing;
+        let exit_rules = if settings.priority == Priority::Flows {
+            sys.jump_rules().len()
+        } else {
+            0
+        };
         let bracket_start_read = sets.iter().any(|ws| {
             ws.spec.as_ref().is_some_and(|spec| {
                 spec.atoms
@@ -1037,9 +1048,10 @@ impl Watcher {
             buf_a: vec![0.0; n],
             buf_b: vec![0.0; n],
             buf_t: vec![0.0; n],
-            // Read only with equality atoms.
-            best_a: vec![0.0; if bracket_start_read { n } else { 0 }],
+            // Read only with equality atoms or at C's exits.
+            best_a: vec![0.0; n * usize::from(bracket_start_read || exit_rules > 0)],
             bracket_start_read,
+            exit_rules,
             event_state: vec![0.0; n],
             rule_at_event: None,
             hidden: hidden::Hidden::default(),
@@ -1847,6 +1859,15 @@ impl Watcher {
                 let ws = &self.sets[fi];
                 ws.cur && !ws.new
             });
+            if jump.is_none()
+                && left.is_some()
+                && self.exit_rules > 0
+                && let Some(r) = self.rule_at_exit(sys, path, a)
+            {
+                self.event_state.copy_from_slice(&self.best_a);
+                self.rule_at_event = Some(r);
+                return Some((a, EventKind::LeftFlowSet));
+            }
             if jump.is_some() || left.is_some() {
                 self.rule_at_event = self.sets.iter().find_map(|ws| match ws.set {
                     SetRef::Jump(r) if ws.new => Some(r),
@@ -1955,6 +1976,24 @@ impl Watcher {
                     != spec.expr.eval_with(&|k| truth(k).unwrap_or(false))
             }
         }
+    }
+
+    /// The first rule whose jump set holds at `a`, the last point found in
+    /// C before the flow leaves it (its state into `best_a`). A set that
+    /// reports a fault there counts as not holding: the event then stays at
+    /// the bracket's end, where the evaluation reports it.
+    fn rule_at_exit<S: HybridSystem + ?Sized, P: StepPath>(
+        &mut self,
+        sys: &S,
+        path: &mut P,
+        a: f64,
+    ) -> Option<usize> {
+        if !self.bracket_start_read {
+            path.eval(a, &mut self.best_a);
+        }
+        let at = HybridTime::new(self.clock.at(a), self.j);
+        let rule = (0..self.exit_rules).find(|&r| sys.jump_set(r, at, &self.best_a));
+        sys.take_fault().map_or(rule, |_| None)
     }
 
     /// Evaluates every set on the bracket `[ta, tb]` whose end states are

@@ -31,7 +31,9 @@
 //! 3. **Flow or jump.** With x ∈ D only it jumps; with x ∈ C only it flows;
 //!    with x ∈ C ∩ D the [`Priority`] decides: [`Priority::Jumps`] (the
 //!    default, as HyEQ) jumps, [`Priority::Flows`] flows and jumps only when
-//!    the flow leaves C, [`Priority::Random`] flips a fair coin from the
+//!    the flow leaves C (at the last point found in C if a jump set holds
+//!    there, else at the first point found outside it),
+//!    [`Priority::Random`] flips a fair coin from the
 //!    run's [`SimRng`]. Membership of C here is tested with
 //!    [`set_tol`](SimSettings::set_tol) on C's atoms (default 1e-9): an
 //!    atom `g ≥ 0` counts as holding when `g ≥ −set_tol`, so that a jump map

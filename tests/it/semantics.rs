@@ -136,6 +136,50 @@ fn a_flow_reset_before_it_blows_up_jumps_at_the_closed_form_times() {
     }
 }
 
+/// With `priority = flows` a solution that cannot flow on jumps at the
+/// last point of C it reaches when a jump set holds there, as with jumps
+/// first: where C ∩ D is C's boundary both priorities give one arc. The
+/// jump was one rounding step outside C (x = 1 + 7e-16 for C = {x ≤ 1});
+/// in a box's corner, after one wall's jump the other wall's was taken
+/// `set_tol` outside C, where no set held, and the run ended at t = 0.5.
+#[test]
+fn flows_priority_jumps_where_the_flow_leaves_c() {
+    let exit = "model m\nstate x = 0\nflow { x' = 1 + 0.1*x^2 } in x <= 1\n\
+                jump reset when x >= 1 { x+ = 0 }\n\
+                sim { T = 3; rtol = 1e-10; atol = 1e-12; priority = PRIORITY }\n";
+    let corner = "model box\nstate x = 0.5, y = 0.5, vx = 1, vy = 1\n\
+                  flow { x' = vx; y' = vy } in x >= 0 && x <= 1 && y >= 0 && y <= 1\n\
+                  jump right when x >= 1 && vx > 0 { vx+ = -vx }\n\
+                  jump left when x <= 0 && vx < 0 { vx+ = -vx }\n\
+                  jump top when y >= 1 && vy > 0 { vy+ = -vy }\n\
+                  jump bottom when y <= 0 && vy < 0 { vy+ = -vy }\n\
+                  sim { T = 5; priority = PRIORITY }\n";
+    // x' = 1 + x²/10 reaches 1 at √10·atan(1/√10); the ball hits two walls
+    // at once at t = 0.5 + k (x and y move together).
+    let first = 10f64.sqrt() * (1.0 / 10f64.sqrt()).atan();
+    for (src, n, at) in [(exit, 3, first), (corner, 10, 0.5)] {
+        let arcs = ["jumps", "flows"].map(|p| run(&compile(&src.replace("PRIORITY", p))));
+        for (arc, p) in arcs.iter().zip(["jumps", "flows"]) {
+            let jumps = arc.jumps();
+            assert_eq!(jumps.len(), n, "priority {p}: {:?}", jump_times(arc));
+            assert!(
+                (jumps[0].at.t - at).abs() < 1e-9,
+                "priority {p}: {}",
+                jumps[0].at.t
+            );
+            // Every jump on C's boundary, not past it.
+            for jump in jumps {
+                let pre = &jump.pre[..jump.pre.len().min(2)];
+                let inside = pre.iter().all(|&v| (-1e-12..=1.0 + 1e-12).contains(&v));
+                assert!(inside, "priority {p}: {pre:?}");
+            }
+        }
+        for (a, b) in jump_times(&arcs[0]).iter().zip(jump_times(&arcs[1])) {
+            assert!((a - b).abs() < 1e-12, "jumps first {a}, flows first {b}");
+        }
+    }
+}
+
 /// The thermostat with hysteresis and a mode q: heating `x' = 30 − x`
 /// while q = 1 until x ≥ 22, cooling `x' = −x` while q = 0 until x ≤ 18.
 /// The mode conjunct is constant during each flow; the temperature atom is
