@@ -1836,7 +1836,18 @@ impl ExactSteps<'_> {
         d_end: f64,
     ) -> Result<SegmentEnd, SimError> {
         let mut s = 0.0;
+        // Whether the last step left the state unchanged (to the bit).
+        let mut still = false;
         loop {
+            // Without guards a flow at an equilibrium (the last step left
+            // the state unchanged, and f vanishes there) ends its segment
+            // in one step: how a solver's steps grow there.
+            if still
+                && self.watcher.is_empty()
+                && at_rest(sys, (t0 + s, j), self.y_prev, self.y_end)
+            {
+                return Ok(self.rest_to_end(sys, out, j, s, d_end));
+            }
             let (s1, h, last) = exact_step_end(out, t0, s, hw, d_end);
             let h = if F::CACHED { h } else { s1 - s };
             if !flow.advance(h, self.y_prev, self.y1)
@@ -1865,10 +1876,55 @@ impl ExactSteps<'_> {
                 return Ok(end);
             }
             drop(path);
+            still = self.y_prev == self.y1;
             std::mem::swap(self.y_prev, self.y1);
             s = s1;
         }
     }
+
+    /// The rest of a segment from `s` at an equilibrium ([`at_rest`]): one
+    /// constant step to `d_end` (the steps of at most `hw` serve dense
+    /// output, and a constant path has nothing to show between its ends).
+    fn rest_to_end<S: HybridSystem + ?Sized>(
+        &mut self,
+        sys: &S,
+        out: &mut Output<'_>,
+        j: u64,
+        s: f64,
+        d_end: f64,
+    ) -> SegmentEnd {
+        let mut path = Linear {
+            s0: s,
+            s1: d_end,
+            y0: self.y_prev,
+            y1: self.y_prev,
+        };
+        let reach = Some(EndWhy::Reached);
+        close_step(
+            sys,
+            self.watcher,
+            self.y_end,
+            out,
+            &mut path,
+            j,
+            (s, d_end),
+            self.y_prev,
+            reach,
+        )
+        .expect("the segment's last step ends it")
+    }
+}
+
+/// Whether `y` is an equilibrium of the flow at `(t, j)`: f(y) is zero in
+/// every component (`f` is scratch).
+fn at_rest<S: HybridSystem + ?Sized>(
+    sys: &S,
+    (t, j): (f64, u64),
+    y: &[f64],
+    f: &mut [f64],
+) -> bool {
+    sys.flow_map(HybridTime::new(t, j), y, f);
+    f.iter().all(|&v| v == 0.0)
 }
 
 /// The longest step of an exact path: guards, and dense output, need steps

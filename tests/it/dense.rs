@@ -191,3 +191,28 @@ fn declining_dense_points_drops_only_points_between_step_ends() {
         );
     }
 }
+
+/// A guard-free exact flow at an equilibrium ends its segment in one step
+/// (as a solver's steps grow there): `x' = -x` reaches 0 (after some 745
+/// steps of 1/‖A‖∞) and then a horizon of 1e300 at once; `x' = 1 - x` from
+/// its equilibrium takes a single step.
+#[test]
+fn exact_flow_at_rest_reaches_a_far_horizon() {
+    for (flow, x0, most) in [("-x", 1.0, 800), ("1 - x", 1.0, 3)] {
+        let text = format!(
+            "model m\nstate x = {x0}\nflow {{ x' = {flow} }}\nsim {{ T = 1e300; exact_affine = on }}\n"
+        );
+        let src = hybsim::source::SourceFile::new("m.hyb", text);
+        let m = hybsim::lang::compile(&src, &[]).unwrap();
+        let (x0, mut rng) = m.start(m.seed());
+        let arc = simulate_arc(&m, &x0, &m.settings(), &mut rng).unwrap();
+        let last = arc.last().unwrap();
+        assert_eq!(last.at.t, 1e300, "x' = {flow}");
+        assert_eq!(last.x[0], if flow == "-x" { 0.0 } else { 1.0 });
+        assert!(
+            arc.samples().len() <= most,
+            "x' = {flow}: {} samples",
+            arc.samples().len()
+        );
+    }
+}
