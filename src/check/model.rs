@@ -291,6 +291,8 @@ struct ModelChecker<'o> {
     unavailable: Vec<(String, String)>,
     /// The files read by `table("…")`.
     tables: Vec<crate::tables::TableFile>,
+    /// The `for` loops being run, outermost first: (member, members).
+    loops: Vec<(usize, usize)>,
 }
 
 pub(crate) fn check_model(
@@ -341,6 +343,7 @@ pub(crate) fn check_model(
         solve_checks: options.solve_checks,
         unavailable: Vec::new(),
         tables: Vec::new(),
+        loops: Vec::new(),
     };
     // Subsystem instances are expanded into the flat model first.
     let flat = super::compose::elaborate(model, &mut m.c.errors);
@@ -817,10 +820,14 @@ impl ModelChecker<'_> {
             return false;
         };
         let names: Vec<Rc<str>> = b.vars.iter().map(|v| Rc::from(v.name.as_str())).collect();
-        for m in members {
+        self.loops.push((0, members.len()));
+        for (k, m) in members.into_iter().enumerate() {
             self.c.dag.charge(1);
             if !self.c.within_budget(0, b.span) {
-                return true;
+                break;
+            }
+            if let Some(at) = self.loops.last_mut() {
+                at.0 = k;
             }
             let depth = self.c.scopes.len();
             for (v, &i) in names.iter().zip(&m) {
@@ -847,7 +854,22 @@ impl ModelChecker<'_> {
             }
             self.c.scopes.truncate(depth);
         }
+        self.loops.pop();
         true
+    }
+
+    /// How many more times the statement being checked runs, this time
+    /// included, if every `for` loop around it runs all its members (before
+    /// their filters): exact for loops whose ranges do not depend on each
+    /// other's variables.
+    fn runs_left(&self) -> f64 {
+        self.loops
+            .iter()
+            .rev()
+            .fold((1.0, 1.0), |(left, inner), &(k, n)| {
+                (left + (n - k - 1) as f64 * inner, inner * n as f64)
+            })
+            .0
     }
 
     fn param(&mut self, d: &Definition, graph: bool) {
@@ -1310,7 +1332,13 @@ impl ModelChecker<'_> {
         };
         // The engine's work and memory (the implicit solver's Jacobian is n × n) grow with the
         // number of scalar states.
-        let states = (self.init.len() + v.rows * v.cols) as f64;
+        let size = (v.rows * v.cols) as f64;
+        let mut states = self.init.len() as f64 + size;
+        if states > self.c.limits.get(Quantity::States) as f64 {
+            // Over the limit: the error names the total the loops around
+            // this declaration would reach, not the first member past it.
+            states += size * (self.runs_left() - 1.0);
+        }
         if !self
             .c
             .within_limit(Quantity::States, states, sd.target.span)

@@ -769,7 +769,8 @@ fn sizes_over_their_limits_are_refused_before_allocating() {
         ),
         (
             vec!["check", "fam.hyb", "--set", "N=100000"],
-            "20001 scalar states: over the limit of 20000",
+            // The family's total, not the first member past the limit.
+            "100000 scalar states: over the limit of 20000",
             "fam.hyb:4:11".into(),
         ),
         (
