@@ -1716,7 +1716,7 @@ impl ModelChecker<'_> {
                 };
                 if !(period > 0.0 && period.is_finite()) {
                     self.c.err(CheckError::Expected {
-                        expected: "a positive period".into(),
+                        expected: "a finite, positive period".into(),
                         found: format!("{period}"),
                         span: p.span,
                     });

@@ -152,8 +152,16 @@ impl SyntaxError {
                 span,
                 found,
                 expected,
-            } => Diagnostic::error("E0101", format!("unexpected {found}; expected {expected}"))
-                .primary(*span, format!("expected {expected} here")),
+            } => {
+                let d = Diagnostic::error("E0101", format!("unexpected {found}; expected {expected}"))
+                    .primary(*span, format!("expected {expected} here"));
+                // After a flow equation's state name.
+                if expected.contains(FLOW_PRIME) {
+                    d.help("a flow equation gives a state's derivative: `x' = f(x)` (with `x[i]' = …` for a family member)")
+                } else {
+                    d
+                }
+            }
             SyntaxError::TooDeep { span, limit } => Diagnostic::error(
                 "E0102",
                 format!("brackets nested deeper than {limit} levels"),
@@ -312,6 +320,9 @@ impl SyntaxError {
         }
     }
 }
+
+/// What a flow equation's state name is followed by.
+const FLOW_PRIME: &str = "`'` (`x' = …`)";
 
 /// The words that start a declaration (keywords and contextual words), which
 /// a misspelt first word of a statement is compared with.
@@ -982,6 +993,8 @@ fn describe(rule: Rule) -> Option<&'static str> {
         Rule::index_list => "`[`",
         Rule::index_arg | Rule::slice_hi | Rule::colon_all => "an index",
         Rule::transpose => "`'`",
+        // A flow equation's prime (its help says more).
+        Rule::flow_prime => FLOW_PRIME,
         Rule::op_or | Rule::op_and | Rule::cmp_op | Rule::add_op | Rule::mul_op | Rule::op_pow => {
             "an operator"
         }

@@ -503,6 +503,8 @@ fn flow_stmt(p: Pair<'_, Rule>) -> Res<FlowStmt> {
         Rule::flow_eq => {
             let mut it = p.into_inner();
             let target = target(first(&mut it, span)?)?;
+            // `flow_prime`, then the value.
+            let _prime = first(&mut it, span)?;
             let value = expr(first(&mut it, span)?)?;
             Ok(FlowStmt::Eq(Definition { target, value }))
         }

@@ -71,6 +71,27 @@ const CASES: &[Case] = &[
         "unexpected `state`; expected `'`, `[` or an operator",
     ),
     case(
+        "flow equation with a dot for its prime",
+        "model m\nstate x = 1\nflow { x. = -x }\n",
+        "E0101",
+        "3:9",
+        "unexpected `.`; expected `'` (`x' = …`) or `[`",
+    ),
+    case(
+        "a period that is not finite",
+        "model m\nstate x = 1\njump r every inf { x+ = 0 }\n",
+        "E0304",
+        "3:14",
+        "expected a finite, positive period, found inf",
+    ),
+    case(
+        "a state family over the limit names its total",
+        "model m\nfor i in 1..1000 { for k in 1..1e3 { state x[i, k] = [0; 0] } }\n",
+        "E0307",
+        "2:44",
+        "2000000 scalar states: over the limit of 20000",
+    ),
+    case(
         "flow equation without a right-hand side",
         "model m\nstate x = 0\nflow { x' = }\n",
         "E0101",
