@@ -370,6 +370,9 @@ impl Checker {
         let found = rules.matching(&name);
         // A family over an empty range (`--set N=0`) is declared: its count is 0.
         if found.is_empty() && !rules.is_family(&name) {
+            if rules.is_failed(&name) {
+                return None;
+            }
             let suggestion = self
                 .hints
                 .charge(rules.names().len())

@@ -370,9 +370,20 @@ pub(crate) fn check_model(
     }
     m.c.lower_signals();
     m.outputs = m.c.take_outputs();
+    let names: Vec<String> = m.rules.iter().map(|r| r.name.clone()).collect();
+    // Declared rules that failed their checks stay known names: a property or metric naming
+    // one adds no error to theirs.
+    let checked: std::collections::HashSet<&String> = names.iter().collect();
+    let failed = m
+        .rule_names
+        .keys()
+        .filter(|n| !checked.contains(n))
+        .cloned()
+        .collect();
     let rule_names = RuleNames::new(
-        m.rules.iter().map(|r| r.name.clone()).collect(),
+        names,
         super::rule_names::declared_families(&model.items),
+        failed,
     );
     let properties =
         super::property::check_properties(&mut m.c, &model.items, &rule_names, m.init.len());

@@ -266,6 +266,9 @@ fn rule_index(c: &mut Checker, t: &Target, rules: &RuleNames) -> Option<usize> {
     if let Some(k) = rules.get(&name) {
         return Some(k);
     }
+    if rules.is_failed(&name) {
+        return None;
+    }
     let suggestion = c
         .hints
         .charge(rules.names().len())

@@ -2,7 +2,7 @@
 //! (`fire[2]`) and by family (`fire`, every member), each in constant time,
 //! so that checking is linear in the number of references.
 
-use std::collections::HashMap;
+use std::collections::{HashMap, HashSet};
 
 use crate::syntax::ast::Item;
 
@@ -14,12 +14,15 @@ pub(crate) struct RuleNames {
     /// Family name (`fire` of `fire[2]`) → its members, in declaration order; a family declared
     /// over an empty range has none.
     families: HashMap<String, Vec<usize>>,
+    /// Rules declared but refused (their own errors are reported): known names without a
+    /// rule, so that naming one reports nothing more.
+    failed: HashSet<String>,
 }
 
 impl RuleNames {
-    /// The rules `names`, and the families the model declares ([`declared_families`]), which
-    /// may have no member.
-    pub(crate) fn new(names: Vec<String>, declared: Vec<String>) -> Self {
+    /// The rules `names`, the families the model declares ([`declared_families`]), which
+    /// may have no member, and the names of rules refused by the checker.
+    pub(crate) fn new(names: Vec<String>, declared: Vec<String>, failed: HashSet<String>) -> Self {
         let mut index = HashMap::with_capacity(names.len());
         let mut families: HashMap<String, Vec<usize>> =
             declared.into_iter().map(|f| (f, Vec::new())).collect();
@@ -34,7 +37,13 @@ impl RuleNames {
             names,
             index,
             families,
+            failed,
         }
+    }
+
+    /// Whether `name` is a rule that was declared but refused (an error already reported).
+    pub(crate) fn is_failed(&self, name: &str) -> bool {
+        self.failed.contains(name)
     }
 
     /// All names, in declaration order (for "did you mean" hints).
@@ -99,6 +108,7 @@ mod tests {
                 .map(String::from)
                 .to_vec(),
             vec!["fire".into(), "none".into()],
+            HashSet::from(["broken".to_string()]),
         );
         assert_eq!(r.get("fire[2]"), Some(2));
         assert_eq!(r.get("fire[3]"), None);
@@ -110,5 +120,6 @@ mod tests {
         // A family declared over an empty range: known, no member.
         assert!(r.is_family("none") && r.matching("none").is_empty());
         assert!(!r.is_family("reset"));
+        assert!(r.is_failed("broken") && r.get("broken").is_none());
     }
 }

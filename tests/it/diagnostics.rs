@@ -1118,3 +1118,14 @@ output f = z[1] + o[2] + sum(i in 1..N: z[i])
         "{diags:#?}"
     );
 }
+
+/// A rule that fails its checks (`every Ts` with `Ts = 0`) is still a known
+/// name: a property naming it adds no "unknown name" to the real errors.
+#[test]
+fn a_failed_rule_is_still_a_known_name() {
+    let path = format!("{}/models/sample_and_hold.hyb", env!("CARGO_MANIFEST_DIR"));
+    let src = SourceFile::read(path).unwrap();
+    let diags = diagnostics(&src, &["Ts=0"]);
+    let codes: Vec<_> = diags.iter().map(|d| d.code).collect();
+    assert_eq!(codes, ["E0306", "E0304"], "{diags:#?}");
+}
