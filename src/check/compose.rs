@@ -152,8 +152,8 @@ struct Scope {
     instance: Span,
     /// The subsystem's name.
     subsystem: String,
-    /// Anonymous `every` rules seen (named `step`, `step2`, … as in a model).
-    anonymous: usize,
+    /// Names of the rules declared without one (as in a model).
+    anonymous: super::rule_names::Anonymous,
 }
 
 impl Scope {
@@ -499,12 +499,7 @@ impl Elab<'_, '_> {
                 let name = match &j.name {
                     Some(t) => s.target_as(t, !t.indices.is_empty()),
                     None => {
-                        s.anonymous += 1;
-                        let n = if s.anonymous == 1 {
-                            "step".to_string()
-                        } else {
-                            format!("step{}", s.anonymous)
-                        };
+                        let n = s.anonymous.name(&j.trigger);
                         s.target_as(
                             &Target {
                                 name: Ident {
@@ -699,7 +694,7 @@ impl Elab<'_, '_> {
             inputs: connections,
             instance: inst.span,
             subsystem: sname.clone(),
-            anonymous: 0,
+            anonymous: Default::default(),
         };
         let mut out = Vec::new();
         for (p, default) in &sub.params {

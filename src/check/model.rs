@@ -272,7 +272,8 @@ struct ModelChecker<'o> {
     wiener_dim: usize,
     sim: Vec<(String, Expr, Span)>,
     params: Vec<(String, Dims, Vec<f64>)>,
-    anonymous_every: usize,
+    /// Names of the rules declared without one.
+    anonymous: super::rule_names::Anonymous,
     /// The `together` block being checked, and the number of blocks seen.
     group: Option<usize>,
     groups: usize,
@@ -332,7 +333,7 @@ pub(crate) fn check_model(
         wiener_dim: 0,
         sim: Vec::new(),
         params: Vec::new(),
-        anonymous_every: 0,
+        anonymous: Default::default(),
         group: None,
         groups: 0,
         group_resets: Vec::new(),
@@ -1688,14 +1689,7 @@ impl ModelChecker<'_> {
                     return;
                 }
             },
-            None => {
-                self.anonymous_every += 1;
-                if self.anonymous_every == 1 {
-                    "step".to_string()
-                } else {
-                    format!("step{}", self.anonymous_every)
-                }
-            }
+            None => self.anonymous.name(&j.trigger),
         };
         self.rule(name, &j.trigger, &j.resets, j.span, false);
     }

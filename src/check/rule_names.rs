@@ -4,7 +4,36 @@
 
 use std::collections::{HashMap, HashSet};
 
-use crate::syntax::ast::Item;
+use crate::syntax::ast::{Item, Trigger};
+
+/// The names of rules declared without one, in declaration order: `every Ts { … }` is `step`,
+/// `step2`, …; `jump when … { … }` is `jump1`, `jump2`, … (`jump` is a keyword). Subsystem
+/// instances count their own.
+#[derive(Debug, Clone, Copy, Default)]
+pub(crate) struct Anonymous {
+    every: usize,
+    jumps: usize,
+}
+
+impl Anonymous {
+    /// The name of the next rule without one, triggered by `trigger`.
+    pub(crate) fn name(&mut self, trigger: &Trigger) -> String {
+        match trigger {
+            Trigger::When(_) => {
+                self.jumps += 1;
+                format!("jump{}", self.jumps)
+            }
+            Trigger::Every(_) => {
+                self.every += 1;
+                if self.every == 1 {
+                    "step".to_string()
+                } else {
+                    format!("step{}", self.every)
+                }
+            }
+        }
+    }
+}
 
 /// The rules' names in declaration order, indexed by name and by family.
 #[derive(Debug, Clone, Default)]

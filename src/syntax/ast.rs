@@ -276,7 +276,7 @@ pub enum ResetStmt {
 /// A jump rule.
 #[derive(Debug, Clone, PartialEq)]
 pub struct JumpDecl {
-    /// Rule name (`None` for a bare `every Ts { }`).
+    /// Rule name (`None` for a bare `every Ts { }` or a `jump` without one).
     pub name: Option<Target>,
     /// Guard.
     pub trigger: Trigger,

@@ -266,9 +266,13 @@ impl SyntaxError {
             .filter_map(|e| e.strip_prefix('`')?.strip_suffix('`'))
             .filter(|k| KEYWORDS.contains(k))
             .collect();
-        // Only a name (`jump out when`): where a declaration may start too, a
-        // keyword there is a misplaced keyword (`flow { … } when x >= 0`).
-        let wants_name = expected == ["a name"];
+        // Only a name, or after `jump` a name or the trigger that may replace
+        // it (`jump out when`): where a declaration may start too, a keyword
+        // there is a misplaced keyword (`flow { … } when x >= 0`).
+        let wants_name = expected.contains(&"a name")
+            && expected
+                .iter()
+                .all(|e| matches!(*e, "a name" | "`when`" | "`every`"));
         let expected = match expected.len() {
             0 => "something else".to_string(),
             1 => expected[0].to_string(),

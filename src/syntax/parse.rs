@@ -240,12 +240,19 @@ fn item(p: Pair<'_, Rule>) -> Res<Item> {
             })
         }
         Rule::jump_decl => {
-            let name = target(first(&mut inner, span)?)?;
-            let trigger = trigger(first(&mut inner, span)?)?;
+            let mut next = first(&mut inner, span)?;
+            let name = if next.as_rule() == Rule::target {
+                let name = target(next)?;
+                next = first(&mut inner, span)?;
+                Some(name)
+            } else {
+                None
+            };
+            let trigger = trigger(next)?;
             let head = head_span(span, &trigger);
             let resets = reset_block(first(&mut inner, span)?)?;
             Item::Jump(JumpDecl {
-                name: Some(name),
+                name,
                 trigger,
                 resets,
                 span: head,

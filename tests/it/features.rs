@@ -72,6 +72,26 @@ fn families_and_graph_neighbour_sets() {
     assert!(b.iter().all(|&v| v == 0.0));
 }
 
+/// A `jump` without a name is named `jump1`, `jump2`, … in declaration
+/// order (beside the `step`s of anonymous `every`), and a property can name it.
+#[test]
+fn jumps_without_a_name_are_numbered() {
+    let m = compile(
+        "model b
+         state h = 1, v = 0
+         flow { h' = v; v' = -9.81 }
+         jump when h <= 0 && v <= 0 { v+ = -0.8 * v }
+         every 0.5 { h+ = h }
+         jump when h >= 2 { h+ = 0 }
+         property bounce: at jumps jump1 post(v) >= 0
+         sim { T = 1 }",
+    );
+    assert_eq!(m.rule_names(), ["jump1", "step", "jump2"]);
+    let (x0, mut rng) = m.start(0);
+    let arc = simulate_arc(&m, &x0, &m.settings(), &mut rng).unwrap();
+    assert!(!arc.jump_times(0).is_empty());
+}
+
 #[test]
 fn every_fires_at_exact_multiples_of_its_period() {
     let m = compile(
