@@ -484,6 +484,31 @@ fn foreign_spelling(text: &str, pos: usize) -> Option<SyntaxError> {
             help: help.into(),
         })
     };
+    // A typographic character, as equations copied from a PDF or a word
+    // processor bring them (`x′ = −x`, `x ≥ 0`): hybsim's text is ASCII
+    // outside comments.
+    if let Some(c) = rest.chars().next()
+        && let Some(write) = typographic(c)
+    {
+        let shown = if c.is_whitespace() {
+            format!("the space character U+{:04X}", c as u32)
+        } else {
+            format!("`{c}` (U+{:04X})", c as u32)
+        };
+        let write = if write == " " {
+            "an ordinary space".to_string()
+        } else {
+            format!("`{write}`")
+        };
+        return foreign(
+            pos,
+            pos + c.len_utf8(),
+            &format!("{shown} is a typographic character; hybsim writes {write}"),
+            &format!("write {write} here"),
+            "hybsim's operators and names are ASCII (an equation copied from a PDF often brings \
+             `−`, `′`, `≤`, `≥`, `×`): retype them as `-`, `'`, `<=`, `>=`, `*`",
+        );
+    }
     // A keyword glued to what follows it (keywords are whole words): other
     // languages' `elseif`, or `else0` for `else 0`.
     let word = &rest[..rest.find(|c: char| !is_word(c)).unwrap_or(rest.len())];
@@ -693,6 +718,27 @@ fn foreign_spelling(text: &str, pos: usize) -> Option<SyntaxError> {
         );
     }
     None
+}
+
+/// hybsim's spelling of a typographic character that stands for one of its
+/// operators, constants or a space.
+fn typographic(c: char) -> Option<&'static str> {
+    Some(match c {
+        '−' | '–' | '—' | '‐' | '‑' => "-",
+        '′' | '’' | '‘' | '´' => "'",
+        '≤' | '⩽' => "<=",
+        '≥' | '⩾' => ">=",
+        '≠' => "!=",
+        '×' | '·' | '⋅' | '∗' => "*",
+        '÷' | '∕' => "/",
+        '∧' => "&&",
+        '∨' => "||",
+        '¬' => "!",
+        'π' => "pi",
+        '∞' => "inf",
+        '\u{a0}' | '\u{2009}' | '\u{202f}' => " ",
+        _ => return None,
+    })
 }
 
 /// Two operands side by side with no operator between them (`-k x`, `2 pi`,

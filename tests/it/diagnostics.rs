@@ -128,6 +128,36 @@ const CASES: &[Case] = &[
         "2:27",
         "`elseif` is MATLAB's (and Julia's) spelling; hybsim writes `else if`",
     ),
+    // Equations copied from a PDF bring typographic characters: each is
+    // named with hybsim's ASCII spelling (the column counts characters).
+    case(
+        "typographic minus",
+        "model m\nstate x = 1\nflow { x' = −x }\n",
+        "E0109",
+        "3:13",
+        "`−` (U+2212) is a typographic character; hybsim writes `-`",
+    ),
+    case(
+        "typographic prime",
+        "model m\nstate x = 1\nflow { x′ = -x }\n",
+        "E0109",
+        "3:9",
+        "`′` (U+2032) is a typographic character; hybsim writes `'`",
+    ),
+    case(
+        "typographic comparison",
+        "model m\nstate x = 1\nflow { x' = -x } in x ≥ 0\n",
+        "E0109",
+        "3:23",
+        "`≥` (U+2265) is a typographic character; hybsim writes `>=`",
+    ),
+    case(
+        "no-break space",
+        "model m\nstate x = 1\nflow {\u{a0}x' = -x }\n",
+        "E0109",
+        "3:7",
+        "the space character U+00A0 is a typographic character; hybsim writes an ordinary space",
+    ),
     case(
         "misspelt declaration keyword",
         "model m\nstat x = 1\nflow { x' = -x }\n",
