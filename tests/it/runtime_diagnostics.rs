@@ -271,12 +271,24 @@ fn leaving_c_along_its_boundary_suggests_the_tolerances() {
     // As the note says: tighter tolerances keep the solution in C.
     let o = hybsim(
         dir.path(),
-        &["run", "circle.hyb", "--no-mcap", "--set", "rtol=1e-12", "--set", "atol=1e-12"],
+        &[
+            "run",
+            "circle.hyb",
+            "--no-mcap",
+            "--set",
+            "rtol=1e-12",
+            "--set",
+            "atol=1e-12",
+        ],
     );
     assert!(!stderr(&o).contains("W0603"), "{}", stderr(&o));
     std::fs::write(dir.path().join("nb.hyb"), NO_BOUNCE).unwrap();
     let o = hybsim(dir.path(), &["run", "nb.hyb", "--no-mcap"]);
-    assert!(stderr(&o).contains("W0603") && !stderr(&o).contains("set_tol"), "{}", stderr(&o));
+    assert!(
+        stderr(&o).contains("W0603") && !stderr(&o).contains("set_tol"),
+        "{}",
+        stderr(&o)
+    );
 }
 
 /// A model of `design` blocks alone checks (for `hybsim design`); run, it
