@@ -1080,6 +1080,31 @@ fn describe(rule: Rule) -> Option<&'static str> {
         Rule::state_def => "a state name",
         Rule::log_list => "a list `vars = [names]` or `rules = [names]`",
         Rule::log_name => "a state, output or rule name (`xh`, `xh[2]`, `v.redraw`)",
+        Rule::prop_always
+        | Rule::prop_after
+        | Rule::prop_flows
+        | Rule::prop_jumps
+        | Rule::prop_eventually
+        | Rule::prop_monotone
+        | Rule::prop_exponential
+        | Rule::w_always
+        | Rule::w_after
+        | Rule::w_during
+        | Rule::w_at
+        | Rule::w_eventually
+        | Rule::w_decreasing
+        | Rule::w_nonincreasing
+        | Rule::w_exponential => {
+            "a property body (`always P`, `during flows P`, `at jumps P`, `after E always P`, \
+             `eventually within T P`, `decreasing V during flows`, `nonincreasing V at jumps`, \
+             `exponential V kappa K alpha A`)"
+        }
+        Rule::w_flows => "`flows`",
+        Rule::w_jumps => "`jumps`",
+        Rule::w_within => "`within`",
+        Rule::w_kappa => "`kappa`",
+        Rule::w_alpha => "`alpha`",
+        Rule::scope_flows | Rule::scope_jumps => "`during flows` or `at jumps`",
         _ => return None,
     })
 }

@@ -187,6 +187,22 @@ const CASES: &[Case] = &[
         "`out` is a keyword, not a name",
     ),
     case(
+        "property without its kind",
+        "model m\nstate x = 1\nproperty p: x >= 0\n",
+        "E0101",
+        "3:13",
+        "unexpected `x`; expected a property body (`always P`, `during flows P`, `at jumps P`, \
+         `after E always P`, `eventually within T P`, `decreasing V during flows`, \
+         `nonincreasing V at jumps`, `exponential V kappa K alpha A`)",
+    ),
+    case(
+        "property scope without its word",
+        "model m\nstate x = 1\nproperty p: during x >= 0\n",
+        "E0101",
+        "3:20",
+        "unexpected `x`; expected `flows`",
+    ),
+    case(
         "jump rule without a name",
         "model m\nstate x = 1\njump when x <= 0 { x+ = 1 }\n",
         "E0101",
