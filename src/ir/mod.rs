@@ -1135,6 +1135,26 @@ impl CompiledModel {
             };
             d = d.primary(*span, label);
         }
+        // A flow that left C just past the `set_tol` its atoms were relaxed
+        // by has most likely run along C's boundary (tangent to it, as a
+        // rotation on the circle bounding C), where the integrator's error
+        // alone carries it out; an exit across the boundary fails by a
+        // rounding error instead.
+        let set_tol = self.settings().set_tol;
+        if *leaving
+            && set_tol > 0.0
+            && failed
+                .iter()
+                .any(|a| (set_tol..=1e3 * set_tol).contains(&a.value.abs()))
+        {
+            d = d.note(format!(
+                "C fails by just over `set_tol` = {}, the tolerance its atoms were relaxed by: a \
+                 solution running along C's boundary (a flow tangent to it) leaves C by the \
+                 integrator's error; if the exact solution stays in C, tighten `rtol` and `atol` \
+                 or raise `set_tol`",
+                describe::number(set_tol)
+            ));
+        }
         let names = self.state_names();
         let values: Vec<String> = state
             .iter()

@@ -117,6 +117,14 @@ pub enum SyntaxError {
         /// Its text.
         word: &'static str,
     },
+    /// A `jump` without its rule's name (`jump when x <= 0 { … }`).
+    #[error("a jump rule needs a name: `jump NAME {word} …`")]
+    UnnamedRule {
+        /// The keyword where the name was expected.
+        span: Span,
+        /// Its text (`when`, `every`).
+        word: &'static str,
+    },
     /// A number literal that does not fit in an f64.
     #[error("number `{text}` is out of range")]
     BadNumber {
@@ -141,6 +149,7 @@ impl SyntaxError {
             | SyntaxError::Unclosed { span, .. }
             | SyntaxError::Misspelt { span, .. }
             | SyntaxError::KeywordAsName { span, .. }
+            | SyntaxError::UnnamedRule { span, .. }
             | SyntaxError::BadNumber { span, .. } => *span,
         }
     }
@@ -236,6 +245,12 @@ impl SyntaxError {
                             .join(", ")
                     ))
                     .help(format!("choose another name than `{word}`"))
+            }
+            SyntaxError::UnnamedRule { span, word } => {
+                Diagnostic::error("E0101", self.to_string())
+                    .primary(*span, "the rule's name expected before this")
+                    .note("the name identifies the rule in logs, jump counts, `count(NAME)` and properties")
+                    .help(format!("name the rule, e.g. `jump impact {word} ...`"))
             }
             SyntaxError::BadNumber { span, text } => {
                 Diagnostic::error("E0103", format!("number `{text}` is out of range"))
@@ -381,6 +396,16 @@ fn keyword_mistake(
     let (before, rest) = (text.get(..pos)?, text.get(pos..)?);
     let here = &rest[..rest.find(|c: char| !is_word(c)).unwrap_or(rest.len())];
     if wants_name && let Some(&word) = KEYWORDS.iter().find(|k| **k == here) {
+        let after_jump = before
+            .trim_end_matches([' ', '\t'])
+            .strip_suffix("jump")
+            .is_some_and(|b| !b.ends_with(is_word));
+        if after_jump && matches!(word, "when" | "every") {
+            return Some(SyntaxError::UnnamedRule {
+                span: Span::new(pos, pos + here.len()),
+                word,
+            });
+        }
         return Some(SyntaxError::KeywordAsName {
             span: Span::new(pos, pos + here.len()),
             word,
@@ -499,6 +524,31 @@ fn foreign_spelling(text: &str, pos: usize) -> Option<SyntaxError> {
             help: help.into(),
         })
     };
+    // A typographic character, as equations copied from a PDF or a word
+    // processor bring them (`x′ = −x`, `x ≥ 0`): hybsim's text is ASCII
+    // outside comments.
+    if let Some(c) = rest.chars().next()
+        && let Some(write) = typographic(c)
+    {
+        let shown = if c.is_whitespace() {
+            format!("the space character U+{:04X}", c as u32)
+        } else {
+            format!("`{c}` (U+{:04X})", c as u32)
+        };
+        let write = if write == " " {
+            "an ordinary space".to_string()
+        } else {
+            format!("`{write}`")
+        };
+        return foreign(
+            pos,
+            pos + c.len_utf8(),
+            &format!("{shown} is a typographic character; hybsim writes {write}"),
+            &format!("write {write} here"),
+            "hybsim's operators and names are ASCII (an equation copied from a PDF often brings \
+             `−`, `′`, `≤`, `≥`, `×`): retype them as `-`, `'`, `<=`, `>=`, `*`",
+        );
+    }
     // A keyword glued to what follows it (keywords are whole words): other
     // languages' `elseif`, or `else0` for `else 0`.
     let word = &rest[..rest.find(|c: char| !is_word(c)).unwrap_or(rest.len())];
@@ -708,6 +758,27 @@ fn foreign_spelling(text: &str, pos: usize) -> Option<SyntaxError> {
         );
     }
     None
+}
+
+/// hybsim's spelling of a typographic character that stands for one of its
+/// operators, constants or a space.
+fn typographic(c: char) -> Option<&'static str> {
+    Some(match c {
+        '−' | '–' | '—' | '‐' | '‑' => "-",
+        '′' | '’' | '‘' | '´' => "'",
+        '≤' | '⩽' => "<=",
+        '≥' | '⩾' => ">=",
+        '≠' => "!=",
+        '×' | '·' | '⋅' | '∗' => "*",
+        '÷' | '∕' => "/",
+        '∧' => "&&",
+        '∨' => "||",
+        '¬' => "!",
+        'π' => "pi",
+        '∞' => "inf",
+        '\u{a0}' | '\u{2009}' | '\u{202f}' => " ",
+        _ => return None,
+    })
 }
 
 /// Two operands side by side with no operator between them (`-k x`, `2 pi`,
@@ -1026,6 +1097,31 @@ fn describe(rule: Rule) -> Option<&'static str> {
         Rule::state_def => "a state name",
         Rule::log_list => "a list `vars = [names]` or `rules = [names]`",
         Rule::log_name => "a state, output or rule name (`xh`, `xh[2]`, `v.redraw`)",
+        Rule::prop_always
+        | Rule::prop_after
+        | Rule::prop_flows
+        | Rule::prop_jumps
+        | Rule::prop_eventually
+        | Rule::prop_monotone
+        | Rule::prop_exponential
+        | Rule::w_always
+        | Rule::w_after
+        | Rule::w_during
+        | Rule::w_at
+        | Rule::w_eventually
+        | Rule::w_decreasing
+        | Rule::w_nonincreasing
+        | Rule::w_exponential => {
+            "a property body (`always P`, `during flows P`, `at jumps P`, `after E always P`, \
+             `eventually within T P`, `decreasing V during flows`, `nonincreasing V at jumps`, \
+             `exponential V kappa K alpha A`)"
+        }
+        Rule::w_flows => "`flows`",
+        Rule::w_jumps => "`jumps`",
+        Rule::w_within => "`within`",
+        Rule::w_kappa => "`kappa`",
+        Rule::w_alpha => "`alpha`",
+        Rule::scope_flows | Rule::scope_jumps => "`during flows` or `at jumps`",
         _ => return None,
     })
 }

@@ -149,6 +149,36 @@ const CASES: &[Case] = &[
         "2:27",
         "`elseif` is MATLAB's (and Julia's) spelling; hybsim writes `else if`",
     ),
+    // Equations copied from a PDF bring typographic characters: each is
+    // named with hybsim's ASCII spelling (the column counts characters).
+    case(
+        "typographic minus",
+        "model m\nstate x = 1\nflow { x' = −x }\n",
+        "E0109",
+        "3:13",
+        "`−` (U+2212) is a typographic character; hybsim writes `-`",
+    ),
+    case(
+        "typographic prime",
+        "model m\nstate x = 1\nflow { x′ = -x }\n",
+        "E0109",
+        "3:9",
+        "`′` (U+2032) is a typographic character; hybsim writes `'`",
+    ),
+    case(
+        "typographic comparison",
+        "model m\nstate x = 1\nflow { x' = -x } in x ≥ 0\n",
+        "E0109",
+        "3:23",
+        "`≥` (U+2265) is a typographic character; hybsim writes `>=`",
+    ),
+    case(
+        "no-break space",
+        "model m\nstate x = 1\nflow {\u{a0}x' = -x }\n",
+        "E0109",
+        "3:7",
+        "the space character U+00A0 is a typographic character; hybsim writes an ordinary space",
+    ),
     case(
         "misspelt declaration keyword",
         "model m\nstat x = 1\nflow { x' = -x }\n",
@@ -176,6 +206,36 @@ const CASES: &[Case] = &[
         "E0101",
         "3:6",
         "`out` is a keyword, not a name",
+    ),
+    case(
+        "property without its kind",
+        "model m\nstate x = 1\nproperty p: x >= 0\n",
+        "E0101",
+        "3:13",
+        "unexpected `x`; expected a property body (`always P`, `during flows P`, `at jumps P`, \
+         `after E always P`, `eventually within T P`, `decreasing V during flows`, \
+         `nonincreasing V at jumps`, `exponential V kappa K alpha A`)",
+    ),
+    case(
+        "property scope without its word",
+        "model m\nstate x = 1\nproperty p: during x >= 0\n",
+        "E0101",
+        "3:20",
+        "unexpected `x`; expected `flows`",
+    ),
+    case(
+        "jump rule without a name",
+        "model m\nstate x = 1\njump when x <= 0 { x+ = 1 }\n",
+        "E0101",
+        "3:6",
+        "a jump rule needs a name: `jump NAME when …`",
+    ),
+    case(
+        "timed jump rule without a name",
+        "model m\nstate x = 1\njump  every 0.5 { x+ = 1 }\n",
+        "E0101",
+        "3:7",
+        "a jump rule needs a name: `jump NAME every …`",
     ),
     case(
         "power of a vector",

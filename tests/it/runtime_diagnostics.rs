@@ -245,6 +245,52 @@ fn cannot_flow_or_jump_names_the_case_the_failing_atom_and_the_state() {
     assert!(!text.contains("`y > 0` fails"), "{text}");
 }
 
+/// A rotation on the unit circle with C the closed unit disk: the exact
+/// solution runs along C's boundary, the integrator's (rtol 1e-6) drifts out
+/// past `set_tol` (at t ≈ 0.17). W0603 says so, and what to change; a ball
+/// landing across its floor (`NO_BOUNCE`) gets no such note.
+#[test]
+fn leaving_c_along_its_boundary_suggests_the_tolerances() {
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::write(
+        dir.path().join("circle.hyb"),
+        "model circle\nstate x = 1, y = 0\nflow { x' = -y; y' = x } in x^2 + y^2 <= 1\n\
+         sim { T = 10 }\n",
+    )
+    .unwrap();
+    let o = hybsim(dir.path(), &["run", "circle.hyb", "--no-mcap"]);
+    let err = stderr(&o);
+    for want in [
+        "warning[W0603]",
+        "`x^2 + y^2 <= 1` fails",
+        "C fails by just over `set_tol` = 1e-9",
+        "tighten `rtol` and `atol` or raise `set_tol`",
+    ] {
+        assert!(err.contains(want), "missing {want:?} in\n{err}");
+    }
+    // As the note says: tighter tolerances keep the solution in C.
+    let o = hybsim(
+        dir.path(),
+        &[
+            "run",
+            "circle.hyb",
+            "--no-mcap",
+            "--set",
+            "rtol=1e-12",
+            "--set",
+            "atol=1e-12",
+        ],
+    );
+    assert!(!stderr(&o).contains("W0603"), "{}", stderr(&o));
+    std::fs::write(dir.path().join("nb.hyb"), NO_BOUNCE).unwrap();
+    let o = hybsim(dir.path(), &["run", "nb.hyb", "--no-mcap"]);
+    assert!(
+        stderr(&o).contains("W0603") && !stderr(&o).contains("set_tol"),
+        "{}",
+        stderr(&o)
+    );
+}
+
 /// A model of `design` blocks alone checks (for `hybsim design`); run, it
 /// has no state, and the error points at its name.
 #[test]
