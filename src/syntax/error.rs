@@ -117,14 +117,6 @@ pub enum SyntaxError {
         /// Its text.
         word: &'static str,
     },
-    /// A `jump` without its rule's name (`jump when x <= 0 { … }`).
-    #[error("a jump rule needs a name: `jump NAME {word} …`")]
-    UnnamedRule {
-        /// The keyword where the name was expected.
-        span: Span,
-        /// Its text (`when`, `every`).
-        word: &'static str,
-    },
     /// A number literal that does not fit in an f64.
     #[error("number `{text}` is out of range")]
     BadNumber {
@@ -149,7 +141,6 @@ impl SyntaxError {
             | SyntaxError::Unclosed { span, .. }
             | SyntaxError::Misspelt { span, .. }
             | SyntaxError::KeywordAsName { span, .. }
-            | SyntaxError::UnnamedRule { span, .. }
             | SyntaxError::BadNumber { span, .. } => *span,
         }
     }
@@ -245,12 +236,6 @@ impl SyntaxError {
                             .join(", ")
                     ))
                     .help(format!("choose another name than `{word}`"))
-            }
-            SyntaxError::UnnamedRule { span, word } => {
-                Diagnostic::error("E0101", self.to_string())
-                    .primary(*span, "the rule's name expected before this")
-                    .note("the name identifies the rule in logs, jump counts, `count(NAME)` and properties")
-                    .help(format!("name the rule, e.g. `jump impact {word} ...`"))
             }
             SyntaxError::BadNumber { span, text } => {
                 Diagnostic::error("E0103", format!("number `{text}` is out of range"))
@@ -396,16 +381,6 @@ fn keyword_mistake(
     let (before, rest) = (text.get(..pos)?, text.get(pos..)?);
     let here = &rest[..rest.find(|c: char| !is_word(c)).unwrap_or(rest.len())];
     if wants_name && let Some(&word) = KEYWORDS.iter().find(|k| **k == here) {
-        let after_jump = before
-            .trim_end_matches([' ', '\t'])
-            .strip_suffix("jump")
-            .is_some_and(|b| !b.ends_with(is_word));
-        if after_jump && matches!(word, "when" | "every") {
-            return Some(SyntaxError::UnnamedRule {
-                span: Span::new(pos, pos + here.len()),
-                word,
-            });
-        }
         return Some(SyntaxError::KeywordAsName {
             span: Span::new(pos, pos + here.len()),
             word,

@@ -224,20 +224,6 @@ const CASES: &[Case] = &[
         "unexpected `x`; expected `flows`",
     ),
     case(
-        "jump rule without a name",
-        "model m\nstate x = 1\njump when x <= 0 { x+ = 1 }\n",
-        "E0101",
-        "3:6",
-        "a jump rule needs a name: `jump NAME when …`",
-    ),
-    case(
-        "timed jump rule without a name",
-        "model m\nstate x = 1\njump  every 0.5 { x+ = 1 }\n",
-        "E0101",
-        "3:7",
-        "a jump rule needs a name: `jump NAME every …`",
-    ),
-    case(
         "power of a vector",
         "model m\nstate x = [1; 2]\nflow { x' = -x^2 }\n",
         "E0301",
