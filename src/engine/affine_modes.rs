@@ -11,6 +11,7 @@
 use super::HybridSystem;
 use super::error::SimError;
 use super::flow::Affine;
+use crate::arc::HybridTime;
 
 /// Modes whose propagators are kept besides the current one (the oldest is
 /// dropped first): a mode that takes continuous values (a held sample in a
@@ -37,11 +38,12 @@ impl ModeAffines {
     /// the flow to the solver.
     pub const AUTO_MODES: usize = 2 * KEPT_MODES;
 
-    /// The propagators of the mode of `x` (the current one) and the
-    /// bookkeeping of `modes`.
+    /// The propagators of the mode of `x` (the current one, at `at`) and
+    /// the bookkeeping of `modes`.
     pub fn new<S: HybridSystem + ?Sized>(
         sys: &S,
         modes: Vec<usize>,
+        at: HybridTime,
         x: &[f64],
     ) -> Result<(Self, Box<Affine>), SimError> {
         let n = sys.state_dim();
@@ -55,7 +57,7 @@ impl ModeAffines {
         };
         m.a.resize(n * n, 0.0);
         m.b.resize(n, 0.0);
-        let aff = m.affine_at(sys, x)?;
+        let aff = m.affine_at(sys, at, x)?;
         Ok((m, aff))
     }
 
@@ -64,11 +66,13 @@ impl ModeAffines {
         self.made
     }
 
-    /// Makes `current` the propagators of the mode of `x` (unchanged if it
-    /// is the current mode: a comparison of the mode components).
+    /// Makes `current` the propagators of the mode of `x` (at `at`;
+    /// unchanged if it is the current mode: a comparison of the mode
+    /// components).
     pub fn select<S: HybridSystem + ?Sized>(
         &mut self,
         sys: &S,
+        at: HybridTime,
         x: &[f64],
         current: &mut Box<Affine>,
     ) -> Result<(), SimError> {
@@ -90,7 +94,7 @@ impl ModeAffines {
                 self.others.push(left);
             }
             None => {
-                let aff = self.affine_at(sys, x)?;
+                let aff = self.affine_at(sys, at, x)?;
                 let mut key = if self.others.len() >= KEPT_MODES {
                     self.others.remove(0).0
                 } else {
@@ -107,28 +111,34 @@ impl ModeAffines {
     }
 
     /// The propagators of the mode of `x`, from the system's coefficients.
+    /// A non-finite coefficient (`x' = -x/q` at `q = 0`) is the state's
+    /// rate becoming non-finite at `at`, reported as the solver's path
+    /// reports it.
     fn affine_at<S: HybridSystem + ?Sized>(
         &mut self,
         sys: &S,
+        at: HybridTime,
         x: &[f64],
     ) -> Result<Box<Affine>, SimError> {
         self.made += 1;
         self.a.fill(0.0);
         self.b.fill(0.0);
         sys.affine_coefficients(x, &mut self.a, &mut self.b);
-        if self.a.iter().chain(&self.b).any(|v| !v.is_finite()) {
-            let mode: Vec<String> = self
-                .modes
-                .iter()
-                .map(|&k| format!("x[{k}] = {}", x[k]))
-                .collect();
-            return Err(SimError::InvalidSystem {
-                what: format!(
-                    "the affine flow has a non-finite coefficient in the mode {}",
-                    mode.join(", ")
-                ),
+        let n = x.len();
+        let bad_row = (0..n).find(|&r| {
+            !self.b[r].is_finite() || self.a[r * n..(r + 1) * n].iter().any(|v| !v.is_finite())
+        });
+        if let Some(row) = bad_row {
+            sys.flow_map(at, x, &mut self.b);
+            let rate = self.b[row];
+            return Err(SimError::NonFinite {
+                at,
+                component: row,
+                name: sys.state_names().get(row).cloned().unwrap_or_default(),
+                value: if rate.is_finite() { f64::NAN } else { rate },
+                rule: None,
             });
         }
-        Ok(Box::new(Affine::new(x.len(), &self.a, &self.b)?))
+        Ok(Box::new(Affine::new(n, &self.a, &self.b)?))
     }
 }

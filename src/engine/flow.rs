@@ -1258,7 +1258,7 @@ impl Flows {
     ) -> Result<&[f64], SimError> {
         let at = HybridTime::new(clock.value(), j);
         if self.modes.is_some() {
-            self.select_mode(sys, x)?;
+            self.select_mode(sys, at, x)?;
         }
         // Exact flows need no interpolant: only the timers' rates, one row
         // of [A, b] each. So do polynomial flows (always exact), and the
@@ -1300,6 +1300,7 @@ impl Flows {
     fn select_mode<S: HybridSystem + ?Sized>(
         &mut self,
         sys: &S,
+        at: HybridTime,
         x: &[f64],
     ) -> Result<(), SimError> {
         let Some(modes) = &mut self.modes else {
@@ -1310,7 +1311,7 @@ impl Flows {
                 self.method = Method::Ode(*solver);
                 self.modes = None;
             }
-            Method::Affine(aff) | Method::Auto(_, aff) => modes.select(sys, x, aff)?,
+            Method::Affine(aff) | Method::Auto(_, aff) => modes.select(sys, at, x, aff)?,
             _ => {}
         }
         Ok(())

@@ -94,7 +94,7 @@ fn method_for<S: HybridSystem + ?Sized>(
     let (aff, modes) = match sys.flow_structure() {
         FlowStructure::Affine { a, b } => (Box::new(Affine::new(sys.state_dim(), &a, &b)?), None),
         FlowStructure::SwitchedAffine { modes } => {
-            let (modes, aff) = ModeAffines::new(sys, modes, x0)?;
+            let (modes, aff) = ModeAffines::new(sys, modes, HybridTime::new(0.0, 0), x0)?;
             (aff, Some(modes))
         }
         FlowStructure::General => return Ok((Method::Ode(settings.solver), None)),

@@ -5,7 +5,7 @@
 
 use crate::util::simulate_arc;
 use hybsim::arc::{FailedAtom, HybridArc, TerminationCause};
-use hybsim::engine::{ExactAffine, SimSettings, Solver, check_arc};
+use hybsim::engine::{ExactAffine, SimError, SimSettings, Solver, check_arc};
 use hybsim::ir::CompiledModel;
 use hybsim::lang;
 use hybsim::source::SourceFile;
@@ -234,6 +234,24 @@ fn a_switched_linear_system_flows_exactly_in_each_mode() {
             end.x[0],
             want.0
         );
+    }
+    // A mode whose coefficient is not finite (`q = 0`) stops the run where
+    // the solver's path does: the state's rate became non-finite at (1, 1).
+    let m = compile(
+        "model m\nstate x = 1, q = 1, s = 0\nflow { x' = -x / q; s' = 1 } in s <= 1\n\
+         jump sw when s >= 1 { q+ = q - 1; s+ = 0 }\nsim { T = 5; exact_affine = on }\n",
+    );
+    let (x0, mut rng) = m.start(m.seed());
+    match simulate_arc(&m, &x0, &m.settings(), &mut rng) {
+        Err(SimError::NonFinite {
+            at,
+            component: 0,
+            value,
+            ..
+        }) => {
+            assert_eq!((at.t, at.j, value), (1.0, 1, f64::NEG_INFINITY));
+        }
+        other => panic!("{other:?}"),
     }
 }
 
