@@ -123,7 +123,11 @@ impl ModeAffines {
         self.made += 1;
         self.a.fill(0.0);
         self.b.fill(0.0);
-        sys.affine_coefficients(x, &mut self.a, &mut self.b);
+        sys.affine_coefficients(at, x, &mut self.a, &mut self.b);
+        // A failed evaluation (a table index out of range) is the flow's.
+        if let Some(f) = sys.take_fault() {
+            return Err(f.into());
+        }
         let n = x.len();
         let bad_row = (0..n).find(|&r| {
             !self.b[r].is_finite() || self.a[r * n..(r + 1) * n].iter().any(|v| !v.is_finite())

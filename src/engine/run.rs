@@ -10,7 +10,7 @@ use super::error::SimError;
 use super::events::{EventKind, FlowSetTest, Watcher};
 use super::flow::{Affine, EndWhy, Flows, Method, Output, check_finite, check_jump_finite};
 use super::settings::{ExactAffine, Priority, SimSettings, Solver};
-use super::system::{Cmp, FlowStructure, GuardKind, SetExpr, SetRef, SimRng, SystemFault};
+use super::system::{Cmp, FlowStructure, GuardKind, SetExpr, SetRef, SimRng};
 use crate::arc::{
     ArcSink, HybridArc, HybridTime, SampleKind, Termination, TerminationCause, ZenoDetail,
 };
@@ -295,7 +295,7 @@ pub fn simulate<S: HybridSystem + ?Sized>(
         let _ = out.sink.sample(at, x, SampleKind::Final);
         // The final sample's outputs.
         if let Some(f) = sys.take_fault() {
-            return Err(fault(f));
+            return Err(f.into());
         }
         out.sink.finish(&term);
         Ok(term)
@@ -317,7 +317,7 @@ pub fn simulate<S: HybridSystem + ?Sized>(
         // What the last segment or jump (its guards, maps, samples'
         // outputs) could not evaluate.
         if let Some(f) = sys.take_fault() {
-            return Err(fault(f));
+            return Err(f.into());
         }
         let t = time.value();
         let at = HybridTime::new(t, j);
@@ -412,7 +412,7 @@ pub fn simulate<S: HybridSystem + ?Sized>(
                         x_rule.copy_from_slice(&x);
                         sys.jump_map(r, at, &x, rng, &mut x_rule);
                         if let Some(f) = sys.take_fault() {
-                            return Err(fault(f));
+                            return Err(f.into());
                         }
                         if let Some(e) = check_jump_finite(sys, at, &x_rule, r) {
                             return Err(e);
@@ -426,7 +426,7 @@ pub fn simulate<S: HybridSystem + ?Sized>(
                     firing.push(rule);
                     sys.jump_map(rule, at, &x, rng, &mut x_plus);
                     if let Some(f) = sys.take_fault() {
-                        return Err(fault(f));
+                        return Err(f.into());
                     }
                     if let Some(e) = check_jump_finite(sys, at, &x_plus, rule) {
                         return Err(e);
@@ -501,7 +501,7 @@ pub fn simulate<S: HybridSystem + ?Sized>(
         // failure; the fault says why.
         let end = flows
             .segment(sys, &mut out, rng, t, j, &mut x, d_end)
-            .map_err(|e| sys.take_fault().map_or(e, fault))?;
+            .map_err(|e| sys.take_fault().map_or(e, SimError::from))?;
         time.add(end.s);
         match end.why {
             EndWhy::Reached if horizon_bound => at_horizon = true,
@@ -578,15 +578,6 @@ fn first_enabled<S: HybridSystem + ?Sized>(
     }
     watcher.forget_prefetch();
     (0..inside.len()).find(|&r| sys.jump_set(r, at, x))
-}
-
-/// The error of a fault the system reported.
-fn fault(f: SystemFault) -> SimError {
-    SimError::Fault {
-        at: f.at,
-        site: f.site,
-        what: f.what,
-    }
 }
 
 /// The flow time from `time` to the horizon `horizon_t`, rounded so that the

@@ -607,11 +607,12 @@ pub trait HybridSystem {
     }
 
     /// For [`FlowStructure::SwitchedAffine`]: `A` (row-major, n×n) and `b`
-    /// of the flow `ẋ = A x + b` through `x` (they depend only on the
-    /// mode components of `x`). Both buffers are zeroed by the caller.
-    /// Systems that declare no such structure are never asked.
-    fn affine_coefficients(&self, x: &[f64], a: &mut [f64], b: &mut [f64]) {
-        let _ = (x, a, b);
+    /// of the flow `ẋ = A x + b` through `x` at `at` (they depend only on
+    /// the mode components of `x`; `at` locates a fault). Both buffers are
+    /// zeroed by the caller. Systems that declare no such structure are
+    /// never asked.
+    fn affine_coefficients(&self, at: HybridTime, x: &[f64], a: &mut [f64], b: &mut [f64]) {
+        let _ = (at, x, a, b);
     }
 
     /// Diffusion for flows driven by white noise, `dx = f dt + g(x) dW`

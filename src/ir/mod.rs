@@ -529,10 +529,9 @@ impl ModeCode {
         ))
     }
 
-    /// `A` and `b` at `x` (the buffers zeroed).
-    fn fill(&self, nregs: usize, x: &[f64], a: &mut [f64], b: &mut [f64]) {
+    /// `A` and `b` at `x` (the buffers zeroed; `at` locates a fault).
+    fn fill(&self, nregs: usize, at: HybridTime, x: &[f64], a: &mut [f64], b: &mut [f64]) {
         let mut values = vec![0.0; self.entries.len()];
-        let at = HybridTime::new(0.0, 0);
         run_into_with_regs(
             &self.program,
             nregs.max(self.program.nregs),
@@ -1868,9 +1867,9 @@ impl HybridSystem for CompiledModel {
         self.structure.clone()
     }
 
-    fn affine_coefficients(&self, x: &[f64], a: &mut [f64], b: &mut [f64]) {
+    fn affine_coefficients(&self, at: HybridTime, x: &[f64], a: &mut [f64], b: &mut [f64]) {
         if let Some(code) = &self.mode_code {
-            code.fill(self.nregs, x, a, b);
+            code.fill(self.nregs, at, x, a, b);
         }
     }
 
