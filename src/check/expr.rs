@@ -1818,7 +1818,12 @@ impl Checker {
                 None
             }
             _ => {
-                let suggestion = suggest(name, BUILTINS.iter().copied());
+                // In a metric, a misnamed reduction is likelier than a misnamed function.
+                let suggestion = self
+                    .metric_frame
+                    .as_ref()
+                    .and_then(|_| super::metric::ReductionKind::meant(name))
+                    .or_else(|| suggest(name, BUILTINS.iter().copied()));
                 self.err(CheckError::UnknownFunction {
                     name: name.to_string(),
                     span: name_span,

@@ -54,6 +54,25 @@ impl ReductionKind {
             _ => return None,
         })
     }
+
+    /// The reductions' names, as written in a metric.
+    const NAMES: [&'static str; 7] = ["count", "integral", "mean", "max", "min", "final", "period"];
+
+    /// The reduction a user probably meant by the unknown function `name`
+    /// in a metric: other tools' words for one (`last`, `avg`, `trapz`),
+    /// else the closest reduction's name.
+    pub(crate) fn meant(name: &str) -> Option<String> {
+        let alias = match name.to_ascii_lowercase().as_str() {
+            "last" | "end" | "terminal" | "at_end" => "final",
+            "avg" | "average" | "time_average" => "mean",
+            "int" | "integrate" | "trapz" | "cumsum" => "integral",
+            "number" | "num" | "events" | "jumps" => "count",
+            "maximum" | "sup" | "peak" => "max",
+            "minimum" | "inf" => "min",
+            _ => return suggest(name, Self::NAMES),
+        };
+        Some(alias.to_string())
+    }
 }
 
 /// One reduction of a run; nodes are in the property frame.

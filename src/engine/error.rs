@@ -134,3 +134,14 @@ impl SimError {
         }
     }
 }
+
+/// The error of a fault the system reported.
+impl From<super::system::SystemFault> for SimError {
+    fn from(f: super::system::SystemFault) -> Self {
+        SimError::Fault {
+            at: f.at,
+            site: f.site,
+            what: f.what,
+        }
+    }
+}

@@ -20,6 +20,7 @@ use nalgebra::{DMatrix, DVector};
 use ode_solvers::{Rk4, System};
 
 use super::HybridSystem;
+use super::affine_modes::ModeAffines;
 use super::bdf::{Bdf, BdfPath};
 use super::clock::TimeSum;
 use super::dop853::{Dop853, Dop853Path};
@@ -894,6 +895,9 @@ impl DensePath for AffinePath<'_> {
 /// `Rk4`'s own).
 pub(crate) struct Flows {
     pub method: Method,
+    /// A switched affine flow's propagators of the modes met, the current
+    /// mode's in `method`.
+    modes: Option<ModeAffines>,
     pub watcher: Watcher,
     /// State indices of the timers of timer rules (on the exact path,
     /// those not in `timer_rates`).
@@ -1139,6 +1143,7 @@ impl Flows {
         sys: &S,
         settings: &SimSettings,
         method: Method,
+        modes: Option<ModeAffines>,
         x0: &[f64],
     ) -> Result<Self, SimError> {
         let n = x0.len();
@@ -1156,7 +1161,11 @@ impl Flows {
         timer_rows.sort_unstable();
         timer_rows.dedup();
         let mut timer_rates = Vec::new();
-        if let Method::Affine(aff) | Method::Auto(_, aff) = &method {
+        // A switched flow's rates change with its mode: each is read from
+        // the mode's A and b at each segment start.
+        if modes.is_none()
+            && let Method::Affine(aff) | Method::Auto(_, aff) = &method
+        {
             timer_rows.retain(|&i| {
                 let rate = aff.constant_rate(i);
                 timer_rates.extend(rate.map(|r| (i, r)));
@@ -1167,11 +1176,12 @@ impl Flows {
         // choice too) never step on a solver: no stepper is made for them.
         let exact_only = match &method {
             Method::Affine(_) => true,
-            Method::Auto(_, aff) => aff.poly.is_some(),
+            Method::Auto(_, aff) => aff.poly.is_some() && modes.is_none(),
             _ => false,
         };
         let mut flows = Self {
             method,
+            modes,
             watcher,
             timer_rows,
             timer_rates,
@@ -1245,8 +1255,11 @@ impl Flows {
         clock: TimeSum,
         j: u64,
         x: &[f64],
-    ) -> &[f64] {
+    ) -> Result<&[f64], SimError> {
         let at = HybridTime::new(clock.value(), j);
+        if self.modes.is_some() {
+            self.select_mode(sys, at, x)?;
+        }
         // Exact flows need no interpolant: only the timers' rates, one row
         // of [A, b] each. So do polynomial flows (always exact), and the
         // auto choice without watched guards while some duration may be
@@ -1276,7 +1289,32 @@ impl Flows {
             None => sys.flow_map(at, x, &mut self.f_prev),
         }
         self.watcher.start(sys, clock, j, x);
-        &self.f_prev
+        Ok(&self.f_prev)
+    }
+
+    /// A switched affine flow: makes the method's propagators those of the
+    /// mode of `x`. The auto choice gives up the exact path for good once
+    /// more modes than it keeps have been met (a mode of continuous values
+    /// would compute coefficients at every segment and rarely an
+    /// exponential worth it); `exact_affine = on` keeps it.
+    fn select_mode<S: HybridSystem + ?Sized>(
+        &mut self,
+        sys: &S,
+        at: HybridTime,
+        x: &[f64],
+    ) -> Result<(), SimError> {
+        let Some(modes) = &mut self.modes else {
+            return Ok(());
+        };
+        match &mut self.method {
+            Method::Auto(solver, _) if modes.made() > ModeAffines::AUTO_MODES => {
+                self.method = Method::Ode(*solver);
+                self.modes = None;
+            }
+            Method::Affine(aff) | Method::Auto(_, aff) => modes.select(sys, at, x, aff)?,
+            _ => {}
+        }
+        Ok(())
     }
 
     /// Schedules the sets' timer atoms of the segment [`start`](Self::start)ed

@@ -147,7 +147,9 @@
 //! chooses, by default per segment by cost ([`ExactAffine::Auto`]): a
 //! sampled-data loop whose flow is a linear plant plus held inputs and a
 //! timer then costs one matrix-vector product per sample, while flows whose
-//! segment durations never repeat stay on the solver. Noisy flows
+//! segment durations never repeat stay on the solver. So can flows declared
+//! [`FlowStructure::SwitchedAffine`] (`A` and `b` functions of modes that
+//! do not move along flows), each by its mode's exponential. Noisy flows
 //! ([`HybridSystem::noise_dim`] > 0) need [`Solver::EulerMaruyama`].
 //!
 //! # Output
@@ -204,6 +206,7 @@
 //! assert!(matches!(arc.termination().unwrap().cause, TerminationCause::ZenoSuspected { .. }));
 //! ```
 
+mod affine_modes;
 mod bdf;
 mod clock;
 mod dop853;

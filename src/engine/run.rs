@@ -4,12 +4,13 @@
 use std::collections::VecDeque;
 
 use super::HybridSystem;
+use super::affine_modes::ModeAffines;
 use super::clock::TimeSum;
 use super::error::SimError;
 use super::events::{EventKind, FlowSetTest, Watcher};
 use super::flow::{Affine, EndWhy, Flows, Method, Output, check_finite, check_jump_finite};
 use super::settings::{ExactAffine, Priority, SimSettings, Solver};
-use super::system::{Cmp, FlowStructure, GuardKind, SetExpr, SetRef, SimRng, SystemFault};
+use super::system::{Cmp, FlowStructure, GuardKind, SetExpr, SetRef, SimRng};
 use crate::arc::{
     ArcSink, HybridArc, HybridTime, SampleKind, Termination, TerminationCause, ZenoDetail,
 };
@@ -76,24 +77,33 @@ impl ZenoWatch {
     }
 }
 
+/// How the flows of a run from `x0` are advanced, and a switched affine
+/// flow's modes.
 fn method_for<S: HybridSystem + ?Sized>(
     sys: &S,
     settings: &SimSettings,
-) -> Result<Method, SimError> {
+    x0: &[f64],
+) -> Result<(Method, Option<ModeAffines>), SimError> {
     if let Solver::EulerMaruyama { h } = settings.solver {
-        return Ok(Method::EulerMaruyama { h });
+        return Ok((Method::EulerMaruyama { h }, None));
     }
     settings.solver.suits(sys)?;
-    if settings.exact_affine != ExactAffine::Off
-        && let FlowStructure::Affine { a, b } = sys.flow_structure()
-    {
-        let aff = Box::new(Affine::new(sys.state_dim(), &a, &b)?);
-        return Ok(match settings.exact_affine {
-            ExactAffine::On => Method::Affine(aff),
-            _ => Method::Auto(settings.solver, aff),
-        });
+    if settings.exact_affine == ExactAffine::Off {
+        return Ok((Method::Ode(settings.solver), None));
     }
-    Ok(Method::Ode(settings.solver))
+    let (aff, modes) = match sys.flow_structure() {
+        FlowStructure::Affine { a, b } => (Box::new(Affine::new(sys.state_dim(), &a, &b)?), None),
+        FlowStructure::SwitchedAffine { modes } => {
+            let (modes, aff) = ModeAffines::new(sys, modes, HybridTime::new(0.0, 0), x0)?;
+            (aff, Some(modes))
+        }
+        FlowStructure::General => return Ok((Method::Ode(settings.solver), None)),
+    };
+    let method = match settings.exact_affine {
+        ExactAffine::On => Method::Affine(aff),
+        _ => Method::Auto(settings.solver, aff),
+    };
+    Ok((method, modes))
 }
 
 fn check_system<S: HybridSystem + ?Sized>(sys: &S, x0: &[f64]) -> Result<(), SimError> {
@@ -232,7 +242,7 @@ pub fn simulate<S: HybridSystem + ?Sized>(
     check_system(sys, x0)?;
     // A fault left by an evaluation outside a run is not this run's.
     let _ = sys.take_fault();
-    let method = method_for(sys, settings)?;
+    let (method, modes) = method_for(sys, settings, x0)?;
     let n = x0.len();
     let rules = sys.jump_rules();
     // (rule, timer index, threshold) of the timer rules, if events are watched.
@@ -251,7 +261,7 @@ pub fn simulate<S: HybridSystem + ?Sized>(
     let groups = Groups::new(rules);
     let timer_sets = TimerSets::new(sys);
     let mut flow_set = FlowSetTest::new(sys);
-    let mut flows = Flows::new(sys, settings, method, x0)?;
+    let mut flows = Flows::new(sys, settings, method, modes, x0)?;
     let mut out = Output::new(sink, settings.dt_out, x0);
     let mut zeno = ZenoWatch::new(settings);
     let mut x = x0.to_vec();
@@ -285,7 +295,7 @@ pub fn simulate<S: HybridSystem + ?Sized>(
         let _ = out.sink.sample(at, x, SampleKind::Final);
         // The final sample's outputs.
         if let Some(f) = sys.take_fault() {
-            return Err(fault(f));
+            return Err(f.into());
         }
         out.sink.finish(&term);
         Ok(term)
@@ -307,7 +317,7 @@ pub fn simulate<S: HybridSystem + ?Sized>(
         // What the last segment or jump (its guards, maps, samples'
         // outputs) could not evaluate.
         if let Some(f) = sys.take_fault() {
-            return Err(fault(f));
+            return Err(f.into());
         }
         let t = time.value();
         let at = HybridTime::new(t, j);
@@ -402,7 +412,7 @@ pub fn simulate<S: HybridSystem + ?Sized>(
                         x_rule.copy_from_slice(&x);
                         sys.jump_map(r, at, &x, rng, &mut x_rule);
                         if let Some(f) = sys.take_fault() {
-                            return Err(fault(f));
+                            return Err(f.into());
                         }
                         if let Some(e) = check_jump_finite(sys, at, &x_rule, r) {
                             return Err(e);
@@ -416,7 +426,7 @@ pub fn simulate<S: HybridSystem + ?Sized>(
                     firing.push(rule);
                     sys.jump_map(rule, at, &x, rng, &mut x_plus);
                     if let Some(f) = sys.take_fault() {
-                        return Err(fault(f));
+                        return Err(f.into());
                     }
                     if let Some(e) = check_jump_finite(sys, at, &x_plus, rule) {
                         return Err(e);
@@ -453,7 +463,7 @@ pub fn simulate<S: HybridSystem + ?Sized>(
         }
 
         // Flow until the next timer event, the horizon, or a localized event.
-        let f0 = flows.start(sys, time, j, &x);
+        let f0 = flows.start(sys, time, j, &x)?;
         let mut d_end = settings.horizon_t - t;
         let mut horizon_bound = true;
         for (k, &(_, index, threshold)) in timers.iter().enumerate() {
@@ -491,7 +501,7 @@ pub fn simulate<S: HybridSystem + ?Sized>(
         // failure; the fault says why.
         let end = flows
             .segment(sys, &mut out, rng, t, j, &mut x, d_end)
-            .map_err(|e| sys.take_fault().map_or(e, fault))?;
+            .map_err(|e| sys.take_fault().map_or(e, SimError::from))?;
         time.add(end.s);
         match end.why {
             EndWhy::Reached if horizon_bound => at_horizon = true,
@@ -568,15 +578,6 @@ fn first_enabled<S: HybridSystem + ?Sized>(
     }
     watcher.forget_prefetch();
     (0..inside.len()).find(|&r| sys.jump_set(r, at, x))
-}
-
-/// The error of a fault the system reported.
-fn fault(f: SystemFault) -> SimError {
-    SimError::Fault {
-        at: f.at,
-        site: f.site,
-        what: f.what,
-    }
 }
 
 /// The flow time from `time` to the horizon `horizon_t`, rounded so that the

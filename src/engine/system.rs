@@ -366,6 +366,16 @@ pub enum FlowStructure {
         /// Constant drift b.
         b: Vec<f64>,
     },
+    /// `ẋ = A(q) x + b(q)`: affine in the state, with `A` and `b` functions
+    /// of the components `modes`, which do not move along flows (their rows
+    /// of A and b are zero): a switched linear system whose mode is a state.
+    /// [`HybridSystem::affine_coefficients`] gives `A` and `b` at a state;
+    /// the engine advances each flow exactly with the exponential of its
+    /// mode's `A` (propagators kept per mode).
+    SwitchedAffine {
+        /// The components A and b depend on (sorted).
+        modes: Vec<usize>,
+    },
 }
 
 /// A failed evaluation reported by [`HybridSystem::take_fault`].
@@ -594,6 +604,15 @@ pub trait HybridSystem {
     /// Structure of the flow map; [`FlowStructure::General`] by default.
     fn flow_structure(&self) -> FlowStructure {
         FlowStructure::General
+    }
+
+    /// For [`FlowStructure::SwitchedAffine`]: `A` (row-major, n×n) and `b`
+    /// of the flow `ẋ = A x + b` through `x` at `at` (they depend only on
+    /// the mode components of `x`; `at` locates a fault). Both buffers are
+    /// zeroed by the caller. Systems that declare no such structure are
+    /// never asked.
+    fn affine_coefficients(&self, at: HybridTime, x: &[f64], a: &mut [f64], b: &mut [f64]) {
+        let _ = (at, x, a, b);
     }
 
     /// Diffusion for flows driven by white noise, `dx = f dt + g(x) dW`

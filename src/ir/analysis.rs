@@ -382,6 +382,159 @@ pub(crate) fn affine_in(dag: &Dag, roots: &[NodeId], vars: Vars) -> Vec<Option<L
     roots.iter().map(|&r| lin[r as usize].clone()).collect()
 }
 
+/// An affine form `Σ cᵢ xᵢ + c₀` in the moving states whose coefficients are
+/// nodes of the graph: expressions of constants and still states (modes).
+#[derive(Debug, Clone, PartialEq)]
+pub(crate) struct ModeLin {
+    pub terms: Vec<(u32, NodeId)>,
+    pub c: NodeId,
+}
+
+/// Coefficients kept by [`affine_in_modes`] before it gives up (a dense
+/// switched system of 2000 states would make 4·10⁶ coefficient nodes).
+const MAX_MODE_TERMS: usize = 1 << 16;
+
+/// The flow `roots` as affine forms in the states that move (`still[k]`
+/// false) with coefficients that are functions of the still ones — modes,
+/// counters, held values — and constants: `ẋ = A(q) x + b(q)`, constant
+/// along each flow. `if c then p else q` with a condition `c` on the modes
+/// selects between the forms of `p` and `q` coefficient by coefficient.
+/// `None` if a root is not such a form (time, noise, the jump count, a
+/// product of moving states, ...). The coefficient nodes are added to `dag`.
+pub(crate) fn affine_in_modes(
+    dag: &mut Dag,
+    roots: &[NodeId],
+    still: &[bool],
+) -> Option<Vec<ModeLin>> {
+    let reach = dag.reachable(roots);
+    let len = reach.len();
+    // Nodes that are constant along a flow: built from constants and still states.
+    let mut fixed = vec![false; len];
+    let mut lin: Vec<Option<ModeLin>> = vec![None; len];
+    let (zero, one) = (dag.konst(0.0), dag.konst(1.0));
+    let mut kept = 0usize;
+    for id in 0..len as NodeId {
+        if !reach[id as usize] {
+            continue;
+        }
+        let node = dag.node(id);
+        let is_fixed = {
+            let f = |x: NodeId| fixed[x as usize];
+            match node {
+                Node::Const(_) => true,
+                Node::State(k) => still.get(k as usize).copied().unwrap_or(false),
+                Node::Un(_, a) => f(a),
+                Node::Bin(_, a, b) => f(a) && f(b),
+                Node::Select(c, a, b) => f(c) && f(a) && f(b),
+                Node::BlockOut(b, _) => dag.block(b).inputs.iter().all(|&i| f(i)),
+                Node::Lookup { row, col, when, .. } => f(row) && f(col) && f(when),
+                Node::Interp { x, .. } => f(x),
+                Node::Time | Node::Jumps | Node::Wiener(_) | Node::Rand(..) => false,
+            }
+        };
+        fixed[id as usize] = is_fixed;
+        let f = |x: NodeId| fixed[x as usize];
+        if is_fixed {
+            lin[id as usize] = Some(ModeLin {
+                terms: Vec::new(),
+                c: id,
+            });
+            continue;
+        }
+        let get = |x: NodeId| lin[x as usize].clone();
+        let l = match node {
+            Node::State(k) => Some(ModeLin {
+                terms: vec![(k, one)],
+                c: zero,
+            }),
+            Node::Un(UnFn::Neg, a) => {
+                get(a).map(|l| map_coefficients(dag, &l, |d, c| d.un(UnFn::Neg, c)))
+            }
+            Node::Bin(f @ (BinFn::Add | BinFn::Sub), a, b) => match (get(a), get(b)) {
+                (Some(x), Some(y)) => Some(merge(dag, &x, &y, |d, p, q| {
+                    d.bin(f, p.unwrap_or(zero), q.unwrap_or(zero))
+                })),
+                _ => None,
+            },
+            Node::Bin(BinFn::Mul, a, b) => match (f(a), f(b)) {
+                (true, _) => {
+                    get(b).map(|l| map_coefficients(dag, &l, |d, c| d.bin(BinFn::Mul, a, c)))
+                }
+                (_, true) => {
+                    get(a).map(|l| map_coefficients(dag, &l, |d, c| d.bin(BinFn::Mul, c, b)))
+                }
+                _ => None,
+            },
+            Node::Bin(BinFn::Div, a, b) if f(b) => {
+                get(a).map(|l| map_coefficients(dag, &l, |d, c| d.bin(BinFn::Div, c, b)))
+            }
+            Node::Select(c, a, b) if f(c) => match (get(a), get(b)) {
+                (Some(x), Some(y)) => Some(merge(dag, &x, &y, |d, p, q| {
+                    d.select(c, p.unwrap_or(zero), q.unwrap_or(zero))
+                })),
+                _ => None,
+            },
+            _ => None,
+        };
+        let l = l?;
+        kept += l.terms.len() + 1;
+        if kept > MAX_MODE_TERMS {
+            return None;
+        }
+        lin[id as usize] = Some(l);
+    }
+    roots.iter().map(|&r| lin[r as usize].clone()).collect()
+}
+
+/// `l` with `op` applied to each coefficient (the constant included).
+fn map_coefficients(
+    dag: &mut Dag,
+    l: &ModeLin,
+    mut op: impl FnMut(&mut Dag, NodeId) -> NodeId,
+) -> ModeLin {
+    ModeLin {
+        terms: l.terms.iter().map(|&(k, c)| (k, op(dag, c))).collect(),
+        c: op(dag, l.c),
+    }
+}
+
+/// The form whose coefficient of each state is `op` of the two forms'
+/// coefficients of it (`None` where a form has no such term).
+fn merge(
+    dag: &mut Dag,
+    x: &ModeLin,
+    y: &ModeLin,
+    mut op: impl FnMut(&mut Dag, Option<NodeId>, Option<NodeId>) -> NodeId,
+) -> ModeLin {
+    let mut terms = Vec::with_capacity(x.terms.len() + y.terms.len());
+    let (mut i, mut j) = (0, 0);
+    while i < x.terms.len() || j < y.terms.len() {
+        let (k, p, q) = match (x.terms.get(i), y.terms.get(j)) {
+            (Some(&(a, p)), Some(&(b, q))) if a == b => {
+                i += 1;
+                j += 1;
+                (a, Some(p), Some(q))
+            }
+            (Some(&(a, p)), Some(&(b, _))) if a < b => {
+                i += 1;
+                (a, Some(p), None)
+            }
+            (Some(&(a, p)), None) => {
+                i += 1;
+                (a, Some(p), None)
+            }
+            (_, Some(&(b, q))) => {
+                j += 1;
+                (b, None, Some(q))
+            }
+            (None, None) => break,
+        };
+        terms.push((k, op(dag, p, q)));
+    }
+    let c = op(dag, Some(x.c), Some(y.c));
+    ModeLin { terms, c }
+}
+
 /// Which nodes depend on a white-noise component (by node id; a node's
 /// inputs come before it).
 pub(crate) fn on_wiener(dag: &Dag) -> Vec<bool> {

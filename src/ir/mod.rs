@@ -398,6 +398,8 @@ pub struct CompiledModel {
     init: Program,
     outputs: Program,
     structure: FlowStructure,
+    /// For [`FlowStructure::SwitchedAffine`]: its coefficients' program.
+    mode_code: Option<ModeCode>,
     flow_spans: Vec<Option<Span>>,
     /// The `model` header's name.
     name_span: Span,
@@ -474,6 +476,80 @@ fn shape(rows: usize, cols: usize) -> Shape {
     }
 }
 
+/// The coefficients of a switched affine flow `ẋ = A(q) x + b(q)`
+/// ([`FlowStructure::SwitchedAffine`]): one program computing each entry of
+/// `A` and `b` that is not identically zero from the state's modes.
+#[derive(Debug, Clone)]
+struct ModeCode {
+    program: Program,
+    /// Where each output of `program` goes: `(row, column)` of `A`, column
+    /// n for `b`.
+    entries: Vec<(usize, usize)>,
+    n: usize,
+}
+
+impl ModeCode {
+    /// The coefficients' program of the flow `drift` if it is switched
+    /// affine in the states that are not `still`, and the modes it reads.
+    fn new(
+        dag: &mut Dag,
+        frame: Frame,
+        drift: &[NodeId],
+        still: &[bool],
+    ) -> Option<(Self, Vec<usize>)> {
+        let forms = analysis::affine_in_modes(dag, drift, still)?;
+        let n = drift.len();
+        let (mut entries, mut nodes) = (Vec::new(), Vec::new());
+        for (row, l) in forms.iter().enumerate() {
+            let terms = l.terms.iter().map(|&(k, c)| (k as usize, c));
+            for (col, c) in terms.chain([(n, l.c)]) {
+                if dag.as_const(c) != Some(0.0) {
+                    entries.push((row, col));
+                    nodes.push(c);
+                }
+            }
+        }
+        let reach = dag.reachable(&nodes);
+        let modes: Vec<usize> = (0..n)
+            .filter(|&k| still[k] && reach.get(dag.state(k) as usize) == Some(&true))
+            .collect();
+        // Without modes the flow would have been affine (only a fold the
+        // constant analysis does not make, such as `if` on constants).
+        if modes.is_empty() {
+            return None;
+        }
+        let program = Program::compile(dag, frame, &nodes).into_buffer();
+        Some((
+            Self {
+                program,
+                entries,
+                n,
+            },
+            modes,
+        ))
+    }
+
+    /// `A` and `b` at `x` (the buffers zeroed; `at` locates a fault).
+    fn fill(&self, nregs: usize, at: HybridTime, x: &[f64], a: &mut [f64], b: &mut [f64]) {
+        let mut values = vec![0.0; self.entries.len()];
+        run_into_with_regs(
+            &self.program,
+            nregs.max(self.program.nregs),
+            at,
+            x,
+            None,
+            &mut values,
+        );
+        for (&(row, col), v) in self.entries.iter().zip(values) {
+            if col == self.n {
+                b[row] = v;
+            } else {
+                a[row * self.n + col] = v;
+            }
+        }
+    }
+}
+
 impl CompiledModel {
     /// Compiles a checked model (`source` is kept for diagnostics and logs).
     pub fn new(mut m: CheckedModel, source: SourceFile) -> Self {
@@ -498,6 +574,17 @@ impl CompiledModel {
                 diff.push(m.dag.bin(crate::check::dag::BinFn::Sub, with, drift[i]));
             }
         }
+        // States whose flow is identically zero (modes, counters, held
+        // values): atoms of them alone do not change along a flow.
+        let still: Vec<bool> = (0..m.dim)
+            .map(|k| {
+                m.dag.as_const(drift[k]) == Some(0.0)
+                    && diff[k * m.wiener_dim..(k + 1) * m.wiener_dim]
+                        .iter()
+                        .all(|&d| m.dag.as_const(d) == Some(0.0))
+            })
+            .collect();
+        let mut mode_code = None;
         let structure = if m.wiener_dim == 0 && m.dim <= MAX_EXACT_AFFINE_DIM {
             match analysis::affine_forms(&m.dag, &drift) {
                 Some(forms) => {
@@ -512,21 +599,17 @@ impl CompiledModel {
                     }
                     FlowStructure::Affine { a, b }
                 }
-                None => FlowStructure::General,
+                None => match ModeCode::new(&mut m.dag, frame, &drift, &still) {
+                    Some((code, modes)) => {
+                        mode_code = Some(code);
+                        FlowStructure::SwitchedAffine { modes }
+                    }
+                    None => FlowStructure::General,
+                },
             }
         } else {
             FlowStructure::General
         };
-        // States whose flow is identically zero (modes, counters, held
-        // values): atoms of them alone do not change along a flow.
-        let still: Vec<bool> = (0..m.dim)
-            .map(|k| {
-                m.dag.as_const(drift[k]) == Some(0.0)
-                    && diff[k * m.wiener_dim..(k + 1) * m.wiener_dim]
-                        .iter()
-                        .all(|&d| m.dag.as_const(d) == Some(0.0))
-            })
-            .collect();
         // States with a constant nonzero rate along every flow: timers.
         let timer_states: Vec<bool> = (0..m.dim)
             .map(|k| {
@@ -674,6 +757,7 @@ impl CompiledModel {
             init,
             outputs,
             structure,
+            mode_code,
             flow_spans: m.flow_spans,
             name_span: m.name_span,
             block_spans: m.block_spans,
@@ -1801,6 +1885,12 @@ impl HybridSystem for CompiledModel {
 
     fn flow_structure(&self) -> FlowStructure {
         self.structure.clone()
+    }
+
+    fn affine_coefficients(&self, at: HybridTime, x: &[f64], a: &mut [f64], b: &mut [f64]) {
+        if let Some(code) = &self.mode_code {
+            code.fill(self.nregs, at, x, a, b);
+        }
     }
 
     fn noise_dim(&self) -> usize {

@@ -351,6 +351,20 @@ const CASES: &[Case] = &[
         "unknown function `sqr`",
     ),
     case(
+        "unknown reduction in a metric",
+        "model m\nstate x = 1\nflow { x' = -x }\nmetric xT = last(x)\n",
+        "E0203",
+        "4:13",
+        "unknown function `last`",
+    ),
+    case(
+        "misspelt reduction in a metric",
+        "model m\nstate x = 1\nflow { x' = -x }\nmetric m = integrl(x)\n",
+        "E0203",
+        "4:12",
+        "unknown function `integrl`",
+    ),
+    case(
         "unknown sim key with a suggestion",
         "model m\nstate x = 0\nsim { seeed = 3 }\n",
         "E0204",
@@ -679,6 +693,8 @@ fn unknown_names_come_with_the_closest_declared_name() {
         ("unknown name with a suggestion", "did you mean `gravity`?"),
         ("unknown function with a suggestion", "did you mean `sqrt`?"),
         ("unknown sim key with a suggestion", "did you mean `seed`?"),
+        ("unknown reduction in a metric", "did you mean `final`?"),
+        ("misspelt reduction in a metric", "did you mean `integral`?"),
         ("override of an unknown name", "did you mean `lambda`?"),
         (
             "override with nan",

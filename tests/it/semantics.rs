@@ -5,7 +5,7 @@
 
 use crate::util::simulate_arc;
 use hybsim::arc::{FailedAtom, HybridArc, TerminationCause};
-use hybsim::engine::{ExactAffine, SimSettings, Solver, check_arc};
+use hybsim::engine::{ExactAffine, SimError, SimSettings, Solver, check_arc};
 use hybsim::ir::CompiledModel;
 use hybsim::lang;
 use hybsim::source::SourceFile;
@@ -177,6 +177,81 @@ fn flows_priority_jumps_where_the_flow_leaves_c() {
         for (a, b) in jump_times(&arcs[0]).iter().zip(jump_times(&arcs[1])) {
             assert!((a - b).abs() < 1e-12, "jumps first {a}, flows first {b}");
         }
+    }
+}
+
+/// A switched linear system whose mode is a state, `x' = if q == 1 then A1*x
+/// else A2*x`: with `exact_affine = on` each flow is advanced by its mode's
+/// matrix exponential (closed form: a rotation by 0.5 rad, then a decay by
+/// e^(−0.15)), to rounding; auto and off agree to the solver's tolerance. A
+/// mode of continuous values (a held gain in `-k*x`) is exact on every
+/// segment too.
+#[test]
+fn a_switched_linear_system_flows_exactly_in_each_mode() {
+    let src = "model m\nparam A1 = [0, 1; -1, 0], A2 = [-0.3, 0; 0, -0.3]\n\
+               state x = [1; 0.5], q = 1, s = 0\n\
+               flow { x' = if q == 1 then A1 * x else A2 * x; s' = 1 } in s <= 0.5\n\
+               jump sw when s >= 0.5 { q+ = 3 - q; s+ = 0 }\n\
+               sim { T = 10; rtol = 1e-9; atol = 1e-12; exact_affine = MODE }\n";
+    let (c, s) = (0.5f64.cos(), 0.5f64.sin());
+    let mut expected = [1.0f64, 0.5];
+    for k in 0..20 {
+        expected = if k % 2 == 0 {
+            [
+                c * expected[0] + s * expected[1],
+                -s * expected[0] + c * expected[1],
+            ]
+        } else {
+            expected.map(|v| v * (-0.15f64).exp())
+        };
+    }
+    for (mode, tol) in [("on", 1e-13), ("auto", 1e-7), ("off", 1e-7)] {
+        let arc = run(&compile(&src.replace("MODE", mode)));
+        assert_eq!(arc.jumps().len(), 19, "{mode}");
+        let end = arc.samples().last().expect("a final sample");
+        assert_eq!(end.at.t, 10.0, "{mode}");
+        for (got, want) in end.x[..2].iter().zip(expected) {
+            assert!(
+                (got - want).abs() <= tol * want.abs(),
+                "{mode}: {got} vs {want}"
+            );
+        }
+    }
+    // A gain held between samples: x decays by e^(-k h) over each period.
+    let held = "model m\nstate x = 1, k = 1\nflow { x' = -k * x }\n\
+                every 0.1 { k+ = 1 + x^2 }\nsim { T = 5; rtol = 1e-10; atol = 1e-14; exact_affine = MODE }\n";
+    let mut want = (1.0f64, 1.0f64);
+    for _ in 0..50 {
+        want.0 *= (-want.1 * 0.1).exp();
+        want.1 = 1.0 + want.0 * want.0;
+    }
+    for (mode, tol) in [("on", 1e-12), ("auto", 1e-8), ("off", 1e-8)] {
+        let arc = run(&compile(&held.replace("MODE", mode)));
+        let end = arc.samples().last().expect("a final sample");
+        assert!(
+            (end.x[0] - want.0).abs() <= tol * want.0,
+            "{mode}: {} vs {}",
+            end.x[0],
+            want.0
+        );
+    }
+    // A mode whose coefficient is not finite (`q = 0`) stops the run where
+    // the solver's path does: the state's rate became non-finite at (1, 1).
+    let m = compile(
+        "model m\nstate x = 1, q = 1, s = 0\nflow { x' = -x / q; s' = 1 } in s <= 1\n\
+         jump sw when s >= 1 { q+ = q - 1; s+ = 0 }\nsim { T = 5; exact_affine = on }\n",
+    );
+    let (x0, mut rng) = m.start(m.seed());
+    match simulate_arc(&m, &x0, &m.settings(), &mut rng) {
+        Err(SimError::NonFinite {
+            at,
+            component: 0,
+            value,
+            ..
+        }) => {
+            assert_eq!((at.t, at.j, value), (1.0, 1, f64::NEG_INFINITY));
+        }
+        other => panic!("{other:?}"),
     }
 }
 
