@@ -3,9 +3,12 @@
 //! time, reuses f at the step end as the next step's first stage (FSAL)
 //! and the caller's f at a segment start, keeps the controller's step
 //! proposal across segments and jumps, gives the order-7 dense output of
-//! each step (three more stages per accepted step), and allocates nothing
-//! after construction. Events are located on that interpolant, so their
-//! times are as accurate as the steps.
+//! each step (three more stages, evaluated when the step's interior is
+//! first read: a run that reads only step ends saves a fifth of its
+//! evaluations of f), and allocates nothing after construction. Events are
+//! located on that interpolant, so their times are as accurate as the
+//! steps. The step loop, controller and stiffness test are
+//! [`Explicit`]'s.
 //!
 //! Coefficients, the error estimate (the order-5 and order-3 estimates
 //! combined), the controller and the stiffness test follow Hairer,
@@ -19,7 +22,8 @@
 
 use super::dopri5::{NonFiniteRate, Rhs};
 use super::events::{MAX_CONTROL, StepPath, bernstein_points};
-use super::explicit::{Explicit, Gains, Tableau};
+use super::explicit::{Deferred, Explicit, Gains, Tableau};
+use std::cell::RefCell;
 
 // Nodes.
 const C2: f64 = 0.526001519587677318785587544488e-01;
@@ -214,8 +218,14 @@ pub(crate) struct Dop853Tableau {
     /// Stages k1 (f at the step start; FSAL) … k12, k13 (f at the step
     /// end) and the dense output's k14 … k16.
     k: [Vec<f64>; 16],
-    /// The eight vectors of the dense-output polynomial of the last step.
-    rcont: [Vec<f64>; 8],
+    /// The dense-output polynomial of the last step: its first vector
+    /// (the state at the step's start), and the other seven, the last four
+    /// once the step's deferred stages are evaluated.
+    y0: Vec<f64>,
+    rcont: [Vec<f64>; 7],
+    /// Whether the last accepted step's deferred stages are still to
+    /// evaluate (on the first read of its interior).
+    pending: bool,
 }
 
 impl Tableau for Dop853Tableau {
@@ -227,7 +237,9 @@ impl Tableau for Dop853Tableau {
     fn new(n: usize) -> Self {
         Self {
             k: std::array::from_fn(|_| vec![0.0; n]),
+            y0: vec![0.0; n],
             rcont: std::array::from_fn(|_| vec![0.0; n]),
+            pending: false,
         }
     }
 
@@ -383,19 +395,99 @@ impl Tableau for Dop853Tableau {
 
     /// Hairer's CONTD8: three more stages, then the eight vectors of the
     /// degree-7 interpolant.
-    fn dense_output(
-        &mut self,
-        s: f64,
-        y: &[f64],
-        h: f64,
-        yn: &[f64],
-        ys: &mut [f64],
-        f: &mut Rhs<'_>,
-    ) -> u64 {
+    /// Hairer's CONTD8, the part from the step's ends: the first four
+    /// vectors of the degree-7 interpolant. The three more stages of the
+    /// other four wait for the first read of the step's interior
+    /// ([`Dense::rcont`]): a run that reads only step ends (no watched
+    /// guards, no dense output) does not evaluate them.
+    fn dense_output(&mut self, y: &[f64], h: f64, yn: &[f64]) {
         let n = y.len();
-        let y = &y[..n];
+        let (k1, k13, yn) = (&self.k[0][..n], &self.k[12][..n], &yn[..n]);
+        let r1 = &mut self.y0[..n];
+        let [r2, r3, r4, ..] = &mut self.rcont;
+        let (r2, r3, r4) = (&mut r2[..n], &mut r3[..n], &mut r4[..n]);
+        for i in 0..n {
+            let ydiff = yn[i] - y[i];
+            let bspl = h * k1[i] - ydiff;
+            r1[i] = y[i];
+            r2[i] = ydiff;
+            r3[i] = bspl;
+            r4[i] = ydiff - h * k13[i] - bspl;
+        }
+        self.pending = true;
+    }
+
+    fn fsal(&mut self) {
+        self.k.swap(0, 12);
+    }
+
+    fn path<'a>(
+        &'a mut self,
+        (s0, h): (f64, f64),
+        s1: f64,
+        y1: &'a [f64],
+        rest: Deferred<'a>,
+    ) -> Dop853Path<'a> {
+        let Self {
+            k,
+            y0,
+            rcont,
+            pending,
+        } = self;
+        let y0: &[f64] = y0;
+        let dense = Dense {
+            k,
+            y0,
+            rcont,
+            pending,
+            rest,
+            s0,
+            h,
+        };
+        Dop853Path {
+            dense: RefCell::new(dense),
+            y0,
+            s0,
+            h,
+            s1,
+            y1,
+        }
+    }
+}
+
+/// The stages and interpolant of the last accepted step, with what
+/// evaluates the stages it defers.
+struct Dense<'a> {
+    k: &'a mut [Vec<f64>; 16],
+    y0: &'a [f64],
+    rcont: &'a mut [Vec<f64>; 7],
+    pending: &'a mut bool,
+    rest: Deferred<'a>,
+    s0: f64,
+    h: f64,
+}
+
+impl Dense<'_> {
+    /// The interpolant's vectors after the first, the last four computed
+    /// on the first call (Hairer's CONTD8: three more stages, the same as
+    /// when evaluated with the step).
+    #[inline]
+    fn rcont(&mut self) -> &[Vec<f64>; 7] {
+        if *self.pending {
+            self.deferred_stages();
+            *self.pending = false;
+        }
+        self.rcont
+    }
+
+    // Out of line: `rcont` stays a test and a load in `eval`.
+    #[inline(never)]
+    fn deferred_stages(&mut self) {
+        let (s, h, y) = (self.s0, self.h, self.y0);
+        let n = y.len();
+        // After the step's FSAL swap: k1 is in k13's place and k13 in k1's.
         let [
-            k1,
+            k13,
             _,
             _,
             _,
@@ -407,15 +499,15 @@ impl Tableau for Dop853Tableau {
             k10,
             k11,
             k12,
-            k13,
+            k1,
             k14,
             k15,
             k16,
-        ] = &mut self.k;
+        ] = &mut *self.k;
         let (k1, k6, k7, k8) = (&k1[..n], &k6[..n], &k7[..n], &k8[..n]);
         let (k9, k10, k11, k12, k13) = (&k9[..n], &k10[..n], &k11[..n], &k12[..n], &k13[..n]);
         let (k14, k15, k16) = (&mut k14[..n], &mut k15[..n], &mut k16[..n]);
-        let ys = &mut ys[..n];
+        let (ys, f) = (&mut self.rest.ys[..n], &mut *self.rest.f);
         for i in 0..n {
             ys[i] = y[i]
                 + h * (A14_1 * k1[i]
@@ -452,17 +544,10 @@ impl Tableau for Dop853Tableau {
                     + A16_15 * k15[i]);
         }
         f(s + C16 * h, ys, k16);
-        let yn = &yn[..n];
-        let [r1, r2, r3, r4, r5, r6, r7, r8] = &mut self.rcont;
-        let (r1, r2, r3, r4) = (&mut r1[..n], &mut r2[..n], &mut r3[..n], &mut r4[..n]);
+        *self.rest.fevals += 3;
+        let [_, _, _, r5, r6, r7, r8] = &mut *self.rcont;
         let (r5, r6, r7, r8) = (&mut r5[..n], &mut r6[..n], &mut r7[..n], &mut r8[..n]);
         for i in 0..n {
-            let ydiff = yn[i] - y[i];
-            let bspl = h * k1[i] - ydiff;
-            r1[i] = y[i];
-            r2[i] = ydiff;
-            r3[i] = bspl;
-            r4[i] = ydiff - h * k13[i] - bspl;
             let stages = [
                 k1[i], k6[i], k7[i], k8[i], k9[i], k10[i], k11[i], k12[i], k13[i], k14[i], k15[i],
                 k16[i],
@@ -471,27 +556,16 @@ impl Tableau for Dop853Tableau {
                 r[i] = h * d.iter().zip(&stages).map(|(d, k)| d * k).sum::<f64>();
             }
         }
-        3
-    }
-
-    fn fsal(&mut self) {
-        self.k.swap(0, 12);
-    }
-
-    fn path<'a>(&'a self, s0: f64, h: f64, s1: f64, y1: &'a [f64]) -> Dop853Path<'a> {
-        Dop853Path {
-            rcont: &self.rcont,
-            s0,
-            h,
-            s1,
-            y1,
-        }
     }
 }
 
 /// The order-7 dense output of one Dop853 step.
 pub(crate) struct Dop853Path<'a> {
-    rcont: &'a [Vec<f64>; 8],
+    /// In a cell: control points (through `&self`) may be the first read
+    /// that evaluates the deferred stages.
+    dense: RefCell<Dense<'a>>,
+    /// The interpolant's first vector: the state at the step's start.
+    y0: &'a [f64],
     s0: f64,
     h: f64,
     s1: f64,
@@ -501,7 +575,7 @@ pub(crate) struct Dop853Path<'a> {
 impl Dop853Path<'_> {
     /// The state at the step's start (the interpolant's constant term).
     pub fn start(&self) -> &[f64] {
-        &self.rcont[0][..self.y1.len()]
+        self.y0
     }
 }
 
@@ -513,7 +587,8 @@ impl StepPath for Dop853Path<'_> {
         }
         let th = (s - self.s0) / self.h;
         let th1 = 1.0 - th;
-        let [r1, r2, r3, r4, r5, r6, r7, r8] = self.rcont;
+        let r1 = self.y0;
+        let [r2, r3, r4, r5, r6, r7, r8] = self.dense.get_mut().rcont();
         for (i, o) in out.iter_mut().enumerate() {
             let inner = r5[i] + th * (r6[i] + th1 * (r7[i] + th * r8[i]));
             *o = r1[i] + th * (r2[i] + th1 * (r3[i] + th * (r4[i] + th1 * inner)));
@@ -523,15 +598,18 @@ impl StepPath for Dop853Path<'_> {
     /// The degree-7 polynomial of `eval` in powers of τ = (s − s0)/(s1 − s0),
     /// then in Bernstein form.
     fn control_points(&self, i: usize, out: &mut [f64; MAX_CONTROL]) -> Option<(usize, f64)> {
+        let mut dense = self.dense.borrow_mut();
+        let rest = dense.rcont();
+        let r: [f64; 8] = std::array::from_fn(|k| if k == 0 { self.y0[i] } else { rest[k - 1][i] });
         // `eval` nests r1 + θ(r2 + (1 − θ)(r3 + θ(… + θ·r8))): expanded from
         // the inside, in powers of θ = (s − s0)/h, into `a`; `size` the same
         // expansion of the terms' magnitudes, which bounds the rounding.
         let (mut a, mut size) = ([0.0; 8], [0.0; 8]);
-        a[0] = self.rcont[7][i];
+        a[0] = r[7];
         size[0] = a[0].abs();
-        for (deg, r) in (0..7).rev().enumerate() {
+        for (deg, r_k) in r[..7].iter().rev().enumerate() {
             // r + θ·p for even r, r + (1 − θ)·p for odd r.
-            let theta = r % 2 == 0;
+            let theta = (6 - deg) % 2 == 0;
             for d in (0..=deg).rev() {
                 if theta {
                     (a[d + 1], a[d]) = (a[d], 0.0);
@@ -541,8 +619,8 @@ impl StepPath for Dop853Path<'_> {
                     size[d + 1] += size[d];
                 }
             }
-            a[0] += self.rcont[r][i];
-            size[0] += self.rcont[r][i].abs();
+            a[0] += r_k;
+            size[0] += r_k.abs();
         }
         // θ = w·τ (w = 1 unless the step end was rounded).
         let w = (self.s1 - self.s0) / self.h;
@@ -644,7 +722,7 @@ mod tests {
                 let s1 = if k + 1 == steps { 4.0 } else { s + h };
                 let mut out = [0.0; 2];
                 let mid = s + 0.5 * h;
-                st.path(s1).eval(mid, &mut out);
+                st.path(s1, &mut f).0.eval(mid, &mut out);
                 dense = dense.max((out[0] - mid.sin()).abs());
                 y.copy_from_slice(&st.y_new);
                 s = s1;
@@ -681,7 +759,7 @@ mod tests {
         while s < 10.0 {
             let h = st.step(s, &y, 10.0 - s, &mut f).unwrap();
             let s1 = if s + h >= 10.0 { 10.0 } else { s + h };
-            let mut p = st.path(s1);
+            let (mut p, _) = st.path(s1, &mut f);
             assert_eq!(p.start(), &y[..], "start of the step at {s}");
             let mut out = [0.0];
             p.eval(s, &mut out);
@@ -697,12 +775,49 @@ mod tests {
         }
         assert!((y[0] - exact(10.0)).abs() < 1e-10);
         assert!(steps < 100, "{steps} steps");
-        // FSAL: 15 evaluations per accepted step (11 stages, f at the end,
-        // 3 for the dense output), 11 per rejected attempt, plus the
-        // initial estimate's one.
+        // FSAL: 15 evaluations per accepted step whose interior is read (11
+        // stages, f at the end, 3 for the dense output), 11 per rejected
+        // attempt, plus the initial estimate's one.
         let rejected = (st.fevals - 1 - 15 * steps as u64) / 11;
         assert_eq!(st.fevals, 1 + 15 * steps as u64 + 11 * rejected);
         assert!(rejected <= 3, "{rejected} rejected attempts");
+    }
+
+    /// The dense output's three extra stages wait for the first read of
+    /// the step's interior: 12 evaluations of f per accepted step (11 per
+    /// rejected attempt) while only its end is read, 3 more at the first
+    /// interior read, none at later ones; the interpolant is the same at
+    /// every read.
+    #[test]
+    fn the_dense_stages_are_evaluated_at_the_first_interior_read() {
+        let mut f = |s: f64, y: &[f64], dy: &mut [f64]| dy[0] = -y[0] + s.sin();
+        let mut st = Dop853::new(1, 1e-10, 1e-12);
+        let mut y = vec![1.0];
+        st.start(&y, &[-1.0], &mut f);
+        let (mut s, mut fevals) = (0.0, st.fevals);
+        for _ in 0..5 {
+            let h = st.step(s, &y, 10.0, &mut f).unwrap();
+            let attempts = st.fevals - fevals - 1;
+            assert_eq!(attempts % 11, 0, "{attempts} evaluations in attempts");
+            fevals = st.fevals;
+            let (mut p, y1) = st.path(s + h, &mut f);
+            let mut end = [0.0];
+            p.eval(s + h, &mut end);
+            assert_eq!(end, y1);
+            assert_eq!(st.fevals, fevals, "the step's end");
+            let mid = s + 0.5 * h;
+            let (mut first, mut again) = ([0.0], [0.0]);
+            st.path(s + h, &mut f).0.eval(mid, &mut first);
+            assert_eq!(st.fevals, fevals + 3, "the first interior read");
+            let mut p = st.path(s + h, &mut f).0;
+            p.eval(mid, &mut again);
+            let mut points = [0.0; MAX_CONTROL];
+            assert!(p.control_points(0, &mut points).is_some());
+            assert_eq!((st.fevals, first), (fevals + 3, again), "later reads");
+            fevals = st.fevals;
+            y.copy_from_slice(&st.y_new);
+            s += h;
+        }
     }
 
     /// The step proposal is carried: a new segment (after a jump) starts
@@ -741,7 +856,8 @@ mod tests {
         st.start(&y, &f0, &mut f);
         let h = st.step(0.0, &y, 10.0, &mut f).unwrap();
         for s1 in [h, 0.9 * h] {
-            crate::engine::events::tests::assert_control_points(&mut st.path(s1), 2, (0.0, s1), 8);
+            let mut p = st.path(s1, &mut f).0;
+            crate::engine::events::tests::assert_control_points(&mut p, 2, (0.0, s1), 8);
         }
     }
 }

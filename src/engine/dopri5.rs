@@ -11,7 +11,7 @@
 //! follow Hairer, Nørsett & Wanner, *Solving ODEs I*, II.4–II.6 (DOPRI5).
 
 use super::events::{MAX_CONTROL, StepPath, bernstein_points};
-use super::explicit::{Explicit, Gains, Tableau};
+use super::explicit::{Deferred, Explicit, Gains, Tableau};
 
 // Nodes and coefficients of the Dormand–Prince pair.
 const C2: f64 = 1.0 / 5.0;
@@ -237,15 +237,7 @@ impl Tableau for Dopri5Tableau {
         (&self.k[6], &self.k[5])
     }
 
-    fn dense_output(
-        &mut self,
-        _s: f64,
-        y: &[f64],
-        h: f64,
-        yn: &[f64],
-        _ys: &mut [f64],
-        _f: &mut Rhs<'_>,
-    ) -> u64 {
+    fn dense_output(&mut self, y: &[f64], h: f64, yn: &[f64]) {
         let n = y.len();
         let [k1, _, k3, k4, k5, k6, k7] = &self.k;
         let (k1, k3, k4, k5) = (&k1[..n], &k3[..n], &k4[..n], &k5[..n]);
@@ -263,14 +255,19 @@ impl Tableau for Dopri5Tableau {
             r5[i] =
                 h * (D1 * k1[i] + D3 * k3[i] + D4 * k4[i] + D5 * k5[i] + D6 * k6[i] + D7 * k7[i]);
         }
-        0
     }
 
     fn fsal(&mut self) {
         self.k.swap(0, 6);
     }
 
-    fn path<'a>(&'a self, s0: f64, h: f64, s1: f64, y1: &'a [f64]) -> DopriPath<'a> {
+    fn path<'a>(
+        &'a mut self,
+        (s0, h): (f64, f64),
+        s1: f64,
+        y1: &'a [f64],
+        _rest: Deferred<'a>,
+    ) -> DopriPath<'a> {
         DopriPath {
             rcont: &self.rcont,
             s0,
@@ -352,7 +349,8 @@ mod tests {
         st.start(&y, &f0, &mut f);
         let h = st.step(0.0, &y, 10.0, &mut f).unwrap();
         for s1 in [h, 0.9 * h] {
-            crate::engine::events::tests::assert_control_points(&mut st.path(s1), 2, (0.0, s1), 5);
+            let mut p = st.path(s1, &mut f).0;
+            crate::engine::events::tests::assert_control_points(&mut p, 2, (0.0, s1), 5);
         }
     }
 
@@ -372,7 +370,7 @@ mod tests {
         while s < 10.0 {
             let h = st.step(s, &y, 10.0 - s, &mut f).unwrap();
             let s1 = if s + h >= 10.0 { 10.0 } else { s + h };
-            let mut p = st.path(s1);
+            let (mut p, _) = st.path(s1, &mut f);
             let mut out = [0.0];
             let mut out_start = [0.0];
             // The path's start, which dense output reads instead of

@@ -84,26 +84,33 @@ pub(crate) trait Tableau {
     /// the same time (the stiffness test's pair).
     fn end_rates(&self) -> (&[f64], &[f64]);
 
-    /// The dense output of the accepted step of length `h` from
-    /// (`s`, `y`) to `yn` (`ys`: room for stage arguments); returns the
-    /// evaluations of f.
-    #[allow(clippy::too_many_arguments)]
-    fn dense_output(
-        &mut self,
-        s: f64,
-        y: &[f64],
-        h: f64,
-        yn: &[f64],
-        ys: &mut [f64],
-        f: &mut Rhs<'_>,
-    ) -> u64;
+    /// The dense output of the accepted step of length `h` from `y` to
+    /// `yn`, or the part of it that needs no more evaluations of f (the
+    /// rest is the path's, on its first read of the step's interior).
+    fn dense_output(&mut self, y: &[f64], h: f64, yn: &[f64]);
 
     /// f at the step end becomes the next step's first stage (FSAL).
     fn fsal(&mut self);
 
-    /// The dense output of the last accepted step (from `s0`, of length
-    /// `h`) ending at local time `s1` in `y1`.
-    fn path<'a>(&'a self, s0: f64, h: f64, s1: f64, y1: &'a [f64]) -> Self::Path<'a>;
+    /// The dense output of the last accepted step (`(s0, h)`: its start
+    /// and length) ending at local time `s1` in `y1`; `rest` for what it
+    /// defers.
+    fn path<'a>(
+        &'a mut self,
+        step: (f64, f64),
+        s1: f64,
+        y1: &'a [f64],
+        rest: Deferred<'a>,
+    ) -> Self::Path<'a>;
+}
+
+/// What a path needs to finish its step's dense output when the step's
+/// interior is first read: room for stage arguments, the count of f's
+/// evaluations, and f.
+pub(crate) struct Deferred<'a> {
+    pub ys: &'a mut [f64],
+    pub fevals: &'a mut u64,
+    pub f: &'a mut Rhs<'a>,
 }
 
 /// An explicit pair: tolerances, the controller's state, the stiffness
@@ -243,9 +250,7 @@ impl<T: Tableau> Explicit<T> {
             // A step so accurate that the controller would grow it by more
             // than its largest factor is not held back by stability.
             self.stiffness(h, fac_free < 1.0 / g.fac_max)?;
-            self.fevals += self
-                .tab
-                .dense_output(s, y, h, &self.y_new, &mut self.y_stage, f);
+            self.tab.dense_output(y, h, &self.y_new);
             self.tab.fsal();
             if rejected {
                 h_new = h_new.min(h);
@@ -307,9 +312,17 @@ impl<T: Tableau> Explicit<T> {
     }
 
     /// The interpolant of the last accepted step, ending at local time
-    /// `s1` (its end, or the segment end it was rounded to).
-    pub fn path(&self, s1: f64) -> T::Path<'_> {
-        self.tab.path(self.s_old, self.h_old, s1, &self.y_new)
+    /// `s1` (its end, or the segment end it was rounded to), and the state
+    /// there; `f` evaluates what the interpolant defers. Valid until the
+    /// next step.
+    pub fn path<'a>(&'a mut self, s1: f64, f: &'a mut Rhs<'_>) -> (T::Path<'a>, &'a [f64]) {
+        let rest = Deferred {
+            ys: &mut self.y_stage,
+            fevals: &mut self.fevals,
+            f,
+        };
+        let step = (self.s_old, self.h_old);
+        (self.tab.path(step, s1, &self.y_new, rest), &self.y_new)
     }
 }
 
@@ -338,8 +351,8 @@ impl<T: Tableau> OwnStepper for Explicit<T> {
         &self.y_new
     }
 
-    fn path(&self, s1: f64) -> T::Path<'_> {
-        Explicit::path(self, s1)
+    fn path<'a>(&'a mut self, s1: f64, f: &'a mut Rhs<'_>) -> (T::Path<'a>, &'a [f64]) {
+        Explicit::path(self, s1, f)
     }
 
     fn proposal(&self) -> f64 {

@@ -39,8 +39,10 @@ pub(crate) trait OwnStepper {
     /// The state at the end of the last accepted step.
     fn y_new(&self) -> &[f64];
 
-    /// The dense output of the last accepted step, ending at `s1`.
-    fn path(&self, s1: f64) -> Self::Path<'_>;
+    /// The dense output of the last accepted step, ending at `s1`, and the
+    /// state there; `f` for what a method evaluates only once the step's
+    /// interior is read (Dop853's extra stages).
+    fn path<'a>(&'a mut self, s1: f64, f: &'a mut Rhs<'_>) -> (Self::Path<'a>, &'a [f64]);
 
     /// The step proposal.
     fn proposal(&self) -> f64;
@@ -86,8 +88,9 @@ impl OwnStepper for Radau5 {
         &self.y_new
     }
 
-    fn path(&self, s1: f64) -> RadauPath<'_> {
-        Radau5::path(self, s1)
+    fn path<'a>(&'a mut self, s1: f64, _f: &'a mut Rhs<'_>) -> (RadauPath<'a>, &'a [f64]) {
+        let this: &'a Self = self;
+        (Radau5::path(this, s1), &this.y_new)
     }
 
     fn proposal(&self) -> f64 {
@@ -133,8 +136,9 @@ impl OwnStepper for Bdf {
         &self.y_new
     }
 
-    fn path(&self, s1: f64) -> BdfPath<'_> {
-        Bdf::path(self, s1)
+    fn path<'a>(&'a mut self, s1: f64, _f: &'a mut Rhs<'_>) -> (BdfPath<'a>, &'a [f64]) {
+        let this: &'a Self = self;
+        (Bdf::path(this, s1), &this.y_new)
     }
 
     fn proposal(&self) -> f64 {
