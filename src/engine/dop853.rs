@@ -3,9 +3,12 @@
 //! time, reuses f at the step end as the next step's first stage (FSAL)
 //! and the caller's f at a segment start, keeps the controller's step
 //! proposal across segments and jumps, gives the order-7 dense output of
-//! each step (three more stages per accepted step), and allocates nothing
-//! after construction. Events are located on that interpolant, so their
-//! times are as accurate as the steps.
+//! each step (three more stages, evaluated when the step's interior is
+//! first read: a run that reads only step ends saves a fifth of its
+//! evaluations of f), and allocates nothing after construction. Events are
+//! located on that interpolant, so their times are as accurate as the
+//! steps. The step loop, controller and stiffness test are
+//! [`Explicit`]'s.
 //!
 //! Coefficients, the error estimate (the order-5 and order-3 estimates
 //! combined), the controller and the stiffness test follow Hairer,
@@ -17,8 +20,10 @@
 // The coefficients keep the published digits, checkable against the source.
 #![allow(clippy::excessive_precision)]
 
-use super::dopri5::{Failure, NonFiniteRate, Rhs, initial_step};
+use super::dopri5::{NonFiniteRate, Rhs};
 use super::events::{MAX_CONTROL, StepPath, bernstein_points};
+use super::explicit::{Deferred, Explicit, Gains, Tableau};
+use std::cell::RefCell;
 
 // Nodes.
 const C2: f64 = 0.526001519587677318785587544488e-01;
@@ -193,294 +198,296 @@ const D: [[f64; 12]; 4] = [
     ],
 ];
 
-// Step-size controller: Hairer's DOP853 defaults (β = 0: no PI term).
-const SAFE: f64 = 0.9;
-const FAC_MIN: f64 = 0.333;
-const FAC_MAX: f64 = 6.0;
-/// Steps between stiffness tests, and the test's thresholds.
-const STIFF_EVERY: u32 = 1000;
-const STIFF_HLAMB: f64 = 6.1;
-const STIFF_COUNT: u32 = 15;
+// Step-size controller: Hairer's DOP853 defaults (β = 0: no PI term), and
+// the stiffness test's threshold.
+const GAINS: Gains = Gains {
+    safe: 0.9,
+    beta: 0.0,
+    fac_min: 0.333,
+    fac_max: 6.0,
+    expo: 0.125,
+    stiff_hlamb: 6.1,
+};
 
-/// Dop853 state: tolerances, the carried step proposal, the stages and the
-/// interpolant of the last accepted step.
-pub(crate) struct Dop853 {
-    rtol: f64,
-    atol: f64,
-    /// Step proposal of the controller (carried across segments); 0 before
-    /// the first step.
-    h_next: f64,
-    /// Stiffness test: accepted steps, and its state.
-    accepted: u32,
-    stiff_hits: u32,
-    nonstiff_hits: u32,
+/// The engine's Dop853 stepper.
+pub(crate) type Dop853 = Explicit<Dop853Tableau>;
+
+/// Dop853's own part: the stages and the interpolant of the last accepted
+/// step.
+pub(crate) struct Dop853Tableau {
     /// Stages k1 (f at the step start; FSAL) … k12, k13 (f at the step
     /// end) and the dense output's k14 … k16.
     k: [Vec<f64>; 16],
-    /// The argument of the last stage evaluated (after a step, stage 12's
-    /// until the dense stages overwrite it).
-    y_stage: Vec<f64>,
-    /// The state at the end of the last accepted step.
-    pub y_new: Vec<f64>,
-    /// The eight vectors of the dense-output polynomial of the last step.
-    rcont: [Vec<f64>; 8],
-    /// Start and length of the last accepted step.
-    s_old: f64,
-    h_old: f64,
-    /// Evaluations of f since construction.
-    pub fevals: u64,
-    /// The last non-finite stage rate since the last accepted step.
-    pub non_finite: Option<NonFiniteRate>,
+    /// The dense-output polynomial of the last step: its first vector
+    /// (the state at the step's start), and the other seven, the last four
+    /// once the step's deferred stages are evaluated.
+    y0: Vec<f64>,
+    rcont: [Vec<f64>; 7],
+    /// Whether the last accepted step's deferred stages are still to
+    /// evaluate (on the first read of its interior).
+    pending: bool,
 }
 
-impl Dop853 {
-    pub fn new(n: usize, rtol: f64, atol: f64) -> Self {
+impl Tableau for Dop853Tableau {
+    const ORDER: i32 = 8;
+    const GAINS: Gains = GAINS;
+    const ATTEMPT_EVALS: u64 = 11;
+    type Path<'a> = Dop853Path<'a>;
+
+    fn new(n: usize) -> Self {
         Self {
-            rtol,
-            atol,
-            h_next: 0.0,
-            accepted: 0,
-            stiff_hits: 0,
-            nonstiff_hits: 0,
             k: std::array::from_fn(|_| vec![0.0; n]),
-            y_stage: vec![0.0; n],
-            y_new: vec![0.0; n],
+            y0: vec![0.0; n],
             rcont: std::array::from_fn(|_| vec![0.0; n]),
-            s_old: 0.0,
-            h_old: 0.0,
-            fevals: 0,
-            non_finite: None,
+            pending: false,
         }
     }
 
-    /// Starts a segment at local time 0 from `y` with `f0 = f(0, y)`; the
-    /// carried proposal is kept, or a first step estimated (one more f).
-    pub fn start(&mut self, y: &[f64], f0: &[f64], f: &mut Rhs<'_>) {
-        self.k[0].copy_from_slice(f0);
-        if self.h_next <= 0.0 {
-            let [k1, k2, ..] = &mut self.k;
-            let tol = (self.rtol, self.atol);
-            self.h_next = initial_step(8, tol, y, k1, (&mut self.y_stage, k2), f);
-            self.fevals += 1;
-        }
+    fn first_stages(&mut self) -> (&mut [f64], &mut [f64]) {
+        let [k1, k2, ..] = &mut self.k;
+        (k1, k2)
     }
 
-    /// The proposal for the next step.
-    pub fn proposal(&self) -> f64 {
-        self.h_next
-    }
-
-    /// Lowers the step proposal to at most `h`.
-    pub fn limit_proposal(&mut self, h: f64) {
-        self.h_next = self.h_next.min(h);
-    }
-
-    /// One accepted step from (`s`, `y`) of at most `h_max` (rejected
-    /// attempts are retried with smaller steps); `h_max` is taken exactly
-    /// if the proposal reaches it. Returns the step length; the new state
-    /// is in [`y_new`](Self::y_new) (f there is the next step's first
-    /// stage), and the step's interpolant in [`path`](Self::path).
-    pub fn step(&mut self, s: f64, y: &[f64], h_max: f64, f: &mut Rhs<'_>) -> Result<f64, Failure> {
+    /// The eleven stages up to the step end, the order-8 solution and
+    /// Hairer's error estimate.
+    fn attempt(
+        &mut self,
+        s: f64,
+        y: &[f64],
+        h: f64,
+        (rtol, atol): (f64, f64),
+        ys: &mut [f64],
+        yn: &mut [f64],
+        f: &mut Rhs<'_>,
+    ) -> f64 {
+        // Every vector cut to n: the loops index without bounds checks.
         let n = y.len();
-        let mut rejected = false;
-        loop {
-            // A proposal within 1 % of h_max takes h_max (as Dopri5).
-            let mut h = self.h_next.min(h_max);
-            let clipped = h >= 0.99 * h_max;
-            if clipped {
-                h = h_max;
-            }
-            if h <= 0.0 || s + 0.1 * h == s {
-                return Err(Failure::Underflow);
-            }
-            // Every vector cut to n: the loops index without bounds checks.
-            let y = &y[..n];
-            let [k1, k2, k3, k4, k5, k6, k7, k8, k9, k10, k11, k12, k13, ..] = &mut self.k;
-            let (k1, k2, k3, k4) = (&mut k1[..n], &mut k2[..n], &mut k3[..n], &mut k4[..n]);
-            let (k5, k6, k7, k8) = (&mut k5[..n], &mut k6[..n], &mut k7[..n], &mut k8[..n]);
-            let (k9, k10, k11) = (&mut k9[..n], &mut k10[..n], &mut k11[..n]);
-            let (k12, k13) = (&mut k12[..n], &mut k13[..n]);
-            let ys = &mut self.y_stage[..n];
-            for i in 0..n {
-                ys[i] = y[i] + h * A2_1 * k1[i];
-            }
-            f(s + C2 * h, ys, k2);
-            for i in 0..n {
-                ys[i] = y[i] + h * (A3_1 * k1[i] + A3_2 * k2[i]);
-            }
-            f(s + C3 * h, ys, k3);
-            for i in 0..n {
-                ys[i] = y[i] + h * (A4_1 * k1[i] + A4_3 * k3[i]);
-            }
-            f(s + C4 * h, ys, k4);
-            for i in 0..n {
-                ys[i] = y[i] + h * (A5_1 * k1[i] + A5_3 * k3[i] + A5_4 * k4[i]);
-            }
-            f(s + C5 * h, ys, k5);
-            for i in 0..n {
-                ys[i] = y[i] + h * (A6_1 * k1[i] + A6_4 * k4[i] + A6_5 * k5[i]);
-            }
-            f(s + C6 * h, ys, k6);
-            for i in 0..n {
-                ys[i] = y[i] + h * (A7_1 * k1[i] + A7_4 * k4[i] + A7_5 * k5[i] + A7_6 * k6[i]);
-            }
-            f(s + C7 * h, ys, k7);
-            for i in 0..n {
-                ys[i] = y[i]
-                    + h * (A8_1 * k1[i]
-                        + A8_4 * k4[i]
-                        + A8_5 * k5[i]
-                        + A8_6 * k6[i]
-                        + A8_7 * k7[i]);
-            }
-            f(s + C8 * h, ys, k8);
-            for i in 0..n {
-                ys[i] = y[i]
-                    + h * (A9_1 * k1[i]
-                        + A9_4 * k4[i]
-                        + A9_5 * k5[i]
-                        + A9_6 * k6[i]
-                        + A9_7 * k7[i]
-                        + A9_8 * k8[i]);
-            }
-            f(s + C9 * h, ys, k9);
-            for i in 0..n {
-                ys[i] = y[i]
-                    + h * (A10_1 * k1[i]
-                        + A10_4 * k4[i]
-                        + A10_5 * k5[i]
-                        + A10_6 * k6[i]
-                        + A10_7 * k7[i]
-                        + A10_8 * k8[i]
-                        + A10_9 * k9[i]);
-            }
-            f(s + C10 * h, ys, k10);
-            for i in 0..n {
-                ys[i] = y[i]
-                    + h * (A11_1 * k1[i]
-                        + A11_4 * k4[i]
-                        + A11_5 * k5[i]
-                        + A11_6 * k6[i]
-                        + A11_7 * k7[i]
-                        + A11_8 * k8[i]
-                        + A11_9 * k9[i]
-                        + A11_10 * k10[i]);
-            }
-            f(s + C11 * h, ys, k11);
-            for i in 0..n {
-                ys[i] = y[i]
-                    + h * (A12_1 * k1[i]
-                        + A12_4 * k4[i]
-                        + A12_5 * k5[i]
-                        + A12_6 * k6[i]
-                        + A12_7 * k7[i]
-                        + A12_8 * k8[i]
-                        + A12_9 * k9[i]
-                        + A12_10 * k10[i]
-                        + A12_11 * k11[i]);
-            }
-            let s_new = s + h;
-            f(s_new, ys, k12);
-            self.fevals += 11;
-            // The order-8 solution, and the two error estimates scaled by
-            // the tolerances (Hairer's combination below).
-            let yn = &mut self.y_new[..n];
-            let (mut err5, mut err3) = (0.0, 0.0);
-            for i in 0..n {
-                let incr = B1 * k1[i]
-                    + B6 * k6[i]
-                    + B7 * k7[i]
-                    + B8 * k8[i]
-                    + B9 * k9[i]
-                    + B10 * k10[i]
-                    + B11 * k11[i]
-                    + B12 * k12[i];
-                yn[i] = y[i] + h * incr;
-                let sk = self.atol + self.rtol * y[i].abs().max(yn[i].abs());
-                let e3 = incr - BHH1 * k1[i] - BHH2 * k9[i] - BHH3 * k12[i];
-                let e5 = ER1 * k1[i]
-                    + ER6 * k6[i]
-                    + ER7 * k7[i]
-                    + ER8 * k8[i]
-                    + ER9 * k9[i]
-                    + ER10 * k10[i]
-                    + ER11 * k11[i]
-                    + ER12 * k12[i];
-                err3 += (e3 / sk) * (e3 / sk);
-                err5 += (e5 / sk) * (e5 / sk);
-            }
-            // err5·h·√(err5 / (err5 + 0.01·err3)) per component: the
-            // order-5 estimate, kept from overestimating where the order-3
-            // one is small.
-            let deno = err5 + 0.01 * err3;
-            let deno = if deno > 0.0 { deno } else { 1.0 };
-            let err = h * err5 * (1.0 / (deno * n as f64)).sqrt();
-            // pow(0, y > 0) is +0 exactly: an exact step needs no call.
-            let fac11 = if err == 0.0 { 0.0 } else { err.powf(0.125) };
-            let fac_free = fac11 / SAFE;
-            let fac = fac_free.clamp(1.0 / FAC_MAX, 1.0 / FAC_MIN);
-            let mut h_new = h / fac;
-            if !err.is_finite() {
-                // A non-finite stage: retry much smaller, remembering the
-                // first one in time.
-                let stages: [(f64, &[f64]); 11] = [
-                    (C2, &*k2),
-                    (C3, &*k3),
-                    (C4, &*k4),
-                    (C5, &*k5),
-                    (C6, &*k6),
-                    (C7, &*k7),
-                    (C8, &*k8),
-                    (C9, &*k9),
-                    (C10, &*k10),
-                    (C11, &*k11),
-                    (1.0, &*k12),
-                ];
-                let found = stages
-                    .iter()
-                    .find_map(|&(c, k)| NonFiniteRate::find(s + c * h, k));
-                self.non_finite = found.or(self.non_finite);
-                self.h_next = h * FAC_MIN;
-                rejected = true;
-                continue;
-            }
-            if err > 1.0 {
-                self.h_next = h / (1.0 / FAC_MIN).min(fac11 / SAFE);
-                rejected = true;
-                continue;
-            }
-            f(s_new, yn, k13);
-            self.fevals += 1;
-            // A step so accurate that the controller would grow it by more
-            // than its largest factor is not held back by stability.
-            self.stiffness(h, n, fac_free < 1.0 / FAC_MAX)?;
-            self.dense_output(s, y, h, f);
-            self.k.swap(0, 12);
-            if rejected {
-                h_new = h_new.min(h);
-            }
-            // A step cut short by h_max keeps the controller's own proposal
-            // (as Dopri5).
-            self.h_next = if clipped {
-                h_new.max(self.h_next)
-            } else {
-                h_new
-            };
-            self.s_old = s;
-            self.h_old = h;
-            self.non_finite = None;
-            return Ok(h);
+        let [k1, k2, k3, k4, k5, k6, k7, k8, k9, k10, k11, k12, ..] = &mut self.k;
+        let (k1, k2, k3, k4) = (&mut k1[..n], &mut k2[..n], &mut k3[..n], &mut k4[..n]);
+        let (k5, k6, k7, k8) = (&mut k5[..n], &mut k6[..n], &mut k7[..n], &mut k8[..n]);
+        let (k9, k10, k11, k12) = (&mut k9[..n], &mut k10[..n], &mut k11[..n], &mut k12[..n]);
+        let (ys, yn) = (&mut ys[..n], &mut yn[..n]);
+        for i in 0..n {
+            ys[i] = y[i] + h * A2_1 * k1[i];
         }
+        f(s + C2 * h, ys, k2);
+        for i in 0..n {
+            ys[i] = y[i] + h * (A3_1 * k1[i] + A3_2 * k2[i]);
+        }
+        f(s + C3 * h, ys, k3);
+        for i in 0..n {
+            ys[i] = y[i] + h * (A4_1 * k1[i] + A4_3 * k3[i]);
+        }
+        f(s + C4 * h, ys, k4);
+        for i in 0..n {
+            ys[i] = y[i] + h * (A5_1 * k1[i] + A5_3 * k3[i] + A5_4 * k4[i]);
+        }
+        f(s + C5 * h, ys, k5);
+        for i in 0..n {
+            ys[i] = y[i] + h * (A6_1 * k1[i] + A6_4 * k4[i] + A6_5 * k5[i]);
+        }
+        f(s + C6 * h, ys, k6);
+        for i in 0..n {
+            ys[i] = y[i] + h * (A7_1 * k1[i] + A7_4 * k4[i] + A7_5 * k5[i] + A7_6 * k6[i]);
+        }
+        f(s + C7 * h, ys, k7);
+        for i in 0..n {
+            ys[i] = y[i]
+                + h * (A8_1 * k1[i] + A8_4 * k4[i] + A8_5 * k5[i] + A8_6 * k6[i] + A8_7 * k7[i]);
+        }
+        f(s + C8 * h, ys, k8);
+        for i in 0..n {
+            ys[i] = y[i]
+                + h * (A9_1 * k1[i]
+                    + A9_4 * k4[i]
+                    + A9_5 * k5[i]
+                    + A9_6 * k6[i]
+                    + A9_7 * k7[i]
+                    + A9_8 * k8[i]);
+        }
+        f(s + C9 * h, ys, k9);
+        for i in 0..n {
+            ys[i] = y[i]
+                + h * (A10_1 * k1[i]
+                    + A10_4 * k4[i]
+                    + A10_5 * k5[i]
+                    + A10_6 * k6[i]
+                    + A10_7 * k7[i]
+                    + A10_8 * k8[i]
+                    + A10_9 * k9[i]);
+        }
+        f(s + C10 * h, ys, k10);
+        for i in 0..n {
+            ys[i] = y[i]
+                + h * (A11_1 * k1[i]
+                    + A11_4 * k4[i]
+                    + A11_5 * k5[i]
+                    + A11_6 * k6[i]
+                    + A11_7 * k7[i]
+                    + A11_8 * k8[i]
+                    + A11_9 * k9[i]
+                    + A11_10 * k10[i]);
+        }
+        f(s + C11 * h, ys, k11);
+        for i in 0..n {
+            ys[i] = y[i]
+                + h * (A12_1 * k1[i]
+                    + A12_4 * k4[i]
+                    + A12_5 * k5[i]
+                    + A12_6 * k6[i]
+                    + A12_7 * k7[i]
+                    + A12_8 * k8[i]
+                    + A12_9 * k9[i]
+                    + A12_10 * k10[i]
+                    + A12_11 * k11[i]);
+        }
+        let s_new = s + h;
+        f(s_new, ys, k12);
+        // The order-8 solution, and the two error estimates scaled by
+        // the tolerances (Hairer's combination below).
+        let (mut err5, mut err3) = (0.0, 0.0);
+        for i in 0..n {
+            let incr = B1 * k1[i]
+                + B6 * k6[i]
+                + B7 * k7[i]
+                + B8 * k8[i]
+                + B9 * k9[i]
+                + B10 * k10[i]
+                + B11 * k11[i]
+                + B12 * k12[i];
+            yn[i] = y[i] + h * incr;
+            let sk = atol + rtol * y[i].abs().max(yn[i].abs());
+            let e3 = incr - BHH1 * k1[i] - BHH2 * k9[i] - BHH3 * k12[i];
+            let e5 = ER1 * k1[i]
+                + ER6 * k6[i]
+                + ER7 * k7[i]
+                + ER8 * k8[i]
+                + ER9 * k9[i]
+                + ER10 * k10[i]
+                + ER11 * k11[i]
+                + ER12 * k12[i];
+            err3 += (e3 / sk) * (e3 / sk);
+            err5 += (e5 / sk) * (e5 / sk);
+        }
+        // err5·h·√(err5 / (err5 + 0.01·err3)) per component: the
+        // order-5 estimate, kept from overestimating where the order-3
+        // one is small.
+        let deno = err5 + 0.01 * err3;
+        let deno = if deno > 0.0 { deno } else { 1.0 };
+        h * err5 * (1.0 / (deno * n as f64)).sqrt()
     }
 
-    /// The dense output of the accepted step of length `h` from (`s`, `y`)
-    /// (Hairer's CONTD8): three more stages, then the eight vectors of the
+    fn non_finite(&self, s: f64, h: f64) -> Option<NonFiniteRate> {
+        let c = [C2, C3, C4, C5, C6, C7, C8, C9, C10, C11, 1.0];
+        c.iter()
+            .zip(&self.k[1..12])
+            .find_map(|(&c, k)| NonFiniteRate::find(s + c * h, k))
+    }
+
+    fn end_rate(&mut self, s_new: f64, yn: &[f64], f: &mut Rhs<'_>) -> u64 {
+        f(s_new, yn, &mut self.k[12]);
+        1
+    }
+
+    fn end_rates(&self) -> (&[f64], &[f64]) {
+        (&self.k[12], &self.k[11])
+    }
+
+    /// Hairer's CONTD8: three more stages, then the eight vectors of the
     /// degree-7 interpolant.
-    fn dense_output(&mut self, s: f64, y: &[f64], h: f64, f: &mut Rhs<'_>) {
+    /// Hairer's CONTD8, the part from the step's ends: the first four
+    /// vectors of the degree-7 interpolant. The three more stages of the
+    /// other four wait for the first read of the step's interior
+    /// ([`Dense::rcont`]): a run that reads only step ends (no watched
+    /// guards, no dense output) does not evaluate them.
+    fn dense_output(&mut self, y: &[f64], h: f64, yn: &[f64]) {
         let n = y.len();
-        let y = &y[..n];
+        let (k1, k13, yn) = (&self.k[0][..n], &self.k[12][..n], &yn[..n]);
+        let r1 = &mut self.y0[..n];
+        let [r2, r3, r4, ..] = &mut self.rcont;
+        let (r2, r3, r4) = (&mut r2[..n], &mut r3[..n], &mut r4[..n]);
+        for i in 0..n {
+            let ydiff = yn[i] - y[i];
+            let bspl = h * k1[i] - ydiff;
+            r1[i] = y[i];
+            r2[i] = ydiff;
+            r3[i] = bspl;
+            r4[i] = ydiff - h * k13[i] - bspl;
+        }
+        self.pending = true;
+    }
+
+    fn fsal(&mut self) {
+        self.k.swap(0, 12);
+    }
+
+    fn path<'a>(
+        &'a mut self,
+        (s0, h): (f64, f64),
+        s1: f64,
+        y1: &'a [f64],
+        rest: Deferred<'a>,
+    ) -> Dop853Path<'a> {
+        let Self {
+            k,
+            y0,
+            rcont,
+            pending,
+        } = self;
+        let y0: &[f64] = y0;
+        let dense = Dense {
+            k,
+            y0,
+            rcont,
+            pending,
+            rest,
+            s0,
+            h,
+        };
+        Dop853Path {
+            dense: RefCell::new(dense),
+            y0,
+            s0,
+            h,
+            s1,
+            y1,
+        }
+    }
+}
+
+/// The stages and interpolant of the last accepted step, with what
+/// evaluates the stages it defers.
+struct Dense<'a> {
+    k: &'a mut [Vec<f64>; 16],
+    y0: &'a [f64],
+    rcont: &'a mut [Vec<f64>; 7],
+    pending: &'a mut bool,
+    rest: Deferred<'a>,
+    s0: f64,
+    h: f64,
+}
+
+impl Dense<'_> {
+    /// The interpolant's vectors after the first, the last four computed
+    /// on the first call (Hairer's CONTD8: three more stages, the same as
+    /// when evaluated with the step).
+    #[inline]
+    fn rcont(&mut self) -> &[Vec<f64>; 7] {
+        if *self.pending {
+            self.deferred_stages();
+            *self.pending = false;
+        }
+        self.rcont
+    }
+
+    // Out of line: `rcont` stays a test and a load in `eval`.
+    #[inline(never)]
+    fn deferred_stages(&mut self) {
+        let (s, h, y) = (self.s0, self.h, self.y0);
+        let n = y.len();
+        // After the step's FSAL swap: k1 is in k13's place and k13 in k1's.
         let [
-            k1,
+            k13,
             _,
             _,
             _,
@@ -492,15 +499,15 @@ impl Dop853 {
             k10,
             k11,
             k12,
-            k13,
+            k1,
             k14,
             k15,
             k16,
-        ] = &mut self.k;
+        ] = &mut *self.k;
         let (k1, k6, k7, k8) = (&k1[..n], &k6[..n], &k7[..n], &k8[..n]);
         let (k9, k10, k11, k12, k13) = (&k9[..n], &k10[..n], &k11[..n], &k12[..n], &k13[..n]);
         let (k14, k15, k16) = (&mut k14[..n], &mut k15[..n], &mut k16[..n]);
-        let ys = &mut self.y_stage[..n];
+        let (ys, f) = (&mut self.rest.ys[..n], &mut *self.rest.f);
         for i in 0..n {
             ys[i] = y[i]
                 + h * (A14_1 * k1[i]
@@ -537,18 +544,10 @@ impl Dop853 {
                     + A16_15 * k15[i]);
         }
         f(s + C16 * h, ys, k16);
-        self.fevals += 3;
-        let yn = &self.y_new[..n];
-        let [r1, r2, r3, r4, r5, r6, r7, r8] = &mut self.rcont;
-        let (r1, r2, r3, r4) = (&mut r1[..n], &mut r2[..n], &mut r3[..n], &mut r4[..n]);
+        *self.rest.fevals += 3;
+        let [_, _, _, r5, r6, r7, r8] = &mut *self.rcont;
         let (r5, r6, r7, r8) = (&mut r5[..n], &mut r6[..n], &mut r7[..n], &mut r8[..n]);
         for i in 0..n {
-            let ydiff = yn[i] - y[i];
-            let bspl = h * k1[i] - ydiff;
-            r1[i] = y[i];
-            r2[i] = ydiff;
-            r3[i] = bspl;
-            r4[i] = ydiff - h * k13[i] - bspl;
             let stages = [
                 k1[i], k6[i], k7[i], k8[i], k9[i], k10[i], k11[i], k12[i], k13[i], k14[i], k15[i],
                 k16[i],
@@ -558,57 +557,15 @@ impl Dop853 {
             }
         }
     }
-
-    /// Hairer's stiffness test on the last accepted step: h·λ estimated
-    /// from stage 12 and f at the step end (both at s + h), every
-    /// [`STIFF_EVERY`] steps. `free`: the step's error is far below the
-    /// tolerance; such a step does not count as stiff (see Dopri5's test).
-    fn stiffness(&mut self, h: f64, n: usize, free: bool) -> Result<(), Failure> {
-        self.accepted += 1;
-        if !self.accepted.is_multiple_of(STIFF_EVERY) && self.stiff_hits == 0 {
-            return Ok(());
-        }
-        let stiff = !free && {
-            let (mut num, mut den) = (0.0, 0.0);
-            for i in 0..n {
-                num += (self.k[12][i] - self.k[11][i]).powi(2);
-                den += (self.y_new[i] - self.y_stage[i]).powi(2);
-            }
-            den > 0.0 && h * (num / den).sqrt() > STIFF_HLAMB
-        };
-        if stiff {
-            self.nonstiff_hits = 0;
-            self.stiff_hits += 1;
-            if self.stiff_hits == STIFF_COUNT {
-                self.stiff_hits = 0;
-                self.nonstiff_hits = 0;
-                return Err(Failure::Stiff);
-            }
-        } else {
-            self.nonstiff_hits += 1;
-            if self.nonstiff_hits == 6 {
-                self.stiff_hits = 0;
-            }
-        }
-        Ok(())
-    }
-
-    /// The interpolant of the last accepted step, ending at local time
-    /// `s1` (its end, or the segment end it was rounded to).
-    pub fn path(&self, s1: f64) -> Dop853Path<'_> {
-        Dop853Path {
-            rcont: &self.rcont,
-            s0: self.s_old,
-            h: self.h_old,
-            s1,
-            y1: &self.y_new,
-        }
-    }
 }
 
 /// The order-7 dense output of one Dop853 step.
 pub(crate) struct Dop853Path<'a> {
-    rcont: &'a [Vec<f64>; 8],
+    /// In a cell: control points (through `&self`) may be the first read
+    /// that evaluates the deferred stages.
+    dense: RefCell<Dense<'a>>,
+    /// The interpolant's first vector: the state at the step's start.
+    y0: &'a [f64],
     s0: f64,
     h: f64,
     s1: f64,
@@ -618,7 +575,7 @@ pub(crate) struct Dop853Path<'a> {
 impl Dop853Path<'_> {
     /// The state at the step's start (the interpolant's constant term).
     pub fn start(&self) -> &[f64] {
-        &self.rcont[0][..self.y1.len()]
+        self.y0
     }
 }
 
@@ -630,7 +587,8 @@ impl StepPath for Dop853Path<'_> {
         }
         let th = (s - self.s0) / self.h;
         let th1 = 1.0 - th;
-        let [r1, r2, r3, r4, r5, r6, r7, r8] = self.rcont;
+        let r1 = self.y0;
+        let [r2, r3, r4, r5, r6, r7, r8] = self.dense.get_mut().rcont();
         for (i, o) in out.iter_mut().enumerate() {
             let inner = r5[i] + th * (r6[i] + th1 * (r7[i] + th * r8[i]));
             *o = r1[i] + th * (r2[i] + th1 * (r3[i] + th * (r4[i] + th1 * inner)));
@@ -640,15 +598,18 @@ impl StepPath for Dop853Path<'_> {
     /// The degree-7 polynomial of `eval` in powers of τ = (s − s0)/(s1 − s0),
     /// then in Bernstein form.
     fn control_points(&self, i: usize, out: &mut [f64; MAX_CONTROL]) -> Option<(usize, f64)> {
+        let mut dense = self.dense.borrow_mut();
+        let rest = dense.rcont();
+        let r: [f64; 8] = std::array::from_fn(|k| if k == 0 { self.y0[i] } else { rest[k - 1][i] });
         // `eval` nests r1 + θ(r2 + (1 − θ)(r3 + θ(… + θ·r8))): expanded from
         // the inside, in powers of θ = (s − s0)/h, into `a`; `size` the same
         // expansion of the terms' magnitudes, which bounds the rounding.
         let (mut a, mut size) = ([0.0; 8], [0.0; 8]);
-        a[0] = self.rcont[7][i];
+        a[0] = r[7];
         size[0] = a[0].abs();
-        for (deg, r) in (0..7).rev().enumerate() {
+        for (deg, r_k) in r[..7].iter().rev().enumerate() {
             // r + θ·p for even r, r + (1 − θ)·p for odd r.
-            let theta = r % 2 == 0;
+            let theta = (6 - deg) % 2 == 0;
             for d in (0..=deg).rev() {
                 if theta {
                     (a[d + 1], a[d]) = (a[d], 0.0);
@@ -658,8 +619,8 @@ impl StepPath for Dop853Path<'_> {
                     size[d + 1] += size[d];
                 }
             }
-            a[0] += self.rcont[r][i];
-            size[0] += self.rcont[r][i].abs();
+            a[0] += r_k;
+            size[0] += r_k.abs();
         }
         // θ = w·τ (w = 1 unless the step end was rounded).
         let w = (self.s1 - self.s0) / self.h;
@@ -677,6 +638,7 @@ impl StepPath for Dop853Path<'_> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::engine::stepper::OwnStepper;
 
     /// x' = x² from x(0) = 1: x(s) = 1/(1 − s).
     fn square(_: f64, y: &[f64], dy: &mut [f64]) {
@@ -752,7 +714,7 @@ mod tests {
             let h = 4.0 / f64::from(steps);
             let mut st = Dop853::new(2, 1e12, 1e12);
             let mut y = vec![0.0, 1.0];
-            st.h_next = 1.0;
+            st.set_proposal(1.0);
             st.start(&y, &[1.0, 0.0], &mut f);
             let (mut s, mut dense) = (0.0, 0.0f64);
             for k in 0..steps {
@@ -760,7 +722,7 @@ mod tests {
                 let s1 = if k + 1 == steps { 4.0 } else { s + h };
                 let mut out = [0.0; 2];
                 let mid = s + 0.5 * h;
-                st.path(s1).eval(mid, &mut out);
+                st.path(s1, &mut f).0.eval(mid, &mut out);
                 dense = dense.max((out[0] - mid.sin()).abs());
                 y.copy_from_slice(&st.y_new);
                 s = s1;
@@ -797,7 +759,7 @@ mod tests {
         while s < 10.0 {
             let h = st.step(s, &y, 10.0 - s, &mut f).unwrap();
             let s1 = if s + h >= 10.0 { 10.0 } else { s + h };
-            let mut p = st.path(s1);
+            let (mut p, _) = st.path(s1, &mut f);
             assert_eq!(p.start(), &y[..], "start of the step at {s}");
             let mut out = [0.0];
             p.eval(s, &mut out);
@@ -813,12 +775,49 @@ mod tests {
         }
         assert!((y[0] - exact(10.0)).abs() < 1e-10);
         assert!(steps < 100, "{steps} steps");
-        // FSAL: 15 evaluations per accepted step (11 stages, f at the end,
-        // 3 for the dense output), 11 per rejected attempt, plus the
-        // initial estimate's one.
+        // FSAL: 15 evaluations per accepted step whose interior is read (11
+        // stages, f at the end, 3 for the dense output), 11 per rejected
+        // attempt, plus the initial estimate's one.
         let rejected = (st.fevals - 1 - 15 * steps as u64) / 11;
         assert_eq!(st.fevals, 1 + 15 * steps as u64 + 11 * rejected);
         assert!(rejected <= 3, "{rejected} rejected attempts");
+    }
+
+    /// The dense output's three extra stages wait for the first read of
+    /// the step's interior: 12 evaluations of f per accepted step (11 per
+    /// rejected attempt) while only its end is read, 3 more at the first
+    /// interior read, none at later ones; the interpolant is the same at
+    /// every read.
+    #[test]
+    fn the_dense_stages_are_evaluated_at_the_first_interior_read() {
+        let mut f = |s: f64, y: &[f64], dy: &mut [f64]| dy[0] = -y[0] + s.sin();
+        let mut st = Dop853::new(1, 1e-10, 1e-12);
+        let mut y = vec![1.0];
+        st.start(&y, &[-1.0], &mut f);
+        let (mut s, mut fevals) = (0.0, st.fevals);
+        for _ in 0..5 {
+            let h = st.step(s, &y, 10.0, &mut f).unwrap();
+            let attempts = st.fevals - fevals - 1;
+            assert_eq!(attempts % 11, 0, "{attempts} evaluations in attempts");
+            fevals = st.fevals;
+            let (mut p, y1) = st.path(s + h, &mut f);
+            let mut end = [0.0];
+            p.eval(s + h, &mut end);
+            assert_eq!(end, y1);
+            assert_eq!(st.fevals, fevals, "the step's end");
+            let mid = s + 0.5 * h;
+            let (mut first, mut again) = ([0.0], [0.0]);
+            st.path(s + h, &mut f).0.eval(mid, &mut first);
+            assert_eq!(st.fevals, fevals + 3, "the first interior read");
+            let mut p = st.path(s + h, &mut f).0;
+            p.eval(mid, &mut again);
+            let mut points = [0.0; MAX_CONTROL];
+            assert!(p.control_points(0, &mut points).is_some());
+            assert_eq!((st.fevals, first), (fevals + 3, again), "later reads");
+            fevals = st.fevals;
+            y.copy_from_slice(&st.y_new);
+            s += h;
+        }
     }
 
     /// The step proposal is carried: a new segment (after a jump) starts
@@ -857,7 +856,8 @@ mod tests {
         st.start(&y, &f0, &mut f);
         let h = st.step(0.0, &y, 10.0, &mut f).unwrap();
         for s1 in [h, 0.9 * h] {
-            crate::engine::events::tests::assert_control_points(&mut st.path(s1), 2, (0.0, s1), 8);
+            let mut p = st.path(s1, &mut f).0;
+            crate::engine::events::tests::assert_control_points(&mut p, 2, (0.0, s1), 8);
         }
     }
 }

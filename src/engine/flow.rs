@@ -1575,7 +1575,7 @@ impl Flows {
             if let Some(e) = check_finite(sys, HybridTime::new(t0 + s1, j), st.y_new(), None) {
                 return Err(e);
             }
-            let mut path = st.path(s1);
+            let (mut path, y1) = st.path(s1, &mut f);
             let end = close_step(
                 sys,
                 &mut self.watcher,
@@ -1584,7 +1584,7 @@ impl Flows {
                 &mut path,
                 j,
                 (s, s1),
-                st.y_new(),
+                y1,
                 last.then_some(EndWhy::Reached),
             );
             if let Some(end) = end {

@@ -213,6 +213,7 @@ mod dop853;
 mod dopri5;
 mod error;
 mod events;
+mod explicit;
 mod flow;
 mod implicit;
 mod invariants;

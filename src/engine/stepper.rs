@@ -1,12 +1,15 @@
 //! The engine's own one-step integrators behind one interface, so that
 //! flow segments drive them alike (events and output on each accepted
 //! step's dense output, step carry across segments): the explicit
-//! [`Dopri5`] and [`Dop853`], and the implicit [`Radau5`] and [`Bdf`] for
-//! stiff flows.
+//! [`Dopri5`] and [`Dop853`] (one implementation for both, in
+//! [`explicit`](super::explicit)), and the implicit [`Radau5`] and [`Bdf`]
+//! for stiff flows.
+//!
+//! [`Dopri5`]: super::dopri5::Dopri5
+//! [`Dop853`]: super::dop853::Dop853
 
 use super::bdf::{Bdf, BdfPath};
-use super::dop853::{Dop853, Dop853Path};
-use super::dopri5::{Dopri5, DopriPath, Failure, NonFiniteRate, Rhs};
+use super::dopri5::{Failure, NonFiniteRate, Rhs};
 use super::flow::DensePath;
 use super::implicit::Jac;
 use super::radau5::{Radau5, RadauPath};
@@ -36,8 +39,10 @@ pub(crate) trait OwnStepper {
     /// The state at the end of the last accepted step.
     fn y_new(&self) -> &[f64];
 
-    /// The dense output of the last accepted step, ending at `s1`.
-    fn path(&self, s1: f64) -> Self::Path<'_>;
+    /// The dense output of the last accepted step, ending at `s1`, and the
+    /// state there; `f` for what a method evaluates only once the step's
+    /// interior is read (Dop853's extra stages).
+    fn path<'a>(&'a mut self, s1: f64, f: &'a mut Rhs<'_>) -> (Self::Path<'a>, &'a [f64]);
 
     /// The step proposal.
     fn proposal(&self) -> f64;
@@ -58,92 +63,6 @@ pub(crate) trait OwnStepper {
     /// methods: `None`.
     fn nonstiff(&mut self, _jac: &mut Jac<'_>, _fresh_only: bool) -> Option<bool> {
         None
-    }
-}
-
-impl OwnStepper for Dopri5 {
-    type Path<'a> = DopriPath<'a>;
-
-    fn start(&mut self, y: &[f64], f0: &[f64], f: &mut Rhs<'_>, _jac: &mut Jac<'_>) {
-        Dopri5::start(self, y, f0, f);
-    }
-
-    fn step(
-        &mut self,
-        s: f64,
-        y: &[f64],
-        h_max: f64,
-        f: &mut Rhs<'_>,
-        _jac: &mut Jac<'_>,
-    ) -> Result<f64, Failure> {
-        Dopri5::step(self, s, y, h_max, f)
-    }
-
-    fn y_new(&self) -> &[f64] {
-        &self.y_new
-    }
-
-    fn path(&self, s1: f64) -> DopriPath<'_> {
-        Dopri5::path(self, s1)
-    }
-
-    fn proposal(&self) -> f64 {
-        Dopri5::proposal(self)
-    }
-
-    fn limit_proposal(&mut self, h: f64) {
-        Dopri5::limit_proposal(self, h);
-    }
-
-    fn fevals(&self) -> u64 {
-        self.fevals
-    }
-
-    fn non_finite(&self) -> Option<NonFiniteRate> {
-        self.non_finite
-    }
-}
-
-impl OwnStepper for Dop853 {
-    type Path<'a> = Dop853Path<'a>;
-
-    fn start(&mut self, y: &[f64], f0: &[f64], f: &mut Rhs<'_>, _jac: &mut Jac<'_>) {
-        Dop853::start(self, y, f0, f);
-    }
-
-    fn step(
-        &mut self,
-        s: f64,
-        y: &[f64],
-        h_max: f64,
-        f: &mut Rhs<'_>,
-        _jac: &mut Jac<'_>,
-    ) -> Result<f64, Failure> {
-        Dop853::step(self, s, y, h_max, f)
-    }
-
-    fn y_new(&self) -> &[f64] {
-        &self.y_new
-    }
-
-    fn path(&self, s1: f64) -> Dop853Path<'_> {
-        Dop853::path(self, s1)
-    }
-
-    fn proposal(&self) -> f64 {
-        Dop853::proposal(self)
-    }
-
-    fn limit_proposal(&mut self, h: f64) {
-        Dop853::limit_proposal(self, h);
-    }
-
-    fn fevals(&self) -> u64 {
-        self.fevals
-    }
-
-    fn non_finite(&self) -> Option<NonFiniteRate> {
-        self.non_finite
     }
 }
 
@@ -169,8 +88,9 @@ impl OwnStepper for Radau5 {
         &self.y_new
     }
 
-    fn path(&self, s1: f64) -> RadauPath<'_> {
-        Radau5::path(self, s1)
+    fn path<'a>(&'a mut self, s1: f64, _f: &'a mut Rhs<'_>) -> (RadauPath<'a>, &'a [f64]) {
+        let this: &'a Self = self;
+        (Radau5::path(this, s1), &this.y_new)
     }
 
     fn proposal(&self) -> f64 {
@@ -216,8 +136,9 @@ impl OwnStepper for Bdf {
         &self.y_new
     }
 
-    fn path(&self, s1: f64) -> BdfPath<'_> {
-        Bdf::path(self, s1)
+    fn path<'a>(&'a mut self, s1: f64, _f: &'a mut Rhs<'_>) -> (BdfPath<'a>, &'a [f64]) {
+        let this: &'a Self = self;
+        (Bdf::path(this, s1), &this.y_new)
     }
 
     fn proposal(&self) -> f64 {
