@@ -1296,7 +1296,10 @@ impl Flows {
     /// mode of `x`. The auto choice gives up the exact path for good once
     /// more modes than it keeps have been met (a mode of continuous values
     /// would compute coefficients at every segment and rarely an
-    /// exponential worth it); `exact_affine = on` keeps it.
+    /// exponential worth it), and where a mode's coefficients cannot be had
+    /// (not finite, a failed evaluation): the solver then meets the flow as
+    /// it would have, and reports what it finds as it would have.
+    /// `exact_affine = on` keeps the exact path and reports the error.
     fn select_mode<S: HybridSystem + ?Sized>(
         &mut self,
         sys: &S,
@@ -1307,11 +1310,15 @@ impl Flows {
             return Ok(());
         };
         match &mut self.method {
-            Method::Auto(solver, _) if modes.made() > ModeAffines::AUTO_MODES => {
-                self.method = Method::Ode(*solver);
-                self.modes = None;
+            Method::Affine(aff) => modes.select(sys, at, x, aff)?,
+            Method::Auto(solver, aff) => {
+                let solver = *solver;
+                if modes.made() > ModeAffines::AUTO_MODES || modes.select(sys, at, x, aff).is_err()
+                {
+                    self.method = Method::Ode(solver);
+                    self.modes = None;
+                }
             }
-            Method::Affine(aff) | Method::Auto(_, aff) => modes.select(sys, at, x, aff)?,
             _ => {}
         }
         Ok(())

@@ -94,8 +94,15 @@ fn method_for<S: HybridSystem + ?Sized>(
     let (aff, modes) = match sys.flow_structure() {
         FlowStructure::Affine { a, b } => (Box::new(Affine::new(sys.state_dim(), &a, &b)?), None),
         FlowStructure::SwitchedAffine { modes } => {
-            let (modes, aff) = ModeAffines::new(sys, modes, HybridTime::new(0.0, 0), x0)?;
-            (aff, Some(modes))
+            match ModeAffines::new(sys, modes, HybridTime::new(0.0, 0), x0) {
+                Ok((modes, aff)) => (aff, Some(modes)),
+                // The initial mode's coefficients cannot be had: the auto
+                // choice leaves the flow to the solver (`Flows::select_mode`).
+                Err(_) if settings.exact_affine == ExactAffine::Auto => {
+                    return Ok((Method::Ode(settings.solver), None));
+                }
+                Err(e) => return Err(e),
+            }
         }
         FlowStructure::General => return Ok((Method::Ode(settings.solver), None)),
     };

@@ -413,6 +413,9 @@ impl HybridSystem for SetBySet<'_> {
     fn flow_structure(&self) -> hybsim::engine::FlowStructure {
         self.0.flow_structure()
     }
+    fn affine_coefficients(&self, at: HybridTime, x: &[f64], a: &mut [f64], b: &mut [f64]) {
+        self.0.affine_coefficients(at, x, a, b)
+    }
     fn noise_dim(&self) -> usize {
         self.0.noise_dim()
     }
@@ -644,6 +647,9 @@ impl HybridSystem for Counting<'_> {
     }
     fn flow_structure(&self) -> hybsim::engine::FlowStructure {
         self.m.flow_structure()
+    }
+    fn affine_coefficients(&self, at: HybridTime, x: &[f64], a: &mut [f64], b: &mut [f64]) {
+        self.m.affine_coefficients(at, x, a, b)
     }
     fn noise_dim(&self) -> usize {
         self.m.noise_dim()
