@@ -176,7 +176,9 @@ class Counterexample:
 class TestReport:
     """The result of :meth:`Model.test`.
 
-    ``outcome`` is ``"passed"``, ``"failed"`` (``counterexample`` set) or
+    ``outcome`` is ``"passed"``, ``"failed"`` (``counterexamples`` holds one
+    shrunk counterexample per failing property, as ``hybsim test`` reports
+    them; ``counterexample`` is the first) or
     ``"error"`` (a case could not run; ``error`` holds its message and
     replay command). ``bool(report)`` is True iff every case passed;
     ``str(report)`` is the text ``hybsim test`` prints.
@@ -194,6 +196,7 @@ class TestReport:
     properties: List[str]
     inputs: List[tuple]
     counterexample: Optional[Counterexample]
+    counterexamples: List[Counterexample]
     error: Optional[Dict[str, Any]]
 
     def __bool__(self) -> bool:
@@ -208,20 +211,47 @@ class TestReport:
         ]
         if self.outcome == "passed":
             lines += [f"  ok  {p}" for p in self.properties]
-        elif self.counterexample is not None:
-            cx = self.counterexample
+        for cx in self.counterexamples:
             lines.append(f"FAILED  {cx.statement}")
             lines.append(cx.description.rstrip("\n"))
             lines.append(f"replay: {cx.replay}")
-        elif self.error is not None:
+        if self.outcome == "error" and self.error is not None:
             lines.append(self.error["message"].rstrip("\n"))
             lines.append(f"replay: {shlex.join(self.error['replay'])}")
         lines.append(
-            f"{self.outcome if self.outcome != 'failed' else 'counterexample'}: "
+            f"{self._verdict()}: "
             f"{self.cases_run} case{'' if self.cases_run == 1 else 's'}, "
             f"{self.inconclusive} inconclusive"
         )
         return "\n".join(lines)
+
+    def _verdict(self) -> str:
+        if self.outcome != "failed":
+            return self.outcome
+        n = len(self.counterexamples)
+        return "counterexample" if n == 1 else f"{n} counterexamples"
+
+
+def _counterexample(cx: Dict[str, Any]) -> Counterexample:
+    """A counterexample of the native report."""
+    return Counterexample(
+        property=cx["property"],
+        statement=cx.get("statement", cx["property"]),
+        t=cx["t"],
+        j=cx["j"],
+        state=cx["state"],
+        state_names=list(cx["state_names"]),
+        message=cx["message"],
+        case=cx["case"],
+        seed=cx["seed"],
+        inputs=dict(cx["inputs"]),
+        sampled=dict(cx["sampled"]),
+        horizon_T=cx["horizon_T"],
+        horizon_J=cx["horizon_J"],
+        shrink_runs=cx["shrink_runs"],
+        description=cx["description"],
+        replay_args=list(cx["replay"]),
+    )
 
 
 class Model:
@@ -410,8 +440,10 @@ class Model:
         released, and shrinks the first failure (at most ``max_shrink``
         runs).
 
-        Returns a :class:`TestReport`; ``report.counterexample`` has the
-        failing time, state, shrunk inputs and the replay command.
+        Returns a :class:`TestReport`; ``report.counterexamples`` has, for
+        each failing property (as ``hybsim test`` reports them), the failing
+        time, state, shrunk inputs and the replay command
+        (``report.counterexample``: the first).
         Raises ValueError if the model declares no property or a name is
         unknown, if ``cases`` < 1 (as ``--cases 0``, it would pass
         vacuously), ``max_shrink`` < 0 or ``seed`` is outside [0, 2^64).
@@ -424,27 +456,7 @@ class Model:
         d = self._native.test(
             cases, seed, list(properties) if properties is not None else None, max_shrink
         )
-        cx = d["counterexample"]
-        counterexample = None
-        if cx is not None:
-            counterexample = Counterexample(
-                property=cx["property"],
-                statement=cx.get("statement", cx["property"]),
-                t=cx["t"],
-                j=cx["j"],
-                state=cx["state"],
-                state_names=list(cx["state_names"]),
-                message=cx["message"],
-                case=cx["case"],
-                seed=cx["seed"],
-                inputs=dict(cx["inputs"]),
-                sampled=dict(cx["sampled"]),
-                horizon_T=cx["horizon_T"],
-                horizon_J=cx["horizon_J"],
-                shrink_runs=cx["shrink_runs"],
-                description=cx["description"],
-                replay_args=list(cx["replay"]),
-            )
+        counterexamples = [_counterexample(cx) for cx in d["counterexamples"]]
         return TestReport(
             model=d["model"],
             outcome=d["outcome"],
@@ -455,7 +467,8 @@ class Model:
             seed=d["seed"],
             properties=list(d["properties"]),
             inputs=[tuple(i) for i in d["inputs"]],
-            counterexample=counterexample,
+            counterexample=counterexamples[0] if counterexamples else None,
+            counterexamples=counterexamples,
             error=d["error"],
         )
 

@@ -8,7 +8,7 @@ use hybsim::diagnostics::Diagnostic;
 use hybsim::engine::{HybridSystem, SimError, simulate};
 use hybsim::lang::{self, CompiledModel, Override};
 use hybsim::props::{
-    ModelRunError, ModelSubject, Outcome, Property, TestConfig, replay_args, run_tests,
+    ModelRunError, ModelSubject, Outcome, Property, TestConfig, replay_args, run_tests_each,
 };
 use hybsim::source::SourceFile;
 use numpy::{PyArray1, PyReadonlyArray1, PyReadonlyArray2};
@@ -443,16 +443,19 @@ impl Model {
             .cases(cases)
             .seed(seed.unwrap_or(model.seed()))
             .max_shrink_runs(max_shrink);
-        let report = py.detach(|| run_tests(&subject, &props, &config));
+        let reports = py.detach(|| run_tests_each(&subject, &props, &config));
         let inputs = hybsim::props::Subject::inputs(&subject);
         let state_names = hybsim::props::Subject::state_names(&subject);
 
         let out = PyDict::new(py);
         out.set_item("model", model.name())?;
-        out.set_item("passed", report.passed())?;
+        out.set_item("passed", reports.iter().all(|r| r.passed()))?;
         out.set_item("cases", cases)?;
-        out.set_item("cases_run", report.cases_run)?;
-        out.set_item("inconclusive", report.inconclusive)?;
+        let most = |count: fn(&hybsim::props::TestReport<_>) -> usize| {
+            reports.iter().map(count).max().unwrap_or(0)
+        };
+        out.set_item("cases_run", most(|r| r.cases_run))?;
+        out.set_item("inconclusive", most(|r| r.inconclusive))?;
         out.set_item("seed", config.seed)?;
         out.set_item(
             "properties",
@@ -468,64 +471,73 @@ impl Model {
         out.set_item("counterexample", py.None())?;
         out.set_item("error", py.None())?;
         let path = self.path.as_deref().unwrap_or(self.source.name());
-        match &report.outcome {
-            Outcome::Passed => out.set_item("outcome", "passed")?,
-            Outcome::Failed(cx) => {
-                out.set_item("outcome", "failed")?;
-                let v = &cx.violation;
-                let c = PyDict::new(py);
-                c.set_item("property", &v.property)?;
-                if let Some(p) = props.iter().find(|p| p.name() == v.property) {
-                    c.set_item("statement", p.to_string())?;
-                }
-                c.set_item("t", v.at.t)?;
-                c.set_item("j", v.at.j)?;
-                c.set_item("state", PyArray1::from_slice(py, &v.state))?;
-                c.set_item("state_names", state_names.clone())?;
-                c.set_item("message", v.to_string())?;
-                c.set_item("case", cx.index)?;
-                c.set_item("seed", cx.case.seed)?;
-                let named = |values: &[f64]| -> PyResult<Bound<'py, PyDict>> {
-                    let d = PyDict::new(py);
-                    for (i, x) in inputs.iter().zip(values) {
-                        d.set_item(&i.name, *x)?;
+        // Every failing property's counterexample (`counterexample`: the first).
+        let counterexamples = PyList::empty(py);
+        out.set_item("outcome", "passed")?;
+        for report in &reports {
+            match &report.outcome {
+                Outcome::Passed => {}
+                Outcome::Failed(cx) => {
+                    out.set_item("outcome", "failed")?;
+                    let v = &cx.violation;
+                    let c = PyDict::new(py);
+                    c.set_item("property", &v.property)?;
+                    if let Some(p) = props.iter().find(|p| p.name() == v.property) {
+                        c.set_item("statement", p.to_string())?;
                     }
-                    Ok(d)
-                };
-                c.set_item("inputs", named(&cx.case.values)?)?;
-                c.set_item("sampled", named(&cx.original.values)?)?;
-                c.set_item("horizon_T", cx.case.horizon_t)?;
-                c.set_item("horizon_J", cx.case.horizon_j)?;
-                c.set_item("shrink_runs", cx.shrink_runs)?;
-                c.set_item("description", cx.describe(inputs, &state_names))?;
-                c.set_item("replay", replay_command(path, &subject, &cx.case))?;
-                out.set_item("counterexample", c)?;
-            }
-            Outcome::Error { index, case, error } => {
-                out.set_item("outcome", "error")?;
-                let diags = match error {
-                    ModelRunError::Compile(diags) => diags.clone(),
-                    ModelRunError::Sim(e) => vec![model.runtime_diagnostic(e)],
-                };
-                let e = PyDict::new(py);
-                e.set_item("case", *index)?;
-                e.set_item("seed", case.seed)?;
-                e.set_item(
-                    "inputs",
-                    inputs
-                        .iter()
-                        .zip(&case.values)
-                        .map(|(i, v)| (i.name.clone(), *v))
-                        .collect::<Vec<_>>(),
-                )?;
-                e.set_item(
-                    "message",
-                    hybsim::diagnostics::render(&diags, &self.source, false),
-                )?;
-                e.set_item("replay", replay_command(path, &subject, case))?;
-                out.set_item("error", e)?;
+                    c.set_item("t", v.at.t)?;
+                    c.set_item("j", v.at.j)?;
+                    c.set_item("state", PyArray1::from_slice(py, &v.state))?;
+                    c.set_item("state_names", state_names.clone())?;
+                    c.set_item("message", v.to_string())?;
+                    c.set_item("case", cx.index)?;
+                    c.set_item("seed", cx.case.seed)?;
+                    let named = |values: &[f64]| -> PyResult<Bound<'py, PyDict>> {
+                        let d = PyDict::new(py);
+                        for (i, x) in inputs.iter().zip(values) {
+                            d.set_item(&i.name, *x)?;
+                        }
+                        Ok(d)
+                    };
+                    c.set_item("inputs", named(&cx.case.values)?)?;
+                    c.set_item("sampled", named(&cx.original.values)?)?;
+                    c.set_item("horizon_T", cx.case.horizon_t)?;
+                    c.set_item("horizon_J", cx.case.horizon_j)?;
+                    c.set_item("shrink_runs", cx.shrink_runs)?;
+                    c.set_item("description", cx.describe(inputs, &state_names))?;
+                    c.set_item("replay", replay_command(path, &subject, &cx.case))?;
+                    if counterexamples.is_empty() {
+                        out.set_item("counterexample", &c)?;
+                    }
+                    counterexamples.append(c)?;
+                }
+                Outcome::Error { index, case, error } => {
+                    out.set_item("outcome", "error")?;
+                    let diags = match error {
+                        ModelRunError::Compile(diags) => diags.clone(),
+                        ModelRunError::Sim(e) => vec![model.runtime_diagnostic(e)],
+                    };
+                    let e = PyDict::new(py);
+                    e.set_item("case", *index)?;
+                    e.set_item("seed", case.seed)?;
+                    e.set_item(
+                        "inputs",
+                        inputs
+                            .iter()
+                            .zip(&case.values)
+                            .map(|(i, v)| (i.name.clone(), *v))
+                            .collect::<Vec<_>>(),
+                    )?;
+                    e.set_item(
+                        "message",
+                        hybsim::diagnostics::render(&diags, &self.source, false),
+                    )?;
+                    e.set_item("replay", replay_command(path, &subject, case))?;
+                    out.set_item("error", e)?;
+                }
             }
         }
+        out.set_item("counterexamples", counterexamples)?;
         Ok(out)
     }
 

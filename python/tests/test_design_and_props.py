@@ -98,10 +98,29 @@ def test_false_property_returns_its_shrunk_counterexample(tmp_path):
     assert again["h"][0] == cx.inputs["h"] > 1.5
 
 
+def test_every_failing_property_has_its_counterexample():
+    # `low` fails from h > 1.5 at (0, 0); `slow` from the first impact (|v| > 5 needs h > 1.27).
+    m = hybsim.load(FALSE_PROPERTY.replace("property ground: always h >= -1e-9",
+                                           "property slow: always abs(v) <= 5"))
+    report = m.test(cases=50, seed=7)
+    assert report.outcome == "failed" and not report
+    assert [cx.property for cx in report.counterexamples] == ["low", "slow"]
+    assert report.counterexample is report.counterexamples[0]
+    slow = report.counterexamples[1]
+    assert 5 ** 2 / (2 * 9.81) < slow.inputs["h"] < 5 ** 2 / (2 * 9.81) + 1e-6
+    text = str(report)
+    assert text.count("FAILED  ") == 2
+    assert text.count("replay: hybsim run") == 2 and "2 counterexamples" in text
+    # One property failing: one counterexample, as before.
+    one = m.test(cases=50, seed=7, properties=["low"])
+    assert [cx.property for cx in one.counterexamples] == ["low"] and "counterexample:" in str(one)
+
+
 def test_true_property_passes_and_names_are_checked():
     m = hybsim.load(FALSE_PROPERTY)
     report = m.test(cases=20, properties=["ground"])
     assert report and report.passed and report.counterexample is None
+    assert report.counterexamples == []
     assert report.cases_run == 20
     assert "ok  ground" in str(report)
     with pytest.raises(ValueError, match="it declares: low, ground"):

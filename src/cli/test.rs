@@ -9,7 +9,8 @@ use std::time::Instant;
 use clap::Args;
 use hybsim::diagnostics::render;
 use hybsim::props::{
-    ModelRunError, ModelSubject, Outcome, Property, Subject, TestConfig, replay_args, run_tests,
+    ModelRunError, ModelSubject, Outcome, Property, Subject, TestConfig, replay_args,
+    run_tests_each,
 };
 
 use super::{EXIT_FAILED, EXIT_MODEL_ERROR, EXIT_OK, GuardArgs, SdpKind, shell_word};
@@ -123,13 +124,10 @@ pub fn execute(args: TestArgs) -> anyhow::Result<u8> {
         }
     );
     let start = Instant::now();
-    // One pass per failing property: a case stops at its first violation,
-    // so the properties not yet failed are tested again without those that
-    // did, until they pass; every failure is reported, not only the first.
-    let mut remaining = props;
+    // Every failure is reported, not only the first (one pass per failing property).
+    let mut remaining = props.clone();
     let (mut failed, mut errored, mut cases_run, mut inconclusive) = (0usize, false, 0, 0);
-    loop {
-        let report = run_tests(&subject, &remaining, &config);
+    for report in run_tests_each(&subject, &props, &config) {
         cases_run = cases_run.max(report.cases_run);
         inconclusive = inconclusive.max(report.inconclusive);
         match &report.outcome {

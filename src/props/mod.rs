@@ -77,5 +77,5 @@ pub use property::{
 pub use report::replay_args;
 pub use runner::{
     Case, Counterexample, Dist, Input, Outcome, Subject, SystemSubject, TestConfig, TestReport,
-    input_stream, run_case, run_tests, sample_case, shrink,
+    input_stream, run_case, run_tests, run_tests_each, sample_case, shrink,
 };

@@ -459,6 +459,37 @@ pub fn run_tests<S: Subject + ?Sized>(
     }
 }
 
+/// [`run_tests`] until every property has passed or failed. A case stops at
+/// its first violation, so after each counterexample the properties not yet
+/// failed are tested again without the one that failed. The reports in
+/// order: one per failed property (its counterexample), then the last one
+/// (the remaining properties passed, or an error stopped the search).
+pub fn run_tests_each<S: Subject + ?Sized>(
+    subject: &S,
+    props: &[Property],
+    config: &TestConfig,
+) -> Vec<TestReport<S::Error>> {
+    let mut remaining = props.to_vec();
+    let mut reports = Vec::new();
+    loop {
+        let report = run_tests(subject, &remaining, config);
+        let failed = match &report.outcome {
+            Outcome::Failed(cx) => Some(cx.violation.property.clone()),
+            Outcome::Passed | Outcome::Error { .. } => None,
+        };
+        reports.push(report);
+        match failed {
+            Some(name) => {
+                remaining.retain(|p| p.name() != name);
+                if remaining.is_empty() {
+                    return reports;
+                }
+            }
+            None => return reports,
+        }
+    }
+}
+
 /// Runs candidate cases for the shrinker within a budget; a candidate is
 /// accepted if the *same* property still fails on it.
 struct Shrinker<'a, S: Subject + ?Sized> {
