@@ -374,7 +374,13 @@ fn pow(a: Interval, b: Interval) -> Interval {
             return Interval::ENTIRE;
         }
         let (p, q) = (a.lo.max(0.0).powf(n), a.hi.powf(n));
-        return Interval::approx(p.min(q), p.max(q), a.nan || a.lo < 0.0);
+        let r = Interval::approx(p.min(q), p.max(q), a.nan || a.lo < 0.0);
+        // IEEE's (−∞)^n is +∞ (n > 0) or +0 (n < 0), not NaN.
+        return if a.lo == f64::NEG_INFINITY {
+            r.hull(Interval::point(a.lo.powf(n)))
+        } else {
+            r
+        };
     }
     // powf(1, NaN) = 1: a NaN operand is not simply propagated.
     if a.nan || b.nan || a.lo < 0.0 {

@@ -207,6 +207,10 @@ fn bounds_are_tight_where_the_function_is_simple() {
         16.0
     ));
     assert!(bin(BinFn::Pow, iv(-1.0, 4.0), Interval::point(0.5)).nan);
+    // (−∞)^2.5 = +∞ and (−∞)^−0.5 = +0 (IEEE), not only NaN.
+    let neg_inf = Interval::new(f64::NEG_INFINITY, 0.0, false);
+    assert!(bin(BinFn::Pow, neg_inf, Interval::point(2.5)).contains(f64::INFINITY));
+    assert!(bin(BinFn::Pow, neg_inf, Interval::point(-0.5)).contains(0.0));
     // Comparisons and logic.
     assert_eq!(
         bin(BinFn::Lt, iv(0.0, 1.0), iv(2.0, 3.0)),
