@@ -205,9 +205,9 @@ impl Scope {
                 Box::new(self.rename(a)),
                 Box::new(self.rename(b)),
             ),
-            ExprKind::Sum(b, body) => {
+            ExprKind::Fold(f, b, body) => {
                 let (b, scope) = self.binder(b);
-                ExprKind::Sum(Box::new(b), Box::new(scope.rename(body)))
+                ExprKind::Fold(*f, Box::new(b), Box::new(scope.rename(body)))
             }
         };
         Expr { kind, span: e.span }

@@ -29,7 +29,7 @@ use crate::design::lmi::{
 use crate::diagnostics::Diagnostic;
 use crate::source::Span;
 use crate::syntax::ast::{
-    BinOp, Binder, Constraint, DesignBlock, DesignStmt, Expr, ExprKind, IndexArg, IndexSet,
+    BinOp, Binder, Constraint, DesignBlock, DesignStmt, Expr, ExprKind, Fold, IndexArg, IndexSet,
     LmiSide, Rel, Sense, UnOp, VarShape,
 };
 
@@ -1124,7 +1124,7 @@ impl Checker {
             ExprKind::If(c, a, b) => {
                 self.mentions(cx, c) || self.mentions(cx, a) || self.mentions(cx, b)
             }
-            ExprKind::Sum(_, body) => self.mentions(cx, body),
+            ExprKind::Fold(_, _, body) => self.mentions(cx, body),
         }
     }
 
@@ -1345,7 +1345,10 @@ impl Checker {
                     self.aff(cx, b)
                 }
             }
-            ExprKind::Sum(b, body) => {
+            ExprKind::Fold(Fold::Max | Fold::Min, ..) => {
+                non_affine(self, "a maximum or minimum over decision variables")
+            }
+            ExprKind::Fold(Fold::Sum, b, body) => {
                 let mut acc: Option<LExpr> = None;
                 let mut failed = false;
                 self.for_each(b, &mut |this| {

@@ -6,7 +6,7 @@ use super::error::{CheckError, Dims};
 use super::limits::{Limits, Quantity};
 use super::{Checker, Sym};
 use crate::source::Span;
-use crate::syntax::ast::{BinOp, Binder, Expr, ExprKind, IndexArg, IndexSet, UnOp};
+use crate::syntax::ast::{BinOp, Binder, Expr, ExprKind, Fold, IndexArg, IndexSet, UnOp};
 use std::rc::Rc;
 
 /// The elements of a [`Val`]: small values (scalars, short vectors, the
@@ -759,7 +759,7 @@ impl Checker {
                     boolean,
                 })
             }
-            ExprKind::Sum(b, body) => {
+            ExprKind::Fold(fold, b, body) => {
                 let mut acc: Option<Val> = None;
                 let mut failed = false;
                 self.for_each(b, &mut |this| {
@@ -771,7 +771,7 @@ impl Checker {
                             acc = match acc.take() {
                                 None => Some(v),
                                 Some(a) => {
-                                    let r = this.binary(BinOp::Add, a, v, body.span);
+                                    let r = this.fold_step(*fold, a, v, body.span);
                                     failed |= r.is_none();
                                     r
                                 }
@@ -783,7 +783,13 @@ impl Checker {
                 if failed {
                     return None;
                 }
-                Some(acc.unwrap_or_else(|| Val::scalar(self.dag.konst(0.0))))
+                // Over an empty set: the fold's identity.
+                let empty = match fold {
+                    Fold::Sum => 0.0,
+                    Fold::Max => f64::NEG_INFINITY,
+                    Fold::Min => f64::INFINITY,
+                };
+                Some(acc.unwrap_or_else(|| Val::scalar(self.dag.konst(empty))))
             }
             ExprKind::Index(base, args) => {
                 if let ExprKind::Name(n) = &base.kind
@@ -973,6 +979,18 @@ impl Checker {
             e,
             boolean: false,
         }
+    }
+
+    /// One step of a fold: `a + v`, or the elementwise max/min of `a` and
+    /// `v` (shapes as `max(a, b)` takes them: equal, or one a scalar).
+    fn fold_step(&mut self, fold: Fold, a: Val, v: Val, span: Span) -> Option<Val> {
+        let (f, name) = match fold {
+            Fold::Sum => return self.binary(BinOp::Add, a, v, span),
+            Fold::Max => (BinFn::Max, "max"),
+            Fold::Min => (BinFn::Min, "min"),
+        };
+        let (a, v) = self.broadcast(a, v, name, span)?;
+        Some(self.zip(&a, &v, f))
     }
 
     pub(crate) fn binary(&mut self, op: BinOp, a: Val, b: Val, span: Span) -> Option<Val> {

@@ -439,8 +439,19 @@ pub enum ExprKind {
     Index(Box<Expr>, Vec<IndexArg>),
     /// `if c then a else b`.
     If(Box<Expr>, Box<Expr>, Box<Expr>),
-    /// `sum(k in S: body)`.
-    Sum(Box<Binder>, Box<Expr>),
+    /// `sum(k in S: body)`, `max(k in S: body)`, `min(k in S: body)`.
+    Fold(Fold, Box<Binder>, Box<Expr>),
+}
+
+/// How a fold over an index set combines its bodies' values.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Fold {
+    /// Their sum (0 over an empty set).
+    Sum,
+    /// Their elementwise maximum (−∞ over an empty set).
+    Max,
+    /// Their elementwise minimum (+∞ over an empty set).
+    Min,
 }
 
 /// `property NAME: BODY`: what must hold on every solution.

@@ -977,6 +977,8 @@ fn describe(rule: Rule) -> Option<&'static str> {
         | Rule::call
         | Rule::matrix
         | Rule::sum_expr
+        | Rule::extreme_expr
+        | Rule::extreme_op
         | Rule::boolean
         | Rule::prefix_op => "an expression",
         Rule::param_decl

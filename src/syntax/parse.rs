@@ -659,7 +659,7 @@ fn depth(e: &Expr) -> usize {
         ExprKind::Call(_, args) => max(&mut args.iter()),
         ExprKind::Matrix(rows) => max(&mut rows.iter().flatten()),
         ExprKind::Index(a, args) => depth(a).max(max(&mut args.iter().flat_map(index_exprs))),
-        ExprKind::Sum(b, body) => depth(body).max(binder_depth(b)),
+        ExprKind::Fold(_, b, body) => depth(body).max(binder_depth(b)),
     }
 }
 
@@ -780,11 +780,19 @@ fn expr_d(p: Pair<'_, Rule>) -> Res<(Expr, usize)> {
             }
             Ok((mk(ExprKind::Matrix(rows), span), deeper(d, span)?))
         }
-        Rule::sum_expr => {
+        Rule::sum_expr | Rule::extreme_expr => {
+            let fold = match rule {
+                Rule::sum_expr => Fold::Sum,
+                _ if first(&mut it, span)?.as_str().starts_with("max") => Fold::Max,
+                _ => Fold::Min,
+            };
             let b = binder(first(&mut it, span)?)?;
             let (body, db) = expr_d(first(&mut it, span)?)?;
             let d = deeper(db.max(binder_depth(&b)), span)?;
-            Ok((mk(ExprKind::Sum(Box::new(b), Box::new(body)), span), d))
+            Ok((
+                mk(ExprKind::Fold(fold, Box::new(b), Box::new(body)), span),
+                d,
+            ))
         }
         _ => Err(SyntaxError::Unexpected {
             span,
@@ -895,7 +903,12 @@ pub(super) fn ambiguous_sign(entry: &Pair<'_, Rule>) -> Res<()> {
         let mut children = p.clone().into_inner();
         while let Some(q) = children.next() {
             match q.as_rule() {
-                Rule::paren | Rule::call | Rule::index_list | Rule::matrix | Rule::sum_expr => {}
+                Rule::paren
+                | Rule::call
+                | Rule::index_list
+                | Rule::matrix
+                | Rule::sum_expr
+                | Rule::extreme_expr => {}
                 Rule::add_op => {
                     let span = q.as_span();
                     let input = span.get_input();

@@ -90,6 +90,38 @@ fn jumps_without_a_name_are_numbered() {
     let (x0, mut rng) = m.start(0);
     let arc = simulate_arc(&m, &x0, &m.settings(), &mut rng).unwrap();
     assert!(!arc.jump_times(0).is_empty());
+
+/// `max(k in S: e)` and `min(k in S: e)` fold like `sum`: elementwise, with
+/// the fold's identity over an empty set; `max(a, b)` stays the function.
+/// Over decision variables in a design block they are not affine.
+#[test]
+fn max_and_min_fold_over_index_sets() {
+    let m = compile(
+        "model g
+         graph G = [0, 1, 1; 0, 0, 1; 1, 0, 0]
+         for i in 1..3 { state x[i] = 4 - i }
+         output hi = max(k in in(G, 1): x[k]), lo = min(k in 1..3 if k != 2: x[k] - 1)
+         output pair = max(x[1], x[3]), none = max(k in 1..0: x[k]), nmin = min(k in 1..0: 1)
+         output v = max(k in 1..2: [x[k]; -x[k]])
+         flow { for i in 1..3 { x[i]' = min(k in in(G, i): x[k]) - x[i] } }
+         jump r when max(k in 1..3: x[k]) <= 0 { x[1]+ = 1 }",
+    );
+    let x0 = m.initial_state(&mut SimRng::seed_from(0));
+    assert_eq!(x0, [3.0, 2.0, 1.0]);
+    let y = outputs(&m, &x0);
+    assert_eq!(&y[..3], [2.0, 0.0, 3.0]);
+    assert_eq!(y[3], f64::NEG_INFINITY);
+    assert_eq!(y[4], f64::INFINITY);
+    assert_eq!(&y[5..], [3.0, -2.0]);
+    let errs = errors(
+        "model d\nparam A = -eye(2)\ndesign b {\n    sym P[2]\n    \
+         max(k in 1..2: P[k, k]) >= 1\n    param Q = P\n}\n",
+    );
+    assert!(
+        errs.iter()
+            .any(|(code, _, msg)| code == "E0701" && msg.contains("maximum")),
+        "{errs:?}"
+    );
 }
 
 #[test]
