@@ -90,6 +90,7 @@ fn jumps_without_a_name_are_numbered() {
     let (x0, mut rng) = m.start(0);
     let arc = simulate_arc(&m, &x0, &m.settings(), &mut rng).unwrap();
     assert!(!arc.jump_times(0).is_empty());
+}
 
 /// `max(k in S: e)` and `min(k in S: e)` fold like `sum`: elementwise, with
 /// the fold's identity over an empty set; `max(a, b)` stays the function.
