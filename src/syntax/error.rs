@@ -317,6 +317,14 @@ impl SyntaxError {
         if let Some(err) = keyword_mistake(text, pos, &keywords, wants_name, &expected) {
             return err;
         }
+        // The file ended too early: point just past its last token, on that
+        // token's line (`jump r when x <= 0` without its block), not at the
+        // empty line after it.
+        let pos = if pos == text.len() {
+            text.trim_end().len()
+        } else {
+            pos
+        };
         SyntaxError::Unexpected {
             span: Span::new(pos, pos + len),
             found,

@@ -208,6 +208,13 @@ const CASES: &[Case] = &[
         "`out` is a keyword, not a name",
     ),
     case(
+        "jump without its block at the end of the file",
+        "model m\nstate x = 1\njump r when x <= 0\n\n",
+        "E0101",
+        "3:19",
+        "unexpected end of file; expected `'`, `[`, `{` or an operator",
+    ),
+    case(
         "property without its kind",
         "model m\nstate x = 1\nproperty p: x >= 0\n",
         "E0101",
