@@ -14,6 +14,7 @@
 //! - Euler–Maruyama with fixed step for noisy flows; events are localized
 //!   on the linear interpolant of the step ends.
 
+use std::cell::RefCell;
 use std::ops::ControlFlow;
 
 use nalgebra::{DMatrix, DVector};
@@ -26,7 +27,9 @@ use super::clock::TimeSum;
 use super::dop853::{Dop853, Dop853Path};
 use super::dopri5::{Dopri5 as OwnDopri5, DopriPath, Failure, NonFiniteRate};
 use super::error::SimError;
-use super::events::{EventKind, Hermite, Linear, StepPath, Watcher, at_step_end};
+use super::events::{
+    EventKind, Hermite, Linear, MAX_CONTROL, StepPath, Watcher, at_step_end, bernstein_points,
+};
 use super::implicit::LinearAlgebra;
 use super::polynomial::{PolynomialFlow, PolynomialPath};
 use super::radau5::{Radau5, RadauPath};
@@ -365,7 +368,50 @@ pub(crate) struct Affine {
     /// nilpotent: then every segment takes it (exact, and cheaper than
     /// an exponential or a solver's step, guards watched or not).
     poly: Option<PolynomialFlow>,
+    /// The current step's Taylor polynomial, for the watcher's control
+    /// points (computed on the first request of a step).
+    taylor: RefCell<StepTaylor>,
 }
+
+/// The truncated Taylor polynomial of the exact flow on one step, in the
+/// step's own variable `u = (s − s₀)/h ∈ [0, 1]`: the coefficients
+/// `dₖ = hᵏ/k! (Gᵏ [x(s₀); 1])` for `k <` [`MAX_CONTROL`], component after
+/// component (`G = [[A, b], [0, 0]]`), and the first term left out, which
+/// bounds the rest of the series. The watcher decides affine guards on
+/// exponential steps from its control points as it does on polynomial
+/// steps, up to that rest instead of rounding; guarded steps are made short
+/// enough for the rest to be below [`TAYLOR_REST`] of the step's motion
+/// ([`Affine::guard_step`]).
+#[derive(Debug)]
+struct StepTaylor {
+    /// The step length `d` is for (NaN: none).
+    h: f64,
+    /// Made by [`Affine::guard_step`] for the step about to be taken.
+    fresh: bool,
+    d: Vec<f64>,
+    /// ‖d_m‖∞ of the first term left out (m = [`MAX_CONTROL`]).
+    first_out: f64,
+}
+
+impl Default for StepTaylor {
+    fn default() -> Self {
+        Self {
+            h: f64::NAN,
+            fresh: false,
+            d: Vec::new(),
+            first_out: 0.0,
+        }
+    }
+}
+
+/// The rest of the Taylor series on a guarded exponential step, at most,
+/// relative to the step's first-order motion ‖h (A x + b)‖∞.
+const TAYLOR_REST: f64 = 1e-12;
+
+/// Halvings of a guarded exponential step at most (1/‖A‖∞ down to 1/64 of
+/// it: the rest of a solution as fast as ‖A‖∞ allows is then below
+/// 1/64⁷/8! of its motion, 2e-17).
+const TAYLOR_HALVINGS: u32 = 6;
 
 const AFFINE_CACHE: usize = 16;
 /// Rows of a propagator updated together by [`Affine::apply`].
@@ -487,7 +533,102 @@ impl Affine {
             spent_ripe: false,
             active: (2 * active.len() <= n).then_some(active),
             poly,
+            taylor: RefCell::default(),
         })
+    }
+
+    /// The Taylor coefficients of the step of length `h` from `y0` into
+    /// `tay` (see [`StepTaylor`]): `d₀ = y0`, `d₁ = h (A y0 + b)`,
+    /// `dₖ₊₁ = h/(k+1) · A dₖ`, and the rest bounded from the first term
+    /// left out, `dₘ` (m = [`MAX_CONTROL`]): each later term is at most
+    /// ‖hA‖∞/(m+1) of the one before, so the rest is at most
+    /// `‖dₘ‖∞ / (1 − ‖hA‖∞/(m+1))`.
+    fn taylor_into(&self, tay: &mut StepTaylor, h: f64, y0: &[f64]) {
+        const W: usize = MAX_CONTROL;
+        let n = self.n;
+        tay.d.resize(n * W, 0.0);
+        let d = &mut tay.d;
+        for (row, &y) in d.chunks_exact_mut(W).zip(y0) {
+            row[0] = y;
+        }
+        let mut largest: f64 = 0.0;
+        for k in 1..=W {
+            let scale = h / k as f64;
+            for r in 0..n {
+                let mut v = 0.0;
+                for &(_, c, a) in &self.entries[self.row_start[r]..self.row_start[r + 1]] {
+                    v += a * match c {
+                        c if c < n => d[c * W + k - 1],
+                        _ if k == 1 => 1.0,
+                        _ => 0.0,
+                    };
+                }
+                if k < W {
+                    d[r * W + k] = v * scale;
+                } else {
+                    largest = largest.max((v * scale).abs());
+                }
+            }
+        }
+        (tay.h, tay.first_out) = (h, largest);
+    }
+
+    /// The same polynomial for a step of length `h` from the same state:
+    /// `dₖ` scales as hᵏ.
+    fn taylor_rescale(tay: &mut StepTaylor, h: f64) {
+        let q = h / tay.h;
+        for row in tay.d.chunks_exact_mut(MAX_CONTROL) {
+            let mut qk = 1.0;
+            for v in row.iter_mut() {
+                *v *= qk;
+                qk *= q;
+            }
+        }
+        tay.first_out *= q.powi(MAX_CONTROL as i32);
+        tay.h = h;
+    }
+
+    /// The bound on the rest of the series of `tay`: each term after
+    /// the first left out, `dₘ`, is at most ‖hA‖∞/(m+1) of the one before,
+    /// so the rest is at most `‖dₘ‖∞ / (1 − ‖hA‖∞/(m+1))`.
+    fn taylor_rest(&self, tay: &StepTaylor) -> f64 {
+        let ratio = (tay.h * self.norm).abs() / (MAX_CONTROL + 1) as f64;
+        if ratio < 1.0 {
+            tay.first_out / (1.0 - ratio)
+        } else {
+            f64::INFINITY
+        }
+    }
+
+    /// The length of a guarded step from `y0` of at most `hw`: `hw` halved
+    /// until the rest of the Taylor polynomial is below [`TAYLOR_REST`] of
+    /// the step's motion (the rest relative to the motion scales as h⁷);
+    /// powers of two of `hw`, so that propagators repeat. A smooth solution
+    /// (a stiff system's slow modes) keeps `hw`; one turning as fast as
+    /// ‖A‖∞ allows (an oscillator) takes about 1/16 of it.
+    fn guard_step(&mut self, hw: f64, y0: &[f64]) -> f64 {
+        let mut tay = self.taylor.take();
+        self.taylor_into(&mut tay, hw, y0);
+        let motion = tay
+            .d
+            .chunks_exact(MAX_CONTROL)
+            .fold(0.0f64, |m, row| m.max(row[1].abs()));
+        let mut rel = self.taylor_rest(&tay) / motion;
+        let mut h = hw;
+        for _ in 0..TAYLOR_HALVINGS {
+            // Also a NaN `rel` (no motion) ends here.
+            if !(rel > TAYLOR_REST) {
+                break;
+            }
+            h *= 0.5;
+            rel /= 128.0;
+        }
+        if h != hw {
+            Self::taylor_rescale(&mut tay, h);
+        }
+        tay.fresh = true;
+        self.taylor.replace(tay);
+        h
     }
 
     /// The auto choice for a whole segment of duration `d`: exact if its
@@ -842,6 +983,29 @@ impl StepPath for AffinePath<'_> {
         self.aff.exp_step_into(s - self.s0, &mut p);
         let _ = self.aff.apply(&p, self.y0, out);
         self.aff.one_off = p;
+    }
+
+    fn control_points(&self, i: usize, out: &mut [f64; MAX_CONTROL]) -> Option<(usize, f64)> {
+        // The step's polynomial: made by `guard_step` for this step's
+        // start, rescaled if the step was cut short, else made here.
+        let mut tay = self.aff.taylor.borrow_mut();
+        if tay.h != self.h {
+            if tay.h.is_nan() {
+                self.aff.taylor_into(&mut tay, self.h, self.y0);
+            } else {
+                Affine::taylor_rescale(&mut tay, self.h);
+            }
+        }
+        let rest = self.aff.taylor_rest(&tay);
+        if !rest.is_finite() {
+            return None;
+        }
+        let row = &tay.d[i * MAX_CONTROL..(i + 1) * MAX_CONTROL];
+        let (len, err) = bernstein_points(row, out);
+        // The coefficients' own rounding (a sum of a row's products per
+        // term, and their scaling), as the points' bound counts it.
+        let size: f64 = row.iter().map(|v| v.abs()).sum();
+        Some((len, err + rest + 4.0 * f64::EPSILON * size))
     }
 }
 
@@ -1793,6 +1957,14 @@ trait ExactFlow {
     /// be finite (`false`: unknown, the caller checks).
     fn advance(&mut self, h: f64, y0: &[f64], y1: &mut [f64]) -> bool;
 
+    /// The longest step from `y0`, at most `hw`, on which the watcher can
+    /// decide the guards from the path's control points (called before
+    /// [`advance`](Self::advance) when guards are watched). A polynomial
+    /// path is exact at any length: `hw`.
+    fn guard_step(&mut self, hw: f64, _y0: &[f64]) -> f64 {
+        hw
+    }
+
     /// The path of the step just advanced by `h`, `[s0, s1]` from `y0` to
     /// `y1`.
     fn path<'a>(
@@ -1813,6 +1985,10 @@ impl ExactFlow for Affine {
         Affine::advance(self, h, y0, y1)
     }
 
+    fn guard_step(&mut self, hw: f64, y0: &[f64]) -> f64 {
+        Affine::guard_step(self, hw, y0)
+    }
+
     fn path<'a>(
         &'a mut self,
         s0: f64,
@@ -1821,6 +1997,11 @@ impl ExactFlow for Affine {
         y0: &'a [f64],
         y1: &'a [f64],
     ) -> AffinePath<'a> {
+        // The polynomial `guard_step` made serves this step only.
+        let tay = self.taylor.get_mut();
+        if !std::mem::take(&mut tay.fresh) {
+            tay.h = f64::NAN;
+        }
         AffinePath {
             aff: self,
             s0,
@@ -1883,6 +2064,7 @@ impl ExactSteps<'_> {
         let mut s = 0.0;
         // Whether the last step left the state unchanged (to the bit).
         let mut still = false;
+        let guarded = !self.watcher.is_empty() && hw.is_finite();
         loop {
             // Without guards a flow at an equilibrium (the last step left
             // the state unchanged, and f vanishes there) ends its segment
@@ -1893,7 +2075,12 @@ impl ExactSteps<'_> {
             {
                 return Ok(self.rest_to_end(sys, out, j, s, d_end));
             }
-            let (s1, h, last) = exact_step_end(out, t0, s, hw, d_end);
+            let hs = if guarded {
+                flow.guard_step(hw, self.y_prev)
+            } else {
+                hw
+            };
+            let (s1, h, last) = exact_step_end(out, t0, s, hs, d_end);
             let h = if F::CACHED { h } else { s1 - s };
             if !flow.advance(h, self.y_prev, self.y1)
                 && let Some(e) = check_finite(sys, HybridTime::new(t0 + s1, j), self.y1, None)
@@ -1974,7 +2161,8 @@ fn at_rest<S: HybridSystem + ?Sized>(
 
 /// The longest step of an exact path: guards, and dense output, need steps
 /// short enough that the path cannot turn back unseen between checks
-/// (`watch_step`, 1/‖A‖∞); without either a step may span the segment.
+/// (`watch_step`, 1/‖A‖∞; guarded steps may be shorter still, see
+/// [`ExactFlow::guard_step`]); without either a step may span the segment.
 fn exact_step_limit(watcher: &Watcher, out: &Output<'_>, max_step: f64, watch_step: f64) -> f64 {
     if !watcher.is_empty() || out.dense() {
         max_step.min(watch_step)
@@ -2150,7 +2338,7 @@ impl<S: HybridSystem + ?Sized> System<f64, DVector<f64>> for &mut Stepper<'_, '_
 
 #[cfg(test)]
 mod tests {
-    use super::{APPLY_BLOCK, Affine, apply_lanes};
+    use super::{APPLY_BLOCK, Affine, ExactFlow, apply_lanes};
     use crate::arc::HybridTime;
     use crate::engine::{
         GuardKind, HybridSystem, JumpRule, SimRng, SimSettings, Solver, simulate_arc,
@@ -2183,6 +2371,33 @@ mod tests {
             xp[0] = x[0];
             xp[1] = 0.0;
         }
+    }
+
+    /// A guarded exponential step of a rotation (turning as fast as ‖A‖∞
+    /// allows) is halved until its Taylor polynomial's rest is negligible:
+    /// 1/16 of 1/‖A‖∞ here. Its control points then give the exponential's
+    /// path within their bound, on the full step and on a step cut short
+    /// (a grid point, the segment's end: the polynomial rescaled). A stiff
+    /// flow whose fast mode is at rest keeps the long step.
+    #[test]
+    fn guarded_exponential_steps_carry_their_taylor_polynomial() {
+        let a = [0.0, 2.0, -2.0, 0.0];
+        let mut aff = Affine::new(2, &a, &[0.0, 0.5]).unwrap();
+        let y0 = [1.0, -0.25];
+        let hw = 0.5; // 1/‖A‖∞
+        let full = ExactFlow::guard_step(&mut aff, hw, &y0);
+        assert_eq!(full, hw / 16.0);
+        for (s0, len) in [(0.3, full), (1.0, 0.6 * full)] {
+            if len != full {
+                ExactFlow::guard_step(&mut aff, hw, &y0);
+            }
+            let mut y1 = [0.0; 2];
+            ExactFlow::advance(&mut aff, len, &y0, &mut y1);
+            let mut path = ExactFlow::path(&mut aff, s0, s0 + len, len, &y0, &y1);
+            crate::engine::events::tests::assert_control_points(&mut path, 2, (s0, s0 + len), 8);
+        }
+        let mut stiff = Affine::new(2, &[-1e4, 0.0, 0.0, -1e-3], &[0.0, 0.0]).unwrap();
+        assert_eq!(ExactFlow::guard_step(&mut stiff, 1e-4, &[0.0, 1.0]), 1e-4);
     }
 
     /// Euler–Maruyama segments of several steps (the last one partial) and

@@ -255,6 +255,33 @@ fn a_switched_linear_system_flows_exactly_in_each_mode() {
     }
 }
 
+/// With `exact_affine = on` a flow's steps are matrix exponentials, not
+/// polynomials; the watcher still sees a crossing that comes back within
+/// a step, through the step's Taylor polynomial and the bound on its rest:
+/// `x = sin t` exceeds 1 − δ only for 2√(2δ) around π/2 (2.8e-5 for
+/// δ = 1e-10), far less than a step (these were missed before). Each
+/// crossing is localized on the exponential, to the closed form's asin.
+#[test]
+fn exponential_steps_find_a_crossing_that_comes_back_within_a_step() {
+    for depth in [1e-4f64, 1e-6, 1e-10] {
+        let src = format!(
+            "model m\nstate x = 0, y = 1, n = 0\nflow {{ x' = y; y' = -x }}\n\
+             jump hit when x >= 1 - {depth} && n == 0 {{ n+ = 1 }}\n\
+             sim {{ T = 20; exact_affine = on }}\n"
+        );
+        let arc = run(&compile(&src));
+        let times = jump_times(&arc);
+        assert_eq!(times.len(), 1, "depth {depth}: {times:?}");
+        let want = (1.0 - depth).asin();
+        // Near the top x is flat: an error e in x moves the time by e/√(2δ).
+        assert!(
+            (times[0] - want).abs() <= 1e-15 / (2.0 * depth).sqrt() + 1e-12,
+            "depth {depth}: {} vs {want}",
+            times[0]
+        );
+    }
+}
+
 /// The thermostat with hysteresis and a mode q: heating `x' = 30 − x`
 /// while q = 1 until x ≥ 22, cooling `x' = −x` while q = 0 until x ≤ 18.
 /// The mode conjunct is constant during each flow; the temperature atom is
