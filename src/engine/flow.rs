@@ -617,7 +617,7 @@ impl Affine {
         let mut h = hw;
         for _ in 0..TAYLOR_HALVINGS {
             // Also a NaN `rel` (no motion) ends here.
-            if !(rel > TAYLOR_REST) {
+            if rel.partial_cmp(&TAYLOR_REST) != Some(std::cmp::Ordering::Greater) {
                 break;
             }
             h *= 0.5;
