@@ -1307,6 +1307,26 @@ impl Watcher {
         let sets = self.sets.iter_mut().zip(&self.flat_off).enumerate();
         for (i, (ws, &flat_off)) in sets {
             let is_flow = self.flow == Some(i);
+            // The per-segment common case first: a jump set (its atoms never
+            // relaxed) of at most `TruthTable::MAX_ATOMS` atoms, its values
+            // from the evaluation of all sets.
+            if let (Some(off), true, false, Some(spec), Some(table)) =
+                (flat_off, self.flat_ok, is_flow, &ws.spec, ws.table)
+            {
+                let flat = &self.flat[off..off + ws.vs.len()];
+                let mut mask = 0u32;
+                let atoms = ws.vs.iter_mut().zip(ws.state.iter_mut());
+                for (k, ((v, st), (&g, atom))) in
+                    atoms.zip(flat.iter().zip(&spec.atoms)).enumerate()
+                {
+                    *v = g;
+                    let holds = atom.cmp.holds(g);
+                    st.start_truth = holds;
+                    mask |= u32::from(holds) << k;
+                }
+                ws.cur = table.value(mask);
+                continue;
+            }
             // The set's values from the prefetched ones (copied by the pass
             // below: a call to memcpy for 3 or 4 values cost more), or its own.
             let flat = match flat_off {
@@ -1391,14 +1411,25 @@ impl Watcher {
                 (None, SetRef::Flow) => true,
             };
         }
-        let near = set_tol.max(f64::MIN_POSITIVE);
-        self.near_start = false;
-        for (w, c) in self.watched.iter().zip(self.cls.iter_mut()) {
-            let ws = &self.sets[w.set];
-            let v = watched_value(w.cmp, ws.vs[w.atom], ws.state[w.atom].relax);
-            self.near_start |= v.abs() <= 2.0 * near;
-            *c = class(v);
+        let near = 2.0 * set_tol.max(f64::MIN_POSITIVE);
+        let mut near_start = false;
+        if self.relaxed == 0 && self.flat_ok && self.flat_watched {
+            // No atom relaxed: each watched value is the atom's, as
+            // evaluated with all sets.
+            for (w, c) in self.watched.iter().zip(self.cls.iter_mut()) {
+                let v = self.flat[w.flat];
+                near_start |= v.abs() <= near;
+                *c = class(v);
+            }
+        } else {
+            for (w, c) in self.watched.iter().zip(self.cls.iter_mut()) {
+                let ws = &self.sets[w.set];
+                let v = watched_value(w.cmp, ws.vs[w.atom], ws.state[w.atom].relax);
+                near_start |= v.abs() <= near;
+                *c = class(v);
+            }
         }
+        self.near_start = near_start;
     }
 
     /// Evaluates every set's atoms at (`at`, `x`) for the next
@@ -1472,14 +1503,21 @@ impl Watcher {
             self.flat_ok && self.flat_checks && sys.all_atom_values(at, x, true, &mut self.flat);
         if flat && self.flat_watched {
             // Only the watched atoms' values are read at a checkpoint; their
-            // classes in the same pass (as `classes_from_vs`).
+            // classes in the same pass (as `classes_from_vs`; with no atom
+            // relaxed, of the values themselves).
             let mut changed = false;
+            let relaxed = self.relaxed > 0;
             let pass = self.watched.iter().zip(&mut self.cls_s).zip(&self.cls);
             for ((w, c), &c0) in pass {
                 let ws = &mut self.sets[w.set];
                 let g = self.flat[w.flat];
                 ws.vs[w.atom] = g;
-                *c = class(watched_value(w.cmp, g, ws.state[w.atom].relax));
+                let v = if relaxed {
+                    watched_value(w.cmp, g, ws.state[w.atom].relax)
+                } else {
+                    g
+                };
+                *c = class(v);
                 changed |= *c != c0;
             }
             return changed;
