@@ -30,7 +30,7 @@
 #![allow(clippy::needless_range_loop)]
 
 use super::dopri5::{Failure, NonFiniteRate, Rhs};
-use super::events::StepPath;
+use super::events::{MAX_CONTROL, StepPath, bernstein_points};
 use super::implicit::{
     Jac, Jacobian, LinearAlgebra, NewtonLu, initial_step, newton_tol, rms_scaled,
 };
@@ -101,8 +101,9 @@ pub(crate) struct Bdf {
     scale: Vec<f64>,
     /// The state at the end of the last accepted step.
     pub y_new: Vec<f64>,
-    /// The last accepted step: its end, length and order (the dense output
-    /// is the interpolant of degree `path_order` on `d`).
+    /// The last accepted step: its start, end, length and order (the dense
+    /// output is the interpolant of degree `path_order` on `d`).
+    s_start: f64,
     s_end: f64,
     h_step: f64,
     path_order: usize,
@@ -136,6 +137,7 @@ impl Bdf {
             f_iter: v(),
             scale: v(),
             y_new: v(),
+            s_start: 0.0,
             s_end: 0.0,
             h_step: 0.0,
             path_order: 1,
@@ -384,7 +386,7 @@ impl Bdf {
                     self.d[m][i] += self.d[m + 1][i];
                 }
             }
-            self.s_end = s_new;
+            (self.s_start, self.s_end) = (s, s_new);
             self.h_step = h;
             self.path_order = k;
             self.jac.fresh = false;
@@ -487,6 +489,7 @@ impl Bdf {
         BdfPath {
             d: &self.d,
             order: self.path_order,
+            s0: self.s_start,
             s_end: self.s_end,
             h: self.h_step,
             s1,
@@ -501,6 +504,8 @@ impl Bdf {
 pub(crate) struct BdfPath<'a> {
     d: &'a [Vec<f64>; MAX_ORDER + 3],
     order: usize,
+    /// The step's start (the watcher's step is `[s0, s1]`).
+    s0: f64,
     s_end: f64,
     h: f64,
     s1: f64,
@@ -523,6 +528,40 @@ impl StepPath for BdfPath<'_> {
         for (i, o) in out.iter_mut().enumerate() {
             *o = (0..=self.order).map(|m| coef[m] * self.d[m][i]).sum();
         }
+    }
+
+    fn control_points(&self, i: usize, out: &mut [f64; MAX_CONTROL]) -> Option<(usize, f64)> {
+        // On the step, θ = θ₀ + w·τ for τ ∈ [0, 1]; the Newton basis
+        // θ(θ+1)…(θ+m−1)/m! in powers of τ, one factor at a time, and
+        // the component's coefficients Σ_m ∇^m yᵢ · (basis m).
+        let (th0, w) = (
+            (self.s0 - self.s_end) / self.h,
+            (self.s1 - self.s0) / self.h,
+        );
+        let k = self.order;
+        let mut basis = [0.0; MAX_ORDER + 1];
+        basis[0] = 1.0;
+        let mut a = [0.0; MAX_ORDER + 1];
+        let mut size = 0.0;
+        for m in 0..=k {
+            if m > 0 {
+                // basis ← basis · (θ₀ + m − 1 + w τ)/m
+                let c0 = (th0 + (m - 1) as f64) / m as f64;
+                let c1 = w / m as f64;
+                for p in (0..=m).rev() {
+                    let lower = if p > 0 { basis[p - 1] * c1 } else { 0.0 };
+                    basis[p] = basis[p] * c0 + lower;
+                }
+            }
+            let dm = self.d[m][i];
+            for (ap, &bp) in a.iter_mut().zip(&basis[..=m]) {
+                *ap += dm * bp;
+                size += (dm * bp).abs();
+            }
+        }
+        let (len, err) = bernstein_points(&a[..=k], out);
+        // The basis' and the sums' own rounding, a few ulp of each term.
+        Some((len, err + 4.0 * (k + 2) as f64 * f64::EPSILON * size))
     }
 }
 
@@ -605,6 +644,43 @@ mod tests {
         assert!(steps < 2000, "{steps} steps");
         assert!(top_order == MAX_ORDER, "order {top_order}");
         assert_eq!(st.jevals(), 1, "a constant Jacobian is evaluated once");
+    }
+
+    /// The control points give the interpolant on each step, at every
+    /// order the method reaches, on full steps and on a step whose end was
+    /// rounded to a segment's end.
+    #[test]
+    fn control_points_give_the_interpolant() {
+        let mut f = |s: f64, y: &[f64], dy: &mut [f64]| {
+            dy[0] = -50.0 * (y[0] - s.cos());
+            dy[1] = y[0] - y[1];
+        };
+        let mut jac = |_s: f64, _y: &[f64], j: &mut [f64]| {
+            j.copy_from_slice(&[-50.0, 0.0, 1.0, -1.0]);
+        };
+        let mut st = Bdf::new(2, 1e-8, 1e-10, &LinearAlgebra::dense(2));
+        let mut y = vec![2.0, 0.0];
+        let mut f0 = vec![0.0; 2];
+        f(0.0, &y, &mut f0);
+        st.start(&y, &f0, &mut f, &mut jac);
+        let mut s = 0.0;
+        let mut orders = [false; MAX_ORDER + 1];
+        for _ in 0..400 {
+            let h = st.step(s, &y, 5.0 - s, &mut f, &mut jac).unwrap();
+            orders[st.path_order] = true;
+            let s1 = s + h;
+            for end in [s1, s + 0.999_999_999 * h] {
+                let mut p = st.path(end);
+                let count = st.path_order + 1;
+                crate::engine::events::tests::assert_control_points(&mut p, 2, (s, end), count);
+            }
+            y.copy_from_slice(&st.y_new);
+            s = s1;
+            if s >= 5.0 {
+                break;
+            }
+        }
+        assert!(orders[2..].iter().all(|&o| o), "orders met: {orders:?}");
     }
 
     /// The constants: the NDF's α and error constants at order 1 (implicit

@@ -261,6 +261,7 @@ fn a_switched_linear_system_flows_exactly_in_each_mode() {
 /// `x = sin t` exceeds 1 − δ only for 2√(2δ) around π/2 (2.8e-5 for
 /// δ = 1e-10), far less than a step (these were missed before). Each
 /// crossing is localized on the exponential, to the closed form's asin.
+/// BDF's steps (its interpolant) too.
 #[test]
 fn exponential_steps_find_a_crossing_that_comes_back_within_a_step() {
     for depth in [1e-4f64, 1e-6, 1e-10] {
@@ -280,6 +281,14 @@ fn exponential_steps_find_a_crossing_that_comes_back_within_a_step() {
             times[0]
         );
     }
+    // BDF's steps are its interpolant, a polynomial: the same crossing is
+    // seen on it (to the solver's accuracy), not only at the step ends.
+    let src = "model m\nstate x = 0, y = 1, n = 0\nflow { x' = y; y' = -x }\n\
+               jump hit when x >= 1 - 1e-7 && n == 0 { n+ = 1 }\n\
+               sim { T = 20; solver = bdf; rtol = 1e-10; atol = 1e-12 }\n";
+    let times = jump_times(&run(&compile(src)));
+    assert_eq!(times.len(), 1, "bdf: {times:?}");
+    assert!((times[0] - (1.0f64 - 1e-7).asin()).abs() < 1e-4, "bdf: {times:?}");
 }
 
 /// The thermostat with hysteresis and a mode q: heating `x' = 30 − x`
