@@ -75,11 +75,46 @@ pub(crate) trait StepPath {
 /// The most Bernstein control points a [`StepPath`] gives per component.
 pub(crate) const MAX_CONTROL: usize = 8;
 
+/// `$body` with `$q` the slice `$p` of points (or coefficients), its
+/// length a constant for each length from 2 to [`MAX_CONTROL`]: the
+/// loops of a few iterations over it then unroll (they cost more than
+/// their arithmetic), with the same operations in the same order. The
+/// functions `$body` calls must be inlined into it.
+macro_rules! per_count {
+    ($p:expr, |$q:ident| $body:expr) => {{
+        let p: &[f64] = $p;
+        match p.len() {
+            2 => per_count!(@fixed 2, p, $q, $body),
+            3 => per_count!(@fixed 3, p, $q, $body),
+            4 => per_count!(@fixed 4, p, $q, $body),
+            5 => per_count!(@fixed 5, p, $q, $body),
+            6 => per_count!(@fixed 6, p, $q, $body),
+            7 => per_count!(@fixed 7, p, $q, $body),
+            8 => per_count!(@fixed 8, p, $q, $body),
+            _ => {
+                let $q = p;
+                $body
+            }
+        }
+    }};
+    (@fixed $n:literal, $p:ident, $q:ident, $body:expr) => {{
+        let fixed: &[f64; $n] = $p.try_into().expect("the matched length");
+        let $q = &fixed[..];
+        $body
+    }};
+}
+
 /// The Bernstein control points on `[0, 1]` of the polynomial
 /// `Σ aᵢ τⁱ` (at most [`MAX_CONTROL`] coefficients) into `out`, with a
 /// bound on their rounding error: `bₖ = Σ_{i ≤ k} C(k, i)/C(n, i)·aᵢ`.
 #[inline]
 pub(crate) fn bernstein_points(a: &[f64], out: &mut [f64; MAX_CONTROL]) -> (usize, f64) {
+    per_count!(a, |a| bernstein_points_in(a, out))
+}
+
+/// [`bernstein_points`], inlined into each length's copy.
+#[inline(always)]
+fn bernstein_points_in(a: &[f64], out: &mut [f64; MAX_CONTROL]) -> (usize, f64) {
     let n = a.len() - 1;
     // C(k, i)/C(n, i) built up along i: ×(k − i)/(n − i) per step.
     for (k, o) in out.iter_mut().enumerate().take(n + 1) {
@@ -250,6 +285,11 @@ struct AtomState {
 }
 
 impl WSet {
+    /// What [`atom_values`] evaluates the set by.
+    fn kind(&self) -> (SetRef, bool) {
+        (self.set, self.spec.is_some())
+    }
+
     fn atom_count(&self) -> usize {
         self.spec.as_ref().map_or(1, |s| s.atoms.len())
     }
@@ -319,19 +359,22 @@ fn timer_set_values(ws: &WSet, spec: &SetAtoms) -> (bool, bool) {
     }
 }
 
-/// Evaluates the atoms of `ws` at (t, j, x) into `out`.
+/// Evaluates the atoms of the set `set` (`atoms`: whether it has atoms, or
+/// its guard is its only atom) at (t, j, x) into `out`. The set's parts
+/// rather than its [`WSet`], so that `out` may be one of that set's
+/// buffers.
 fn atom_values<S: HybridSystem + ?Sized>(
     sys: &S,
-    ws: &WSet,
+    (set, atoms): (SetRef, bool),
     at: HybridTime,
     x: &[f64],
     flowing_only: bool,
     out: &mut [f64],
 ) {
-    match (&ws.spec, ws.set) {
-        (Some(_), set) => sys.atom_values(set, at, x, flowing_only, out),
-        (None, SetRef::Jump(r)) => out[0] = sys.jump_guard(r, at, x),
-        (None, SetRef::Flow) => out[0] = sys.flow_guard(at, x).unwrap_or(f64::INFINITY),
+    match (atoms, set) {
+        (true, set) => sys.atom_values(set, at, x, flowing_only, out),
+        (false, SetRef::Jump(r)) => out[0] = sys.jump_guard(r, at, x),
+        (false, SetRef::Flow) => out[0] = sys.flow_guard(at, x).unwrap_or(f64::INFINITY),
     }
 }
 
@@ -564,6 +607,7 @@ fn form_points<P: StepPath>(form: &AffineAtom, path: &P) -> Option<FormPoints> {
 /// The coefficients in powers of `t` of the polynomial with Bernstein
 /// points `p` on `[0, 1]`: `aⱼ = C(d, j)·Σₖ (−1)^(j−k)·C(j, k)·bₖ` (degree
 /// d = `p.len() − 1`).
+#[inline(always)]
 fn bernstein_to_powers(p: &[f64]) -> [f64; MAX_CONTROL] {
     let d = p.len() - 1;
     let mut a = [0.0; MAX_CONTROL];
@@ -596,6 +640,7 @@ const BINOMIAL: [[f64; MAX_CONTROL]; MAX_CONTROL] = {
 
 /// The value, the derivative and half the second derivative at `t` of
 /// `Σ aⱼ tʲ` (Horner).
+#[inline(always)]
 fn powers_at(a: &[f64], t: f64) -> (f64, f64, f64) {
     let (mut v, mut dv, mut hv) = (0.0, 0.0, 0.0);
     for &c in a.iter().rev() {
@@ -612,7 +657,13 @@ fn powers_at(a: &[f64], t: f64) -> (f64, f64, f64) {
 /// a first trial for the
 /// localization, which the system's values then confirm); `None` if its
 /// values at `a` and `b` do not have strictly opposite signs.
-fn bernstein_zero(p: &[f64], (mut a, mut b): (f64, f64), width: f64) -> Option<f64> {
+fn bernstein_zero(p: &[f64], range: (f64, f64), width: f64) -> Option<f64> {
+    per_count!(p, |p| bernstein_zero_in(p, range, width))
+}
+
+/// [`bernstein_zero`], inlined into each length's copy.
+#[inline(always)]
+fn bernstein_zero_in(p: &[f64], (mut a, mut b): (f64, f64), width: f64) -> Option<f64> {
     let c = bernstein_to_powers(p);
     let c = &c[..p.len()];
     let ((fa, da, ha), (fb, db, hb)) = (powers_at(c, a), powers_at(c, b));
@@ -693,7 +744,13 @@ fn split_right(p: &[f64], t: f64) -> [f64; MAX_CONTROL] {
 /// De Casteljau's scheme at `t` on the points `p`: `row(r, first, last)`
 /// for each row `r` of the triangle, with its first and last entries.
 #[inline(always)]
-fn de_casteljau(p: &[f64], t: f64, mut row: impl FnMut(usize, f64, f64)) {
+fn de_casteljau(p: &[f64], t: f64, row: impl FnMut(usize, f64, f64)) {
+    per_count!(p, |p| de_casteljau_in(p, t, row))
+}
+
+/// [`de_casteljau`], inlined into each length's copy.
+#[inline(always)]
+fn de_casteljau_in(p: &[f64], t: f64, mut row: impl FnMut(usize, f64, f64)) {
     let n = p.len();
     if n == 0 {
         return;
@@ -1332,9 +1389,7 @@ impl Watcher {
             let flat = match flat_off {
                 Some(off) if self.flat_ok => Some(&self.flat[off..off + ws.vs.len()]),
                 _ => {
-                    let mut vals = std::mem::take(&mut ws.vs);
-                    atom_values(sys, ws, at, x, false, &mut vals);
-                    ws.vs = vals;
+                    atom_values(sys, ws.kind(), at, x, false, &mut ws.vs);
                     None
                 }
             };
@@ -1534,11 +1589,7 @@ impl Watcher {
                         }
                     }
                 }
-                _ => {
-                    let mut vals = std::mem::take(&mut ws.vs);
-                    atom_values(sys, ws, at, x, true, &mut vals);
-                    ws.vs = vals;
-                }
+                _ => atom_values(sys, ws.kind(), at, x, true, &mut ws.vs),
             }
         }
         self.classes_from_vs()
@@ -1963,15 +2014,21 @@ impl Watcher {
     fn mark_needs(&mut self) {
         // Only the watched atoms' sets are counted (a fill of all of them
         // would be a call to memset).
-        for wa in &self.watched {
+        let n = self.watched.len();
+        let (watched, cls, cls_s) = (&self.watched[..n], &self.cls[..n], &self.cls_s[..n]);
+        for wa in watched {
             self.changing[wa.set] = 0;
         }
-        let classes = self.cls.iter().zip(&self.cls_s);
-        for ((wa, need), (c0, c1)) in self.watched.iter().zip(&mut self.need).zip(classes) {
-            *need = c0 != c1;
-            self.changing[wa.set] += u32::from(*need);
+        let mut any = false;
+        for (w, need) in self.need[..n].iter_mut().enumerate() {
+            *need = cls[w] != cls_s[w];
+            self.changing[watched[w].set] += u32::from(*need);
+            any |= *need;
         }
-        for w in 0..self.watched.len() {
+        if !any {
+            return;
+        }
+        for w in 0..n {
             if self.need[w] && self.changing[self.watched[w].set] == 1 {
                 self.need[w] = self.depends_alone(w);
             }
@@ -2051,15 +2108,24 @@ impl Watcher {
             // pass below: a call to memcpy for a few values cost more), or
             // the set's own.
             let flat_off = self.flat_off[i].filter(|_| flat);
-            let mut va = std::mem::take(&mut ws.va);
-            let mut vb = std::mem::take(&mut ws.vb);
+            let kind = ws.kind();
+            let WSet {
+                set,
+                spec,
+                table,
+                state,
+                va,
+                vb,
+                new,
+                ..
+            } = ws;
             if flat_off.is_none() {
                 if read_a {
-                    atom_values(sys, ws, ta, xa, false, &mut va);
+                    atom_values(sys, kind, ta, xa, false, va);
                 }
-                atom_values(sys, ws, tb, xb, false, &mut vb);
+                atom_values(sys, kind, tb, xb, false, vb);
             }
-            ws.new = match (&ws.spec, ws.set) {
+            *new = match (&*spec, *set) {
                 (Some(spec), _) => {
                     // The truth table's index as the atoms are decided.
                     let mut mask = 0u32;
@@ -2071,7 +2137,7 @@ impl Watcher {
                             vb[k] = self.flat_b[off + k];
                         }
                         let atom = spec.atoms[k];
-                        let st = &mut ws.state[k];
+                        let st = &mut state[k];
                         st.truth = if !atom.watched() {
                             st.start_truth
                         } else if st.relax > 0.0 {
@@ -2087,18 +2153,16 @@ impl Watcher {
                             mask |= u32::from(st.truth) << k;
                         }
                     }
-                    match ws.table {
+                    match table {
                         Some(t) => t.value(mask),
-                        None => spec.expr.eval_with(&|k| ws.state[k].truth),
+                        None => spec.expr.eval_with(&|k| state[k].truth),
                     }
                 }
                 (None, SetRef::Jump(r)) => sys.jump_set(r, tb, xb),
                 (None, SetRef::Flow) => {
-                    sys.flow_set(tb, xb) || (ws.state[0].relax > 0.0 && vb[0] >= -ws.state[0].relax)
+                    sys.flow_set(tb, xb) || (state[0].relax > 0.0 && vb[0] >= -state[0].relax)
                 }
             };
-            ws.va = va;
-            ws.vb = vb;
         }
     }
 
@@ -2119,18 +2183,9 @@ impl Watcher {
         };
         path.eval(s, buf);
         let ws = &mut self.sets[set];
-        let mut vt = std::mem::take(&mut ws.vt);
-        atom_values(
-            sys,
-            ws,
-            HybridTime::new(self.clock.at(s), self.j),
-            buf,
-            true,
-            &mut vt,
-        );
-        let v = watched_value(cmp, vt[atom], ws.state[atom].relax);
-        ws.vt = vt;
-        v
+        let at = HybridTime::new(self.clock.at(s), self.j);
+        atom_values(sys, ws.kind(), at, buf, true, &mut ws.vt);
+        watched_value(cmp, ws.vt[atom], ws.state[atom].relax)
     }
 
     /// Where the watched value of atom `w`, if affine, crosses zero in

@@ -79,7 +79,19 @@ impl PolynomialFlow {
     /// Sets the step of length `h` from `y0`: its Taylor coefficients
     /// `d₀ = y0`, `d₁ = h (A y0 + b)`, `dₖ₊₁ = h/(k+1) · A dₖ`.
     pub fn set_step(&mut self, y0: &[f64], h: f64) {
-        let w = self.degree + 1;
+        // As `eval_at`: the common degrees with rows of a constant length.
+        match self.degree {
+            1 => self.set_step_of(2, y0, h),
+            2 => self.set_step_of(3, y0, h),
+            3 => self.set_step_of(4, y0, h),
+            _ => self.set_step_of(self.degree + 1, y0, h),
+        }
+    }
+
+    /// [`set_step`](Self::set_step) with rows of `w` coefficients (a
+    /// constant where inlined).
+    #[inline(always)]
+    fn set_step_of(&mut self, w: usize, y0: &[f64], h: f64) {
         let d = &mut self.d;
         for (row, &y) in d.chunks_exact_mut(w).zip(&y0[..self.n]) {
             row[0] = y;
@@ -106,7 +118,22 @@ impl PolynomialFlow {
 
     /// The step's state at `u ∈ [0, 1]` (Horner's rule), into `out`.
     pub fn eval_at(&self, u: f64, out: &mut [f64]) {
-        let rows = self.d.chunks_exact(self.degree + 1);
+        // Rows of a constant length for the common degrees: the loops over
+        // a row unroll (a loop of a few iterations per component costs
+        // more than its arithmetic), the same operations in the same order.
+        match self.degree {
+            1 => self.eval_rows_of(2, u, out),
+            2 => self.eval_rows_of(3, u, out),
+            3 => self.eval_rows_of(4, u, out),
+            _ => self.eval_rows_of(self.degree + 1, u, out),
+        }
+    }
+
+    /// [`eval_at`](Self::eval_at) with rows of `w` coefficients (a
+    /// constant where inlined).
+    #[inline(always)]
+    fn eval_rows_of(&self, w: usize, u: f64, out: &mut [f64]) {
+        let rows = self.d.chunks_exact(w);
         for (o, row) in out[..self.n].iter_mut().zip(rows) {
             let (&top, lower) = row.split_last().expect("degree + 1 coefficients");
             *o = lower.iter().rev().fold(top, |v, &c| v * u + c);
