@@ -549,6 +549,10 @@ impl CheckError {
             UnknownName { name, span, .. } if name.eq_ignore_ascii_case("nan") => d
                 .primary(*span, "not found")
                 .help("there is no `nan` constant: write `0/0` for NaN (`inf` is a constant)"),
+            // MATLAB's `x(end)`, written with brackets.
+            UnknownName { name, span, .. } if name == "end" => d
+                .primary(*span, "not found")
+                .help("there is no `end` index: write the last index, `x[length(x)]` (`P[rows(P), :]`, `P[:, cols(P)]` for a matrix)"),
             UnknownName {
                 span, suggestion, ..
             }

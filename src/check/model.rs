@@ -241,6 +241,28 @@ fn canonical_sim_key(key: &str) -> &str {
     }
 }
 
+/// The `sim` key a user of MATLAB's ODE solvers or of the HyEQ Toolbox means by
+/// one of their names (`TSPAN`, `RelTol`, HyEQ's `rule`), compared without case.
+fn foreign_sim_key(key: &str) -> Option<&'static str> {
+    Some(match key.to_ascii_lowercase().as_str() {
+        "tspan" | "tf" | "tfinal" | "t_final" | "tend" | "t_end" | "tmax" | "t_max" => "T",
+        "jspan" | "jf" | "jmax" | "j_max" | "jend" | "j_end" => "J",
+        "reltol" => "rtol",
+        "abstol" => "atol",
+        "maxstep" => "max_step",
+        "rule" => "priority",
+        _ => return None,
+    })
+}
+
+/// The closest `sim` key to an unknown one: the key another tool's name means,
+/// else the nearest spelling.
+fn suggest_sim_key(key: &str) -> Option<String> {
+    foreign_sim_key(key)
+        .map(str::to_string)
+        .or_else(|| suggest(key, SIM_KEYS.iter().copied()))
+}
+
 /// The canonical `sim` key an override names, and whether it names it explicitly
 /// (`sim.T`: `sim` is a keyword, so no declaration of the model has that name).
 fn sim_key(name: &str) -> Option<(&'static str, bool)> {
@@ -403,7 +425,9 @@ pub(crate) fn check_model(
             // settable; any other hint names what `--set` accepts, never a name it refuses.
             let family = family_named(&o.name, &m.c.syms);
             let fits = family.is_none() && m.c.hints.charge(m.settable.len());
-            let suggestion = fits.then(|| suggest(&o.name, &m.settable)).flatten();
+            let suggestion = foreign_sim_key(&o.name)
+                .map(str::to_string)
+                .or_else(|| fits.then(|| suggest(&o.name, &m.settable)).flatten());
             m.c.err(CheckError::UnknownOverride {
                 name: o.name.clone(),
                 value: o.value.clone(),
@@ -1994,6 +2018,25 @@ impl ModelChecker<'_> {
                         Some("off") => jit = Some(false),
                         _ => bad(self, "write on or off".into()),
                     },
+                    // Unknown before its value is read: `tspan = [0, 10]` is not a shape error.
+                    _ if !SIM_KEYS.contains(&canon) => self.c.err(CheckError::UnknownSetting {
+                        name: key.clone(),
+                        span: *span,
+                        suggestion: suggest_sim_key(key),
+                    }),
+                    // HyEQ's spans [0, T] and [0, J]: the horizon is their end.
+                    "T" | "J"
+                        if matches!(&e.kind, ExprKind::Matrix(rows)
+                            if rows.len() == 1 && rows[0].len() == 2) =>
+                    {
+                        bad(
+                            self,
+                            format!(
+                                "the horizon is one number, the end of HyEQ's span [0, {canon}]: \
+                                 write `{key} = ...` with that end alone"
+                            ),
+                        )
+                    }
                     _ => {
                         let Some(x) = self.c.const_scalar(e, &format!("`{key}`")) else {
                             break 'key;
@@ -2032,14 +2075,12 @@ impl ModelChecker<'_> {
                             | "event_tol" | "set_tol" | "zeno_rate" => {
                                 bad(self, format!("{x} is out of range: {}", sim_range(canon)))
                             }
-                            _ => {
-                                let suggestion = suggest(key, SIM_KEYS.iter().copied());
-                                self.c.err(CheckError::UnknownSetting {
-                                    name: key.clone(),
-                                    span: *span,
-                                    suggestion,
-                                });
-                            }
+                            // The keys above are every numeric one.
+                            _ => self.c.err(CheckError::UnknownSetting {
+                                name: key.clone(),
+                                span: *span,
+                                suggestion: suggest_sim_key(key),
+                            }),
                         }
                     }
                 }

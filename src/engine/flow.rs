@@ -152,6 +152,9 @@ pub(crate) struct Output<'a> {
     buf_hi: Vec<f64>,
     /// Largest magnitude of each component seen in the samples so far.
     scale: Vec<f64>,
+    /// The local time of the flow sample at which the sink asked to stop:
+    /// the run ends there, not at the end of the step that sample is in.
+    stopped_at: Option<f64>,
 }
 
 impl<'a> Output<'a> {
@@ -167,6 +170,7 @@ impl<'a> Output<'a> {
             buf_lo: vec![0.0; n],
             buf_hi: vec![0.0; n],
             scale: x0.iter().map(|v| v.abs()).collect(),
+            stopped_at: None,
         }
     }
 
@@ -244,25 +248,35 @@ impl<'a> Output<'a> {
                 };
                 if parts > 1 {
                     let sink = &mut *self.sink;
-                    let mut stopped = false;
+                    let mut stopped = None;
                     let mut emit = |s: f64, y: &[f64]| {
                         if s >= limit {
                             return ControlFlow::Break(());
                         }
                         let flow =
                             sink.sample(HybridTime::new(clock.at(s), j), y, SampleKind::Flow);
-                        stopped = flow.is_break();
+                        if flow.is_break() {
+                            stopped = Some(s);
+                        }
                         flow
                     };
                     let delta = path.span(s_lo, s_end) / parts as f64;
                     let _ = path.grid(s_lo, delta, parts, &mut self.buf, &mut emit);
-                    if stopped {
+                    if stopped.is_some() {
+                        self.stopped_at = stopped;
                         return ControlFlow::Break(());
                     }
                 }
                 if s_hi < limit {
-                    self.sink
-                        .sample(HybridTime::new(clock.at(s_hi), j), y_hi, SampleKind::Flow)?;
+                    let flow = self.sink.sample(
+                        HybridTime::new(clock.at(s_hi), j),
+                        y_hi,
+                        SampleKind::Flow,
+                    );
+                    if flow.is_break() {
+                        self.stopped_at = Some(s_hi);
+                        return flow;
+                    }
                 }
             }
             Some(dt) => loop {
@@ -273,8 +287,13 @@ impl<'a> Output<'a> {
                 }
                 if sg > s_lo {
                     path.eval(sg, &mut self.buf);
-                    self.sink
-                        .sample(HybridTime::new(tg, j), &self.buf, SampleKind::Flow)?;
+                    let flow =
+                        self.sink
+                            .sample(HybridTime::new(tg, j), &self.buf, SampleKind::Flow);
+                    if flow.is_break() {
+                        self.stopped_at = Some(sg);
+                        return flow;
+                    }
                 }
                 self.next_k += 1;
             },
@@ -2238,22 +2257,41 @@ fn close_step_at<S: HybridSystem + ?Sized, P: DensePath>(
         && !(reach.is_some() && se >= s1)
     {
         y_end.copy_from_slice(&watcher.event_state);
-        let why = if out.step(clock, j, path, s0, s1, y1, se).is_break() {
-            EndWhy::Stopped
-        } else {
-            EndWhy::Event(kind)
-        };
+        if out.step(clock, j, path, s0, s1, y1, se).is_break() {
+            let (end, _) = stopped(out, path, y_end, se);
+            return Some((end, false));
+        }
+        let why = EndWhy::Event(kind);
         return Some((SegmentEnd { s: se, why }, false));
     }
     let limit = if reach.is_some() { s1 } else { f64::INFINITY };
     if out.step(clock, j, path, s0, s1, y1, limit).is_break() {
-        let end = SegmentEnd {
-            s: s1,
-            why: EndWhy::Stopped,
-        };
-        return Some((end, true));
+        return Some(stopped(out, path, y_end, s1));
     }
     reach.map(|why| (SegmentEnd { s: s1, why }, true))
+}
+
+/// The end of a segment whose sink asked to stop at or before `s_end`: a flow
+/// sample before `s_end` ends it at that sample, so the run's last point is
+/// the last one logged (its state into `y_end`, `false`); else at `s_end`
+/// (`true`: the state is the caller's).
+fn stopped<P: DensePath>(
+    out: &mut Output<'_>,
+    path: &mut P,
+    y_end: &mut [f64],
+    s_end: f64,
+) -> (SegmentEnd, bool) {
+    match out.stopped_at.take() {
+        Some(s) if s < s_end => {
+            path.eval(s, y_end);
+            let why = EndWhy::Stopped;
+            (SegmentEnd { s, why }, false)
+        }
+        _ => {
+            let why = EndWhy::Stopped;
+            (SegmentEnd { s: s_end, why }, true)
+        }
+    }
 }
 
 /// The `ode_solvers::System` seen by `Rk4`: the flow map in local time,

@@ -162,8 +162,9 @@
 //! is set (interpolated as above); a
 //! `PreJump` sample, the jump, a `PostJump` sample for each jump, and a
 //! `Final` sample (which may repeat the last point). A sink may stop the
-//! run ([`TerminationCause::StoppedBySink`]); the sinks then still get the
-//! `Final` sample of the state where it stopped.
+//! run ([`TerminationCause::StoppedBySink`]) at any sample, a flow sample
+//! inside an integrator step too: the run ends at that sample (not at the
+//! step's end), and the sinks still get the `Final` sample of that point.
 //!
 //! # Example: a bouncing ball defined in Rust
 //!

@@ -195,7 +195,13 @@ impl SyntaxError {
                 let mut d = Diagnostic::error("E0107", self.to_string())
                     .primary(*span, format!("the derivative of `{name}` is `{name}'`"))
                     .note("a `flow` block holds equations `x' = f(x)`, one per state that changes");
-                if let Some(x) = name.strip_prefix('d').filter(|x| !x.is_empty()) {
+                // HyEQ's `dx1`, MATLAB's `xdot` or `x_dot`: the derivative of `x`.
+                let base = ["_dot", "dot", "Dot"]
+                    .iter()
+                    .find_map(|s| name.strip_suffix(s))
+                    .or_else(|| name.strip_prefix('d'))
+                    .filter(|x| !x.is_empty());
+                if let Some(x) = base {
                     d = d.help(format!(
                         "if `{name}` is the derivative of `{x}`, write `{x}' = ...`"
                     ));
@@ -647,6 +653,32 @@ fn foreign_spelling(text: &str, pos: usize) -> Option<SyntaxError> {
     if rest.starts_with('(') && prev.is_some_and(is_word) {
         let start = before.trim_end_matches(is_word).len();
         let name = &before[start..];
+        // A derivative written as a call on the left of an equation, `dot(x) = …`
+        // (MATLAB's and the books' ẋ) or Modelica's `der(x) = …`.
+        let inner = rest[1..].trim_start_matches([' ', '\t']);
+        let arg = &inner[..inner.find(|c: char| !is_word(c)).unwrap_or(inner.len())];
+        let after = inner[arg.len()..].trim_start_matches([' ', '\t']);
+        let statement_start = before[..start]
+            .trim_end_matches([' ', '\t'])
+            .ends_with(['{', ';', '\n']);
+        if matches!(name, "dot" | "der" | "diff" | "d" | "D")
+            && statement_start
+            && arg.starts_with(|c: char| c.is_ascii_alphabetic() || c == '_')
+            && after.starts_with(')')
+            && after[1..].trim_start_matches([' ', '\t']).starts_with('=')
+            && !after[1..].trim_start_matches([' ', '\t']).starts_with("==")
+        {
+            return foreign(
+                start,
+                // Through the `)`.
+                text.len() - after.len() + 1,
+                &format!("`{name}({arg})` is not how hybsim writes a derivative: write `{arg}'`"),
+                &format!("write `{arg}'` here"),
+                &format!(
+                    "a `flow` block holds equations `{arg}' = f(x)`, the state's name with a prime"
+                ),
+            );
+        }
         if name.starts_with(|c: char| c.is_ascii_alphabetic() || c == '_') {
             return foreign(
                 start,
@@ -738,6 +770,65 @@ fn foreign_spelling(text: &str, pos: usize) -> Option<SyntaxError> {
             "matrix entries are separated by `,` (rows by `;`), not by spaces",
             "`,` expected before this entry",
             "write `[0, 1; -1, 0]` for MATLAB's `[0 1; -1 0]`",
+        );
+    }
+    // MATLAB's `sum(x)` of a vector: hybsim's `sum` is a comprehension, so
+    // the parser stopped where it wanted `in`, inside `sum(`.
+    if let Some(open) = before.rfind('(')
+        && before[..open]
+            .trim_end_matches([' ', '\t'])
+            .ends_with("sum")
+        && !before[..open]
+            .trim_end_matches([' ', '\t'])
+            .trim_end_matches("sum")
+            .ends_with(is_word)
+        && !before[open..].contains([')', ':', '\n'])
+        && (rest.starts_with([')', ',']) || before[open + 1..].trim().is_empty())
+    {
+        let arg = before[open + 1..].trim();
+        let arg = if !arg.is_empty() && arg.chars().all(is_word) {
+            arg
+        } else {
+            "v"
+        };
+        return foreign(
+            pos,
+            pos + 1,
+            &format!(
+                "`sum({arg})` sums a vector in MATLAB; hybsim's `sum` runs over indices: \
+                 `sum(k in 1..n: {arg}[k])`"
+            ),
+            "a sum over indices expected: `sum(k in a..b: expression)`",
+            &format!(
+                "write `sum(k in 1..length({arg}): {arg}[k])` for the entries of a vector, \
+                 or `ones(1, length({arg}))*{arg}`"
+            ),
+        );
+    }
+    // Several declarations on one line joined by `;` (`state h = 1; v = 0`):
+    // the second reads as an instance `v = Sub(…)`, and the parse stops at its value.
+    let line_words = line.trim_start();
+    if let Some(kw) = ["state", "param"].into_iter().find(|kw| {
+        line_words
+            .strip_prefix(kw)
+            .is_some_and(|r| r.starts_with([' ', '\t']))
+    }) && let Some(semi) = line.rfind(';')
+        && let Some(name) = line[semi + 1..].trim().strip_suffix('=')
+        && let name = name.trim_end()
+        && !name.is_empty()
+        && name.chars().all(is_word)
+    {
+        let at = line_start + semi;
+        return foreign(
+            at,
+            at + 1,
+            &format!("`;` ends the `{kw}` declaration, so `{name} = ...` is not declared"),
+            "the declaration ends here",
+            &format!(
+                "declare several on one line with `,`: `{}, {name} = ...` \
+                 (or repeat the keyword: `; {kw} {name} = ...`)",
+                line[..semi].trim()
+            ),
         );
     }
     None

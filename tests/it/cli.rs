@@ -392,6 +392,63 @@ fn failed_runs_exit_1_and_still_leave_a_complete_file() {
     );
 }
 
+/// A logged output that turns NaN stops the run at the sample where the MCAP sink met it,
+/// not at the end of the integrator step holding that sample: the summary, the MCAP
+/// result and the CSV's last row (with or without an output grid) give the same point.
+#[test]
+fn a_non_finite_output_stops_every_file_at_the_same_sample() {
+    let dir = tempfile::tempdir().unwrap();
+    // x = 1/(1 - t) passes 2 (log(2 - x) is NaN) at t = 1/2, inside an integrator step.
+    let model = write(
+        dir.path(),
+        "lg.hyb",
+        "model lg\nstate x = 1\nflow { x' = x^2 }\noutput lg = log(2 - x)\nsim { T = 0.9 }\n",
+    );
+    for grid in [None, Some("0.01")] {
+        let mut args = vec![
+            "run",
+            model.to_str().unwrap(),
+            "-o",
+            "b.mcap",
+            "--csv",
+            "b.csv",
+        ];
+        if let Some(dt) = grid {
+            args.extend(["--dt-out", dt]);
+        }
+        let out = hybsim(dir.path(), &args);
+        assert_eq!(code(&out), 1, "{}", stderr(&out));
+        let bytes = std::fs::read(dir.path().join("b.mcap")).unwrap();
+        let summary = mcap::read::Summary::read(&bytes).unwrap().unwrap();
+        let result = summary
+            .metadata_indexes
+            .iter()
+            .map(|i| mcap::read::metadata(&bytes, i).unwrap())
+            .find(|m| m.name == "hybsim.result")
+            .unwrap();
+        let t_end: f64 = result.metadata["t_end"].parse().unwrap();
+        assert!((0.5..0.6).contains(&t_end), "{grid:?}: {t_end}");
+        let csv = std::fs::read_to_string(dir.path().join("b.csv")).unwrap();
+        let times: Vec<f64> = csv
+            .lines()
+            .skip(1)
+            .map(|l| l.split(',').next().unwrap().parse().unwrap())
+            .collect();
+        // The first NaN sample, then the final sample at the same point.
+        let n = times.len();
+        assert_eq!(times[n - 1], t_end, "{grid:?}\n{csv}");
+        assert_eq!(times[n - 2], t_end, "{grid:?}\n{csv}");
+        let line = String::from_utf8_lossy(&out.stdout);
+        assert!(
+            line.contains(&format!(
+                "ended at (t = {}, j = 0)",
+                hybsim::num::Num(t_end)
+            )),
+            "{grid:?}: {line}"
+        );
+    }
+}
+
 #[test]
 fn zeno_flags_of_run_and_test() {
     // Issue 16: the Zeno knobs are flags; the summary counts the jumps made.

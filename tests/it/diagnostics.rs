@@ -55,6 +55,77 @@ fn diagnostics(src: &SourceFile, overrides: &[&str]) -> Vec<Diagnostic> {
 }
 
 const CASES: &[Case] = &[
+    // ---- habits of MATLAB and HyEQ users (help texts: `matlab_and_hyeq_habits_get_hybsims_spelling`) ----
+    case(
+        "a derivative written dot(x)",
+        "model m\nstate x = 1, v = 0\nflow { dot(x) = v; dot(v) = -x }\n",
+        "E0109",
+        "3:8",
+        "`dot(x)` is not how hybsim writes a derivative: write `x'`",
+    ),
+    case(
+        "a derivative written der( x )",
+        "model m\nstate x = 1\nflow { der( x ) = -x }\n",
+        "E0109",
+        "3:8",
+        "`der(x)` is not how hybsim writes a derivative: write `x'`",
+    ),
+    case(
+        "a derivative named x_dot",
+        "model m\nstate x = 1, v = 0\nflow { x_dot = v; v_dot = -x }\n",
+        "E0107",
+        "3:8",
+        "a flow equation gives a state's derivative, written with a prime: `x' = ...`",
+    ),
+    case(
+        "MATLAB's sum of a vector",
+        "model m\nstate x = [1; 2]\nflow { x' = -x }\noutput s = sum(x)\n",
+        "E0109",
+        "4:17",
+        "`sum(x)` sums a vector in MATLAB; hybsim's `sum` runs over indices: `sum(k in 1..n: x[k])`",
+    ),
+    case(
+        "MATLAB's sum of an expression",
+        "model m\nstate x = [1; 2]\nflow { x' = -x }\noutput s = sum(2*x)\n",
+        "E0109",
+        "4:16",
+        "`sum(v)` sums a vector in MATLAB; hybsim's `sum` runs over indices: `sum(k in 1..n: v[k])`",
+    ),
+    case(
+        "MATLAB's end index",
+        "model m\nstate x = [1; 2]\nflow { x' = -x }\noutput e = x[end]\n",
+        "E0201",
+        "4:14",
+        "unknown name `end`",
+    ),
+    case(
+        "two state declarations joined by a semicolon",
+        "model m\nstate h = 1; v = 0\nflow { h' = v; v' = -1 }\n",
+        "E0109",
+        "2:12",
+        "`;` ends the `state` declaration, so `v = ...` is not declared",
+    ),
+    case(
+        "HyEQ's tspan",
+        "model m\nstate x = 1\nflow { x' = -x }\nsim { tspan = [0, 10] }\n",
+        "E0204",
+        "4:7",
+        "unknown setting `tspan`",
+    ),
+    case(
+        "HyEQ's span as the horizon",
+        "model m\nstate x = 1\nflow { x' = -x }\nsim { J = [0, 20] }\n",
+        "E0506",
+        "4:11",
+        "invalid `J`: the horizon is one number, the end of HyEQ's span [0, J]: write `J = ...` with that end alone",
+    ),
+    case(
+        "odeset's RelTol",
+        "model m\nstate x = 1\nflow { x' = -x }\nsim { RelTol = 1e-8 }\n",
+        "E0204",
+        "4:7",
+        "unknown setting `RelTol`",
+    ),
     // ---- syntax (E01xx) ----
     case(
         "incomplete expression",
@@ -718,6 +789,76 @@ fn unknown_names_come_with_the_closest_declared_name() {
         let c = find(name);
         let d = diagnostics(&SourceFile::new("m.hyb", c.src), c.overrides);
         assert_eq!(d[0].help.as_deref(), Some(help), "{name}");
+    }
+}
+
+/// What a user of MATLAB and the HyEQ Toolbox writes by habit gets hybsim's spelling in
+/// the help (the cases above give the messages and places).
+#[test]
+fn matlab_and_hyeq_habits_get_hybsims_spelling() {
+    for (name, help) in [
+        (
+            "a derivative written dot(x)",
+            "a `flow` block holds equations `x' = f(x)`, the state's name with a prime",
+        ),
+        (
+            "a derivative named x_dot",
+            "if `x_dot` is the derivative of `x`, write `x' = ...`",
+        ),
+        (
+            "MATLAB's sum of a vector",
+            "write `sum(k in 1..length(x): x[k])` for the entries of a vector, or `ones(1, length(x))*x`",
+        ),
+        (
+            "MATLAB's end index",
+            "there is no `end` index: write the last index, `x[length(x)]` (`P[rows(P), :]`, `P[:, cols(P)]` for a matrix)",
+        ),
+        (
+            "two state declarations joined by a semicolon",
+            "declare several on one line with `,`: `state h = 1, v = ...` (or repeat the keyword: `; state v = ...`)",
+        ),
+        ("HyEQ's tspan", "did you mean `T`?"),
+        ("odeset's RelTol", "did you mean `rtol`?"),
+    ] {
+        let c = find(name);
+        let d = diagnostics(&SourceFile::new("m.hyb", c.src), c.overrides);
+        assert_eq!(d[0].help.as_deref(), Some(help), "{name}");
+    }
+    // What the helps propose compiles, and `xdot` names `x` too.
+    let fixed = "model m\nstate x = [1; 2], h = 1, v = 0\nflow { x' = -x; h' = v; v' = -1 }\n\
+                 output s = sum(k in 1..length(x): x[k]), s2 = ones(1, length(x))*x, e = x[length(x)]\n\
+                 sim { T = 10; J = 20; rtol = 1e-8; priority = jumps }\n";
+    let src = SourceFile::new("m.hyb", fixed);
+    let d = diagnostics(&src, &[]);
+    assert!(d.is_empty(), "{}", render(&d, &src, false));
+    let src = SourceFile::new("m.hyb", "model m\nstate x = 1\nflow { xdot = -x }\n");
+    let d = diagnostics(&src, &[]);
+    assert_eq!(
+        d[0].help.as_deref(),
+        Some("if `xdot` is the derivative of `x`, write `x' = ...`")
+    );
+    // HyEQ's `rule` is the priority, on the command line as in the `sim` block.
+    let src = SourceFile::new("m.hyb", "model m\nstate x = 1\nflow { x' = -x }\n");
+    for d in [
+        diagnostics(
+            &SourceFile::new(
+                "m.hyb",
+                "model m\nstate x = 1\nflow { x' = -x }\nsim { rule = 1 }\n",
+            ),
+            &[],
+        ),
+        diagnostics(&src, &["rule=1"]),
+        diagnostics(&src, &["TSPAN=10"]),
+    ] {
+        assert_eq!(d[0].code, "E0204");
+        assert!(
+            matches!(
+                d[0].help.as_deref(),
+                Some("did you mean `priority`?" | "did you mean `T`?")
+            ),
+            "{:?}",
+            d[0].help
+        );
     }
 }
 
