@@ -288,7 +288,10 @@ fn exponential_steps_find_a_crossing_that_comes_back_within_a_step() {
                sim { T = 20; solver = bdf; rtol = 1e-10; atol = 1e-12 }\n";
     let times = jump_times(&run(&compile(src)));
     assert_eq!(times.len(), 1, "bdf: {times:?}");
-    assert!((times[0] - (1.0f64 - 1e-7).asin()).abs() < 1e-4, "bdf: {times:?}");
+    assert!(
+        (times[0] - (1.0f64 - 1e-7).asin()).abs() < 1e-4,
+        "bdf: {times:?}"
+    );
 }
 
 /// The thermostat with hysteresis and a mode q: heating `x' = 30 − x`
