@@ -104,6 +104,14 @@ pub trait ArcSink {
     /// sample). Default: nothing. Sinks that write files may record it.
     fn finish(&mut self, _termination: &Termination) {}
 
+    /// Whether the sink stopped the run because it failed (a value it
+    /// cannot write, a write error), rather than to end it (Ctrl-C): the
+    /// run then ends without a `Final` sample, as a run the engine fails.
+    /// Default: `false`.
+    fn failed(&self) -> bool {
+        false
+    }
+
     /// The integrator changed (`Solver::Auto` switching between its
     /// explicit and implicit method): flows from `switch.at` on are
     /// advanced by `switch.to`. Default: nothing. Sinks that write files

@@ -164,7 +164,9 @@
 //! `Final` sample (which may repeat the last point). A sink may stop the
 //! run ([`TerminationCause::StoppedBySink`]) at any sample, a flow sample
 //! inside an integrator step too: the run ends at that sample (not at the
-//! step's end), and the sinks still get the `Final` sample of that point.
+//! step's end), and the sinks still get the `Final` sample of that point,
+//! unless the sink stopped it because it failed ([`ArcSink::failed`](crate::arc::ArcSink::failed): a
+//! failed run has no `Final` sample).
 //!
 //! # Example: a bouncing ball defined in Rust
 //!

@@ -294,12 +294,15 @@ pub fn simulate<S: HybridSystem + ?Sized>(
     let mut timer_d = vec![f64::INFINITY; timers.len()];
     let mut inside = vec![false; rules.len()];
 
-    // Every run ends with a final sample of the state where it ended, a run a sink stopped too
-    // (Ctrl-C): the sample that stopped it may lie before that point (a grid or dense point of
-    // the last step) or be thinned out of a log.
+    // Every run that ends has a final sample of the state where it ended, a run a sink stopped
+    // too (Ctrl-C): the sample that stopped it may lie before that point (a grid or dense point
+    // of the last step) or be thinned out of a log. A run a sink failed has none, as a run the
+    // engine fails.
     let finish = |out: &mut Output<'_>, at: HybridTime, x: &[f64], cause: TerminationCause| {
         let term = Termination { at, cause };
-        let _ = out.sink.sample(at, x, SampleKind::Final);
+        if !out.sink.failed() {
+            let _ = out.sink.sample(at, x, SampleKind::Final);
+        }
         // The final sample's outputs.
         if let Some(f) = sys.take_fault() {
             return Err(f.into());

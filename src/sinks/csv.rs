@@ -171,6 +171,10 @@ impl<'a> CsvSink<'a> {
 }
 
 impl ArcSink for CsvSink<'_> {
+    fn failed(&self) -> bool {
+        self.error.is_some()
+    }
+
     fn sample(&mut self, at: HybridTime, x: &[f64], kind: SampleKind) -> ControlFlow<()> {
         if self.error.is_some() {
             return ControlFlow::Break(());

@@ -780,6 +780,10 @@ impl<'a> McapSink<'a> {
 }
 
 impl ArcSink for McapSink<'_> {
+    fn failed(&self) -> bool {
+        self.error.is_some()
+    }
+
     fn solver_switch(&mut self, switch: &SolverSwitch) {
         self.tally.solver_switch(switch);
         if self.error.is_some() || self.tally.solver_switches_total > Tally::SWITCHES_KEPT as u64 {

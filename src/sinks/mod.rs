@@ -928,6 +928,10 @@ impl ArcSink for Fanout<'_> {
         }
     }
 
+    fn failed(&self) -> bool {
+        self.sinks.iter().any(|s| s.failed())
+    }
+
     fn solver_switch(&mut self, switch: &SolverSwitch) {
         for s in &mut self.sinks {
             s.solver_switch(switch);

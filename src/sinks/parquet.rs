@@ -502,6 +502,10 @@ impl<'a> ParquetSink<'a> {
 }
 
 impl ArcSink for ParquetSink<'_> {
+    fn failed(&self) -> bool {
+        self.error.is_some()
+    }
+
     fn sample(&mut self, at: HybridTime, x: &[f64], kind: SampleKind) -> ControlFlow<()> {
         if self.error.is_some() {
             return ControlFlow::Break(());

@@ -429,21 +429,37 @@ fn a_non_finite_output_stops_every_file_at_the_same_sample() {
         let t_end: f64 = result.metadata["t_end"].parse().unwrap();
         assert!((0.5..0.6).contains(&t_end), "{grid:?}: {t_end}");
         let csv = std::fs::read_to_string(dir.path().join("b.csv")).unwrap();
-        let times: Vec<f64> = csv
+        let rows: Vec<(f64, &str)> = csv
             .lines()
             .skip(1)
-            .map(|l| l.split(',').next().unwrap().parse().unwrap())
+            .map(|l| {
+                let mut f = l.split(',');
+                let t = f.next().unwrap().parse().unwrap();
+                (t, f.nth(1).unwrap())
+            })
             .collect();
-        // The first NaN sample, then the final sample at the same point.
-        let n = times.len();
-        assert_eq!(times[n - 1], t_end, "{grid:?}\n{csv}");
-        assert_eq!(times[n - 2], t_end, "{grid:?}\n{csv}");
+        // A failed run: the CSV ends at the first NaN sample, without a
+        // `final` one (README), ...
+        let &(t_last, kind) = rows.last().unwrap();
+        assert_eq!((t_last, kind), (t_end, "flow"), "{grid:?}\n{csv}");
+        assert!(rows.iter().all(|r| r.1 != "final"), "{grid:?}\n{csv}");
+        // ... and the summary, the MCAP and the CSV count the same samples
+        // (the MCAP holds all but the NaN one).
+        let samples = &result.metadata["samples"];
+        assert_eq!(samples, &rows.len().to_string(), "{grid:?}\n{csv}");
+        let states = summary
+            .channels
+            .values()
+            .find(|c| c.topic == "/hybsim/state")
+            .map(|c| summary.stats.as_ref().unwrap().channel_message_counts[&c.id])
+            .unwrap();
+        assert_eq!(states as usize, rows.len() - 1, "{grid:?}");
         let line = String::from_utf8_lossy(&out.stdout);
         assert!(
             line.contains(&format!(
                 "ended at (t = {}, j = 0)",
                 hybsim::num::Num(t_end)
-            )),
+            )) && line.contains(&format!("; {samples} samples;")),
             "{grid:?}: {line}"
         );
     }
