@@ -696,6 +696,94 @@ fn foreign_spelling(text: &str, pos: usize) -> Option<SyntaxError> {
     }
     let line_start = before.rfind('\n').map_or(0, |i| i + 1);
     let line = &before[line_start..];
+    // A MATLAB function header, `function xdot = f(x)`: the parse stops
+    // after `function`, read as a name.
+    if let Some(after) = line.trim_start().strip_prefix("function")
+        && after.starts_with([' ', '\t', '['])
+    {
+        let at = line_start + (line.len() - line.trim_start().len());
+        return foreign(
+            at,
+            at + "function".len(),
+            "hybsim has no `function`: a model declares its states and writes its flow, jumps and \
+             outputs directly",
+            "a MATLAB function header",
+            "write the function's body as the model: `state x = ...`, `flow { x' = ... }` for \
+             `xdot = f(x)`, `jump when C { x+ = ... }` for a jump map, `output y = ...` for a \
+             value computed from the state",
+        );
+    }
+    // MATLAB's `if c ... end` block where a statement starts.
+    let statement_start = |b: &str| b.is_empty() || b.ends_with(['\n', '{', '}', ';']);
+    if word == "if" && statement_start(before.trim_end_matches([' ', '\t'])) {
+        return foreign(
+            pos,
+            pos + 2,
+            "hybsim has no `if` statement: its `if` is an expression, `if c then a else b`",
+            "an `if` block",
+            "choose a value with `if c then a else b` (`x' = if x > 0 then -1 else 1`); \
+             change the state when a condition holds with a jump guarded by it, `jump when c { x+ = ... }`",
+        );
+    }
+    // Resets or flow equations separated by `,` (a newline or `;` separates them).
+    if rest.starts_with(',')
+        && unclosed_bracket(text, pos).is_none()
+        && let Some(open) = unclosed_brace(text, pos)
+        && let Some(block) = ["jump", "every", "flow", "for"].into_iter().find(|kw| {
+            let ls = text[..open].rfind('\n').map_or(0, |i| i + 1);
+            text[ls..open]
+                .trim_start()
+                .strip_prefix(kw)
+                .is_some_and(|r| !r.starts_with(is_word))
+        })
+    {
+        let (what, example) = if block == "flow" {
+            ("equations", "x' = v; v' = -1")
+        } else {
+            ("resets", "x+ = 0; v+ = -v")
+        };
+        return foreign(
+            pos,
+            pos + 1,
+            &format!("`,` does not separate {what}: a newline or `;` does"),
+            "write `;` here",
+            &format!(
+                "put each of the block's {what} on its own line, or end each with `;`: \
+                 `{{ {example} }}`"
+            ),
+        );
+    }
+    // A unit glued to a number, `T = 10s`: hybsim's numbers are plain.
+    if prev.is_some_and(|c| c.is_ascii_digit())
+        && before
+            .trim_end_matches(|c: char| c.is_ascii_alphanumeric() || c == '.')
+            .chars()
+            .next_back()
+            .is_none_or(|c| !is_word(c))
+        && UNITS.contains(&word)
+        && !declares(text, word)
+    {
+        // The number's start, through an exponent's sign (`1e-3s`).
+        fn digits(b: &str) -> &str {
+            b.trim_end_matches(|c: char| c.is_ascii_alphanumeric() || c == '.')
+        }
+        let mut head = digits(before);
+        if head.ends_with(['-', '+']) && head[..head.len() - 1].ends_with(['e', 'E']) {
+            head = digits(&head[..head.len() - 1]);
+        }
+        let start = head.len();
+        let number = &before[start..];
+        return foreign(
+            start,
+            pos + word.len(),
+            &format!("`{number}{word}`: a number has no unit in hybsim"),
+            &format!("write `{number}` here"),
+            &format!(
+                "write the number alone, in the model's units: `{number}` (a comment can name \
+                 the unit: `# {word}`)"
+            ),
+        );
+    }
     if rest.starts_with('=') && !rest.starts_with("==") && !before.ends_with(['<', '>', '!', '=']) {
         // `=` inside a condition: after `when`, `in`, `if`, ... on this line
         // and not inside a block opened after it.
@@ -832,6 +920,21 @@ fn foreign_spelling(text: &str, pos: usize) -> Option<SyntaxError> {
         );
     }
     None
+}
+
+/// Unit symbols a number may be written with (`10s`, `5ms`, `2kg`), where no
+/// name of the model has that spelling.
+const UNITS: &[&str] = &[
+    "s", "sec", "secs", "ms", "us", "ns", "min", "h", "hr", "Hz", "hz", "kHz", "m", "cm", "mm",
+    "km", "kg", "g", "N", "Nm", "rad", "deg", "V", "mV", "A", "mA", "W", "kW",
+];
+
+/// Whether `name` occurs in `text` as a declared name would: a whole word
+/// somewhere (a rough test that keeps `2g` a product where `g` is declared).
+fn declares(text: &str, name: &str) -> bool {
+    let is_word = |c: char| c.is_ascii_alphanumeric() || c == '_';
+    text.match_indices(name)
+        .any(|(i, _)| !text[..i].ends_with(is_word) && !text[i + name.len()..].starts_with(is_word))
 }
 
 /// hybsim's spelling of a typographic character that stands for one of its

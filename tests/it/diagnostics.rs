@@ -126,6 +126,55 @@ const CASES: &[Case] = &[
         "4:7",
         "unknown setting `RelTol`",
     ),
+    case(
+        "MATLAB's function header",
+        "model m\nfunction xdot = f(x)\nstate x = 1\nflow { x' = -x }\n",
+        "E0109",
+        "2:1",
+        "hybsim has no `function`: a model declares its states and writes its flow, jumps and outputs directly",
+    ),
+    case(
+        "resets separated by commas",
+        "model m\nstate x = 1, v = 0\nflow { x' = v; v' = -1 }\njump r when x <= 0 { x+ = 0, v+ = -v }\n",
+        "E0109",
+        "4:28",
+        "`,` does not separate resets: a newline or `;` does",
+    ),
+    case(
+        "flow equations separated by commas",
+        "model m\nstate x = 1, v = 0\nflow { x' = v, v' = -1 }\n",
+        "E0109",
+        "3:14",
+        "`,` does not separate equations: a newline or `;` does",
+    ),
+    case(
+        "a unit on a number",
+        "model m\nstate x = 1\nflow { x' = -x }\nsim { T = 10s }\n",
+        "E0109",
+        "4:11",
+        "`10s`: a number has no unit in hybsim",
+    ),
+    case(
+        "a unit on a number with an exponent",
+        "model m\nstate x = 1\nflow { x' = -x }\nsim { max_step = 1e-3s }\n",
+        "E0109",
+        "4:18",
+        "`1e-3s`: a number has no unit in hybsim",
+    ),
+    case(
+        "a declared name glued to a number is no unit",
+        "model m\nparam g = 9.81\nstate v = 0\nflow { v' = -g }\nsim { T = 2g }\n",
+        "E0101",
+        "5:12",
+        "unexpected `g`; expected `'`, `[`, a setting `key = value` or an operator",
+    ),
+    case(
+        "MATLAB's if block",
+        "model m\nstate x = 1\nflow { x' = -x }\nif x > 0\n  x = 1\nend\n",
+        "E0109",
+        "4:1",
+        "hybsim has no `if` statement: its `if` is an expression, `if c then a else b`",
+    ),
     // ---- syntax (E01xx) ----
     case(
         "incomplete expression",
@@ -816,6 +865,22 @@ fn matlab_and_hyeq_habits_get_hybsims_spelling() {
         (
             "two state declarations joined by a semicolon",
             "declare several on one line with `,`: `state h = 1, v = ...` (or repeat the keyword: `; state v = ...`)",
+        ),
+        (
+            "MATLAB's function header",
+            "write the function's body as the model: `state x = ...`, `flow { x' = ... }` for `xdot = f(x)`, `jump when C { x+ = ... }` for a jump map, `output y = ...` for a value computed from the state",
+        ),
+        (
+            "resets separated by commas",
+            "put each of the block's resets on its own line, or end each with `;`: `{ x+ = 0; v+ = -v }`",
+        ),
+        (
+            "a unit on a number",
+            "write the number alone, in the model's units: `10` (a comment can name the unit: `# s`)",
+        ),
+        (
+            "MATLAB's if block",
+            "choose a value with `if c then a else b` (`x' = if x > 0 then -1 else 1`); change the state when a condition holds with a jump guarded by it, `jump when c { x+ = ... }`",
         ),
         ("HyEQ's tspan", "did you mean `T`?"),
         ("odeset's RelTol", "did you mean `rtol`?"),
