@@ -172,6 +172,17 @@ pub enum CheckError {
         /// Where.
         span: Span,
     },
+    /// A comparison of a vector or matrix where a condition (one true/false
+    /// value) was expected: `x >= 0` with `x` a vector.
+    #[error("expected a condition such as `h >= 0`, found {found}")]
+    VectorCondition {
+        /// The comparison's shape, in words.
+        found: String,
+        /// hybsim's spellings of "every component" and "some component".
+        help: String,
+        /// Where.
+        span: Span,
+    },
     /// Something that must be known before the run depends on states,
     /// time or random draws.
     #[error("{what} must be a constant")]
@@ -463,6 +474,7 @@ impl CheckError {
             | AssignShape { span, .. }
             | Arity { span, .. }
             | Expected { span, .. }
+            | VectorCondition { span, .. }
             | NotConstant { span, .. }
             | IndexOutOfRange { span, .. }
             | FamilyOutOfRange { span, .. }
@@ -504,7 +516,7 @@ impl CheckError {
             ShapeMismatch { .. } => "E0301",
             AssignShape { .. } => "E0302",
             Arity { .. } => "E0303",
-            Expected { .. } => "E0304",
+            Expected { .. } | VectorCondition { .. } => "E0304",
             NotConstant { .. } => "E0305",
             Compute { .. } => "E0306",
             TooLarge { .. } | Limit { .. } | Memory { .. } => "E0307",
@@ -627,6 +639,9 @@ impl CheckError {
                 .help("make both sides the same shape"),
             Arity { span, .. } => d.primary(*span, "wrong number of arguments"),
             Expected { span, expected, .. } => d.primary(*span, format!("expected {expected}")),
+            VectorCondition { span, help, .. } => d
+                .primary(*span, "one true/false value per component")
+                .help(help.clone()),
             NotConstant { span, .. } => d
                 .primary(*span, "depends on states, time or random draws")
                 .help("use only numbers, parameters and index variables here"),

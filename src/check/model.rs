@@ -1678,10 +1678,78 @@ impl ModelChecker<'_> {
         format!("x[{}]", k + 1)
     }
 
+    /// For `a >= b` (`>`, `<=`, `<`) with a vector or matrix side, hybsim's
+    /// spellings of "every component" (`min(x) >= 0`) and "some component"
+    /// (`max(x) >= 0`), and of the conjunction.
+    fn vector_comparison_help(&mut self, e: &Expr) -> Option<String> {
+        let ExprKind::Binary(op @ (BinOp::Lt | BinOp::Le | BinOp::Gt | BinOp::Ge), a, b) = &e.kind
+        else {
+            return None;
+        };
+        let (av, bv) = (self.c.expr(a, &GUARD_CTX)?, self.c.expr(b, &GUARD_CTX)?);
+        let text = |e: &Expr, v: &Val, fallback: &str| match &e.kind {
+            ExprKind::Name(n) => n.clone(),
+            ExprKind::Num(x) if v.rows * v.cols == 1 => crate::num::Num(*x).to_string(),
+            _ => fallback.to_string(),
+        };
+        let op_text = op.symbol();
+        // The vector side, compared with the other; `x >= 0` holds for every
+        // component where the smallest one does.
+        let greater = matches!(op, BinOp::Gt | BinOp::Ge);
+        let first = |v: &Val| {
+            if v.rows == 1 || v.cols == 1 {
+                "[1]"
+            } else {
+                "[1, 1]"
+            }
+        };
+        let (all, some, component) = if bv.rows * bv.cols == 1 {
+            let (x, c) = (text(a, &av, "v"), text(b, &bv, "c"));
+            let (lo, hi) = if greater {
+                ("min", "max")
+            } else {
+                ("max", "min")
+            };
+            (
+                format!("{lo}({x}) {op_text} {c}"),
+                format!("{hi}({x}) {op_text} {c}"),
+                format!("{x}{} {op_text} {c}", first(&av)),
+            )
+        } else if av.rows * av.cols == 1 {
+            let (c, x) = (text(a, &av, "c"), text(b, &bv, "v"));
+            let (lo, hi) = if greater {
+                ("max", "min")
+            } else {
+                ("min", "max")
+            };
+            (
+                format!("{c} {op_text} {lo}({x})"),
+                format!("{c} {op_text} {hi}({x})"),
+                format!("{c} {op_text} {x}{}", first(&bv)),
+            )
+        } else {
+            return None;
+        };
+        Some(format!(
+            "a condition is one true/false value: write `{all}` for every component, `{some}` \
+             for some component, or join the components' conditions with `&&`: `{component} && ...`"
+        ))
+    }
+
     fn condition(&mut self, e: &Expr) -> Option<NodeId> {
         let v = self.c.expr(e, &GUARD_CTX)?;
         if v.rows * v.cols != 1 || !v.boolean {
             let (e, v) = self.culprit(e, v);
+            if v.boolean
+                && let Some(help) = self.vector_comparison_help(e)
+            {
+                self.c.err(CheckError::VectorCondition {
+                    found: dims_words(v.dims()),
+                    help,
+                    span: e.span,
+                });
+                return None;
+            }
             self.c.err(CheckError::Expected {
                 expected: "a condition such as `h >= 0`".into(),
                 found: if v.rows * v.cols == 1 {

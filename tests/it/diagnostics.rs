@@ -169,6 +169,13 @@ const CASES: &[Case] = &[
         "unexpected `g`; expected `'`, `[`, a setting `key = value` or an operator",
     ),
     case(
+        "a vector compared in a flow set",
+        "model m\nstate x = [1; 2; 3]\nflow { x' = -x } in x >= 0\n",
+        "E0304",
+        "3:21",
+        "expected a condition such as `h >= 0`, found a 3×1 vector",
+    ),
+    case(
         "MATLAB's if block",
         "model m\nstate x = 1\nflow { x' = -x }\nif x > 0\n  x = 1\nend\n",
         "E0109",
@@ -879,6 +886,10 @@ fn matlab_and_hyeq_habits_get_hybsims_spelling() {
             "write the number alone, in the model's units: `10` (a comment can name the unit: `# s`)",
         ),
         (
+            "a vector compared in a flow set",
+            "a condition is one true/false value: write `min(x) >= 0` for every component, `max(x) >= 0` for some component, or join the components' conditions with `&&`: `x[1] >= 0 && ...`",
+        ),
+        (
             "MATLAB's if block",
             "choose a value with `if c then a else b` (`x' = if x > 0 then -1 else 1`); change the state when a condition holds with a jump guarded by it, `jump when c { x+ = ... }`",
         ),
@@ -890,7 +901,8 @@ fn matlab_and_hyeq_habits_get_hybsims_spelling() {
         assert_eq!(d[0].help.as_deref(), Some(help), "{name}");
     }
     // What the helps propose compiles, and `xdot` names `x` too.
-    let fixed = "model m\nstate x = [1; 2], h = 1, v = 0\nflow { x' = -x; h' = v; v' = -1 }\n\
+    let fixed = "model m\nstate x = [1; 2], h = 1, v = 0\n\
+                 flow { x' = -x; h' = v; v' = -1 } in min(x) >= 0 || max(x) >= 0 || x[1] >= 0\n\
                  output s = sum(k in 1..length(x): x[k]), s2 = ones(1, length(x))*x, e = x[length(x)]\n\
                  sim { T = 10; J = 20; rtol = 1e-8; priority = jumps }\n";
     let src = SourceFile::new("m.hyb", fixed);
