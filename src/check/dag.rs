@@ -656,6 +656,11 @@ impl Dag {
         }
     }
 
+    /// Whether the graph holds a random draw.
+    pub fn has_draws(&self) -> bool {
+        self.draws > 0
+    }
+
     /// A fresh random draw (never shared with another draw).
     pub fn rand(&mut self, d: Dist, a: NodeId, b: NodeId) -> NodeId {
         self.draws += 1;

@@ -20,9 +20,10 @@ use super::{EXIT_FAILED, EXIT_MODEL_ERROR, EXIT_OK, GuardArgs, SdpKind, shell_wo
 pub struct TestArgs {
     /// The model file (`.hyb`) with `property` declarations.
     pub model: PathBuf,
-    /// Number of sampled cases (≥ 1).
-    #[arg(long, value_name = "N", default_value_t = 100, value_parser = at_least_one)]
-    pub cases: usize,
+    /// Number of sampled cases (≥ 1). Default: 100, or 1 for a model that
+    /// draws no random number (every case would be the same run).
+    #[arg(long, value_name = "N", value_parser = at_least_one)]
+    pub cases: Option<usize>,
     /// Master seed from which each case's seed is derived (default: the
     /// model's `sim { seed }`).
     #[arg(long, value_name = "S")]
@@ -47,6 +48,9 @@ pub struct TestArgs {
     #[command(flatten)]
     pub guard: GuardArgs,
 }
+
+/// Cases of a model that draws random numbers, unless `--cases` says.
+const DEFAULT_CASES: usize = 100;
 
 /// A count of at least 1: `--cases 0` would pass vacuously.
 fn at_least_one(s: &str) -> Result<usize, String> {
@@ -100,8 +104,13 @@ pub fn execute(args: TestArgs) -> anyhow::Result<u8> {
     if props.is_empty() {
         props = all;
     }
+    // Cases differ only in their random draws: a model without any has one.
+    let deterministic = args.cases.is_none() && !model.is_random();
+    let cases = args
+        .cases
+        .unwrap_or(if deterministic { 1 } else { DEFAULT_CASES });
     let config = TestConfig::default()
-        .cases(args.cases)
+        .cases(cases)
         .seed(args.seed.unwrap_or(model.seed()))
         .max_shrink_runs(args.max_shrink);
     let inputs = subject.inputs();
@@ -110,12 +119,20 @@ pub fn execute(args: TestArgs) -> anyhow::Result<u8> {
         .map(|i| format!("{} ~ {}", i.name, i.dist))
         .collect();
     println!(
-        "testing {} propert{} of {} on {} case{} (master seed {}); sampled: {}",
+        "testing {} propert{} of {} on {} (master seed {}); sampled: {}",
         props.len(),
         if props.len() == 1 { "y" } else { "ies" },
         model.name(),
-        config.cases,
-        if config.cases == 1 { "" } else { "s" },
+        if deterministic {
+            "1 case (deterministic model: no random draw, so every case is the same run)"
+                .to_string()
+        } else {
+            format!(
+                "{} case{}",
+                config.cases,
+                if config.cases == 1 { "" } else { "s" }
+            )
+        },
         config.seed,
         if described.is_empty() {
             "no named input (other random draws come from each case's seed)".to_string()
@@ -192,9 +209,14 @@ pub fn execute(args: TestArgs) -> anyhow::Result<u8> {
         n => format!("{n} counterexamples"),
     };
     println!(
-        "{verdict}: {} case{}, {} inconclusive, {:.2} s",
+        "{verdict}: {} case{}{}, {} inconclusive, {:.2} s",
         cases_run,
         if cases_run == 1 { "" } else { "s" },
+        if deterministic {
+            " (deterministic model)"
+        } else {
+            ""
+        },
         inconclusive,
         start.elapsed().as_secs_f64()
     );

@@ -417,6 +417,9 @@ pub struct CompiledModel {
     /// Draws of the initial-value stream that belong to random parameters
     /// (skipped by `start`, see [`lang::compile_run`](crate::lang::compile_run)).
     param_draws: Vec<crate::props::Dist>,
+    /// Whether a draw in an initial value or a reset (held noise's redraws
+    /// too) is in the model.
+    draws: bool,
     designs: Vec<crate::check::DesignReport>,
     properties: Vec<(crate::props::Property, Span)>,
     /// The properties' predicates (also held by `properties`).
@@ -553,6 +556,7 @@ impl ModeCode {
 impl CompiledModel {
     /// Compiles a checked model (`source` is kept for diagnostics and logs).
     pub fn new(mut m: CheckedModel, source: SourceFile) -> Self {
+        let draws = m.dag.has_draws();
         let frame = Frame {
             n: m.dim,
             m: m.wiener_dim,
@@ -769,6 +773,7 @@ impl CompiledModel {
             inputs,
             param_inputs,
             param_draws,
+            draws,
             designs: m.designs,
             properties,
             predicates,
@@ -957,6 +962,16 @@ impl CompiledModel {
     /// [`lang::compile_run`](crate::lang::compile_run) draws them.
     pub fn random_params(&self) -> &[crate::props::Input] {
         &self.inputs[..self.param_inputs]
+    }
+
+    /// Whether a run of the model draws random numbers: random parameters,
+    /// random initial values, draws in resets, noise, or `priority =
+    /// random`. Runs of a model that does not are the same for every seed.
+    pub fn is_random(&self) -> bool {
+        self.draws
+            || !self.inputs.is_empty()
+            || self.frame.m > 0
+            || self.settings.priority == crate::engine::Priority::Random
     }
 
     /// Marks the random parameters of the model this one was compiled from

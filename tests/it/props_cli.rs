@@ -242,6 +242,40 @@ fn one_case_is_counted_in_the_singular() {
     assert!(text.contains("passed: 1 case, 0 inconclusive"), "{text}");
 }
 
+/// A model that draws no random number is tested on one case unless
+/// `--cases` asks for more; one that does (a draw in a reset alone) on 100.
+#[test]
+fn a_deterministic_model_is_tested_on_one_case() {
+    let dir = tempfile::tempdir().unwrap();
+    let model = |reset: &str| {
+        format!(
+            "model d\nstate h = 1, v = 0\nflow {{ h' = v; v' = -9.81 }} in h >= 0\n\
+             jump impact when h <= 0 && v <= 0 {{ v+ = {reset} }}\n\
+             property ground: always h >= -1e-9\nsim {{ T = 1 }}\n"
+        )
+    };
+    std::fs::write(dir.path().join("d.hyb"), model("-0.8 * v")).unwrap();
+    std::fs::write(dir.path().join("r.hyb"), model("-uniform(0.7, 0.9) * v")).unwrap();
+    let out = hybsim(dir.path(), &["test", "d.hyb"]);
+    let text = stdout(&out);
+    assert_eq!(code(&out), 0, "{text}");
+    assert!(
+        text.contains(" on 1 case (deterministic model: no random draw"),
+        "{text}"
+    );
+    assert!(
+        text.contains("passed: 1 case (deterministic model), 0 inconclusive"),
+        "{text}"
+    );
+    let out = hybsim(dir.path(), &["test", "d.hyb", "--cases", "3"]);
+    let text = stdout(&out);
+    assert!(text.contains("passed: 3 cases, 0 inconclusive"), "{text}");
+    let out = hybsim(dir.path(), &["test", "r.hyb"]);
+    let text = stdout(&out);
+    assert!(text.contains(" on 100 cases (master seed"), "{text}");
+    assert!(text.contains("passed: 100 cases, 0 inconclusive"), "{text}");
+}
+
 /// Every failing property is reported, each with its own shrunk
 /// counterexample and replay command, and the passing ones are listed: the
 /// run stopped at the first failure (`below`) and said nothing of `slow`,
