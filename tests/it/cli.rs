@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 use serde_json::Value;
 
 use crate::util::temp_files;
-use crate::util::{code, hybsim, stderr};
+use crate::util::{code, hybsim, mcap_metadata, stderr};
 
 fn ball_model() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("models/bouncing_ball.hyb")
@@ -377,15 +377,9 @@ fn failed_runs_exit_1_and_still_leave_a_complete_file() {
     );
     assert_eq!(code(&out), 1);
     let bytes = std::fs::read(dir.path().join("b.mcap")).unwrap();
-    let summary = mcap::read::Summary::read(&bytes).unwrap().unwrap();
-    let result = summary
-        .metadata_indexes
-        .iter()
-        .map(|i| mcap::read::metadata(&bytes, i).unwrap())
-        .find(|m| m.name == "hybsim.result")
-        .unwrap();
-    assert_eq!(result.metadata["status"], "failed");
-    let t_end: f64 = result.metadata["t_end"].parse().unwrap();
+    let result = mcap_metadata(&bytes, "hybsim.result");
+    assert_eq!(result["status"], "failed");
+    let t_end: f64 = result["t_end"].parse().unwrap();
     assert!(
         (t_end - 1.0).abs() < 1e-3,
         "blow-up near t = 1, stopped at {t_end}"
@@ -420,13 +414,8 @@ fn a_non_finite_output_stops_every_file_at_the_same_sample() {
         assert_eq!(code(&out), 1, "{}", stderr(&out));
         let bytes = std::fs::read(dir.path().join("b.mcap")).unwrap();
         let summary = mcap::read::Summary::read(&bytes).unwrap().unwrap();
-        let result = summary
-            .metadata_indexes
-            .iter()
-            .map(|i| mcap::read::metadata(&bytes, i).unwrap())
-            .find(|m| m.name == "hybsim.result")
-            .unwrap();
-        let t_end: f64 = result.metadata["t_end"].parse().unwrap();
+        let result = mcap_metadata(&bytes, "hybsim.result");
+        let t_end: f64 = result["t_end"].parse().unwrap();
         assert!((0.5..0.6).contains(&t_end), "{grid:?}: {t_end}");
         let csv = std::fs::read_to_string(dir.path().join("b.csv")).unwrap();
         let rows: Vec<(f64, &str)> = csv
@@ -445,7 +434,7 @@ fn a_non_finite_output_stops_every_file_at_the_same_sample() {
         assert!(rows.iter().all(|r| r.1 != "final"), "{grid:?}\n{csv}");
         // ... and the summary, the MCAP and the CSV count the same samples
         // (the MCAP holds all but the NaN one).
-        let samples = &result.metadata["samples"];
+        let samples = &result["samples"];
         assert_eq!(samples, &rows.len().to_string(), "{grid:?}\n{csv}");
         let states = summary
             .channels
