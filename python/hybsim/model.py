@@ -428,14 +428,15 @@ class Model:
 
     def test(
         self,
-        cases: int = 100,
+        cases: Optional[int] = None,
         seed: Optional[int] = None,
         properties: Optional[Sequence[str]] = None,
         max_shrink: int = 400,
     ) -> TestReport:
         """Property test (as ``hybsim test``): samples ``cases`` cases of the
-        model's random inputs from master seed ``seed`` (default: the
-        model's), checks the ``property`` declarations named in
+        model's random inputs (default: 100, or 1 for a model without any
+        random draw, whose cases would all be the same run) from master seed
+        ``seed`` (default: the model's), checks the ``property`` declarations named in
         ``properties`` (default: all) on each, in parallel with the GIL
         released, and shrinks the first failure (at most ``max_shrink``
         runs).

@@ -399,14 +399,15 @@ impl Model {
     }
 
     /// Property test (as `hybsim test`, GIL released): `cases` sampled
-    /// cases from master seed `seed` (default: the model's), checking the
-    /// named `properties` (default: all); the first failure is shrunk in
-    /// at most `max_shrink` runs. Returns the report as a dict.
-    #[pyo3(signature = (cases=100, seed=None, properties=None, max_shrink=400))]
+    /// cases (default: 100, 1 for a model without random draws) from
+    /// master seed `seed` (default: the model's), checking the named
+    /// `properties` (default: all); the first failure is shrunk in at most
+    /// `max_shrink` runs. Returns the report as a dict.
+    #[pyo3(signature = (cases=None, seed=None, properties=None, max_shrink=400))]
     fn test<'py>(
         &self,
         py: Python<'py>,
-        cases: usize,
+        cases: Option<usize>,
         seed: Option<u64>,
         properties: Option<Vec<String>>,
         max_shrink: usize,
@@ -440,7 +441,7 @@ impl Model {
             props = all;
         }
         let config = TestConfig::default()
-            .cases(cases)
+            .cases(cases.unwrap_or(subject.default_cases()))
             .seed(seed.unwrap_or(model.seed()))
             .max_shrink_runs(max_shrink);
         let reports = py.detach(|| run_tests_each(&subject, &props, &config));

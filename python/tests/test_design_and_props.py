@@ -127,3 +127,15 @@ def test_true_property_passes_and_names_are_checked():
         m.test(properties=["nope"])
     with pytest.raises(ValueError, match="declares no property"):
         hybsim.load(FALSE_PROPERTY.replace("property", "# property")).test()
+
+
+def test_a_model_without_random_draws_is_tested_on_one_case():
+    # No random initial value, noise or draw: every case would be the same run (as `hybsim test`).
+    fixed = "model b\nstate h = 1, v = 0\nflow { h' = v; v' = -9.81 }\n" \
+            "jump bounce when h <= 0 && v < 0 { v+ = -0.8 * v }\nsim { T = 2 }\n" \
+            "property ground: always h >= -1e-9\n"
+    m = hybsim.load(fixed)
+    assert m.test().cases_run == 1
+    assert m.test(cases=5).cases_run == 5
+    # The random model of the tests above keeps the default 100.
+    assert hybsim.load(FALSE_PROPERTY).test(properties=["ground"]).cases_run == 100

@@ -49,9 +49,6 @@ pub struct TestArgs {
     pub guard: GuardArgs,
 }
 
-/// Cases of a model that draws random numbers, unless `--cases` says.
-const DEFAULT_CASES: usize = 100;
-
 /// A count of at least 1: `--cases 0` would pass vacuously.
 fn at_least_one(s: &str) -> Result<usize, String> {
     match s.parse::<usize>() {
@@ -104,11 +101,8 @@ pub fn execute(args: TestArgs) -> anyhow::Result<u8> {
     if props.is_empty() {
         props = all;
     }
-    // Cases differ only in their random draws: a model without any has one.
     let deterministic = args.cases.is_none() && !model.is_random();
-    let cases = args
-        .cases
-        .unwrap_or(if deterministic { 1 } else { DEFAULT_CASES });
+    let cases = args.cases.unwrap_or(subject.default_cases());
     let config = TestConfig::default()
         .cases(cases)
         .seed(args.seed.unwrap_or(model.seed()))

@@ -69,7 +69,7 @@ pub mod strategy;
 #[cfg(test)]
 mod tests;
 
-pub use model::{ModelRunError, ModelSubject};
+pub use model::{DEFAULT_CASES, ModelRunError, ModelSubject};
 pub use monitor::{Conclusion, PropertySink, Verdict, Violation, ViolationDetail, check_arc};
 pub use property::{
     JumpPredicate, JumpView, Monotonicity, Property, ScalarFn, Scope, StatePredicate,

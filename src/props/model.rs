@@ -24,6 +24,9 @@ fn first_message(d: &[Diagnostic]) -> &str {
     d.first().map_or("no diagnostic", |d| d.message.as_str())
 }
 
+/// Cases a property test of a model with random draws samples by default.
+pub const DEFAULT_CASES: usize = 100;
+
 /// A `.hyb` model whose random initial values
 /// ([`CompiledModel::random_inputs`]) are the sampled inputs.
 ///
@@ -93,6 +96,18 @@ impl ModelSubject {
     /// The model as compiled with the user's overrides (inputs not pinned).
     pub fn model(&self) -> &CompiledModel {
         &self.model
+    }
+
+    /// How many cases a property test samples unless told: cases differ
+    /// only in their random draws, so a model without any
+    /// ([`CompiledModel::is_random`]) has one, others
+    /// [`DEFAULT_CASES`].
+    pub fn default_cases(&self) -> usize {
+        if self.model.is_random() {
+            DEFAULT_CASES
+        } else {
+            1
+        }
     }
 
     /// The user's overrides.
