@@ -937,6 +937,21 @@ fn apply_lanes(
     out: &mut [f64],
 ) -> bool {
     let kp = gamma.len();
+    // A state of at most one block written whole (sample-and-hold loops,
+    // small plants): the block's sizes known, its loops unrolled.
+    if kp == APPLY_BLOCK && rows.is_none() {
+        match x.len() {
+            1 => return apply_one_block::<1>(phi, gamma, x, out),
+            2 => return apply_one_block::<2>(phi, gamma, x, out),
+            3 => return apply_one_block::<3>(phi, gamma, x, out),
+            4 => return apply_one_block::<4>(phi, gamma, x, out),
+            5 => return apply_one_block::<5>(phi, gamma, x, out),
+            6 => return apply_one_block::<6>(phi, gamma, x, out),
+            7 => return apply_one_block::<7>(phi, gamma, x, out),
+            8 => return apply_one_block::<8>(phi, gamma, x, out),
+            _ => {}
+        }
+    }
     let mut nan = [0.0; APPLY_BLOCK];
     for (b, g) in gamma.chunks_exact(APPLY_BLOCK).enumerate() {
         let start = b * APPLY_BLOCK;
@@ -976,6 +991,28 @@ fn apply_lanes(
         }
     }
     nan.iter().sum::<f64>() == 0.0
+}
+
+/// [`apply_lanes`] for `N` ≤ [`APPLY_BLOCK`] columns of one block, every
+/// row written (`out` holds `N` components): the same products and sums in
+/// the same order, so the same bits.
+#[inline(always)]
+#[allow(clippy::eq_op)] // `a - a` is the finiteness test
+fn apply_one_block<const N: usize>(phi: &[f64], gamma: &[f64], x: &[f64], out: &mut [f64]) -> bool {
+    let cols: &[[f64; APPLY_BLOCK]; N] = phi.as_chunks().0.try_into().expect("N columns");
+    let x: &[f64; N] = x.try_into().expect("N components");
+    let mut acc: [f64; APPLY_BLOCK] = gamma.try_into().expect("a block");
+    for (col, &xc) in cols.iter().zip(x) {
+        for r in 0..APPLY_BLOCK {
+            acc[r] += col[r] * xc;
+        }
+    }
+    let mut nan = 0.0;
+    for a in &acc[..N] {
+        nan += a - a;
+    }
+    out[..N].copy_from_slice(&acc[..N]);
+    nan == 0.0
 }
 
 /// The exact solution of an affine flow on one step.
