@@ -753,36 +753,19 @@ fn foreign_spelling(text: &str, pos: usize) -> Option<SyntaxError> {
             ),
         );
     }
-    // A unit glued to a number, `T = 10s`: hybsim's numbers are plain.
-    if prev.is_some_and(|c| c.is_ascii_digit())
-        && before
-            .trim_end_matches(|c: char| c.is_ascii_alphanumeric() || c == '.')
-            .chars()
-            .next_back()
-            .is_none_or(|c| !is_word(c))
-        && UNITS.contains(&word)
-        && !declares(text, word)
-    {
-        // The number's start, through an exponent's sign (`1e-3s`).
-        fn digits(b: &str) -> &str {
-            b.trim_end_matches(|c: char| c.is_ascii_alphanumeric() || c == '.')
-        }
-        let mut head = digits(before);
-        if head.ends_with(['-', '+']) && head[..head.len() - 1].ends_with(['e', 'E']) {
-            head = digits(&head[..head.len() - 1]);
-        }
-        let start = head.len();
-        let number = &before[start..];
-        return foreign(
-            start,
-            pos + word.len(),
-            &format!("`{number}{word}`: a number has no unit in hybsim"),
-            &format!("write `{number}` here"),
-            &format!(
-                "write the number alone, in the model's units: `{number}` (a comment can name \
-                 the unit: `# {word}`)"
-            ),
-        );
+    // A unit glued to a number, `T = 10s`: hybsim's numbers are plain. The
+    // parser stops at the unit, or after it when the unit reads as the
+    // start of what follows (`x' = -x/10s }`: `s` as the next equation).
+    let word_before = before.trim_end();
+    let before_start = word_before
+        .trim_end_matches(|c: char| c.is_ascii_alphabetic())
+        .len();
+    if let Some(e) = glued_unit(text, pos).or_else(|| {
+        (before_start < word_before.len())
+            .then(|| glued_unit(text, before_start))
+            .flatten()
+    }) {
+        return Some(e);
     }
     if rest.starts_with('=') && !rest.starts_with("==") && !before.ends_with(['<', '>', '!', '=']) {
         // `=` inside a condition: after `when`, `in`, `if`, ... on this line
@@ -920,6 +903,45 @@ fn foreign_spelling(text: &str, pos: usize) -> Option<SyntaxError> {
         );
     }
     None
+}
+
+/// The error for a unit glued to a number (`10s`, `1e-3s`) if the word at
+/// `start` is one, and no name of the model has its spelling.
+fn glued_unit(text: &str, start: usize) -> Option<SyntaxError> {
+    let is_word = |c: char| c.is_ascii_alphanumeric() || c == '_';
+    let (before, rest) = (text.get(..start)?, text.get(start..)?);
+    let word = &rest[..rest.find(|c: char| !is_word(c)).unwrap_or(rest.len())];
+    // The number's start, through an exponent's sign (`1e-3s`).
+    fn digits(b: &str) -> &str {
+        b.trim_end_matches(|c: char| c.is_ascii_alphanumeric() || c == '.')
+    }
+    let glued = before
+        .chars()
+        .next_back()
+        .is_some_and(|c| c.is_ascii_digit())
+        && digits(before)
+            .chars()
+            .next_back()
+            .is_none_or(|c| !is_word(c))
+        && UNITS.contains(&word)
+        && !declares(text, word);
+    if !glued {
+        return None;
+    }
+    let mut head = digits(before);
+    if head.ends_with(['-', '+']) && head[..head.len() - 1].ends_with(['e', 'E']) {
+        head = digits(&head[..head.len() - 1]);
+    }
+    let number = &before[head.len()..];
+    Some(SyntaxError::Foreign {
+        span: Span::new(head.len(), start + word.len()),
+        message: format!("`{number}{word}`: a number has no unit in hybsim"),
+        label: format!("write `{number}` here"),
+        help: format!(
+            "write the number alone, in the model's units: `{number}` (a comment can name the \
+             unit: `# {word}`)"
+        ),
+    })
 }
 
 /// Unit symbols a number may be written with (`10s`, `5ms`, `2kg`), where no

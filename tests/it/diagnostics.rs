@@ -162,6 +162,20 @@ const CASES: &[Case] = &[
         "`1e-3s`: a number has no unit in hybsim",
     ),
     case(
+        "a unit on a number inside a flow equation",
+        "model m\nstate x = 1\nflow { x' = -x/10s }\nsim { T = 1 }\n",
+        "E0109",
+        "3:16",
+        "`10s`: a number has no unit in hybsim",
+    ),
+    case(
+        "a unit on a number ending a line",
+        "model m\nstate x = 1\nflow {\n    x' = -x/10s\n}\n",
+        "E0109",
+        "4:13",
+        "`10s`: a number has no unit in hybsim",
+    ),
+    case(
         "a declared name glued to a number is no unit",
         "model m\nparam g = 9.81\nstate v = 0\nflow { v' = -g }\nsim { T = 2g }\n",
         "E0101",
