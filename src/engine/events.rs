@@ -305,6 +305,46 @@ impl WSet {
     }
 }
 
+/// Per rule of `sys`, the sets (indices into `sets`) a jump by it may
+/// change: those that read `j` or a component it writes (all, `None`, for
+/// a rule that does not say what it writes, or when that is more than
+/// half of them).
+fn stale_sets<S: HybridSystem + ?Sized>(sys: &S, sets: &[WSet]) -> Vec<Option<Vec<usize>>> {
+    // (component, set) for each component a set reads, sorted; the sets
+    // every jump changes.
+    let mut reads: Vec<(usize, usize)> = Vec::new();
+    let mut always = Vec::new();
+    for (i, ws) in sets.iter().enumerate() {
+        match sys.set_inputs(ws.set) {
+            Some(inputs) if !inputs.jumps => reads.extend(inputs.states.iter().map(|&k| (k, i))),
+            _ => always.push(i),
+        }
+    }
+    reads.sort_unstable();
+    let half = sets.len() / 2;
+    sys.jump_rules()
+        .iter()
+        .map(|rule| {
+            if rule.writes.is_empty() || always.len() > half {
+                return None;
+            }
+            let mut stale = always.clone();
+            for &k in &rule.writes {
+                let from = reads.partition_point(|&(c, _)| c < k);
+                stale.extend(
+                    reads[from..]
+                        .iter()
+                        .take_while(|&&(c, _)| c == k)
+                        .map(|&(_, i)| i),
+                );
+            }
+            stale.sort_unstable();
+            stale.dedup();
+            (stale.len() <= half).then_some(stale)
+        })
+        .collect()
+}
+
 /// The truth table of a set of at most [`TruthTable::MAX_ATOMS`] atoms.
 fn truth_table(spec: Option<&SetAtoms>) -> Option<TruthTable> {
     spec.filter(|s| s.atoms.len() <= TruthTable::MAX_ATOMS)?
@@ -910,6 +950,18 @@ pub(crate) struct Watcher {
     /// ([`prefetch`](Self::prefetch), [`prefetch_sets`](Self::prefetch_sets)):
     /// a jump moves to another point (j + 1), a start takes them.
     prefetched: Option<HybridTime>,
+    /// The point at which `flat` and the engine's `inside` hold every set's
+    /// atoms and every rule's membership
+    /// ([`prefetch_sets`](Self::prefetch_sets)), until a start or another
+    /// evaluation.
+    sets_at: Option<HybridTime>,
+    /// Per rule: the sets (indices into `sets`) a jump by it alone may
+    /// change, those that read `j` or what it writes
+    /// ([`HybridSystem::set_inputs`]); `None`: all, or more than half of
+    /// them (one evaluation of all sets then costs less). Found at the
+    /// first jump from a point where every set was evaluated (the runs of
+    /// most systems make none).
+    stale_after: Option<Vec<Option<Vec<usize>>>>,
     /// The state at the last event found by [`Watcher::scan`] (the
     /// post-change end of its bracket).
     pub event_state: Vec<f64>,
@@ -1079,6 +1131,8 @@ impl Watcher {
             flat_checks,
             flat_watched,
             prefetched: None,
+            sets_at: None,
+            stale_after: None,
             cls: vec![0; watched.len()],
             cls_s: vec![0; watched.len()],
             step: vec![StepFacts::default(); watched.len()],
@@ -1357,6 +1411,8 @@ impl Watcher {
     /// [`start`](Self::start) with something watched or scheduled.
     fn start_sets<S: HybridSystem + ?Sized>(&mut self, sys: &S, at: HybridTime, x: &[f64]) {
         let set_tol = self.set_tol;
+        // The flow moves the state: nothing is carried past the start.
+        self.sets_at = None;
         if std::mem::take(&mut self.prefetched) != Some(at) {
             self.flat_ok = sys.all_atom_values(at, x, false, &mut self.flat);
         }
@@ -1509,6 +1565,8 @@ impl Watcher {
         if self.prefetched != Some(at) {
             self.flat_ok = sys.all_atom_values(at, x, false, &mut self.flat);
             self.prefetched = self.flat_ok.then_some(at);
+            // The rules' membership is not evaluated with them.
+            self.sets_at = None;
         }
         let len = self.sets[fi].vs.len();
         self.flat_ok.then(|| &self.flat[off..off + len])
@@ -1521,18 +1579,68 @@ impl Watcher {
     /// point: the engine's choice between flowing and jumping and the
     /// segment's start share one evaluation. `false` (nothing evaluated):
     /// the start evaluates nothing, or the system has no such evaluation.
+    ///
+    /// `jumped`: the rule whose jump alone led from the last point to this
+    /// one, if it did. If every set was evaluated there (by this method,
+    /// at the same `t` and `j − 1`), only those the jump may change are
+    /// evaluated here; the others keep their atoms and membership (their
+    /// inputs are unchanged: [`HybridSystem::set_inputs`]).
+    #[inline]
     pub fn prefetch_sets<S: HybridSystem + ?Sized>(
         &mut self,
         sys: &S,
         at: HybridTime,
         x: &[f64],
         inside: &mut [bool],
+        jumped: Option<usize>,
     ) -> bool {
-        if !self.prefetches() || !sys.jump_sets_and_atoms(at, x, inside, &mut self.flat) {
+        if !self.prefetches() {
             return false;
         }
-        self.flat_ok = true;
-        self.prefetched = Some(at);
+        let before = self.sets_at.take();
+        let evaluated = match (jumped, before) {
+            (Some(rule), Some(b)) if b.t == at.t && b.j.checked_add(1) == Some(at.j) => {
+                self.refresh_sets(sys, rule, at, x, inside)
+            }
+            _ => false,
+        } || sys.jump_sets_and_atoms(at, x, inside, &mut self.flat);
+        if evaluated {
+            self.sets_at = Some(at);
+            self.flat_ok = true;
+            self.prefetched = Some(at);
+        }
+        evaluated
+    }
+
+    /// Evaluates at (`at`, `x`) the sets a jump by `rule` may change, their
+    /// atoms into `flat` and the rules' membership into `inside`, and
+    /// returns `true`; or returns `false` (nothing evaluated) if they are
+    /// not known to be at most half of them (`stale_after`).
+    #[inline(never)]
+    fn refresh_sets<S: HybridSystem + ?Sized>(
+        &mut self,
+        sys: &S,
+        rule: usize,
+        at: HybridTime,
+        x: &[f64],
+        inside: &mut [bool],
+    ) -> bool {
+        let stale_after = (self.stale_after).get_or_insert_with(|| stale_sets(sys, &self.sets));
+        let Some(Some(stale)) = stale_after.get(rule) else {
+            return false;
+        };
+        for &i in stale {
+            let ws = &self.sets[i];
+            let atoms = self.flat_off[i].map(|off| &mut self.flat[off..off + ws.vs.len()]);
+            match (ws.set, atoms) {
+                (SetRef::Jump(r), Some(atoms)) => {
+                    inside[r] = sys.jump_set_and_atoms(r, at, x, atoms)
+                }
+                (SetRef::Jump(r), None) => inside[r] = sys.jump_set(r, at, x),
+                (SetRef::Flow, Some(atoms)) => sys.atom_values(SetRef::Flow, at, x, false, atoms),
+                (SetRef::Flow, None) => {}
+            }
+        }
         true
     }
 
@@ -1548,6 +1656,7 @@ impl Watcher {
     /// is reported again there).
     pub fn forget_prefetch(&mut self) {
         self.prefetched = None;
+        self.sets_at = None;
     }
 
     /// Sign classes of the watched atoms at (t, x) into `cls_s`, with the

@@ -239,5 +239,5 @@ pub use sparsity::{
 };
 pub use system::{
     AffineAtom, Atom, Cmp, FlowStructure, GuardKind, HybridSystem, JumpRule, SetAtoms, SetExpr,
-    SetRef, SimRng, SystemFault, finite_difference_jacobian,
+    SetInputs, SetRef, SimRng, SystemFault, finite_difference_jacobian,
 };

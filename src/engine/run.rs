@@ -342,6 +342,7 @@ pub fn simulate<S: HybridSystem + ?Sized>(
             at,
             &x,
             pending,
+            last_alone,
             &mut inside,
             &mut flows.watcher,
             timer_sets.as_ref(),
@@ -556,16 +557,19 @@ pub fn simulate<S: HybridSystem + ?Sized>(
 /// `pending` (a rule known to hold: a timer on its threshold, a localized
 /// event) counting as holding. With a pending rule, the rules before it are
 /// asked one by one (none, for the first rule: a noise redraw); otherwise
-/// all sets at once if the system offers it (`inside` its scratch; with
-/// the atoms a flow segment started here reads, kept by `watcher`), else,
-/// or if that evaluation reported a fault, rule by rule. With
+/// all sets at once if the system offers it (`inside` its scratch, which
+/// keeps the sets a jump by `jumped` alone, the last step, cannot change;
+/// with the atoms a flow segment started here reads, kept by `watcher`),
+/// else, or if that evaluation reported a fault, rule by rule. With
 /// `timer_sets` every set is a comparison, made here unless the sets'
 /// evaluation also serves the segment's start.
+#[allow(clippy::too_many_arguments)]
 fn first_enabled<S: HybridSystem + ?Sized>(
     sys: &S,
     at: HybridTime,
     x: &[f64],
     pending: Option<usize>,
+    jumped: Option<usize>,
     inside: &mut [bool],
     watcher: &mut Watcher,
     timer_sets: Option<&TimerSets>,
@@ -581,7 +585,7 @@ fn first_enabled<S: HybridSystem + ?Sized>(
         return (0..inside.len()).find(|&r| holds(r));
     }
     // On a fault, a set after the first enabled one may be what failed.
-    if (watcher.prefetch_sets(sys, at, x, inside) || sys.jump_sets(at, x, inside))
+    if (watcher.prefetch_sets(sys, at, x, inside, jumped) || sys.jump_sets(at, x, inside))
         && sys.take_fault().is_none()
     {
         return (0..inside.len()).find(|&r| inside[r]);

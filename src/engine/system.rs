@@ -343,6 +343,16 @@ pub struct SetAtoms {
     pub expr: SetExpr,
 }
 
+/// What a set's atoms, guard and predicate read
+/// ([`HybridSystem::set_inputs`]). The time is not listed: a jump keeps it.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct SetInputs {
+    /// The state components read (increasing).
+    pub states: Vec<usize>,
+    /// Whether the jump count `j` is read.
+    pub jumps: bool,
+}
+
 /// Which set of the system: the flow set C or the jump set D_i of a rule.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum SetRef {
@@ -599,6 +609,36 @@ pub trait HybridSystem {
         _atoms: &mut [f64],
     ) -> bool {
         false
+    }
+
+    /// What `set`'s atoms, guard and predicate read, or `None` (the
+    /// default): anything. Called at most once per run. After a jump by
+    /// one rule from a point where it evaluated every set, the engine
+    /// evaluates again only the sets that read `j` or a component the rule
+    /// writes ([`JumpRule::writes`]; a rule without them writes any), and
+    /// keeps the others' atoms and membership from the pre-jump point,
+    /// which has the same `t`: the inputs must cover everything the values
+    /// depend on besides `t`.
+    fn set_inputs(&self, _set: SetRef) -> Option<SetInputs> {
+        None
+    }
+
+    /// [`jump_set`](Self::jump_set) of rule `rule` as the return value and
+    /// its atoms ([`atom_values`](Self::atom_values), all of them) into
+    /// `atoms`, in one evaluation; the engine's re-evaluation of one set
+    /// after a jump ([`set_inputs`](Self::set_inputs)). The default makes
+    /// the two calls; a system whose predicate and atoms share
+    /// subexpressions computes them once. The results must equal the two
+    /// calls' to the last bit.
+    fn jump_set_and_atoms(
+        &self,
+        rule: usize,
+        at: HybridTime,
+        x: &[f64],
+        atoms: &mut [f64],
+    ) -> bool {
+        self.atom_values(SetRef::Jump(rule), at, x, false, atoms);
+        self.jump_set(rule, at, x)
     }
 
     /// Structure of the flow map; [`FlowStructure::General`] by default.

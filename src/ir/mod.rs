@@ -37,8 +37,8 @@ use crate::check::dag::{Dag, Node, NodeId};
 use crate::check::{CheckedModel, StateField};
 use crate::diagnostics::Diagnostic;
 use crate::engine::{
-    AffineAtom, Atom, FlowStructure, GuardKind, HybridSystem, JumpRule, SetAtoms, SetRef, SimError,
-    SimRng, SimSettings, SparsityPattern, finite_difference_jacobian,
+    AffineAtom, Atom, FlowStructure, GuardKind, HybridSystem, JumpRule, SetAtoms, SetInputs,
+    SetRef, SimError, SimRng, SimSettings, SparsityPattern, finite_difference_jacobian,
 };
 use crate::layout::{Declared, Layout, Shape};
 use crate::source::{SourceFile, SourceMap, Span};
@@ -143,6 +143,10 @@ struct SetCode {
     guard: Program,
     atoms: SetAtoms,
     all: Program,
+    /// `all`'s outputs, then `cond`'s ([`HybridSystem::jump_set_and_atoms`]).
+    joint: Program,
+    /// What the set reads ([`HybridSystem::set_inputs`]).
+    inputs: Option<SetInputs>,
     flowing: Program,
     /// Atom index of each output of `flowing`.
     flowing_idx: Vec<usize>,
@@ -202,11 +206,20 @@ impl SetCode {
                 .map(|&(cmp, g)| describe::atom_text(dag, cmp, g, names))
                 .collect()
         });
+        let (cond_p, guard) = (
+            Program::compile(dag, frame, &[cond]),
+            Program::compile(dag, frame, &[g]),
+        );
+        let all = Program::compile(dag, frame, &nodes).into_buffer();
+        let inputs = set_inputs(frame, [&cond_p, &guard, &all]);
+        let joint_nodes: Vec<NodeId> = nodes.iter().copied().chain([cond]).collect();
         SetCode {
             atom_text,
-            cond: Program::compile(dag, frame, &[cond]),
-            guard: Program::compile(dag, frame, &[g]),
-            all: Program::compile(dag, frame, &nodes).into_buffer(),
+            cond: cond_p,
+            guard,
+            all,
+            joint: Program::compile(dag, frame, &joint_nodes).into_buffer(),
+            inputs,
             flowing: Program::compile(dag, frame, &fnodes).scatter_to(&flowing_idx),
             flowing_idx,
             nodes,
@@ -220,17 +233,32 @@ impl SetCode {
 
     /// Its programs, the one the engine evaluates most often first (the
     /// flowing atoms, at every guard check).
-    fn programs(&self) -> [&Program; 4] {
-        [&self.flowing, &self.guard, &self.cond, &self.all]
+    fn programs(&self) -> [&Program; 5] {
+        [
+            &self.flowing,
+            &self.guard,
+            &self.cond,
+            &self.all,
+            &self.joint,
+        ]
     }
 
     fn nregs(&self) -> usize {
-        [&self.cond, &self.guard, &self.all, &self.flowing]
-            .iter()
-            .map(|p| p.nregs)
-            .max()
-            .unwrap_or(0)
+        self.programs().iter().map(|p| p.nregs).max().unwrap_or(0)
     }
+}
+
+/// What the programs of a set read, together; `None` if one draws.
+fn set_inputs<const N: usize>(frame: Frame, programs: [&Program; N]) -> Option<SetInputs> {
+    let mut inputs = SetInputs::default();
+    for p in programs {
+        let (states, jumps) = p.inputs(frame)?;
+        inputs.states.extend(states);
+        inputs.jumps |= jumps;
+    }
+    inputs.states.sort_unstable();
+    inputs.states.dedup();
+    Some(inputs)
 }
 
 /// The atoms of every set in one program (C's first, then each rule's, as
@@ -1864,6 +1892,30 @@ impl HybridSystem for CompiledModel {
             }
         });
         true
+    }
+
+    fn set_inputs(&self, set: SetRef) -> Option<SetInputs> {
+        self.set_code(set)?.inputs.clone()
+    }
+
+    fn jump_set_and_atoms(
+        &self,
+        rule: usize,
+        at: HybridTime,
+        x: &[f64],
+        atoms: &mut [f64],
+    ) -> bool {
+        let p = &self.rule_code[rule].set.joint;
+        // As `jump_sets_and_atoms`: the outputs in place after the registers.
+        let len = p.outs.len();
+        with_regs(self.nregs + len, |regs| {
+            let (regs, out) = regs.split_at_mut(self.nregs);
+            let out = &mut out[..len];
+            p.run_into(regs, at, x, None, out);
+            let (vals, cond) = out.split_at(len - 1);
+            atoms.copy_from_slice(vals);
+            cond[0] != 0.0
+        })
     }
 
     #[inline]

@@ -731,6 +731,37 @@ impl Program {
         (0..n).filter(|&k| read[k]).collect()
     }
 
+    /// The state components the program reads (increasing) and whether it
+    /// reads the jump count, its outputs included (an output may be a
+    /// state's register itself); `None` if it draws or reads the noise
+    /// increments (of `frame`, the program's).
+    pub(crate) fn inputs(&self, frame: Frame) -> Option<(Vec<usize>, bool)> {
+        let n = self.state_regs;
+        let mut read = vec![false; n + 2];
+        let mut noise = false;
+        let mut mark = |r: u32| {
+            match read.get_mut(r as usize) {
+                Some(x) => *x = true,
+                None => noise |= (r as usize) < frame.fixed(),
+            }
+            false
+        };
+        for op in &self.ops {
+            if matches!(op, Op::Rand { .. }) {
+                return None;
+            }
+            self.reads(op, &mut mark);
+        }
+        for &o in &self.outs {
+            mark(o);
+        }
+        if noise {
+            return None;
+        }
+        let states = (0..n).filter(|&k| read[k]).collect();
+        Some((states, read[frame.jumps_reg()]))
+    }
+
     /// Whether [`run`](Self::run) executes machine code.
     #[cfg(test)]
     pub fn is_native(&self) -> bool {

@@ -370,7 +370,8 @@ fn random_systems_run_bit_identically() {
 }
 
 /// The model seen set by set: everything but [`HybridSystem::all_atom_values`]
-/// (so the engine evaluates the sets one by one).
+/// (so the engine evaluates the sets one by one) and the sets' inputs (so
+/// it evaluates every set after each jump).
 struct SetBySet<'a>(&'a CompiledModel);
 
 impl HybridSystem for SetBySet<'_> {
@@ -426,8 +427,10 @@ impl HybridSystem for SetBySet<'_> {
 
 /// The engine's checkpoints evaluate all sets of a compiled model in one
 /// program, and its choice of the rule to fire all jump conditions in one
-/// (shared subexpressions once): the arcs are those of evaluating the sets
-/// one by one, bit for bit, on the shipped models and the random systems.
+/// (shared subexpressions once), after a jump only the sets reading what it
+/// writes (the others kept): the arcs are those of evaluating the sets one
+/// by one and all of them at every point, bit for bit, on the shipped
+/// models and the random systems.
 #[test]
 fn all_sets_at_once_give_the_arcs_of_set_by_set() {
     let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("models");
@@ -576,6 +579,10 @@ sim { T = 5 }
 /// of a flow step (an event bracket may start at that point).
 struct Counting<'a> {
     m: &'a CompiledModel,
+    /// Whether the sets' inputs are given ([`HybridSystem::set_inputs`]).
+    inputs: bool,
+    /// Evaluations of one set after a jump.
+    single: std::cell::Cell<usize>,
     joint: std::cell::Cell<usize>,
     conds: std::cell::Cell<usize>,
     again: std::cell::Cell<usize>,
@@ -618,6 +625,19 @@ impl HybridSystem for Counting<'_> {
         self.joint.set(self.joint.get() + 1);
         *self.last.borrow_mut() = Some((at, x.to_vec()));
         self.m.jump_sets_and_atoms(at, x, inside, atoms)
+    }
+    fn set_inputs(&self, set: SetRef) -> Option<hybsim::engine::SetInputs> {
+        self.m.set_inputs(set).filter(|_| self.inputs)
+    }
+    fn jump_set_and_atoms(
+        &self,
+        rule: usize,
+        at: HybridTime,
+        x: &[f64],
+        atoms: &mut [f64],
+    ) -> bool {
+        self.single.set(self.single.get() + 1);
+        self.m.jump_set_and_atoms(rule, at, x, atoms)
     }
     fn all_atom_values(&self, at: HybridTime, x: &[f64], flowing: bool, out: &mut [f64]) -> bool {
         let same = |(t, y): &(HybridTime, Vec<f64>)| *t == at && bits(y) == bits(x);
@@ -679,6 +699,8 @@ fn the_choice_and_the_segment_start_share_one_evaluation_of_the_sets() {
         settings.horizon_t = horizon;
         let sys = Counting {
             m: &m,
+            inputs: false,
+            single: Default::default(),
             joint: Default::default(),
             conds: Default::default(),
             again: Default::default(),
@@ -696,4 +718,45 @@ fn the_choice_and_the_segment_start_share_one_evaluation_of_the_sets() {
         assert_eq!(sys.conds.get(), 0, "{model}: conditions alone");
         assert_eq!(sys.again.get(), 0, "{model}: atoms evaluated again");
     }
+}
+
+/// After a jump from a point where every set was evaluated, only the sets
+/// that read what the jump writes are evaluated again (the consensus
+/// model's node that fired; after the noise redraws, read by every node's
+/// set, all are), with the arc of evaluating all of them.
+#[test]
+fn after_a_jump_only_the_sets_reading_what_it_writes_are_evaluated() {
+    let path =
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("models/consensus_estimation.hyb");
+    let m = compile(&SourceFile::read(&path).unwrap(), "on");
+    let mut settings = m.settings();
+    settings.horizon_t = 0.05;
+    let run = |inputs: bool| {
+        let sys = Counting {
+            m: &m,
+            inputs,
+            single: Default::default(),
+            joint: Default::default(),
+            conds: Default::default(),
+            again: Default::default(),
+            last: Default::default(),
+        };
+        let (x0, mut rng) = m.start(m.seed());
+        let arc = simulate_arc(&sys, &x0, &settings, &mut rng).expect("simulation");
+        (arc, sys.joint.get(), sys.single.get())
+    };
+    let ((a, joint_a, single_a), (b, joint_b, single_b)) = (run(false), run(true));
+    let events = a.jumps().iter().filter(|jr| jr.rule != 0).count();
+    assert!(events >= 10, "{events} events");
+    // One set instead of all after the events found at a point where all
+    // were evaluated (after a redraw; not those localized in a step).
+    assert_eq!(single_a, 0);
+    assert!(2 * single_b >= events, "{single_b} of {events} events");
+    assert_eq!(joint_a, joint_b + single_b);
+    assert_eq!(a.len(), b.len());
+    for (sa, sb) in a.samples().zip(b.samples()) {
+        assert_eq!(sa.at.t.to_bits(), sb.at.t.to_bits());
+        assert_eq!(bits(sa.x), bits(sb.x), "x at {}", sa.at);
+    }
+    assert_eq!(a.jumps(), b.jumps());
 }
