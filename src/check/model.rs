@@ -1682,6 +1682,9 @@ impl ModelChecker<'_> {
     /// spellings of "every component" (`min(x) >= 0`) and "some component"
     /// (`max(x) >= 0`), and of the conjunction.
     fn vector_comparison_help(&mut self, e: &Expr) -> Option<String> {
+        if let ExprKind::Binary(op @ (BinOp::Eq | BinOp::Ne), a, b) = &e.kind {
+            return self.vector_equality_help(*op, a, b);
+        }
         let ExprKind::Binary(op @ (BinOp::Lt | BinOp::Le | BinOp::Gt | BinOp::Ge), a, b) = &e.kind
         else {
             return None;
@@ -1733,6 +1736,46 @@ impl ModelChecker<'_> {
         Some(format!(
             "a condition is one true/false value: write `{all}` for every component, `{some}` \
              for some component, or join the components' conditions with `&&`: `{component} && ...`"
+        ))
+    }
+
+    /// For `x == c` (`!=`) with a vector or matrix side: the components'
+    /// equalities joined with `&&` (`||` for `!=`), written out for the
+    /// first two components. `norm(x - c) == 0` would be the same set, but
+    /// its zero is a touch, not a crossing, and would never be found along
+    /// a flow.
+    fn vector_equality_help(&mut self, op: BinOp, a: &Expr, b: &Expr) -> Option<String> {
+        let (av, bv) = (self.c.expr(a, &GUARD_CTX)?, self.c.expr(b, &GUARD_CTX)?);
+        let (v, other, vv, ov) = if av.rows * av.cols > 1 {
+            (a, b, &av, &bv)
+        } else {
+            (b, a, &bv, &av)
+        };
+        let ExprKind::Name(x) = &v.kind else {
+            return None;
+        };
+        let component = |k: usize| {
+            if vv.rows == 1 || vv.cols == 1 {
+                format!("{x}[{k}]")
+            } else {
+                format!("{x}[1, {k}]")
+            }
+        };
+        let rhs = |k: usize| match &other.kind {
+            ExprKind::Num(c) if ov.rows * ov.cols == 1 => crate::num::Num(*c).to_string(),
+            ExprKind::Name(c) if ov.rows * ov.cols == 1 => c.clone(),
+            ExprKind::Name(c) => format!("{c}[{k}]"),
+            _ => "c".to_string(),
+        };
+        let (sym, join, every) = match op {
+            BinOp::Eq => ("==", "&&", "every component equal"),
+            _ => ("!=", "||", "some component different"),
+        };
+        let (x1, x2) = (component(1), component(2));
+        let (c1, c2) = (rhs(1), rhs(2));
+        Some(format!(
+            "a condition is one true/false value: for {every}, join the components' conditions \
+             with `{join}`: `{x1} {sym} {c1} {join} {x2} {sym} {c2} {join} ...`"
         ))
     }
 

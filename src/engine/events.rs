@@ -1836,6 +1836,13 @@ impl Watcher {
             };
             if changed {
                 let relaxed = self.relaxed;
+                // Whether every change of class at `s` leaves its set's value
+                // as it was (`v <= vt` of a guard `h <= s && v <= vt` while
+                // `h <= s` fails): then nothing is localized, and the other
+                // atoms may still change and come back between the
+                // checkpoints, searched as where no class changed.
+                self.mark_needs();
+                let unneeded = !self.need[..self.watched.len()].contains(&true);
                 if let Some(found) = self.resolve(sys, path, prev, s) {
                     return Some(found);
                 }
@@ -1843,6 +1850,11 @@ impl Watcher {
                 // classes again (`classes_at` left them otherwise).
                 if self.relaxed != relaxed {
                     self.classes_from_vs();
+                } else if unneeded
+                    && let Some(found) = self.hidden_change(sys, path, (prev, s), last, y1)
+                    && found.is_some()
+                {
+                    return found;
                 }
             } else if let Some(found) = self.hidden_change(sys, path, (prev, s), last, y1) {
                 // A change between the checkpoints, scanned.
@@ -2025,7 +2037,10 @@ impl Watcher {
                 let (a, b, fresh) = match self.found[w] {
                     (a, b, c, r) if a >= cursor && c == self.cls[w] && r == relax => (a, b, false),
                     _ => {
-                        let (a, b) = self.localize(sys, w, path, cursor, s);
+                        // A first change before `s` if the atom changes sign
+                        // more than once on the interval.
+                        let end = self.first_change_end(sys, path, w, (cursor, s));
+                        let (a, b) = self.localize(sys, w, path, cursor, end);
                         self.found[w] = (a, b, self.cls[w], relax);
                         (a, b, true)
                     }

@@ -190,6 +190,13 @@ const CASES: &[Case] = &[
         "expected a condition such as `h >= 0`, found a 3×1 vector",
     ),
     case(
+        "a vector compared for equality in a guard",
+        "model m\nstate x = [1; 2]\njump when x == [0; 0] { x+ = [1; 1] }\n",
+        "E0304",
+        "3:11",
+        "expected a condition such as `h >= 0`, found a 2×1 vector",
+    ),
+    case(
         "MATLAB's if block",
         "model m\nstate x = 1\nflow { x' = -x }\nif x > 0\n  x = 1\nend\n",
         "E0109",
@@ -902,6 +909,10 @@ fn matlab_and_hyeq_habits_get_hybsims_spelling() {
         (
             "a vector compared in a flow set",
             "a condition is one true/false value: write `min(x) >= 0` for every component, `max(x) >= 0` for some component, or join the components' conditions with `&&`: `x[1] >= 0 && ...`",
+        ),
+        (
+            "a vector compared for equality in a guard",
+            "a condition is one true/false value: for every component equal, join the components' conditions with `&&`: `x[1] == c && x[2] == c && ...`",
         ),
         (
             "MATLAB's if block",

@@ -24,6 +24,7 @@
 
 use super::{Buf, EventKind, MAX_CONTROL, StepPath, Watcher, class, split, split_left};
 use crate::engine::HybridSystem;
+use crate::engine::system::Cmp;
 
 /// Midpoints evaluated at most per atom and checkpoint interval (each halving costs one
 /// evaluation of the atom and two of the bounds).
@@ -31,6 +32,18 @@ const BUDGET: usize = 48;
 
 /// The smallest piece halved, as a fraction of its checkpoint interval.
 const MIN_PIECE: f64 = 1.0 / (1u64 << 24) as f64;
+
+/// The smallest piece halved by [`Watcher::first_change_end`], as a
+/// fraction of its bracket: the piece holding the change is never proved, so
+/// the search goes this deep on every change it narrows.
+const FIRST_PIECE: f64 = 1.0 / 256.0;
+
+/// Midpoints evaluated at most by [`Watcher::first_change_end`] per
+/// localization (each costs one evaluation of the atom and one of the
+/// bounds at most): every change is narrowed, and the pieces just before
+/// it are near zero and seldom proved, so the search would otherwise spend
+/// [`BUDGET`] on most changes.
+const FIRST_BUDGET: usize = 12;
 
 /// The most steps ahead of the one where it is made that a [`Window`]
 /// covers if the path goes on as on that step.
@@ -161,6 +174,131 @@ impl Watcher {
         Some(event)
     }
 
+    /// The end of the bracket in which watched atom `w`, of class
+    /// `cls[w]` at the cursor `a` and of the opposite class at the
+    /// checkpoint `b`, is localized: `b`, or the earliest point of the
+    /// opposite class found by bounds. An atom without an affine form may
+    /// change sign several times between two checkpoints (a ball that dips
+    /// under a moving table, `h >= A*sin(w*t)`, and comes back up before
+    /// the next checkpoint of a long step), and bisection on `[a, b]` would
+    /// localize any of those changes, not necessarily the first. The pieces
+    /// of `[a, b]` are taken in time order, each halved where the bounds do
+    /// not prove the class kept; a midpoint of the opposite class becomes
+    /// the new end, and the search goes on left of it, down to
+    /// [`FIRST_PIECE`] of the bracket or [`FIRST_BUDGET`] evaluations.
+    /// Relaxed atoms are searched on their relaxed value.
+    pub(super) fn first_change_end<S: HybridSystem + ?Sized, P: StepPath>(
+        &mut self,
+        sys: &S,
+        path: &mut P,
+        w: usize,
+        (a, b): (f64, f64),
+    ) -> f64 {
+        let c0 = self.cls[w];
+        if P::STRAIGHT
+            || self.hidden.unavailable
+            || !matches!(c0, -1 | 1)
+            || self.cls_s[w] != -c0
+            || !self.boundable(w)
+        {
+            return b;
+        }
+        let mut h = std::mem::take(&mut self.hidden);
+        let end = self.earliest_other_class(sys, path, &mut h, w, (a, b));
+        self.hidden = h;
+        end
+    }
+
+    /// [`first_change_end`](Self::first_change_end) with the search's
+    /// state.
+    fn earliest_other_class<S: HybridSystem + ?Sized, P: StepPath>(
+        &mut self,
+        sys: &S,
+        path: &mut P,
+        h: &mut Hidden,
+        w: usize,
+        (a, b): (f64, f64),
+    ) -> f64 {
+        if h.reads.is_none() {
+            self.first_bounds(sys, h);
+        }
+        if !self.step_bounds(sys, path, h) {
+            return b;
+        }
+        let c0 = self.cls[w];
+        let smallest = (b - a) * FIRST_PIECE;
+        let mut end = b;
+        let mut budget = FIRST_BUDGET;
+        h.stack.clear();
+        h.stack.push((a, b));
+        while let Some((p, q)) = h.stack.pop() {
+            if budget == 0 || q - p <= smallest {
+                // The pieces left are at most as wide: the change is
+                // localized on `[a, end]` as found so far.
+                if budget == 0 {
+                    break;
+                }
+                continue;
+            }
+            budget -= 1;
+            let m = 0.5 * (p + q);
+            if !(m > p && m < q) {
+                continue;
+            }
+            if class(self.watched_at(sys, w, path, m, Buf::T)) == -c0 {
+                // A change before `m`: everything right of it is later.
+                end = m;
+                h.stack.clear();
+                h.stack.push((p, m));
+                continue;
+            }
+            // The right half first onto the stack: the left is taken first.
+            // A piece that ends where the class is already known to differ
+            // holds a change: it is not bounded.
+            for piece in [(m, q), (p, m)] {
+                if piece.1 != end {
+                    if !self.bound(sys, h, piece.0, piece.1) {
+                        return end;
+                    }
+                    if self.keeps_class(h, w, c0) {
+                        continue;
+                    }
+                }
+                h.stack.push(piece);
+            }
+        }
+        end
+    }
+
+    /// Whether `h.bounds` keep the watched value of atom `w` strictly of
+    /// class `c`.
+    fn keeps_class(&self, h: &Hidden, w: usize, c: i8) -> bool {
+        self.watched_bounds(&h.bounds, w)
+            .is_some_and(|(lo, hi)| match c {
+                1 => lo > 0.0,
+                -1 => hi < 0.0,
+                _ => false,
+            })
+    }
+
+    /// Bounds of the watched value of atom `w` (relaxed as it is watched:
+    /// `g + relax` for `g >= 0`) from the atoms' `bounds`; `None` where
+    /// there are none (a relaxed `==` atom, watched as `relax - |g|`, is
+    /// not bounded).
+    fn watched_bounds(&self, bounds: &[(f64, f64)], w: usize) -> Option<(f64, f64)> {
+        let wa = self.watched[w];
+        let (lo, hi) = bounds[self.flat_off[wa.set]? + wa.atom];
+        let relax = self.sets[wa.set].state[wa.atom].relax;
+        if relax <= 0.0 {
+            return Some((lo, hi));
+        }
+        match wa.cmp {
+            Cmp::Ge | Cmp::Gt => Some((lo + relax, hi + relax)),
+            Cmp::Le | Cmp::Lt => Some((lo - relax, hi - relax)),
+            Cmp::Eq | Cmp::Ne => None,
+        }
+    }
+
     /// The first point found in `(a, b)` where a candidate atom has
     /// another class than at the ends.
     fn search<S: HybridSystem + ?Sized, P: StepPath>(
@@ -173,7 +311,10 @@ impl Watcher {
         if h.reads.is_none() {
             self.first_bounds(sys, h);
         }
-        let off_boundary = |w: &usize| matches!(self.cls[*w], -1 | 1);
+        // Atoms of one class at both ends (after a checkpoint where other
+        // atoms changed class without changing their sets, those alone).
+        let off_boundary =
+            |w: &usize| matches!(self.cls[*w], -1 | 1) && self.cls_s[*w] == self.cls[*w];
         if !h.boundable.iter().any(off_boundary) || !self.step_bounds(sys, path, h) {
             return None;
         }
@@ -354,10 +495,10 @@ impl Watcher {
     fn unproved(&self, h: &mut Hidden) {
         h.unproved.clear();
         for &w in &h.boundable {
-            let wa = self.watched[w];
-            let off = self.flat_off[wa.set].unwrap_or_default();
-            let (lo, hi) = h.window.bounds[off + wa.atom];
-            if !(lo > 0.0 || hi < 0.0) {
+            let kept = self
+                .watched_bounds(&h.window.bounds, w)
+                .is_some_and(|(lo, hi)| lo > 0.0 || hi < 0.0);
+            if !kept {
                 h.unproved.push(w);
             }
         }
@@ -365,16 +506,7 @@ impl Watcher {
 
     /// Whether `h.bounds` keep atom `w` strictly on its class's side.
     fn proved(&self, h: &Hidden, w: usize) -> bool {
-        let wa = self.watched[w];
-        let Some(off) = self.flat_off[wa.set] else {
-            return false;
-        };
-        let (lo, hi) = h.bounds[off + wa.atom];
-        match self.cls[w] {
-            1 => lo > 0.0,
-            -1 => hi < 0.0,
-            _ => false,
-        }
+        self.keeps_class(h, w, self.cls[w])
     }
 
     /// The first point found in `(a, b)` where atom `w` has another class
