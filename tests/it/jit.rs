@@ -589,6 +589,21 @@ struct Counting<'a> {
     last: std::cell::RefCell<Option<(HybridTime, Vec<f64>)>>,
 }
 
+impl<'a> Counting<'a> {
+    /// `m` with its counters at zero, giving its sets' inputs if `inputs`.
+    fn new(m: &'a CompiledModel, inputs: bool) -> Self {
+        Self {
+            m,
+            inputs,
+            single: Default::default(),
+            joint: Default::default(),
+            conds: Default::default(),
+            again: Default::default(),
+            last: Default::default(),
+        }
+    }
+}
+
 impl HybridSystem for Counting<'_> {
     fn state_dim(&self) -> usize {
         self.m.state_dim()
@@ -697,15 +712,7 @@ fn the_choice_and_the_segment_start_share_one_evaluation_of_the_sets() {
         let m = compile(&SourceFile::read(&path).unwrap(), "on");
         let mut settings = m.settings();
         settings.horizon_t = horizon;
-        let sys = Counting {
-            m: &m,
-            inputs: false,
-            single: Default::default(),
-            joint: Default::default(),
-            conds: Default::default(),
-            again: Default::default(),
-            last: Default::default(),
-        };
+        let sys = Counting::new(&m, false);
         let (x0, mut rng) = m.start(m.seed());
         let arc = simulate_arc(&sys, &x0, &settings, &mut rng).expect("simulation");
         let jumps = arc.jumps().len();
@@ -732,15 +739,7 @@ fn after_a_jump_only_the_sets_reading_what_it_writes_are_evaluated() {
     let mut settings = m.settings();
     settings.horizon_t = 0.05;
     let run = |inputs: bool| {
-        let sys = Counting {
-            m: &m,
-            inputs,
-            single: Default::default(),
-            joint: Default::default(),
-            conds: Default::default(),
-            again: Default::default(),
-            last: Default::default(),
-        };
+        let sys = Counting::new(&m, inputs);
         let (x0, mut rng) = m.start(m.seed());
         let arc = simulate_arc(&sys, &x0, &settings, &mut rng).expect("simulation");
         (arc, sys.joint.get(), sys.single.get())
