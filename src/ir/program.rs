@@ -716,17 +716,22 @@ impl Program {
         }
     }
 
-    /// The state components the program reads (increasing).
+    /// The state components the program reads (increasing), its outputs
+    /// included (an output may be a state's register itself: an atom `x[k]`).
     pub(crate) fn state_reads(&self) -> Vec<usize> {
         let n = self.state_regs;
         let mut read = vec![false; n];
+        let mut mark = |r: u32| {
+            if let Some(x) = read.get_mut(r as usize) {
+                *x = true;
+            }
+            false
+        };
         for op in &self.ops {
-            self.reads(op, |r| {
-                if let Some(x) = read.get_mut(r as usize) {
-                    *x = true;
-                }
-                false
-            });
+            self.reads(op, &mut mark);
+        }
+        for &o in &self.outs {
+            mark(o);
         }
         (0..n).filter(|&k| read[k]).collect()
     }

@@ -485,3 +485,15 @@ fn a_crossing_inside_one_step_is_found_for_affine_guards() {
         );
     }
 }
+
+/// The components whose boxes the atoms' bounds read include a state that
+/// is an atom by itself (`x >= 0`: the atom's value is `x`'s register, read
+/// by no instruction), beside those read by instructions.
+#[test]
+fn atom_bounds_read_a_state_that_is_an_atom_by_itself() {
+    let m = compile(
+        "model m\nstate x = 1, y = 1, z = 2, w = 0\n\
+         flow { x' = -y; y' = z; z' = 1; w' = 1 } in x >= 0 || y * z >= 1\n",
+    );
+    assert_eq!(m.atom_bound_inputs(), Some(vec![0, 1, 2]));
+}
