@@ -447,6 +447,7 @@ impl Model {
         let reports = py.detach(|| run_tests_each(&subject, &props, &config));
         let inputs = hybsim::props::Subject::inputs(&subject);
         let state_names = hybsim::props::Subject::state_names(&subject);
+        let report_names = hybsim::props::Subject::report_names(&subject);
 
         let out = PyDict::new(py);
         out.set_item("model", model.name())?;
@@ -505,7 +506,7 @@ impl Model {
                     c.set_item("horizon_T", cx.case.horizon_t)?;
                     c.set_item("horizon_J", cx.case.horizon_j)?;
                     c.set_item("shrink_runs", cx.shrink_runs)?;
-                    c.set_item("description", cx.describe(inputs, &state_names))?;
+                    c.set_item("description", cx.describe(inputs, &report_names))?;
                     c.set_item("replay", replay_command(path, &subject, &cx.case))?;
                     if counterexamples.is_empty() {
                         out.set_item("counterexample", &c)?;

@@ -488,6 +488,9 @@ struct TimerAtom {
     threshold: f64,
     /// Local time at which the timer reaches its threshold (∞: never).
     d: f64,
+    /// How much later than a segment's end `d` may be for the timer to
+    /// count as due there ([`timer_slack`]).
+    slack: f64,
     /// The atom's truth once past the threshold (the sign of the rate).
     after: bool,
     /// Whether the scan has passed `d` ([`Watcher::cross_timers`]), and
@@ -497,6 +500,26 @@ struct TimerAtom {
     /// Whether a strict atom has the same timer (it may land past the
     /// threshold: [`Watcher::landing`]).
     strict_timer: bool,
+}
+
+impl TimerAtom {
+    /// Whether the timer is due at the end `d_end` of a segment reached by
+    /// the flow: on its threshold there, or past it by no more than the
+    /// rounding of its own schedule.
+    fn due_at(&self, d_end: f64) -> bool {
+        self.d >= d_end && self.d - d_end <= self.slack
+    }
+}
+
+/// How much later than another timer's a timer's expiry `(threshold −
+/// value) / rate` may come and still count as the same instant: the rounding
+/// its value gathers over a few tens of integrator steps and segments (a
+/// timer integrated by Dopri5, or reset at a different instant from another
+/// of a commensurate period, lands a few ulps off). Two timers meant to
+/// expire together (sampling every 0.01 and acting every 0.03) then do, at
+/// one `t`, instead of with a flow of 10⁻¹⁷ between their jumps.
+pub(crate) fn timer_slack(value: f64, threshold: f64, rate: f64) -> f64 {
+    64.0 * f64::EPSILON * (value.abs() + threshold.abs()) / rate.abs()
 }
 
 /// How often [`first_other_sign`] halves a step at most: a change of sign
@@ -1039,6 +1062,7 @@ impl Watcher {
                             index,
                             threshold,
                             d: f64::INFINITY,
+                            slack: 0.0,
                             after: false,
                             crossed: false,
                             now: false,
@@ -1232,6 +1256,7 @@ impl Watcher {
             } else {
                 f64::INFINITY
             };
+            ta.slack = timer_slack(v, thr, rate);
             let after = cmp.holds(rate);
             ta.after = after;
             ta.crossed = false;
@@ -1388,8 +1413,8 @@ impl Watcher {
         self.timers
             .iter()
             .enumerate()
-            .filter(move |(_, a)| a.d == d_end)
-            .map(move |(i, a)| (a.index, self.landing(i, |t| t.d == d_end)))
+            .filter(move |(_, a)| a.due_at(d_end))
+            .map(move |(i, a)| (a.index, self.landing(i, |t| t.due_at(d_end))))
     }
 
     /// Records the state at the start of a flow segment (local time 0,

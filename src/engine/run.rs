@@ -292,6 +292,7 @@ pub fn simulate<S: HybridSystem + ?Sized>(
     let mut cannot_flow = false;
     let mut at_horizon = false;
     let mut timer_d = vec![f64::INFINITY; timers.len()];
+    let mut timer_slack = vec![0.0; timers.len()];
     let mut inside = vec![false; rules.len()];
 
     // Every run that ends has a final sample of the state where it ended, a run a sink stopped
@@ -485,6 +486,7 @@ pub fn simulate<S: HybridSystem + ?Sized>(
                 f64::INFINITY
             };
             timer_d[k] = d;
+            timer_slack[k] = super::events::timer_slack(v, threshold, rate);
             if d < d_end {
                 d_end = d;
                 horizon_bound = false;
@@ -517,15 +519,18 @@ pub fn simulate<S: HybridSystem + ?Sized>(
         match end.why {
             EndWhy::Reached if horizon_bound => at_horizon = true,
             EndWhy::Reached => {
-                // The timers that fire now land exactly on their threshold;
-                // so do those of grouped rules due within the event
-                // tolerance, which fire in the same simultaneous jump.
+                // The timers that fire now land exactly on their threshold,
+                // those due within the rounding of their schedule too (each
+                // then fires at this `t`, in declaration order); so do those
+                // of grouped rules due within the event tolerance, which
+                // fire in the same simultaneous jump.
                 let tol = settings
                     .event_tol
                     .max(4.0 * f64::EPSILON * time.value().abs());
                 for (k, &(r, index, threshold)) in timers.iter().enumerate() {
-                    let grouped = rules[r].group.is_some() && timer_d[k] - d_end <= tol;
-                    if timer_d[k] == d_end || grouped {
+                    let late = timer_d[k] - d_end;
+                    let grouped = rules[r].group.is_some() && late <= tol;
+                    if late <= timer_slack[k] || grouped {
                         x[index] = threshold;
                         // On its threshold, the rule's set holds.
                         pending = Some(pending.map_or(r, |p| p.min(r)));
@@ -536,14 +541,27 @@ pub fn simulate<S: HybridSystem + ?Sized>(
                 }
             }
             EndWhy::Partial => {}
-            EndWhy::Event(EventKind::Jump(r)) => {
-                pending = Some(r);
+            EndWhy::Event(kind) => {
+                match kind {
+                    EventKind::Jump(r) => pending = Some(r),
+                    EventKind::LeftFlowSet => {
+                        cannot_flow = true;
+                        pending = flows.watcher.rule_at_event();
+                    }
+                }
                 from_event = true;
-            }
-            EndWhy::Event(EventKind::LeftFlowSet) => {
-                cannot_flow = true;
-                pending = flows.watcher.rule_at_event();
-                from_event = true;
+                // Timers due at the event's time within the rounding of
+                // their schedule expire there too (their rules are then
+                // enabled at this point, in declaration order).
+                for (k, &(_, index, threshold)) in timers.iter().enumerate() {
+                    let late = timer_d[k] - end.s;
+                    if (0.0..=timer_slack[k]).contains(&late) {
+                        x[index] = threshold;
+                    }
+                }
+                for (index, threshold) in flows.watcher.timers_due(end.s) {
+                    x[index] = threshold;
+                }
             }
             EndWhy::Stopped => {
                 let at = HybridTime::new(time.value(), j);

@@ -159,6 +159,11 @@ impl Subject for ModelSubject {
         self.model.state_names()
     }
 
+    fn report_names(&self) -> Vec<String> {
+        let names = self.model.state_names();
+        self.model.state_layout().flat_names(names.len())
+    }
+
     fn settings(&self) -> &SimSettings {
         &self.settings
     }

@@ -33,12 +33,15 @@ pub(crate) fn fmt_value(v: f64) -> String {
     Num(v).to_string()
 }
 
+/// `x` with its components named; a component whose name is empty is left
+/// out (see [`Subject::report_names`](super::Subject::report_names)).
 fn named(names: &[String], x: &[f64]) -> String {
     x.iter()
         .enumerate()
-        .map(|(k, v)| match names.get(k) {
-            Some(n) => format!("{n} = {}", Num(*v)),
-            None => format!("x[{k}] = {}", Num(*v)),
+        .filter_map(|(k, v)| match names.get(k) {
+            Some(n) if n.is_empty() => None,
+            Some(n) => Some(format!("{n} = {}", Num(*v))),
+            None => Some(format!("x[{k}] = {}", Num(*v))),
         })
         .collect::<Vec<_>>()
         .join(", ")
@@ -46,7 +49,7 @@ fn named(names: &[String], x: &[f64]) -> String {
 
 impl Violation {
     /// The violation over several lines, with state components named by
-    /// `state_names`.
+    /// `state_names` (those with an empty name left out).
     pub fn describe(&self, state_names: &[String]) -> String {
         let mut s = format!("{self}\n");
         if !self.state.is_empty() {

@@ -152,6 +152,14 @@ pub trait Subject: Sync {
     /// The names of the state components, in order.
     fn state_names(&self) -> Vec<String>;
 
+    /// The names a counterexample's report shows, in component order: an
+    /// empty name leaves its component out (a `.hyb` model's timers of
+    /// `every` rules and held noise, which no log shows either). Default:
+    /// [`state_names`](Self::state_names).
+    fn report_names(&self) -> Vec<String> {
+        self.state_names()
+    }
+
     /// The simulation settings (before a case's horizon overrides).
     fn settings(&self) -> &SimSettings;
 

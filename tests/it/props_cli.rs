@@ -276,6 +276,33 @@ fn a_deterministic_model_is_tested_on_one_case() {
     assert!(text.contains("passed: 100 cases, 0 inconclusive"), "{text}");
 }
 
+/// A counterexample's state lists the model's states, not the timers the
+/// language adds for an `every` rule or a held noise (no log shows them).
+#[test]
+fn a_counterexample_leaves_out_the_timers_the_language_adds() {
+    let dir = tempfile::tempdir().unwrap();
+    let model = "model ev
+state x = 1
+noise v ~ normal(0, 1) every 0.25
+flow { x' = -x + 0.01 * v }
+jump tick every 0.5 { x+ = x + 1 }
+property small: always x <= 1.5
+sim { T = 3 }
+";
+    std::fs::write(dir.path().join("ev.hyb"), model).unwrap();
+    let out = hybsim(dir.path(), &["test", "ev.hyb", "--cases", "1"]);
+    let text = stdout(&out);
+    assert_eq!(code(&out), 1, "{text}");
+    let state = text
+        .lines()
+        .find_map(|l| l.trim().strip_prefix("state: "))
+        .unwrap_or_else(|| panic!("no state line in:\n{text}"));
+    assert!(state.starts_with("x = "), "{text}");
+    assert!(state.contains("v = "), "{text}");
+    assert!(!state.contains("timer"), "{text}");
+    assert_eq!(state.matches(" = ").count(), 2, "{text}");
+}
+
 /// Every failing property is reported, each with its own shrunk
 /// counterexample and replay command, and the passing ones are listed: the
 /// run stopped at the first failure (`below`) and said nothing of `slow`,

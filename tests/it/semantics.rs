@@ -1641,3 +1641,56 @@ fn a_set_that_changes_several_times_between_checkpoints_is_left_at_the_first_cha
         }
     }
 }
+
+/// Multi-rate sampling: a timer every 0.01 and one every 0.03 (an `every`
+/// rule, or a rule on a declared clock) expire together every third sample,
+/// at one `t`: their jumps follow each other with no flow between them, on
+/// the exact path and on Dopri5 (whose clocks land a few ulps off their
+/// thresholds), and with the slow timer as a set's atom.
+#[test]
+fn timers_of_commensurate_periods_expire_at_the_same_instant() {
+    let every = "model mr
+state x = 1, u = 0
+flow { x' = -x + u; u' = 0 }
+jump sense every 0.01 { x+ = x }
+jump act every 0.03 { u+ = -0.5 * x }
+sim { T = 0.995 }
+";
+    let clock = "model mr
+state x = 1, u = 0, tau = 0
+flow { x' = -x + u; u' = 0; tau' = 1 }
+jump sense every 0.01 { x+ = x }
+jump act when tau >= 0.03 && x > -100 { u+ = -0.5 * x; tau+ = 0 }
+sim { T = 0.995 }
+";
+    for (what, src) in [("every", every), ("clock", clock)] {
+        let m = compile(src);
+        for exact in [ExactAffine::Auto, ExactAffine::On, ExactAffine::Off] {
+            let arc = run_with(&m, &m.settings().exact_affine(exact));
+            let times = jump_times(&arc);
+            assert_eq!(times.len(), 99 + 33, "{what}, {exact:?}: {times:?}");
+            let mut distinct = times.clone();
+            distinct.dedup();
+            assert_eq!(distinct.len(), 99, "{what}, {exact:?}: {times:?}");
+            for (k, t) in distinct.iter().enumerate() {
+                let sample = 0.01 * (k + 1) as f64;
+                assert!(
+                    (t - sample).abs() <= 1e-12,
+                    "{what}, {exact:?}: {t} vs {sample}"
+                );
+            }
+            // No flow between the two jumps of an instant: the state after
+            // the first is the state before the second.
+            let jumps = arc.jumps();
+            for w in jumps.windows(2) {
+                if w[0].at.t == w[1].at.t {
+                    assert_eq!(
+                        w[0].post, w[1].pre,
+                        "{what}, {exact:?} at t = {}",
+                        w[0].at.t
+                    );
+                }
+            }
+        }
+    }
+}
