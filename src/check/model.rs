@@ -11,7 +11,9 @@ use super::expr::{CONST_CTX, Ctx, Val, dims_words, key_label, suggest};
 use super::limits::{Limits, Quantity};
 use super::rule_names::RuleNames;
 use super::{Checker, DesignReport, Sym, Unavailable};
-use crate::engine::{ExactAffine, LinearSolver, Priority, SimError, SimSettings, Solver};
+use crate::engine::{
+    ExactAffine, JumpChoice, LinearSolver, Priority, SimError, SimSettings, Solver,
+};
 use crate::source::Span;
 use crate::syntax::ast::*;
 
@@ -215,6 +217,7 @@ const SIM_KEYS: &[&str] = &[
     "atol",
     "h",
     "priority",
+    "jump_choice",
     "dt_out",
     "seed",
     "max_step",
@@ -251,6 +254,7 @@ fn foreign_sim_key(key: &str) -> Option<&'static str> {
         "abstol" => "atol",
         "maxstep" => "max_step",
         "rule" => "priority",
+        "choice" | "rule_choice" => "jump_choice",
         _ => return None,
     })
 }
@@ -2113,6 +2117,10 @@ impl ModelChecker<'_> {
                         Some("flows") => s.priority = Priority::Flows,
                         Some("random") => s.priority = Priority::Random,
                         _ => bad(self, "write one of jumps, flows, random".into()),
+                    },
+                    "jump_choice" => match word.and_then(JumpChoice::from_name) {
+                        Some(c) => s.jump_choice = c,
+                        None => bad(self, "write one of first, random".into()),
                     },
                     "exact_affine" => match word {
                         Some("auto") => s.exact_affine = ExactAffine::Auto,
