@@ -1394,6 +1394,35 @@ impl ModelChecker<'_> {
             });
             return;
         }
+        // A constant the engine would refuse at (0, 0): said here, at the
+        // value, not as a run-time failure of the state's flow.
+        let bad = v.e.iter().enumerate().find_map(|(k, &n)| {
+            let c = self.c.dag.as_const(n)?;
+            (!c.is_finite()).then_some((k, c))
+        });
+        if let Some((k, value)) = bad {
+            // Uses and equations of the state report nothing more.
+            self.c.poisoned.insert(name.clone(), Unavailable::Failed);
+            let name = if size > 1.0 {
+                format!("{name}[{}]", k + 1)
+            } else {
+                name
+            };
+            // From `--set x=…`: located in the override.
+            let o = (sd.target.indices.is_empty())
+                .then(|| self.overrides.get(sd.target.name.name.as_str()).copied())
+                .flatten();
+            let before = self.c.errors.len();
+            self.c.err(CheckError::NonFiniteInit {
+                name,
+                value,
+                span: o.map_or(init_expr.span, |o| o.expr.span),
+            });
+            if let Some(o) = o {
+                self.locate_in_override(before, o, false);
+            }
+            return;
+        }
         let field_idx = self.c.fields.len();
         let span = sd.target.name.span;
         if let Some(display) = self.declare(&sd.target, |_| Sym::State {
