@@ -348,7 +348,8 @@ class Model:
         ``"radau5"``, ``"bdf"``, ``"auto"``, ``"rk4"``, ``"euler_maruyama"``),
         ``rtol``, ``atol``, ``step``,
         ``max_step``, ``priority`` (``"jumps"``, ``"flows"``, ``"random"``),
-        ``event_tol``, ``guard_checks``, ``zeno_max_rate``, ``zeno_window``,
+        ``jump_choice`` (``"first"``, ``"random"``: which of several enabled
+        rules fires), ``event_tol``, ``guard_checks``, ``zeno_max_rate``, ``zeno_window``,
         ``max_total_jumps``, ``exact_affine``, ``linear_solver`` (``"auto"``,
         ``"dense"``, ``"sparse"``: the implicit solvers' LU).
 

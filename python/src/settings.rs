@@ -1,14 +1,14 @@
 //! `Model.run(**sim)`: simulation settings from Python keywords, over the
 //! model's `sim` block (the keywords of `hybsim run`'s flags).
 
-use hybsim::engine::{LinearSolver, Priority, SimError, SimSettings, Solver};
+use hybsim::engine::{JumpChoice, LinearSolver, Priority, SimError, SimSettings, Solver};
 use hybsim::ir::CompiledModel;
 use pyo3::exceptions::{PyOverflowError, PyTypeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
 /// The keywords `Model.run` accepts besides `T`, `J` and `seed`.
-pub const KEYS: [&str; 16] = [
+pub const KEYS: [&str; 17] = [
     "T",
     "J",
     "dt_out",
@@ -18,6 +18,7 @@ pub const KEYS: [&str; 16] = [
     "step",
     "max_step",
     "priority",
+    "jump_choice",
     "event_tol",
     "guard_checks",
     "zeno_max_rate",
@@ -114,6 +115,11 @@ pub fn apply(model: &CompiledModel, sim: &Bound<'_, PyDict>) -> PyResult<SimSett
             PyValueError::new_err(format!(
                 "linear_solver `{name}`: use \"auto\", \"dense\" or \"sparse\""
             ))
+        })?);
+    }
+    if let Some(name) = get::<String>(sim, "jump_choice")? {
+        settings = settings.jump_choice(JumpChoice::from_name(&name).ok_or_else(|| {
+            PyValueError::new_err(format!("jump_choice `{name}`: use \"first\" or \"random\""))
         })?);
     }
     if let Some(p) = get::<String>(sim, "priority")? {

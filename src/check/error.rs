@@ -411,6 +411,17 @@ pub enum CheckError {
         /// The equation.
         span: Span,
     },
+    /// A state's constant initial value that is inf or NaN: no run can
+    /// start from it (the engine refuses a non-finite initial state).
+    #[error("the initial value of `{name}` is not finite ({value})")]
+    NonFiniteInit {
+        /// The state (`x`, `x[2]` for a component of a vector).
+        name: String,
+        /// The value (±inf or NaN).
+        value: f64,
+        /// The initial value's expression.
+        span: Span,
+    },
     /// A flow equation in which white noise does not enter linearly
     /// (`x' = w^2`): the engine needs `x' = f(x) + G(x) w`.
     #[error("white noise must enter `{target}` linearly")]
@@ -494,6 +505,7 @@ impl CheckError {
             | Limit { span, .. }
             | Memory { span, .. }
             | NonFiniteFlow { span, .. }
+            | NonFiniteInit { span, .. }
             | NanCondition { span, .. }
             | NoiseNotAffine { span, .. } => *span,
             Design(e) => e.span(),
@@ -538,6 +550,7 @@ impl CheckError {
             RecursiveSubsystem { .. } => "E0513",
             NonFiniteFlow { .. } => "E0514",
             NanCondition { .. } => "E0515",
+            NonFiniteInit { .. } => "E0516",
             Design(e) => e.code(),
             Table(e) => e.code(),
         }
@@ -758,6 +771,9 @@ impl CheckError {
             }
             NonFiniteFlow { span, .. } => d
                 .primary(*span, "inf or NaN in this equation")
+                .help("check the parameters it uses (a division by zero, an overflow, `inf`)"),
+            NonFiniteInit { span, .. } => d
+                .primary(*span, "not a finite number")
                 .help("check the parameters it uses (a division by zero, an overflow, `inf`)"),
             NanCondition { span, .. } => d
                 .primary(*span, "its condition reads a NaN value")

@@ -11,7 +11,9 @@ use super::expr::{CONST_CTX, Ctx, Val, dims_words, key_label, suggest};
 use super::limits::{Limits, Quantity};
 use super::rule_names::RuleNames;
 use super::{Checker, DesignReport, Sym, Unavailable};
-use crate::engine::{ExactAffine, LinearSolver, Priority, SimError, SimSettings, Solver};
+use crate::engine::{
+    ExactAffine, JumpChoice, LinearSolver, Priority, SimError, SimSettings, Solver,
+};
 use crate::source::Span;
 use crate::syntax::ast::*;
 
@@ -215,6 +217,7 @@ const SIM_KEYS: &[&str] = &[
     "atol",
     "h",
     "priority",
+    "jump_choice",
     "dt_out",
     "seed",
     "max_step",
@@ -251,6 +254,7 @@ fn foreign_sim_key(key: &str) -> Option<&'static str> {
         "abstol" => "atol",
         "maxstep" => "max_step",
         "rule" => "priority",
+        "choice" | "rule_choice" => "jump_choice",
         _ => return None,
     })
 }
@@ -1390,6 +1394,35 @@ impl ModelChecker<'_> {
             });
             return;
         }
+        // A constant the engine would refuse at (0, 0): said here, at the
+        // value, not as a run-time failure of the state's flow.
+        let bad = v.e.iter().enumerate().find_map(|(k, &n)| {
+            let c = self.c.dag.as_const(n)?;
+            (!c.is_finite()).then_some((k, c))
+        });
+        if let Some((k, value)) = bad {
+            // Uses and equations of the state report nothing more.
+            self.c.poisoned.insert(name.clone(), Unavailable::Failed);
+            let name = if size > 1.0 {
+                format!("{name}[{}]", k + 1)
+            } else {
+                name
+            };
+            // From `--set x=…`: located in the override.
+            let o = (sd.target.indices.is_empty())
+                .then(|| self.overrides.get(sd.target.name.name.as_str()).copied())
+                .flatten();
+            let before = self.c.errors.len();
+            self.c.err(CheckError::NonFiniteInit {
+                name,
+                value,
+                span: o.map_or(init_expr.span, |o| o.expr.span),
+            });
+            if let Some(o) = o {
+                self.locate_in_override(before, o, false);
+            }
+            return;
+        }
         let field_idx = self.c.fields.len();
         let span = sd.target.name.span;
         if let Some(display) = self.declare(&sd.target, |_| Sym::State {
@@ -2113,6 +2146,10 @@ impl ModelChecker<'_> {
                         Some("flows") => s.priority = Priority::Flows,
                         Some("random") => s.priority = Priority::Random,
                         _ => bad(self, "write one of jumps, flows, random".into()),
+                    },
+                    "jump_choice" => match word.and_then(JumpChoice::from_name) {
+                        Some(c) => s.jump_choice = c,
+                        None => bad(self, "write one of first, random".into()),
                     },
                     "exact_affine" => match word {
                         Some("auto") => s.exact_affine = ExactAffine::Auto,

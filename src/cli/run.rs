@@ -10,8 +10,8 @@ use hybsim::arc::{ArcSink, HybridTime, Termination, TerminationCause};
 use hybsim::atomic_file;
 use hybsim::diagnostics::render;
 use hybsim::engine::{
-    ExactAffine, HybridSystem, LinearSolver, Priority, SimError, SimRng, SimSettings, Solver,
-    simulate,
+    ExactAffine, HybridSystem, JumpChoice, LinearSolver, Priority, SimError, SimRng, SimSettings,
+    Solver, simulate,
 };
 use hybsim::ir::CompiledModel;
 use hybsim::ir::metric::Metrics;
@@ -73,6 +73,11 @@ pub struct RunArgs {
     /// What to do when the state is in both C and D.
     #[arg(long, value_enum)]
     pub priority: Option<PriorityKind>,
+    /// Which jump fires when several rules are enabled at one point: the
+    /// `first` declared, or one drawn at `random` from the run's generator
+    /// (overrides the model's `jump_choice`).
+    #[arg(long, value_enum, value_name = "CHOICE")]
+    pub jump_choice: Option<JumpChoiceKind>,
     #[command(flatten)]
     pub guard: GuardArgs,
     /// Advance affine flows exactly (matrix exponentials): `auto` (by cost,
@@ -238,6 +243,15 @@ pub enum LinearSolverKind {
     Sparse,
 }
 
+/// `jump_choice` names on the command line.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum JumpChoiceKind {
+    /// The first enabled rule in declaration order.
+    First,
+    /// A uniform draw among the enabled jumps.
+    Random,
+}
+
 /// Priority names on the command line.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 pub enum PriorityKind {
@@ -346,6 +360,12 @@ pub fn settings_from_flags(
             PriorityKind::Jumps => Priority::Jumps,
             PriorityKind::Flows => Priority::Flows,
             PriorityKind::Random => Priority::Random,
+        });
+    }
+    if let Some(c) = args.jump_choice {
+        settings = settings.jump_choice(match c {
+            JumpChoiceKind::First => JumpChoice::First,
+            JumpChoiceKind::Random => JumpChoice::Random,
         });
     }
     if let Some(l) = args.linear_solver {
@@ -497,6 +517,7 @@ pub fn settings_json(s: &SimSettings) -> Value {
         "horizon_j": if s.horizon_j == u64::MAX { json!("inf") } else { json!(s.horizon_j) },
         "solver": solver,
         "priority": priority,
+        "jump_choice": s.jump_choice.name(),
         "dt_out": s.dt_out.map(num),
         "max_step": num(s.max_step),
         "event_tol": num(s.event_tol),

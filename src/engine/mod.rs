@@ -16,7 +16,12 @@
 //!    increments j by exactly one; the state is then re-examined at the same
 //!    t, so if several rules are enabled they fire one after another, each
 //!    on the state left by the previous one, in declaration order, as long as
-//!    they stay enabled. **Simultaneous jumps:** if the enabled rule has a
+//!    they stay enabled. With [`JumpChoice::Random`]
+//!    ([`jump_choice`](SimSettings::jump_choice)) the rule is instead drawn
+//!    uniformly from the run's [`SimRng`] among the enabled ones (a group
+//!    counting once, its parts' rules drawn too): a set-valued jump map
+//!    G(x) = G₁(x) ∪ G₂(x) written as rules with overlapping jump sets.
+//!    **Simultaneous jumps:** if the enabled rule has a
 //!    [`group`](JumpRule::group), every rule of that group whose jump set
 //!    holds at the pre-jump point (or that the event just localized reached,
 //!    e.g. an equality atom met within the event's bracket;
@@ -233,7 +238,9 @@ pub use crate::arc::{Termination, TerminationCause, ZenoDetail};
 pub use error::SimError;
 pub use invariants::{ArcViolation, check_arc};
 pub use run::{simulate, simulate_arc};
-pub use settings::{DEFAULT_FIXED_STEP, ExactAffine, LinearSolver, Priority, SimSettings, Solver};
+pub use settings::{
+    DEFAULT_FIXED_STEP, ExactAffine, JumpChoice, LinearSolver, Priority, SimSettings, Solver,
+};
 pub use sparsity::{
     PatternError, SPARSE_MAX_FACTOR_DENSITY, SPARSE_MIN_STATES, SparsityPattern, use_sparse_lu,
 };

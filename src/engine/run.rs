@@ -9,7 +9,7 @@ use super::clock::TimeSum;
 use super::error::SimError;
 use super::events::{EventKind, FlowSetTest, Watcher};
 use super::flow::{Affine, EndWhy, Flows, Method, Output, check_finite, check_jump_finite};
-use super::settings::{ExactAffine, Priority, SimSettings, Solver};
+use super::settings::{ExactAffine, JumpChoice, Priority, SimSettings, Solver};
 use super::system::{Cmp, FlowStructure, GuardKind, SetExpr, SetRef, SimRng};
 use crate::arc::{
     ArcSink, HybridArc, HybridTime, SampleKind, Termination, TerminationCause, ZenoDetail,
@@ -275,6 +275,8 @@ pub fn simulate<S: HybridSystem + ?Sized>(
     let mut x_plus = vec![0.0; n];
     let mut x_rule = vec![0.0; n];
     let mut firing: Vec<usize> = Vec::new();
+    // The rules enabled at a point, for `JumpChoice::Random`.
+    let mut choices: Vec<usize> = Vec::new();
     // The rule of the last jump, if it fired alone and no flow has moved
     // `x` since: `x_plus` then holds the pre-jump state, which differs from
     // `x` only where the rule writes (when it says where), and the next
@@ -338,6 +340,7 @@ pub fn simulate<S: HybridSystem + ?Sized>(
         if j >= settings.horizon_j {
             return finish(&mut out, at, &x, TerminationCause::HorizonJ);
         }
+        let was_pending = pending;
         let enabled = first_enabled(
             sys,
             at,
@@ -372,7 +375,28 @@ pub fn simulate<S: HybridSystem + ?Sized>(
                     Priority::Flows => false,
                     Priority::Random => rng.bernoulli(0.5),
                 });
-        if let (true, Some(rule)) = (jump, enabled) {
+        if let (true, Some(first)) = (jump, enabled) {
+            // Whether rule `r` is enabled here (`first` and `pending` known
+            // to be; a set reached at the other end of an event's bracket,
+            // the same instant within the event tolerance, counts), as the
+            // members of a group are decided.
+            let holds = |r: usize| {
+                r == first
+                    || Some(r) == was_pending
+                    || (after_event && flows.watcher.reached_at_event(r))
+                    || match timer_sets.as_ref() {
+                        Some(sets) => sets.holds(r, &x),
+                        None => sys.jump_set(r, at, &x),
+                    }
+            };
+            let rule = match settings.jump_choice {
+                JumpChoice::First => first,
+                JumpChoice::Random => {
+                    choices.clear();
+                    choices.extend((0..rules.len()).filter(|&r| holds(r)));
+                    draw_jump(rules, &choices, rng)
+                }
+            };
             if let Some(detail) = zeno.check(t, j) {
                 let cause = TerminationCause::ZenoSuspected {
                     rule,
@@ -403,23 +427,33 @@ pub fn simulate<S: HybridSystem + ?Sized>(
                     // other end of the event bracket (the same instant
                     // within the event tolerance).
                     // At most one rule per part: the enabling rule, then
-                    // the first enabled of each other part.
+                    // the first enabled of each other part (`first`), or
+                    // one drawn among each part's enabled rules (`random`).
                     let part = |r: usize| rules[r].part;
-                    firing.extend(members.iter().copied().filter(|&r| {
-                        r == rule
-                            || (part(r).is_none_or(|p| Some(p) != part(rule))
-                                && (sys.jump_set(r, at, &x)
-                                    || (after_event && flows.watcher.reached_at_event(r))))
-                    }));
-                    let mut taken: Vec<usize> = Vec::new();
-                    firing.retain(|&r| match part(r) {
-                        None => true,
-                        Some(p) if r == rule || !taken.contains(&p) => {
-                            taken.push(p);
-                            true
+                    match settings.jump_choice {
+                        JumpChoice::First => {
+                            firing.extend(members.iter().copied().filter(|&r| {
+                                r == rule
+                                    || (part(r).is_none_or(|p| Some(p) != part(rule))
+                                        && (sys.jump_set(r, at, &x)
+                                            || (after_event && flows.watcher.reached_at_event(r))))
+                            }));
+                            let mut taken: Vec<usize> = Vec::new();
+                            firing.retain(|&r| match part(r) {
+                                None => true,
+                                Some(p) if r == rule || !taken.contains(&p) => {
+                                    taken.push(p);
+                                    true
+                                }
+                                Some(_) => false,
+                            });
                         }
-                        Some(_) => false,
-                    });
+                        // Every enabled member, then one drawn per part.
+                        JumpChoice::Random => {
+                            firing.extend(members.iter().copied().filter(|r| choices.contains(r)));
+                            draw_parts(rules, &mut firing, rng);
+                        }
+                    }
                     for &r in &firing {
                         x_rule.copy_from_slice(&x);
                         sys.jump_map(r, at, &x, rng, &mut x_rule);
@@ -610,6 +644,49 @@ fn first_enabled<S: HybridSystem + ?Sized>(
     }
     watcher.forget_prefetch();
     (0..inside.len()).find(|&r| sys.jump_set(r, at, x))
+}
+
+/// A jump drawn uniformly among the enabled rules `enabled` (ascending,
+/// not empty): a rule that fires alone counts once, a group once (for a
+/// group, its first enabled member is returned; which rules of it fire is
+/// drawn by [`draw_parts`]). Nothing is drawn when there is one jump.
+fn draw_jump(rules: &[super::JumpRule], enabled: &[usize], rng: &mut SimRng) -> usize {
+    // The first enabled rule of each jump.
+    let mut jumps: Vec<usize> = Vec::with_capacity(enabled.len());
+    for (i, &r) in enabled.iter().enumerate() {
+        let g = rules[r].group;
+        if g.is_none() || !enabled[..i].iter().any(|&o| rules[o].group == g) {
+            jumps.push(r);
+        }
+    }
+    match jumps[..] {
+        [r] => r,
+        _ => jumps[rng.index(jumps.len())],
+    }
+}
+
+/// Keeps one rule per part among the enabled rules of a group `firing`
+/// (ascending), drawn uniformly where a part has several (a part's rules
+/// are its subsystem's alternatives); rules without a part all stay.
+fn draw_parts(rules: &[super::JumpRule], firing: &mut Vec<usize>, rng: &mut SimRng) {
+    let mut i = 0;
+    while i < firing.len() {
+        let Some(p) = rules[firing[i]].part else {
+            i += 1;
+            continue;
+        };
+        let same: Vec<usize> = firing[i..]
+            .iter()
+            .copied()
+            .filter(|&r| rules[r].part == Some(p))
+            .collect();
+        let keep = match same[..] {
+            [r] => r,
+            _ => same[rng.index(same.len())],
+        };
+        firing.retain(|&r| r == keep || rules[r].part != Some(p));
+        i = firing.iter().position(|&r| r == keep).map_or(i, |k| k + 1);
+    }
 }
 
 /// The flow time from `time` to the horizon `horizon_t`, rounded so that the

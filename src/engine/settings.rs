@@ -268,6 +268,44 @@ pub enum Priority {
     Random,
 }
 
+/// Which jump fires when the jump sets of several rules hold at one point
+/// (a set-valued jump map G(x) = G₁(x) ∪ G₂(x) written as rules with
+/// overlapping jump sets).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum JumpChoice {
+    /// The first enabled rule in declaration order (with the rules of its
+    /// group that hold there).
+    #[default]
+    First,
+    /// A uniform draw from the run's [`SimRng`](super::SimRng) among the
+    /// enabled jumps: each enabled rule that fires alone counts once, and a
+    /// group of simultaneous rules with an enabled member counts once (it
+    /// is one jump). Drawn a group, each of its parts fires one of its
+    /// enabled rules, drawn uniformly too. Nothing is drawn where a single
+    /// jump is enabled: a model whose rules never overlap has the arc of
+    /// [`JumpChoice::First`].
+    Random,
+}
+
+impl JumpChoice {
+    /// The name used in `.hyb` files and on the command line.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::First => "first",
+            Self::Random => "random",
+        }
+    }
+
+    /// The variant named `name` (`first`, `random`).
+    pub fn from_name(name: &str) -> Option<Self> {
+        match name {
+            "first" => Some(Self::First),
+            "random" => Some(Self::Random),
+            _ => None,
+        }
+    }
+}
+
 /// Settings of one simulation run. Build with `SimSettings::default()` and
 /// the by-value setters:
 ///
@@ -292,6 +330,9 @@ pub struct SimSettings {
     pub solver: Solver,
     /// Priority when x ∈ C ∩ D. Default [`Priority::Jumps`].
     pub priority: Priority,
+    /// Which jump fires when several rules are enabled at one point.
+    /// Default [`JumpChoice::First`].
+    pub jump_choice: JumpChoice,
     /// Output grid step in units of t: `None` (default) pushes a sample at
     /// every integrator step; `Some(dt)` pushes samples at t = k·dt inside
     /// flows (interpolated, see the module docs) instead. The initial,
@@ -356,6 +397,7 @@ impl Default for SimSettings {
             horizon_j: u64::MAX,
             solver: Solver::default(),
             priority: Priority::default(),
+            jump_choice: JumpChoice::First,
             dt_out: None,
             max_step: f64::INFINITY,
             event_tol: 0.0,
@@ -390,6 +432,8 @@ impl SimSettings {
         solver: Solver);
     setter!(/// Sets [`priority`](Self::priority).
         priority: Priority);
+    setter!(/// Sets [`jump_choice`](Self::jump_choice).
+        jump_choice: JumpChoice);
     setter!(/// Sets [`dt_out`](Self::dt_out).
         dt_out: Option<f64>);
     setter!(/// Sets [`max_step`](Self::max_step).

@@ -727,6 +727,24 @@ impl SimRng {
         self.uniform(0.0, 1.0) < p
     }
 
+    /// A uniform draw from `0..n` (`n` ≥ 1), without modulo bias: the
+    /// draws of the top partial range of `u64` are rejected.
+    ///
+    /// # Panics
+    /// If `n` is 0.
+    pub fn index(&mut self, n: usize) -> usize {
+        assert!(n > 0, "SimRng::index over an empty range");
+        let n = n as u64;
+        // 2^64 mod n draws at the top would favour the small residues.
+        let last = u64::MAX - (u64::MAX - n + 1) % n;
+        loop {
+            let v = self.0.next_u64();
+            if v <= last {
+                return (v % n) as usize;
+            }
+        }
+    }
+
     /// The underlying generator, for distributions not wrapped here.
     pub fn inner(&mut self) -> &mut ChaCha8Rng {
         &mut self.0

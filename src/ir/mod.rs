@@ -993,13 +993,15 @@ impl CompiledModel {
     }
 
     /// Whether a run of the model draws random numbers: random parameters,
-    /// random initial values, draws in resets, noise, or `priority =
-    /// random`. Runs of a model that does not are the same for every seed.
+    /// random initial values, draws in resets, noise, `priority = random`
+    /// or `jump_choice = random`. Runs of a model that does not are the
+    /// same for every seed.
     pub fn is_random(&self) -> bool {
         self.draws
             || !self.inputs.is_empty()
             || self.frame.m > 0
             || self.settings.priority == crate::engine::Priority::Random
+            || self.settings.jump_choice == crate::engine::JumpChoice::Random
     }
 
     /// Marks the random parameters of the model this one was compiled from

@@ -109,6 +109,21 @@ pub enum SyntaxError {
         /// The keyword it is closest to.
         keyword: &'static str,
     },
+    /// A statement whose first word is no declaration's keyword nor close
+    /// to one (`const g = 1`, `initial x = 1`), or a flow equation outside
+    /// `flow { }`: the parser read the word as an instance's name and
+    /// stopped after it.
+    #[error("{message}")]
+    NotADeclaration {
+        /// The word.
+        span: Span,
+        /// The error.
+        message: String,
+        /// The label at the span.
+        label: &'static str,
+        /// What to write instead.
+        help: String,
+    },
     /// A keyword where a name was expected (`jump out when …`).
     #[error("`{word}` is a keyword, not a name")]
     KeywordAsName {
@@ -140,6 +155,7 @@ impl SyntaxError {
             | SyntaxError::Foreign { span, .. }
             | SyntaxError::Unclosed { span, .. }
             | SyntaxError::Misspelt { span, .. }
+            | SyntaxError::NotADeclaration { span, .. }
             | SyntaxError::KeywordAsName { span, .. }
             | SyntaxError::BadNumber { span, .. } => *span,
         }
@@ -230,6 +246,16 @@ impl SyntaxError {
             } => Diagnostic::error("E0101", message.clone())
                 .primary(*span, label.clone())
                 .help(format!("did you mean `{keyword}`?")),
+            SyntaxError::NotADeclaration {
+                span,
+                message,
+                label,
+                help,
+            } => {
+                Diagnostic::error("E0101", message.clone())
+                    .primary(*span, *label)
+                    .help(help.clone())
+            }
             SyntaxError::KeywordAsName { span, word } => {
                 Diagnostic::error("E0101", self.to_string())
                     .primary(*span, "a name expected here")
@@ -408,7 +434,13 @@ fn keyword_mistake(
             keyword,
         });
     }
-    let end = before.trim_end_matches([' ', '\t']).len();
+    // At the end of the file after a name read as an instance's (only `[`
+    // expected), that name (`stat` alone on the last line).
+    let end = if rest.trim().is_empty() && expected == "`[`" {
+        before.trim_end().len()
+    } else {
+        before.trim_end_matches([' ', '\t']).len()
+    };
     let start = before[..end].trim_end_matches(is_word).len();
     let word = &before[start..end];
     let statement_start = before[..start]
@@ -419,12 +451,51 @@ fn keyword_mistake(
     if !statement_start || !word.starts_with(|c: char| c.is_ascii_alphabetic()) {
         return None;
     }
-    let keyword = closest_keyword(word, &DECLARATION_WORDS)?;
-    Some(SyntaxError::Misspelt {
-        span: Span::new(start, end),
-        message: format!("`{word}` does not start a declaration"),
-        label: "not a declaration's keyword".into(),
-        keyword,
+    let span = Span::new(start, end);
+    if let Some(keyword) = closest_keyword(word, &DECLARATION_WORDS) {
+        return Some(SyntaxError::Misspelt {
+            span,
+            message: format!("`{word}` does not start a declaration"),
+            label: "not a declaration's keyword".into(),
+            keyword,
+        });
+    }
+    // Only `[` expected: the word was read as an instance's name (`name =
+    // Sub(…)`, whose `=` pest does not list), which it is not.
+    if expected != "`[`" || rest.trim_start_matches([' ', '\t']).starts_with('=') {
+        return None;
+    }
+    let (message, label, help) = if rest.starts_with('\'') {
+        (
+            format!("a flow equation `{word}' = …` outside a flow block"),
+            "a state's derivative outside `flow { }`",
+            format!("write flow equations in a flow block: `flow {{ {word}' = … }}`"),
+        )
+    } else {
+        let declares = match word {
+            "const" | "constant" | "let" | "var" | "val" | "def" | "define" => {
+                "; constants are declared with `param` (`param g = 9.81`), states with `state`"
+            }
+            _ => "",
+        };
+        (
+            format!("`{word}` does not start a declaration"),
+            "not a declaration's keyword",
+            format!(
+                "a statement starts with one of {}, or is an instance `name = Subsystem(…)`{declares}",
+                DECLARATION_WORDS
+                    .iter()
+                    .map(|k| format!("`{k}`"))
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            ),
+        )
+    };
+    Some(SyntaxError::NotADeclaration {
+        span,
+        message,
+        label,
+        help,
     })
 }
 

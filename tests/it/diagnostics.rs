@@ -341,6 +341,29 @@ const CASES: &[Case] = &[
         "2:14",
         "`flwo` does not start a declaration",
     ),
+    // A first word far from every keyword was read as an instance's name,
+    // and the error said only "expected `[`" after it.
+    case(
+        "another language's declaration",
+        "model m\nconst g = 9.81\nstate x = 1\n",
+        "E0101",
+        "2:1",
+        "`const` does not start a declaration",
+    ),
+    case(
+        "a stray word at the end of the file",
+        "model m\nstate x = 1\nflow { x' = -x }\nextra\n",
+        "E0101",
+        "4:1",
+        "`extra` does not start a declaration",
+    ),
+    case(
+        "a flow equation outside a flow block",
+        "model m\nstate x = 1\nx' = -x\n",
+        "E0101",
+        "3:1",
+        "a flow equation `x' = …` outside a flow block",
+    ),
     case(
         "misspelt keyword where one is expected",
         "model m\nstate x = 1\njump r wen x <= 0 { x+ = 1 }\n",

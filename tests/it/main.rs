@@ -16,6 +16,7 @@ mod format;
 mod fuzz_corpus;
 mod imports;
 mod jit;
+mod jump_choice;
 mod lang;
 mod logging;
 mod models;

@@ -926,6 +926,14 @@ fn check_rejects_what_run_would_with_located_errors() {
             "the jump set of `r` compares with NaN, so it never holds",
             ":6:1",
         ),
+        // Was E0602 at run time, at `x' = -x` (the flow of another state).
+        (
+            "init",
+            "param a = 1/0\nstate z = [1; a]\n",
+            "E0516",
+            "the initial value of `z[2]` is not finite (inf)",
+            ":6:11",
+        ),
     ];
     for (name, extra, code_, says, at) in cases {
         let file = format!("{name}.hyb");
@@ -958,6 +966,7 @@ fn check_rejects_what_run_would_with_located_errors() {
         ("event_tol=1", "--set event_tol:1:11"),
         ("solver=fast", "--set solver:1:8"),
         ("T=-1", "--set T:1:3"),
+        ("h=1/0", "--set h:1:3"),
     ] {
         let err = refused(d, &["check", model, "--set", set], 2);
         assert!(

@@ -1692,5 +1692,36 @@ sim { T = 0.995 }
                 }
             }
         }
+
+/// Guards of shapes a new user writes, on flows with closed forms (session
+/// 37's probe): the distance from the origin on a rotation about (c, 0)
+/// (`x1^2 + x2^2 >= 3` from the origin, c = R = 1: |x|² = 2 + 2 cos θ, first at
+/// θ = 5π/3, then every π/3 after the reflection about c), and an impulsive
+/// `x' = x` halved at 1 (every ln 2). Each with the flows advanced exactly
+/// and by Dopri5 at tight tolerances.
+#[test]
+fn a_circle_guard_on_a_rotation_and_an_impulsive_reset_jump_at_the_closed_form_times() {
+    let circle = compile(
+        "model circle\nstate x1 = 0, x2 = 0\n\
+         flow { x1' = -x2; x2' = x1 - 1 } in x1^2 + x2^2 <= 3\n\
+         jump reflect when x1^2 + x2^2 >= 3 { x1+ = 2 - x1 }\nsim { T = 20 }\n",
+    );
+    let pi = std::f64::consts::PI;
+    let expected: Vec<f64> = (0..18)
+        .map(|k| 2.0 * pi / 3.0 + k as f64 * pi / 3.0)
+        .collect();
+    let impulsive = compile(
+        "model impulsive\nstate x = 0.5\nflow { x' = x } in x <= 1\n\
+         jump half when x >= 1 { x+ = x/2 }\nsim { T = 10 }\n",
+    );
+    let ln2: Vec<f64> = (1..15).map(|k| k as f64 * std::f64::consts::LN_2).collect();
+    for (m, times) in [(&circle, &expected), (&impulsive, &ln2)] {
+        let exact = m.settings().exact_affine(ExactAffine::On);
+        assert_times(&run_with(m, &exact), times, "exact");
+        let tight = m.settings().solver(Solver::Dopri5 {
+            rtol: 1e-12,
+            atol: 1e-14,
+        });
+        assert_times(&run_with(m, &tight), times, "dopri5");
     }
 }
