@@ -1692,6 +1692,8 @@ sim { T = 0.995 }
                 }
             }
         }
+    }
+}
 
 /// Guards of shapes a new user writes, on flows with closed forms (session
 /// 37's probe): the distance from the origin on a rotation about (c, 0)
