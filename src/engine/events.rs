@@ -522,6 +522,20 @@ pub(crate) fn timer_slack(value: f64, threshold: f64, rate: f64) -> f64 {
     64.0 * f64::EPSILON * (value.abs() + threshold.abs()) / rate.abs()
 }
 
+/// A jump set whose start [`Watcher::start_sets`] reads from the
+/// evaluation of all sets in one tight pass: its atoms (at most
+/// [`TruthTable::MAX_ATOMS`], never relaxed) at `off..off + n` of that
+/// layout, their comparisons copied out of the set's atoms (no `Option`
+/// and no stride of [`Atom`] per atom), its truth table.
+#[derive(Debug, Clone, Copy)]
+struct FastSet {
+    set: usize,
+    off: usize,
+    n: usize,
+    cmps: [Cmp; TruthTable::MAX_ATOMS],
+    table: TruthTable,
+}
+
 /// How often [`first_other_sign`] halves a step at most: a change of sign
 /// narrower than 2⁻³⁰ of the step (a touch of zero) counts as none.
 const SPLIT_DEPTH: u32 = 30;
@@ -961,6 +975,11 @@ pub(crate) struct Watcher {
     /// Whether the system evaluates all sets at once (found at each
     /// segment's start).
     flat_ok: bool,
+    /// The jump sets [`start_sets`](Self::start_sets) reads in one pass
+    /// when `flat_ok` ([`FastSet`]), and the other sets (all sets when
+    /// not `flat_ok`).
+    fast_sets: Vec<FastSet>,
+    slow_sets: Vec<usize>,
     /// Whether the checkpoints use that: the event sources hold at least
     /// half of all flowing atoms (the other sets' atoms are evaluated for
     /// nothing) and there are several sources.
@@ -1124,6 +1143,25 @@ impl Watcher {
             w.flat = flat_off[w.set].unwrap_or_default() + w.atom;
         }
         let flat_checks = watched_sets >= 2 && 2 * watched.len() >= flowing;
+        let (mut fast_sets, mut slow_sets) = (Vec::new(), Vec::new());
+        for (i, ws) in sets.iter().enumerate() {
+            match (flat_off[i], &ws.spec, ws.table) {
+                (Some(off), Some(spec), Some(table)) if Some(i) != flow => {
+                    let mut cmps = [Cmp::Ge; TruthTable::MAX_ATOMS];
+                    for (c, a) in cmps.iter_mut().zip(&spec.atoms) {
+                        *c = a.cmp;
+                    }
+                    fast_sets.push(FastSet {
+                        set: i,
+                        off,
+                        n: spec.atoms.len(),
+                        cmps,
+                        table,
+                    });
+                }
+                _ => slow_sets.push(i),
+            }
+        }
         let exit_rules = if settings.priority == Priority::Flows {
             sys.jump_rules().len()
         } else {
@@ -1152,6 +1190,8 @@ impl Watcher {
             flat: vec![0.0; total],
             flat_b: vec![0.0; total],
             flat_ok: false,
+            fast_sets,
+            slow_sets,
             flat_checks,
             flat_watched,
             prefetched: None,
@@ -1251,19 +1291,30 @@ impl Watcher {
         let mut changed = false;
         for ta in &mut self.timers {
             let (v, rate, thr, cmp) = (x[ta.index], f[ta.index], ta.threshold, ta.cmp);
-            ta.d = if (rate > 0.0 && v < thr) || (rate < 0.0 && v > thr) {
-                (thr - v) / rate
+            // Towards the threshold: when it is reached. On (or past) it and
+            // moving away from it (`away`): the truth just after the start is
+            // that of `g` with the rate's sign. One test of the rate's sign.
+            let (d, away) = if rate > 0.0 {
+                if v < thr {
+                    ((thr - v) / rate, false)
+                } else {
+                    (f64::INFINITY, v >= thr)
+                }
+            } else if rate < 0.0 {
+                if v > thr {
+                    ((thr - v) / rate, false)
+                } else {
+                    (f64::INFINITY, v <= thr)
+                }
             } else {
-                f64::INFINITY
+                (f64::INFINITY, false)
             };
+            ta.d = d;
             ta.slack = timer_slack(v, thr, rate);
             let after = cmp.holds(rate);
             ta.after = after;
             ta.crossed = false;
-            first = first.min(ta.d);
-            // On (or past) the threshold and moving away from it: the truth
-            // just after the start is that of `g` with the rate's sign.
-            let away = (rate > 0.0 && v >= thr) || (rate < 0.0 && v <= thr);
+            first = first.min(d);
             if away {
                 let ws = &mut self.sets[ta.set];
                 if ws.state[ta.atom].start_truth != after {
@@ -1442,29 +1493,36 @@ impl Watcher {
             self.flat_ok = sys.all_atom_values(at, x, false, &mut self.flat);
         }
         self.relaxed = 0;
-        let sets = self.sets.iter_mut().zip(&self.flat_off).enumerate();
-        for (i, (ws, &flat_off)) in sets {
-            let is_flow = self.flow == Some(i);
-            // The per-segment common case first: a jump set (its atoms never
-            // relaxed) of at most `TruthTable::MAX_ATOMS` atoms, its values
-            // from the evaluation of all sets.
-            if let (Some(off), true, false, Some(spec), Some(table)) =
-                (flat_off, self.flat_ok, is_flow, &ws.spec, ws.table)
-            {
-                let flat = &self.flat[off..off + ws.vs.len()];
+        // The per-segment common case first: the jump sets (their atoms
+        // never relaxed) of at most `TruthTable::MAX_ATOMS` atoms, their
+        // values from the evaluation of all sets, in one tight pass.
+        let others = if self.flat_ok {
+            for fs in &self.fast_sets {
+                let ws = &mut self.sets[fs.set];
+                let n = fs.n;
+                let flat = &self.flat[fs.off..fs.off + n];
+                let (vs, state, cmps) = (&mut ws.vs[..n], &mut ws.state[..n], &fs.cmps[..n]);
                 let mut mask = 0u32;
-                let atoms = ws.vs.iter_mut().zip(ws.state.iter_mut());
-                for (k, ((v, st), (&g, atom))) in
-                    atoms.zip(flat.iter().zip(&spec.atoms)).enumerate()
-                {
-                    *v = g;
-                    let holds = atom.cmp.holds(g);
-                    st.start_truth = holds;
+                for (k, &g) in flat.iter().enumerate() {
+                    vs[k] = g;
+                    let holds = cmps[k].holds(g);
+                    state[k].start_truth = holds;
                     mask |= u32::from(holds) << k;
                 }
-                ws.cur = table.value(mask);
-                continue;
+                ws.cur = fs.table.value(mask);
             }
+            self.slow_sets.len()
+        } else {
+            self.sets.len()
+        };
+        for idx in 0..others {
+            let i = if self.flat_ok {
+                self.slow_sets[idx]
+            } else {
+                idx
+            };
+            let (ws, flat_off) = (&mut self.sets[i], self.flat_off[i]);
+            let is_flow = self.flow == Some(i);
             // The set's values from the prefetched ones (copied by the pass
             // below: a call to memcpy for 3 or 4 values cost more), or its own.
             let flat = match flat_off {
