@@ -124,6 +124,17 @@ pub enum SyntaxError {
         /// What to write instead.
         help: String,
     },
+    /// A `param` or `output` declared without its value (`param k` alone
+    /// on its line): the parser read on into the next statement.
+    #[error("`{keyword} {name}` has no value")]
+    MissingValue {
+        /// The declared name.
+        span: Span,
+        /// `param` or `output`.
+        keyword: &'static str,
+        /// The name.
+        name: String,
+    },
     /// A keyword where a name was expected (`jump out when …`).
     #[error("`{word}` is a keyword, not a name")]
     KeywordAsName {
@@ -156,6 +167,7 @@ impl SyntaxError {
             | SyntaxError::Unclosed { span, .. }
             | SyntaxError::Misspelt { span, .. }
             | SyntaxError::NotADeclaration { span, .. }
+            | SyntaxError::MissingValue { span, .. }
             | SyntaxError::KeywordAsName { span, .. }
             | SyntaxError::BadNumber { span, .. } => *span,
         }
@@ -256,6 +268,13 @@ impl SyntaxError {
                     .primary(*span, *label)
                     .help(help.clone())
             }
+            SyntaxError::MissingValue {
+                span,
+                keyword,
+                name,
+            } => Diagnostic::error("E0101", self.to_string())
+                .primary(*span, "no `= …` after this name")
+                .help(format!("write `{keyword} {name} = …`")),
             SyntaxError::KeywordAsName { span, word } => {
                 Diagnostic::error("E0101", self.to_string())
                     .primary(*span, "a name expected here")
@@ -346,6 +365,9 @@ impl SyntaxError {
                 found,
             };
         }
+        if let Some(err) = missing_value(text, pos, &expected) {
+            return err;
+        }
         if let Some(err) = keyword_mistake(text, pos, &keywords, wants_name, &expected) {
             return err;
         }
@@ -392,6 +414,35 @@ const DECLARATION_WORDS: [&str; 20] = [
     "subsystem",
     "input",
 ];
+
+/// A `param NAME` or `output NAME` statement that ends without `= …`, the
+/// parser stopped after it at `pos` expecting only an index's `[`.
+fn missing_value(text: &str, pos: usize, expected: &str) -> Option<SyntaxError> {
+    if expected != "`[`" {
+        return None;
+    }
+    let before = text.get(..pos)?.trim_end();
+    let line_start = before.rfind(['\n', ';', '{', '}']).map_or(0, |i| i + 1);
+    let line = &before[line_start..];
+    let mut words = line.split_whitespace();
+    let keyword = match words.next()? {
+        "param" => "param",
+        "output" => "output",
+        _ => return None,
+    };
+    let name = words.next()?;
+    let is_name = name.starts_with(|c: char| c.is_ascii_alphabetic() || c == '_')
+        && name.chars().all(|c| c.is_ascii_alphanumeric() || c == '_');
+    if words.next().is_some() || !is_name {
+        return None;
+    }
+    let end = line_start + line.len();
+    Some(SyntaxError::MissingValue {
+        span: Span::new(end - name.len(), end),
+        keyword,
+        name: name.to_string(),
+    })
+}
 
 /// The keyword closest to `word` (Jaro–Winkler ≥ 0.8), unless `word` is one.
 fn closest_keyword(word: &str, keywords: &[&'static str]) -> Option<&'static str> {

@@ -350,6 +350,22 @@ const CASES: &[Case] = &[
         "2:1",
         "`const` does not start a declaration",
     ),
+    // A parameter or output without its value: the parser read on into the
+    // next statement and said only "expected `[`" there.
+    case(
+        "a parameter without its value",
+        "model m\nparam k\nstate x = 1\nflow { x' = -k * x }\n",
+        "E0101",
+        "2:7",
+        "`param k` has no value",
+    ),
+    case(
+        "an output without its value, last in the file",
+        "model m\nstate x = 1\nflow { x' = -x }\noutput y\n",
+        "E0101",
+        "4:8",
+        "`output y` has no value",
+    ),
     case(
         "a stray word at the end of the file",
         "model m\nstate x = 1\nflow { x' = -x }\nextra\n",
