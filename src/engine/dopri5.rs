@@ -134,8 +134,9 @@ pub(crate) fn initial_step(
 pub(crate) enum Failure {
     /// The step size fell below the resolution of the local time.
     Underflow,
-    /// The stiffness test fired repeatedly.
-    Stiff,
+    /// The stiffness test fired repeatedly; `component` is where the
+    /// stiff mode acts most (see `Explicit::stiffness`).
+    Stiff { component: usize },
 }
 
 /// The engine's Dopri5 stepper.

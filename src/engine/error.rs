@@ -89,11 +89,13 @@ pub enum SimError {
         what: String,
     },
     /// The adaptive integrator detected stiffness.
-    #[error("the flow became stiff at {at}; fastest-changing state: `{name}`")]
+    #[error("the flow became stiff at {at}; the stiff mode moves `{name}` most")]
     Stiff {
         /// Hybrid time where the integrator stopped.
         at: HybridTime,
-        /// As for [`SimError::StepSizeCollapse`].
+        /// The state component the stiff mode moves most (the largest
+        /// entry, relative to the tolerances, of the difference of rates
+        /// by which the stiffness test estimates the dominant eigenvalue).
         component: usize,
         /// Its name from `state_names()`.
         name: String,

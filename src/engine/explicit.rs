@@ -284,8 +284,10 @@ impl<T: Tableau> Explicit<T> {
         if !self.accepted.is_multiple_of(self.stiff_every) && self.stiff_hits == 0 {
             return Ok(());
         }
+        // Hairer's test: ‖Δk‖ / ‖Δy‖ between the step's last two stage
+        // arguments estimates the Jacobian's dominant |λ|.
+        let (k_end, k_last) = self.tab.end_rates();
         let stiff = !free && {
-            let (k_end, k_last) = self.tab.end_rates();
             let (mut num, mut den) = (0.0, 0.0);
             for i in 0..self.y_new.len() {
                 num += (k_end[i] - k_last[i]).powi(2);
@@ -300,7 +302,16 @@ impl<T: Tableau> Explicit<T> {
                 // A stepper that goes on (under `Solver::Auto`) tests afresh.
                 self.stiff_hits = 0;
                 self.nonstiff_hits = 0;
-                return Err(Failure::Stiff);
+                // Δk ≈ J Δy with Δy drawn towards the dominant mode by the
+                // steps: its largest entry relative to the tolerances is
+                // the component that mode moves most (the stiff one, not
+                // merely the fastest-changing).
+                let scale = |i: usize| self.atol + self.rtol * self.y_new[i].abs();
+                let rate = |i: usize| (k_end[i] - k_last[i]).abs() / scale(i);
+                let component = (0..self.y_new.len())
+                    .max_by(|&a, &b| rate(a).total_cmp(&rate(b)))
+                    .unwrap_or(0);
+                return Err(Failure::Stiff { component });
             }
         } else {
             self.nonstiff_hits += 1;

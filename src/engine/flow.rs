@@ -1306,16 +1306,16 @@ fn tolerances(solver: Solver) -> (f64, f64) {
 enum GaveUp {
     /// The step size fell below the resolution of t (last accepted step `h`).
     Collapse { h: f64 },
-    /// The stiffness test fired.
-    Stiff,
+    /// The stiffness test fired; the stiff mode acts most on `component`.
+    Stiff { component: usize },
 }
 
 /// The error of an integrator that gave up at `stopped`, `(at, x)` its last accepted point,
 /// where a rejected attempt met the non-finite rate `ahead` (if any; its `s` relative to `at`).
 /// A flow that is NaN or ±∞ there or ahead is that error (`NonFinite` at its equation: the
-/// steps shrank to nothing in front of it); otherwise the collapse or stiffness names the
-/// component changing fastest relative to the tolerances, |ẋᵢ| / (atol + rtol·|xᵢ|): what the
-/// integrator most likely struggled with.
+/// steps shrank to nothing in front of it); otherwise a collapse names the component changing
+/// fastest relative to the tolerances, |ẋᵢ| / (atol + rtol·|xᵢ|): what the integrator most
+/// likely struggled with; stiffness names the component its stiff mode moves most.
 fn gave_up<S: HybridSystem + ?Sized>(
     sys: &S,
     (at, x): (HybridTime, &[f64]),
@@ -1338,19 +1338,22 @@ fn gave_up<S: HybridSystem + ?Sized>(
             rule: None,
         };
     }
-    let (rtol, atol) = tolerances(solver);
-    let rate = |i: usize| dx[i].abs() / (atol + rtol * x[i].abs());
-    let component = (0..x.len())
-        .max_by(|&a, &b| rate(a).total_cmp(&rate(b)))
-        .unwrap_or(0);
     match how {
-        GaveUp::Collapse { h } => SimError::StepSizeCollapse {
-            at: stopped,
-            h,
-            component,
-            name: name(component),
-        },
-        GaveUp::Stiff => SimError::Stiff {
+        GaveUp::Collapse { h } => {
+            // The fastest-changing component, relative to the tolerances.
+            let (rtol, atol) = tolerances(solver);
+            let rate = |i: usize| dx[i].abs() / (atol + rtol * x[i].abs());
+            let component = (0..x.len())
+                .max_by(|&a, &b| rate(a).total_cmp(&rate(b)))
+                .unwrap_or(0);
+            SimError::StepSizeCollapse {
+                at: stopped,
+                h,
+                component,
+                name: name(component),
+            }
+        }
+        GaveUp::Stiff { component } => SimError::Stiff {
             at: stopped,
             component,
             name: name(component),
@@ -1785,13 +1788,13 @@ impl Flows {
             };
             let h = match st.step(s, &self.y_prev, h_max, &mut f, &mut jac) {
                 Ok(h) => h,
-                Err(Failure::Stiff) if auto => return Ok(Stepped::Switch(s)),
+                Err(Failure::Stiff { .. }) if auto => return Ok(Stepped::Switch(s)),
                 Err(failure) => {
                     // A non-finite rate ahead is relative to the attempt's start `s`.
                     let ahead = st.non_finite().map(|r| NonFiniteRate { s: r.s - s, ..r });
                     let how = match failure {
                         Failure::Underflow => GaveUp::Collapse { h: st.proposal() },
-                        Failure::Stiff => GaveUp::Stiff,
+                        Failure::Stiff { component } => GaveUp::Stiff { component },
                     };
                     let at = HybridTime::new(t0 + s, j);
                     return Err(gave_up(sys, (at, &self.y_prev), at, ahead, solver, how));

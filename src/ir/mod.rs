@@ -1412,23 +1412,23 @@ impl CompiledModel {
             }
             return d;
         }
-        if let SimError::StepSizeCollapse {
-            component,
-            at,
-            name,
-            ..
-        }
-        | SimError::Stiff {
-            component,
-            at,
-            name,
-            ..
-        } = err
-        {
-            let label = format!(
-                "`{name}` changes fastest here at (t, j) = ({}, {})",
-                at.t, at.j
-            );
+        let located = match err {
+            SimError::StepSizeCollapse {
+                component,
+                at,
+                name,
+                ..
+            } => Some((component, "changes fastest", at, name)),
+            SimError::Stiff {
+                component,
+                at,
+                name,
+                ..
+            } => Some((component, "is moved most by the stiff mode", at, name)),
+            _ => None,
+        };
+        if let Some((component, how, at, name)) = located {
+            let label = format!("`{name}` {how} here at (t, j) = ({}, {})", at.t, at.j);
             let span = self
                 .flow_span(*component)
                 .or_else(|| self.field_of(*component).map(|f| f.span));

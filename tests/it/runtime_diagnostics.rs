@@ -1,5 +1,7 @@
 //! Run-time failures of `.hyb` models point into the source: the flow
-//! equation of the fastest-changing state when the integrator gives up, the
+//! equation of the fastest-changing state when the step size collapses (of
+//! the state the stiff mode moves most when the flow turns stiff:
+//! `stiff::the_stiffness_error_names_the_component_of_the_stiff_mode`), the
 //! jump whose map produced a non-finite value.
 
 use hybsim::engine::SimError;

@@ -130,6 +130,39 @@ fn the_stiffness_error_recommends_radau5() {
     assert!(err.help().contains("radau5"), "{}", err.help());
 }
 
+/// The stiffness error names the component the stiff mode moves, not the
+/// one changing fastest: `a` relaxes to 1 at rate 1e5 (stiff, and after
+/// its transient it barely changes) while `b` grows at 1e6 per second
+/// (relative to the tolerances the fastest by far, the component the
+/// error named before). Both declaration orders, so the answer is no
+/// index's luck.
+#[test]
+fn the_stiffness_error_names_the_component_of_the_stiff_mode() {
+    for states in ["a = 0, b = 0", "b = 0, a = 0"] {
+        let src = format!(
+            "model stiff_mode\nstate {states}\nflow {{\n    a' = -1e5 * (a - 1)\n    \
+             b' = 1e6\n}}\nsim {{ T = 10; solver = dopri5 }}\n"
+        );
+        let m = compile(&src);
+        let err = run_with(&m, &m.settings()).expect_err("Dopri5 gives up");
+        let SimError::Stiff { name, .. } = &err else {
+            panic!("{states}: {err}");
+        };
+        assert_eq!(name, "a", "{states}: {err}");
+        let shown = err.to_string();
+        assert!(shown.contains("stiff mode moves `a` most"), "{shown}");
+        // The diagnostic points at `a`'s flow equation.
+        let d = m.runtime_diagnostic(&err);
+        let lc = d.line_col(m.source()).expect("located");
+        assert_eq!(lc.line, 4, "{states}: {:?}", d.labels);
+        assert!(
+            d.labels[0].message.contains("moved most by the stiff mode"),
+            "{:?}",
+            d.labels
+        );
+    }
+}
+
 /// Robertson's chemical kinetics (rates over 9 orders of magnitude) at the
 /// classic t = 40 (y ≈ 0.7158, 9.185e-6, 0.2842) and at t = 1e5, against
 /// scipy's Radau at rtol 1e-12.
