@@ -489,6 +489,20 @@ const CASES: &[Case] = &[
         "unknown name `gravty`",
     ),
     case(
+        "unknown rule of a property, blanks before the predicate",
+        "model m\nstate x = 1\nflow { x' = -x }\njump r when x <= 0.5 { x+ = 1 }\nproperty p: at jumps rr   post(x) == 1\n",
+        "E0201",
+        "5:22",
+        "unknown name `rr`",
+    ),
+    case(
+        "unknown rule of a log block, blanks before the bracket",
+        "model m\nstate x = 1\nflow { x' = -x }\nfor i in 1..2 { jump f[i] when x <= 0.5 { x+ = 1 } }\nlog { rules = [f[3]   # none\n] }\n",
+        "E0201",
+        "5:16",
+        "unknown name `f[3]`",
+    ),
+    case(
         "unknown name in a reset",
         "model m\nstate x = 0\njump r when x >= 1 { x+ = zzz }\n",
         "E0201",
@@ -1062,6 +1076,15 @@ const RENDERED: &[(&str, &str)] = &[
         // The caret ends with the else branch, not at the spaces after it.
         "if-expression as a jump condition",
         "error[E0304]: expected a condition such as `h >= 0`, found a number\n  ┌─ m.hyb:4:13\n  │\n4 │ jump r when if x > 0 then 1 else 2   { x+ = 0 }\n  │             ^^^^^^^^^^^^^^^^^^^^^^ expected a condition such as `h >= 0`\n\n",
+    ),
+    (
+        // The caret covers the name, not the blanks pest skips after it.
+        "unknown rule of a property, blanks before the predicate",
+        "error[E0201]: unknown name `rr`\n  ┌─ m.hyb:5:22\n  │\n5 │ property p: at jumps rr   post(x) == 1\n  │                      ^^ not found\n  │\n  = help: did you mean `r`?\n\n",
+    ),
+    (
+        "unknown rule of a log block, blanks before the bracket",
+        "error[E0201]: unknown name `f[3]`\n  ┌─ m.hyb:5:16\n  │\n5 │ log { rules = [f[3]   # none\n  │                ^^^^ not found\n  │\n  = help: did you mean `f[2]`?\n\n",
     ),
     (
         "family member out of range",
