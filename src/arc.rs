@@ -266,8 +266,10 @@ impl std::fmt::Display for Termination {
                 ZenoDetail::Rate { jumps, within } => write!(
                     f,
                     "Zeno behaviour suspected at {}: rule `{rule_name}` about to fire after \
-                     {jumps} jumps within Δt = {within:e}",
-                    self.at
+                     {jumps} jumps within Δt = {}",
+                    self.at,
+                    // As every other number of the line: `0`, `1e-7`, not `0e0`.
+                    crate::num::Num(*within)
                 ),
                 ZenoDetail::TotalJumps { limit } => write!(
                     f,

@@ -1330,9 +1330,12 @@ impl ModelChecker<'_> {
         self.not_a_time_name(&name, sd.target.span);
         let Some(init_expr) = &sd.init else {
             self.c.err(CheckError::MissingInit {
-                name,
+                name: name.clone(),
                 span: sd.target.span,
             });
+            // A state all the same: its equations and uses report nothing
+            // more (they were unknown names).
+            self.c.poisoned.insert(name, Unavailable::Failed);
             return;
         };
         self.c.poison_hit = None;

@@ -128,6 +128,8 @@ pub(crate) struct Explicit<T> {
     facold_beta: f64,
     /// Stiffness test: every how many accepted steps it runs, and its state.
     stiff_every: u32,
+    /// Its threshold on h·λ (the pair's own unless set).
+    stiff_hlamb: f64,
     accepted: u32,
     stiff_hits: u32,
     nonstiff_hits: u32,
@@ -154,6 +156,7 @@ impl<T: Tableau> Explicit<T> {
             facold: 1e-4,
             facold_beta: 1e-4f64.powf(T::GAINS.beta),
             stiff_every: STIFF_EVERY,
+            stiff_hlamb: T::GAINS.stiff_hlamb,
             accepted: 0,
             stiff_hits: 0,
             nonstiff_hits: 0,
@@ -173,6 +176,14 @@ impl<T: Tableau> Explicit<T> {
     /// method early.
     pub fn stiffness_test_every(mut self, every: u32) -> Self {
         self.stiff_every = every.max(1);
+        self
+    }
+
+    /// The same stepper with the stiffness test's threshold on h·λ lowered
+    /// to `h_lamb` (at most the pair's own: a lower one only finds a flow
+    /// stiff sooner).
+    pub fn stiffness_threshold(mut self, h_lamb: f64) -> Self {
+        self.stiff_hlamb = h_lamb.min(T::GAINS.stiff_hlamb);
         self
     }
 
@@ -293,7 +304,7 @@ impl<T: Tableau> Explicit<T> {
                 num += (k_end[i] - k_last[i]).powi(2);
                 den += (self.y_new[i] - self.y_stage[i]).powi(2);
             }
-            den > 0.0 && h * (num / den).sqrt() > T::GAINS.stiff_hlamb
+            den > 0.0 && h * (num / den).sqrt() > self.stiff_hlamb
         };
         if stiff {
             self.nonstiff_hits = 0;

@@ -237,7 +237,8 @@ impl Radau5 {
     /// being stiff for it: its step h times the weighted norm of the
     /// Jacobian there (an upper bound of the spectral radius, evaluated
     /// afresh unless `fresh_only` and it is stale) is at most
-    /// [`NONSTIFF_HLAMB`], so an explicit method of the same order takes
+    /// [`NONSTIFF_HLAMB`] (half `Solver::Auto`'s threshold of Dopri5's
+    /// stiffness test where that is lower), so an explicit method of the same order takes
     /// the same steps well inside its stability region. `None`: not tested
     /// (`fresh_only` and the Jacobian there was not evaluated).
     pub fn nonstiff(&mut self, jac: &mut Jac<'_>, fresh_only: bool) -> Option<bool> {
@@ -251,7 +252,10 @@ impl Radau5 {
         for (sc, y) in self.scale.iter_mut().zip(&self.y_new) {
             *sc = self.atol + self.rtol * y.abs();
         }
-        Some(self.h_old * self.jac.weighted_norm(&self.scale) <= NONSTIFF_HLAMB)
+        // Below half the h·λ at which Dopri5 hands a flow over (lower than 1 at
+        // tight tolerances), so that the flow is not handed back and forth.
+        let limit = NONSTIFF_HLAMB.min(0.5 * super::flow::auto_stiff_hlamb(self.rtol));
+        Some(self.h_old * self.jac.weighted_norm(&self.scale) <= limit)
     }
 
     /// Lowers the step proposal to at most `h`.

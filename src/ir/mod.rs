@@ -1670,7 +1670,8 @@ fn detect_timer(m: &CheckedModel, cond: crate::check::dag::NodeId) -> Option<Gua
     })
 }
 
-/// The engine's fault of a run-time table index failure.
+/// The engine's fault of a run-time index failure (into a table or another
+/// constant vector or matrix).
 #[cold]
 fn index_fault(f: program::IndexFault) -> crate::engine::SystemFault {
     let show = |v: f64| describe::number(v);
@@ -1682,18 +1683,21 @@ fn index_fault(f: program::IndexFault) -> crate::engine::SystemFault {
         }
     };
     let ok = |i: f64, n: usize| i >= 1.0 && i <= n as f64 && i.fract() == 0.0;
+    // The indexed constant is a `table("…")` or any constant vector or
+    // matrix (`param d = [0.1; 0.2]`): named by its shape, as E0401 does
+    // at compile time, not called a table.
     let what = if f.cols == 1 && f.bad.col == 1.0 {
-        format!("table index {}", why(f.bad.row, f.rows))
+        format!("index {}", why(f.bad.row, f.rows))
     } else if !ok(f.bad.row, f.rows) {
         format!(
-            "table row index {} ({}×{} table)",
+            "row index {} ({}×{} matrix)",
             why(f.bad.row, f.rows),
             f.rows,
             f.cols
         )
     } else {
         format!(
-            "table column index {} ({}×{} table)",
+            "column index {} ({}×{} matrix)",
             why(f.bad.col, f.cols),
             f.rows,
             f.cols

@@ -115,7 +115,14 @@ impl fmt::Display for Violation {
                 )
             }
             ViolationDetail::Bound { value, bound } => {
-                write!(f, ": |x|_A = {} > bound {}", Num(*value), Num(*bound))
+                // `V`, as the monotone properties and the `.hyb` syntax
+                // (`exponential V kappa κ alpha α`) name the measured value.
+                write!(
+                    f,
+                    ": V = {} > its bound κ·e^(−α(t + j))·V(0, 0) + tol = {}",
+                    Num(*value),
+                    Num(*bound)
+                )
             }
         }
     }

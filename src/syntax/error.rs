@@ -312,11 +312,16 @@ impl SyntaxError {
         expected.sort_unstable();
         expected.dedup();
         // The keywords among the expectations (`when` of "`when`").
-        let keywords: Vec<&'static str> = expected
+        let mut keywords: Vec<&'static str> = expected
             .iter()
             .filter_map(|e| e.strip_prefix('`')?.strip_suffix('`'))
             .filter(|k| KEYWORDS.contains(k))
             .collect();
+        // A property body's first word is contextual, not a keyword, and
+        // listed as the body's description: `allways` gets `always` too.
+        if expected.iter().any(|e| e.starts_with("a property body")) {
+            keywords.extend(PROPERTY_WORDS);
+        }
         // Only a name, or after `jump` a name or the trigger that may replace
         // it (`jump out when`): where a declaration may start too, a keyword
         // there is a misplaced keyword (`flow { … } when x >= 0`).
@@ -443,6 +448,18 @@ fn missing_value(text: &str, pos: usize, expected: &str) -> Option<SyntaxError> 
         name: name.to_string(),
     })
 }
+
+/// The words a property's body starts with (`property p: always …`).
+const PROPERTY_WORDS: [&str; 8] = [
+    "always",
+    "after",
+    "during",
+    "at",
+    "eventually",
+    "decreasing",
+    "nonincreasing",
+    "exponential",
+];
 
 /// The keyword closest to `word` (Jaro–Winkler ≥ 0.8), unless `word` is one.
 fn closest_keyword(word: &str, keywords: &[&'static str]) -> Option<&'static str> {

@@ -423,7 +423,7 @@ fn item(p: Pair<'_, Rule>) -> Res<Item> {
                 }
                 let names = it
                     .map(|n| {
-                        let nspan: Span = n.as_span().into();
+                        let nspan = significant_span(&n);
                         let mut parts = n.into_inner();
                         let target = target(first(&mut parts, nspan)?)?;
                         let suffix = parts.next().map(ident);
@@ -475,7 +475,9 @@ pub(super) fn definition(p: Pair<'_, Rule>) -> Res<Definition> {
 }
 
 pub(super) fn target(p: Pair<'_, Rule>) -> Res<Target> {
-    let span: Span = p.as_span().into();
+    // Without the blanks pest's implicit trivia leave after `x[i]` when no
+    // index follows: a caret under `x[i]`, not `x[i]   `.
+    let span = significant_span(&p);
     let mut it = p.into_inner();
     let name = ident(first(&mut it, span)?);
     let indices = it.map(index_list).collect::<Res<_>>()?;

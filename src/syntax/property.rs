@@ -125,7 +125,8 @@ fn incomplete(span: Span) -> super::SyntaxError {
 /// `f.fire[2]` or `f[2].fire` (a family of instances is indexed first by the
 /// instance, as the model names its rules: `f[i].fire[k]` is `f.fire[i, k]`).
 fn rule_path(p: Pair<'_, Rule>) -> Res<Target> {
-    let span: Span = p.as_span().into();
+    // Up to its last token: the blanks before the predicate are not the name's.
+    let span = significant_span(&p);
     let mut it = p.into_inner();
     let mut name = ident(first(&mut it, span)?);
     let mut index: Vec<IndexArg> = Vec::new();

@@ -489,6 +489,20 @@ const CASES: &[Case] = &[
         "unknown name `gravty`",
     ),
     case(
+        "unknown rule of a property, blanks before the predicate",
+        "model m\nstate x = 1\nflow { x' = -x }\njump r when x <= 0.5 { x+ = 1 }\nproperty p: at jumps rr   post(x) == 1\n",
+        "E0201",
+        "5:22",
+        "unknown name `rr`",
+    ),
+    case(
+        "unknown rule of a log block, blanks before the bracket",
+        "model m\nstate x = 1\nflow { x' = -x }\nfor i in 1..2 { jump f[i] when x <= 0.5 { x+ = 1 } }\nlog { rules = [f[3]   # none\n] }\n",
+        "E0201",
+        "5:16",
+        "unknown name `f[3]`",
+    ),
+    case(
         "unknown name in a reset",
         "model m\nstate x = 0\njump r when x >= 1 { x+ = zzz }\n",
         "E0201",
@@ -1064,6 +1078,15 @@ const RENDERED: &[(&str, &str)] = &[
         "error[E0304]: expected a condition such as `h >= 0`, found a number\n  ┌─ m.hyb:4:13\n  │\n4 │ jump r when if x > 0 then 1 else 2   { x+ = 0 }\n  │             ^^^^^^^^^^^^^^^^^^^^^^ expected a condition such as `h >= 0`\n\n",
     ),
     (
+        // The caret covers the name, not the blanks pest skips after it.
+        "unknown rule of a property, blanks before the predicate",
+        "error[E0201]: unknown name `rr`\n  ┌─ m.hyb:5:22\n  │\n5 │ property p: at jumps rr   post(x) == 1\n  │                      ^^ not found\n  │\n  = help: did you mean `r`?\n\n",
+    ),
+    (
+        "unknown rule of a log block, blanks before the bracket",
+        "error[E0201]: unknown name `f[3]`\n  ┌─ m.hyb:5:16\n  │\n5 │ log { rules = [f[3]   # none\n  │                ^^^^ not found\n  │\n  = help: did you mean `f[2]`?\n\n",
+    ),
+    (
         "family member out of range",
         "error[E0402]: `x` has no member [4]\n  ┌─ m.hyb:3:12\n  │\n3 │ output y = x[4]\n  │            ^^^^ no such member\n  │\n  = its members are [1], [2], [3]\n\n",
     ),
@@ -1470,6 +1493,22 @@ output f = z[1] + o[2] + sum(i in 1..N: z[i])
     );
 }
 
+/// A state declared without its initial value (E0504) is still a state:
+/// its flow equation, guards, resets and outputs add no "unknown name".
+#[test]
+fn a_state_without_initial_value_does_not_cascade() {
+    let src = SourceFile::new(
+        "m.hyb",
+        "model m\nstate x, y = 1\nflow { x' = -x; y' = x }\njump r when x <= 0.5 { x+ = 1 }\noutput o = 2*x\n",
+    );
+    let diags = diagnostics(&src, &[]);
+    let found: Vec<_> = diags
+        .iter()
+        .map(|d| (d.code, d.line_col(&src).unwrap().to_string()))
+        .collect();
+    assert_eq!(found, [("E0504", "2:7".to_string())], "{diags:#?}");
+}
+
 /// A rule that fails its checks (`every Ts` with `Ts = 0`) is still a known
 /// name: a property naming it adds no "unknown name" to the real errors.
 #[test]
@@ -1479,4 +1518,29 @@ fn a_failed_rule_is_still_a_known_name() {
     let diags = diagnostics(&src, &["Ts=0"]);
     let codes: Vec<_> = diags.iter().map(|d| d.code).collect();
     assert_eq!(codes, ["E0306", "E0304"], "{diags:#?}");
+}
+
+/// A misspelt first word of a property's body gets the closest of the
+/// body's words, as a misspelt keyword does (the words are contextual, not
+/// keywords).
+#[test]
+fn a_misspelt_property_word_gets_the_closest_one() {
+    for (body, word) in [
+        ("allways x >= 0", "always"),
+        ("evntually within 1 x <= 0.5", "eventually"),
+        ("nonincresing x at jumps", "nonincreasing"),
+        ("durring flows x >= 0", "during"),
+    ] {
+        let text = format!("model m\nstate x = 1\nflow {{ x' = -x }}\nproperty p: {body}\n");
+        let src = SourceFile::new("m.hyb", text);
+        let diags = diagnostics(&src, &[]);
+        let d = diags.first().expect("an error");
+        assert_eq!(
+            (d.code, d.line_col(&src).unwrap().to_string()),
+            ("E0101", "4:13".to_string()),
+            "{body}: {d:#?}"
+        );
+        let help = format!("did you mean `{word}`?");
+        assert_eq!(d.help.as_deref(), Some(help.as_str()), "{body}: {d:#?}");
+    }
 }

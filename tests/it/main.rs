@@ -1,5 +1,6 @@
 //! Integration tests, one binary, a module per area.
 
+mod classics;
 mod cli;
 mod dense;
 mod design;
