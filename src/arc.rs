@@ -188,6 +188,10 @@ pub struct FailedAtom {
     pub index: usize,
     /// The value of `g` there.
     pub value: f64,
+    /// How the atom reads in the model (`x <= 1`), if the system says
+    /// (`HybridSystem::atom_text`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub text: Option<String>,
 }
 
 /// Which Zeno guard stopped a run.
@@ -288,7 +292,11 @@ impl std::fmt::Display for Termination {
                 }
                 for (k, a) in failed.iter().enumerate() {
                     let sep = if k == 0 { " (failing: " } else { ", " };
-                    write!(f, "{sep}atom {} of C with g = {:e}", a.index, a.value)?;
+                    let g = crate::num::Num(a.value);
+                    match &a.text {
+                        Some(text) => write!(f, "{sep}`{text}` with g = {g}")?,
+                        None => write!(f, "{sep}atom {} of C with g = {g}", a.index)?,
+                    }
                 }
                 if !failed.is_empty() {
                     write!(f, ")")?;

@@ -2725,7 +2725,11 @@ impl FlowSetTest {
             .zip(&self.vals)
             .enumerate()
             .filter(|(_, (a, g))| !a.cmp.holds(**g))
-            .map(|(index, (_, &value))| FailedAtom { index, value })
+            .map(|(index, (_, &value))| FailedAtom {
+                index,
+                value,
+                text: sys.atom_text(SetRef::Flow, index),
+            })
             .collect()
     }
 }

@@ -493,6 +493,14 @@ pub trait HybridSystem {
         None
     }
 
+    /// How atom `atom` of `set` reads in the model (`x <= 1`), for
+    /// messages: the ending of a solution that can neither flow nor jump
+    /// names C's failing atoms by it. `None` (the default): they are named
+    /// by index.
+    fn atom_text(&self, _set: SetRef, _atom: usize) -> Option<String> {
+        None
+    }
+
     /// Writes the value `g_k(t, j, x)` of each atom of `set` into `out`
     /// (length: the number of atoms of [`set_atoms`](Self::set_atoms)).
     /// With `flowing_only`, only the atoms the engine watches

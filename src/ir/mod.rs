@@ -1788,6 +1788,10 @@ impl HybridSystem for CompiledModel {
         self.set_code(set).map(|c| c.atoms.clone())
     }
 
+    fn atom_text(&self, set: SetRef, atom: usize) -> Option<String> {
+        self.set_code(set)?.atom_text.get(atom).cloned()
+    }
+
     fn atom_affine(&self, set: SetRef, atom: usize) -> Option<AffineAtom> {
         let index = match set {
             SetRef::Flow => self.flow_set.as_ref().map(|_| 0)?,

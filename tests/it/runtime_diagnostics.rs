@@ -224,6 +224,14 @@ fn cannot_flow_or_jump_names_the_case_the_failing_atom_and_the_state() {
         assert!(err.contains(want), "missing {want:?} in\n{err}");
     }
     assert!(!err.contains("`v <= 100` fails"), "{err}");
+    // The summary line (and so `--json`'s message and a sweep's runs.csv)
+    // names the failing atom as written, not by its index.
+    let out = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        out.contains("(failing: `h >= 0` with g = -"),
+        "summary names the atom:\n{out}"
+    );
+    assert!(!out.contains("atom 0 of C"), "{out}");
     // Outside C from the start: the atom that fails and its value.
     let src = SourceFile::new(
         "out.hyb",

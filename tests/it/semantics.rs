@@ -455,7 +455,8 @@ fn set_tol_lets_a_boundary_state_flow() {
             leaving: false,
             failed: vec![FailedAtom {
                 index: 0,
-                value: -1e-6
+                value: -1e-6,
+                text: Some("x >= 0".into()),
             }],
             state: vec![-1e-6],
         }
