@@ -85,13 +85,17 @@ pub enum SyntaxError {
         help: String,
     },
     /// A block whose `{` is not closed where a new declaration (or the end
-    /// of the file) begins.
-    #[error("`{{` not closed: expected `}}` before {found}")]
+    /// of the file) begins, or a `(` or `[` not closed where a closing
+    /// delimiter of another kind, a new declaration or the end of the file
+    /// comes.
+    #[error("`{delim}` not closed: expected `{}` before {found}", closing(*.delim))]
     Unclosed {
-        /// What was found where `}` was expected.
+        /// What was found where the closing delimiter was expected.
         span: Span,
-        /// The unclosed `{`.
+        /// The unclosed delimiter.
         open: Span,
+        /// Which: `{`, `(` or `[`.
+        delim: char,
         /// What was found, in words.
         found: String,
     },
@@ -244,11 +248,18 @@ impl SyntaxError {
             } => Diagnostic::error("E0109", message.clone())
                 .primary(*span, label.clone())
                 .help(help.clone()),
-            SyntaxError::Unclosed { span, open, .. } => {
+            SyntaxError::Unclosed {
+                span, open, delim, ..
+            } => {
+                let close = closing(*delim);
                 Diagnostic::error("E0108", self.to_string())
-                    .primary(*span, "`}` expected before this")
-                    .secondary(*open, "this `{` is not closed")
-                    .help("close the block with `}`")
+                    .primary(*span, format!("`{close}` expected before this"))
+                    .secondary(*open, format!("this `{delim}` is not closed"))
+                    .help(if *delim == '{' {
+                        "close the block with `}`".to_string()
+                    } else {
+                        format!("close it with `{close}` where its contents end")
+                    })
             }
             SyntaxError::Misspelt {
                 span,
@@ -363,10 +374,17 @@ impl SyntaxError {
             return missing;
         }
         let (found, len) = found_at(text, pos);
-        if let Some(open) = unclosed_before_declaration(text, pos) {
+        // A group left open after a complete operand (where an expression
+        // is still wanted, as after `[1,`, that is the better message).
+        let operand_done = !expected.contains("an expression");
+        if let Some((open, delim)) = unclosed_group(text, pos)
+            .filter(|_| operand_done)
+            .or_else(|| unclosed_before_declaration(text, pos).map(|open| (open, '{')))
+        {
             return SyntaxError::Unclosed {
                 span: Span::new(pos, pos + len),
                 open: Span::new(open, open + 1),
+                delim,
                 found,
             };
         }
@@ -607,10 +625,20 @@ fn word_operator(text: &str, pos: usize) -> Option<(usize, &'static str, &'stati
     Some((start, found, write))
 }
 
-/// The last `{` before `pos` that is not closed before it (comments and
-/// quoted strings skipped).
-fn unclosed_brace(text: &str, pos: usize) -> Option<usize> {
-    let mut open = Vec::new();
+/// The closing delimiter of `open` (`{`, `(` or `[`).
+fn closing(open: char) -> char {
+    match open {
+        '{' => '}',
+        '(' => ')',
+        _ => ']',
+    }
+}
+
+/// The delimiters among `kinds` (openers) open before `pos`, innermost
+/// last, with their positions: each closer pops the innermost of its own
+/// kind (comments and quoted strings skipped).
+fn open_delims(text: &str, pos: usize, kinds: &[char]) -> Option<Vec<(usize, char)>> {
+    let mut open: Vec<(usize, char)> = Vec::new();
     let (mut comment, mut string) = (false, false);
     for (i, c) in text.get(..pos)?.char_indices() {
         match c {
@@ -619,14 +647,38 @@ fn unclosed_brace(text: &str, pos: usize) -> Option<usize> {
             '"' => string = !string,
             _ if string => {}
             '#' => comment = true,
-            '{' => open.push(i),
-            '}' => {
-                open.pop();
+            c if kinds.contains(&c) => open.push((i, c)),
+            '}' | ')' | ']' => {
+                if let Some(k) = open.iter().rposition(|&(_, o)| closing(o) == c) {
+                    open.truncate(k);
+                }
             }
             _ => {}
         }
     }
-    open.pop()
+    Some(open)
+}
+
+/// The last `{` before `pos` that is not closed before it.
+fn unclosed_brace(text: &str, pos: usize) -> Option<usize> {
+    open_delims(text, pos, &['{'])?.pop().map(|(i, _)| i)
+}
+
+/// The innermost `(` or `[` open at `pos` when the parser stopped there at
+/// a closing delimiter of another kind (`-(x + 1` then the block's `}`), at
+/// the end of the file or at a line that starts a declaration: that group
+/// was not closed. `None` elsewhere (inside a group the parser stops at
+/// many tokens that are no closing mistake).
+fn unclosed_group(text: &str, pos: usize) -> Option<(usize, char)> {
+    let open = open_delims(text, pos, &['{', '(', '['])?;
+    let &(at, delim) = open.last()?;
+    if delim == '{' {
+        return None;
+    }
+    let rest = text[pos..].trim_start();
+    let closer = rest.starts_with(['}', ')', ']']) && !rest.starts_with(closing(delim));
+    let ends = at_declaration_or_end(text, pos);
+    (closer || ends).then_some((at, delim))
 }
 
 /// Another language's spelling where the parser stopped at `pos` (see
@@ -1230,24 +1282,9 @@ fn end_keyword(at: usize) -> Option<SyntaxError> {
     })
 }
 
-/// The last `[` before `pos` that is not closed before it (comments
-/// skipped).
+/// The last `[` before `pos` that is not closed before it.
 fn unclosed_bracket(text: &str, pos: usize) -> Option<usize> {
-    let mut open = Vec::new();
-    let mut comment = false;
-    for (i, c) in text.get(..pos)?.char_indices() {
-        match c {
-            '\n' => comment = false,
-            _ if comment => {}
-            '#' => comment = true,
-            '[' => open.push(i),
-            ']' => {
-                open.pop();
-            }
-            _ => {}
-        }
-    }
-    open.pop()
+    open_delims(text, pos, &['['])?.pop().map(|(i, _)| i)
 }
 
 /// `NAME =` where the parser stopped at `=` inside a `flow` block: the
@@ -1273,6 +1310,16 @@ fn flow_without_prime(text: &str, pos: usize) -> Option<(usize, String)> {
 /// file or at the first word of a line that begins a declaration (or
 /// `in`, the flow set after a flow block): the block was not closed.
 fn unclosed_before_declaration(text: &str, pos: usize) -> Option<usize> {
+    if !at_declaration_or_end(text, pos) {
+        return None;
+    }
+    unclosed_brace(text, pos)
+}
+
+/// Whether `pos` is the end of the file (but for blanks) or the first word
+/// of a line that begins a declaration (or `in`, the flow set after a flow
+/// block).
+fn at_declaration_or_end(text: &str, pos: usize) -> bool {
     const STARTS: [&str; 13] = [
         "in",
         "flow",
@@ -1288,17 +1335,15 @@ fn unclosed_before_declaration(text: &str, pos: usize) -> Option<usize> {
         "subsystem",
         "log",
     ];
-    let rest = text.get(pos..)?;
+    let Some(rest) = text.get(pos..) else {
+        return false;
+    };
     let line_start = text[..pos].rfind('\n').map_or(0, |i| i + 1);
     let at_line_start = text[line_start..pos].trim().is_empty();
     let word = &rest[..rest
         .find(|c: char| !(c.is_ascii_alphanumeric() || c == '_'))
         .unwrap_or(rest.len())];
-    let declaration = at_line_start && STARTS.contains(&word);
-    if !(rest.trim().is_empty() || declaration) {
-        return None;
-    }
-    unclosed_brace(text, pos)
+    rest.trim().is_empty() || (at_line_start && STARTS.contains(&word))
 }
 
 /// The token at `pos`, in words, and its length in bytes.

@@ -183,6 +183,53 @@ fn an_unclosed_block_points_at_its_brace() {
     assert_eq!(err.to_diagnostic().code, "E0101");
 }
 
+/// A `(` or `[` left open where a closing delimiter of another kind, the
+/// next declaration or the end of the file comes is E0108 there, pointing
+/// at the open delimiter (it was "unexpected `}`" at the block's end).
+#[test]
+fn an_unclosed_parenthesis_or_bracket_points_at_it() {
+    for (src, found, open) in [
+        (
+            "model m\nstate x = 1\nflow {\n    x' = -(x + 1\n}\n",
+            "}",
+            "(",
+        ),
+        ("model m\nparam a = (1 + 2\nstate x = 1\n", "state", "("),
+        (
+            "model m\nparam A = [1, 2; 3, 4\nstate x = 1\n",
+            "state",
+            "[",
+        ),
+        ("model m\nstate x = 1\nflow { x' = -(x + [1)] }\n", ")", "["),
+        ("model m\nstate x = 1\nflow { x' = max(x, (1 }\n", "}", "("),
+        ("model m\nparam a = (1 + 2 # a comment (\n", "", "("),
+    ] {
+        let err = parse_model(src).unwrap_err();
+        let d = err.to_diagnostic();
+        assert_eq!(d.code, "E0108", "{src}: {}", d.message);
+        let SyntaxError::Unclosed {
+            open: at, delim, ..
+        } = err
+        else {
+            panic!("{src}")
+        };
+        assert_eq!(&src[at.start..at.end], open, "{src}");
+        assert_eq!(delim.to_string(), open, "{src}");
+        if !found.is_empty() {
+            assert_eq!(&src[err.span().start..err.span().end], found, "{src}");
+        }
+        assert!(
+            d.message.starts_with(&format!("`{open}` not closed")),
+            "{}",
+            d.message
+        );
+    }
+    // Inside a group the parser's other stops stay what they were: a
+    // missing operator between two entries is no unclosed group.
+    let err = parse_model("model m\nparam a = (1 2)\n").unwrap_err();
+    assert_ne!(err.to_diagnostic().code, "E0108");
+}
+
 /// Another language's spelling where the parse stops is E0109 at what was
 /// written, naming hybsim's: the habits of a MATLAB (HyEQ) user first.
 #[test]

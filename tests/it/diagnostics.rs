@@ -214,9 +214,9 @@ const CASES: &[Case] = &[
     case(
         "unclosed matrix",
         "model m\nparam A = [1, 2; 3, 4\nstate x = 0\n",
-        "E0101",
+        "E0108",
         "3:1",
-        "unexpected `state`; expected `'`, `[` or an operator",
+        "`[` not closed: expected `]` before `state`",
     ),
     case(
         "flow equation with a dot for its prime",
