@@ -411,6 +411,9 @@ impl HybridSystem for SetBySet<'_> {
     fn atom_affine(&self, set: SetRef, atom: usize) -> Option<hybsim::engine::AffineAtom> {
         self.0.atom_affine(set, atom)
     }
+    fn atom_text(&self, set: SetRef, atom: usize) -> Option<String> {
+        self.0.atom_text(set, atom)
+    }
     fn flow_structure(&self) -> hybsim::engine::FlowStructure {
         self.0.flow_structure()
     }
@@ -679,6 +682,9 @@ impl HybridSystem for Counting<'_> {
     }
     fn atom_affine(&self, set: SetRef, atom: usize) -> Option<hybsim::engine::AffineAtom> {
         self.m.atom_affine(set, atom)
+    }
+    fn atom_text(&self, set: SetRef, atom: usize) -> Option<String> {
+        self.m.atom_text(set, atom)
     }
     fn flow_structure(&self) -> hybsim::engine::FlowStructure {
         self.m.flow_structure()
