@@ -7,20 +7,10 @@
 //! discrete-time systems (a logistic map, a Kalman filter) and a stiff flow
 //! with resets.
 
-use crate::util::simulate_arc;
+use crate::util::{compile, simulate_arc};
 use hybsim::arc::HybridArc;
 use hybsim::engine::{SimSettings, Solver};
 use hybsim::ir::CompiledModel;
-use hybsim::lang;
-use hybsim::source::SourceFile;
-
-fn compile(src: &str) -> CompiledModel {
-    let file = SourceFile::new("t.hyb", src);
-    match lang::compile(&file, &[]) {
-        Ok(m) => m,
-        Err(d) => panic!("{}", hybsim::diagnostics::render(&d, &file, false)),
-    }
-}
 
 fn run_with(m: &CompiledModel, settings: &SimSettings) -> HybridArc {
     let (x0, mut rng) = m.start(m.seed());

@@ -6,20 +6,12 @@
 //! binomial (fixed seeds: the checks are deterministic, and a uniform draw
 //! would leave those bounds with probability < 1e-6).
 
-use crate::util::simulate_arc;
+use crate::util::{compile, simulate_arc};
 use hybsim::arc::HybridArc;
 use hybsim::engine::{JumpChoice, SimSettings, check_arc};
 use hybsim::ir::CompiledModel;
 use hybsim::lang;
 use hybsim::source::SourceFile;
-
-fn compile(src: &str) -> CompiledModel {
-    let file = SourceFile::new("t.hyb", src);
-    match lang::compile(&file, &[]) {
-        Ok(m) => m,
-        Err(d) => panic!("{}", hybsim::diagnostics::render(&d, &file, false)),
-    }
-}
 
 /// The model's run with seed `seed` under `settings`, its set invariants
 /// checked.

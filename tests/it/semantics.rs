@@ -3,21 +3,12 @@
 //! simulate), against closed forms: jump times to 1e-9, jump counts exact,
 //! and the set invariants of every arc ([`check_arc`]).
 
-use crate::util::simulate_arc;
+use crate::util::{compile, simulate_arc};
 use hybsim::arc::{FailedAtom, HybridArc, TerminationCause};
 use hybsim::engine::{ExactAffine, SimError, SimSettings, Solver, check_arc};
 use hybsim::ir::CompiledModel;
 use hybsim::lang;
 use hybsim::source::SourceFile;
-
-/// Compiles `src` (panics with the rendered diagnostic if it does not).
-fn compile(src: &str) -> CompiledModel {
-    let file = SourceFile::new("t.hyb", src);
-    match lang::compile(&file, &[]) {
-        Ok(m) => m,
-        Err(d) => panic!("{}", hybsim::diagnostics::render(&d, &file, false)),
-    }
-}
 
 /// Runs the model under `settings`, checking the arc's set invariants.
 fn run_with(m: &CompiledModel, settings: &SimSettings) -> HybridArc {

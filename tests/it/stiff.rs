@@ -13,7 +13,7 @@
 //! 33 (rtol 1e-9) times the tolerance, Robertson at 6 and 20 times
 //! (hybsim's BDF: 21, 31, and at most 20).
 
-use crate::util::simulate_arc;
+use crate::util::{compile, simulate_arc};
 use hybsim::arc::{HybridArc, HybridTime, SampleKind, TerminationCause};
 use hybsim::engine::models::{BouncingBall, HeatChain, OverlapDemo, SampleAndHold};
 use hybsim::engine::{
@@ -25,14 +25,6 @@ use hybsim::lang;
 use hybsim::source::SourceFile;
 use nalgebra::DMatrix;
 use serde_json::Value;
-
-fn compile(src: &str) -> CompiledModel {
-    let file = SourceFile::new("t.hyb", src);
-    match lang::compile(&file, &[]) {
-        Ok(m) => m,
-        Err(d) => panic!("{}", hybsim::diagnostics::render(&d, &file, false)),
-    }
-}
 
 fn run_with(m: &CompiledModel, settings: &SimSettings) -> Result<HybridArc, SimError> {
     let (x0, mut rng) = m.start(m.seed());

@@ -3,19 +3,12 @@
 //! and independent computations; the same system written flat gives the
 //! same arc bit for bit; the composition errors point into the source.
 
+use crate::util::compile;
 use hybsim::arc::HybridArc;
 use hybsim::engine::{check_arc, simulate_arc};
 use hybsim::ir::CompiledModel;
 use hybsim::lang;
 use hybsim::source::SourceFile;
-
-fn compile(src: &str) -> CompiledModel {
-    let file = SourceFile::new("t.hyb", src);
-    match lang::compile(&file, &[]) {
-        Ok(m) => m,
-        Err(d) => panic!("{}", hybsim::diagnostics::render(&d, &file, false)),
-    }
-}
 
 /// The rendered diagnostics of a model that must not compile.
 fn errors(src: &str) -> String {

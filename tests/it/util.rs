@@ -369,3 +369,13 @@ pub fn nested_cargo(program: impl AsRef<OsStr>) -> Command {
     }
     cmd
 }
+
+/// Compiles the `.hyb` source `src` (panics with the rendered diagnostic if
+/// it does not).
+pub fn compile(src: &str) -> hybsim::ir::CompiledModel {
+    let file = hybsim::source::SourceFile::new("t.hyb", src);
+    match hybsim::lang::compile(&file, &[]) {
+        Ok(m) => m,
+        Err(d) => panic!("{}", hybsim::diagnostics::render(&d, &file, false)),
+    }
+}
