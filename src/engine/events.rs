@@ -70,6 +70,20 @@ pub(crate) trait StepPath {
     fn control_points(&self, _i: usize, _out: &mut [f64; MAX_CONTROL]) -> Option<(usize, f64)> {
         None
     }
+
+    /// Whether [`restep`](Self::restep) gives the states inside the step
+    /// more accurately than [`eval`](Self::eval): the watcher then finds an
+    /// event again on them, so that its time and state are as accurate as
+    /// the method's steps (Radau5, whose cubic is of order 3 inside a step
+    /// of order 5).
+    const RESTEPS: bool = false;
+
+    /// Writes x(s) into `out`, for `s` in `[s0, s1]`, from a fresh step of
+    /// the method from the step's start to `s`; `false` if that step
+    /// failed (`out` is then unspecified).
+    fn restep(&mut self, _s: f64, _out: &mut [f64]) -> bool {
+        false
+    }
 }
 
 /// The most Bernstein control points a [`StepPath`] gives per component.
@@ -2108,7 +2122,7 @@ impl Watcher {
             c.0 = f64::NAN;
         }
         for _ in 0..MAX_CANDIDATES {
-            let mut best: Option<(f64, f64, bool)> = None;
+            let mut best: Option<(f64, f64, bool, usize)> = None;
             // Decided once per atom and round (twins read theirs).
             self.mark_needs();
             for w in 0..self.watched.len() {
@@ -2128,8 +2142,8 @@ impl Watcher {
                         (a, b, true)
                     }
                 };
-                if best.is_none_or(|(_, bb, _)| b < bb) {
-                    best = Some((a, b, fresh));
+                if best.is_none_or(|(_, bb, _, _)| b < bb) {
+                    best = Some((a, b, fresh, w));
                     if fresh {
                         if self.bracket_start_read {
                             self.best_a.copy_from_slice(&self.buf_a);
@@ -2138,7 +2152,7 @@ impl Watcher {
                     }
                 }
             }
-            let (a, b, fresh) = best?;
+            let (a, b, fresh, w) = best?;
             if !fresh {
                 if self.bracket_start_read {
                     path.eval(a, &mut self.best_a);
@@ -2172,6 +2186,11 @@ impl Watcher {
                 let kind = match jump.map(|i| self.sets[i].set) {
                     Some(SetRef::Jump(r)) => EventKind::Jump(r),
                     _ => EventKind::LeftFlowSet,
+                };
+                let b = if P::RESTEPS {
+                    self.restep_event(sys, path, w, (cursor, b))
+                } else {
+                    b
                 };
                 return Some((b, kind));
             }
@@ -2431,6 +2450,81 @@ impl Watcher {
         Some(s0 + tau * h)
     }
 
+    /// The event of watched atom `w` at `b` (the end of its bracket on the
+    /// step's interpolant, the cursor at `cursor`) found again on states of
+    /// fresh steps from the step's start ([`StepPath::restep`]): the
+    /// change is bracketed by probes placed from the atom's slope on the
+    /// interpolant, then localized as on any path. Returns the event's time,
+    /// its states in `event_state` (and `best_a`); `b` and the states found
+    /// on the interpolant if the atom is an equality or relaxed one, a
+    /// re-step fails, or the change is not within the step on the re-steps.
+    fn restep_event<S: HybridSystem + ?Sized, P: StepPath>(
+        &mut self,
+        sys: &S,
+        path: &mut P,
+        w: usize,
+        (cursor, b): (f64, f64),
+    ) -> f64 {
+        let WAtom { set, atom, cmp, .. } = self.watched[w];
+        let (c0, s1) = (self.cls[w], self.span.1);
+        if matches!(cmp, Cmp::Eq | Cmp::Ne) || self.sets[set].state[atom].relax > 0.0 || c0 == 0 {
+            return b;
+        }
+        let tol = self
+            .event_tol
+            .max(4.0 * f64::EPSILON * self.clock.at(b).abs());
+        // The atom's slope at b along the interpolant.
+        let e = (b - cursor).min(1e-3 * (s1 - self.span.0)).max(tol);
+        let slope = (self.watched_at(sys, w, path, b, Buf::T)
+            - self.watched_at(sys, w, path, b - e, Buf::T))
+            / e;
+        let mut truth = Restepped { path, ok: true };
+        let v = self.watched_at(sys, w, &mut truth, b, Buf::B);
+        let crossed = class(v) != c0;
+        // The first probe where the slope puts the change, half again as
+        // far (at least a tolerance); then ever farther.
+        let mut delta = 1.5 * (v / slope).abs();
+        if !delta.is_finite() {
+            delta = (s1 - self.span.0) * 2f64.powi(-10);
+        }
+        let mut delta = delta.max(tol);
+        let (mut lo, mut hi) = (b, b);
+        let mut bracketed = false;
+        for _ in 0..8 {
+            if !truth.ok {
+                break;
+            }
+            let p = if crossed {
+                (hi - delta).max(cursor)
+            } else {
+                (lo + delta).min(s1)
+            };
+            let across = class(self.watched_at(sys, w, &mut truth, p, Buf::T)) != c0;
+            match (crossed, across) {
+                (true, false) => (lo, bracketed) = (p, true),
+                (false, true) => (hi, bracketed) = (p, true),
+                (true, true) => hi = p,
+                (false, false) => lo = p,
+            }
+            if bracketed || p == cursor || p == s1 {
+                break;
+            }
+            delta *= 4.0;
+        }
+        if !(bracketed && truth.ok) {
+            return b;
+        }
+        let (_, b1) = self.localize(sys, w, &mut truth, lo, hi);
+        if !truth.ok {
+            return b;
+        }
+        self.event_state.copy_from_slice(&self.buf_b);
+        if self.bracket_start_read {
+            self.best_a.copy_from_slice(&self.buf_a);
+        }
+        b1
+    }
+
     /// Shrinks the bracket `(a, b]` of watched atom `w` (sign class
     /// `cls[w]` at `a`, `cls_s[w]` at the checkpoint `b`) to the first
     /// change within the tolerance. Leaves x(b) in `buf_b`, and x(a) in
@@ -2579,6 +2673,22 @@ impl Watcher {
 /// search ends; a full tolerance would miss by that rounding half the time
 /// and cost one more evaluation.
 const INSIDE: f64 = 0.875;
+
+/// A path's states from re-steps ([`StepPath::restep`]); `ok` turns
+/// false at the first that fails (its state then NaN).
+struct Restepped<'p, P> {
+    path: &'p mut P,
+    ok: bool,
+}
+
+impl<P: StepPath> StepPath for Restepped<'_, P> {
+    fn eval(&mut self, s: f64, out: &mut [f64]) {
+        if !(self.ok && self.path.restep(s, out)) {
+            self.ok = false;
+            out.fill(f64::NAN);
+        }
+    }
+}
 
 #[derive(Clone, Copy)]
 enum Buf {

@@ -12,9 +12,12 @@
 //! step proposal, the Jacobian and its factorizations across segments and
 //! jumps (they are only refreshed when the Newton iteration stops
 //! converging), gives each step's collocation polynomial (cubic) as dense
-//! output, and allocates nothing after construction: the LU factorizations
-//! are done in place, dense or sparse ([`NewtonLu`], shared with the BDF
-//! stepper in [`implicit`](super::implicit)).
+//! output (events found on it are found again on re-steps to them, since
+//! the cubic is less accurate inside a long stiff step than the step's
+//! ends: [`RadauPath`]), and allocates nothing after construction but the
+//! re-steps' buffers at the first event: the LU factorizations are done in
+//! place, dense or sparse ([`NewtonLu`], shared with the BDF stepper in
+//! [`implicit`](super::implicit)).
 //!
 //! No crate offers this step-level control: `ode_solvers` has no implicit
 //! method; `russell_ode`'s Radau5 integrates whole intervals through
@@ -113,6 +116,143 @@ pub(crate) const NONSTIFF_HLAMB: f64 = 1.0;
 const MIN_FACTOR: f64 = 0.2;
 const MAX_FACTOR: f64 = 10.0;
 
+/// The collocation system of one step from (`s`, `y`) of length `h`: the
+/// Newton matrices `μ_real/h·I − J` and `μ_complex/h·I − J` factorized for
+/// `lu_h` (0: not factorized for the current Jacobian), the stage
+/// increments z_i = Y_i − y, their transforms w = T⁻¹ z, the stage
+/// derivatives. A stepper has one for its steps and one for re-stepping to
+/// events ([`RadauPath`]'s `restep`), made at the first.
+struct Collocation {
+    lu_re: NewtonLu<f64>,
+    lu_cx: NewtonLu<Complex<f64>>,
+    lu_h: f64,
+    z: [Vec<f64>; 3],
+    w: [Vec<f64>; 3],
+    fs: [Vec<f64>; 3],
+    rhs_re: Vec<f64>,
+    rhs_cx: Vec<Complex<f64>>,
+    y_stage: Vec<f64>,
+    /// The weights of the Newton iteration's norm: atol + rtol·|y|.
+    scale: Vec<f64>,
+}
+
+/// What a Newton iteration counts into its stepper: evaluations of f, and
+/// the last non-finite rate met.
+struct Counts<'a> {
+    fevals: &'a mut u64,
+    non_finite: &'a mut Option<NonFiniteRate>,
+}
+
+impl Collocation {
+    fn new(n: usize, la: &LinearAlgebra) -> Self {
+        let v = || vec![0.0; n];
+        Self {
+            lu_re: NewtonLu::new(la),
+            lu_cx: NewtonLu::new(la),
+            lu_h: 0.0,
+            z: [v(), v(), v()],
+            w: [v(), v(), v()],
+            fs: [v(), v(), v()],
+            rhs_re: v(),
+            rhs_cx: vec![Complex::new(0.0, 0.0); n],
+            y_stage: v(),
+            scale: v(),
+        }
+    }
+
+    /// Factorizes the two Newton matrices for step `h`; `false` if one is
+    /// singular.
+    fn factor(&mut self, h: f64, jac: &Jacobian) -> bool {
+        let ok = self.lu_re.factor_shifted(mu_real() / h, jac)
+            && self.lu_cx.factor_shifted(mu_complex() / h, jac);
+        self.lu_h = if ok { h } else { 0.0 };
+        ok
+    }
+
+    /// The simplified Newton iteration of the collocation system from the
+    /// stage increments in `z`; returns (converged, iterations, rate).
+    fn newton(
+        &mut self,
+        (s, y, h): (f64, &[f64], f64),
+        f: &mut Rhs<'_>,
+        newton_tol: f64,
+        counts: Counts<'_>,
+    ) -> (bool, u32, f64) {
+        let n = y.len();
+        let (mr, mc) = (mu_real() / h, mu_complex() / h);
+        for k in 0..3 {
+            for i in 0..n {
+                self.w[k][i] =
+                    TI[k][0] * self.z[0][i] + TI[k][1] * self.z[1][i] + TI[k][2] * self.z[2][i];
+            }
+        }
+        let mut norm_old: f64 = -1.0;
+        let mut rate = f64::NAN;
+        for it in 0..NEWTON_MAXITER {
+            for st in 0..3 {
+                for i in 0..n {
+                    self.y_stage[i] = y[i] + self.z[st][i];
+                }
+                f(s + C[st] * h, &self.y_stage, &mut self.fs[st]);
+            }
+            *counts.fevals += 3;
+            if self.fs.iter().flatten().any(|v| !v.is_finite()) {
+                // The stages in time order (C ascending).
+                *counts.non_finite = (0..3)
+                    .find_map(|st| NonFiniteRate::find(s + C[st] * h, &self.fs[st]))
+                    .or(*counts.non_finite);
+                return (false, it + 1, rate);
+            }
+            let [f1, f2, f3] = &self.fs;
+            for i in 0..n {
+                self.rhs_re[i] =
+                    TI[0][0] * f1[i] + TI[0][1] * f2[i] + TI[0][2] * f3[i] - mr * self.w[0][i];
+                let fr = TI[1][0] * f1[i] + TI[1][1] * f2[i] + TI[1][2] * f3[i];
+                let fi = TI[2][0] * f1[i] + TI[2][1] * f2[i] + TI[2][2] * f3[i];
+                self.rhs_cx[i] =
+                    Complex::new(fr, fi) - mc * Complex::new(self.w[1][i], self.w[2][i]);
+            }
+            self.lu_re.solve(&mut self.rhs_re);
+            self.lu_cx.solve(&mut self.rhs_cx);
+            let mut sum = 0.0;
+            for i in 0..n {
+                let sc = self.scale[i];
+                let (a, b, c) = (self.rhs_re[i], self.rhs_cx[i].re, self.rhs_cx[i].im);
+                sum += (a / sc).powi(2) + (b / sc).powi(2) + (c / sc).powi(2);
+            }
+            let norm = (sum / (3 * n.max(1)) as f64).sqrt();
+            if norm_old >= 0.0 {
+                rate = norm / norm_old;
+            }
+            if rate.is_finite()
+                && (rate >= 1.0
+                    || rate.powi((NEWTON_MAXITER - it) as i32) / (1.0 - rate) * norm > newton_tol)
+            {
+                return (false, it + 1, rate);
+            }
+            if !norm.is_finite() {
+                return (false, it + 1, rate);
+            }
+            for i in 0..n {
+                self.w[0][i] += self.rhs_re[i];
+                self.w[1][i] += self.rhs_cx[i].re;
+                self.w[2][i] += self.rhs_cx[i].im;
+            }
+            for k in 0..3 {
+                for i in 0..n {
+                    self.z[k][i] =
+                        T[k][0] * self.w[0][i] + T[k][1] * self.w[1][i] + T[k][2] * self.w[2][i];
+                }
+            }
+            if norm == 0.0 || (rate.is_finite() && rate / (1.0 - rate) * norm < newton_tol) {
+                return (true, it + 1, rate);
+            }
+            norm_old = norm;
+        }
+        (false, NEWTON_MAXITER, rate)
+    }
+}
+
 /// Radau IIA (order 5) state: tolerances, controller memory, the Jacobian
 /// and its factorizations, stage buffers and the collocation polynomial of
 /// the last accepted step.
@@ -128,20 +268,11 @@ pub(crate) struct Radau5 {
     err_prev: f64,
     /// ∂f/∂y (fresh: evaluated at the current step start).
     jac: Jacobian,
-    /// `μ_real/h·I − J` and `μ_complex/h·I − J`, factorized for step `lu_h`
-    /// (0: not factorized for the current Jacobian).
-    lu_re: NewtonLu<f64>,
-    lu_cx: NewtonLu<Complex<f64>>,
-    lu_h: f64,
-    /// Stage increments z_i = Y_i − y, their transforms w = T⁻¹ z, stage
-    /// derivatives.
-    z: [Vec<f64>; 3],
-    w: [Vec<f64>; 3],
-    fs: [Vec<f64>; 3],
-    rhs_re: Vec<f64>,
-    rhs_cx: Vec<Complex<f64>>,
-    y_stage: Vec<f64>,
-    scale: Vec<f64>,
+    /// The collocation system of the steps.
+    col: Collocation,
+    /// That of re-steps to events, made at the first ([`RadauPath`]).
+    restep: Option<Collocation>,
+    la: LinearAlgebra,
     /// f at the current step start (the caller's at a segment start).
     f0: Vec<f64>,
     /// The state at the end of the last accepted step, and f there.
@@ -174,16 +305,9 @@ impl Radau5 {
             h_prev: 0.0,
             err_prev: 0.0,
             jac: Jacobian::new(la),
-            lu_re: NewtonLu::new(la),
-            lu_cx: NewtonLu::new(la),
-            lu_h: 0.0,
-            z: [v(), v(), v()],
-            w: [v(), v(), v()],
-            fs: [v(), v(), v()],
-            rhs_re: v(),
-            rhs_cx: vec![Complex::new(0.0, 0.0); n],
-            y_stage: v(),
-            scale: v(),
+            col: Collocation::new(n, la),
+            restep: None,
+            la: la.clone(),
             f0: v(),
             y_new: v(),
             f_new: v(),
@@ -214,7 +338,7 @@ impl Radau5 {
                 self.rtol,
                 self.atol,
                 3,
-                &mut self.y_stage,
+                &mut self.col.y_stage,
                 &mut self.f_new,
             )
             .0;
@@ -247,15 +371,15 @@ impl Radau5 {
                 return None;
             }
             self.jac.refresh(self.s_old + self.h_old, &self.y_new, jac);
-            self.lu_h = 0.0;
+            self.col.lu_h = 0.0;
         }
-        for (sc, y) in self.scale.iter_mut().zip(&self.y_new) {
+        for (sc, y) in self.col.scale.iter_mut().zip(&self.y_new) {
             *sc = self.atol + self.rtol * y.abs();
         }
         // Below half the h·λ at which Dopri5 hands a flow over (lower than 1 at
         // tight tolerances), so that the flow is not handed back and forth.
         let limit = NONSTIFF_HLAMB.min(0.5 * super::flow::auto_stiff_hlamb(self.rtol));
-        Some(self.h_old * self.jac.weighted_norm(&self.scale) <= limit)
+        Some(self.h_old * self.jac.weighted_norm(&self.col.scale) <= limit)
     }
 
     /// Lowers the step proposal to at most `h`.
@@ -266,7 +390,7 @@ impl Radau5 {
     /// Evaluates the Jacobian at (`s`, `y`).
     fn refresh_jacobian(&mut self, s: f64, y: &[f64], jac: &mut Jac<'_>) {
         self.jac.refresh(s, y, jac);
-        self.lu_h = 0.0;
+        self.col.lu_h = 0.0;
     }
 
     /// Evaluations of the Jacobian so far.
@@ -279,88 +403,7 @@ impl Radau5 {
     /// singular.
     fn factor(&mut self, h: f64) -> bool {
         self.factorizations += 1;
-        let ok = self.lu_re.factor_shifted(mu_real() / h, &self.jac)
-            && self.lu_cx.factor_shifted(mu_complex() / h, &self.jac);
-        self.lu_h = if ok { h } else { 0.0 };
-        ok
-    }
-
-    /// The simplified Newton iteration of the collocation system from the
-    /// stage increments in `z`; returns (converged, iterations, rate).
-    fn newton(&mut self, s: f64, y: &[f64], h: f64, f: &mut Rhs<'_>) -> (bool, u32, f64) {
-        let n = y.len();
-        let (mr, mc) = (mu_real() / h, mu_complex() / h);
-        for k in 0..3 {
-            for i in 0..n {
-                self.w[k][i] =
-                    TI[k][0] * self.z[0][i] + TI[k][1] * self.z[1][i] + TI[k][2] * self.z[2][i];
-            }
-        }
-        let mut norm_old: f64 = -1.0;
-        let mut rate = f64::NAN;
-        for it in 0..NEWTON_MAXITER {
-            for st in 0..3 {
-                for i in 0..n {
-                    self.y_stage[i] = y[i] + self.z[st][i];
-                }
-                f(s + C[st] * h, &self.y_stage, &mut self.fs[st]);
-            }
-            self.fevals += 3;
-            if self.fs.iter().flatten().any(|v| !v.is_finite()) {
-                // The stages in time order (C ascending).
-                self.non_finite = (0..3)
-                    .find_map(|st| NonFiniteRate::find(s + C[st] * h, &self.fs[st]))
-                    .or(self.non_finite);
-                return (false, it + 1, rate);
-            }
-            let [f1, f2, f3] = &self.fs;
-            for i in 0..n {
-                self.rhs_re[i] =
-                    TI[0][0] * f1[i] + TI[0][1] * f2[i] + TI[0][2] * f3[i] - mr * self.w[0][i];
-                let fr = TI[1][0] * f1[i] + TI[1][1] * f2[i] + TI[1][2] * f3[i];
-                let fi = TI[2][0] * f1[i] + TI[2][1] * f2[i] + TI[2][2] * f3[i];
-                self.rhs_cx[i] =
-                    Complex::new(fr, fi) - mc * Complex::new(self.w[1][i], self.w[2][i]);
-            }
-            self.lu_re.solve(&mut self.rhs_re);
-            self.lu_cx.solve(&mut self.rhs_cx);
-            let mut sum = 0.0;
-            for i in 0..n {
-                let sc = self.scale[i];
-                let (a, b, c) = (self.rhs_re[i], self.rhs_cx[i].re, self.rhs_cx[i].im);
-                sum += (a / sc).powi(2) + (b / sc).powi(2) + (c / sc).powi(2);
-            }
-            let norm = (sum / (3 * n.max(1)) as f64).sqrt();
-            if norm_old >= 0.0 {
-                rate = norm / norm_old;
-            }
-            if rate.is_finite()
-                && (rate >= 1.0
-                    || rate.powi((NEWTON_MAXITER - it) as i32) / (1.0 - rate) * norm
-                        > self.newton_tol)
-            {
-                return (false, it + 1, rate);
-            }
-            if !norm.is_finite() {
-                return (false, it + 1, rate);
-            }
-            for i in 0..n {
-                self.w[0][i] += self.rhs_re[i];
-                self.w[1][i] += self.rhs_cx[i].re;
-                self.w[2][i] += self.rhs_cx[i].im;
-            }
-            for k in 0..3 {
-                for i in 0..n {
-                    self.z[k][i] =
-                        T[k][0] * self.w[0][i] + T[k][1] * self.w[1][i] + T[k][2] * self.w[2][i];
-                }
-            }
-            if norm == 0.0 || (rate.is_finite() && rate / (1.0 - rate) * norm < self.newton_tol) {
-                return (true, it + 1, rate);
-            }
-            norm_old = norm;
-        }
-        (false, NEWTON_MAXITER, rate)
+        self.col.factor(h, &self.jac)
     }
 
     /// The step-size factor of the predictive (Gustafsson) controller.
@@ -392,10 +435,10 @@ impl Radau5 {
     ) -> Result<f64, Failure> {
         let n = y.len();
         if self.jac.ensure(s, y, jac) {
-            self.lu_h = 0.0;
+            self.col.lu_h = 0.0;
         }
         for i in 0..n {
-            self.scale[i] = self.atol + self.rtol * y[i].abs();
+            self.col.scale[i] = self.atol + self.rtol * y[i].abs();
         }
         let mut rejected = false;
         loop {
@@ -407,7 +450,7 @@ impl Radau5 {
             if h <= 0.0 || s + 0.1 * h == s || !h.is_finite() {
                 return Err(Failure::Underflow);
             }
-            if self.lu_h != h && !self.factor(h) {
+            if self.col.lu_h != h && !self.factor(h) {
                 // A singular Newton matrix: a fresh Jacobian, then smaller steps.
                 if !self.jac.fresh {
                     self.refresh_jacobian(s, y, jac);
@@ -424,25 +467,29 @@ impl Radau5 {
                     let th = (s + C[k] * h - self.s_old) / self.h_old;
                     for i in 0..n {
                         let p = th * (self.q[0][i] + th * (self.q[1][i] + th * self.q[2][i]));
-                        self.z[k][i] = self.y_old[i] + p - y[i];
+                        self.col.z[k][i] = self.y_old[i] + p - y[i];
                     }
                 } else {
-                    self.z[k].fill(0.0);
+                    self.col.z[k].fill(0.0);
                 }
             }
-            let (converged, iters, rate) = self.newton(s, y, h, f);
+            let counts = Counts {
+                fevals: &mut self.fevals,
+                non_finite: &mut self.non_finite,
+            };
+            let (converged, iters, rate) = self.col.newton((s, y, h), f, self.newton_tol, counts);
             if !converged {
                 if !self.jac.fresh {
                     self.refresh_jacobian(s, y, jac);
                 } else {
                     self.h_next = 0.5 * h;
-                    self.lu_h = 0.0;
+                    self.col.lu_h = 0.0;
                     rejected = true;
                 }
                 continue;
             }
             for i in 0..n {
-                self.y_new[i] = y[i] + self.z[2][i];
+                self.y_new[i] = y[i] + self.col.z[2][i];
             }
             // Error estimate: (μ_real/h − J)⁻¹ (f0 + Σ e_k z_k / h).
             let err = self.error_norm(s, y, h, rejected, f);
@@ -483,8 +530,9 @@ impl Radau5 {
             // Dense output: the collocation polynomial of this step.
             for k in 0..3 {
                 for i in 0..n {
-                    self.q[k][i] =
-                        P[0][k] * self.z[0][i] + P[1][k] * self.z[1][i] + P[2][k] * self.z[2][i];
+                    self.q[k][i] = P[0][k] * self.col.z[0][i]
+                        + P[1][k] * self.col.z[1][i]
+                        + P[2][k] * self.col.z[2][i];
                 }
             }
             self.y_old.copy_from_slice(y);
@@ -494,7 +542,7 @@ impl Radau5 {
             std::mem::swap(&mut self.f0, &mut self.f_new);
             if recompute {
                 self.jac.refresh(s_new, &self.y_new, jac);
-                self.lu_h = 0.0;
+                self.col.lu_h = 0.0;
             } else {
                 self.jac.fresh = false;
             }
@@ -508,23 +556,24 @@ impl Radau5 {
     fn error_norm(&mut self, s: f64, y: &[f64], h: f64, rejected: bool, f: &mut Rhs<'_>) -> f64 {
         let n = y.len();
         for i in 0..n {
-            let ze = (E[0] * self.z[0][i] + E[1] * self.z[1][i] + E[2] * self.z[2][i]) / h;
+            let ze =
+                (E[0] * self.col.z[0][i] + E[1] * self.col.z[1][i] + E[2] * self.col.z[2][i]) / h;
             // ze is kept in `fs[0]` for a second estimate.
-            self.fs[0][i] = ze;
-            self.rhs_re[i] = self.f0[i] + ze;
+            self.col.fs[0][i] = ze;
+            self.col.rhs_re[i] = self.f0[i] + ze;
         }
-        self.lu_re.solve(&mut self.rhs_re);
+        self.col.lu_re.solve(&mut self.col.rhs_re);
         let mut norm = self.scaled_err(y);
         if rejected && norm > 1.0 {
             for i in 0..n {
-                self.y_stage[i] = y[i] + self.rhs_re[i];
+                self.col.y_stage[i] = y[i] + self.col.rhs_re[i];
             }
-            f(s, &self.y_stage, &mut self.rhs_re);
+            f(s, &self.col.y_stage, &mut self.col.rhs_re);
             self.fevals += 1;
             for i in 0..n {
-                self.rhs_re[i] += self.fs[0][i];
+                self.col.rhs_re[i] += self.col.fs[0][i];
             }
-            self.lu_re.solve(&mut self.rhs_re);
+            self.col.lu_re.solve(&mut self.col.rhs_re);
             norm = self.scaled_err(y);
         }
         norm
@@ -538,27 +587,55 @@ impl Radau5 {
         let mut sum = 0.0;
         for i in 0..n {
             let sc = self.atol + self.rtol * y[i].abs().max(self.y_new[i].abs());
-            sum += (self.rhs_re[i] / sc).powi(2);
+            sum += (self.col.rhs_re[i] / sc).powi(2);
         }
         (sum / n as f64).sqrt()
     }
 
     /// The collocation polynomial of the last accepted step, ending at
-    /// local time `s1` (its end, or the segment end it was rounded to).
-    pub fn path(&self, s1: f64) -> RadauPath<'_> {
-        RadauPath {
+    /// local time `s1` (its end, or the segment end it was rounded to), and
+    /// the state there; `f` for re-steps from the step's start to points
+    /// inside it ([`StepPath::restep`]).
+    pub fn path<'a>(&'a mut self, s1: f64, f: &'a mut Rhs<'_>) -> (RadauPath<'a>, &'a [f64]) {
+        let la = &self.la;
+        let restep = Restep {
+            col: &mut self.restep,
+            la,
+            jac: &self.jac,
+            f,
+            tol: (self.rtol, self.atol, self.newton_tol),
+            fevals: &mut self.fevals,
+            factorizations: &mut self.factorizations,
+        };
+        let path = RadauPath {
             q: &self.q,
             y0: &self.y_old,
             s0: self.s_old,
             h: self.h_old,
             s1,
             y1: &self.y_new,
-        }
+            restep: Some(restep),
+        };
+        (path, &self.y_new)
     }
 }
 
+/// What re-stepping from a step's start needs of its stepper.
+struct Restep<'a> {
+    col: &'a mut Option<Collocation>,
+    la: &'a LinearAlgebra,
+    jac: &'a Jacobian,
+    f: &'a mut Rhs<'a>,
+    /// rtol, atol, the Newton iteration's tolerance.
+    tol: (f64, f64, f64),
+    fevals: &'a mut u64,
+    factorizations: &'a mut u64,
+}
+
 /// The cubic collocation polynomial of one Radau IIA step (order 3 between
-/// the step ends, exact at them).
+/// the step ends, exact at them; where the flow is stiff its error inside
+/// a long step is well above the step's own, so events are found again on
+/// re-steps: [`StepPath::restep`]).
 pub(crate) struct RadauPath<'a> {
     q: &'a [Vec<f64>; 3],
     y0: &'a [f64],
@@ -566,9 +643,13 @@ pub(crate) struct RadauPath<'a> {
     h: f64,
     s1: f64,
     y1: &'a [f64],
+    /// `None`: a path that cannot re-step (tests).
+    restep: Option<Restep<'a>>,
 }
 
 impl StepPath for RadauPath<'_> {
+    const RESTEPS: bool = true;
+
     fn eval(&mut self, s: f64, out: &mut [f64]) {
         if s == self.s1 {
             out.copy_from_slice(self.y1);
@@ -589,6 +670,51 @@ impl StepPath for RadauPath<'_> {
         let [q1, q2, q3] = self.q.each_ref().map(|q| q[i]);
         let a = [self.y0[i], q1 * w, q2 * w * w, q3 * w * w * w];
         Some(bernstein_points(&a, out))
+    }
+
+    /// One Radau IIA step of exactly `s − s0` from the step's start (no
+    /// error control: it is no longer than the accepted step), its stages
+    /// started from the step's cubic; the Jacobian is the stepper's.
+    /// `false` if the Newton iteration does not converge.
+    fn restep(&mut self, s: f64, out: &mut [f64]) -> bool {
+        let Some(r) = self.restep.as_mut() else {
+            return false;
+        };
+        let h = s - self.s0;
+        if h <= 0.0 {
+            out.copy_from_slice(self.y0);
+            return true;
+        }
+        let n = self.y0.len();
+        let col = r.col.get_or_insert_with(|| Collocation::new(n, r.la));
+        let (rtol, atol, newton_tol) = r.tol;
+        for (sc, y) in col.scale.iter_mut().zip(self.y0) {
+            *sc = atol + rtol * y.abs();
+        }
+        *r.factorizations += 1;
+        if !col.factor(h, r.jac) {
+            return false;
+        }
+        let [q1, q2, q3] = self.q;
+        for k in 0..3 {
+            let th = C[k] * h / self.h;
+            for i in 0..n {
+                col.z[k][i] = th * (q1[i] + th * (q2[i] + th * q3[i]));
+            }
+        }
+        // A non-finite rate met here is not one ahead of the stepper's steps.
+        let mut non_finite = None;
+        let counts = Counts {
+            fevals: &mut *r.fevals,
+            non_finite: &mut non_finite,
+        };
+        let (converged, _, _) = col.newton((self.s0, self.y0, h), r.f, newton_tol, counts);
+        if converged {
+            for i in 0..n {
+                out[i] = self.y0[i] + col.z[2][i];
+            }
+        }
+        converged
     }
 }
 
@@ -651,7 +777,12 @@ mod tests {
         st.start(&y, &f0, &mut f);
         let h = st.step(0.0, &y, 10.0, &mut f, &mut jac).unwrap();
         for s1 in [h, 0.9 * h] {
-            crate::engine::events::tests::assert_control_points(&mut st.path(s1), 1, (0.0, s1), 4);
+            crate::engine::events::tests::assert_control_points(
+                &mut st.path(s1, &mut f).0,
+                1,
+                (0.0, s1),
+                4,
+            );
         }
     }
 
@@ -675,7 +806,7 @@ mod tests {
         while s < end {
             let h = st.step(s, &y, end - s, &mut f, &mut jac).unwrap();
             let s1 = if s + h >= end { end } else { s + h };
-            let mut p = st.path(s1);
+            let mut p = st.path(s1, &mut f).0;
             for k in 1..4 {
                 let sm = s + h * k as f64 / 4.0;
                 p.eval(sm, &mut out);

@@ -88,9 +88,8 @@ impl OwnStepper for Radau5 {
         &self.y_new
     }
 
-    fn path<'a>(&'a mut self, s1: f64, _f: &'a mut Rhs<'_>) -> (RadauPath<'a>, &'a [f64]) {
-        let this: &'a Self = self;
-        (Radau5::path(this, s1), &this.y_new)
+    fn path<'a>(&'a mut self, s1: f64, f: &'a mut Rhs<'_>) -> (RadauPath<'a>, &'a [f64]) {
+        Radau5::path(self, s1, f)
     }
 
     fn proposal(&self) -> f64 {
