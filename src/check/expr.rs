@@ -661,12 +661,8 @@ impl Checker {
             Some(Sym::StateFamily { members, .. }) => members.keys().cloned().collect(),
             _ => Vec::new(),
         };
-        let show = |k: &Vec<i64>| format!("[{}]", key_label(k));
-        match keys.len() {
-            0 => "none".into(),
-            n if n <= 6 => keys.iter().map(show).collect::<Vec<_>>().join(", "),
-            n => format!("{} … {} ({n} members)", show(&keys[0]), show(&keys[n - 1])),
-        }
+        let labels: Vec<String> = keys.iter().map(|k| key_label(k)).collect();
+        members_words(&labels)
     }
 
     pub(crate) fn is_family(&self, name: &str) -> bool {
@@ -1994,6 +1990,21 @@ pub(crate) const CONST_CTX: Ctx = Ctx {
 };
 
 /// A family member's key as written in its name: `2`, `1,3`.
+/// A family's members in words, from their index labels (`2`, `1,3`): each
+/// up to six, else the first, the last and their number.
+pub(crate) fn members_words(labels: &[String]) -> String {
+    let show = |l: &String| format!("[{l}]");
+    match labels.len() {
+        0 => "none".into(),
+        n if n <= 6 => labels.iter().map(show).collect::<Vec<_>>().join(", "),
+        n => format!(
+            "{} … {} ({n} members)",
+            show(&labels[0]),
+            show(&labels[n - 1])
+        ),
+    }
+}
+
 pub(crate) fn key_label(key: &[i64]) -> String {
     key.iter()
         .map(|i| i.to_string())

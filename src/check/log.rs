@@ -332,6 +332,28 @@ fn rule_indices(c: &mut Checker, n: &LogName, rules: &[CheckedRule]) -> Vec<usiz
         .map(|(k, _)| k)
         .collect();
     if found.is_empty() {
+        // A family's member it does not have: as for a family of states.
+        if let Some(index) = selection.label {
+            let labels: Vec<String> = rules
+                .iter()
+                .map(|r| RuleSelection::parse(&r.name))
+                .filter(|p| p.base == base && p.suffix == suffix)
+                .filter_map(|p| p.label.map(str::to_string))
+                .collect();
+            if !labels.is_empty() {
+                c.err(CheckError::FamilyOutOfRange {
+                    name: RuleSelection {
+                        label: None,
+                        ..selection
+                    }
+                    .to_string(),
+                    index: index.to_string(),
+                    members: super::expr::members_words(&labels),
+                    span: n.span,
+                });
+                return found;
+            }
+        }
         let name = selection.to_string();
         // Families and noises by their own names too (`fire` for `fire[2]`).
         let suggestion = c

@@ -13,7 +13,7 @@ use std::collections::{HashMap, HashSet};
 use super::Checker;
 use super::dag::{Dag, Node, NodeId};
 use super::error::CheckError;
-use super::expr::{Ctx, Val, dims_words, suggest};
+use super::expr::{Ctx, Val, dims_words, key_label, suggest};
 use super::rule_names::RuleNames;
 use crate::source::Span;
 use crate::syntax::ast::{Definition, Expr, ExprKind};
@@ -367,11 +367,7 @@ impl Checker {
         let (base, key) = match &e.kind {
             ExprKind::Name(n) => (n.clone(), None),
             ExprKind::Index(inner, args) => match &inner.kind {
-                ExprKind::Name(n) => {
-                    let key = self.family_key(args)?;
-                    let key: Vec<String> = key.iter().map(|k| k.to_string()).collect();
-                    (n.clone(), Some(format!("{n}[{}]", key.join(","))))
-                }
+                ExprKind::Name(n) => (n.clone(), Some(key_label(&self.family_key(args)?))),
                 _ => (String::new(), None),
             },
             _ => (String::new(), None),
@@ -385,23 +381,21 @@ impl Checker {
             });
             return None;
         }
-        let name = key.unwrap_or(base);
+        let name = match &key {
+            Some(k) => format!("{base}[{k}]"),
+            None => base.clone(),
+        };
         let found = rules.matching(&name);
         // A family over an empty range (`--set N=0`) is declared: its count is 0.
         if found.is_empty() && !rules.is_family(&name) {
             if rules.is_failed(&name) {
                 return None;
             }
-            let suggestion = self
-                .hints
-                .charge(rules.names().len())
-                .then(|| suggest(&name, rules.names()))
-                .flatten();
-            self.err(CheckError::UnknownName {
-                name,
-                span: e.span,
-                suggestion,
+            let hints = self.hints.charge(rules.names().len());
+            let error = rules.not_found(&base, key, e.span, |name| {
+                hints.then(|| suggest(name, rules.names())).flatten()
             });
+            self.err(error);
             return None;
         }
         Some(found)

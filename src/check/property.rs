@@ -11,7 +11,7 @@ use std::collections::HashMap;
 
 use super::dag::{Dag, Node, NodeId};
 use super::error::CheckError;
-use super::expr::{Ctx, Val, dims_words, suggest};
+use super::expr::{Ctx, Val, dims_words, key_label, suggest};
 use super::rule_names::RuleNames;
 use super::{Checker, Sym};
 use crate::source::Span;
@@ -255,13 +255,14 @@ fn tolerance(c: &mut Checker, e: Option<&Expr>) -> Option<f64> {
 }
 
 fn rule_index(c: &mut Checker, t: &Target, rules: &RuleNames) -> Option<usize> {
-    let name = match t.indices.first() {
-        None => t.name.name.clone(),
-        Some(args) => {
-            let key = c.family_key(args)?;
-            let key: Vec<String> = key.iter().map(|k| k.to_string()).collect();
-            format!("{}[{}]", t.name.name, key.join(","))
-        }
+    let base = t.name.name.as_str();
+    let index = match t.indices.first() {
+        None => None,
+        Some(args) => Some(key_label(&c.family_key(args)?)),
+    };
+    let name = match &index {
+        Some(i) => format!("{base}[{i}]"),
+        None => base.to_string(),
     };
     if let Some(k) = rules.get(&name) {
         return Some(k);
@@ -269,16 +270,11 @@ fn rule_index(c: &mut Checker, t: &Target, rules: &RuleNames) -> Option<usize> {
     if rules.is_failed(&name) {
         return None;
     }
-    let suggestion = c
-        .hints
-        .charge(rules.names().len())
-        .then(|| suggest(&name, rules.names()))
-        .flatten();
-    c.err(CheckError::UnknownName {
-        name,
-        span: t.span,
-        suggestion,
+    let hints = c.hints.charge(rules.names().len());
+    let error = rules.not_found(base, index, t.span, |name| {
+        hints.then(|| suggest(name, rules.names())).flatten()
     });
+    c.err(error);
     None
 }
 

@@ -4,6 +4,9 @@
 
 use std::collections::{HashMap, HashSet};
 
+use super::error::CheckError;
+use super::expr::members_words;
+use crate::source::Span;
 use crate::syntax::ast::{Item, Trigger};
 
 /// The names of rules declared without one, in declaration order: `every Ts { … }` is `step`,
@@ -90,6 +93,54 @@ impl RuleNames {
         self.families.contains_key(name)
     }
 
+    /// The index labels (`2`, `1,3`) of the members of family `name`, in
+    /// declaration order; `None` if it is not a family.
+    pub(crate) fn member_labels(&self, name: &str) -> Option<Vec<String>> {
+        let members = self.families.get(name)?;
+        Some(
+            members
+                .iter()
+                .map(|&k| {
+                    let full = &self.names[k];
+                    full[name.len() + 1..full.len() - 1].to_string()
+                })
+                .collect(),
+        )
+    }
+
+    /// The error of a reference to no rule: `base[index]` (or `base`) where
+    /// `base` is a family without that member is a family's missing member
+    /// (E0402, as for states); otherwise an unknown name, with the hint
+    /// `suggest` gives for the full name.
+    pub(crate) fn not_found(
+        &self,
+        base: &str,
+        index: Option<String>,
+        span: Span,
+        suggest: impl FnOnce(&str) -> Option<String>,
+    ) -> CheckError {
+        if let Some(index) = &index
+            && let Some(labels) = self.member_labels(base).filter(|l| !l.is_empty())
+        {
+            return CheckError::FamilyOutOfRange {
+                name: base.to_string(),
+                index: index.clone(),
+                members: members_words(&labels),
+                span,
+            };
+        }
+        let name = match &index {
+            Some(i) => format!("{base}[{i}]"),
+            None => base.to_string(),
+        };
+        let suggestion = suggest(&name);
+        CheckError::UnknownName {
+            name,
+            span,
+            suggestion,
+        }
+    }
+
     /// The rules `name` stands for: the rule of that name and, for a family
     /// name, every member, in declaration order.
     pub(crate) fn matching(&self, name: &str) -> Vec<usize> {
@@ -148,6 +199,8 @@ mod tests {
         assert_eq!(r.names().len(), 5);
         // A family declared over an empty range: known, no member.
         assert!(r.is_family("none") && r.matching("none").is_empty());
+        assert_eq!(r.member_labels("fire").unwrap(), ["1", "2", "1,2"]);
+        assert_eq!(r.member_labels("reset"), None);
         assert!(!r.is_family("reset"));
         assert!(r.is_failed("broken") && r.get("broken").is_none());
     }

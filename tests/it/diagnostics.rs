@@ -496,11 +496,33 @@ const CASES: &[Case] = &[
         "unknown name `rr`",
     ),
     case(
-        "unknown rule of a log block, blanks before the bracket",
-        "model m\nstate x = 1\nflow { x' = -x }\nfor i in 1..2 { jump f[i] when x <= 0.5 { x+ = 1 } }\nlog { rules = [f[3]   # none\n] }\n",
+        "unknown rule of a log block",
+        "model m\nstate x = 1\nflow { x' = -x }\nfor i in 1..2 { jump f[i] when x <= 0.5 { x+ = 1 } }\nlog { rules = [g[3]] }\n",
         "E0201",
         "5:16",
-        "unknown name `f[3]`",
+        "unknown name `g[3]`",
+    ),
+    // A rule family's missing member is the family's error, as for states.
+    case(
+        "rule family member out of range in a log block, blanks before the bracket",
+        "model m\nstate x = 1\nflow { x' = -x }\nfor i in 1..2 { jump f[i] when x <= 0.5 { x+ = 1 } }\nlog { rules = [f[3]   # none\n] }\n",
+        "E0402",
+        "5:16",
+        "`f` has no member [3]",
+    ),
+    case(
+        "rule family member out of range in count",
+        "model m\nstate x = 1\nflow { x' = -x }\nfor i in 1..2 { jump f[i] when x <= 0.5 { x+ = 1 } }\nmetric c = count(f[0])\n",
+        "E0402",
+        "5:18",
+        "`f` has no member [0]",
+    ),
+    case(
+        "rule family member out of range in a property",
+        "model m\nstate x = 1\nflow { x' = -x }\nfor i in 1..2 { jump f[i] when x <= 0.5 { x+ = 1 } }\nproperty p: at jumps f[5] post(x) == 1\n",
+        "E0402",
+        "5:22",
+        "`f` has no member [5]",
     ),
     case(
         "unknown name in a reset",
@@ -1083,8 +1105,8 @@ const RENDERED: &[(&str, &str)] = &[
         "error[E0201]: unknown name `rr`\n  ┌─ m.hyb:5:22\n  │\n5 │ property p: at jumps rr   post(x) == 1\n  │                      ^^ not found\n  │\n  = help: did you mean `r`?\n\n",
     ),
     (
-        "unknown rule of a log block, blanks before the bracket",
-        "error[E0201]: unknown name `f[3]`\n  ┌─ m.hyb:5:16\n  │\n5 │ log { rules = [f[3]   # none\n  │                ^^^^ not found\n  │\n  = help: did you mean `f[2]`?\n\n",
+        "rule family member out of range in a log block, blanks before the bracket",
+        "error[E0402]: `f` has no member [3]\n  ┌─ m.hyb:5:16\n  │\n5 │ log { rules = [f[3]   # none\n  │                ^^^^ no such member\n  │\n  = its members are [1], [2]\n\n",
     ),
     (
         "family member out of range",
