@@ -431,6 +431,20 @@ pub enum CheckError {
         /// The equation.
         span: Span,
     },
+    /// An index error (E0401, E0402) in one iteration of a `for` loop: the
+    /// loop and its variables' values there, and the `--set` values its
+    /// range reads (a range grown past a table by `--set N=…`).
+    #[error("{inner}")]
+    InLoop {
+        /// The error.
+        inner: Box<CheckError>,
+        /// The loop's binder (`i in 1..N`).
+        binder: Span,
+        /// The variables' values (`i = 4`).
+        values: String,
+        /// The overrides its range reads, as typed (`--set N=5`).
+        set_by: Vec<String>,
+    },
     /// An error inside a `--set name=value` override (or a flag that is one, `--T 0`).
     #[error("in {}: {message}", match .flag {
         Some(flag) => format!("`{flag}`"),
@@ -467,6 +481,7 @@ impl CheckError {
                 true
             }
             CheckError::Override { size_limit, .. } => *size_limit,
+            CheckError::InLoop { inner, .. } => inner.is_size_limit(),
             _ => false,
         }
     }
@@ -512,6 +527,7 @@ impl CheckError {
             Table(e) => e.span(),
             AlgebraicLoop { cycle } => cycle.first().map(|c| c.1).unwrap_or_default(),
             Override { .. } | UnknownOverride { .. } => Span::default(),
+            InLoop { inner, .. } => inner.span(),
         }
     }
 
@@ -544,6 +560,7 @@ impl CheckError {
             BadSetting { .. } => "E0506",
             Unsupported { .. } => "E0507",
             Override { inner_code, .. } => inner_code.unwrap_or("E0508"),
+            InLoop { inner, .. } => inner.code(),
             NoiseNotAffine { .. } => "E0509",
             AlgebraicLoop { .. } => "E0511",
             Instance { .. } => "E0512",
@@ -559,6 +576,21 @@ impl CheckError {
     /// The error as a diagnostic, with labels and help.
     pub fn to_diagnostic(&self) -> Diagnostic {
         use CheckError::*;
+        if let InLoop {
+            inner,
+            binder,
+            values,
+            set_by,
+        } = self
+        {
+            let d = inner
+                .to_diagnostic()
+                .secondary(*binder, format!("in the iteration with {values}"));
+            return match set_by.as_slice() {
+                [] => d,
+                sets => d.note(format!("the loop's range reads {}", sets.join(", "))),
+            };
+        }
         let d = Diagnostic::error(self.code(), self.to_string());
         match self {
             UnknownTarget {
@@ -784,6 +816,7 @@ impl CheckError {
                 .help("write the noise term as a coefficient times the noise, e.g. `sigma * x * w`; the coefficient may depend on the state"),
             Design(e) => e.to_diagnostic(),
             Table(e) => e.to_diagnostic(),
+            InLoop { inner, .. } => inner.to_diagnostic(),
         }
     }
 }

@@ -890,12 +890,63 @@ impl ModelChecker<'_> {
                 },
             };
             if keep {
+                let errors = self.c.errors.len();
                 body(self);
+                self.in_loop(b, errors, depth);
             }
             self.c.scopes.truncate(depth);
         }
         self.loops.pop();
         true
+    }
+
+    /// Index errors of the loop `b`'s iteration since `errors` say which
+    /// iteration (its variables from scope `depth` on) and what `--set`
+    /// values its range reads.
+    fn in_loop(&mut self, b: &Binder, errors: usize, depth: usize) {
+        let wrapped = |e: &CheckError| matches!(e.code(), "E0401" | "E0402");
+        if !self.c.errors[errors..].iter().any(wrapped) {
+            return;
+        }
+        let values = self.c.scopes[depth..]
+            .iter()
+            .map(|(v, i)| format!("`{v}` = {i}"))
+            .collect::<Vec<_>>()
+            .join(", ");
+        let mut set_by = Vec::new();
+        let mut reads = |e: &Expr| overrides_read(e, &self.overrides, &mut set_by);
+        // The binder up to its last expression (its span runs on over blanks).
+        let mut end = b.span.end;
+        match &b.set {
+            IndexSet::Range(lo, hi) | IndexSet::In(lo, hi) | IndexSet::Out(lo, hi) => {
+                reads(lo);
+                reads(hi);
+                end = hi.span.end;
+            }
+            IndexSet::Edges(g) => {
+                reads(g);
+                end = g.span.end;
+            }
+            _ => {}
+        }
+        if let Some(f) = &b.filter {
+            end = f.span.end;
+        }
+        let binder = Span::new(b.span.start, end.min(b.span.end));
+        for e in &mut self.c.errors[errors..] {
+            if wrapped(e) {
+                let inner = Box::new(std::mem::replace(
+                    e,
+                    CheckError::AlgebraicLoop { cycle: Vec::new() },
+                ));
+                *e = CheckError::InLoop {
+                    inner,
+                    binder,
+                    values: values.clone(),
+                    set_by: set_by.clone(),
+                };
+            }
+        }
     }
 
     /// How many more times the statement being checked runs, this time
@@ -1559,6 +1610,10 @@ impl ModelChecker<'_> {
                     _ => None,
                 };
                 let Some(field) = member else {
+                    // A member whose declaration failed: reported there.
+                    if self.c.is_poisoned(name) {
+                        return None;
+                    }
                     let members = self.c.family_members_words(name);
                     self.c.err(CheckError::FamilyOutOfRange {
                         name: name.clone(),
@@ -2399,5 +2454,50 @@ fn declared_names(items: &[Item], out: &mut Vec<String>) {
             | Item::Instance(_)
             | Item::Log(_) => {}
         }
+    }
+}
+
+/// The overrides expression `e` reads by name, as the user typed them
+/// (`--set N=5`), each once, into `out`.
+fn overrides_read(e: &Expr, overrides: &HashMap<&str, &Override>, out: &mut Vec<String>) {
+    let mut go = |e: &Expr| overrides_read(e, overrides, out);
+    match &e.kind {
+        ExprKind::Name(n) => {
+            if let Some(o) = overrides.get(n.as_str()) {
+                let typed = o.flag.clone().unwrap_or_else(|| {
+                    format!("`{}`, set by `--set {}={}`", o.name, o.name, o.value)
+                });
+                if !out.contains(&typed) {
+                    out.push(typed);
+                }
+            }
+        }
+        ExprKind::Num(_) | ExprKind::Bool(_) => {}
+        ExprKind::Matrix(rows) => rows.iter().flatten().for_each(go),
+        ExprKind::Unary(_, a) => go(a),
+        ExprKind::Binary(_, a, b) => {
+            go(a);
+            go(b);
+        }
+        ExprKind::Call(_, args) => args.iter().for_each(go),
+        ExprKind::Index(a, args) => {
+            go(a);
+            for arg in args {
+                match arg {
+                    IndexArg::One(x) => go(x),
+                    IndexArg::Slice(x, y) => {
+                        go(x);
+                        go(y);
+                    }
+                    IndexArg::All(_) => {}
+                }
+            }
+        }
+        ExprKind::If(c, a, b) => {
+            go(c);
+            go(a);
+            go(b);
+        }
+        ExprKind::Fold(_, _, body) => go(body),
     }
 }

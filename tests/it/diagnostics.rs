@@ -1566,3 +1566,42 @@ fn a_misspelt_property_word_gets_the_closest_one() {
         assert_eq!(d.help.as_deref(), Some(help.as_str()), "{body}: {d:#?}");
     }
 }
+
+/// An index error in a `for` loop points at the loop with the iteration's
+/// variables, and names the `--set` values its range reads (a range grown
+/// past a table by `--set N=5`); a state member whose value failed is not
+/// reported again at its flow equation.
+#[test]
+fn an_index_error_in_a_loop_names_the_iteration_and_the_override_of_its_range() {
+    let src = SourceFile::new(
+        "m.hyb",
+        "model m\nparam N = 3\nparam d = [1, 2, 3]\nfor i in 1..N {\n    state x[i] = d[i]\n}\nflow {\n    for i in 1..N {\n        x[i]' = -x[i]\n    }\n}\n",
+    );
+    let d = diagnostics(&src, &["N=5"]);
+    assert_eq!(d.len(), 2, "{d:#?}");
+    let text = render(&d, &src, false);
+    for (k, i) in [(0, 4), (1, 5)] {
+        assert_eq!(d[k].code, "E0401");
+        assert_eq!(d[k].message, format!("index {i} is out of range 1..3"));
+    }
+    assert!(
+        text.contains("4 │ for i in 1..N {\n  │     --------- in the iteration with `i` = 4"),
+        "{text}"
+    );
+    assert!(
+        text.contains("= the loop's range reads `N`, set by `--set N=5`"),
+        "{text}"
+    );
+    // Without an override the loop's own note only.
+    let src = SourceFile::new(
+        "m.hyb",
+        "model m\nparam d = [1, 2]\nfor i in 1..3 { for k in 1..2 { state x[i, k] = d[i] } }\n",
+    );
+    let d = diagnostics(&src, &[]);
+    let text = render(&d, &src, false);
+    // `d[i]` does not read `k`: lowered (and failed) once per `i`.
+    assert_eq!(d.len(), 1, "{text}");
+    assert!(text.contains("in the iteration with `k` = 1"), "{text}");
+    assert!(text.contains("in the iteration with `i` = 3"), "{text}");
+    assert!(!text.contains("range reads"), "{text}");
+}

@@ -269,12 +269,14 @@ sim { T = 1 }
     // f[2] fires alone at t = 0.4 (f[1] at 0.25, 0.5): its own n moves, f[1]'s not.
     let v = check("wrong").unwrap_err();
     assert!((v.at.t - 0.4).abs() < 1e-9, "{v}");
-    // An unknown member is located, with the rule's name as the model writes it.
+    // A missing member is located, with the family's name as the model
+    // writes it, as a state family's (E0402).
     let bad = text.replace(
         "at jumps f[2].fire post(f.n[1])",
         "at jumps f[3].fire post(f.n[1])",
     );
     let d = lang::check_only(&SourceFile::new("flock.hyb", &bad), &[]);
     assert_eq!(d.len(), 1, "{d:#?}");
-    assert_eq!(d[0].message, "unknown name `f.fire[3]`");
+    assert_eq!(d[0].code, "E0402");
+    assert_eq!(d[0].message, "`f.fire` has no member [3]");
 }
