@@ -2110,7 +2110,7 @@ impl ModelChecker<'_> {
             }
             let canon = canonical_sim_key(key);
             if let Some(&first) = seen.get(canon) {
-                self.c.err(CheckError::Duplicate {
+                self.c.err(CheckError::SetTwice {
                     name: key.clone(),
                     span: *span,
                     first,

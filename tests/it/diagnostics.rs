@@ -552,6 +552,27 @@ const CASES: &[Case] = &[
         "`x[1]` is declared twice",
     ),
     case(
+        "a sim setting given in two blocks",
+        "model m\nstate x = 1\nflow { x' = -x }\nsim { T = 10 }\nsim { T = 5 }\n",
+        "E0202",
+        "5:7",
+        "`T` is set twice",
+    ),
+    case(
+        "a setting given twice in two spellings",
+        "model m\nstate x = 1\nflow { x' = -x }\nsim { T = 10; horizon_t = 5 }\n",
+        "E0202",
+        "4:15",
+        "`horizon_t` is set twice",
+    ),
+    case(
+        "two log blocks",
+        "model m\nstate x = 1\nflow { x' = -x }\nlog { every = 2 }\nlog { dt = 0.1 }\n",
+        "E0202",
+        "5:1",
+        "a second `log` block",
+    ),
+    case(
         "unknown function with a suggestion",
         "model m\nparam a = sqr(2)\n",
         "E0203",
@@ -1491,6 +1512,37 @@ output f = z[1] + o[2] + sum(i in 1..N: z[i])
         ],
         "{diags:#?}"
     );
+}
+
+/// A setting given twice is one too many, not a name clash: the help said "rename one of
+/// them", which would make it an unknown setting.
+#[test]
+fn a_setting_given_twice_is_to_be_removed_not_renamed() {
+    for (text, help) in [
+        (
+            "model m\nstate x = 1\nflow { x' = -x }\nsim { T = 10; T = 5 }\n",
+            "remove one of them: `T` takes one value",
+        ),
+        (
+            "model m\nstate x = 1\nflow { x' = -x }\nlog { every = 2; every = 3 }\n",
+            "remove one of them: `every` takes one value",
+        ),
+        (
+            "model m\nparam k = 1\nstate x = 1\nflow { x' = -k*x }\nsweep { k in [1, 2]; k in [3] }\n",
+            "remove one of them: `k` takes one value",
+        ),
+        (
+            "model m\nparam k = 1\nstate x = 1\nflow { x' = -k*x }\nsweep { runs = 2 }\nsweep { runs = 3 }\n",
+            "write all the entries in one `sweep` block",
+        ),
+    ] {
+        let src = SourceFile::new("m.hyb", text);
+        let d = diagnostics(&src, &[]);
+        assert_eq!(d.len(), 1, "{text}: {d:#?}");
+        assert_eq!(d[0].code, "E0202", "{text}: {d:#?}");
+        let shown = render(&d, &src, false);
+        assert!(shown.contains(help) && !shown.contains("rename"), "{shown}");
+    }
 }
 
 /// A state declared without its initial value (E0504) is still a state:
