@@ -106,6 +106,20 @@ const CASES: &[Case] = &[
         "`;` ends the `state` declaration, so `v = ...` is not declared",
     ),
     case(
+        "two state declarations without a comma",
+        "model m\nstate x = 1 y = 2\nflow { x' = -y }\n",
+        "E0109",
+        "2:13",
+        "`y = ...` follows the `state` declaration with no `,` before it",
+    ),
+    case(
+        "two parameters without a comma, the first a call",
+        "model m\nparam a = max(1, 2)  b2 = [1; 2]\nstate x = 1\nflow { x' = -a*x }\n",
+        "E0109",
+        "2:22",
+        "`b2 = ...` follows the `param` declaration with no `,` before it",
+    ),
+    case(
         "HyEQ's tspan",
         "model m\nstate x = 1\nflow { x' = -x }\nsim { tspan = [0, 10] }\n",
         "E0204",
