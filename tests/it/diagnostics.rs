@@ -1422,6 +1422,36 @@ fn an_error_caused_by_an_override_names_it() {
     assert_eq!(d[0].notes, ["Ts = 0 comes from `--grid Ts=0`"], "{d:#?}");
 }
 
+/// A state's initial value given on the command line with another shape (`--set x=[1; 2; 3]`
+/// for a 2-vector, a user's x0) fails where x is used; those errors say where the value came
+/// from, as for a parameter (they named only the model's lines). Also through a parameter the
+/// initial value reads.
+#[test]
+fn a_shape_error_from_a_state_override_names_it() {
+    let src = SourceFile::new(
+        "m.hyb",
+        "model m\nparam A = [0, 1; -1, 0], x0 = [1; 0]\nstate x = x0, z = 1\n\
+         flow { x' = A*x; z' = -z }\noutput e = norm(x)\n",
+    );
+    assert!(diagnostics(&src, &[]).is_empty());
+    let d = diagnostics(&src, &["x=[1; 2; 3]", "z=2"]);
+    let notes: Vec<(&str, Vec<String>)> = d.iter().map(|d| (d.code, d.notes.clone())).collect();
+    assert_eq!(
+        notes,
+        [(
+            "E0301",
+            vec!["x = [1; 2; 3] comes from `--set x=[1; 2; 3]`".to_string()]
+        )],
+        "{d:#?}"
+    );
+    let d = diagnostics(&src, &["x0=[1; 2; 3]"]);
+    assert_eq!(
+        d[0].notes,
+        ["x0 = [1; 2; 3] comes from `--set x0=[1; 2; 3]` (`x` is computed from it)"],
+        "{d:#?}"
+    );
+}
+
 /// An instance without a value for one of its subsystem's parameters is
 /// that error alone: the parameter's uses in the subsystem's body (and the
 /// states initialized from it) do not become unknown names.
