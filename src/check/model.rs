@@ -1395,6 +1395,8 @@ impl ModelChecker<'_> {
                 what: format!("the initial value of `{name}`"),
                 span: init_expr.span,
             });
+            // Its uses report nothing more (they were unknown names, "did you mean …").
+            self.c.poisoned.insert(name, Unavailable::Failed);
             return;
         }
         // A constant the engine would refuse at (0, 0): said here, at the

@@ -1589,6 +1589,30 @@ fn a_setting_given_twice_is_to_be_removed_not_renamed() {
     }
 }
 
+/// A state whose initial value reads another state (`state x = [a; b]` with `a`, `b` drawn
+/// states, as a HyEQ user writes x0) is that error alone: its equations, resets, outputs and
+/// properties reported it as an unknown name six times more ("did you mean `xh`?").
+#[test]
+fn a_state_initialized_from_states_does_not_cascade() {
+    let src = SourceFile::new(
+        "m.hyb",
+        "model m
+state a ~ uniform(-1, 1), b = 0
+state x = [a; b], xh = [0; 0]
+flow { x' = -x; xh' = -xh }
+every 0.5 { xh+ = xh + (x - xh) }
+output e = norm(x - xh)
+property p: at jumps step norm(post(x - xh)) <= norm(x - xh)
+",
+    );
+    let diags = diagnostics(&src, &[]);
+    let found: Vec<_> = diags
+        .iter()
+        .map(|d| (d.code, d.line_col(&src).unwrap().to_string()))
+        .collect();
+    assert_eq!(found, [("E0305", "3:11".to_string())], "{diags:#?}");
+}
+
 /// A state declared without its initial value (E0504) is still a state:
 /// its flow equation, guards, resets and outputs add no "unknown name".
 #[test]
