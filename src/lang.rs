@@ -255,7 +255,7 @@ fn report(
         .collect()
 }
 
-/// For each parameter of the model whose value an override decides: the
+/// For each parameter or state of the model whose value an override decides: the
 /// overrides it comes from (indices in `overrides`). Parameters are
 /// declared before use, so one pass in declaration order follows every
 /// chain (`h = Ts / 2` after `--set Ts=0`).
@@ -293,6 +293,15 @@ fn override_sources<'m>(
                 }
             }
             Item::ParamTuple(targets, value) => define(&mut targets.iter(), value.span),
+            // A state's shape is its initial value's: `--set x=[1; 2; 3]` on a 2-vector
+            // surfaces as shape errors where x is used, which say where that value came from.
+            Item::State(defs) => {
+                for d in defs {
+                    if let Some(init) = &d.init {
+                        define(&mut std::iter::once(&d.target), init.span);
+                    }
+                }
+            }
             _ => {}
         }
     }

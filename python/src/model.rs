@@ -448,6 +448,7 @@ impl Model {
         let inputs = hybsim::props::Subject::inputs(&subject);
         let state_names = hybsim::props::Subject::state_names(&subject);
         let report_names = hybsim::props::Subject::report_names(&subject);
+        let rule_names = subject.model().rule_names();
 
         let out = PyDict::new(py);
         out.set_item("model", model.name())?;
@@ -506,7 +507,10 @@ impl Model {
                     c.set_item("horizon_T", cx.case.horizon_t)?;
                     c.set_item("horizon_J", cx.case.horizon_j)?;
                     c.set_item("shrink_runs", cx.shrink_runs)?;
-                    c.set_item("description", cx.describe(inputs, &report_names))?;
+                    c.set_item(
+                        "description",
+                        cx.describe_with_rules(inputs, &report_names, &rule_names),
+                    )?;
                     c.set_item("replay", replay_command(path, &subject, &cx.case))?;
                     if counterexamples.is_empty() {
                         out.set_item("counterexample", &c)?;

@@ -78,6 +78,27 @@ pub enum CheckError {
         /// The first declaration.
         first: Span,
     },
+    /// A setting given twice: a key of a `sim`, `log` or `sweep` block (in one
+    /// block or two), or an axis of the `sweep` block.
+    #[error("`{name}` is set twice")]
+    SetTwice {
+        /// The key or axis as written the second time.
+        name: String,
+        /// The second one.
+        span: Span,
+        /// The first one.
+        first: Span,
+    },
+    /// A second `log` or `sweep` block (each is written once).
+    #[error("a second `{block}` block")]
+    SecondBlock {
+        /// `log` or `sweep`.
+        block: &'static str,
+        /// The second block.
+        span: Span,
+        /// The first block.
+        first: Span,
+    },
     /// A call of a function that does not exist.
     #[error("unknown function `{name}`")]
     UnknownFunction {
@@ -493,6 +514,8 @@ impl CheckError {
             UnknownName { span, .. }
             | UnknownTarget { span, .. }
             | Duplicate { span, .. }
+            | SetTwice { span, .. }
+            | SecondBlock { span, .. }
             | UnknownFunction { span, .. }
             | NotAFunction { span, .. }
             | UnknownSetting { span, .. }
@@ -537,7 +560,7 @@ impl CheckError {
         use CheckError::*;
         match self {
             UnknownName { .. } | UnknownTarget { .. } => "E0201",
-            Duplicate { .. } => "E0202",
+            Duplicate { .. } | SetTwice { .. } | SecondBlock { .. } => "E0202",
             UnknownFunction { .. } => "E0203",
             UnknownSetting { .. } | UnknownOverride { .. } => "E0204",
             NotAFunction { .. } => "E0205",
@@ -666,6 +689,15 @@ impl CheckError {
                 .primary(*span, "declared again here")
                 .secondary(*first, "first declared here")
                 .help("rename one of them"),
+            // Renaming a setting is no fix (it was "rename one of them"): one must go.
+            SetTwice { name, span, first } => d
+                .primary(*span, "set again here")
+                .secondary(*first, "first set here")
+                .help(format!("remove one of them: `{name}` takes one value")),
+            SecondBlock { block, span, first } => d
+                .primary(*span, "second block")
+                .secondary(*first, "first block")
+                .help(format!("write all the entries in one `{block}` block")),
             ShapeMismatch {
                 span,
                 left,

@@ -66,8 +66,8 @@ pub(crate) fn check_logs(c: &mut Checker, items: &[Item], rules: &[CheckedRule])
     for it in items {
         match it {
             Item::Log(b) => match first {
-                Some(first) => c.err(CheckError::Duplicate {
-                    name: "log".into(),
+                Some(first) => c.err(CheckError::SecondBlock {
+                    block: "log",
                     span: b.span,
                     first,
                 }),
@@ -106,7 +106,7 @@ fn check_block(c: &mut Checker, b: &LogBlock, rules: &[CheckedRule], decl: &mut 
         .chain(b.settings.iter().map(|s| &s.key));
     for key in keys {
         if let Some(&first) = seen.get(key.name.as_str()) {
-            c.err(CheckError::Duplicate {
+            c.err(CheckError::SetTwice {
                 name: key.name.clone(),
                 span: key.span,
                 first,

@@ -1446,6 +1446,8 @@ impl ModelChecker<'_> {
                 what: format!("the initial value of `{name}`"),
                 span: init_expr.span,
             });
+            // Its uses report nothing more (they were unknown names, "did you mean …").
+            self.c.poisoned.insert(name, Unavailable::Failed);
             return;
         }
         // A constant the engine would refuse at (0, 0): said here, at the
@@ -2165,7 +2167,7 @@ impl ModelChecker<'_> {
             }
             let canon = canonical_sim_key(key);
             if let Some(&first) = seen.get(canon) {
-                self.c.err(CheckError::Duplicate {
+                self.c.err(CheckError::SetTwice {
                     name: key.clone(),
                     span: *span,
                     first,

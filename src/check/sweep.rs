@@ -36,8 +36,8 @@ pub(crate) fn check_sweeps(
     for it in items {
         match it {
             Item::Sweep(b) => match &found {
-                Some((first, _)) => c.err(CheckError::Duplicate {
-                    name: "sweep".into(),
+                Some((first, _)) => c.err(CheckError::SecondBlock {
+                    block: "sweep",
                     span: b.span,
                     first: *first,
                 }),
@@ -71,7 +71,7 @@ fn check_block(c: &mut Checker, b: &SweepBlock, settable: &[String]) -> SweepDec
         let name = axis.name.name.as_str();
         let span = axis.name.span;
         if let Some(&first) = seen.get(name) {
-            c.err(CheckError::Duplicate {
+            c.err(CheckError::SetTwice {
                 name: name.to_string(),
                 span,
                 first,
@@ -149,7 +149,7 @@ fn check_block(c: &mut Checker, b: &SweepBlock, settable: &[String]) -> SweepDec
     for s in &b.settings {
         let key = s.key.name.as_str();
         if let Some(&first) = keys.get(key) {
-            c.err(CheckError::Duplicate {
+            c.err(CheckError::SetTwice {
                 name: key.to_string(),
                 span: s.key.span,
                 first,

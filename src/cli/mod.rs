@@ -308,19 +308,19 @@ impl ArgOverride {
 pub struct GuardArgs {
     /// Tolerance on the flow set's atoms when deciding whether a state may
     /// flow (the `sim` key `set_tol`; default 1e-9).
-    #[arg(long, value_name = "TOL")]
+    #[arg(long, value_name = "TOL", allow_hyphen_values = true)]
     pub set_tol: Option<NumberArg>,
     /// Zeno guard: most jumps per unit of t over the window (`inf`
     /// disables it); applies only when J is unbounded (`sim` key `zeno_rate`).
-    #[arg(long, value_name = "RATE")]
+    #[arg(long, value_name = "RATE", allow_hyphen_values = true)]
     pub zeno_rate: Option<NumberArg>,
     /// Zeno guard: number of jumps over which the rate is measured (a whole
     /// number ≥ 2, `1e3` too).
-    #[arg(long, value_name = "N")]
+    #[arg(long, value_name = "N", allow_hyphen_values = true)]
     pub zeno_window: Option<NumberArg>,
     /// Zeno guard: jump budget of a run with unbounded J (a whole number
     /// ≥ 1, `1e7` too).
-    #[arg(long, value_name = "N")]
+    #[arg(long, value_name = "N", allow_hyphen_values = true)]
     pub max_total_jumps: Option<NumberArg>,
 }
 
@@ -357,6 +357,10 @@ impl GuardArgs {
 fn float_override(x: f64) -> String {
     if x.is_infinite() && x > 0.0 {
         "inf".to_string()
+    } else if x.is_nan() {
+        // The language's NaN, so that `--T nan` is refused as the value it is (not as an
+        // unknown name `NaN`, which the user did not type).
+        "0/0".to_string()
     } else {
         format!("{x:e}")
     }

@@ -44,15 +44,15 @@ pub struct RunArgs {
     #[arg(long, conflicts_with = "output")]
     pub no_mcap: bool,
     /// Horizon T in ordinary time (overrides the model's `sim` block).
-    #[arg(long = "T", value_name = "T")]
+    #[arg(long = "T", value_name = "T", allow_hyphen_values = true)]
     pub horizon_t: Option<NumberArg>,
     /// Horizon J in jumps (overrides the model's `sim` block): a whole
     /// number (`1e6` too), or `inf` for no bound; checked as the block's `J`.
-    #[arg(long = "J", value_name = "J")]
+    #[arg(long = "J", value_name = "J", allow_hyphen_values = true)]
     pub horizon_j: Option<NumberArg>,
     /// Output grid: flow samples at t = k·DT instead of every integrator step
     /// (overrides the model's `sim` block).
-    #[arg(long, value_name = "DT")]
+    #[arg(long, value_name = "DT", allow_hyphen_values = true)]
     pub dt_out: Option<NumberArg>,
     /// Integrator for flows (overrides the model's).
     #[arg(long, value_enum)]
@@ -65,10 +65,10 @@ pub struct RunArgs {
     pub atol: Option<f64>,
     /// Step of the fixed-step solvers (rk4, euler-maruyama); default: the
     /// model's `h`, else 1e-3 (as in the `sim` block).
-    #[arg(long, value_name = "H")]
+    #[arg(long, value_name = "H", allow_hyphen_values = true)]
     pub step: Option<f64>,
     /// Largest integrator step of the adaptive solvers.
-    #[arg(long, value_name = "H")]
+    #[arg(long, value_name = "H", allow_hyphen_values = true)]
     pub max_step: Option<NumberArg>,
     /// What to do when the state is in both C and D.
     #[arg(long, value_enum)]
@@ -130,7 +130,7 @@ pub struct RunArgs {
     /// Log flow samples at least DT apart in t (samples of logged jumps and the
     /// first and last samples are always logged); overrides `log { dt }` (0
     /// keeps every flow sample).
-    #[arg(long, value_name = "DT")]
+    #[arg(long, value_name = "DT", allow_hyphen_values = true)]
     pub log_dt: Option<f64>,
     /// States and outputs written to the MCAP and CSV files, comma-separated:
     /// entries (`xh`, `err`) or family members (`xh[2]`, `e[1,3]`); `*` for

@@ -154,7 +154,14 @@ pub fn execute(args: TestArgs) -> anyhow::Result<u8> {
                 if let Some(p) = remaining.iter().find(|p| p.name() == name) {
                     println!("FAILED  {p}");
                 }
-                print!("{}", cx.describe(inputs, &subject.report_names()));
+                print!(
+                    "{}",
+                    cx.describe_with_rules(
+                        inputs,
+                        &subject.report_names(),
+                        &subject.model().rule_names()
+                    )
+                );
                 let mut cmd = vec![
                     "hybsim".to_string(),
                     "run".to_string(),

@@ -51,7 +51,19 @@ impl Violation {
     /// The violation over several lines, with state components named by
     /// `state_names` (those with an empty name left out).
     pub fn describe(&self, state_names: &[String]) -> String {
-        let mut s = format!("{self}\n");
+        self.describe_with_rules(state_names, &[])
+    }
+
+    /// As [`describe`](Self::describe), the jump rule named by `rule_names` (in rule order)
+    /// instead of by its index: "(jump of rule `step`)", not "(jump of rule 0)".
+    pub fn describe_with_rules(&self, state_names: &[String], rule_names: &[String]) -> String {
+        let mut s = match &self.detail {
+            ViolationDetail::Jump { rule, .. } if rule_names.get(*rule).is_some() => format!(
+                "`{}` fails at {} (jump of rule `{}`)\n",
+                self.property, self.at, rule_names[*rule]
+            ),
+            _ => format!("{self}\n"),
+        };
         if !self.state.is_empty() {
             let side = match self.detail {
                 ViolationDetail::Jump { .. } | ViolationDetail::Monotone { .. } => {
@@ -73,13 +85,27 @@ impl Counterexample {
     /// state, seed, inputs (shrunk and as sampled), and the `hybsim run`
     /// flags replaying it ([`replay_args`]).
     pub fn describe(&self, inputs: &[Input], state_names: &[String]) -> String {
+        self.describe_with_rules(inputs, state_names, &[])
+    }
+
+    /// As [`describe`](Self::describe), jump rules named by `rule_names` (in rule order).
+    pub fn describe_with_rules(
+        &self,
+        inputs: &[Input],
+        state_names: &[String],
+        rule_names: &[String],
+    ) -> String {
         let mut s = String::new();
         let _ = writeln!(
             s,
             "counterexample: case {} (seed {}), shrunk in {} runs",
             self.index, self.case.seed, self.shrink_runs
         );
-        let _ = write!(s, "  {}", self.violation.describe(state_names));
+        let _ = write!(
+            s,
+            "  {}",
+            self.violation.describe_with_rules(state_names, rule_names)
+        );
         for ((input, v), v0) in inputs
             .iter()
             .zip(&self.case.values)

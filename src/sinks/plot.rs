@@ -33,6 +33,7 @@ use std::path::{Path, PathBuf};
 
 use plotters::coord::Shift;
 use plotters::coord::ranged1d::{AsRangedCoord, ValueFormatter};
+use plotters::coord::types::RangedCoordf64;
 use plotters::element::DashedPathElement;
 use plotters::prelude::*;
 use plotters::style::FontStyle;
@@ -344,6 +345,16 @@ fn integer_label(v: &f64) -> String {
     }
 }
 
+/// A tick of a linear axis as plotters writes it, but a zero without its sign: the ticks are
+/// `start + k·step` in floating point, so the one at 0 can be -3e-17, which was shown as "-0.0".
+fn decimal_label(v: &f64) -> String {
+    let s = <RangedCoordf64 as ValueFormatter<f64>>::format(v);
+    match s.strip_prefix('-') {
+        Some(rest) if rest.bytes().all(|b| b == b'0' || b == b'.') => rest.to_string(),
+        _ => s,
+    }
+}
+
 /// Finite, non-degenerate bounds of `values`, padded by 5 %.
 fn bounds(values: impl Iterator<Item = f64>, log: bool) -> (f64, f64) {
     let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
@@ -556,9 +567,13 @@ where
         .light_line_style(RGBColor(235, 235, 235));
     if panel.x_integers {
         mesh.x_label_formatter(&integer_label);
+    } else {
+        mesh.x_label_formatter(&decimal_label);
     }
     if panel.y_integers {
         mesh.y_label_formatter(&integer_label);
+    } else if !panel.log_y {
+        mesh.y_label_formatter(&decimal_label);
     }
     mesh.draw().map_err(|e| err(&e))?;
     for (k, s) in panel.series.iter().take(shown).enumerate() {
@@ -634,6 +649,7 @@ fn draw_panel_3d<DB: DrawingBackend>(
     let mut axes = chart.configure_axes();
     axes.light_grid_style(RGBColor(235, 235, 235))
         .max_light_lines(4);
+    axes.x_formatter(&decimal_label).y_formatter(&decimal_label);
     if panel.y_integers {
         // The depth axis is j.
         axes.z_formatter(&integer_label);

@@ -1093,6 +1093,36 @@ fn foreign_spelling(text: &str, pos: usize) -> Option<SyntaxError> {
             ),
         );
     }
+    // Two declarations on one line with nothing between them (`state x = 1 y = 2`): the
+    // second reads as an instance `y = Sub(…)` as well, and the parse stopped at its value
+    // with "expected a name".
+    if let Some(kw) = ["state", "param"].into_iter().find(|kw| {
+        line_words
+            .strip_prefix(kw)
+            .is_some_and(|r| r.starts_with([' ', '\t']))
+    }) && let Some(head) = line.trim_end().strip_suffix('=')
+        && let head = head.trim_end()
+        && let name_start = head.rfind(|c: char| !is_word(c)).map_or(0, |i| i + 1)
+        && let name = &head[name_start..]
+        && name.starts_with(|c: char| c.is_ascii_alphabetic() || c == '_')
+        && let first = &head[..name_start]
+        && first.ends_with([' ', '\t'])
+        && after_operand(first)
+        && first.contains('=')
+    {
+        let at = line_start + name_start;
+        return foreign(
+            at,
+            at + name.len(),
+            &format!("`{name} = ...` follows the `{kw}` declaration with no `,` before it"),
+            "a `,` expected before this",
+            &format!(
+                "declare several on one line with `,`: `{}, {name} = ...` \
+                 (or put `{kw} {name} = ...` on a line of its own)",
+                first.trim()
+            ),
+        );
+    }
     None
 }
 

@@ -120,6 +120,52 @@ fn the_jump_horizon_flag_takes_what_the_sim_block_takes() {
     );
 }
 
+/// `nan` given to a number flag is refused as the value it is, at the value: it was turned
+/// into the override `sim.T=NaN` and refused as an unknown name `NaN` (E0201), which the user
+/// never typed; `--T -inf` was a usage error about a flag `-i`.
+#[test]
+fn a_nan_given_to_a_number_flag_is_an_invalid_value() {
+    let dir = tempfile::tempdir().unwrap();
+    let model = write(
+        dir.path(),
+        "decay.hyb",
+        "model decay\nstate x = 1\nflow { x' = -x }\n",
+    );
+    let m = model.to_str().unwrap();
+    for (flag, says) in [
+        ("--T", "invalid `T`: NaN is out of range"),
+        ("--J", "invalid `J`: NaN is out of range"),
+        ("--dt-out", "invalid `dt_out`: NaN is out of range"),
+        ("--max-step", "invalid `max_step`: NaN is out of range"),
+        ("--zeno-rate", "invalid `zeno_rate`: NaN is out of range"),
+    ] {
+        let out = hybsim(
+            dir.path(),
+            &["run", m, "--no-mcap", "--color", "never", flag, "nan"],
+        );
+        assert_eq!(code(&out), 2, "{flag} nan");
+        let err = stderr(&out);
+        assert!(
+            err.contains("E0506")
+                && err.contains(says)
+                && err.contains(&format!("in `{flag} nan`")),
+            "{flag} nan: {err}"
+        );
+        assert!(!err.contains("unknown name"), "{flag} nan: {err}");
+    }
+    // `-inf` is a value too (clap took it for the short flags `-i…` and advised `-- -i`).
+    let out = hybsim(
+        dir.path(),
+        &["run", m, "--no-mcap", "--color", "never", "--T", "-inf"],
+    );
+    assert_eq!(code(&out), 2);
+    let err = stderr(&out);
+    assert!(
+        err.contains("in `--T -inf`: invalid `T`: -inf is out of range"),
+        "--T -inf: {err}"
+    );
+}
+
 /// `--T` and `--J` set the horizons, not the model's own `T` and `J`: a sampling period
 /// `param T` became the horizon too (`--T 3` made a model that ticks every 0.5 end with no
 /// tick), and a `--set` of the state `h` stays the state's when `hybsim test` replays it.

@@ -106,6 +106,20 @@ const CASES: &[Case] = &[
         "`;` ends the `state` declaration, so `v = ...` is not declared",
     ),
     case(
+        "two state declarations without a comma",
+        "model m\nstate x = 1 y = 2\nflow { x' = -y }\n",
+        "E0109",
+        "2:13",
+        "`y = ...` follows the `state` declaration with no `,` before it",
+    ),
+    case(
+        "two parameters without a comma, the first a call",
+        "model m\nparam a = max(1, 2)  b2 = [1; 2]\nstate x = 1\nflow { x' = -a*x }\n",
+        "E0109",
+        "2:22",
+        "`b2 = ...` follows the `param` declaration with no `,` before it",
+    ),
+    case(
         "HyEQ's tspan",
         "model m\nstate x = 1\nflow { x' = -x }\nsim { tspan = [0, 10] }\n",
         "E0204",
@@ -572,6 +586,27 @@ const CASES: &[Case] = &[
         "E0202",
         "2:23",
         "`x[1]` is declared twice",
+    ),
+    case(
+        "a sim setting given in two blocks",
+        "model m\nstate x = 1\nflow { x' = -x }\nsim { T = 10 }\nsim { T = 5 }\n",
+        "E0202",
+        "5:7",
+        "`T` is set twice",
+    ),
+    case(
+        "a setting given twice in two spellings",
+        "model m\nstate x = 1\nflow { x' = -x }\nsim { T = 10; horizon_t = 5 }\n",
+        "E0202",
+        "4:15",
+        "`horizon_t` is set twice",
+    ),
+    case(
+        "two log blocks",
+        "model m\nstate x = 1\nflow { x' = -x }\nlog { every = 2 }\nlog { dt = 0.1 }\n",
+        "E0202",
+        "5:1",
+        "a second `log` block",
     ),
     case(
         "unknown function with a suggestion",
@@ -1409,6 +1444,36 @@ fn an_error_caused_by_an_override_names_it() {
     assert_eq!(d[0].notes, ["Ts = 0 comes from `--grid Ts=0`"], "{d:#?}");
 }
 
+/// A state's initial value given on the command line with another shape (`--set x=[1; 2; 3]`
+/// for a 2-vector, a user's x0) fails where x is used; those errors say where the value came
+/// from, as for a parameter (they named only the model's lines). Also through a parameter the
+/// initial value reads.
+#[test]
+fn a_shape_error_from_a_state_override_names_it() {
+    let src = SourceFile::new(
+        "m.hyb",
+        "model m\nparam A = [0, 1; -1, 0], x0 = [1; 0]\nstate x = x0, z = 1\n\
+         flow { x' = A*x; z' = -z }\noutput e = norm(x)\n",
+    );
+    assert!(diagnostics(&src, &[]).is_empty());
+    let d = diagnostics(&src, &["x=[1; 2; 3]", "z=2"]);
+    let notes: Vec<(&str, Vec<String>)> = d.iter().map(|d| (d.code, d.notes.clone())).collect();
+    assert_eq!(
+        notes,
+        [(
+            "E0301",
+            vec!["x = [1; 2; 3] comes from `--set x=[1; 2; 3]`".to_string()]
+        )],
+        "{d:#?}"
+    );
+    let d = diagnostics(&src, &["x0=[1; 2; 3]"]);
+    assert_eq!(
+        d[0].notes,
+        ["x0 = [1; 2; 3] comes from `--set x0=[1; 2; 3]` (`x` is computed from it)"],
+        "{d:#?}"
+    );
+}
+
 /// An instance without a value for one of its subsystem's parameters is
 /// that error alone: the parameter's uses in the subsystem's body (and the
 /// states initialized from it) do not become unknown names.
@@ -1513,6 +1578,61 @@ output f = z[1] + o[2] + sum(i in 1..N: z[i])
         ],
         "{diags:#?}"
     );
+}
+
+/// A setting given twice is one too many, not a name clash: the help said "rename one of
+/// them", which would make it an unknown setting.
+#[test]
+fn a_setting_given_twice_is_to_be_removed_not_renamed() {
+    for (text, help) in [
+        (
+            "model m\nstate x = 1\nflow { x' = -x }\nsim { T = 10; T = 5 }\n",
+            "remove one of them: `T` takes one value",
+        ),
+        (
+            "model m\nstate x = 1\nflow { x' = -x }\nlog { every = 2; every = 3 }\n",
+            "remove one of them: `every` takes one value",
+        ),
+        (
+            "model m\nparam k = 1\nstate x = 1\nflow { x' = -k*x }\nsweep { k in [1, 2]; k in [3] }\n",
+            "remove one of them: `k` takes one value",
+        ),
+        (
+            "model m\nparam k = 1\nstate x = 1\nflow { x' = -k*x }\nsweep { runs = 2 }\nsweep { runs = 3 }\n",
+            "write all the entries in one `sweep` block",
+        ),
+    ] {
+        let src = SourceFile::new("m.hyb", text);
+        let d = diagnostics(&src, &[]);
+        assert_eq!(d.len(), 1, "{text}: {d:#?}");
+        assert_eq!(d[0].code, "E0202", "{text}: {d:#?}");
+        let shown = render(&d, &src, false);
+        assert!(shown.contains(help) && !shown.contains("rename"), "{shown}");
+    }
+}
+
+/// A state whose initial value reads another state (`state x = [a; b]` with `a`, `b` drawn
+/// states, as a HyEQ user writes x0) is that error alone: its equations, resets, outputs and
+/// properties reported it as an unknown name six times more ("did you mean `xh`?").
+#[test]
+fn a_state_initialized_from_states_does_not_cascade() {
+    let src = SourceFile::new(
+        "m.hyb",
+        "model m
+state a ~ uniform(-1, 1), b = 0
+state x = [a; b], xh = [0; 0]
+flow { x' = -x; xh' = -xh }
+every 0.5 { xh+ = xh + (x - xh) }
+output e = norm(x - xh)
+property p: at jumps step norm(post(x - xh)) <= norm(x - xh)
+",
+    );
+    let diags = diagnostics(&src, &[]);
+    let found: Vec<_> = diags
+        .iter()
+        .map(|d| (d.code, d.line_col(&src).unwrap().to_string()))
+        .collect();
+    assert_eq!(found, [("E0305", "3:11".to_string())], "{diags:#?}");
 }
 
 /// A state declared without its initial value (E0504) is still a state:

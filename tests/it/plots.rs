@@ -270,6 +270,47 @@ fn the_hybrid_kind_draws_components_over_t_and_j() {
     }
 }
 
+/// The tick at zero of an axis symmetric about it reads `0.0`: plotters places ticks at
+/// `start + k·step`, and the one at 0 came out as -3e-17 and was labelled `-0.0` (an
+/// oscillator's x and y, flows and phase plots).
+#[test]
+fn the_zero_tick_has_no_sign() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    std::fs::write(
+        d.join("osc.hyb"),
+        "model osc\nstate x = 1, y = 0\nflow { x' = y; y' = -x }\nsim { T = 10 }\n",
+    )
+    .unwrap();
+    for kind in ["flows", "phase", "hybrid"] {
+        let svg = format!("{kind}.svg");
+        ok(
+            d,
+            &[
+                "run",
+                "osc.hyb",
+                "-q",
+                "--no-mcap",
+                "--plot",
+                &svg,
+                "--plot-kind",
+                kind,
+            ],
+        );
+        let labels = texts(&std::fs::read_to_string(d.join(&svg)).unwrap());
+        assert!(
+            labels.iter().any(|l| l == "0.0"),
+            "{kind}: no zero tick in {labels:?}"
+        );
+        assert!(
+            !labels
+                .iter()
+                .any(|l| l.starts_with('-') && l.trim_matches(['-', '0', '.']).is_empty()),
+            "{kind}: a signed zero in {labels:?}"
+        );
+    }
+}
+
 /// PNG by the extension, for `--plot` and `hybsim plot`: a decodable image
 /// of the figure's size (900 wide, 260 per panel; 460 per 3-D panel).
 #[test]

@@ -345,3 +345,24 @@ sim { T = 2 }
         "{text}"
     );
 }
+
+/// A jump property that fails names the rule that jumped, as the model does: the report said
+/// "(jump of rule 1)", the index among the model's rules, which no user has seen.
+#[test]
+fn a_failing_jump_property_names_the_rule() {
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::write(
+        dir.path().join("r.hyb"),
+        "model r\nstate x = 0, n = 0\nflow { x' = 1 }\nevery 0.5 { n+ = n + 1 }\n\
+         jump reset when x >= 1 { x+ = 0 }\nproperty small: at jumps post(n) <= 2\nsim { T = 3 }\n",
+    )
+    .unwrap();
+    let out = hybsim(dir.path(), &["test", "r.hyb"]);
+    let text = stdout(&out);
+    assert_eq!(code(&out), 1, "{text}");
+    // n reaches 3 at the third tick, t = 1.5: a jump of the `every` rule, `step`.
+    assert!(
+        text.contains("`small` fails at (t = 1.5, j = 3) (jump of rule `step`)"),
+        "{text}"
+    );
+}
