@@ -450,10 +450,25 @@ pub(crate) fn check_model(
         // The engine needs at least one state component (`run` would
         // reject the model); families sized 0 by a parameter end here too.
         // A model of `design` blocks alone is for `hybsim design`.
+        // Sized 0 by an override (`--set N=0`): say so.
+        let mut given: Vec<String> = m
+            .overrides
+            .values()
+            .map(|o| {
+                o.flag
+                    .clone()
+                    .unwrap_or_else(|| format!("--set {}={}", o.name, o.value))
+            })
+            .collect();
+        given.sort();
+        let found = match given.as_slice() {
+            [] => "a model without states".to_string(),
+            _ => format!("a model without states with `{}`", given.join("`, `")),
+        };
         m.c.err(CheckError::Expected {
             expected: "at least one state component (`state x = ...`, or a family of size ≥ 1)"
                 .into(),
-            found: "a model without states".into(),
+            found,
             span: model.name.span,
         });
     }

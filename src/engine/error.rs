@@ -43,7 +43,7 @@ pub enum SimError {
     },
     /// A state component became NaN or infinite.
     #[error(
-        "state component {component} (`{name}`) became {value} {} {at}",
+        "state `{name}` became {value} {} {at}",
         if .rule.is_some() { "in the jump at" } else { "at" }
     )]
     NonFinite {

@@ -1725,3 +1725,21 @@ fn an_index_error_in_a_loop_names_the_iteration_and_the_override_of_its_range() 
     assert!(text.contains("in the iteration with `i` = 3"), "{text}");
     assert!(!text.contains("range reads"), "{text}");
 }
+
+/// A model whose states are all in families sized 0 by an override says
+/// which override emptied it.
+#[test]
+fn a_model_emptied_by_an_override_names_it() {
+    let src = SourceFile::new(
+        "m.hyb",
+        "model m\nparam N = 3\nfor i in 1..N { state x[i] = 0 }\nflow { for i in 1..N { x[i]' = 1 } }\n",
+    );
+    let d = diagnostics(&src, &["N=0"]);
+    assert_eq!(d.len(), 1, "{d:#?}");
+    assert_eq!(
+        d[0].message,
+        "expected at least one state component (`state x = ...`, or a family of size ≥ 1), found a model without states with `--set N=0`"
+    );
+    let d = diagnostics(&src, &[]);
+    assert!(d.is_empty(), "{d:#?}");
+}

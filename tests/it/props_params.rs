@@ -174,7 +174,7 @@ fn post_inside_sum_reads_the_post_jump_state() {
     let text = stdout(&out);
     assert_eq!(code(&out), 1, "{text}");
     assert!(text.contains("`counts` fails at (t = "), "{text}");
-    assert!(text.contains(", j = 0) (jump of rule 0)"), "{text}");
+    assert!(text.contains(", j = 0) (jump of rule `impact`)"), "{text}");
     assert!(text.contains("post-jump state: "), "{text}");
     // post(…) outside `at jumps` is an error that says so.
     let src = std::fs::read_to_string(&m).unwrap().replace(

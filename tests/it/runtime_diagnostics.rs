@@ -90,7 +90,7 @@ fn a_non_finite_reset_names_its_assignment_and_the_jump() {
     assert_eq!(d.code, "E0602");
     assert_eq!(
         d.message,
-        "state component 1 (`y`) became -inf in the jump at (t = 1, j = 0)"
+        "state `y` became -inf in the jump at (t = 1, j = 0)"
     );
     let lc = d.line_col(&src).unwrap();
     assert_eq!((lc.line, lc.col), (6, 5), "at `y+ = log(x)`");
