@@ -32,6 +32,13 @@ pub struct Override {
 }
 
 impl Override {
+    /// The override as the user typed it: its flag (`--T 0`), or `--set name=value`.
+    pub fn typed(&self) -> String {
+        self.flag
+            .clone()
+            .unwrap_or_else(|| format!("--set {}={}", self.name, self.value))
+    }
+
     /// This override as the command-line flag `flag` the user typed (`--T 0`).
     #[must_use]
     pub fn from_flag(self, flag: impl Into<String>) -> Self {
@@ -451,15 +458,7 @@ pub(crate) fn check_model(
         // reject the model); families sized 0 by a parameter end here too.
         // A model of `design` blocks alone is for `hybsim design`.
         // Sized 0 by an override (`--set N=0`): say so.
-        let mut given: Vec<String> = m
-            .overrides
-            .values()
-            .map(|o| {
-                o.flag
-                    .clone()
-                    .unwrap_or_else(|| format!("--set {}={}", o.name, o.value))
-            })
-            .collect();
+        let mut given: Vec<String> = m.overrides.values().map(|o| o.typed()).collect();
         given.sort();
         let found = match given.as_slice() {
             [] => "a model without states".to_string(),
@@ -2481,9 +2480,7 @@ fn overrides_read(e: &Expr, overrides: &HashMap<&str, &Override>, out: &mut Vec<
     match &e.kind {
         ExprKind::Name(n) => {
             if let Some(o) = overrides.get(n.as_str()) {
-                let typed = o.flag.clone().unwrap_or_else(|| {
-                    format!("`{}`, set by `--set {}={}`", o.name, o.name, o.value)
-                });
+                let typed = format!("`{}`, set by `{}`", o.name, o.typed());
                 if !out.contains(&typed) {
                     out.push(typed);
                 }
