@@ -41,6 +41,8 @@
 //! within `set_tol` of their zero, on either side, until they hold by
 //! `set_tol`.
 
+use std::ops::ControlFlow;
+
 use super::HybridSystem;
 use super::clock::TimeSum;
 use super::settings::{Priority, SimSettings};
@@ -1933,27 +1935,30 @@ impl Watcher {
             };
             if changed {
                 let relaxed = self.relaxed;
-                // Whether every change of class at `s` leaves its set's value
-                // as it was (`v <= vt` of a guard `h <= s && v <= vt` while
-                // `h <= s` fails): then nothing is localized, and the other
-                // atoms may still change and come back between the
-                // checkpoints, searched as where no class changed.
-                self.mark_needs();
-                let unneeded = !self.need[..self.watched.len()].contains(&true);
-                if let Some(found) = self.resolve(sys, path, prev, s) {
-                    return Some(found);
-                }
+                // The changes of class that can change a set are localized
+                // in time order; where none does, the search ends at the
+                // last (`prev` if none needed localizing: `v <= vt` of a
+                // guard `h <= s && v <= vt` while `h <= s` fails). After
+                // it the other atoms may still change and come back before
+                // `s`, searched as where no class changed.
+                let reached = match self.resolve(sys, path, prev, s) {
+                    ControlFlow::Break(found) => return Some(found),
+                    ControlFlow::Continue(reached) => reached,
+                };
                 // The search may have ended relaxations: the checkpoint's
                 // classes again (`classes_at` left them otherwise).
                 if self.relaxed != relaxed {
                     self.classes_from_vs();
-                } else if unneeded
-                    && let Some(found) = self.hidden_change(sys, path, (prev, s), last, y1)
+                } else if reached < s
+                    && let Some(found) =
+                        self.hidden_change(sys, path, (reached, s), (last, end_counts), y1)
                     && found.is_some()
                 {
                     return found;
                 }
-            } else if let Some(found) = self.hidden_change(sys, path, (prev, s), last, y1) {
+            } else if let Some(found) =
+                self.hidden_change(sys, path, (prev, s), (last, end_counts), y1)
+            {
                 // A change between the checkpoints, scanned.
                 if found.is_some() {
                     return found;
@@ -2106,14 +2111,16 @@ impl Watcher {
 
     /// Examines, in time order, the sign changes of the watched atoms
     /// between the cursor `prev` (classes in `cls`) and the checkpoint `s`
-    /// (classes in `cls_s`); returns the first event.
+    /// (classes in `cls_s`): breaks with the first event, or continues
+    /// from the end of the last change localized (`prev` if none), the
+    /// classes there in `cls`.
     fn resolve<S: HybridSystem + ?Sized, P: StepPath>(
         &mut self,
         sys: &S,
         path: &mut P,
         mut cursor: f64,
         s: f64,
-    ) -> Option<(f64, EventKind)> {
+    ) -> ControlFlow<(f64, EventKind), f64> {
         // Brackets found in earlier rounds of this call stay valid after the
         // cursor passes a candidate before them (the atom keeps its class and
         // relaxation up to their start): a guard that changes after another
@@ -2152,7 +2159,9 @@ impl Watcher {
                     }
                 }
             }
-            let (a, b, fresh, w) = best?;
+            let Some((a, b, fresh, w)) = best else {
+                return ControlFlow::Continue(cursor);
+            };
             if !fresh {
                 if self.bracket_start_read {
                     path.eval(a, &mut self.best_a);
@@ -2176,7 +2185,7 @@ impl Watcher {
             {
                 self.event_state.copy_from_slice(&self.best_a);
                 self.rule_at_event = Some(r);
-                return Some((a, EventKind::LeftFlowSet));
+                return ControlFlow::Break((a, EventKind::LeftFlowSet));
             }
             if jump.is_some() || left.is_some() {
                 self.rule_at_event = self.sets.iter().find_map(|ws| match ws.set {
@@ -2192,7 +2201,7 @@ impl Watcher {
                 } else {
                     b
                 };
-                return Some((b, kind));
+                return ControlFlow::Break((b, kind));
             }
             // No set changed value: go on from b.
             for ws in &mut self.sets {
@@ -2213,7 +2222,7 @@ impl Watcher {
                 break;
             }
         }
-        None
+        ControlFlow::Continue(cursor)
     }
 
     /// Whether watched atom `w` changes sign exactly where an earlier

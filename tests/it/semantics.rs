@@ -1520,6 +1520,61 @@ fn an_atom_bounded_away_from_zero_never_jumps() {
     }
 }
 
+/// A change that comes back between two checkpoints is found after other
+/// atoms' changes localized earlier on the same interval changed no set:
+/// the band `2.0100125 ≤ y ≤ 2.02005` (y = t²/2: t ∈ [2.005, 2.01]) of a
+/// rule its mode `k ≥ 100` keeps disabled, then the brief dip
+/// `(x − 2.11)² ≤ 1e-4` (x = t ∈ [2.1, 2.12]) before the next checkpoint
+/// (they were 2.0 and 2.25 on the exact path: the dip was missed).
+#[test]
+fn a_hidden_change_after_localized_changes_that_change_no_set_is_found() {
+    let m = compile(
+        "model band\nstate x = 0, y = 0, k = 0\nflow { x' = 1; y' = x; k' = 0 }\n\
+         jump band when y >= 2.0100125 && y <= 2.02005 && k >= 100 { k+ = k + 1 }\n\
+         jump hit when (x - 2.11)^2 <= 1e-4 { x+ = 3; k+ = k + 1 }\nsim { T = 10; J = 5 }\n",
+    );
+    for exact in [ExactAffine::Auto, ExactAffine::Off] {
+        let mut settings = m.settings();
+        settings.exact_affine = exact;
+        let arc = run_with(&m, &settings);
+        assert_times(&arc, &[2.1], &format!("{exact:?}"));
+    }
+}
+
+/// A change that comes back just before a sampling instant is found: the
+/// flow set `tau <= Ts` makes each `Ts` a checkpoint, and the dip
+/// `(x − c)² ≤ 1e-4` (x = t ∈ [c − 0.01, c + 0.01]) lies in the interval
+/// that ends there (it was not searched: these dips were missed). Whatever
+/// the sampling period and the dip's place, on the exact polynomial path
+/// and on Dopri5's.
+#[test]
+fn a_hidden_change_before_a_sampling_instant_is_found() {
+    for (ts, c) in [(2.2, 2.15), (2.2, 2.18), (1.2, 1.15), (0.7, 0.65), (2.9, 2.85)] {
+        let m = compile(&format!(
+            "model sampled\nstate x = 0, n = 0, tau = 0\n\
+             flow {{ x' = 1; tau' = 1 }} in tau <= {ts}\n\
+             jump sample when tau >= {ts} {{ tau+ = 0 }}\n\
+             jump hit when n == 0 && (x - {c})^2 <= 1e-4 {{ n+ = 1 }}\nsim {{ T = 3 }}\n"
+        ));
+        for exact in [ExactAffine::Auto, ExactAffine::Off] {
+            let mut settings = m.settings();
+            settings.exact_affine = exact;
+            let arc = run_with(&m, &settings);
+            let hits: Vec<f64> = arc
+                .jumps()
+                .iter()
+                .filter(|jr| jr.rule == 1)
+                .map(|jr| jr.at.t)
+                .collect();
+            let want = c - 0.01;
+            assert!(
+                hits.len() == 1 && (hits[0] - want).abs() < 1e-9,
+                "Ts = {ts}, c = {c}, {exact:?}: hits at {hits:?}, expected {want}"
+            );
+        }
+    }
+}
+
 /// The dip `x ≤ 1 + 0.5·sin(t)` with `x` constant: below the curve's top
 /// it jumps at the first `t` with `sin(t) = 2(x − 1)` (1.2: 0.41, 1.499:
 /// 1.508, a dip of 0.09 where the checkpoints of the long exact steps are

@@ -2,7 +2,9 @@
 //! interval bounds ([`HybridSystem::atom_bounds`]).
 //!
 //! On an interval between two checkpoints at whose ends every watched atom
-//! has the same class, each watched atom without an affine form (those are
+//! has the same class (or from the last change localized between them that
+//! changed no set: the atoms that keep their class from there), each
+//! watched atom without an affine form (those are
 //! examined exactly through their control points) is bounded over a box of
 //! the path there: the hull of the Bernstein
 //! control points of each component's polynomial on that interval. A bound
@@ -121,8 +123,11 @@ pub(super) struct Hidden {
 
 impl Watcher {
     /// The search described in the module docs on the interval `[a, b]`
-    /// between two checkpoints at which every watched atom has the same
-    /// class (`b`'s state: `y1` if `last`, else on the path). `None`:
+    /// from a checkpoint or a localized change that changed no set
+    /// (classes in `cls`) to the next checkpoint (classes in `cls_s`;
+    /// `b`'s state: `y1` if `last`, else on the path; `end_counts` as for
+    /// the scan of the step): the atoms of one class at both ends are
+    /// searched. `None`:
     /// nothing found (or not searched), the scan goes on as it would have;
     /// `Some`: the interval was scanned again with the first point found
     /// as a checkpoint, with this result, and `cls_s` holds the classes at
@@ -132,15 +137,18 @@ impl Watcher {
         sys: &S,
         path: &mut P,
         (a, b): (f64, f64),
-        last: bool,
+        (last, end_counts): (bool, bool),
         y1: &[f64],
     ) -> Option<Option<(f64, EventKind)>> {
         // Relaxed atoms change class where their relaxation ends, and a
-        // timer crossed in the interval would be crossed twice.
+        // timer due inside the interval would be passed by the second scan
+        // (none is: the timers' thresholds are checkpoints). One due at `b`
+        // (a sampling instant, `tau <= Ts` in C) is crossed there by the
+        // second scan, as by the first.
         if P::STRAIGHT
             || self.hidden.unavailable
             || self.relaxed > 0
-            || self.timers.iter().any(|ta| !ta.crossed && ta.d <= b)
+            || self.timers.iter().any(|ta| !ta.crossed && ta.d < b)
         {
             return None;
         }
@@ -168,7 +176,7 @@ impl Watcher {
         } else {
             path.eval(b, &mut xb);
         }
-        let event = self.scan_points(sys, path, a, &[u, b], &xb, true);
+        let event = self.scan_points(sys, path, a, &[u, b], &xb, end_counts || !last);
         self.hidden.xb = xb;
         self.cls_s.copy_from_slice(&self.cls);
         Some(event)
