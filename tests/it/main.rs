@@ -2,6 +2,7 @@
 
 mod classics;
 mod cli;
+mod crossings;
 mod dense;
 mod design;
 mod design_backend;

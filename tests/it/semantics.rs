@@ -1549,7 +1549,13 @@ fn a_hidden_change_after_localized_changes_that_change_no_set_is_found() {
 /// and on Dopri5's.
 #[test]
 fn a_hidden_change_before_a_sampling_instant_is_found() {
-    for (ts, c) in [(2.2, 2.15), (2.2, 2.18), (1.2, 1.15), (0.7, 0.65), (2.9, 2.85)] {
+    for (ts, c) in [
+        (2.2, 2.15),
+        (2.2, 2.18),
+        (1.2, 1.15),
+        (0.7, 0.65),
+        (2.9, 2.85),
+    ] {
         let m = compile(&format!(
             "model sampled\nstate x = 0, n = 0, tau = 0\n\
              flow {{ x' = 1; tau' = 1 }} in tau <= {ts}\n\
