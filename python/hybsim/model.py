@@ -39,6 +39,11 @@ def _expression(name: str, value: Any) -> str:
     ``nan``, an unknown name): a ``ValueError`` naming ``name``."""
     if isinstance(value, str):
         return value
+    if value is None:
+        # numpy reads None as NaN: say what was passed, not "NaN".
+        raise TypeError(
+            f"set[{name!r}]: None is not a value; leave {name!r} out to keep the model's value"
+        )
     if isinstance(value, (bool, np.bool_)):
         return "1" if value else "0"
     if isinstance(value, (int, np.integer)):
@@ -391,8 +396,9 @@ class Model:
         (default: all cores) with the GIL released.
 
         ``grid``: ``{"lambda": [0.5, 0.8], "g": "9:0.5:10"}`` (values, or a
-        range ``a:step:b`` or list as ``--grid`` writes it) or
-        ``["lambda=0.5:0.1:0.9"]``; the first axis varies slowest. Any of
+        range ``a:step:b`` or list as ``--grid`` writes it), the same as
+        ``(name, values)`` pairs, or ``["lambda=0.5:0.1:0.9"]``; the first
+        axis varies slowest. Any of
         ``grid``, ``runs``, ``seed`` left out comes from the model's
         ``sweep { }`` block, else no axis, one run and the model's seed. Run
         ``r`` of a point has the same seed as in ``hybsim sweep``, so a row's

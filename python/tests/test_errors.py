@@ -240,6 +240,9 @@ def test_misused_overrides_and_indices_are_typed_errors_naming_the_value():
         hybsim.load(GOOD, set=[("g", 1.0)])
     with pytest.raises(TypeError, match=r"set\['g'\]: a number"):
         hybsim.load(GOOD, set={"g": object()})
+    # numpy reads None as NaN: it was refused as "NaN is not a value".
+    with pytest.raises(TypeError, match=r"set\['g'\]: None is not a value"):
+        hybsim.load(GOOD, set={"g": None})
     sol = hybsim.load(GOOD, set={"g": np.float64(9.81)}).run()
     for key in (0, None, 1.5):
         with pytest.raises(TypeError, match="indexed by a component's name"):
