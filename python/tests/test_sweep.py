@@ -160,6 +160,18 @@ def test_grid_values_that_are_not_a_list_of_numbers_are_refused(ball_file):
     assert list(model.sweep(grid={"lambda": 0.5}, runs=1).points["lambda"]) == [0.5]
 
 
+def test_threads_over_the_limit_are_refused(ball_file):
+    # `threads=10000` on 2 cores took over a minute for a sweep of 2 runs:
+    # idle workers spend their time looking for work in each other's queues.
+    model = hybsim.load(ball_file)
+    with pytest.raises(ValueError, match="`threads`: 10000 worker threads: a sweep takes from 1 to 1024"):
+        model.sweep(threads=10000)
+    start = time.monotonic()
+    sw = model.sweep(threads=1024)
+    assert len(sw.runs) == 6 and time.monotonic() - start < 20
+    assert list(sw.runs["seed"]) == list(model.sweep(threads=1).runs["seed"])
+
+
 def test_grid_as_name_value_pairs(ball_file):
     # `list(d.items())` was refused as the axis `('lambda', [0.5, 0.6])`, and
     # `grid=5` failed with "'int' object is not iterable".
