@@ -461,6 +461,9 @@ class Model:
         check_seed(seed)
         if isinstance(properties, str):
             properties = [properties]
+        if properties is not None and len(properties) == 0:
+            # An empty selection tested every property, as None does.
+            raise ValueError("properties=[] selects no property; leave it out (None) to test all")
         d = self._native.test(
             cases, seed, list(properties) if properties is not None else None, max_shrink
         )

@@ -426,6 +426,8 @@ impl Model {
         let mut props: Vec<Property> = Vec::new();
         for name in properties.unwrap_or_default() {
             match all.iter().find(|p| p.name() == name) {
+                // Named twice, tested (and listed) once.
+                Some(_) if props.iter().any(|q| q.name() == name) => {}
                 Some(p) => props.push(p.clone()),
                 None => {
                     let names: Vec<&str> = all.iter().map(|p| p.name()).collect();

@@ -31,7 +31,7 @@ pub struct SweepArgs {
     pub runs: Option<u64>,
     /// Base seed of the run seeds (default: `seed` of the model's `sweep`
     /// block, else its `sim { seed }`).
-    #[arg(long, value_name = "S")]
+    #[arg(long, value_name = "S", value_parser = super::parse_seed)]
     pub seed: Option<u64>,
     /// A fixed override for every run: `--set name=value` (repeatable).
     #[arg(long = "set", value_name = "NAME=VALUE")]
