@@ -355,7 +355,8 @@ class Model:
         ``max_step``, ``priority`` (``"jumps"``, ``"flows"``, ``"random"``),
         ``jump_choice`` (``"first"``, ``"random"``: which of several enabled
         rules fires), ``event_tol``, ``guard_checks``, ``zeno_max_rate``, ``zeno_window``,
-        ``max_total_jumps``, ``exact_affine``, ``linear_solver`` (``"auto"``,
+        ``max_total_jumps``, ``exact_affine`` (``"auto"``, ``"on"``,
+        ``"off"``, or a bool), ``linear_solver`` (``"auto"``,
         ``"dense"``, ``"sparse"``: the implicit solvers' LU).
 
         The run releases the GIL; Ctrl-C stops it with KeyboardInterrupt.

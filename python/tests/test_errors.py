@@ -247,3 +247,19 @@ def test_misused_overrides_and_indices_are_typed_errors_naming_the_value():
     for key in (0, None, 1.5):
         with pytest.raises(TypeError, match="indexed by a component's name"):
             sol[key]
+
+
+def test_exact_affine_takes_the_words_of_the_sim_block():
+    # Only a bool was taken ("'str' object is not an instance of 'bool'"), so
+    # "auto" could not undo a model's `exact_affine = off`.
+    m = hybsim.load(GOOD.replace("sim { T = 2 }", "sim { T = 2; exact_affine = off }"))
+    base = m.run()
+    for word, flag in [("off", False), ("on", True)]:
+        a, b = m.run(exact_affine=word), m.run(exact_affine=flag)
+        assert a.t.tobytes() == b.t.tobytes() and a.x.tobytes() == b.x.tobytes(), word
+    assert m.run(exact_affine="off").x.tobytes() == base.x.tobytes()
+    assert len(m.run(exact_affine="auto").jumps) == len(base.jumps)
+    with pytest.raises(ValueError, match='exact_affine `yes`: use "auto", "on" or "off"'):
+        m.run(exact_affine="yes")
+    with pytest.raises(TypeError, match="`exact_affine`: .* or a bool, not float"):
+        m.run(exact_affine=1.5)
