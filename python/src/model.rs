@@ -200,7 +200,9 @@ impl OutputMap {
         }
         let m = self.model.output_dim();
         let model = &self.model;
-        let y = py.detach(|| {
+        let (y, fault) = py.detach(|| {
+            // A fault another evaluation left on this thread is not this one's.
+            let _ = model.take_fault();
             let mut y = vec![0.0; n * m];
             let mut row = vec![0.0; model.state_dim()];
             if m > 0 {
@@ -210,10 +212,23 @@ impl OutputMap {
                     }
                     let jumps = j.as_ref().map_or(0, |j| j[i].max(0) as u64);
                     model.outputs(HybridTime::new(t[i], jumps), &row, out);
+                    // A run-time index out of range (E0604) leaves NaN in the output:
+                    // an error, as `hybsim run` reports it for a logged output, not a
+                    // NaN column. The diagnostic reads the fault on this thread, now.
+                    if let Some(f) = model.take_fault() {
+                        return (y, Some(model.runtime_diagnostic(&SimError::from(f))));
+                    }
                 }
             }
-            y
+            (y, None)
         });
+        if let Some(d) = fault {
+            return Err(diagnostics_error::<SimulationError>(
+                py,
+                &[d],
+                model.source(),
+            ));
+        }
         columns(py, y, n, m)
     }
 }

@@ -263,3 +263,27 @@ def test_exact_affine_takes_the_words_of_the_sim_block():
         m.run(exact_affine="yes")
     with pytest.raises(TypeError, match="`exact_affine`: .* or a bool, not float"):
         m.run(exact_affine=1.5)
+
+
+def test_an_output_read_out_of_range_raises_when_read():
+    # `sol.y` held NaN where `hybsim run --csv` stops with E0604 at the index:
+    # outputs are evaluated when first read, and the fault went unnoticed.
+    src = """model idx
+param tk = [1; 2; 3]
+state k = 1
+every 0.5 { k+ = k + 1 }
+output y = tk[k]
+sim { T = 3 }
+"""
+    sol = hybsim.load(src).run()
+    assert sol.termination.cause == "horizon_t"  # the run itself never reads `y`
+    for read in (lambda: sol.y, lambda: sol["y"], sol.to_pandas):
+        with pytest.raises(hybsim.SimulationError) as err:
+            read()
+        msg = str(err.value)
+        assert "E0604" in msg and "index 4 is out of range 1..3 at (t = 1.5, j = 3)" in msg, msg
+        d = err.value.diagnostics[0]
+        assert (d["code"], d["line"], d["col"]) == ("E0604", 5, 12), d
+    # Within range the outputs are the table's entries.
+    ok = hybsim.load(src).run(T=1.2)
+    assert list(ok["y"]) == list(ok["k"])
