@@ -68,6 +68,30 @@ def _expression(name: str, value: Any) -> str:
     raise ValueError(f"a {arr.ndim}-D array is not a .hyb value (scalars, vectors, matrices)")
 
 
+def _read_text(path: str, f: Any) -> str:
+    """The text of the model file ``f`` as ``hybsim run`` reads it: at
+    most ``MAX_SOURCE_BYTES`` (``/dev/zero`` was read until the memory ran
+    out), UTF-8 with a bad byte placed at its line and column (it was
+    UnicodeDecodeError's byte offset). ValueError otherwise."""
+    limit = _hybsim.MAX_SOURCE_BYTES
+    data = f.read(limit + 1)
+    if len(data) > limit:
+        raise ValueError(
+            f"cannot read model file `{path}`: more than {limit >> 20} MiB, "
+            "the limit for a model's text"
+        )
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError as e:
+        prefix = data[: e.start].decode("utf-8")
+        line = prefix.count("\n") + 1
+        col = len(prefix.rsplit("\n", 1)[-1]) + 1
+        raise ValueError(
+            f"cannot read model file `{path}`: line {line}, column {col}: byte "
+            f"0x{data[e.start]:02x} is not UTF-8 (save the file as UTF-8)"
+        ) from None
+
+
 def load(
     model: PathOrSource,
     set: Optional[Mapping[str, Any]] = None,  # noqa: A002 - mirrors `hybsim run --set`
@@ -97,12 +121,27 @@ def load(
         dicts (``code``, ``message``, ``file``, ``line``, ``col``, ...).
     FileNotFoundError
         If ``model`` names no file.
+    ValueError
+        If the file is not UTF-8 (the message gives the line and column of
+        the first bad byte) or is larger than 16 MiB.
     """
     pairs = _overrides(set)
     if isinstance(model, os.PathLike) or (isinstance(model, str) and "\n" not in model):
         path = os.fspath(model)
-        with open(path, encoding="utf-8") as f:
-            text = f.read()
+        try:
+            f = open(path, "rb")
+        except FileNotFoundError as e:
+            # A one-line model text is taken as a path: say so, not just "no such file".
+            if isinstance(model, str) and model.lstrip().startswith("model "):
+                raise FileNotFoundError(
+                    e.errno,
+                    f"{e.strerror}; a str without a line break is a path: "
+                    "give the model text with its line breaks (or end it with one)",
+                    path,
+                ) from None
+            raise
+        with f:
+            text = _read_text(path, f)
         native = _hybsim.compile(path, text, pairs, path)
     elif isinstance(model, str):
         native = _hybsim.compile(name or "<string>", model, pairs, None)

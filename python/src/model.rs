@@ -43,6 +43,14 @@ pub fn compile(
     set: Vec<(String, String)>,
     path: Option<String>,
 ) -> PyResult<Model> {
+    // As `hybsim run` reads a model: checking takes ~200 bytes of memory a
+    // byte of text, so a text past the limit is refused, not checked.
+    if text.len() as u64 > hybsim::source::MAX_SOURCE_BYTES {
+        return Err(PyValueError::new_err(format!(
+            "`{name}`: more than {} MiB, the limit for a model's text",
+            hybsim::source::MAX_SOURCE_BYTES >> 20
+        )));
+    }
     let source = SourceFile::new(name, text);
     let mut overrides = Vec::new();
     let mut problems: Vec<Diagnostic> = Vec::new();

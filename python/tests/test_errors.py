@@ -1,5 +1,6 @@
 """Bad models and bad settings raise located, typed errors."""
 
+import os
 import re
 
 import numpy as np
@@ -60,6 +61,15 @@ def test_bad_override_is_a_model_error():
 def test_missing_file():
     with pytest.raises(FileNotFoundError):
         hybsim.load("no/such/model.hyb")
+
+
+def test_one_line_model_text_is_a_path_and_the_error_says_so():
+    # `load("model m; ...")` was "No such file or directory: 'model m; ...'".
+    text = "model m; state x = 1; flow { x' = -x }; sim { T = 1 }"
+    with pytest.raises(FileNotFoundError, match="a str without a line break is a path") as err:
+        hybsim.load(text)
+    assert err.value.filename == text
+    assert hybsim.load(text + "\n").run().termination.cause == "horizon_t"
 
 
 @pytest.mark.parametrize(
@@ -287,3 +297,17 @@ sim { T = 3 }
     # Within range the outputs are the table's entries.
     ok = hybsim.load(src).run(T=1.2)
     assert list(ok["y"]) == list(ok["k"])
+
+
+def test_a_model_file_is_read_as_the_command_line_reads_it(tmp_path):
+    # A file that is not UTF-8 was UnicodeDecodeError at a byte offset; a
+    # path that never ends (/dev/zero) was read until the memory ran out.
+    bad = tmp_path / "latin.hyb"
+    bad.write_bytes(b"model m\nstate x = 1 # caf\xe9\nflow { x' = -x }\n")
+    with pytest.raises(ValueError, match=r"latin.hyb`: line 2, column 18: byte 0xe9 is not UTF-8"):
+        hybsim.load(bad)
+    if os.path.exists("/dev/zero"):
+        with pytest.raises(ValueError, match="more than 16 MiB, the limit for a model's text"):
+            hybsim.load("/dev/zero")
+    with pytest.raises(ValueError, match="more than 16 MiB"):
+        hybsim.load("model m\n" + "#" * (16 << 20))
