@@ -63,9 +63,8 @@ pub fn sweep<'py>(
         .map(|n| check_threads(n as u64))
         .transpose()
         .map_err(|e| PyValueError::new_err(format!("`threads`: {e}")))?;
-    let pool = |jobs: u64| {
-        thread_pool(threads, jobs).map_err(|e| PyValueError::new_err(e.to_string()))
-    };
+    let pool =
+        |jobs: u64| thread_pool(threads, jobs).map_err(|e| PyValueError::new_err(e.to_string()));
     // Planning compiles the model and grid point 0 on the same threads.
     let plan_pool = pool(2)?;
     let plan = py

@@ -20,7 +20,6 @@ fn parses_the_bouncing_ball() {
     ));
 }
 
-
 #[test]
 fn a_model_fits_on_one_line_with_semicolons() {
     // `;` separates statements as a newline does, after the header too

@@ -923,7 +923,11 @@ fn dash_is_stdin_for_models_and_stdout_for_outputs() {
     assert_eq!(code(&check), 0);
     assert_eq!(stdout(&check), "<stdin>: no errors\n");
     let check = pipe(&["check", "-"], "model m\nstate x = y\n");
-    assert!(stderr(&check).ends_with("<stdin>: 1 error\n"), "{}", stderr(&check));
+    assert!(
+        stderr(&check).ends_with("<stdin>: 1 error\n"),
+        "{}",
+        stderr(&check)
+    );
 }
 
 /// `hybsim design --json` prints JSON for a model without design blocks too (`{}`): it printed

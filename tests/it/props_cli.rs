@@ -242,7 +242,14 @@ fn a_property_named_twice_is_tested_once() {
     let out = hybsim(
         dir.path(),
         &[
-            "test", m, "--cases", "5", "--property", "ground", "--property", "ground",
+            "test",
+            m,
+            "--cases",
+            "5",
+            "--property",
+            "ground",
+            "--property",
+            "ground",
         ],
     );
     let text = stdout(&out);

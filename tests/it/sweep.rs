@@ -505,7 +505,15 @@ fn bad_sweep_arguments_are_reported() {
     let started = std::time::Instant::now();
     let out = hybsim(
         d,
-        &["sweep", "ball.hyb", "-o", "threads", "-q", "--threads", "10000"],
+        &[
+            "sweep",
+            "ball.hyb",
+            "-o",
+            "threads",
+            "-q",
+            "--threads",
+            "10000",
+        ],
     );
     assert_eq!(code(&out), 2, "{}", stderr(&out));
     assert!(
@@ -520,7 +528,17 @@ fn bad_sweep_arguments_are_reported() {
     assert!(hybsim::sweep::thread_pool(None, 3).unwrap().is_none());
     let out = hybsim(
         d,
-        &["sweep", "ball.hyb", "-o", "threads", "-q", "--threads", "1024", "--runs", "2"],
+        &[
+            "sweep",
+            "ball.hyb",
+            "-o",
+            "threads",
+            "-q",
+            "--threads",
+            "1024",
+            "--runs",
+            "2",
+        ],
     );
     assert_eq!(code(&out), 0, "{}", stderr(&out));
     // A grid value that makes its point invalid is that point's row, whose message names
@@ -647,7 +665,9 @@ fn an_output_directory_that_cannot_be_written_is_refused_before_the_runs() {
         let out = child.wait_with_output().unwrap();
         assert_eq!(out.status.code(), Some(1), "{}", stderr(&out));
         assert!(
-            stderr(&out).contains(&format!("cannot write the results into `{out_dir}`: {says}")),
+            stderr(&out).contains(&format!(
+                "cannot write the results into `{out_dir}`: {says}"
+            )),
             "{}",
             stderr(&out)
         );
