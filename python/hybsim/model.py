@@ -39,6 +39,11 @@ def _expression(name: str, value: Any) -> str:
     ``nan``, an unknown name): a ``ValueError`` naming ``name``."""
     if isinstance(value, str):
         return value
+    if value is None:
+        # numpy reads None as NaN: say what was passed, not "NaN".
+        raise TypeError(
+            f"set[{name!r}]: None is not a value; leave {name!r} out to keep the model's value"
+        )
     if isinstance(value, (bool, np.bool_)):
         return "1" if value else "0"
     if isinstance(value, (int, np.integer)):
@@ -61,6 +66,30 @@ def _expression(name: str, value: Any) -> str:
     if arr.ndim == 2:
         return "[" + "; ".join(", ".join(repr(float(v)) for v in row) for row in arr) + "]"
     raise ValueError(f"a {arr.ndim}-D array is not a .hyb value (scalars, vectors, matrices)")
+
+
+def _read_text(path: str, f: Any) -> str:
+    """The text of the model file ``f`` as ``hybsim run`` reads it: at
+    most ``MAX_SOURCE_BYTES`` (``/dev/zero`` was read until the memory ran
+    out), UTF-8 with a bad byte placed at its line and column (it was
+    UnicodeDecodeError's byte offset). ValueError otherwise."""
+    limit = _hybsim.MAX_SOURCE_BYTES
+    data = f.read(limit + 1)
+    if len(data) > limit:
+        raise ValueError(
+            f"cannot read model file `{path}`: more than {limit >> 20} MiB, "
+            "the limit for a model's text"
+        )
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError as e:
+        prefix = data[: e.start].decode("utf-8")
+        line = prefix.count("\n") + 1
+        col = len(prefix.rsplit("\n", 1)[-1]) + 1
+        raise ValueError(
+            f"cannot read model file `{path}`: line {line}, column {col}: byte "
+            f"0x{data[e.start]:02x} is not UTF-8 (save the file as UTF-8)"
+        ) from None
 
 
 def load(
@@ -92,12 +121,27 @@ def load(
         dicts (``code``, ``message``, ``file``, ``line``, ``col``, ...).
     FileNotFoundError
         If ``model`` names no file.
+    ValueError
+        If the file is not UTF-8 (the message gives the line and column of
+        the first bad byte) or is larger than 16 MiB.
     """
     pairs = _overrides(set)
     if isinstance(model, os.PathLike) or (isinstance(model, str) and "\n" not in model):
         path = os.fspath(model)
-        with open(path, encoding="utf-8") as f:
-            text = f.read()
+        try:
+            f = open(path, "rb")
+        except FileNotFoundError as e:
+            # A one-line model text is taken as a path: say so, not just "no such file".
+            if isinstance(model, str) and model.lstrip().startswith("model "):
+                raise FileNotFoundError(
+                    e.errno,
+                    f"{e.strerror}; a str without a line break is a path: "
+                    "give the model text with its line breaks (or end it with one)",
+                    path,
+                ) from None
+            raise
+        with f:
+            text = _read_text(path, f)
         native = _hybsim.compile(path, text, pairs, path)
     elif isinstance(model, str):
         native = _hybsim.compile(name or "<string>", model, pairs, None)
@@ -350,7 +394,8 @@ class Model:
         ``max_step``, ``priority`` (``"jumps"``, ``"flows"``, ``"random"``),
         ``jump_choice`` (``"first"``, ``"random"``: which of several enabled
         rules fires), ``event_tol``, ``guard_checks``, ``zeno_max_rate``, ``zeno_window``,
-        ``max_total_jumps``, ``exact_affine``, ``linear_solver`` (``"auto"``,
+        ``max_total_jumps``, ``exact_affine`` (``"auto"``, ``"on"``,
+        ``"off"``, or a bool), ``linear_solver`` (``"auto"``,
         ``"dense"``, ``"sparse"``: the implicit solvers' LU).
 
         The run releases the GIL; Ctrl-C stops it with KeyboardInterrupt.
@@ -391,8 +436,9 @@ class Model:
         (default: all cores) with the GIL released.
 
         ``grid``: ``{"lambda": [0.5, 0.8], "g": "9:0.5:10"}`` (values, or a
-        range ``a:step:b`` or list as ``--grid`` writes it) or
-        ``["lambda=0.5:0.1:0.9"]``; the first axis varies slowest. Any of
+        range ``a:step:b`` or list as ``--grid`` writes it), the same as
+        ``(name, values)`` pairs, or ``["lambda=0.5:0.1:0.9"]``; the first
+        axis varies slowest. Any of
         ``grid``, ``runs``, ``seed`` left out comes from the model's
         ``sweep { }`` block, else no axis, one run and the model's seed. Run
         ``r`` of a point has the same seed as in ``hybsim sweep``, so a row's
@@ -455,6 +501,9 @@ class Model:
         check_seed(seed)
         if isinstance(properties, str):
             properties = [properties]
+        if properties is not None and len(properties) == 0:
+            # An empty selection tested every property, as None does.
+            raise ValueError("properties=[] selects no property; leave it out (None) to test all")
         d = self._native.test(
             cases, seed, list(properties) if properties is not None else None, max_shrink
         )

@@ -183,7 +183,16 @@ def hybrid(sol: Solution, name: Optional[str] = None, ax: Any = None, **line: An
 def phase(sol: Solution, x: Optional[str] = None, y: Optional[str] = None, ax: Any = None, **line: Any):
     """Component ``y`` against component ``x`` (default: the first two
     state components; HyEQ ``plotPhase``), flows solid, jumps dashed from
-    the pre-jump to the post-jump point."""
+    the pre-jump to the post-jump point. ``phase(sol, ["h", "v"])``, two
+    names as ``--plot-vars`` gives them, is ``phase(sol, "h", "v")``."""
+    if isinstance(x, (list, tuple)) and y is None:
+        # The pair as one argument was "a solution is indexed by a component's name".
+        if len(x) != 2:
+            raise ValueError(f"phase() draws two components, got {len(x)}: {list(x)}")
+        x, y = x
+    for name in (x, y):
+        if name is not None and not isinstance(name, str):
+            raise TypeError(f"phase(): components are named by str, not {type(name).__name__}")
     if x is None or y is None:
         if len(sol.names) < 2:
             raise ValueError("phase() needs two components: pass x= and y=")

@@ -28,6 +28,10 @@ def _interval(var: str, lo: Any, hi: Any, below: Any, above: Any) -> Tuple[Any, 
     is a mistake, not an empty solution."""
     lo = below if lo is None else lo
     hi = above if hi is None else hi
+    for name, bound in ((f"{var}_min", lo), (f"{var}_max", hi)):
+        # A str bound failed inside numpy ("ufunc 'isnan' not supported ...").
+        if isinstance(bound, (bool, np.bool_)) or not isinstance(bound, (int, float, np.number)):
+            raise TypeError(f"restrict_{var}: {name} is a number or None, not {type(bound).__name__}")
     if np.isnan(lo) or np.isnan(hi):
         raise ValueError(f"restrict_{var}: a bound is NaN ({var}_min={lo}, {var}_max={hi})")
     if lo > hi:

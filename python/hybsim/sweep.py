@@ -11,8 +11,35 @@ import numpy as np
 from . import _hybsim
 
 #: A grid: ``{"lambda": [0.5, 0.8], "g": "9:0.5:10"}`` (values, or a range
-#: ``a:step:b`` / list as ``--grid`` writes it), or ``["lambda=0.5:0.1:0.9"]``.
-Grid = Union[Mapping[str, Any], Sequence[str]]
+#: ``a:step:b`` / list as ``--grid`` writes it), the same as ``(name, values)``
+#: pairs (``[("lambda", [0.5, 0.8])]``), or ``["lambda=0.5:0.1:0.9"]``.
+Grid = Union[Mapping[str, Any], Sequence[Union[str, Tuple[str, Any]]]]
+
+
+def _axis(name: Any, values: Any) -> Tuple[str, List[float]]:
+    """One axis from its name and values (a list or array of numbers, a
+    number, or a str as ``--grid`` writes the values)."""
+    if isinstance(values, str):
+        return _hybsim.parse_axis(f"{name}={values}")
+    if values is None:
+        raise TypeError(f"grid axis `{name}`: None is not a value")
+    try:
+        arr = np.asarray(values, dtype=np.float64)
+    except (TypeError, ValueError) as e:
+        raise TypeError(
+            f"grid axis `{name}`: a number, a sequence of numbers or a range "
+            f"\"a:step:b\", not {type(values).__name__}"
+        ) from e
+    if arr.ndim > 1:
+        # Flattened, a matrix would silently become its entries' grid.
+        raise ValueError(
+            f"grid axis `{name}`: the values of an axis are numbers, "
+            f"got a {arr.ndim}-D array of shape {arr.shape}"
+        )
+    arr = arr.reshape(-1)
+    if arr.size == 0:
+        raise ValueError(f"grid axis `{name}` has no value")
+    return (str(name), [float(v) for v in arr])
 
 
 def _axes(grid: Grid) -> List[Tuple[str, List[float]]]:
@@ -20,17 +47,24 @@ def _axes(grid: Grid) -> List[Tuple[str, List[float]]]:
     if isinstance(grid, str):
         grid = [grid]
     if isinstance(grid, Mapping):
-        axes = []
-        for name, values in grid.items():
-            if isinstance(values, str):
-                axes.append(_hybsim.parse_axis(f"{name}={values}"))
-            else:
-                arr = np.asarray(values, dtype=np.float64).reshape(-1)
-                if arr.size == 0:
-                    raise ValueError(f"grid axis `{name}` has no value")
-                axes.append((str(name), [float(v) for v in arr]))
-        return axes
-    return [_hybsim.parse_axis(str(text)) for text in grid]
+        return [_axis(name, values) for name, values in grid.items()]
+    if not isinstance(grid, (list, tuple)):
+        raise TypeError(
+            "grid= takes {name: values}, (name, values) pairs or \"name=a:step:b\" "
+            f"strings, not {type(grid).__name__}"
+        )
+    axes = []
+    for item in grid:
+        if isinstance(item, str):
+            axes.append(_hybsim.parse_axis(item))
+        elif isinstance(item, (list, tuple)) and len(item) == 2 and isinstance(item[0], str):
+            # `list(d.items())`: the pairs of a dict, in order.
+            axes.append(_axis(*item))
+        else:
+            raise TypeError(
+                f"grid axis {item!r}: a (name, values) pair or a \"name=a:step:b\" string"
+            )
+    return axes
 
 
 class Table(Mapping[str, Any]):

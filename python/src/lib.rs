@@ -52,5 +52,6 @@ fn _hybsim(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(sweep::sweep, m)?)?;
     m.add_function(wrap_pyfunction!(sweep::parse_axis, m)?)?;
     m.add("SAMPLE_KINDS", record::SAMPLE_KINDS.to_vec())?;
+    m.add("MAX_SOURCE_BYTES", hybsim::source::MAX_SOURCE_BYTES)?;
     Ok(())
 }

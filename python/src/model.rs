@@ -43,6 +43,14 @@ pub fn compile(
     set: Vec<(String, String)>,
     path: Option<String>,
 ) -> PyResult<Model> {
+    // As `hybsim run` reads a model: checking takes ~200 bytes of memory a
+    // byte of text, so a text past the limit is refused, not checked.
+    if text.len() as u64 > hybsim::source::MAX_SOURCE_BYTES {
+        return Err(PyValueError::new_err(format!(
+            "`{name}`: more than {} MiB, the limit for a model's text",
+            hybsim::source::MAX_SOURCE_BYTES >> 20
+        )));
+    }
     let source = SourceFile::new(name, text);
     let mut overrides = Vec::new();
     let mut problems: Vec<Diagnostic> = Vec::new();
@@ -200,7 +208,9 @@ impl OutputMap {
         }
         let m = self.model.output_dim();
         let model = &self.model;
-        let y = py.detach(|| {
+        let (y, fault) = py.detach(|| {
+            // A fault another evaluation left on this thread is not this one's.
+            let _ = model.take_fault();
             let mut y = vec![0.0; n * m];
             let mut row = vec![0.0; model.state_dim()];
             if m > 0 {
@@ -210,10 +220,23 @@ impl OutputMap {
                     }
                     let jumps = j.as_ref().map_or(0, |j| j[i].max(0) as u64);
                     model.outputs(HybridTime::new(t[i], jumps), &row, out);
+                    // A run-time index out of range (E0604) leaves NaN in the output:
+                    // an error, as `hybsim run` reports it for a logged output, not a
+                    // NaN column. The diagnostic reads the fault on this thread, now.
+                    if let Some(f) = model.take_fault() {
+                        return (y, Some(model.runtime_diagnostic(&SimError::from(f))));
+                    }
                 }
             }
-            y
+            (y, None)
         });
+        if let Some(d) = fault {
+            return Err(diagnostics_error::<SimulationError>(
+                py,
+                &[d],
+                model.source(),
+            ));
+        }
         columns(py, y, n, m)
     }
 }
@@ -426,6 +449,8 @@ impl Model {
         let mut props: Vec<Property> = Vec::new();
         for name in properties.unwrap_or_default() {
             match all.iter().find(|p| p.name() == name) {
+                // Named twice, tested (and listed) once.
+                Some(_) if props.iter().any(|q| q.name() == name) => {}
                 Some(p) => props.push(p.clone()),
                 None => {
                     let names: Vec<&str> = all.iter().map(|p| p.name()).collect();

@@ -1,7 +1,9 @@
 //! `Model.run(**sim)`: simulation settings from Python keywords, over the
 //! model's `sim` block (the keywords of `hybsim run`'s flags).
 
-use hybsim::engine::{JumpChoice, LinearSolver, Priority, SimError, SimSettings, Solver};
+use hybsim::engine::{
+    ExactAffine, JumpChoice, LinearSolver, Priority, SimError, SimSettings, Solver,
+};
 use hybsim::ir::CompiledModel;
 use pyo3::exceptions::{PyOverflowError, PyTypeError, PyValueError};
 use pyo3::prelude::*;
@@ -67,6 +69,32 @@ fn jump_horizon(sim: &Bound<'_, PyDict>) -> PyResult<Option<u64>> {
     }
 }
 
+/// The keyword `exact_affine` as a `sim` block takes it, `"auto"`, `"on"`
+/// or `"off"`, or a bool (`True` is `"on"`): only the bool was taken, so
+/// `"auto"` could not undo a model's `exact_affine = off`.
+fn exact_affine(sim: &Bound<'_, PyDict>) -> PyResult<Option<ExactAffine>> {
+    let Some(v) = sim.get_item("exact_affine")?.filter(|v| !v.is_none()) else {
+        return Ok(None);
+    };
+    if let Ok(on) = v.extract::<bool>() {
+        return Ok(Some(on.into()));
+    }
+    let Ok(name) = v.extract::<String>() else {
+        return Err(PyTypeError::new_err(format!(
+            "`exact_affine`: \"auto\", \"on\", \"off\" or a bool, not {}",
+            v.get_type().name()?
+        )));
+    };
+    match name.as_str() {
+        "auto" => Ok(Some(ExactAffine::Auto)),
+        "on" => Ok(Some(ExactAffine::On)),
+        "off" => Ok(Some(ExactAffine::Off)),
+        other => Err(PyValueError::new_err(format!(
+            "exact_affine `{other}`: use \"auto\", \"on\" or \"off\" (or True, False)"
+        ))),
+    }
+}
+
 /// `model`'s settings with the keywords of `sim` applied, validated for the
 /// model (a `solver` that cannot integrate its white noise is a `ValueError`).
 pub fn apply(model: &CompiledModel, sim: &Bound<'_, PyDict>) -> PyResult<SimSettings> {
@@ -107,8 +135,8 @@ pub fn apply(model: &CompiledModel, sim: &Bound<'_, PyDict>) -> PyResult<SimSett
     if let Some(n) = get::<u64>(sim, "max_total_jumps")? {
         settings = settings.max_total_jumps(n);
     }
-    if let Some(b) = get::<bool>(sim, "exact_affine")? {
-        settings = settings.exact_affine(b);
+    if let Some(mode) = exact_affine(sim)? {
+        settings = settings.exact_affine(mode);
     }
     if let Some(name) = get::<String>(sim, "linear_solver")? {
         settings = settings.linear_solver(LinearSolver::from_name(&name).ok_or_else(|| {

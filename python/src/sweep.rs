@@ -7,7 +7,9 @@ use std::time::Duration;
 
 use hybsim::lang::CheckOptions;
 use hybsim::sinks::parquet::{Column, Table};
-use hybsim::sweep::{Axis, PlanError, Shard, SweepError, aggregate, plan, table};
+use hybsim::sweep::{
+    Axis, PlanError, Shard, SweepError, aggregate, check_threads, plan, table, thread_pool,
+};
 use numpy::PyArray1;
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
@@ -55,20 +57,27 @@ pub fn sweep<'py>(
             .map(|(name, values)| Axis { name, values })
             .collect()
     });
-    if threads == Some(0) {
-        return Err(PyValueError::new_err("threads must be at least 1"));
-    }
-    let pool = rayon::ThreadPoolBuilder::new()
-        .num_threads(threads.unwrap_or(0))
-        .build()
-        .map_err(|e| PyValueError::new_err(e.to_string()))?;
+    // At most `MAX_THREADS`, and no more threads than jobs (the others would
+    // only look for work); rayon's global pool (all cores) by default.
+    let threads = threads
+        .map(|n| check_threads(n as u64))
+        .transpose()
+        .map_err(|e| PyValueError::new_err(format!("`threads`: {e}")))?;
+    let pool =
+        |jobs: u64| thread_pool(threads, jobs).map_err(|e| PyValueError::new_err(e.to_string()));
     // Planning compiles the model and grid point 0 on the same threads.
+    let plan_pool = pool(2)?;
     let plan = py
-        .detach(|| pool.install(|| plan(src, fixed, axes, runs, seed, &options)))
+        .detach(|| {
+            on_pool(plan_pool.as_ref(), || {
+                plan(src, fixed, axes, runs, seed, &options)
+            })
+        })
         .map_err(|e| match e {
             PlanError::Model(diags) => diagnostics_error::<ModelError>(py, &diags, src),
             PlanError::Spec(e) => PyValueError::new_err(e.to_string()),
         })?;
+    let pool = pool(plan.spec.total_runs())?;
     let spec = &plan.spec;
     let stop = AtomicBool::new(false);
     let control = hybsim::sweep::Control {
@@ -81,7 +90,7 @@ pub fn sweep<'py>(
     let (rows, raised) = py.detach(|| {
         std::thread::scope(|scope| {
             let work = scope.spawn(|| {
-                pool.install(|| {
+                on_pool(pool.as_ref(), || {
                     hybsim::sweep::run_plan(src, fixed, &plan, Shard::ALL, &options, control)
                 })
             });
@@ -130,6 +139,14 @@ pub fn sweep<'py>(
     out.set_item("seed", spec.seed)?;
     out.set_item("runs_per_point", spec.runs)?;
     Ok(out)
+}
+
+/// Runs `f` on `pool`, else on rayon's global pool.
+fn on_pool<R: Send>(pool: Option<&rayon::ThreadPool>, f: impl FnOnce() -> R + Send) -> R {
+    match pool {
+        Some(pool) => pool.install(f),
+        None => f(),
+    }
 }
 
 /// A table as a dict of columns, in order: unsigned integers and floats as

@@ -139,3 +139,17 @@ def test_a_model_without_random_draws_is_tested_on_one_case():
     assert m.test(cases=5).cases_run == 5
     # The random model of the tests above keeps the default 100.
     assert hybsim.load(FALSE_PROPERTY).test(properties=["ground"]).cases_run == 100
+
+
+def test_a_property_named_twice_is_tested_once():
+    # properties=["ground", "ground"] tested and listed `ground` twice.
+    m = hybsim.load(
+        "model ball\nstate h ~ uniform(0, 2), v = 0\nflow { h' = v; v' = -9.81 } in h >= 0\n"
+        "jump impact when h <= 0 && v <= 0 { v+ = -0.8 * v }\n"
+        "property ground: always h >= -1e-9\nsim { T = 1 }\n"
+    )
+    with pytest.raises(ValueError, match=r"properties=\[\] selects no property"):
+        m.test(cases=3, properties=[])
+    report = m.test(cases=3, properties=["ground", "ground"])
+    assert report.passed and len(report.properties) == 1, report.properties
+    assert report.properties[0].startswith("ground:")

@@ -1,5 +1,6 @@
 """Bad models and bad settings raise located, typed errors."""
 
+import os
 import re
 
 import numpy as np
@@ -60,6 +61,15 @@ def test_bad_override_is_a_model_error():
 def test_missing_file():
     with pytest.raises(FileNotFoundError):
         hybsim.load("no/such/model.hyb")
+
+
+def test_one_line_model_text_is_a_path_and_the_error_says_so():
+    # `load("model m; ...")` was "No such file or directory: 'model m; ...'".
+    text = "model m; state x = 1; flow { x' = -x }; sim { T = 1 }"
+    with pytest.raises(FileNotFoundError, match="a str without a line break is a path") as err:
+        hybsim.load(text)
+    assert err.value.filename == text
+    assert hybsim.load(text + "\n").run().termination.cause == "horizon_t"
 
 
 @pytest.mark.parametrize(
@@ -240,7 +250,64 @@ def test_misused_overrides_and_indices_are_typed_errors_naming_the_value():
         hybsim.load(GOOD, set=[("g", 1.0)])
     with pytest.raises(TypeError, match=r"set\['g'\]: a number"):
         hybsim.load(GOOD, set={"g": object()})
+    # numpy reads None as NaN: it was refused as "NaN is not a value".
+    with pytest.raises(TypeError, match=r"set\['g'\]: None is not a value"):
+        hybsim.load(GOOD, set={"g": None})
     sol = hybsim.load(GOOD, set={"g": np.float64(9.81)}).run()
     for key in (0, None, 1.5):
         with pytest.raises(TypeError, match="indexed by a component's name"):
             sol[key]
+
+
+def test_exact_affine_takes_the_words_of_the_sim_block():
+    # Only a bool was taken ("'str' object is not an instance of 'bool'"), so
+    # "auto" could not undo a model's `exact_affine = off`.
+    m = hybsim.load(GOOD.replace("sim { T = 2 }", "sim { T = 2; exact_affine = off }"))
+    base = m.run()
+    for word, flag in [("off", False), ("on", True)]:
+        a, b = m.run(exact_affine=word), m.run(exact_affine=flag)
+        assert a.t.tobytes() == b.t.tobytes() and a.x.tobytes() == b.x.tobytes(), word
+    assert m.run(exact_affine="off").x.tobytes() == base.x.tobytes()
+    assert len(m.run(exact_affine="auto").jumps) == len(base.jumps)
+    with pytest.raises(ValueError, match='exact_affine `yes`: use "auto", "on" or "off"'):
+        m.run(exact_affine="yes")
+    with pytest.raises(TypeError, match="`exact_affine`: .* or a bool, not float"):
+        m.run(exact_affine=1.5)
+
+
+def test_an_output_read_out_of_range_raises_when_read():
+    # `sol.y` held NaN where `hybsim run --csv` stops with E0604 at the index:
+    # outputs are evaluated when first read, and the fault went unnoticed.
+    src = """model idx
+param tk = [1; 2; 3]
+state k = 1
+every 0.5 { k+ = k + 1 }
+output y = tk[k]
+sim { T = 3 }
+"""
+    sol = hybsim.load(src).run()
+    assert sol.termination.cause == "horizon_t"  # the run itself never reads `y`
+    for read in (lambda: sol.y, lambda: sol["y"], sol.to_pandas):
+        with pytest.raises(hybsim.SimulationError) as err:
+            read()
+        msg = str(err.value)
+        assert "E0604" in msg and "index 4 is out of range 1..3 at (t = 1.5, j = 3)" in msg, msg
+        d = err.value.diagnostics[0]
+        assert (d["code"], d["line"], d["col"]) == ("E0604", 5, 12), d
+    # Within range the outputs are the table's entries.
+    ok = hybsim.load(src).run(T=1.2)
+    assert list(ok["y"]) == list(ok["k"])
+
+
+def test_a_model_file_is_read_as_the_command_line_reads_it(tmp_path):
+    # A file that is not UTF-8 was UnicodeDecodeError at a byte offset; a
+    # path that never ends (/dev/zero) was read until the memory ran out.
+    bad = tmp_path / "latin.hyb"
+    bad.write_bytes(b"model m\nstate x = 1 # caf\xe9\nflow { x' = -x }\n")
+    with pytest.raises(ValueError, match=r"latin.hyb`: line 2, column 18: byte 0xe9 is not UTF-8"):
+        hybsim.load(bad)
+    if os.path.exists("/dev/zero"):
+        with pytest.raises(ValueError, match="more than 16 MiB, the limit for a model's text"):
+            hybsim.load("/dev/zero")
+    with pytest.raises(ValueError, match="more than 16 MiB"):
+        hybsim.load("model m\n" + "#" * (16 << 20))

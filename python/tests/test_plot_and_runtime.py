@@ -53,6 +53,17 @@ def test_plots_render(ball, tmp_path):
     plt.close("all")
 
 
+def test_phase_takes_its_pair_as_one_list(ball):
+    # `phase(sol, ["v", "h"])` was "a solution is indexed by a component's name (str), not list".
+    ax = hybsim.plot.phase(ball, ["v", "h"])
+    assert (ax.get_xlabel(), ax.get_ylabel()) == ("v", "h")
+    with pytest.raises(ValueError, match=r"phase\(\) draws two components, got 3"):
+        hybsim.plot.phase(ball, ["h", "v", "energy"])
+    with pytest.raises(TypeError, match=r"phase\(\): components are named by str, not int"):
+        hybsim.plot.phase(ball, 0, 1)
+    plt.close("all")
+
+
 LONG = """model slow
 state x = 1
 flow { x' = -x }

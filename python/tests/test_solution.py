@@ -60,6 +60,12 @@ def test_reversed_or_nan_intervals_are_value_errors(sol):
         sol.restrict_j(3, 1)
     # A one-point interval is not reversed.
     assert len(sol.restrict_t(0, 0)) == 1 and set(sol.restrict_j(2, 2).j) == {2}
+    # A bound that is not a number was a numpy TypeError about `isnan`.
+    with pytest.raises(TypeError, match="restrict_t: t_min is a number or None, not str"):
+        sol.restrict_t("0.5", 1)
+    with pytest.raises(TypeError, match="restrict_j: j_max is a number or None, not list"):
+        sol.restrict_j(0, [2])
+    assert len(sol.restrict_t(np.float64(0), np.int64(0))) == 1
 
 
 def test_interpolate_exact_at_samples_and_linear_between(sol):

@@ -144,3 +144,43 @@ def test_ctrl_c_interrupts_a_sweep(ball_file):
     assert time.monotonic() - start < 5.0
     # The model still sweeps afterwards.
     assert len(hybsim.load(ball_file).sweep(runs=1).runs) == 2
+
+
+def test_grid_values_that_are_not_a_list_of_numbers_are_refused(ball_file):
+    # A matrix of values was flattened into a grid of its entries (4 points
+    # here), and None was read by numpy as NaN ("`NaN` is not a finite number").
+    model = hybsim.load(ball_file)
+    with pytest.raises(ValueError, match=r"axis `lambda`: the values of an axis are numbers, got a 2-D array of shape \(2, 2\)"):
+        model.sweep(grid={"lambda": [[0.5, 0.6], [0.7, 0.8]]})
+    with pytest.raises(TypeError, match="axis `lambda`: None is not a value"):
+        model.sweep(grid={"lambda": None})
+    with pytest.raises(TypeError, match="axis `lambda`: a number, a sequence of numbers"):
+        model.sweep(grid={"lambda": {"a": 1}})
+    # A scalar is one value, as `--grid lambda=0.5`.
+    assert list(model.sweep(grid={"lambda": 0.5}, runs=1).points["lambda"]) == [0.5]
+
+
+def test_threads_over_the_limit_are_refused(ball_file):
+    # `threads=10000` on 2 cores took over a minute for a sweep of 2 runs:
+    # idle workers spend their time looking for work in each other's queues.
+    model = hybsim.load(ball_file)
+    with pytest.raises(ValueError, match="`threads`: 10000 worker threads: a sweep takes from 1 to 1024"):
+        model.sweep(threads=10000)
+    start = time.monotonic()
+    sw = model.sweep(threads=1024)
+    assert len(sw.runs) == 6 and time.monotonic() - start < 20
+    assert list(sw.runs["seed"]) == list(model.sweep(threads=1).runs["seed"])
+
+
+def test_grid_as_name_value_pairs(ball_file):
+    # `list(d.items())` was refused as the axis `('lambda', [0.5, 0.6])`, and
+    # `grid=5` failed with "'int' object is not iterable".
+    model = hybsim.load(ball_file)
+    pairs = model.sweep(grid=[("lambda", [0.6, 0.7]), ("g", "9:1:10")], runs=1)
+    named = model.sweep(grid={"lambda": [0.6, 0.7], "g": "9:1:10"}, runs=1)
+    assert pairs.axes == named.axes == ["lambda", "g"]
+    assert list(pairs.runs["seed"]) == list(named.runs["seed"])
+    with pytest.raises(TypeError, match="grid= takes"):
+        model.sweep(grid=5)
+    with pytest.raises(TypeError, match=r"grid axis \(1, 2\): a \(name, values\) pair"):
+        model.sweep(grid=[(1, 2)])

@@ -83,14 +83,15 @@ pub fn execute(args: CheckArgs) -> anyhow::Result<u8> {
     let human = args.message_format == MessageFormat::Human;
     if errors == 0 {
         if human {
-            println!("{}: no errors", args.model.display());
+            // `<stdin>` for `-`, as the diagnostics name it.
+            println!("{}: no errors", src.name());
         }
         Ok(EXIT_OK)
     } else {
         if human {
             eprintln!(
                 "{}: {errors} error{}",
-                args.model.display(),
+                src.name(),
                 if errors == 1 { "" } else { "s" }
             );
         }

@@ -66,8 +66,10 @@ pub fn execute(args: DesignArgs) -> anyhow::Result<u8> {
             return Ok(EXIT_MODEL_ERROR);
         }
     };
-    if reports.is_empty() {
-        println!("{}: no design blocks", args.model.display());
+    // `--json` prints JSON whatever the model holds (`{}`: no block); the
+    // sentence broke a reader of standard output.
+    if reports.is_empty() && !args.json {
+        println!("{}: no design blocks", src.name());
         return Ok(EXIT_OK);
     }
     if args.json {

@@ -111,6 +111,9 @@ pub enum Command {
     /// Run a grid of parameter values × seeded runs and collect the model's
     /// metrics (per run and per grid point; CSV and SVG); `--shard k/n` runs a
     /// part, `--merge` joins the parts.
+    // Negative numbers are values (`--seed -1` is refused as a seed, not
+    // as an unknown flag `-1` with the advice to write `-- -1`).
+    #[command(allow_negative_numbers = true)]
     Sweep(sweep::SweepArgs),
     /// Rewrite `.hyb` files in the canonical layout (`--check`: only list
     /// those that would change, exit 1 if any).
@@ -128,6 +131,15 @@ pub enum Command {
         #[arg(value_enum)]
         shell: clap_complete::Shell,
     },
+}
+
+/// A `--seed` value: a whole number from 0 to 2⁶⁴ − 1, as the model's
+/// `sim { seed }` takes it (clap's own message was "invalid digit found in
+/// string" for `-1`, `1.5` or `1e3`).
+pub(crate) fn parse_seed(s: &str) -> Result<u64, String> {
+    s.trim().parse::<u64>().map_err(|_| {
+        format!("`{s}`: a seed is a whole number from 0 to 2^64 - 1 (18446744073709551615)")
+    })
 }
 
 /// Replaces the default panic message by a short report: what went wrong

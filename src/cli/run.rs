@@ -92,7 +92,7 @@ pub struct RunArgs {
     #[arg(long, value_enum, default_value_t = SdpKind::Auto)]
     pub sdp: SdpKind,
     /// Seed of the run's random generator (overrides the model's).
-    #[arg(long, value_name = "N")]
+    #[arg(long, value_name = "N", value_parser = super::parse_seed)]
     pub seed: Option<u64>,
     /// Machine code for the model (`on`, default where supported) or the
     /// interpreter (`off`); overrides the model's `sim { jit = … }`.
@@ -1026,6 +1026,13 @@ pub fn execute(args: RunArgs) -> anyhow::Result<u8> {
         mcap_options: mcap_options(&args, model.log_decl()),
         progress: !args.quiet,
     };
+    // A bad `--log-dt` is a usage error before anything runs, whether or
+    // not a file is written (it was exit 1 from the first sink to open, and
+    // passed unseen with `--no-mcap` alone).
+    if let Err(e) = outputs.decimation.validate() {
+        eprintln!("error: {e}");
+        return Ok(EXIT_MODEL_ERROR);
+    }
     if let Some(message) = output_path_clash(&args.model, &outputs) {
         eprintln!("error: {message}");
         return Ok(EXIT_MODEL_ERROR);

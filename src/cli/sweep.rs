@@ -31,7 +31,7 @@ pub struct SweepArgs {
     pub runs: Option<u64>,
     /// Base seed of the run seeds (default: `seed` of the model's `sweep`
     /// block, else its `sim { seed }`).
-    #[arg(long, value_name = "S")]
+    #[arg(long, value_name = "S", value_parser = super::parse_seed)]
     pub seed: Option<u64>,
     /// A fixed override for every run: `--set name=value` (repeatable).
     #[arg(long = "set", value_name = "NAME=VALUE")]
@@ -47,7 +47,7 @@ pub struct SweepArgs {
     /// Results directory (created if needed).
     #[arg(short = 'o', long = "output", value_name = "DIR")]
     pub output: PathBuf,
-    /// Worker threads (default: all cores, or RAYON_NUM_THREADS).
+    /// Worker threads, 1 to 1024 (default: all cores, or RAYON_NUM_THREADS).
     #[arg(long, value_name = "N", value_parser = clap::value_parser!(u64).range(1..))]
     pub threads: Option<u64>,
     /// Interior-point method of the model's design blocks.
@@ -101,15 +101,13 @@ pub fn execute(args: SweepArgs) -> anyhow::Result<u8> {
     // set by (errors located in the file); grid points that fail later are rows.
     let options = args.sdp.options();
     let axes = (!args.grid.is_empty()).then_some(axes);
-    // `--threads` bounds the planning's compiles as well as the runs.
-    let pool = match args.threads {
-        Some(n) => Some(
-            rayon::ThreadPoolBuilder::new()
-                .num_threads(n as usize)
-                .build()?,
-        ),
-        None => None,
+    // `--threads` bounds the planning's compiles (two at once: the model
+    // and grid point 0) as well as the runs.
+    let threads = match args.threads.map(sweep::check_threads).transpose() {
+        Ok(n) => n,
+        Err(e) => return usage(&e),
     };
+    let pool = sweep::thread_pool(threads, 2)?;
     let plan = match on_pool(pool.as_ref(), || {
         sweep::plan(&src, &fixed, axes, args.runs, args.seed, &options)
     }) {
@@ -121,6 +119,12 @@ pub fn execute(args: SweepArgs) -> anyhow::Result<u8> {
         }
         Err(sweep::PlanError::Spec(e)) => return usage(&e),
     };
+    // Before any run: the results of a long sweep were lost when `-o` could
+    // not hold them (a file, a read-only place), found only at the end.
+    if let Err(e) = table::prepare_dir(&args.output) {
+        eprintln!("error: {e}");
+        return Ok(EXIT_FAILED);
+    }
     if plan.metrics.is_empty() {
         eprintln!(
             "note: {} declares no `metric`; the rows hold only how each run ended",
@@ -172,6 +176,8 @@ pub fn execute(args: SweepArgs) -> anyhow::Result<u8> {
         stop: &stop,
         skip: &|i| kept_index.binary_search(&i).is_ok(),
     };
+    // No more threads than runs to do: the others would only look for work.
+    let pool = sweep::thread_pool(threads, mine.saturating_sub(kept.len() as u64))?;
     let new_rows = on_pool(pool.as_ref(), || {
         sweep::run_plan(&src, &fixed, &plan, shard, &options, control)
     });

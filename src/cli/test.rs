@@ -26,7 +26,7 @@ pub struct TestArgs {
     pub cases: Option<usize>,
     /// Master seed from which each case's seed is derived (default: the
     /// model's `sim { seed }`).
-    #[arg(long, value_name = "S")]
+    #[arg(long, value_name = "S", value_parser = super::parse_seed)]
     pub seed: Option<u64>,
     /// Check only this property (repeatable). Default: all.
     #[arg(long = "property", value_name = "NAME")]
@@ -86,6 +86,8 @@ pub fn execute(args: TestArgs) -> anyhow::Result<u8> {
     let mut props: Vec<Property> = Vec::new();
     for name in &args.property {
         match all.iter().find(|p| p.name() == name) {
+            // `--property a --property a`: tested (and listed) once.
+            Some(_) if props.iter().any(|q| q.name() == name) => {}
             Some(p) => props.push(p.clone()),
             None => {
                 let names: Vec<&str> = all.iter().map(|p| p.name()).collect();

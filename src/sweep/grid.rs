@@ -97,6 +97,12 @@ pub fn range_values(a: f64, step: f64, b: f64) -> Result<Vec<f64>, String> {
     }
     let count = ((b - a) / step + 1e-9).floor() + 1.0;
     if count.is_nan() || count > MAX_AXIS_VALUES as f64 {
+        // `0:1e-300:1` is about 1e300 values, not 300 digits of one.
+        let count = if count < 1e15 {
+            format!("{count}")
+        } else {
+            format!("about {count:.1e}")
+        };
         return Err(format!(
             "{count} values (at most {MAX_AXIS_VALUES} per axis)"
         ));
@@ -203,6 +209,21 @@ mod tests {
         ] {
             assert!(bad.parse::<Axis>().is_err(), "{bad}");
         }
+    }
+
+    #[test]
+    fn a_range_of_too_many_values_says_how_many_compactly() {
+        // Was the count's 301 digits (`9999999999999999000…0 values`).
+        let err = "x=0:1e-300:1".parse::<Axis>().unwrap_err().to_string();
+        assert!(
+            err.ends_with("about 1.0e300 values (at most 1000000 per axis)"),
+            "{err}"
+        );
+        let err = "x=0:1e-12:1".parse::<Axis>().unwrap_err().to_string();
+        assert!(
+            err.ends_with(": 1000000000001 values (at most 1000000 per axis)"),
+            "{err}"
+        );
     }
 
     #[test]

@@ -76,10 +76,24 @@ pub enum SweepError {
     /// No run per grid point.
     #[error("runs per grid point must be at least 1")]
     NoRuns,
+    /// A number of worker threads that is 0 or over [`MAX_THREADS`].
+    #[error(
+        "{0} worker threads: a sweep takes from 1 to {MAX_THREADS} (more threads than cores \
+         only slow it down; the default is all cores)"
+    )]
+    Threads(u64),
     /// A file could not be read or written.
     #[error("{path}: {source}")]
     Io {
         /// The file.
+        path: std::path::PathBuf,
+        /// Why.
+        source: std::io::Error,
+    },
+    /// The results directory cannot be created or written into.
+    #[error("cannot write the results into `{path}`: {source}")]
+    OutputDir {
+        /// The directory.
         path: std::path::PathBuf,
         /// Why.
         source: std::io::Error,
@@ -102,6 +116,37 @@ pub enum SweepError {
 /// messages), in `--merge` all of them at once, so 10⁷ runs take ~10 GB.
 /// Checked before anything is allocated.
 pub const MAX_RUNS: u64 = 10_000_000;
+
+/// Most worker threads a sweep takes (`hybsim sweep --threads`, Python's
+/// `threads=`). An idle rayon worker looks for work in every other
+/// worker's queue, so thousands of threads on a few cores spend their time
+/// looking: `--threads 10000` on 2 cores took over a minute for 2 runs.
+pub const MAX_THREADS: u64 = 1024;
+
+/// `threads` worker threads asked for, as a count: an error unless it is
+/// from 1 to [`MAX_THREADS`].
+pub fn check_threads(threads: u64) -> Result<usize, SweepError> {
+    if (1..=MAX_THREADS).contains(&threads) {
+        Ok(threads as usize)
+    } else {
+        Err(SweepError::Threads(threads))
+    }
+}
+
+/// The pool of `threads` worker threads (checked by [`check_threads`]) for
+/// `jobs` parallel jobs: no more threads than jobs, which would have
+/// nothing to do; `None` (rayon's global pool, all cores) if `threads` is.
+pub fn thread_pool(
+    threads: Option<usize>,
+    jobs: u64,
+) -> Result<Option<rayon::ThreadPool>, rayon::ThreadPoolBuildError> {
+    threads
+        .map(|n| {
+            let n = n.min(usize::try_from(jobs).unwrap_or(usize::MAX)).max(1);
+            rayon::ThreadPoolBuilder::new().num_threads(n).build()
+        })
+        .transpose()
+}
 
 /// A sweep: grid axes (the first varies slowest), runs per grid point and
 /// the base seed.

@@ -476,6 +476,29 @@ pub fn plot_file(name: &str) -> String {
     format!("{stem}.svg")
 }
 
+/// Creates the results directory `dir` if needed and checks that files can
+/// be created in it, before a sweep runs: a path that cannot hold the
+/// results was found only when they were written, after every run.
+pub fn prepare_dir(dir: &Path) -> Result<(), SweepError> {
+    let fail = |source: std::io::Error| SweepError::OutputDir {
+        path: dir.to_path_buf(),
+        source,
+    };
+    if dir.exists() && !dir.is_dir() {
+        return Err(fail(std::io::Error::new(
+            std::io::ErrorKind::AlreadyExists,
+            "a file of that name exists; give a directory",
+        )));
+    }
+    std::fs::create_dir_all(dir).map_err(fail)?;
+    // Removed when dropped.
+    tempfile::Builder::new()
+        .prefix(".hybsim-sweep-")
+        .tempfile_in(dir)
+        .map(drop)
+        .map_err(fail)
+}
+
 /// Writes the results of the runs `rows` of manifest `m` into `dir`: a
 /// shard's part (`m.shard` set: `sweep.json`, `runs.csv`, `runs.parquet`)
 /// or the whole sweep (also `points.csv`, `points.parquet` and the plots).

@@ -21,6 +21,17 @@ fn parses_the_bouncing_ball() {
 }
 
 #[test]
+fn a_model_fits_on_one_line_with_semicolons() {
+    // `;` separates statements as a newline does, after the header too
+    // (`model m; state x = 1` was E0101 at the `;`).
+    let one = parse_model("model m; state x = 1; flow { x' = -x }; sim { T = 1 }").unwrap();
+    let lines = parse_model("model m\nstate x = 1\nflow { x' = -x }\nsim { T = 1 }\n").unwrap();
+    assert_eq!(one.name.name, "m");
+    assert_eq!(one.items.len(), 3);
+    assert_eq!(one.items.len(), lines.items.len());
+    assert!(parse_model("model m;; state x = 1").is_err());
+}
+#[test]
 fn precedence_and_postfix() {
     let e = parse_expr("-a*b' + c[1, 2:3]^2 < 3 && !d").unwrap();
     let ExprKind::Binary(BinOp::And, l, r) = e.kind else {

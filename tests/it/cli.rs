@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 use serde_json::Value;
 
 use crate::util::temp_files;
-use crate::util::{code, hybsim, mcap_metadata, stderr};
+use crate::util::{code, hybsim, mcap_metadata, stderr, stdout};
 
 fn ball_model() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("models/bouncing_ball.hyb")
@@ -164,6 +164,73 @@ fn a_nan_given_to_a_number_flag_is_an_invalid_value() {
         err.contains("in `--T -inf`: invalid `T`: -inf is out of range"),
         "--T -inf: {err}"
     );
+}
+
+/// A `--log-dt` that is not a time ≥ 0 is a usage error (exit 2) before anything runs: it was
+/// exit 1 from the first sink that opened ("the run failed"), and with `--no-mcap` alone it
+/// passed unseen.
+#[test]
+fn a_bad_log_dt_is_a_usage_error_with_or_without_files() {
+    let dir = tempfile::tempdir().unwrap();
+    let model = write(
+        dir.path(),
+        "decay.hyb",
+        "model decay\nstate x = 1\nflow { x' = -x }\n",
+    );
+    let m = model.to_str().unwrap();
+    for value in ["-1", "nan", "inf"] {
+        for files in [&["--no-mcap"][..], &["--csv", "x.csv", "-o", "x.mcap"][..]] {
+            let mut args = vec!["run", m, "--log-dt", value];
+            args.extend_from_slice(files);
+            let out = hybsim(dir.path(), &args);
+            assert_eq!(code(&out), 2, "--log-dt {value} {files:?}");
+            assert!(
+                stderr(&out).contains("invalid option `--log-dt`"),
+                "{}",
+                stderr(&out)
+            );
+            assert!(stdout(&out).is_empty(), "nothing ran: {}", stdout(&out));
+        }
+    }
+    assert!(!dir.path().join("x.csv").exists() && !dir.path().join("x.mcap").exists());
+    let out = hybsim(dir.path(), &["run", m, "--log-dt", "0", "--no-mcap"]);
+    assert_eq!(code(&out), 0, "{}", stderr(&out));
+}
+
+/// A bad `--seed` says what a seed is, in `run`, `test` and `sweep` alike: it was "invalid digit
+/// found in string", and `sweep --seed -1` an unknown argument `-1` with the advice to write
+/// `-- -1` (which would have made `-1` the model).
+#[test]
+fn a_bad_seed_says_what_a_seed_is() {
+    let dir = tempfile::tempdir().unwrap();
+    let m = ball_model();
+    let m = m.to_str().unwrap();
+    for seed in ["-1", "1.5", "1e3", "18446744073709551616", "abc"] {
+        for args in [
+            vec!["run", m, "--no-mcap"],
+            vec!["test", m],
+            vec!["sweep", m, "-o", "out"],
+        ] {
+            let mut args = args.clone();
+            args.extend(["--seed", seed]);
+            let out = hybsim(dir.path(), &args);
+            assert_eq!(code(&out), 2, "{args:?}");
+            let err = stderr(&out);
+            assert!(
+                err.contains(&format!(
+                    "`{seed}`: a seed is a whole number from 0 to 2^64 - 1"
+                )),
+                "{args:?}: {err}"
+            );
+            assert!(!err.contains("-- -1"), "{args:?}: {err}");
+        }
+    }
+    assert!(!dir.path().join("out").exists());
+    let out = hybsim(
+        dir.path(),
+        &["run", m, "--no-mcap", "--seed", "18446744073709551615"],
+    );
+    assert_eq!(code(&out), 0, "{}", stderr(&out));
 }
 
 /// `--T` and `--J` set the horizons, not the model's own `T` and `J`: a sampling period
@@ -851,6 +918,32 @@ fn dash_is_stdin_for_models_and_stdout_for_outputs() {
     );
     let fmt = pipe(&["fmt", "-"], "model m\nstate x=1\n");
     assert_eq!(crate::util::stdout(&fmt), "model m\nstate x = 1\n");
+    // The verdict names standard input as the diagnostics do (it said `-: no errors`).
+    let check = pipe(&["check", "-"], "model m\nstate x = 1\n");
+    assert_eq!(code(&check), 0);
+    assert_eq!(stdout(&check), "<stdin>: no errors\n");
+    let check = pipe(&["check", "-"], "model m\nstate x = y\n");
+    assert!(
+        stderr(&check).ends_with("<stdin>: 1 error\n"),
+        "{}",
+        stderr(&check)
+    );
+}
+
+/// `hybsim design --json` prints JSON for a model without design blocks too (`{}`): it printed
+/// the sentence `model.hyb: no design blocks`, which broke a reader of its standard output.
+#[test]
+fn design_json_of_a_model_without_blocks_is_an_empty_object() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = hybsim(
+        dir.path(),
+        &["design", ball_model().to_str().unwrap(), "--json"],
+    );
+    assert_eq!(code(&out), 0, "{}", stderr(&out));
+    let v: Value = serde_json::from_str(&stdout(&out)).expect("JSON on stdout");
+    assert_eq!(v, serde_json::json!({}));
+    let out = hybsim(dir.path(), &["design", ball_model().to_str().unwrap()]);
+    assert!(stdout(&out).ends_with("bouncing_ball.hyb: no design blocks\n"));
 }
 
 /// `hybsim run --json`: the summary as one JSON object on stdout.

@@ -232,6 +232,32 @@ fn model_errors_and_unknown_properties_exit_2() {
     );
 }
 
+/// `--property ground --property ground` tested and listed `ground` twice ("testing 2
+/// properties").
+#[test]
+fn a_property_named_twice_is_tested_once() {
+    let dir = tempfile::tempdir().unwrap();
+    let m = test_model("ball_props.hyb");
+    let m = m.to_str().unwrap();
+    let out = hybsim(
+        dir.path(),
+        &[
+            "test",
+            m,
+            "--cases",
+            "5",
+            "--property",
+            "ground",
+            "--property",
+            "ground",
+        ],
+    );
+    let text = stdout(&out);
+    assert_eq!(code(&out), 0, "{text}");
+    assert!(text.starts_with("testing 1 property of"), "{text}");
+    assert_eq!(text.matches("ok  ground:").count(), 1, "{text}");
+}
+
 #[test]
 fn one_case_is_counted_in_the_singular() {
     let dir = tempfile::tempdir().unwrap();

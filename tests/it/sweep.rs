@@ -500,6 +500,47 @@ fn bad_sweep_arguments_are_reported() {
         assert!(stderr(&out).contains(needle), "{args:?}: {}", stderr(&out));
         assert!(!stderr(&out).contains("--set nosuch"), "{}", stderr(&out));
     }
+    // Thousands of worker threads on a few cores spend their time looking for work
+    // (`--threads 10000` on 2 cores: over a minute for 2 runs): refused before anything runs.
+    let started = std::time::Instant::now();
+    let out = hybsim(
+        d,
+        &[
+            "sweep",
+            "ball.hyb",
+            "-o",
+            "threads",
+            "-q",
+            "--threads",
+            "10000",
+        ],
+    );
+    assert_eq!(code(&out), 2, "{}", stderr(&out));
+    assert!(
+        stderr(&out).contains("10000 worker threads: a sweep takes from 1 to 1024"),
+        "{}",
+        stderr(&out)
+    );
+    assert!(started.elapsed().as_secs() < 10 && !d.join("threads").exists());
+    // Within the limit, no more threads than runs are started.
+    let pool = hybsim::sweep::thread_pool(Some(1024), 3).unwrap().unwrap();
+    assert_eq!(pool.current_num_threads(), 3);
+    assert!(hybsim::sweep::thread_pool(None, 3).unwrap().is_none());
+    let out = hybsim(
+        d,
+        &[
+            "sweep",
+            "ball.hyb",
+            "-o",
+            "threads",
+            "-q",
+            "--threads",
+            "1024",
+            "--runs",
+            "2",
+        ],
+    );
+    assert_eq!(code(&out), 0, "{}", stderr(&out));
     // A grid value that makes its point invalid is that point's row, whose message names
     // the grid axis.
     let out = hybsim(
@@ -591,6 +632,48 @@ fn an_interrupted_sweep_keeps_the_runs_that_finished() {
     let out = hybsim(d, &["sweep", "--merge", "part", "-o", "m"]);
     assert_eq!(code(&out), 1);
     assert!(stderr(&out).contains("interrupted"), "{}", stderr(&out));
+}
+
+/// An `-o` that cannot hold the results is an error before any run: it was found when the
+/// results were written, after every run (here a run that does not end, which hung).
+#[test]
+fn an_output_directory_that_cannot_be_written_is_refused_before_the_runs() {
+    use std::process::{Command, Stdio};
+    use std::time::{Duration, Instant};
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    std::fs::write(d.join("p.hyb"), PENDULUM).unwrap();
+    for (out_dir, says) in [
+        ("p.hyb", "a file of that name exists; give a directory"),
+        ("p.hyb/results", "Not a directory"),
+    ] {
+        let mut child = Command::new(crate::util::BIN)
+            .args(["sweep", "p.hyb", "--grid", "T=[1e6]", "-q", "-o", out_dir])
+            .current_dir(d)
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap();
+        let start = Instant::now();
+        while child.try_wait().unwrap().is_none() && start.elapsed() < Duration::from_secs(30) {
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        if child.try_wait().unwrap().is_none() {
+            child.kill().unwrap();
+            panic!("`-o {out_dir}`: the sweep ran instead of refusing its output directory");
+        }
+        let out = child.wait_with_output().unwrap();
+        assert_eq!(out.status.code(), Some(1), "{}", stderr(&out));
+        assert!(
+            stderr(&out).contains(&format!(
+                "cannot write the results into `{out_dir}`: {says}"
+            )),
+            "{}",
+            stderr(&out)
+        );
+    }
+    assert_eq!(std::fs::read_to_string(d.join("p.hyb")).unwrap(), PENDULUM);
+    assert_eq!(crate::util::temp_files(d), Vec::<String>::new());
 }
 
 #[test]
