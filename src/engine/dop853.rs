@@ -390,8 +390,8 @@ impl Tableau for Dop853Tableau {
                 m.max(r3.abs()).max(r5.abs())
             });
             let (mut a, mut b) = (0.0, 0.0);
-            for i in 0..n {
-                let (r3, r5) = ratios(i, incr(i), yn[i]);
+            for (i, &yn_i) in yn.iter().enumerate() {
+                let (r3, r5) = ratios(i, incr(i), yn_i);
                 a += (r5 / m) * (r5 / m);
                 b += (r3 / m) * (r3 / m);
             }

@@ -1000,7 +1000,7 @@ fn an_invalid_flag_value_is_shown_as_typed() {
         // A whole number past the range is named as such, not "not an integer".
         (
             &["--zeno-window", "1e20"],
-            "in `--zeno-window 1e20`: invalid `zeno_window`: 100000000000000000000 is not a whole number in 2..=4294967295",
+            "in `--zeno-window 1e20`: invalid `zeno_window`: 1e20 is not a whole number in 2..=4294967295",
             "┌─ --zeno-window:1:15",
         ),
         // Negative numbers reach the checker (clap took `-1` for a flag and
