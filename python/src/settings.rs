@@ -164,6 +164,7 @@ pub fn apply(model: &CompiledModel, sim: &Bound<'_, PyDict>) -> PyResult<SimSett
     }
     let solver = solver(
         settings.solver,
+        model.solver_keys(),
         get::<String>(sim, "solver")?,
         get::<f64>(sim, "rtol")?,
         get::<f64>(sim, "atol")?,
@@ -189,7 +190,12 @@ pub fn apply(model: &CompiledModel, sim: &Bound<'_, PyDict>) -> PyResult<SimSett
     // Keywords change the horizon and steps after the check: held to its limits
     // (a `dt_out` of 1e-300 would otherwise run for ever).
     if let Some((key, why)) = model.over_limit(&settings) {
-        let kw = if key == "h" { "step" } else { key };
+        // A step too small that the model's `h` gave comes with `solver`.
+        let kw = match key {
+            "h" if get::<f64>(sim, "step")?.is_none() => "solver",
+            "h" => "step",
+            key => key,
+        };
         return Err(PyValueError::new_err(format!("`{kw}`: {why}")));
     }
     Ok(settings)
@@ -214,16 +220,22 @@ fn keyword(field: &'static str) -> &'static str {
 /// with the fixed-step ones.
 fn solver(
     current: Solver,
+    keys: hybsim::check::SolverKeys,
     name: Option<String>,
     rtol: Option<f64>,
     atol: Option<f64>,
     step: Option<f64>,
 ) -> PyResult<Solver> {
+    // The current solver's keys, else those the model's `sim` block gave for another kind.
     let (rtol0, atol0, h0) = match current {
-        Solver::Rk4 { h } | Solver::EulerMaruyama { h } => (1e-6, 1e-9, Some(h)),
+        Solver::Rk4 { h } | Solver::EulerMaruyama { h } => (
+            keys.rtol.unwrap_or(1e-6),
+            keys.atol.unwrap_or(1e-9),
+            Some(h),
+        ),
         adaptive => {
             let (rtol, atol) = adaptive.tolerances().expect("an adaptive solver");
-            (rtol, atol, None)
+            (rtol, atol, keys.h)
         }
     };
     let name = name.unwrap_or_else(|| current.name().to_string());

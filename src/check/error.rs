@@ -454,14 +454,16 @@ pub enum CheckError {
     },
     /// An index error (E0401, E0402) in one iteration of a `for` loop: the
     /// loop and its variables' values there, and the `--set` values its
-    /// range reads (a range grown past a table by `--set N=…`).
+    /// range reads (a range grown past a table by `--set N=…`); or a size
+    /// over its limit (E0307) in a loop whose range reads `--set` values.
     #[error("{inner}")]
     InLoop {
         /// The error.
         inner: Box<CheckError>,
         /// The loop's binder (`i in 1..N`).
         binder: Span,
-        /// The variables' values (`i = 4`).
+        /// The variables' values (`i = 4`; empty for a size over its limit,
+        /// which counts every iteration).
         values: String,
         /// The overrides its range reads, as typed (`--set N=5`).
         set_by: Vec<String>,
@@ -606,9 +608,16 @@ impl CheckError {
             set_by,
         } = self
         {
-            let d = inner
-                .to_diagnostic()
-                .secondary(*binder, format!("in the iteration with {values}"));
+            // No iteration for a size over its limit: the loop's range gave it.
+            let d = if values.is_empty() {
+                inner
+                    .to_diagnostic()
+                    .secondary(*binder, "the range of this loop")
+            } else {
+                inner
+                    .to_diagnostic()
+                    .secondary(*binder, format!("in the iteration with {values}"))
+            };
             return match set_by.as_slice() {
                 [] => d,
                 sets => d.note(format!("the loop's range reads {}", sets.join(", "))),

@@ -34,7 +34,7 @@ pub use design::{DesignError, DesignReport, SolveSummary};
 pub use error::{CheckError, Dims};
 pub use expr::Val;
 pub use log::{LogDecl, RuleSelection};
-pub use model::{CheckedModel, CheckedRule, OutputField, Override, StateField};
+pub use model::{CheckedModel, CheckedRule, OutputField, Override, SolverKeys, StateField};
 
 use crate::source::Span;
 use dag::Dag;

@@ -14,6 +14,7 @@ use super::{Checker, DesignReport, Sym, Unavailable};
 use crate::engine::{
     ExactAffine, JumpChoice, LinearSolver, Priority, SimError, SimSettings, Solver,
 };
+use crate::num::Num;
 use crate::source::Span;
 use crate::syntax::ast::*;
 
@@ -143,6 +144,9 @@ pub struct CheckedModel {
     pub wiener_dim: usize,
     /// Simulation settings after overrides.
     pub settings: SimSettings,
+    /// The `sim` block's `rtol`, `atol` and `h` as given (after overrides),
+    /// also those its solver does not use.
+    pub solver_keys: SolverKeys,
     /// Seed of the run.
     pub seed: u64,
     /// `jit = on | off` (`None`: not given; machine code where supported).
@@ -171,6 +175,19 @@ pub struct CheckedModel {
     pub tables: Vec<crate::tables::TableFile>,
     /// The resource limits in force (after the `sim` block and `--set`).
     pub limits: super::limits::Limits,
+}
+
+/// The solver keys of a `sim` block (after overrides) as given, whichever
+/// solver it names: `sim { h = 0.01 }` on Dopri5 is the step `--solver rk4`
+/// takes, `rtol` on RK4 the tolerance `--solver dopri5` takes.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct SolverKeys {
+    /// `rtol`, if given.
+    pub rtol: Option<f64>,
+    /// `atol`, if given.
+    pub atol: Option<f64>,
+    /// `h`, if given.
+    pub h: Option<f64>,
 }
 
 const FLOW_CTX: Ctx = Ctx {
@@ -429,7 +446,7 @@ pub(crate) fn check_model(
     let metrics = collector.finish(&mut m.c);
     let sweep = super::sweep::check_sweeps(&mut m.c, &model.items, &m.settable);
     let log = super::log::check_logs(&mut m.c, &model.items, &m.rules);
-    let (settings, seed, jit) = m.settings(overrides);
+    let (settings, solver_keys, seed, jit) = m.settings(overrides);
     for o in overrides {
         if !m.used.iter().any(|u| u == &o.name) && sim_key(&o.name).is_none() {
             // A family (`z`, `z[2]`, an instance family's `f[2].x0`) is declared but not
@@ -516,6 +533,7 @@ pub(crate) fn check_model(
         outputs: m.outputs,
         wiener_dim: m.wiener_dim,
         settings,
+        solver_keys,
         seed,
         jit,
         params: m.params,
@@ -919,7 +937,13 @@ impl ModelChecker<'_> {
     /// values its range reads.
     fn in_loop(&mut self, b: &Binder, errors: usize, depth: usize) {
         let wrapped = |e: &CheckError| matches!(e.code(), "E0401" | "E0402");
-        if !self.c.errors[errors..].iter().any(wrapped) {
+        // A size over its limit (`for i in 1..N { state x[i] = 0 }` with `--set N=1e5`) gets
+        // the loop and the `--set` values its range reads, not an iteration: it counts them all.
+        let sized = |e: &CheckError| e.code() == "E0307" && !matches!(e, CheckError::InLoop { .. });
+        if !self.c.errors[errors..]
+            .iter()
+            .any(|e| wrapped(e) || sized(e))
+        {
             return;
         }
         let values = self.c.scopes[depth..]
@@ -948,7 +972,18 @@ impl ModelChecker<'_> {
         }
         let binder = Span::new(b.span.start, end.min(b.span.end));
         for e in &mut self.c.errors[errors..] {
-            if wrapped(e) {
+            if sized(e) && !set_by.is_empty() {
+                let inner = Box::new(std::mem::replace(
+                    e,
+                    CheckError::AlgebraicLoop { cycle: Vec::new() },
+                ));
+                *e = CheckError::InLoop {
+                    inner,
+                    binder,
+                    values: String::new(),
+                    set_by: set_by.clone(),
+                };
+            } else if wrapped(e) {
                 let inner = Box::new(std::mem::replace(
                     e,
                     CheckError::AlgebraicLoop { cycle: Vec::new() },
@@ -2146,7 +2181,10 @@ impl ModelChecker<'_> {
         }
     }
 
-    fn settings<'s>(&mut self, overrides: &'s [Override]) -> (SimSettings, u64, Option<bool>) {
+    fn settings<'s>(
+        &mut self,
+        overrides: &'s [Override],
+    ) -> (SimSettings, SolverKeys, u64, Option<bool>) {
         let mut s = SimSettings::default();
         let mut seed = 0u64;
         let mut jit = None;
@@ -2290,13 +2328,16 @@ impl ModelChecker<'_> {
                             }
                             "zeno_window" => bad(
                                 self,
-                                format!("{x} is not a whole number in 2..={}", u32::MAX),
+                                format!("{} is not a whole number in 2..={}", Num(x), u32::MAX),
                             ),
-                            "max_total_jumps" => bad(self, format!("{x} is not an integer ≥ 1")),
-                            "T" | "J" | "rtol" | "atol" | "h" | "dt_out" | "seed" | "max_step"
-                            | "event_tol" | "set_tol" | "zeno_rate" => {
-                                bad(self, format!("{x} is out of range: {}", sim_range(canon)))
+                            "max_total_jumps" => {
+                                bad(self, format!("{} is not an integer ≥ 1", Num(x)))
                             }
+                            "T" | "J" | "rtol" | "atol" | "h" | "dt_out" | "seed" | "max_step"
+                            | "event_tol" | "set_tol" | "zeno_rate" => bad(
+                                self,
+                                format!("{} is out of range: {}", Num(x), sim_range(canon)),
+                            ),
                             // The keys above are every numeric one.
                             _ => self.c.err(CheckError::UnknownSetting {
                                 name: key.clone(),
@@ -2319,6 +2360,7 @@ impl ModelChecker<'_> {
             Solver::Dopri5 { rtol, atol } | Solver::Dop853 { rtol, atol } => (rtol, atol),
             _ => (1e-6, 1e-9),
         };
+        let keys = SolverKeys { rtol, atol, h };
         let (rtol, atol) = (rtol.unwrap_or(r0), atol.unwrap_or(a0));
         s.solver = match name.as_str() {
             "dopri5" => Solver::Dopri5 { rtol, atol },
@@ -2352,7 +2394,7 @@ impl ModelChecker<'_> {
             self.locate_in_override(before_solver, o, true);
         }
         self.whole_settings(&s, &values);
-        (s, seed, jit)
+        (s, keys, seed, jit)
     }
 
     /// The checks of the settings as a whole, located at the value of the key involved: the

@@ -264,7 +264,11 @@ pub enum PriorityKind {
 }
 
 /// The solver after the command-line flags, or what to change.
-fn solver_from_flags(current: Solver, args: &RunArgs) -> Result<Solver, String> {
+fn solver_from_flags(
+    current: Solver,
+    keys: hybsim::check::SolverKeys,
+    args: &RunArgs,
+) -> Result<Solver, String> {
     let kind = args.solver.unwrap_or(match current {
         Solver::Dopri5 { .. } => SolverKind::Dopri5,
         Solver::Dop853 { .. } => SolverKind::Dop853,
@@ -274,11 +278,17 @@ fn solver_from_flags(current: Solver, args: &RunArgs) -> Result<Solver, String> 
         Solver::Rk4 { .. } => SolverKind::Rk4,
         Solver::EulerMaruyama { .. } => SolverKind::EulerMaruyama,
     });
+    // The current solver's keys, else those the model's `sim` block gave for another kind
+    // (`h = 0.01` beside `solver = dopri5` is the step of `--solver rk4`).
     let (rtol0, atol0, h0) = match current {
-        Solver::Rk4 { h } | Solver::EulerMaruyama { h } => (1e-6, 1e-9, Some(h)),
+        Solver::Rk4 { h } | Solver::EulerMaruyama { h } => (
+            keys.rtol.unwrap_or(1e-6),
+            keys.atol.unwrap_or(1e-9),
+            Some(h),
+        ),
         adaptive => {
             let (rtol, atol) = adaptive.tolerances().expect("an adaptive solver");
-            (rtol, atol, None)
+            (rtol, atol, keys.h)
         }
     };
     match kind {
@@ -382,7 +392,7 @@ pub fn settings_from_flags(
             ExactAffineKind::Off => ExactAffine::Off,
         });
     }
-    let solver = solver_from_flags(settings.solver, args)?;
+    let solver = solver_from_flags(settings.solver, model.solver_keys(), args)?;
     let settings = settings.solver(solver);
     settings.validate_for(model).map_err(|e| match e {
         SimError::NoiseNeedsEulerMaruyama { .. } => format!(
@@ -394,7 +404,12 @@ pub fn settings_from_flags(
     })?;
     // `--solver`/`--step` change the fixed step after the check: held to its limits.
     if let Some((key, why)) = model.over_limit(&settings) {
-        let flag = if key == "h" { "--step" } else { key };
+        // A step too small that the model's `h` gave comes with `--solver`.
+        let flag = match key {
+            "h" if args.step.is_none() => "--solver",
+            "h" => "--step",
+            key => key,
+        };
         return Err(format!("`{flag}`: {why}"));
     }
     Ok(settings)
@@ -741,14 +756,15 @@ pub fn summary_line(model: &str, report: &Report, rule_names: &[String], note: &
         Some(at) => format!("(t = {}, j = {})", hybsim::num::Num(at.t), at.j),
         None => "(no sample)".to_string(),
     };
-    let jumps: Vec<String> = report
+    let fired: Vec<(String, u64)> = report
         .tally
         .jumps
         .iter()
         .enumerate()
         .filter(|(_, n)| **n > 0)
-        .map(|(k, n)| format!("{} {n}", rule_name(rule_names, k)))
+        .map(|(k, &n)| (rule_name(rule_names, k), n))
         .collect();
+    let jumps = jump_counts(&fired);
     let jumps = if jumps.is_empty() {
         "none".to_string()
     } else {
@@ -765,6 +781,40 @@ pub fn summary_line(model: &str, report: &Report, rule_names: &[String], note: &
         line.push_str(&format!("\n  metric {name} = {}", hybsim::num::Num(*value)));
     }
     line
+}
+
+/// Members of one rule family the summary line lists one by one at most;
+/// more are summed (10⁴ agents' rules made a line of 200 kB).
+const LISTED_MEMBERS: usize = 8;
+
+/// The summary's jump counts: `rule n` per rule that fired, except that
+/// the members of a family (`fire[1]`, `fire[2]`, … next to each other)
+/// that fired, when more than [`LISTED_MEMBERS`], are one entry with their
+/// total, `fire[…] 50000 (10000 rules)`; `--json` keeps every rule.
+fn jump_counts(fired: &[(String, u64)]) -> Vec<String> {
+    // The family of a member: its name without the last index (`a.update[3]` → `a.update`).
+    let family = |name: &str| -> Option<String> {
+        let open = name.rfind('[')?;
+        name.ends_with(']').then(|| name[..open].to_string())
+    };
+    let mut out = Vec::new();
+    let mut k = 0;
+    while k < fired.len() {
+        let fam = family(&fired[k].0);
+        let run = fired[k..]
+            .iter()
+            .take_while(|(name, _)| fam.is_some() && family(name) == fam)
+            .count();
+        if let Some(fam) = fam.filter(|_| run > LISTED_MEMBERS) {
+            let total: u64 = fired[k..k + run].iter().map(|(_, n)| n).sum();
+            out.push(format!("{fam}[…] {total} ({run} rules)"));
+            k += run;
+        } else {
+            out.push(format!("{} {}", fired[k].0, fired[k].1));
+            k += 1;
+        }
+    }
+    out
 }
 
 /// `; solver auto: …` for the summary line: the method throughout, or the

@@ -345,18 +345,19 @@ impl Tableau for Dop853Tableau {
         f(s_new, ys, k12);
         // The order-8 solution, and the two error estimates scaled by
         // the tolerances (Hairer's combination below).
-        let (mut err5, mut err3) = (0.0, 0.0);
-        for i in 0..n {
-            let incr = B1 * k1[i]
+        let incr = |i: usize| {
+            B1 * k1[i]
                 + B6 * k6[i]
                 + B7 * k7[i]
                 + B8 * k8[i]
                 + B9 * k9[i]
                 + B10 * k10[i]
                 + B11 * k11[i]
-                + B12 * k12[i];
-            yn[i] = y[i] + h * incr;
-            let sk = atol + rtol * y[i].abs().max(yn[i].abs());
+                + B12 * k12[i]
+        };
+        // Component i's two error estimates over its tolerance (order 3, order 5).
+        let ratios = |i: usize, incr: f64, yn: f64| {
+            let sk = atol + rtol * y[i].abs().max(yn.abs());
             let e3 = incr - BHH1 * k1[i] - BHH2 * k9[i] - BHH3 * k12[i];
             let e5 = ER1 * k1[i]
                 + ER6 * k6[i]
@@ -366,12 +367,36 @@ impl Tableau for Dop853Tableau {
                 + ER10 * k10[i]
                 + ER11 * k11[i]
                 + ER12 * k12[i];
-            err3 += (e3 / sk) * (e3 / sk);
-            err5 += (e5 / sk) * (e5 / sk);
+            (e3 / sk, e5 / sk)
+        };
+        let (mut err5, mut err3) = (0.0, 0.0);
+        for i in 0..n {
+            let incr = incr(i);
+            yn[i] = y[i] + h * incr;
+            let (r3, r5) = ratios(i, incr, yn[i]);
+            err3 += r3 * r3;
+            err5 += r5 * r5;
         }
         // err5·h·√(err5 / (err5 + 0.01·err3)) per component: the
         // order-5 estimate, kept from overestimating where the order-3
         // one is small.
+        if !(err5.is_finite() && err3.is_finite()) {
+            // A tolerance far below the stages' rounding (`atol = 1e-300` on a state at 0)
+            // overflows the sums of squares (the norm came out NaN and every step was
+            // rejected): the same norm with the largest ratio m factored out,
+            // h·m·A/√((A + 0.01·B)·n) with the sums A, B of the squared ratios over m.
+            let m = (0..n).fold(0.0f64, |m, i| {
+                let (r3, r5) = ratios(i, incr(i), yn[i]);
+                m.max(r3.abs()).max(r5.abs())
+            });
+            let (mut a, mut b) = (0.0, 0.0);
+            for (i, &yn_i) in yn.iter().enumerate() {
+                let (r3, r5) = ratios(i, incr(i), yn_i);
+                a += (r5 / m) * (r5 / m);
+                b += (r3 / m) * (r3 / m);
+            }
+            return h * m * a / ((a + 0.01 * b) * n as f64).sqrt();
+        }
         let deno = err5 + 0.01 * err3;
         let deno = if deno > 0.0 { deno } else { 1.0 };
         h * err5 * (1.0 / (deno * n as f64)).sqrt()

@@ -106,11 +106,32 @@ pub(crate) fn initial_step(
         dnf += (f0[i] / sk(i)).powi(2);
         dny += (yi / sk(i)).powi(2);
     }
-    let h = if dnf <= 1e-10 || dny <= 1e-10 {
+    // A tolerance far below the rates (`atol = 1e-300` on a state that
+    // starts at 0) overflows the sums of squares: the estimate from the
+    // norms themselves instead (the sums gave a zero or NaN step, a
+    // collapse at t = 0 or a run of NaN steps).
+    let overflow = !(dnf.is_finite() && dny.is_finite());
+    let (dnf, dny) = if overflow {
+        (
+            norm_over(y.len(), |i| f0[i] / sk(i)),
+            norm_over(y.len(), |i| y[i] / sk(i)),
+        )
+    } else {
+        (dnf, dny)
+    };
+    let h = if overflow {
+        if dnf <= 1e-5 || dny <= 1e-5 {
+            1e-6
+        } else {
+            dny / dnf * 0.01
+        }
+    } else if dnf <= 1e-10 || dny <= 1e-10 {
         1e-6
     } else {
         (dny / dnf).sqrt() * 0.01
     };
+    // Ratios of norms that far apart (below the subnormals) leave no step.
+    let h = if h > 0.0 { h } else { f64::MIN_POSITIVE };
     for (i, yi) in y.iter().enumerate() {
         y1[i] = yi + h * f0[i];
     }
@@ -119,14 +140,35 @@ pub(crate) fn initial_step(
     for i in 0..y.len() {
         der2 += ((f1[i] - f0[i]) / sk(i)).powi(2);
     }
-    let der2 = der2.sqrt() / h;
-    let der12 = der2.abs().max((dnf / n).sqrt());
+    let der2 = if der2.is_finite() {
+        der2.sqrt() / h
+    } else {
+        norm_over(y.len(), |i| (f1[i] - f0[i]) / sk(i)) / h
+    };
+    let rate = if overflow {
+        dnf / n.sqrt()
+    } else {
+        (dnf / n).sqrt()
+    };
+    let der12 = der2.abs().max(rate);
     let h1 = if der12 <= 1e-15 {
         (h * 1e-3).max(1e-6)
     } else {
         (0.01 / der12).powf(1.0 / f64::from(order))
     };
-    (100.0 * h).min(h1)
+    let h = (100.0 * h).min(h1);
+    // A rate that is itself infinite: the stepper's first attempt finds it.
+    if h > 0.0 && h.is_finite() { h } else { 1e-6 }
+}
+
+/// The Euclidean norm of `v(0), …, v(n − 1)` without overflow of its
+/// squares (scaled by the largest magnitude).
+fn norm_over(n: usize, v: impl Fn(usize) -> f64) -> f64 {
+    let m = (0..n).fold(0.0f64, |m, i| m.max(v(i).abs()));
+    if m == 0.0 || !m.is_finite() {
+        return m;
+    }
+    m * (0..n).map(|i| (v(i) / m).powi(2)).sum::<f64>().sqrt()
 }
 
 /// Why a step attempt failed for good.

@@ -4,6 +4,7 @@
 
 use super::error::SimError;
 use super::system::HybridSystem;
+use crate::num::Num;
 
 /// The step of the fixed-step solvers (`rk4`, `euler_maruyama`) when the
 /// model's `sim` block or the command line chooses one without giving `h`.
@@ -485,7 +486,7 @@ impl SimSettings {
         if !positive(self.horizon_t) {
             return bad(
                 "horizon_t",
-                format!("must be finite and > 0, got {}", self.horizon_t),
+                format!("must be finite and > 0, got {}", Num(self.horizon_t)),
             );
         }
         match self.solver {
@@ -495,39 +496,50 @@ impl SimSettings {
             | Solver::Bdf { rtol, atol }
             | Solver::Auto { rtol, atol } => {
                 if !positive(rtol) {
-                    return bad("solver.rtol", format!("must be finite and > 0, got {rtol}"));
+                    return bad(
+                        "solver.rtol",
+                        format!("must be finite and > 0, got {}", Num(rtol)),
+                    );
                 }
-                if !(atol.is_finite() && atol >= 0.0) {
-                    return bad("solver.atol", format!("must be finite and ≥ 0, got {atol}"));
+                // A zero atol is a pure relative tolerance, which no step meets on a state
+                // that is 0 (the initial step came out NaN, the run went on with NaN steps).
+                if !positive(atol) {
+                    return bad(
+                        "solver.atol",
+                        format!("must be finite and > 0, got {}", Num(atol)),
+                    );
                 }
             }
             Solver::Rk4 { h } | Solver::EulerMaruyama { h } => {
                 if !positive(h) {
-                    return bad("solver.h", format!("must be finite and > 0, got {h}"));
+                    return bad(
+                        "solver.h",
+                        format!("must be finite and > 0, got {}", Num(h)),
+                    );
                 }
             }
         }
         if let Some(dt) = self.dt_out
             && !positive(dt)
         {
-            return bad("dt_out", format!("must be finite and > 0, got {dt}"));
+            return bad("dt_out", format!("must be finite and > 0, got {}", Num(dt)));
         }
         if self.max_step.is_nan() || self.max_step <= 0.0 {
             return bad(
                 "max_step",
-                format!("must be > 0 (∞ for no limit), got {}", self.max_step),
+                format!("must be > 0 (∞ for no limit), got {}", Num(self.max_step)),
             );
         }
         if !(self.event_tol.is_finite() && (0.0..=1e-3).contains(&self.event_tol)) {
             return bad(
                 "event_tol",
-                format!("must be in [0, 1e-3], got {}", self.event_tol),
+                format!("must be in [0, 1e-3], got {}", Num(self.event_tol)),
             );
         }
         if !(self.set_tol.is_finite() && self.set_tol >= 0.0) {
             return bad(
                 "set_tol",
-                format!("must be finite and ≥ 0, got {}", self.set_tol),
+                format!("must be finite and ≥ 0, got {}", Num(self.set_tol)),
             );
         }
         if self.guard_checks > 64 {
@@ -539,7 +551,10 @@ impl SimSettings {
         if self.zeno_max_rate.is_nan() || self.zeno_max_rate <= 0.0 {
             return bad(
                 "zeno_max_rate",
-                format!("must be > 0 (∞ to disable), got {}", self.zeno_max_rate),
+                format!(
+                    "must be > 0 (∞ to disable), got {}",
+                    Num(self.zeno_max_rate)
+                ),
             );
         }
         if self.zeno_window < 2 {

@@ -717,7 +717,14 @@ impl SimRng {
     /// A uniform draw from `[lo, hi]`.
     pub fn uniform(&mut self, lo: f64, hi: f64) -> f64 {
         let u = (self.0.next_u64() >> 11) as f64 * (1.0 / (1u64 << 53) as f64);
-        lo + (hi - lo) * u
+        let span = hi - lo;
+        if span.is_finite() {
+            lo + span * u
+        } else {
+            // A range wider than the largest float (`uniform(-1e308, 1e308)`):
+            // its span overflows, the weighted mean of the ends does not.
+            lo * (1.0 - u) + hi * u
+        }
     }
 
     /// A standard normal draw.

@@ -41,6 +41,7 @@ use crate::engine::{
     SetRef, SimError, SimRng, SimSettings, SparsityPattern, finite_difference_jacobian,
 };
 use crate::layout::{Declared, Layout, Shape};
+use crate::num::Num;
 use crate::source::{SourceFile, SourceMap, Span};
 use interval::{Interval, IntervalRegs};
 pub use outputs::OutputSubset;
@@ -435,6 +436,8 @@ pub struct CompiledModel {
     /// The files read by `table("…")`.
     tables: Vec<crate::tables::TableFile>,
     settings: SimSettings,
+    /// The `sim` block's solver keys as given (for a solver chosen later).
+    solver_keys: crate::check::SolverKeys,
     /// The resource limits the model was checked with.
     limits: crate::check::limits::Limits,
     seed: u64,
@@ -795,6 +798,7 @@ impl CompiledModel {
             block_spans: m.block_spans,
             tables: m.tables,
             settings: m.settings,
+            solver_keys: m.solver_keys,
             limits: m.limits,
             seed: m.seed,
             params: m.params,
@@ -906,6 +910,14 @@ impl CompiledModel {
     /// Simulation settings from the `sim` block after overrides.
     pub fn settings(&self) -> SimSettings {
         self.settings.clone()
+    }
+
+    /// The `sim` block's `rtol`, `atol` and `h` as given (after overrides),
+    /// also those its solver does not use: a solver chosen after the check
+    /// (`--solver rk4`, Python's `solver="rk4"`) takes the model's step, or
+    /// its tolerances, before the defaults.
+    pub fn solver_keys(&self) -> crate::check::SolverKeys {
+        self.solver_keys
     }
 
     /// `settings` changed after the check (run flags, Python keywords) held to the limits the
@@ -1345,7 +1357,10 @@ impl CompiledModel {
             .find(|(first, _)| *first <= k);
         match span {
             Some(&(_, span)) => d
-                .primary(span, format!("not finite at (t, j) = ({}, {})", at.t, at.j))
+                .primary(
+                    span,
+                    format!("not finite at (t, j) = ({}, {})", Num(at.t), at.j),
+                )
                 .locate(&self.imports),
             None => d,
         }
@@ -1366,7 +1381,7 @@ impl CompiledModel {
             if let Some(&span) = self.block_spans.get(*site) {
                 d = d.primary(
                     span,
-                    format!("evaluated here at (t, j) = ({}, {})", at.t, at.j),
+                    format!("evaluated here at (t, j) = ({}, {})", Num(at.t), at.j),
                 );
             }
             return d;
@@ -1400,7 +1415,8 @@ impl CompiledModel {
             };
             let label = format!(
                 "this {what} made `{name}` non-finite in the jump at (t, j) = ({}, {})",
-                at.t, at.j
+                Num(at.t),
+                at.j
             );
             d = if d.labels.is_empty() {
                 d.primary(span, label)
@@ -1428,7 +1444,7 @@ impl CompiledModel {
             _ => None,
         };
         if let Some((component, how, at, name)) = located {
-            let label = format!("`{name}` {how} here at (t, j) = ({}, {})", at.t, at.j);
+            let label = format!("`{name}` {how} here at (t, j) = ({}, {})", Num(at.t), at.j);
             let span = self
                 .flow_span(*component)
                 .or_else(|| self.field_of(*component).map(|f| f.span));
@@ -1443,7 +1459,7 @@ impl CompiledModel {
         if let SimError::NonFinite { component, at, .. } = err {
             d.code = "E0602";
             if let Some(span) = self.flow_span(*component) {
-                let label = format!("became non-finite at (t, j) = ({}, {})", at.t, at.j);
+                let label = format!("became non-finite at (t, j) = ({}, {})", Num(at.t), at.j);
                 d = if d.labels.is_empty() {
                     d.primary(span, label)
                 } else {

@@ -35,6 +35,14 @@ use super::runner::{Case, Dist, Subject, run_case};
 pub fn value(dist: Dist) -> BoxedStrategy<f64> {
     match dist {
         Dist::Fixed(v) => Just(v).boxed(),
+        // A range wider than the largest float (`uniform(-1e308, 1e308)`): proptest's range
+        // over it drew ±inf; its halves on either side of 0 each have a finite width, and are
+        // chosen in proportion to it.
+        Dist::Uniform { lo, hi } if lo < hi && !(hi - lo).is_finite() => {
+            let below = (0.5 * -lo / (0.5 * hi - 0.5 * lo) * 1000.0).round() as u32;
+            let below = below.clamp(1, 999);
+            prop_oneof![1000 - below => 0.0..=hi, below => lo..=0.0].boxed()
+        }
         Dist::Uniform { lo, hi } if lo < hi => (lo..=hi).boxed(),
         Dist::Uniform { lo, .. } => Just(lo).boxed(),
         Dist::Normal { mean, std } if std > 0.0 => {

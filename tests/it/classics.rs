@@ -430,3 +430,35 @@ sim { T = 10; rtol = 1e-12; atol = 1e-22; dt_out = 0.001 }
         }
     }
 }
+
+/// A tolerance far below the rates at the start: on the limit cycle
+/// r' = r(1 − r²), θ' = 1 from (1, 0) (x = cos t, y = sin t), `atol = 1e-300`
+/// made the sums of squares of Hairer's initial step estimate overflow
+/// where y = 0: the first step was 0 and Dopri5 and Dop853 stopped with a
+/// step-size collapse at t = 0. They now start with a tiny step and cross
+/// y = 0.5 at t = π/6 as at the default `atol`.
+#[test]
+fn a_tiny_absolute_tolerance_starts_the_explicit_solvers() {
+    let m = compile(
+        "model cycle
+state x = 1, y = 0, k = 0
+flow { x' = x*(1 - x^2 - y^2) - y; y' = y*(1 - x^2 - y^2) + x }
+jump half when y >= 0.5 && k == 0 { k+ = 1 }
+sim { T = 1 }
+",
+    );
+    let want = std::f64::consts::PI / 6.0;
+    for solver in ["dopri5", "dop853"] {
+        for atol in [1e-300, 1e-320] {
+            let s = m
+                .settings()
+                .solver(Solver::adaptive(solver, 1e-8, atol).unwrap());
+            let arc = run_with(&m, &s);
+            let jumps = arc.jumps();
+            assert_eq!(jumps.len(), 1, "{solver}, atol {atol:e}");
+            let dt = (jumps[0].at.t - want).abs();
+            assert!(dt < 1e-7, "{solver}, atol {atol:e}: off by {dt:e}");
+            assert_eq!(arc.last().unwrap().at.t, 1.0);
+        }
+    }
+}

@@ -800,6 +800,28 @@ const CASES: &[Case] = &[
         "3:11",
         "invalid `T`: -1 is out of range: the horizon T is a positive finite time",
     ),
+    // Values as written, not as 300 digits (`{x}` printed `0.000…01`).
+    case(
+        "tiny jump horizon",
+        "model m\nstate x = 0\nsim { J = 1e-300 }\n",
+        "E0506",
+        "3:11",
+        "invalid `J`: 1e-300 is out of range: the horizon J is a whole number of jumps ≥ 0, or inf (no bound)",
+    ),
+    case(
+        "huge Zeno window",
+        "model m\nstate x = 0\nsim { zeno_window = 1e300 }\n",
+        "E0506",
+        "3:21",
+        "invalid `zeno_window`: 1e300 is not a whole number in 2..=4294967295",
+    ),
+    case(
+        "tiny jump budget",
+        "model m\nstate x = 0\nsim { max_total_jumps = 1e-300 }\n",
+        "E0506",
+        "3:25",
+        "invalid `max_total_jumps`: 1e-300 is not an integer ≥ 1",
+    ),
     case(
         "if-expression as a jump condition",
         "model m\nstate x = 0\nflow { x' = 1 }\njump r when if x > 0 then 1 else 2   { x+ = 0 }\n",
@@ -1724,6 +1746,34 @@ fn an_index_error_in_a_loop_names_the_iteration_and_the_override_of_its_range() 
     assert!(text.contains("in the iteration with `k` = 1"), "{text}");
     assert!(text.contains("in the iteration with `i` = 3"), "{text}");
     assert!(!text.contains("range reads"), "{text}");
+}
+
+/// A family too large for its limit because of an override (`--set
+/// N=100000`) names the override its loop's range reads, at the loop (it
+/// pointed at the declaration alone, the note on `--set` missing); sized so
+/// by the model's own text it reads as before.
+#[test]
+fn a_family_over_its_limit_names_the_override_of_its_range() {
+    let src = SourceFile::new(
+        "m.hyb",
+        "model m\nparam N = 3\nfor i in 1..N {\n    state x[i] = 0\n}\nflow { for i in 1..N { x[i]' = 1 } }\n",
+    );
+    let d = diagnostics(&src, &["N=100000"]);
+    assert_eq!(d.len(), 1, "{d:#?}");
+    assert_eq!(d[0].code, "E0307");
+    assert_eq!(d[0].line_col(&src).unwrap().to_string(), "4:11");
+    let text = render(&d, &src, false);
+    for want in [
+        "100000 scalar states: over the limit of 20000",
+        "3 │ for i in 1..N {\n  │     --------- the range of this loop",
+        "= the loop's range reads `N`, set by `--set N=100000`",
+    ] {
+        assert!(text.contains(want), "missing {want:?} in\n{text}");
+    }
+    let src = SourceFile::new("m.hyb", "model m\nfor i in 1..100000 { state x[i] = 0 }\n");
+    let text = render(&diagnostics(&src, &[]), &src, false);
+    assert!(text.contains("100000 scalar states"), "{text}");
+    assert!(!text.contains("range"), "{text}");
 }
 
 /// A model whose states are all in families sized 0 by an override says

@@ -509,6 +509,15 @@ mod semantics {
                 }),
                 "solver.rtol",
             ),
+            // A pure relative tolerance: no step meets it on a state that is 0 (Dopri5's first
+            // step came out NaN and the run went on with NaN steps).
+            (
+                SimSettings::default().solver(Solver::Dopri5 {
+                    rtol: 1e-6,
+                    atol: 0.0,
+                }),
+                "solver.atol",
+            ),
             (
                 SimSettings::default().solver(Solver::Rk4 { h: -1.0 }),
                 "solver.h",

@@ -191,6 +191,47 @@ fn held_noise_is_constant_between_redraws_and_has_its_distribution() {
     );
 }
 
+/// `uniform(lo, hi)` over a range wider than the largest float (`hi − lo`
+/// overflows) draws finite values inside it, in an initial value and in a
+/// reset (machine code and interpreter alike); it drew ±inf or NaN, a
+/// run-time error at the flow equation. Ordinary ranges draw as before.
+#[test]
+fn uniform_draws_over_the_widest_ranges_are_finite() {
+    let m = compile(
+        "model wide
+         state x ~ uniform(-1e308, 1.5e308), y = 0, s = 0
+         flow { s' = 1 }
+         jump r when s >= 1 { s+ = 0; y+ = uniform(-1.7e308, 1.7e308) }
+         sim { T = 400.5 }",
+    );
+    for seed in 0..50 {
+        let (x0, _) = m.start(seed);
+        assert!(
+            x0[0].is_finite() && (-1e308..=1.5e308).contains(&x0[0]),
+            "{x0:?}"
+        );
+    }
+    let (x0, mut rng) = m.start(1);
+    let arc = simulate_arc(&m, &x0, &m.settings(), &mut rng).expect("finite draws");
+    let ys: Vec<f64> = arc.jumps().iter().map(|r| r.post[1]).collect();
+    assert_eq!(ys.len(), 400);
+    assert!(ys.iter().all(|y| y.is_finite() && y.abs() <= 1.7e308));
+    // Both signs, spread over the range.
+    let positive = ys.iter().filter(|y| **y > 0.0).count();
+    assert!(
+        (150..=250).contains(&positive),
+        "{positive} of 400 positive"
+    );
+    assert!(ys.iter().any(|y| y.abs() > 1e307));
+    // A range whose span is finite: the draws are the ones they were.
+    let mut a = SimRng::seed_from(9);
+    let mut b = SimRng::seed_from(9);
+    for _ in 0..100 {
+        let u = b.uniform(0.0, 1.0);
+        assert_eq!(a.uniform(-3.0, 5.0), -3.0 + 8.0 * u);
+    }
+}
+
 #[test]
 fn white_noise_enters_linearly_with_state_dependent_coefficients() {
     let m = compile(

@@ -280,3 +280,26 @@ fn the_counterexample_does_not_depend_on_the_number_of_threads() {
     };
     assert_eq!(with(1), with(3));
 }
+
+/// A uniform input over a range wider than the largest float
+/// (`uniform(-1e308, 1e308)`): proptest's float range over it drew ±inf,
+/// a case that could not run; both halves of the range are searched.
+#[test]
+fn strategy_values_over_the_widest_uniform_range_are_finite() {
+    use proptest::strategy::ValueTree;
+    let strategy = strategy::value(Dist::Uniform {
+        lo: -1e308,
+        hi: 1.5e308,
+    });
+    let mut runner = proptest::test_runner::TestRunner::deterministic();
+    let values: Vec<f64> = (0..400)
+        .map(|_| strategy.new_tree(&mut runner).unwrap().current())
+        .collect();
+    assert!(
+        values.iter().all(|v| (-1e308..=1.5e308).contains(v)),
+        "{values:?}"
+    );
+    let below = values.iter().filter(|v| **v < 0.0).count();
+    // 40 % of the range is below 0.
+    assert!((110..=210).contains(&below), "{below} of 400 below 0");
+}

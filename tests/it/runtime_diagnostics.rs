@@ -71,6 +71,26 @@ fn a_step_size_collapse_names_the_flow_equation_of_the_fastest_state() {
     );
 }
 
+/// The hybrid time in a run-time label is written as in the message (`Num`:
+/// `1e-150`), not as 150 digits (`0.000…01`), whatever the error:
+/// `y' = y²` from 1e150 blows up at t = 1e-150.
+#[test]
+fn a_run_time_label_writes_a_tiny_time_compactly() {
+    let (err, d, src) = fail("tiny.hyb", &BLOW.replace("y = 1\n", "y = 1e150\n"));
+    let at = match err {
+        SimError::StepSizeCollapse { at, .. } | SimError::NonFinite { at, .. } => at,
+        e => panic!("expected a collapse or a non-finite state, got {e:?}"),
+    };
+    assert!(at.t > 0.0 && at.t < 1e-149, "{at}");
+    let label = &d.labels[0].message;
+    assert!(
+        label.contains("(t, j) = (") && label.contains("e-15"),
+        "{label}"
+    );
+    let text = hybsim::diagnostics::render(&[d], &src, false);
+    assert!(!text.contains("0.0000000000"), "{text}");
+}
+
 /// A reset that computes NaN is reported at its assignment (the rule's head a secondary
 /// label), at the hybrid time of the jump attempted: (1, 0), where the run ends, as the
 /// summary says (the post-jump point (1, 1) is not part of the solution).
