@@ -432,10 +432,16 @@ pub fn simulate<S: HybridSystem + ?Sized>(
                     let part = |r: usize| rules[r].part;
                     match settings.jump_choice {
                         JumpChoice::First => {
+                            // A timer set is its comparison (a group of N
+                            // clocks asked N compiled sets at each jump).
+                            let member_holds = |r: usize| match timer_sets.as_ref() {
+                                Some(sets) => sets.holds(r, &x),
+                                None => sys.jump_set(r, at, &x),
+                            };
                             firing.extend(members.iter().copied().filter(|&r| {
                                 r == rule
                                     || (part(r).is_none_or(|p| Some(p) != part(rule))
-                                        && (sys.jump_set(r, at, &x)
+                                        && (member_holds(r)
                                             || (after_event && flows.watcher.reached_at_event(r))))
                             }));
                             let mut taken: Vec<usize> = Vec::new();
