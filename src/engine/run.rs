@@ -200,6 +200,22 @@ impl TimerSets {
     }
 }
 
+/// Whether rule `r`'s jump set holds `x` at `at`: with `timer_sets` its
+/// comparison (a group of N clocks would otherwise evaluate N compiled sets
+/// at each jump), else the system's evaluation.
+fn jump_set_holds<S: HybridSystem + ?Sized>(
+    sys: &S,
+    timer_sets: Option<&TimerSets>,
+    r: usize,
+    at: HybridTime,
+    x: &[f64],
+) -> bool {
+    match timer_sets {
+        Some(sets) => sets.holds(r, x),
+        None => sys.jump_set(r, at, x),
+    }
+}
+
 /// The members of each group of simultaneous rules, in declaration order.
 struct Groups {
     /// (group label, members), sorted by label.
@@ -384,10 +400,7 @@ pub fn simulate<S: HybridSystem + ?Sized>(
                 r == first
                     || Some(r) == was_pending
                     || (after_event && flows.watcher.reached_at_event(r))
-                    || match timer_sets.as_ref() {
-                        Some(sets) => sets.holds(r, &x),
-                        None => sys.jump_set(r, at, &x),
-                    }
+                    || jump_set_holds(sys, timer_sets.as_ref(), r, at, &x)
             };
             let rule = match settings.jump_choice {
                 JumpChoice::First => first,
@@ -432,16 +445,10 @@ pub fn simulate<S: HybridSystem + ?Sized>(
                     let part = |r: usize| rules[r].part;
                     match settings.jump_choice {
                         JumpChoice::First => {
-                            // A timer set is its comparison (a group of N
-                            // clocks asked N compiled sets at each jump).
-                            let member_holds = |r: usize| match timer_sets.as_ref() {
-                                Some(sets) => sets.holds(r, &x),
-                                None => sys.jump_set(r, at, &x),
-                            };
                             firing.extend(members.iter().copied().filter(|&r| {
                                 r == rule
                                     || (part(r).is_none_or(|p| Some(p) != part(rule))
-                                        && (member_holds(r)
+                                        && (jump_set_holds(sys, timer_sets.as_ref(), r, at, &x)
                                             || (after_event && flows.watcher.reached_at_event(r))))
                             }));
                             let mut taken: Vec<usize> = Vec::new();
@@ -632,10 +639,7 @@ fn first_enabled<S: HybridSystem + ?Sized>(
     watcher: &mut Watcher,
     timer_sets: Option<&TimerSets>,
 ) -> Option<usize> {
-    let holds = |r: usize| match timer_sets {
-        Some(sets) => sets.holds(r, x),
-        None => sys.jump_set(r, at, x),
-    };
+    let holds = |r: usize| jump_set_holds(sys, timer_sets, r, at, x);
     if let Some(p) = pending {
         return (0..p).find(|&r| holds(r)).or(Some(p));
     }
