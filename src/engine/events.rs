@@ -568,7 +568,16 @@ const SPLIT_BUDGET: u32 = 256;
 /// as many zeros in `[a, b]` as the points change sign (Descartes' rule in
 /// Bernstein form): points all of `sign` leave no change, one change of
 /// sign exactly one zero if the end has the other sign and none if not.
-/// `Err` when `budget` pieces did not settle it.
+///
+/// A piece whose points have no sure other sign but come within `tol` of
+/// it cannot have it beyond `tol` anywhere (every piece of it has its
+/// points in their hull), nor can the last piece be told apart: the
+/// polynomial cannot decide whether the flow grazes zero there, so if
+/// some point has the other sign the piece's point nearest it goes
+/// into `probes` (`[a, b]`'s own variable), where the system's value
+/// decides (at most [`MAX_CHANGES`]). A search whose every point is
+/// within `tol` of zero from the start (the atom hugs zero) is left to the
+/// step's checkpoints. `Err` when `budget` pieces did not settle it.
 fn first_other_sign(
     p: &[f64],
     sign: f64,
@@ -576,6 +585,7 @@ fn first_other_sign(
     (a, b): (f64, f64),
     depth: u32,
     budget: &mut u32,
+    probes: &mut Vec<f64>,
 ) -> Result<Option<f64>, ()> {
     *budget = budget.checked_sub(1).ok_or(())?;
     let class = |v: f64| {
@@ -591,12 +601,13 @@ fn first_other_sign(
     // before it the polynomial keeps its sign or changes it by no more
     // than the tolerance.
     let end = class(p[p.len() - 1]);
-    let (mut changes, mut unsure, mut before) = (0, false, 1);
+    let (mut changes, mut unsure, mut sure, mut before) = (0, false, false, 1);
     for (i, &v) in p.iter().enumerate() {
         match class(v) {
             0 if i + 1 == p.len() => {}
             0 => unsure = true,
             c => {
+                sure = true;
                 changes += usize::from(c != before);
                 before = c;
             }
@@ -605,16 +616,61 @@ fn first_other_sign(
     if changes == 0 && !unsure {
         return Ok(None);
     }
-    if (changes == 1 && !unsure) || depth == 0 {
+    if changes == 0 || depth == 0 {
+        if changes == 0 && !sure && depth == SPLIT_DEPTH {
+            return Err(());
+        }
+        let interior = &p[1..p.len().max(2) - 1];
+        if end != -1 && interior.iter().any(|&v| v * sign < 0.0) {
+            if probes.len() == MAX_CHANGES {
+                return Err(());
+            }
+            probes.push(a + (b - a) * nearest_other_sign(p, sign));
+        }
         return Ok((end == -1).then_some(b));
+    }
+    // One change to a sure other sign at the end: the zero is inside.
+    // With the end within `tol` of zero the other sign may not be sure
+    // anywhere (its points hold the polynomial only in their hull): the
+    // halves decide. That end is a checkpoint only at the step's end.
+    if changes == 1 && !unsure && end == -1 {
+        return Ok(Some(b));
     }
     let n = p.len();
     let (left, right) = split(p, 0.5);
     let m = 0.5 * (a + b);
-    match first_other_sign(&left[..n], sign, tol, (a, m), depth - 1, budget)? {
+    match first_other_sign(&left[..n], sign, tol, (a, m), depth - 1, budget, probes)? {
         Some(t) => Ok(Some(t)),
-        None => first_other_sign(&right[..n], sign, tol, (m, b), depth - 1, budget),
+        None => first_other_sign(&right[..n], sign, tol, (m, b), depth - 1, budget, probes),
     }
+}
+
+/// Where on `[0, 1]` the polynomial with Bernstein points `p` (at least
+/// three) goes furthest toward the sign `−sign`: from its interior point
+/// furthest that way, Newton's steps to the zero of the derivative while
+/// the polynomial is concave that way.
+fn nearest_other_sign(p: &[f64], sign: f64) -> f64 {
+    let n = p.len();
+    let interior = p[1..n - 1].iter().map(|&v| -sign * v);
+    let (i, _) = interior
+        .enumerate()
+        .fold((0, f64::NEG_INFINITY), |best, (i, v)| {
+            if v > best.1 { (i, v) } else { best }
+        });
+    let mut u = (i + 1) as f64 / (n - 1) as f64;
+    let a = bernstein_to_powers(p);
+    for _ in 0..8 {
+        let (_, dv, hv) = powers_at(&a[..n], u);
+        if -sign * hv >= 0.0 || hv.is_nan() {
+            break;
+        }
+        let next = (u - dv / (2.0 * hv)).clamp(0.0, 1.0);
+        if next == u {
+            break;
+        }
+        u = next;
+    }
+    u
 }
 
 /// Where the polynomial with Bernstein control points `p` on `[0, 1]`
@@ -943,6 +999,9 @@ pub(crate) struct Watcher {
     extra: Vec<f64>,
     /// Those of atoms that change sign more than once on the step.
     extra_many: Vec<f64>,
+    /// Where an affine atom's polynomial may graze zero, in the step's
+    /// variable ([`first_other_sign`]).
+    probes: Vec<f64>,
     /// How many of C's atoms are relaxed (most of the time none, and
     /// [`Watcher::settle_relaxed`] has nothing to do).
     relaxed: usize,
@@ -1195,8 +1254,8 @@ impl Watcher {
         let set_count = sets.len();
         // Room for a step's checkpoints from the start (a run's first steps
         // would otherwise grow these): the early ones, the evenly spaced
-        // ones, each watched atom's first sure sign and changes, the timers.
-        let extra_room = watched.len() * (MAX_CHANGES + 1);
+        // ones, each watched atom's first sure sign, changes and probes, the timers.
+        let extra_room = watched.len() * (2 * MAX_CHANGES + 1);
         let points_room =
             EARLY.len() + settings.guard_checks as usize + extra_room + timers.len() + 1;
         Self {
@@ -1227,6 +1286,7 @@ impl Watcher {
             points: Vec::with_capacity(points_room),
             extra: Vec::with_capacity(extra_room),
             extra_many: Vec::with_capacity(extra_room),
+            probes: Vec::with_capacity(MAX_CHANGES),
             relaxed: 0,
             checks: settings.guard_checks as usize,
             event_tol: settings.event_tol,
@@ -2076,13 +2136,23 @@ impl Watcher {
                 g
             };
             let first = self.extra.len();
+            self.probes.clear();
             for _ in 0..MAX_CHANGES {
                 if from >= 1.0 {
                     settled = true;
                     break;
                 }
-                match first_other_sign(&rest[..n], sign, tol, (from, 1.0), SPLIT_DEPTH, &mut budget)
-                {
+                let range = (from, 1.0);
+                let probes = &mut self.probes;
+                match first_other_sign(
+                    &rest[..n],
+                    sign,
+                    tol,
+                    range,
+                    SPLIT_DEPTH,
+                    &mut budget,
+                    probes,
+                ) {
                     Ok(Some(tau)) if tau < 1.0 => {
                         self.extra.push(s0 + tau * (s1 - s0));
                         (from, sign, rest) = (tau, -sign, split_right(&g[..n], tau));
@@ -2097,9 +2167,15 @@ impl Watcher {
             self.step[w].changes_from = Some((start.0, start.1, settled));
             // Not settled: the checkpoints watch this atom too.
             all &= settled;
+            // Where the polynomial cannot tell a graze from none, the
+            // system's value decides.
+            let changes = self.extra.len() - first;
+            let inside = self.probes.iter().filter(|&&u| u > 0.0 && u < 1.0);
+            self.extra.extend(inside.map(|&u| s0 + u * (s1 - s0)));
             // A single change stays visible at every later checkpoint; only
-            // changes that come back can hide between them.
-            if self.extra.len() - first >= 2 {
+            // changes that come back (a graze among them) can hide between
+            // them.
+            if changes >= 2 || self.extra.len() > first + changes {
                 self.extra_many.extend_from_slice(&self.extra[first..]);
             }
         }
@@ -3133,7 +3209,15 @@ pub(crate) mod tests {
     fn the_first_change_of_sign_is_found_and_the_search_ends() {
         let search = |p: &[f64], sign: f64, tol: f64| {
             let mut budget = SPLIT_BUDGET;
-            first_other_sign(p, sign, tol, (0.0, 1.0), SPLIT_DEPTH, &mut budget)
+            first_other_sign(
+                p,
+                sign,
+                tol,
+                (0.0, 1.0),
+                SPLIT_DEPTH,
+                &mut budget,
+                &mut vec![],
+            )
         };
         // (1 − 2τ)² + 0.01 in Bernstein form (degree 2): 1.01, −0.99, 1.01.
         assert_eq!(search(&[1.01, -0.99, 1.01], 1.0, 1e-12), Ok(None));
@@ -3151,6 +3235,7 @@ pub(crate) mod tests {
             (tau, 1.0),
             SPLIT_DEPTH,
             &mut budget,
+            &mut vec![],
         );
         let t2 = again.unwrap().expect("back");
         assert!(t2 > 0.4667 && g(t2) > 0.0, "{t2}");
@@ -3159,6 +3244,60 @@ pub(crate) mod tests {
             search(&[1e-13, -1e-13, 1e-13, -1e-13, 1e-13], 1.0, 1e-12),
             Err(())
         );
+    }
+
+    /// Where the points cannot decide, the search says where to ask: the
+    /// graze 1e-13 − (τ − 0.3)² (points −0.09, 0.21, −0.49) peaks above
+    /// zero by less than the tolerance: no sure change, a probe at its
+    /// top; and 10·τ(1 − τ) − 0.1·(1 − τ)², positive on (0.0098, 1), whose
+    /// end is zero: its change of sign is found although the end is
+    /// within the tolerance (it was taken for none: the end of a piece is
+    /// not a checkpoint).
+    #[test]
+    fn grazes_are_probed_and_changes_before_an_end_on_zero_are_found() {
+        let mut probes = vec![];
+        let mut budget = SPLIT_BUDGET;
+        let p = [-0.09 + 1e-13, 0.21 + 1e-13, -0.49 + 1e-13];
+        let found = first_other_sign(
+            &p,
+            -1.0,
+            1e-12,
+            (0.0, 1.0),
+            SPLIT_DEPTH,
+            &mut budget,
+            &mut probes,
+        );
+        assert_eq!(found, Ok(None));
+        assert!(
+            probes.len() == 1 && (probes[0] - 0.3).abs() < 1e-9,
+            "{probes:?}"
+        );
+        // The same below zero by 1e-13: nothing to ask.
+        let (mut probes, mut budget) = (vec![], SPLIT_BUDGET);
+        let q = [-0.09 - 1e-13, 0.21 - 1e-13, -0.49 - 1e-13];
+        let found = first_other_sign(
+            &q,
+            -1.0,
+            1e-14,
+            (0.0, 1.0),
+            SPLIT_DEPTH,
+            &mut budget,
+            &mut probes,
+        );
+        assert_eq!((found, probes.len()), (Ok(None), 0));
+        let (mut probes, mut budget) = (vec![], SPLIT_BUDGET);
+        let r = [-0.1, 5.0, 0.0];
+        let found = first_other_sign(
+            &r,
+            -1.0,
+            1e-12,
+            (0.0, 1.0),
+            SPLIT_DEPTH,
+            &mut budget,
+            &mut probes,
+        );
+        let t = found.unwrap().expect("a change");
+        assert!(split(&r, t).0[2] > 0.0 && t < 1.0, "{t}");
     }
 
     /// Checks that the control points of each of the `dim` components of

@@ -1780,3 +1780,37 @@ fn a_circle_guard_on_a_rotation_and_an_impulsive_reset_jump_at_the_closed_form_t
         assert_times(&run_with(m, &tight), times, "dopri5");
     }
 }
+
+/// A graze on an exact exponential step is decided by the flow, not by the
+/// tolerance of the step's Taylor polynomial: `z = (1 + d)·sin t` peaks `d`
+/// above the guard `z ≥ 1` at t = π/2 and the rule fires where
+/// `sin t = 1/(1 + d)`; `d` below the polynomial's error bound (1e-11 was
+/// missed: the bound is ~2e-11 on these steps) and a peak `d` below the
+/// guard (never fires). Whatever the horizon (which sets the last step's
+/// length) and the largest step.
+#[test]
+fn a_graze_below_the_taylor_bound_of_an_exact_step_is_decided_by_the_flow() {
+    for d in [1e-11f64, 3e-12, 1e-12, 1e-13, -1e-13, -1e-12, -1e-11] {
+        let m = compile(&format!(
+            "model graze\nstate z = 0, zd = 1 + {d:e}, k = 0\nflow {{ z' = zd; zd' = -z }}\n\
+             jump touch when z >= 1 && k == 0 {{ k+ = 1 }}\nsim {{ T = 3 }}\n"
+        ));
+        for (t_end, max_step) in [(3.0, f64::INFINITY), (2.0, f64::INFINITY), (3.0, 0.1)] {
+            let mut settings = m.settings().exact_affine(ExactAffine::On);
+            settings.horizon_t = t_end;
+            settings.max_step = max_step;
+            let arc = run_with(&m, &settings);
+            let what = format!("d = {d:e}, T = {t_end}, max step {max_step}");
+            if d > 0.0 {
+                let want = std::f64::consts::FRAC_PI_2 - (2.0 * d).sqrt();
+                let t = arc.jumps().first().map(|jr| jr.at.t);
+                assert!(
+                    t.is_some_and(|t| (t - want).abs() <= 1e-6 && t <= std::f64::consts::FRAC_PI_2),
+                    "{what}: jump at {t:?}, expected near {want}"
+                );
+            } else {
+                assert!(arc.jumps().is_empty(), "{what}: jumps {:?}", arc.jumps());
+            }
+        }
+    }
+}
