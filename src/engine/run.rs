@@ -590,7 +590,14 @@ pub fn simulate<S: HybridSystem + ?Sized>(
             EndWhy::Partial => {}
             EndWhy::Event(kind) => {
                 match kind {
-                    EventKind::Jump(r) => pending = Some(r),
+                    EventKind::Jump(r) => {
+                        pending = Some(r);
+                        // Met where the flow leaves C: no flow from there,
+                        // so `Priority::Random`'s coin cannot choose one
+                        // (it flowed on through C's relaxation, `set_tol`
+                        // outside C, before jumping).
+                        cannot_flow = flows.watcher.left_at_event();
+                    }
                     EventKind::LeftFlowSet => {
                         cannot_flow = true;
                         pending = flows.watcher.rule_at_event();
