@@ -244,6 +244,51 @@ fn random_priority_jumps_where_the_flow_leaves_c() {
     }
 }
 
+/// `every Ts { … }` and a held `noise … every Ts` fire every Ts under every
+/// priority: their timer is HyEQ's sampling timer, C ⊆ {τ ≤ Ts} and
+/// D = {τ ≥ Ts}, where no flow goes past the threshold. Under `flows` they
+/// never fired (C, the model's, went on), under `random` they stopped at
+/// the first coin that chose to flow (the timer then stayed in D). A
+/// `when tau >= Ts` rule keeps the model's C: under `flows` with C the
+/// whole space it never fires, as the framework says.
+#[test]
+fn every_rules_fire_every_period_under_every_priority() {
+    let src = "model m\nstate x = 1, k = 0\nflow { x' = -x }\n\
+               every 0.1 { k+ = k + 1 }\n\
+               noise v ~ uniform(0, 1) every 0.25\n\
+               output w = v\n\
+               sim { T = 1.05; priority = PRIORITY; seed = 4 }\n";
+    for p in ["jumps", "flows", "random"] {
+        let arc = run(&compile(&src.replace("PRIORITY", p)));
+        let steps: Vec<f64> = arc
+            .jumps()
+            .iter()
+            .filter(|r| arc.rule_name(r.rule) == Some("step"))
+            .map(|r| r.at.t)
+            .collect();
+        let redraws: Vec<f64> = arc
+            .jumps()
+            .iter()
+            .filter(|r| arc.rule_name(r.rule) == Some("v.redraw"))
+            .map(|r| r.at.t)
+            .collect();
+        assert_eq!(steps.len(), 10, "{p}: steps at {steps:?}");
+        for (k, t) in steps.iter().enumerate() {
+            let want = 0.1 * (k + 1) as f64;
+            assert!((t - want).abs() < 1e-12, "{p}: step {k} at {t}");
+        }
+        assert_eq!(redraws.len(), 4, "{p}: redraws at {redraws:?}");
+        for (k, t) in redraws.iter().enumerate() {
+            let want = 0.25 * (k + 1) as f64;
+            assert!((t - want).abs() < 1e-12, "{p}: redraw {k} at {t}");
+        }
+        assert_eq!(arc.jumps().last().unwrap().post[1], 10.0, "{p}");
+    }
+    let src = "model m\nstate tau = 0\nflow { tau' = 1 }\n\
+               jump tick when tau >= 0.1 { tau+ = 0 }\nsim { T = 1; priority = flows }\n";
+    assert!(run(&compile(src)).jumps().is_empty());
+}
+
 /// A switched linear system whose mode is a state, `x' = if q == 1 then A1*x
 /// else A2*x`: with `exact_affine = on` each flow is advanced by its mode's
 /// matrix exponential (closed form: a rotation by 0.5 rad, then a decay by
