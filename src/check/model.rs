@@ -397,7 +397,12 @@ pub(crate) fn check_model(
         loops: Vec::new(),
     };
     // Subsystem instances are expanded into the flat model first.
-    let flat = super::compose::elaborate(model, &mut m.c.errors);
+    let flat = super::compose::elaborate(model, &mut m.c.errors).map(|(flat, unavailable)| {
+        for name in unavailable {
+            m.c.poisoned.insert(name, Unavailable::Failed);
+        }
+        flat
+    });
     let composite = flat.is_some();
     let model = flat.as_ref().unwrap_or(model);
     m.limit_keys(model);
