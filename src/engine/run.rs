@@ -392,19 +392,20 @@ pub fn simulate<S: HybridSystem + ?Sized>(
         // With no rule enabled the flow starts here if it may: C's atoms
         // are then read from the evaluation of every set that the
         // segment's start makes anyway.
-        let can_flow = !left_flow_set
-            && !must_jump
-            && !(enabled.is_some()
+        // On the threshold of a timer that bounds C: no flow from here.
+        let on_bound = || {
+            enabled.is_some()
                 && bounding.iter().any(|&r| {
                     Some(r) == enabled || jump_set_holds(sys, timer_sets.as_ref(), r, at, &x)
-                }))
-            && {
-                let known = match enabled {
-                    None => flows.watcher.prefetch(sys, at, &x),
-                    Some(_) => None,
-                };
-                flow_set.contains(sys, at, &x, settings.set_tol, known)
+                })
+        };
+        let can_flow = !left_flow_set && !must_jump && !on_bound() && {
+            let known = match enabled {
+                None => flows.watcher.prefetch(sys, at, &x),
+                Some(_) => None,
             };
+            flow_set.contains(sys, at, &x, settings.set_tol, known)
+        };
         let jump = enabled.is_some()
             && (must_jump
                 || !can_flow
