@@ -325,6 +325,7 @@ impl Agents {
                 guard: GuardKind::Timer {
                     index: AGENT * k + 13,
                     threshold: 0.0,
+                    bounds_flow: false,
                 },
             })
             .collect();

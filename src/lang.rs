@@ -52,12 +52,17 @@ impl FromStr for Override {
             let ellipsis = if shown.len() < value.len() { "…" } else { "" };
             let at = e.span();
             let at = Span::new(at.start.min(value.len()), at.end.min(value.len()));
+            // A setting whose values are words, given a keyword (`priority=flow`).
+            let key = name.strip_prefix("sim.").unwrap_or(&name);
+            let help = syntax::setting_word_help(key, &value).unwrap_or_else(|| {
+                "the value must be an expression such as 2.5, -1e-3 or [1, 2; 3, 4]".into()
+            });
             Diagnostic::error(
                 "E0508",
                 format!("in override `{name}={shown}{ellipsis}`: {e}"),
             )
             .primary(at, "here")
-            .help("the value must be an expression such as 2.5, -1e-3 or [1, 2; 3, 4]")
+            .help(help)
             .in_override(&name, &value)
         })?;
         Ok(Override {

@@ -12,7 +12,7 @@
 //! subsystem's source. The checker and the engine never see a subsystem:
 //! the language's semantics stay those of the flat model.
 
-use std::collections::HashMap;
+use std::collections::{HashMap, HashSet};
 
 use super::error::CheckError;
 use super::expr::{Hints, suggest};
@@ -20,11 +20,24 @@ use crate::source::Span;
 use crate::syntax::ast::*;
 
 /// The flat model of `model` if it declares instances (`None`: nothing to
-/// elaborate); errors are appended to `errors`.
-pub(crate) fn elaborate(model: &Model, errors: &mut Vec<CheckError>) -> Option<Model> {
+/// elaborate), with the flat names whose definition failed (an
+/// unconnected input: its uses report nothing more); errors are appended
+/// to `errors`.
+pub(crate) fn elaborate(
+    model: &Model,
+    errors: &mut Vec<CheckError>,
+) -> Option<(Model, Vec<String>)> {
     let mut subs: HashMap<String, &SubsystemDecl> = HashMap::new();
     let mut instances = HashMap::new();
-    scan(&model.items, true, &mut subs, &mut instances, errors);
+    let mut duplicates = HashSet::new();
+    scan(
+        &model.items,
+        true,
+        &mut subs,
+        &mut instances,
+        &mut duplicates,
+        errors,
+    );
     if instances.is_empty() {
         return None;
     }
@@ -47,12 +60,15 @@ pub(crate) fn elaborate(model: &Model, errors: &mut Vec<CheckError>) -> Option<M
         errors,
         stack: Vec::new(),
         hints: Default::default(),
+        duplicates,
+        unavailable: Vec::new(),
     };
     let items = e.items(&model.items, None);
-    Some(Model {
+    let model = Model {
         name: model.name.clone(),
         items,
-    })
+    };
+    Some((model, e.unavailable))
 }
 
 /// Collects the subsystem declarations, notes whether there are instances,
@@ -65,6 +81,7 @@ fn scan<'m>(
     top: bool,
     subs: &mut HashMap<String, &'m SubsystemDecl>,
     instances: &mut Instances,
+    duplicates: &mut HashSet<Span>,
     errors: &mut Vec<CheckError>,
 ) {
     for it in items {
@@ -94,11 +111,16 @@ fn scan<'m>(
                 match instances.get(&t.name) {
                     // Members of one family may be declared in several loops.
                     Some((true, sub, _)) if family && *sub == inst.subsystem.name => {}
-                    Some((_, _, first)) => errors.push(CheckError::Duplicate {
-                        name: t.name.clone(),
-                        span: t.span,
-                        first: *first,
-                    }),
+                    Some((_, _, first)) => {
+                        errors.push(CheckError::Duplicate {
+                            name: t.name.clone(),
+                            span: t.span,
+                            first: *first,
+                        });
+                        // Not expanded: each of its members would be
+                        // declared twice too.
+                        duplicates.insert(t.span);
+                    }
                     None => {
                         instances.insert(
                             t.name.clone(),
@@ -117,7 +139,7 @@ fn scan<'m>(
                 }
             }
             Item::For(_, inner) | Item::Together(inner, _) => {
-                scan(inner, false, subs, instances, errors)
+                scan(inner, false, subs, instances, duplicates, errors)
             }
             _ => {}
         }
@@ -132,6 +154,11 @@ struct Elab<'m, 'e> {
     stack: Vec<String>,
     /// What is left of the budget for "did you mean" hints.
     hints: Hints,
+    /// The instance declarations that repeat another's name (reported by
+    /// [`scan`]), left out.
+    duplicates: HashSet<Span>,
+    /// Flat names whose definition failed (see [`elaborate`]).
+    unavailable: Vec<String>,
 }
 
 /// How the names of one instance's subsystem are rewritten.
@@ -441,6 +468,8 @@ impl Elab<'_, '_> {
         for it in items {
             match (it, scope.as_deref_mut()) {
                 (Item::Subsystem(_) | Item::Import(_), None) => {}
+                (Item::Instance(inst), None)
+                    if self.duplicates.contains(&inst.target.name.span) => {}
                 (Item::Instance(inst), s) => out.extend(self.instance(inst, s.map(|s| &*s))),
                 (Item::For(b, inner), None) => {
                     let body = self.items(inner, None);
@@ -568,6 +597,9 @@ impl Elab<'_, '_> {
                         s.subsystem
                     ),
                 });
+                // Its uses report nothing more (an unknown `p.u` suggesting
+                // another member).
+                self.unavailable.push(s.flat(name));
                 return None;
             }
         };

@@ -217,7 +217,39 @@ pub(crate) const OUTPUT_CTX: Ctx = Ctx {
 };
 
 /// The `solver` names, for the errors that list them.
-const SOLVER_NAMES: &str = "dopri5, dop853, radau5, bdf, auto, rk4, euler_maruyama";
+/// Why the value `e` of word-valued `sim` setting `key` is refused: its
+/// words, with the closest one to a misspelt word (`jmps`: `jumps`), MATLAB's
+/// solvers by their hybsim names (`ode45`: `dopri5`) and, for `priority`, the
+/// numbers of HyEQ's `rule` (1 jumps, 2 flows, 3 random).
+fn word_reason(key: &str, e: &Expr) -> String {
+    let words = crate::syntax::setting_words(key).unwrap_or_default();
+    let list = format!("write one of {}", words.join(", "));
+    let matlab = |w: &str| match w {
+        "ode45" | "ode23" => Some("dopri5"),
+        "ode113" | "ode78" | "ode89" => Some("dop853"),
+        "ode15s" | "ode15i" => Some("bdf"),
+        "ode23s" | "ode23t" | "ode23tb" => Some("radau5"),
+        _ => None,
+    };
+    match &e.kind {
+        ExprKind::Name(w) => {
+            let hint = matlab(w)
+                .filter(|_| key == "solver")
+                .map(|m| format!("MATLAB's `{w}` is `{m}` here"))
+                .or_else(|| {
+                    crate::syntax::closest_word(w, words).map(|c| format!("did you mean `{c}`?"))
+                });
+            match hint {
+                Some(h) => format!("{list} ({h})"),
+                None => list,
+            }
+        }
+        ExprKind::Num(_) if key == "priority" => {
+            format!("{list} (HyEQ's `rule = 1` is `jumps`, 2 is `flows`, 3 is `random`)")
+        }
+        _ => list,
+    }
+}
 
 /// The values a numeric `sim` key takes, for its out-of-range message.
 fn sim_range(key: &str) -> &'static str {
@@ -397,7 +429,12 @@ pub(crate) fn check_model(
         loops: Vec::new(),
     };
     // Subsystem instances are expanded into the flat model first.
-    let flat = super::compose::elaborate(model, &mut m.c.errors);
+    let flat = super::compose::elaborate(model, &mut m.c.errors).map(|(flat, unavailable)| {
+        for name in unavailable {
+            m.c.poisoned.insert(name, Unavailable::Failed);
+        }
+        flat
+    });
     let composite = flat.is_some();
     let model = flat.as_ref().unwrap_or(model);
     m.limit_keys(model);
@@ -2251,32 +2288,32 @@ impl ModelChecker<'_> {
                 match canon {
                     "solver" => match word {
                         Some(w) => solver_name = Some((w.to_string(), e.span)),
-                        None => bad(self, format!("write one of {}", SOLVER_NAMES)),
+                        None => bad(self, word_reason(canon, e)),
                     },
                     "priority" => match word {
                         Some("jumps") => s.priority = Priority::Jumps,
                         Some("flows") => s.priority = Priority::Flows,
                         Some("random") => s.priority = Priority::Random,
-                        _ => bad(self, "write one of jumps, flows, random".into()),
+                        _ => bad(self, word_reason(canon, e)),
                     },
                     "jump_choice" => match word.and_then(JumpChoice::from_name) {
                         Some(c) => s.jump_choice = c,
-                        None => bad(self, "write one of first, random".into()),
+                        None => bad(self, word_reason(canon, e)),
                     },
                     "exact_affine" => match word {
                         Some("auto") => s.exact_affine = ExactAffine::Auto,
                         Some("on") => s.exact_affine = ExactAffine::On,
                         Some("off") => s.exact_affine = ExactAffine::Off,
-                        _ => bad(self, "write one of auto, on, off".into()),
+                        _ => bad(self, word_reason(canon, e)),
                     },
                     "linear_solver" => match word.and_then(LinearSolver::from_name) {
                         Some(l) => s.linear_solver = l,
-                        None => bad(self, "write one of auto, dense, sparse".into()),
+                        None => bad(self, word_reason(canon, e)),
                     },
                     "jit" => match word {
                         Some("on") => jit = Some(true),
                         Some("off") => jit = Some(false),
-                        _ => bad(self, "write on or off".into()),
+                        _ => bad(self, word_reason(canon, e)),
                     },
                     // Unknown before its value is read: `tspan = [0, 10]` is not a shape error.
                     _ if !SIM_KEYS.contains(&canon) => self.c.err(CheckError::UnknownSetting {
@@ -2377,7 +2414,16 @@ impl ModelChecker<'_> {
             other => {
                 self.c.err(CheckError::BadSetting {
                     key: "solver".into(),
-                    reason: format!("`{other}` is not a solver; write one of {SOLVER_NAMES}"),
+                    reason: format!(
+                        "`{other}` is not a solver; {}",
+                        word_reason(
+                            "solver",
+                            &Expr {
+                                kind: ExprKind::Name(other.to_string()),
+                                span,
+                            }
+                        )
+                    ),
                     span,
                 });
                 s.solver

@@ -16,6 +16,7 @@ use hybsim::engine::{
 use hybsim::ir::CompiledModel;
 use hybsim::ir::metric::Metrics;
 use hybsim::lang;
+use hybsim::layout::{Entry, Shape};
 use hybsim::sinks::csv::CsvSink;
 use hybsim::sinks::mcap::{Compression, Encoding, McapOptions, McapSink, NonFiniteStop};
 use hybsim::sinks::parquet::ParquetSink;
@@ -993,12 +994,17 @@ pub fn execute(args: RunArgs) -> anyhow::Result<u8> {
             let names = split_names(list);
             let (_, unknown) = info.select_vars(&names);
             if let Some(name) = unknown.first() {
-                let mut known = hybsim::sinks::entry_names(&info.state_layout);
-                known.extend(hybsim::sinks::entry_names(&info.output_layout));
-                eprintln!(
-                    "error: `--log-vars {name}`: neither a state nor an output of the model (known: {}; a family member is `name[i]`)",
-                    known.join(", ")
-                );
+                match index_note(name, &info, false) {
+                    Some(note) => eprintln!("error: `--log-vars {name}`: {note}"),
+                    None => {
+                        let mut known = hybsim::sinks::entry_names(&info.state_layout);
+                        known.extend(hybsim::sinks::entry_names(&info.output_layout));
+                        eprintln!(
+                            "error: `--log-vars {name}`: neither a state nor an output of the model (known: {}; a family member is `name[i]`)",
+                            known.join(", ")
+                        );
+                    }
+                }
                 return Ok(EXIT_MODEL_ERROR);
             }
             Some(names)
@@ -1228,12 +1234,51 @@ pub fn unknown_plot_var(flag: &str, name: &str, info: &RunInfo) -> Option<String
     if PlotSink::selects(info, name) {
         return None;
     }
+    if let Some(note) = index_note(name, info, true) {
+        return Some(format!("`{flag} {name}`: {note}"));
+    }
     let mut known = hybsim::sinks::entry_names(&info.state_layout);
     known.extend(hybsim::sinks::entry_names(&info.output_layout));
     Some(format!(
         "`{flag} {name}`: neither a state nor an output of the model (known: {}; a family member is `name[i]`, a component `x[2]`, `P[1,2]`)",
         known.join(", ")
     ))
+}
+
+/// What is wrong with `name`, an index of an entry of `info` that selects
+/// nothing (`x[0]` or `x[3]` of a 2-vector: indices start at 1; a member of a
+/// family that has no such member; with `components` false, as for
+/// `--log-vars`, any component, which is not chosen alone). `None` when the
+/// name before the brackets names nothing either.
+fn index_note(name: &str, info: &RunInfo, components: bool) -> Option<String> {
+    let (base, label) = name.trim().strip_suffix(']')?.split_once('[')?;
+    let base = base.trim();
+    if label.contains(['[', ']']) {
+        return None;
+    }
+    let entry = info
+        .state_layout
+        .find(base)
+        .or_else(|| info.output_layout.find(base))?;
+    Some(match entry {
+        Entry::Field(f) => match f.shape {
+            Shape::Scalar => format!("`{base}` is a scalar, without indices: write `{base}`"),
+            _ if !components => format!(
+                "`{base}` is selected whole (its components are not chosen one by one): write `{base}`"
+            ),
+            Shape::Vector(n) => format!(
+                "`{base}` is a vector of {n}: its components are `{base}[1]` to `{base}[{n}]` (indices start at 1)"
+            ),
+            Shape::Matrix { rows, cols } => format!(
+                "`{base}` is a {rows}×{cols} matrix: its components are `{base}[1,1]` to `{base}[{rows},{cols}]` (indices start at 1)"
+            ),
+        },
+        Entry::Family { labels, .. } => format!(
+            "the family `{base}` has the members `{base}[{}]` to `{base}[{}]`",
+            labels.first()?,
+            labels.last()?
+        ),
+    })
 }
 
 /// Splits a comma-separated list of names, keeping commas inside brackets

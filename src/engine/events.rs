@@ -1034,8 +1034,9 @@ pub(crate) struct Watcher {
     /// atom at its post-change end), so without them neither the state
     /// nor the atoms there are computed.
     bracket_start_read: bool,
-    /// With [`Priority::Flows`], the number of jump rules asked at the last
-    /// point found in C when the flow leaves it (0 otherwise): a solution
+    /// With [`Priority::Flows`] or [`Priority::Random`], the number of jump
+    /// rules asked at the last point found in C when the flow leaves it
+    /// without meeting a jump set there (0 otherwise): a solution
     /// that cannot flow on jumps there if it may, not one rounding step
     /// (or, with relaxed atoms, `set_tol`) outside C, where it may no
     /// longer be in any set.
@@ -1085,6 +1086,9 @@ pub(crate) struct Watcher {
     /// First rule (declaration order) whose jump set holds at the last
     /// event.
     rule_at_event: Option<usize>,
+    /// Whether the flow left C at the last event (also where a jump set was
+    /// met there, which is then the event's kind).
+    left_at_event: bool,
     /// The search for sign changes between checkpoints ([`hidden`]).
     hidden: hidden::Hidden,
 }
@@ -1237,7 +1241,9 @@ impl Watcher {
                 _ => slow_sets.push(i),
             }
         }
-        let exit_rules = if settings.priority == Priority::Flows {
+        // Also after a coin that chose to flow (from a point of C ∩ D, where
+        // a jump set may hold until C ends).
+        let exit_rules = if settings.priority != Priority::Jumps {
             sys.jump_rules().len()
         } else {
             0
@@ -1305,6 +1311,7 @@ impl Watcher {
             exit_rules,
             event_state: vec![0.0; n],
             rule_at_event: None,
+            left_at_event: false,
             hidden: hidden::Hidden::default(),
         }
     }
@@ -1317,6 +1324,13 @@ impl Watcher {
     /// The first rule whose jump set holds at the last event found.
     pub fn rule_at_event(&self) -> Option<usize> {
         self.rule_at_event
+    }
+
+    /// Whether the flow left C at the last event found, whatever the
+    /// event's kind: a jump set met where the flow leaves C admits no flow
+    /// from there, whichever the priority.
+    pub fn left_at_event(&self) -> bool {
+        self.left_at_event
     }
 
     /// Whether rule `r`'s jump set holds at the last event found (as the
@@ -1495,6 +1509,10 @@ impl Watcher {
         self.rule_at_event = self.sets.iter().find_map(|ws| match ws.set {
             SetRef::Jump(r) if ws.new => Some(r),
             _ => None,
+        });
+        self.left_at_event = self.flow.is_some_and(|fi| {
+            let ws = &self.sets[fi];
+            ws.cur && !ws.new
         });
         self.event_state.copy_from_slice(x);
         for i in 0..self.timers.len() {
@@ -2261,9 +2279,11 @@ impl Watcher {
             {
                 self.event_state.copy_from_slice(&self.best_a);
                 self.rule_at_event = Some(r);
+                self.left_at_event = true;
                 return ControlFlow::Break((a, EventKind::LeftFlowSet));
             }
             if jump.is_some() || left.is_some() {
+                self.left_at_event = left.is_some();
                 self.rule_at_event = self.sets.iter().find_map(|ws| match ws.set {
                     SetRef::Jump(r) if ws.new => Some(r),
                     _ => None,

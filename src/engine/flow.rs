@@ -2508,6 +2508,7 @@ mod tests {
             GuardKind::Timer {
                 index: 1,
                 threshold: 0.1,
+                bounds_flow: false,
             },
         )]);
         for h in [0.03, 0.1, 0.25] {

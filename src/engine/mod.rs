@@ -39,7 +39,11 @@
 //!    the flow leaves C (at the last point found in C if a jump set holds
 //!    there, else at the first point found outside it),
 //!    [`Priority::Random`] flips a fair coin from the
-//!    run's [`SimRng`]. Membership of C here is tested with
+//!    run's [`SimRng`]. Where no flow is possible the solution jumps under
+//!    every priority: a jump set met where the flow leaves C (after a coin
+//!    that chose to flow, C left where a jump set holds), a timer rule whose
+//!    timer bounds C ([`GuardKind::Timer`]'s `bounds_flow`) on its
+//!    threshold. Membership of C here is tested with
 //!    [`set_tol`](SimSettings::set_tol) on C's atoms (default 1e-9): an
 //!    atom `g ≥ 0` counts as holding when `g ≥ −set_tol`, so that a jump map
 //!    that lands on C's boundary up to rounding (`h⁺ = −h`) lets the

@@ -133,6 +133,7 @@ impl RandomTimers {
                 guard: GuardKind::Timer {
                     index: i,
                     threshold: 0.0,
+                    bounds_flow: false,
                 },
             })
             .collect();
@@ -200,6 +201,7 @@ impl SampleAndHold {
             guard: GuardKind::Timer {
                 index,
                 threshold: ts,
+                bounds_flow: false,
             },
         }];
         Self {

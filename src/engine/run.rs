@@ -155,7 +155,9 @@ fn check_system<S: HybridSystem + ?Sized>(sys: &S, x0: &[f64]) -> Result<(), Sim
                 });
             }
         }
-        if let GuardKind::Timer { index, threshold } = rule.guard
+        if let GuardKind::Timer {
+            index, threshold, ..
+        } = rule.guard
             && (index >= n || !threshold.is_finite())
         {
             return Err(SimError::InvalidSystem {
@@ -268,19 +270,33 @@ pub fn simulate<S: HybridSystem + ?Sized>(
     let (method, modes) = method_for(sys, settings, x0)?;
     let n = x0.len();
     let rules = sys.jump_rules();
-    // (rule, timer index, threshold) of the timer rules, if events are watched.
-    let timers: Vec<(usize, usize, f64)> = if settings.priority == Priority::Flows {
-        Vec::new()
-    } else {
-        rules
-            .iter()
-            .enumerate()
-            .filter_map(|(r, rule)| match rule.guard {
-                GuardKind::Timer { index, threshold } => Some((r, index, threshold)),
-                GuardKind::General => None,
-            })
-            .collect()
-    };
+    // (rule, timer index, threshold) of the timer rules, if events are
+    // watched; with flows first, of those whose timer bounds C (the flow
+    // stops at their threshold whatever the priority).
+    let timers: Vec<(usize, usize, f64)> = rules
+        .iter()
+        .enumerate()
+        .filter_map(|(r, rule)| match rule.guard {
+            GuardKind::Timer {
+                index,
+                threshold,
+                bounds_flow,
+            } if bounds_flow || settings.priority != Priority::Flows => Some((r, index, threshold)),
+            _ => None,
+        })
+        .collect();
+    // The rules whose timer bounds C: where one's jump set holds, no flow.
+    let bounding: Vec<usize> = (0..rules.len())
+        .filter(|&r| {
+            matches!(
+                rules[r].guard,
+                GuardKind::Timer {
+                    bounds_flow: true,
+                    ..
+                }
+            )
+        })
+        .collect();
     let groups = Groups::new(rules);
     let timer_sets = TimerSets::new(sys);
     let mut flow_set = FlowSetTest::new(sys);
@@ -376,7 +392,14 @@ pub fn simulate<S: HybridSystem + ?Sized>(
         // With no rule enabled the flow starts here if it may: C's atoms
         // are then read from the evaluation of every set that the
         // segment's start makes anyway.
-        let can_flow = !left_flow_set && !must_jump && {
+        // On the threshold of a timer that bounds C: no flow from here.
+        let on_bound = || {
+            enabled.is_some()
+                && bounding.iter().any(|&r| {
+                    Some(r) == enabled || jump_set_holds(sys, timer_sets.as_ref(), r, at, &x)
+                })
+        };
+        let can_flow = !left_flow_set && !must_jump && !on_bound() && {
             let known = match enabled {
                 None => flows.watcher.prefetch(sys, at, &x),
                 Some(_) => None,
@@ -590,7 +613,14 @@ pub fn simulate<S: HybridSystem + ?Sized>(
             EndWhy::Partial => {}
             EndWhy::Event(kind) => {
                 match kind {
-                    EventKind::Jump(r) => pending = Some(r),
+                    EventKind::Jump(r) => {
+                        pending = Some(r);
+                        // Met where the flow leaves C: no flow from there,
+                        // so `Priority::Random`'s coin cannot choose one
+                        // (it flowed on through C's relaxation, `set_tol`
+                        // outside C, before jumping).
+                        cannot_flow = flows.watcher.left_at_event();
+                    }
                     EventKind::LeftFlowSet => {
                         cannot_flow = true;
                         pending = flows.watcher.rule_at_event();

@@ -123,6 +123,16 @@ pub enum GuardKind {
         index: usize,
         /// Value at which the rule fires.
         threshold: f64,
+        /// Whether the timer also bounds the flow set: C lies where the
+        /// timer has not passed its threshold (C ⊆ {τ ≤ threshold} for a
+        /// rising timer), as HyEQ writes a sampling timer and as `.hyb`'s
+        /// `every` rules and held `noise` are. Where the rule's jump set
+        /// holds the solution then cannot flow, so the rule fires at its
+        /// threshold under every [`Priority`](super::Priority). `false`: C
+        /// is what [`HybridSystem::flow_set`] says alone (under
+        /// [`Priority::Flows`](super::Priority::Flows) a timer whose C goes
+        /// on is passed).
+        bounds_flow: bool,
     },
 }
 

@@ -673,7 +673,13 @@ impl CompiledModel {
         let mut rule_code = Vec::new();
         for r in &m.rules {
             let kind = match r.timer {
-                Some((index, threshold)) => GuardKind::Timer { index, threshold },
+                // An `every` rule (or a held noise's redraw): its timer is
+                // HyEQ's sampling timer, which no flow passes.
+                Some((index, threshold)) => GuardKind::Timer {
+                    index,
+                    threshold,
+                    bounds_flow: true,
+                },
                 None => detect_timer(&m, r.guard).unwrap_or(GuardKind::General),
             };
             rules.push(JumpRule {
@@ -1680,9 +1686,11 @@ fn detect_timer(m: &CheckedModel, cond: crate::check::dag::NodeId) -> Option<Gua
     };
     // A non-finite threshold (`tau >= inf`) is not a timer the engine can schedule: such a
     // guard is evaluated as written (a NaN one is refused by the check, E0515).
+    // The model's C is what it says: a timer it does not bound may be passed.
     (ok && m.wiener_dim == 0 && threshold.is_finite()).then_some(GuardKind::Timer {
         index: k as usize,
         threshold,
+        bounds_flow: false,
     })
 }
 

@@ -147,6 +147,17 @@ pub enum SyntaxError {
         /// Its text.
         word: &'static str,
     },
+    /// A keyword as the value of a `sim` setting whose values are words
+    /// (`priority = flow`, `priority = jump`).
+    #[error("`{word}` is a keyword, not a value of `{setting}`")]
+    SettingKeyword {
+        /// The keyword.
+        span: Span,
+        /// Its text.
+        word: &'static str,
+        /// The setting.
+        setting: &'static str,
+    },
     /// A number literal that does not fit in an f64.
     #[error("number `{text}` is out of range")]
     BadNumber {
@@ -173,6 +184,7 @@ impl SyntaxError {
             | SyntaxError::NotADeclaration { span, .. }
             | SyntaxError::MissingValue { span, .. }
             | SyntaxError::KeywordAsName { span, .. }
+            | SyntaxError::SettingKeyword { span, .. }
             | SyntaxError::BadNumber { span, .. } => *span,
         }
     }
@@ -286,6 +298,13 @@ impl SyntaxError {
             } => Diagnostic::error("E0101", self.to_string())
                 .primary(*span, "no `= …` after this name")
                 .help(format!("write `{keyword} {name} = …`")),
+            SyntaxError::SettingKeyword {
+                span,
+                word,
+                setting,
+            } => Diagnostic::error("E0101", self.to_string())
+                .primary(*span, format!("a value of `{setting}` expected here"))
+                .help(super::setting_word_help(setting, word).unwrap_or_default()),
             SyntaxError::KeywordAsName { span, word } => {
                 Diagnostic::error("E0101", self.to_string())
                     .primary(*span, "a name expected here")
@@ -391,6 +410,9 @@ impl SyntaxError {
         if let Some(err) = missing_value(text, pos, &expected) {
             return err;
         }
+        if let Some(err) = setting_keyword(text, pos) {
+            return err;
+        }
         if let Some(err) = keyword_mistake(text, pos, &keywords, wants_name, &expected) {
             return err;
         }
@@ -490,6 +512,27 @@ fn closest_keyword(word: &str, keywords: &[&'static str]) -> Option<&'static str
         .filter(|(score, _)| *score >= 0.8)
         .max_by(|a, b| a.0.total_cmp(&b.0))
         .map(|(_, k)| k)
+}
+
+/// Where the parser stopped at `pos`: a keyword as the value of a `sim`
+/// setting whose values are words (`priority = flow`).
+fn setting_keyword(text: &str, pos: usize) -> Option<SyntaxError> {
+    let is_word = |c: char| c.is_ascii_alphanumeric() || c == '_';
+    let (before, rest) = (text.get(..pos)?, text.get(pos..)?);
+    let here = &rest[..rest.find(|c: char| !is_word(c)).unwrap_or(rest.len())];
+    let word = *KEYWORDS.iter().find(|k| **k == here)?;
+    let before = before.trim_end_matches([' ', '\t']).strip_suffix('=')?;
+    if before.ends_with(['=', '<', '>', '!']) {
+        return None;
+    }
+    let before = before.trim_end_matches([' ', '\t']);
+    let key = &before[before.trim_end_matches(is_word).len()..];
+    let (setting, _) = *super::SETTING_WORDS.iter().find(|(k, _)| *k == key)?;
+    Some(SyntaxError::SettingKeyword {
+        span: Span::new(pos, pos + here.len()),
+        word,
+        setting,
+    })
 }
 
 /// Where the parser stopped at `pos`: a keyword used as a name (`jump out

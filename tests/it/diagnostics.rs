@@ -876,7 +876,7 @@ const CASES: &[Case] = &[
         "model m\nstate x = 0\nsim { solver = rk5 }\n",
         "E0506",
         "3:16",
-        "invalid `solver`: `rk5` is not a solver; write one of dopri5, dop853, radau5, bdf, auto, rk4, euler_maruyama",
+        "invalid `solver`: `rk5` is not a solver; write one of dopri5, dop853, radau5, bdf, auto, rk4, euler_maruyama (did you mean `rk4`?)",
     ),
     case(
         "white noise without a stochastic solver",
@@ -1092,6 +1092,82 @@ fn matlab_and_hyeq_habits_get_hybsims_spelling() {
             ),
             "{:?}",
             d[0].help
+        );
+    }
+}
+
+/// The values of word-valued settings as a HyEQ or MATLAB user writes them: `priority = flow`
+/// or `jump` (keywords: the parse stopped with "expected an expression"), HyEQ's `rule`
+/// numbers after the rename to `priority`, a misspelt word, MATLAB's `ode45` (each was only
+/// "write one of …").
+#[test]
+fn word_settings_name_their_words_and_the_closest() {
+    let cases: &[(&str, &str, &str, &str)] = &[
+        (
+            "priority = flow",
+            "E0101",
+            "`flow` is a keyword, not a value of `priority`",
+            "did you mean `flows`? `priority` is one of jumps, flows, random",
+        ),
+        (
+            "priority = jump",
+            "E0101",
+            "`jump` is a keyword, not a value of `priority`",
+            "did you mean `jumps`? `priority` is one of jumps, flows, random",
+        ),
+        (
+            "exact_affine = in",
+            "E0101",
+            "`in` is a keyword, not a value of `exact_affine`",
+            "`exact_affine` is one of auto, on, off",
+        ),
+        (
+            "priority = 2",
+            "E0506",
+            "invalid `priority`: write one of jumps, flows, random (HyEQ's `rule = 1` is `jumps`, 2 is `flows`, 3 is `random`)",
+            "",
+        ),
+        (
+            "priority = jmps",
+            "E0506",
+            "invalid `priority`: write one of jumps, flows, random (did you mean `jumps`?)",
+            "",
+        ),
+        (
+            "solver = ode45",
+            "E0506",
+            "invalid `solver`: `ode45` is not a solver; write one of dopri5, dop853, radau5, bdf, auto, rk4, euler_maruyama (MATLAB's `ode45` is `dopri5` here)",
+            "",
+        ),
+        (
+            "jump_choice = frist",
+            "E0506",
+            "invalid `jump_choice`: write one of first, random (did you mean `first`?)",
+            "",
+        ),
+    ];
+    for (setting, code, message, help) in cases {
+        let text =
+            format!("model m\nstate x = 1\nflow {{ x' = -x }}\nsim {{ T = 1; {setting} }}\n");
+        let d = diagnostics(&SourceFile::new("m.hyb", text), &[]);
+        assert_eq!(d.len(), 1, "{setting}: {d:?}");
+        assert_eq!(d[0].code, *code, "{setting}");
+        assert_eq!(d[0].message, *message, "{setting}");
+        let value = 50 + setting.find('=').unwrap() + 2;
+        assert_eq!(d[0].labels[0].span.start, value, "{setting}: at the value");
+        if !help.is_empty() {
+            assert_eq!(d[0].help.as_deref(), Some(*help), "{setting}");
+        }
+    }
+    // On the command line too.
+    let src = SourceFile::new("m.hyb", "model m\nstate x = 1\nflow { x' = -x }\n");
+    for o in ["priority=flow", "sim.priority=flow"] {
+        let d = diagnostics(&src, &[o]);
+        assert_eq!(d[0].code, "E0508", "{o}");
+        assert_eq!(
+            d[0].help.as_deref(),
+            Some("did you mean `flows`? `priority` is one of jumps, flows, random"),
+            "{o}"
         );
     }
 }

@@ -212,9 +212,65 @@ fn components_of_vectors_and_family_members_are_selected_one_by_one() {
     ] {
         let o = hybsim(d, args);
         assert_eq!(code(&o), 2, "{args:?}: {}", stderr(&o));
-        assert!(stderr(&o).contains("a component `x[2]`"), "{}", stderr(&o));
+        // The entry's indices, not "neither a state nor an output" of an `x`
+        // that is one.
+        assert!(
+            stderr(&o).contains(
+                "`x` is a vector of 39: its components are `x[1]` to `x[39]` (indices start at 1)"
+            ),
+            "{}",
+            stderr(&o)
+        );
         assert!(!d.join("x.svg").exists());
     }
+    // `--log-vars` selects entries whole; a family's member out of range.
+    for (vars, says) in [
+        (
+            "x[1]",
+            "`--log-vars x[1]`: `x` is selected whole (its components are not chosen one by one): write `x`",
+        ),
+        (
+            "K[1]",
+            "`--log-vars K[1]`: neither a state nor an output of the model",
+        ),
+    ] {
+        let o = hybsim(
+            d,
+            &[
+                "run",
+                sh.to_str().unwrap(),
+                "-q",
+                "--no-mcap",
+                "--csv",
+                "x.csv",
+                "--log-vars",
+                vars,
+            ],
+        );
+        assert_eq!(code(&o), 2, "{vars}: {}", stderr(&o));
+        assert!(stderr(&o).contains(says), "{vars}: {}", stderr(&o));
+    }
+    let o = hybsim(
+        d,
+        &[
+            "run",
+            m,
+            "-q",
+            "--T",
+            "0.1",
+            "--no-mcap",
+            "--plot",
+            "x.svg",
+            "--plot-vars",
+            "xhat[7]",
+        ],
+    );
+    assert_eq!(code(&o), 2, "{}", stderr(&o));
+    assert!(
+        stderr(&o).contains("the family `xhat` has the members `xhat[1]` to `xhat[3]`"),
+        "{}",
+        stderr(&o)
+    );
 }
 
 /// HyEQ's `plotHybrid`: one 3-D panel per entry, axes t, j and the entry,

@@ -352,6 +352,39 @@ fn composition_errors_point_at_the_instance_or_the_subsystem() {
     assert!(text.contains("A → B → A"), "{text}");
 }
 
+/// One mistake, one error: an unconnected input's uses in the subsystem
+/// were also "unknown name `p.u`" (with a "did you mean `p.y`?" pointing
+/// elsewhere), and an instance name given twice also declared each of its
+/// members twice (six errors for one repeated line).
+#[test]
+fn composition_errors_do_not_cascade() {
+    let sub = "subsystem P(a) {\n  input u\n  state x = 0\n  flow { x' = a*x + u }\n  \
+               jump r when x >= 1 { x+ = u }\n  output y = x\n}\n";
+    let cases: &[(&str, &str, &str)] = &[
+        (
+            "p = P(a = -1)",
+            "error[E0512]: input `u` of `p` (P) is not connected",
+            "t.hyb:9:1",
+        ),
+        (
+            "for i in 1..3 { f[i] = P(a = -i) }\noutput s = f[2].y",
+            "error[E0512]: input `u` of `f` (P) is not connected",
+            "t.hyb:9:17",
+        ),
+        (
+            "p = P(a = 1, u = 0)\np = P(a = 2, u = 0)",
+            "error[E0202]: `p` is declared twice",
+            "t.hyb:10:1",
+        ),
+    ];
+    for (rest, error, at) in cases {
+        let text = errors(&format!("model m\n{sub}{rest}\n"));
+        assert!(text.contains(error), "{rest}: {text}");
+        assert!(text.contains(at), "{rest}: {text}");
+        assert_eq!(text.matches("error[").count(), 1, "{rest}: {text}");
+    }
+}
+
 /// Overrides reach an instance's parameters by their prefixed name, and a
 /// family of instances sizes its families by the loop.
 #[test]

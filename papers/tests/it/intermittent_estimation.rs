@@ -45,6 +45,7 @@ impl Observer {
                 guard: GuardKind::Timer {
                     index: l.tau(k),
                     threshold: 0.0,
+                    bounds_flow: false,
                 },
             })
             .collect();
