@@ -244,7 +244,8 @@ impl Termination {
                 ..
             } => {
                 "the named rule fires ever faster (Zeno behaviour?); if this is intended, raise \
-                 `zeno_max_rate` or `zeno_window`, or set `zeno_max_rate` to infinity"
+                 `zeno_max_rate` or `zeno_window`, or set `zeno_max_rate` to infinity with a jump budget \
+                 (`J` or `max_total_jumps`)"
             }
             TerminationCause::ZenoSuspected {
                 detail: ZenoDetail::TotalJumps { .. },

@@ -407,6 +407,9 @@ class Solution:
         if at_jump not in _AT_JUMP:
             raise ValueError(f"at_jump={at_jump!r}: use one of {', '.join(map(repr, _AT_JUMP))}")
         tau = np.asarray(t_grid, dtype=np.float64).reshape(-1)
+        # A NaN passes the order test and gave a row at no time.
+        if np.isnan(tau).any():
+            raise ValueError("t_grid holds NaN: every time must be a number")
         if tau.size > 1 and np.any(np.diff(tau) < 0):
             raise ValueError("t_grid must be nondecreasing")
         n = len(self.t)

@@ -7,7 +7,7 @@ use hybsim::engine::{
 use hybsim::ir::CompiledModel;
 use pyo3::exceptions::{PyOverflowError, PyTypeError, PyValueError};
 use pyo3::prelude::*;
-use pyo3::types::PyDict;
+use pyo3::types::{PyBool, PyDict};
 
 /// The keywords `Model.run` accepts besides `T`, `J` and `seed`.
 pub const KEYS: [&str; 17] = [
@@ -34,6 +34,10 @@ fn get<'py, T: FromPyObjectOwned<'py>>(sim: &Bound<'py, PyDict>, key: &str) -> P
     match sim.get_item(key)? {
         None => Ok(None),
         Some(v) if v.is_none() => Ok(None),
+        // Python's bool is an int: `T=True` ran to T = 1.
+        Some(v) if v.is_instance_of::<PyBool>() => Err(PyTypeError::new_err(format!(
+            "`{key}`: a bool is not a value of `{key}`"
+        ))),
         Some(v) => v.extract::<T>().map(Some).map_err(|e| {
             let e: PyErr = e.into();
             let msg = format!("`{key}`: {}", e.value(sim.py()));
@@ -54,6 +58,9 @@ fn jump_horizon(sim: &Bound<'_, PyDict>) -> PyResult<Option<u64>> {
     let Some(v) = sim.get_item("J")?.filter(|v| !v.is_none()) else {
         return Ok(None);
     };
+    if v.is_instance_of::<PyBool>() {
+        return get::<u64>(sim, "J");
+    }
     if let Ok(j) = v.extract::<u64>() {
         return Ok(Some(j));
     }

@@ -275,6 +275,14 @@ def test_exact_affine_takes_the_words_of_the_sim_block():
         m.run(exact_affine=1.5)
 
 
+def test_bools_are_not_numbers_of_the_sim_keywords():
+    # Python's bool is an int: `T=True` ran to T = 1, `J=True` one jump.
+    m = hybsim.load(GOOD)
+    for key in ("T", "J", "max_step", "guard_checks"):
+        with pytest.raises(TypeError, match=f"`{key}`: a bool is not a value"):
+            m.run(**{key: True})
+
+
 def test_an_output_read_out_of_range_raises_when_read():
     # `sol.y` held NaN where `hybsim run --csv` stops with E0604 at the index:
     # outputs are evaluated when first read, and the fault went unnoticed.

@@ -188,3 +188,9 @@ def test_linear_solver_keyword_chooses_the_implicit_solvers_lu():
     for ls in ("sparse", "auto"):
         assert len(times[ls]) == len(times["dense"])
         np.testing.assert_allclose(times[ls], times["dense"], atol=1e-6)
+
+
+def test_interpolate_refuses_nan_times(sol):
+    # NaN passed the order test and gave a row at no time.
+    with pytest.raises(ValueError, match="t_grid holds NaN"):
+        sol.interpolate([0.0, float("nan")])
