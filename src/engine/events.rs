@@ -3275,48 +3275,24 @@ pub(crate) mod tests {
     /// not a checkpoint).
     #[test]
     fn grazes_are_probed_and_changes_before_an_end_on_zero_are_found() {
-        let mut probes = vec![];
-        let mut budget = SPLIT_BUDGET;
-        let p = [-0.09 + 1e-13, 0.21 + 1e-13, -0.49 + 1e-13];
-        let found = first_other_sign(
-            &p,
-            -1.0,
-            1e-12,
-            (0.0, 1.0),
-            SPLIT_DEPTH,
-            &mut budget,
-            &mut probes,
-        );
+        let search = |p: &[f64], tol: f64| {
+            let (mut probes, mut budget) = (vec![], SPLIT_BUDGET);
+            let range = (0.0, 1.0);
+            let found =
+                first_other_sign(p, -1.0, tol, range, SPLIT_DEPTH, &mut budget, &mut probes);
+            (found, probes)
+        };
+        let (found, probes) = search(&[-0.09 + 1e-13, 0.21 + 1e-13, -0.49 + 1e-13], 1e-12);
         assert_eq!(found, Ok(None));
         assert!(
             probes.len() == 1 && (probes[0] - 0.3).abs() < 1e-9,
             "{probes:?}"
         );
         // The same below zero by 1e-13: nothing to ask.
-        let (mut probes, mut budget) = (vec![], SPLIT_BUDGET);
-        let q = [-0.09 - 1e-13, 0.21 - 1e-13, -0.49 - 1e-13];
-        let found = first_other_sign(
-            &q,
-            -1.0,
-            1e-14,
-            (0.0, 1.0),
-            SPLIT_DEPTH,
-            &mut budget,
-            &mut probes,
-        );
+        let (found, probes) = search(&[-0.09 - 1e-13, 0.21 - 1e-13, -0.49 - 1e-13], 1e-14);
         assert_eq!((found, probes.len()), (Ok(None), 0));
-        let (mut probes, mut budget) = (vec![], SPLIT_BUDGET);
         let r = [-0.1, 5.0, 0.0];
-        let found = first_other_sign(
-            &r,
-            -1.0,
-            1e-12,
-            (0.0, 1.0),
-            SPLIT_DEPTH,
-            &mut budget,
-            &mut probes,
-        );
-        let t = found.unwrap().expect("a change");
+        let t = search(&r, 1e-12).0.unwrap().expect("a change");
         assert!(split(&r, t).0[2] > 0.0 && t < 1.0, "{t}");
     }
 

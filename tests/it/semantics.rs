@@ -28,6 +28,18 @@ fn jump_times(arc: &HybridArc) -> Vec<f64> {
     arc.jumps().iter().map(|r| r.at.t).collect()
 }
 
+/// The jump times of a `random`-priority run (seed `seed`) are those of
+/// the `jumps`-first run, `reference`, to 1e-12.
+fn assert_same_times(reference: &[f64], times: &[f64], seed: u64) {
+    assert_eq!(times.len(), reference.len(), "seed {seed}");
+    for (a, b) in reference.iter().zip(times) {
+        assert!(
+            (a - b).abs() < 1e-12,
+            "seed {seed}: jumps first {a}, random {b}"
+        );
+    }
+}
+
 fn assert_times(arc: &HybridArc, expected: &[f64], what: &str) {
     let got = jump_times(arc);
     assert_eq!(
@@ -202,14 +214,7 @@ fn random_priority_jumps_where_the_flow_leaves_c() {
                 jump.pre[0]
             );
         }
-        let times = jump_times(&arc);
-        assert_eq!(times.len(), reference.len(), "seed {seed}");
-        for (a, b) in reference.iter().zip(&times) {
-            assert!(
-                (a - b).abs() < 1e-12,
-                "seed {seed}: jumps first {a}, random {b}"
-            );
-        }
+        assert_same_times(&reference, &jump_times(&arc), seed);
     }
     // The hybrid clock of GST with D = {x = 1} on C's boundary: a coin that
     // chose to flow from x = 1 (or from the first float past it) ended the
@@ -233,14 +238,7 @@ fn random_priority_jumps_where_the_flow_leaves_c() {
             TerminationCause::HorizonT,
             "seed {seed}"
         );
-        let times = jump_times(&arc);
-        assert_eq!(times.len(), reference.len(), "seed {seed}");
-        for (a, b) in reference.iter().zip(&times) {
-            assert!(
-                (a - b).abs() < 1e-12,
-                "seed {seed}: jumps first {a}, random {b}"
-            );
-        }
+        assert_same_times(&reference, &jump_times(&arc), seed);
     }
 }
 
