@@ -258,18 +258,12 @@ fn every_rules_fire_every_period_under_every_priority() {
                sim { T = 1.05; priority = PRIORITY; seed = 4 }\n";
     for p in ["jumps", "flows", "random"] {
         let arc = run(&compile(&src.replace("PRIORITY", p)));
-        let steps: Vec<f64> = arc
-            .jumps()
-            .iter()
-            .filter(|r| arc.rule_name(r.rule) == Some("step"))
-            .map(|r| r.at.t)
-            .collect();
-        let redraws: Vec<f64> = arc
-            .jumps()
-            .iter()
-            .filter(|r| arc.rule_name(r.rule) == Some("v.redraw"))
-            .map(|r| r.at.t)
-            .collect();
+        let times_of = |rule: &str| -> Vec<f64> {
+            let fired = arc.jumps().iter();
+            let by_rule = fired.filter(|r| arc.rule_name(r.rule) == Some(rule));
+            by_rule.map(|r| r.at.t).collect()
+        };
+        let (steps, redraws) = (times_of("step"), times_of("v.redraw"));
         assert_eq!(steps.len(), 10, "{p}: steps at {steps:?}");
         for (k, t) in steps.iter().enumerate() {
             let want = 0.1 * (k + 1) as f64;
