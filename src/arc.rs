@@ -82,6 +82,96 @@ impl<F: Fn(HybridTime, &[f64], &mut [f64])> OutputMap for F {
     }
 }
 
+/// One integrator step of a flow interval, as a path a sink can evaluate
+/// anywhere on it: the step's interpolant (or the exact solution on the exact
+/// paths). Sinks that integrate along the flow (metrics' integrals and means)
+/// read it through [`ArcSink::flow_piece`].
+///
+/// ```
+/// use std::ops::ControlFlow;
+/// use hybsim::arc::{ArcSink, FlowPiece, HybridTime, SampleKind};
+/// use hybsim::{lang, source::SourceFile};
+///
+/// /// ∫x dt by the midpoint rule on each step's path.
+/// struct Area(f64);
+/// impl ArcSink for Area {
+///     fn sample(&mut self, _: HybridTime, _: &[f64], _: SampleKind) -> ControlFlow<()> {
+///         ControlFlow::Continue(())
+///     }
+///     fn jump(&mut self, _: HybridTime, _: usize, _: &[f64], _: &[f64]) -> ControlFlow<()> {
+///         ControlFlow::Continue(())
+///     }
+///     fn wants_flow_pieces(&self) -> bool {
+///         true
+///     }
+///     fn flow_piece(&mut self, piece: &mut FlowPiece<'_>) {
+///         let mut x = [0.0];
+///         piece.state_at(0.5, &mut x);
+///         self.0 += (piece.t1 - piece.t0) * x[0];
+///     }
+/// }
+///
+/// // x' = 1 from 0, reset to 0 at x = 1, to T = 2.5: ∫x dt = 1/2 + 1/2 + 1/8.
+/// let src = SourceFile::new(
+///     "saw.hyb",
+///     "model saw\nstate x = 0\nflow { x' = 1 }\njump r when x >= 1 { x+ = 0 }\nsim { T = 2.5 }\n",
+/// );
+/// let model = lang::compile(&src, &[]).unwrap();
+/// let (x0, mut rng) = model.start(model.seed());
+/// let mut area = Area(0.0);
+/// hybsim::engine::simulate(&model, &x0, &model.settings(), &mut rng, &mut area).unwrap();
+/// assert!((area.0 - 1.125).abs() < 1e-12);
+/// ```
+pub struct FlowPiece<'a> {
+    /// The jump count of the flow interval.
+    pub j: u64,
+    /// The step's start time.
+    pub t0: f64,
+    /// The step's end time (the end of the part the solution takes, up to an
+    /// event inside the step).
+    pub t1: f64,
+    /// The relative accuracy the path was computed to (the solver's `rtol`;
+    /// NaN for fixed-step methods): quadratures along it need no better.
+    pub accuracy: f64,
+    state: &'a mut dyn FnMut(f64, &mut [f64]) -> f64,
+}
+
+impl<'a> FlowPiece<'a> {
+    /// A piece over `[t0, t1]` at jump count `j`, computed to the relative
+    /// accuracy `accuracy`; `state(θ, x)` writes the state at the fraction
+    /// `θ ∈ [0, 1]` of the piece into `x` and returns its time.
+    pub fn new(
+        (j, t0, t1): (u64, f64, f64),
+        accuracy: f64,
+        state: &'a mut dyn FnMut(f64, &mut [f64]) -> f64,
+    ) -> Self {
+        Self {
+            j,
+            t0,
+            t1,
+            accuracy,
+            state,
+        }
+    }
+
+    /// Writes the state at the fraction `theta ∈ [0, 1]` of the piece into
+    /// `x` and returns its time (`t0` at 0, `t1` at 1).
+    pub fn state_at(&mut self, theta: f64, x: &mut [f64]) -> f64 {
+        (self.state)(theta, x)
+    }
+}
+
+impl std::fmt::Debug for FlowPiece<'_> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("FlowPiece")
+            .field("j", &self.j)
+            .field("t0", &self.t0)
+            .field("t1", &self.t1)
+            .field("accuracy", &self.accuracy)
+            .finish_non_exhaustive()
+    }
+}
+
 /// Receives a solution as it is computed. The engine pushes samples and
 /// jumps in hybrid-time order; a sink may stop the run by returning
 /// [`std::ops::ControlFlow::Break`].
@@ -128,6 +218,21 @@ pub trait ArcSink {
     fn wants_dense_points(&self) -> bool {
         true
     }
+
+    /// Whether the sink wants each integrator step's path
+    /// ([`flow_piece`](Self::flow_piece)). Default: `false` (the engine then
+    /// builds no pieces).
+    fn wants_flow_pieces(&self) -> bool {
+        false
+    }
+
+    /// The path of one integrator step of a flow interval, pushed before the
+    /// step's samples (so a sample at `(t, j)` with `piece.t0 <= t <=
+    /// piece.t1` comes after it). The pieces of a flow interval tile it,
+    /// except where the flow is advanced by a method without a path between
+    /// its steps (Euler–Maruyama): there, and for arcs replayed from memory,
+    /// no pieces are pushed. Default: nothing.
+    fn flow_piece(&mut self, _piece: &mut FlowPiece<'_>) {}
 }
 
 /// A change of the integrator during a run (`Solver::Auto`): from hybrid

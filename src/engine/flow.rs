@@ -37,7 +37,7 @@ use super::settings::{LinearSolver, SimSettings, Solver};
 use super::sparsity::{JacobianEval, system_pattern, use_sparse_lu};
 use super::stepper::OwnStepper;
 use super::system::SimRng;
-use crate::arc::{ArcSink, HybridTime, SampleKind, SolverSwitch};
+use crate::arc::{ArcSink, FlowPiece, HybridTime, SampleKind, SolverSwitch};
 
 /// Steps per `Rk4` stepper before it is restarted from its last state
 /// (bounds the memory of its output and preallocation).
@@ -146,6 +146,11 @@ pub(crate) struct Output<'a> {
     /// Whether points between step ends are placed (dense output, a sink
     /// that wants them).
     points: bool,
+    /// Whether the sink wants each step's path ([`ArcSink::flow_piece`]).
+    pieces: bool,
+    /// The relative accuracy of the steps (the solver's `rtol`; NaN for
+    /// fixed steps), told to the sinks with each step's path.
+    accuracy: f64,
     next_k: u64,
     buf: Vec<f64>,
     buf_lo: Vec<f64>,
@@ -158,13 +163,16 @@ pub(crate) struct Output<'a> {
 }
 
 impl<'a> Output<'a> {
-    pub fn new(sink: &'a mut dyn ArcSink, dt: Option<f64>, x0: &[f64]) -> Self {
+    pub fn new(sink: &'a mut dyn ArcSink, dt: Option<f64>, x0: &[f64], accuracy: f64) -> Self {
         let n = x0.len();
         let points = sink.wants_dense_points();
+        let pieces = sink.wants_flow_pieces();
         Self {
             sink,
             dt,
             points,
+            pieces,
+            accuracy,
             next_k: 1,
             buf: vec![0.0; n],
             buf_lo: vec![0.0; n],
@@ -228,11 +236,34 @@ impl<'a> Output<'a> {
         y_hi: &[f64],
         limit: f64,
     ) -> ControlFlow<()> {
+        let s_end = s_hi.min(limit);
+        // A straight path (Euler–Maruyama) has no path between its ends to
+        // offer: sinks integrate its samples.
+        if self.pieces && !P::STRAIGHT && s_end > s_lo {
+            let span = s_end - s_lo;
+            // The end is the step's own end state where the step is taken
+            // whole, so that a sink can recognise its sample there.
+            let mut state = |theta: f64, x: &mut [f64]| {
+                if theta >= 1.0 {
+                    if s_end == s_hi {
+                        x.copy_from_slice(y_hi);
+                    } else {
+                        path.eval(s_end, x);
+                    }
+                    return clock.at(s_end);
+                }
+                let s = s_lo + theta * span;
+                path.eval(s, x);
+                clock.at(s)
+            };
+            let times = (j, clock.at(s_lo), clock.at(s_end));
+            let mut piece = FlowPiece::new(times, self.accuracy, &mut state);
+            self.sink.flow_piece(&mut piece);
+        }
         match self.dt {
             None => {
                 // Dense points only on the part of the step the solution
                 // takes (up to an event inside it).
-                let s_end = s_hi.min(limit);
                 let parts = if self.points && !P::STRAIGHT && s_end > s_lo {
                     let mut y_end = std::mem::take(&mut self.buf_hi);
                     let parts = if s_end < s_hi {
@@ -2862,7 +2893,7 @@ mod tests {
     #[test]
     fn full_exact_steps_repeat_their_length_exactly() {
         let mut sink = crate::arc::HybridArc::default();
-        let out = super::Output::new(&mut sink, None, &[0.0]);
+        let out = super::Output::new(&mut sink, None, &[0.0], f64::NAN);
         let hw = 6.25e-6 / 3.0;
         let (mut s, mut steps) = (0.0, 0);
         loop {

@@ -6,15 +6,21 @@
 //! argument and window in the property frame `[x (n) | j | x⁺ (n) | t]`
 //! (see [`crate::check::property`]); the *metric program* combines the
 //! reduced values (registers `base..base + r` of its frame, `t` = the final
-//! time) into the metrics. Integrals and means use the trapezoid rule
-//! between consecutive samples of one flow interval, so their accuracy is
-//! that of the sample grid (`dt_out`, or the integrator's steps); the
-//! window is evaluated at the samples, and a flow segment counts if both
-//! its end samples are in it. `period` keeps the last values at the jumps
+//! time) into the metrics. Integrals and means are computed on the path of
+//! each integrator step ([`ArcSink::flow_piece`]: the solver's interpolant,
+//! or the exact solution), by adaptive Gauss–Legendre quadrature, with the
+//! times a window opens or closes inside a step found by bisection
+//! (`path.rs`), so neither depends on the sample grid; where the flow has
+//! no path between its steps (Euler–Maruyama) or the arc is replayed from
+//! memory, by the trapezoid rule between consecutive samples in the window.
+//! Extremes and finals read the samples, and where a window opens or closes
+//! inside a step, the state at that boundary. `period` keeps the last values at the jumps
 //! (a bounded buffer) and detects their period when the run ends. A sample
 //! at the hybrid time of the previous one, or after jumps that write no
 //! component the sample program reads (a noise redraw, for metrics of the
 //! plant), reuses the previous values instead of running the program.
+
+mod path;
 
 use std::collections::VecDeque;
 use std::ops::ControlFlow;
@@ -22,7 +28,7 @@ use std::ops::ControlFlow;
 use super::program::{Frame, Program};
 use super::with_regs;
 use crate::analysis::periodicity::{PeriodOutcome, PeriodSettings, detect_period_scalar};
-use crate::arc::{ArcSink, HybridTime, SampleKind, Termination};
+use crate::arc::{ArcSink, FlowPiece, HybridTime, SampleKind, Termination};
 use crate::check::dag::{Dag, Node};
 use crate::check::metric::{CheckedMetrics, ReductionKind};
 
@@ -33,6 +39,19 @@ struct Spec {
     arg: Option<usize>,
     /// Output of the sample program holding the window.
     window: Option<usize>,
+}
+
+/// Reductions that read a flow's path between samples, grouped by window:
+/// one search for the window's boundaries serves the group.
+#[derive(Debug, Clone)]
+struct PathGroup {
+    /// Output of the sample program holding the window.
+    window: Option<usize>,
+    /// Integrals and means (indices into the specs).
+    integrals: Vec<usize>,
+    /// Windowed extremes and finals, fed the state where the window opens
+    /// or closes inside a step.
+    edges: Vec<usize>,
 }
 
 /// A model's compiled metrics. Build a [`MetricSink`] per run with
@@ -68,6 +87,9 @@ pub struct Metrics {
     /// Whether two samples at the same hybrid time have the same values (the
     /// program draws nothing at random).
     deterministic: bool,
+    /// Reductions computed on the steps' paths; empty when none is (or the
+    /// program draws at random: values between samples would draw too).
+    path_groups: Vec<PathGroup>,
 }
 
 impl Metrics {
@@ -146,6 +168,11 @@ impl Metrics {
             })
             .collect();
         let sample_regs = sample.nregs.max(frame.fixed());
+        let path_groups = if draws {
+            Vec::new()
+        } else {
+            path_groups(&specs)
+        };
         let cframe = Frame {
             n: m.base + m.reductions.len(),
             m: 0,
@@ -169,6 +196,7 @@ impl Metrics {
             base: m.base,
             jump_keeps_values,
             deterministic: !draws,
+            path_groups,
         }
     }
 
@@ -199,6 +227,12 @@ impl Metrics {
             vals: vec![0.0; self.sample.outs.len()],
             prev_vals: vec![0.0; self.sample.outs.len()],
             end: None,
+            covered: None,
+            scratch: path::Scratch::default(),
+            piece_start: Vec::new(),
+            piece_end: Vec::new(),
+            piece_end_x: Vec::new(),
+            piece_end_at: None,
         }
     }
 
@@ -230,6 +264,40 @@ impl Metrics {
     }
 }
 
+/// The integrals and means, and the windowed extremes and finals, grouped by
+/// window (in order of first appearance).
+fn path_groups(specs: &[Spec]) -> Vec<PathGroup> {
+    let mut groups: Vec<PathGroup> = Vec::new();
+    for (k, spec) in specs.iter().enumerate() {
+        let integral = matches!(spec.kind, ReductionKind::Integral | ReductionKind::Mean);
+        let edge = spec.window.is_some()
+            && matches!(
+                spec.kind,
+                ReductionKind::Max | ReductionKind::Min | ReductionKind::Final
+            );
+        if !integral && !edge {
+            continue;
+        }
+        let g = match groups.iter().position(|g| g.window == spec.window) {
+            Some(g) => g,
+            None => {
+                groups.push(PathGroup {
+                    window: spec.window,
+                    integrals: Vec::new(),
+                    edges: Vec::new(),
+                });
+                groups.len() - 1
+            }
+        };
+        if integral {
+            groups[g].integrals.push(k);
+        } else {
+            groups[g].edges.push(k);
+        }
+    }
+    groups
+}
+
 /// The detector `period` uses: periods up to 500 steps, the last 4
 /// periods repeating the one before to 1e-9 (absolute and relative).
 fn period_settings() -> PeriodSettings {
@@ -253,7 +321,13 @@ enum Acc {
         den: f64,
     },
     Extreme(Option<f64>),
-    Final(f64),
+    /// The value at the latest point in the window so far (points reach it
+    /// out of order: a window's boundary inside a step before the step's
+    /// samples).
+    Final {
+        value: f64,
+        at: Option<HybridTime>,
+    },
     /// The last values at the jumps (oldest first).
     Period(VecDeque<f64>),
 }
@@ -265,8 +339,32 @@ impl Acc {
             ReductionKind::Integral => Acc::Integral(0.0),
             ReductionKind::Mean => Acc::Mean { num: 0.0, den: 0.0 },
             ReductionKind::Max | ReductionKind::Min => Acc::Extreme(None),
-            ReductionKind::Final => Acc::Final(f64::NAN),
+            ReductionKind::Final => Acc::Final {
+                value: f64::NAN,
+                at: None,
+            },
             ReductionKind::Period => Acc::Period(VecDeque::new()),
+        }
+    }
+
+    /// A point `(at, value)` inside the window, for an extreme or a final.
+    fn offer(&mut self, kind: ReductionKind, at: HybridTime, value: f64) {
+        match self {
+            Acc::Extreme(best) => {
+                let better = match *best {
+                    None => true,
+                    Some(b) if kind == ReductionKind::Max => value > b,
+                    Some(b) => value < b,
+                };
+                if better || value.is_nan() {
+                    *best = Some(value);
+                }
+            }
+            Acc::Final { value: v, at: a } if a.is_none_or(|a| at >= a) => {
+                *v = value;
+                *a = Some(at);
+            }
+            _ => {}
         }
     }
 
@@ -282,7 +380,7 @@ impl Acc {
                 }
             }
             Acc::Extreme(v) => v.unwrap_or(f64::NAN),
-            Acc::Final(v) => *v,
+            Acc::Final { value, .. } => *value,
             Acc::Period(values) => {
                 let values: Vec<f64> = values.iter().copied().collect();
                 match detect_period_scalar(&values, &period_settings()) {
@@ -309,6 +407,17 @@ pub struct MetricSink<'a> {
     vals: Vec<f64>,
     prev_vals: Vec<f64>,
     end: Option<HybridTime>,
+    /// The flow `(j, from, to)` whose integrals the steps' paths have given
+    /// (contiguous pieces): samples inside it add no trapezoid.
+    covered: Option<(u64, f64, f64)>,
+    scratch: path::Scratch,
+    /// The values at the last step's end (`piece_end_at`, state
+    /// `piece_end_x`): the next step's start, and the sample's there when
+    /// its state is that one.
+    piece_end: Vec<f64>,
+    piece_end_x: Vec<f64>,
+    piece_end_at: Option<HybridTime>,
+    piece_start: Vec<f64>,
 }
 
 impl MetricSink<'_> {
@@ -351,11 +460,21 @@ impl ArcSink for MetricSink<'_> {
             self.end = Some(at);
             return ControlFlow::Continue(());
         }
-        self.m.eval(at, x, &mut self.vals);
+        if self.piece_end_at == Some(at) && self.piece_end_x == x {
+            self.vals.copy_from_slice(&self.piece_end);
+        } else {
+            self.m.eval(at, x, &mut self.vals);
+        }
         let holds = |vals: &[f64], w: Option<usize>| w.is_none_or(|w| vals[w] != 0.0);
-        // Flow interval since the previous sample (same j).
+        // Flow interval since the previous sample (same j), unless the
+        // steps' paths have integrated it.
         let dt = match self.prev {
-            Some(p) if p.j == at.j && at.t > p.t => at.t - p.t,
+            Some(p) if p.j == at.j && at.t > p.t => {
+                let on_path = self
+                    .covered
+                    .is_some_and(|(j, from, to)| j == at.j && from <= p.t && at.t <= to);
+                if on_path { 0.0 } else { at.t - p.t }
+            }
             _ => 0.0,
         };
         for (spec, acc) in self.m.specs.iter().zip(&mut self.acc) {
@@ -374,20 +493,8 @@ impl ArcSink for MetricSink<'_> {
                     }
                 }
                 Acc::Integral(_) | Acc::Mean { .. } => {}
-                Acc::Extreme(best) => {
-                    if now_in {
-                        let better = match *best {
-                            None => true,
-                            Some(b) if spec.kind == ReductionKind::Max => value > b,
-                            Some(b) => value < b,
-                        };
-                        if better || value.is_nan() {
-                            *best = Some(value);
-                        }
-                    }
-                }
-                Acc::Final(v) if now_in => *v = value,
-                Acc::Final(_) => {}
+                Acc::Extreme(_) | Acc::Final { .. } if now_in => acc.offer(spec.kind, at, value),
+                Acc::Extreme(_) | Acc::Final { .. } => {}
                 Acc::Period(_) => {}
             }
         }
@@ -439,4 +546,39 @@ impl ArcSink for MetricSink<'_> {
     }
 
     fn finish(&mut self, _termination: &Termination) {}
+
+    fn wants_flow_pieces(&self) -> bool {
+        !self.m.path_groups.is_empty()
+    }
+
+    fn flow_piece(&mut self, piece: &mut FlowPiece<'_>) {
+        if !(piece.t1 > piece.t0) {
+            return;
+        }
+        self.covered = match self.covered {
+            // Contiguous with the pieces before it in the same flow interval.
+            Some((j, from, to))
+                if j == piece.j && (piece.t0 - to).abs() <= 1e-12 * to.abs().max(1.0) =>
+            {
+                Some((j, from, piece.t1))
+            }
+            _ => Some((piece.j, piece.t0, piece.t1)),
+        };
+        let t0 = HybridTime::new(piece.t0, piece.j);
+        let start = if self.prev == Some(t0) {
+            Some(&self.prev_vals[..])
+        } else if self.piece_end_at == Some(t0) {
+            std::mem::swap(&mut self.piece_start, &mut self.piece_end);
+            Some(&self.piece_start[..])
+        } else {
+            None
+        };
+        let ends = path::Ends {
+            start,
+            end: &mut self.piece_end,
+            end_x: &mut self.piece_end_x,
+        };
+        path::integrate_piece(self.m, &mut self.acc, &mut self.scratch, piece, ends);
+        self.piece_end_at = Some(HybridTime::new(piece.t1, piece.j));
+    }
 }

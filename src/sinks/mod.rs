@@ -38,7 +38,8 @@ use std::path::{Path, PathBuf};
 use serde::Serialize;
 
 use crate::arc::{
-    ArcSink, HybridArc, HybridTime, SampleKind, SolverSwitch, Termination, TerminationCause,
+    ArcSink, FlowPiece, HybridArc, HybridTime, SampleKind, SolverSwitch, Termination,
+    TerminationCause,
 };
 use crate::layout::{Entry, Field, Layout};
 
@@ -940,6 +941,18 @@ impl ArcSink for Fanout<'_> {
 
     fn wants_dense_points(&self) -> bool {
         self.sinks.iter().any(|s| s.wants_dense_points())
+    }
+
+    fn wants_flow_pieces(&self) -> bool {
+        self.sinks.iter().any(|s| s.wants_flow_pieces())
+    }
+
+    fn flow_piece(&mut self, piece: &mut FlowPiece<'_>) {
+        for s in &mut self.sinks {
+            if s.wants_flow_pieces() {
+                s.flow_piece(piece);
+            }
+        }
     }
 }
 

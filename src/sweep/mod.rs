@@ -42,7 +42,9 @@ use rayon::prelude::*;
 pub use grid::{Axis, Shard, run_seed};
 pub use table::{PointRow, RunRow, Stats};
 
-use crate::arc::{ArcSink, HybridTime, SampleKind, SolverSwitch, Termination, TerminationCause};
+use crate::arc::{
+    ArcSink, FlowPiece, HybridTime, SampleKind, SolverSwitch, Termination, TerminationCause,
+};
 use crate::engine::simulate;
 use crate::lang::{self, CheckOptions, CompiledModel, Override};
 use crate::num::Num;
@@ -685,6 +687,14 @@ impl<S: ArcSink> ArcSink for Stoppable<'_, S> {
 
     fn wants_dense_points(&self) -> bool {
         self.inner.wants_dense_points()
+    }
+
+    fn wants_flow_pieces(&self) -> bool {
+        self.inner.wants_flow_pieces()
+    }
+
+    fn flow_piece(&mut self, piece: &mut FlowPiece<'_>) {
+        self.inner.flow_piece(piece);
     }
 }
 

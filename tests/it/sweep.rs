@@ -51,18 +51,78 @@ fn metrics_match_closed_forms() {
     assert_eq!(get("ticks"), 9.0);
     assert_eq!(get("late_ticks"), 5.0);
     assert!(close(get("per_time"), 0.9));
-    // ∫_0^3 x² dt = 9, trapezoid on a 0.1 grid: 9 + 3·0.1²/6.
-    assert!(
-        close(get("area_sq"), 9.0 + 3.0 * 0.01 / 6.0),
-        "{}",
-        get("area_sq")
-    );
+    // ∫_0^3 x² dt = 9 on the steps' paths, whatever the sample grid (the
+    // trapezoid rule on the 0.1 grid gave 9 + 3·0.1²/6).
+    assert!(close(get("area_sq"), 9.0), "{}", get("area_sq"));
     assert!(close(get("scaled"), 25.0));
-    // The last sample in the window (t = 2.0000000000000004), NaN if none.
-    assert!(close(get("at_2"), 2.0), "{}", get("at_2"));
+    // The window's last point: where it closes, between two samples; NaN if
+    // there is none.
+    assert!(close(get("at_2"), 2.05), "{}", get("at_2"));
     assert!(get("never").is_nan());
     let names: Vec<&str> = m.iter().map(|(k, _)| k.as_str()).collect();
     assert_eq!(names[..3], ["area", "avg", "late"]);
+}
+
+/// Integrals, means and windows on long steps (exact timer, polynomial and exponential flows,
+/// no `dt_out`: one or a few steps per flow interval) follow the path between the samples: the
+/// trapezoid rule between step ends gave `integral(x, t >= 2.5)` = 0 (the step [2, 4] straddles
+/// the window's start) and `mean(x^2)` = 2 on the saw-tooth below.
+#[test]
+fn integrals_means_and_windows_follow_the_path_between_samples() {
+    let close = |a: f64, b: f64| (a - b).abs() < 1e-9 * (1.0 + b.abs());
+    let m = metrics_of(
+        "model saw
+state x = 0
+flow { x' = 1 }
+jump reset when x >= 2 { x+ = 0 }
+metric late = integral(x, t >= 2.5), sq = mean(x^2), band = integral(1, x >= 0.5 && x <= 1.25)
+metric upto = final(x, t <= 2.5), top = max(x, t <= 1.5), low = min(x, t >= 2.25)
+sim { T = 4; J = 10 }
+",
+    );
+    // `band` opens and closes inside each one-step tooth: 0.75 of each.
+    let want = [1.875, 4.0 / 3.0, 1.5, 0.5, 1.5, 0.25];
+    for ((name, got), want) in m.iter().zip(want) {
+        assert!(close(*got, want), "{name} = {got}, want {want}: {m:?}");
+    }
+    // A bouncing ball's exact polynomial flights: ∫h and the mean of h after t = 1 in closed form.
+    let m = metrics_of(
+        "model ball
+state h = 1, v = 0
+flow { h' = v; v' = -9.81 }
+jump bounce when h <= 0 && v <= 0 { v+ = -0.8 * v }
+metric area = integral(h), late = mean(h, t >= 1)
+sim { T = 3; J = 100 }
+",
+    );
+    let (g, horizon) = (9.81, 3.0);
+    let (mut t, mut h, mut v, mut area, mut late) = (0.0_f64, 1.0_f64, 0.0_f64, 0.0, 0.0);
+    while t < horizon {
+        let flight = (v + (v * v + 2.0 * g * h).sqrt()) / g;
+        let height = |s: f64| h * s + v * s * s / 2.0 - g * s * s * s / 6.0;
+        let end = (t + flight).min(horizon);
+        area += height(end - t);
+        if end > 1.0 {
+            late += height(end - t) - height((1.0_f64 - t).max(0.0));
+        }
+        (t, h, v) = (t + flight, 0.0, -0.8 * (v - g * flight));
+    }
+    assert!(close(m[0].1, area), "{m:?} against {area}");
+    assert!(close(m[1].1, late / 2.0), "{m:?} against {}", late / 2.0);
+    // An exponential decay in long exact steps and on Dopri5's steps.
+    for exact in ["on", "off"] {
+        let m = metrics_of(&format!(
+            "model decay
+state x = 1
+flow {{ x' = -x }}
+metric area = integral(x), late = mean(x, t >= 1)
+sim {{ T = 5; exact_affine = {exact}; rtol = 1e-10; atol = 1e-12 }}
+"
+        ));
+        let e = |t: f64| (-t).exp();
+        assert!(close(m[0].1, 1.0 - e(5.0)), "{exact}: {m:?}");
+        assert!(close(m[1].1, (e(1.0) - e(5.0)) / 4.0), "{exact}: {m:?}");
+    }
 }
 
 #[test]
