@@ -591,6 +591,7 @@ pub fn simulate<S: HybridSystem + ?Sized>(
         if !std::mem::take(&mut flow_goes_on) {
             flow_from = t;
         }
+        out.segment_end(time.at(d_end));
         let end = flows
             .segment(sys, &mut out, rng, t, j, &mut x, d_end)
             .map_err(|e| sys.take_fault().map_or(e, SimError::from))?;
