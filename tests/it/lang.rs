@@ -213,7 +213,10 @@ fn a_param_list_mixes_definitions_and_draws() {
     let (m, _) = lang::compile_run(&src, &[], Some(5)).unwrap();
     let p = m.parameters_json();
     let (l1, l2) = (p["b1.lam"].as_f64().unwrap(), p["b2.lam"].as_f64().unwrap());
-    assert!(l1 != l2 && (0.5..=0.9).contains(&l1) && (0.5..=0.9).contains(&l2), "{p}");
+    assert!(
+        l1 != l2 && (0.5..=0.9).contains(&l1) && (0.5..=0.9).contains(&l2),
+        "{p}"
+    );
     assert_eq!(p["b2.k"].as_f64(), Some(2.0 * l2));
     // Draws stay where they were refused: in a design block's results.
     let src = SourceFile::new(
