@@ -279,6 +279,10 @@ pub enum TerminationCause {
         failed: Vec<FailedAtom>,
         /// The state.
         state: Vec<f64>,
+        /// The time at which the last flow started (the same j): with
+        /// `leaving`, the start of the flow that left C (where a jump
+        /// landed, or the initial point); else the end's own time.
+        flow_from: f64,
     },
     /// The sink asked to stop (e.g. a file limit or a user interrupt); the
     /// sinks still get the `Final` sample of the state where the run stopped.

@@ -201,9 +201,72 @@ impl Layout {
         })
     }
 
-    /// The layout of the entries named in `names` (see [`find`](Self::find)),
-    /// in declaration order, members of one family merged into one entry;
-    /// and the names that refer to nothing.
+    /// The entries a model name selects: the entry [`find`](Self::find)
+    /// gives, else those of a subsystem instance: `b1` (or a nested
+    /// `plant.adc`) every state or output of the instance, `f[2]` those of
+    /// member 2 of a family of instances, `f[2].c` (`f.c[2]`) member 2's
+    /// whole family `c`. Empty if the name selects nothing.
+    pub fn find_all(&self, name: &str) -> Vec<Entry> {
+        if let Some(e) = self.find(name) {
+            return vec![e];
+        }
+        let name = instance_index_last(name.trim());
+        let (base, label) = match name.strip_suffix(']').and_then(|n| n.split_once('[')) {
+            Some((base, label)) => (base.trim(), Some(label.replace(' ', ""))),
+            None => (name.as_str(), None),
+        };
+        if base.is_empty() || base.contains(['[', ']']) {
+            return Vec::new();
+        }
+        let under = |n: &str| {
+            n.strip_prefix(base)
+                .is_some_and(|rest| rest.starts_with('.'))
+        };
+        // An index selects a member of a family of instances, whose every
+        // entry is a family: a single instance has no members.
+        let single = |e: &Entry| matches!(e, Entry::Field(f) if under(&f.name));
+        if label.is_some() && self.entries.iter().any(single) {
+            return Vec::new();
+        }
+        self.entries
+            .iter()
+            .filter_map(|e| match (e, &label) {
+                (_, None) => under(entry_name(e)).then(|| e.clone()),
+                (Entry::Field(_), Some(_)) => None,
+                (
+                    Entry::Family {
+                        name: n,
+                        labels,
+                        members,
+                    },
+                    Some(label),
+                ) => {
+                    // Only a family of instances (a dotted name) is indexed
+                    // first by the instance: `e[1]` of a family `e[i, k]`
+                    // stays an error.
+                    if !(under(n) || (n == base && n.contains('.'))) {
+                        return None;
+                    }
+                    let lead = format!("{label},");
+                    let (labels, members): (Vec<_>, Vec<_>) = labels
+                        .iter()
+                        .zip(members)
+                        .filter(|(l, _)| *l == label || l.starts_with(&lead))
+                        .map(|(l, m)| (l.clone(), m.clone()))
+                        .unzip();
+                    (!labels.is_empty()).then(|| Entry::Family {
+                        name: n.clone(),
+                        labels,
+                        members,
+                    })
+                }
+            })
+            .collect()
+    }
+
+    /// The layout of the entries named in `names` (see
+    /// [`find_all`](Self::find_all)), in declaration order, members of one
+    /// family merged into one entry; and the names that refer to nothing.
     pub fn select<S: AsRef<str>>(&self, names: &[S]) -> (Layout, Vec<String>) {
         let mut unknown = Vec::new();
         // Per entry of self: None (not selected), or the selected member labels
@@ -211,23 +274,26 @@ impl Layout {
         let mut chosen: Vec<Option<Vec<String>>> = vec![None; self.entries.len()];
         for name in names {
             let name = name.as_ref();
-            let Some(found) = self.find(name) else {
+            let found = self.find_all(name);
+            if found.is_empty() {
                 unknown.push(name.to_string());
                 continue;
-            };
-            let k = self
-                .entries
-                .iter()
-                .position(|e| entry_name(e) == entry_name(&found))
-                .expect("found in self");
-            let labels = match &found {
-                Entry::Field(_) => Vec::new(),
-                Entry::Family { labels, .. } => labels.clone(),
-            };
-            let slot = chosen[k].get_or_insert_with(Vec::new);
-            for l in labels {
-                if !slot.contains(&l) {
-                    slot.push(l);
+            }
+            for found in found {
+                let k = self
+                    .entries
+                    .iter()
+                    .position(|e| entry_name(e) == entry_name(&found))
+                    .expect("found in self");
+                let labels = match &found {
+                    Entry::Field(_) => Vec::new(),
+                    Entry::Family { labels, .. } => labels.clone(),
+                };
+                let slot = chosen[k].get_or_insert_with(Vec::new);
+                for l in labels {
+                    if !slot.contains(&l) {
+                        slot.push(l);
+                    }
                 }
             }
         }
@@ -434,5 +500,54 @@ mod tests {
                 "agent[1,2].xhat"
             ]
         );
+    }
+
+    #[test]
+    fn an_instance_name_selects_all_of_the_instance() {
+        // `b1 = Ball()`, `b10 = Ball()`, a family `f[i] = Osc()` with a
+        // family `c[m]` inside, and a family `e[i, k]` of the model.
+        let mut offset = 0;
+        let mut item = |name: &'static str, family: Option<(&'static str, &'static str)>| {
+            offset += 1;
+            Declared {
+                name,
+                shape: Shape::Scalar,
+                offset: offset - 1,
+                family,
+            }
+        };
+        let layout = Layout::from_declared([
+            item("b1.h", None),
+            item("b1.v", None),
+            item("b10.h", None),
+            item("f.x[1]", Some(("f.x", "1"))),
+            item("f.x[2]", Some(("f.x", "2"))),
+            item("f.c[1,1]", Some(("f.c", "1,1"))),
+            item("f.c[1,2]", Some(("f.c", "1,2"))),
+            item("f.c[2,1]", Some(("f.c", "2,1"))),
+            item("f.c[2,2]", Some(("f.c", "2,2"))),
+            item("e[1,1]", Some(("e", "1,1"))),
+            item("e[1,2]", Some(("e", "1,2"))),
+        ]);
+        let names = |sel: &[&str]| -> Vec<String> {
+            let (layout, unknown) = layout.select(sel);
+            assert!(unknown.is_empty(), "{unknown:?}");
+            layout.components().into_iter().map(|(_, n)| n).collect()
+        };
+        assert_eq!(names(&["b1"]), ["b1.h", "b1.v"]);
+        assert_eq!(
+            names(&["f"]),
+            [
+                "f.x[1]", "f.x[2]", "f.c[1,1]", "f.c[1,2]", "f.c[2,1]", "f.c[2,2]"
+            ]
+        );
+        assert_eq!(names(&["f[2]"]), ["f.x[2]", "f.c[2,1]", "f.c[2,2]"]);
+        assert_eq!(names(&["f[2].c"]), ["f.c[2,1]", "f.c[2,2]"]);
+        assert_eq!(names(&["f.c[1]", "b1.v"]), ["b1.v", "f.c[1,1]", "f.c[1,2]"]);
+        // Exact names are found as before; nothing else is taken for an instance.
+        assert_eq!(names(&["f.c[2,1]"]), ["f.c[2,1]"]);
+        for nope in ["b", "f[3]", "e[1]", "b1[1]", "h", "f.", ""] {
+            assert!(layout.find_all(nope).is_empty(), "{nope}");
+        }
     }
 }

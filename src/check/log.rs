@@ -231,7 +231,7 @@ fn var_name(c: &mut Checker, n: &LogName) -> Option<String> {
         // A state or output of a subsystem instance: `ball.h`; of a member of a family of
         // instances, `f[2].x` (the family `f.x`, indexed first by the instance).
         let dotted = format!("{name}.{}", suffix.name);
-        if !c.syms.contains_key(&dotted) {
+        if !c.syms.contains_key(&dotted) && instance_keys(c, &dotted).is_empty() {
             c.err(CheckError::Expected {
                 expected: "a state or an output (`x`, `xh[2]`, `ball.h`)".into(),
                 found: format!("`{}`", dotted),
@@ -242,6 +242,12 @@ fn var_name(c: &mut Checker, n: &LogName) -> Option<String> {
         name = dotted;
     }
     let name = name.as_str();
+    if !c.syms.contains_key(name) {
+        let keys = instance_keys(c, name);
+        if !keys.is_empty() {
+            return instance_var(c, n, name, &keys);
+        }
+    }
     let family = match c.syms.get(name) {
         Some(Sym::State { .. } | Sym::Output { .. }) => false,
         Some(Sym::StateFamily { .. } | Sym::OutputFamily { .. }) => true,
@@ -293,9 +299,14 @@ fn var_name(c: &mut Checker, n: &LogName) -> Option<String> {
         }
         (true, Some(label)) => {
             let key: Vec<i64> = label.split(',').filter_map(|s| s.parse().ok()).collect();
+            // A family of instances' family (`f[2].c`, the model's
+            // `f.c[i, m]`) is indexed first by the instance: `[2]` selects
+            // member 2's whole family.
+            let nested = name.contains('.');
+            let has = |k: &Vec<i64>| *k == key || (nested && k.starts_with(&key));
             let present = match c.syms.get(name) {
-                Some(Sym::StateFamily { members, .. }) => members.contains_key(&key),
-                Some(Sym::OutputFamily { members, .. }) => members.contains_key(&key),
+                Some(Sym::StateFamily { members, .. }) => members.keys().any(has),
+                Some(Sym::OutputFamily { members, .. }) => members.keys().any(has),
                 _ => false,
             };
             if !present {
@@ -309,6 +320,63 @@ fn var_name(c: &mut Checker, n: &LogName) -> Option<String> {
                 return None;
             }
             Some(format!("{name}[{label}]"))
+        }
+    }
+}
+
+/// The keys of the states and outputs of the subsystem instance `name`
+/// (`ball`, `f`, a nested `plant.adc`), empty if it is none: `[]` for a
+/// plain state or output, the family keys of a family (of instances, the
+/// instance's index first).
+fn instance_keys(c: &Checker, name: &str) -> Vec<Vec<i64>> {
+    let mut keys = Vec::new();
+    for (sym_name, sym) in &c.syms {
+        let under = sym_name
+            .strip_prefix(name)
+            .is_some_and(|rest| rest.starts_with('.'));
+        if !under {
+            continue;
+        }
+        match sym {
+            Sym::State { .. } | Sym::Output { .. } => keys.push(Vec::new()),
+            Sym::StateFamily { members, .. } => keys.extend(members.keys().cloned()),
+            Sym::OutputFamily { members, .. } => keys.extend(members.keys().cloned()),
+            _ => {}
+        }
+    }
+    keys
+}
+
+/// `vars` naming a whole subsystem instance (`ball`: its states and
+/// outputs) or a member of a family of instances (`f[2]`), whose states
+/// and outputs have the `keys`.
+fn instance_var(c: &mut Checker, n: &LogName, name: &str, keys: &[Vec<i64>]) -> Option<String> {
+    match label_of(c, n)? {
+        None => Some(name.to_string()),
+        Some(label) => {
+            let key: Vec<i64> = label.split(',').filter_map(|s| s.parse().ok()).collect();
+            if keys.iter().any(|k| k.is_empty()) {
+                c.err(CheckError::Expected {
+                    expected: format!("`{name}` whole (an instance, not a family of instances)"),
+                    found: "an index".into(),
+                    span: n.span,
+                });
+                return None;
+            }
+            if keys.iter().any(|k| k.starts_with(&key)) {
+                return Some(format!("{name}[{label}]"));
+            }
+            let mut firsts: Vec<i64> = keys.iter().filter_map(|k| k.first().copied()).collect();
+            firsts.sort_unstable();
+            firsts.dedup();
+            let labels: Vec<String> = firsts.iter().map(|i| i.to_string()).collect();
+            c.err(CheckError::FamilyOutOfRange {
+                name: name.to_string(),
+                index: label,
+                members: super::expr::members_words(&labels),
+                span: n.span,
+            });
+            None
         }
     }
 }

@@ -160,6 +160,9 @@ pub(crate) struct Output<'a> {
     /// The local time of the flow sample at which the sink asked to stop:
     /// the run ends there, not at the end of the step that sample is in.
     stopped_at: Option<f64>,
+    /// The global time the current segment ends at unless an event ends it
+    /// first (a timer's expiry, the horizon): no flow sample at or after it.
+    end_t: f64,
 }
 
 impl<'a> Output<'a> {
@@ -179,7 +182,16 @@ impl<'a> Output<'a> {
             buf_hi: vec![0.0; n],
             scale: x0.iter().map(|v| v.abs()).collect(),
             stopped_at: None,
+            end_t: f64::INFINITY,
         }
+    }
+
+    /// Starts a segment that ends at global time `end_t` at the latest. A
+    /// grid point there is the end's own sample (pre-jump or final), also
+    /// where the grid's local time falls a rounding short of the end and
+    /// on a step of its own (the timer's expiry a few ulps past it).
+    pub fn segment_end(&mut self, end_t: f64) {
+        self.end_t = end_t;
     }
 
     /// Whether flows are sampled densely (no output grid): flows advanced
@@ -224,7 +236,10 @@ impl<'a> Output<'a> {
 
     /// Pushes the flow samples of the step `(s_lo, s_hi]` (local times,
     /// global `clock.at(s)`, the times events are recorded at) that lie
-    /// strictly before `limit`.
+    /// strictly before `limit`, in local and in global time: a sample the
+    /// global time's rounding puts at the segment's end would be a second
+    /// point at the end's hybrid time (a grid point `k·dt` at a timer's
+    /// event, with the state a rounding short of the threshold).
     #[allow(clippy::too_many_arguments)]
     fn step<P: DensePath>(
         &mut self,
@@ -260,6 +275,11 @@ impl<'a> Output<'a> {
             let mut piece = FlowPiece::new(times, self.accuracy, &mut state);
             self.sink.flow_piece(&mut piece);
         }
+        let t_limit = if limit.is_finite() {
+            clock.at(limit).min(self.end_t)
+        } else {
+            self.end_t
+        };
         match self.dt {
             None => {
                 // Dense points only on the part of the step the solution
@@ -281,11 +301,11 @@ impl<'a> Output<'a> {
                     let sink = &mut *self.sink;
                     let mut stopped = None;
                     let mut emit = |s: f64, y: &[f64]| {
-                        if s >= limit {
+                        let t = clock.at(s);
+                        if s >= limit || t >= t_limit {
                             return ControlFlow::Break(());
                         }
-                        let flow =
-                            sink.sample(HybridTime::new(clock.at(s), j), y, SampleKind::Flow);
+                        let flow = sink.sample(HybridTime::new(t, j), y, SampleKind::Flow);
                         if flow.is_break() {
                             stopped = Some(s);
                         }
@@ -298,12 +318,11 @@ impl<'a> Output<'a> {
                         return ControlFlow::Break(());
                     }
                 }
-                if s_hi < limit {
-                    let flow = self.sink.sample(
-                        HybridTime::new(clock.at(s_hi), j),
-                        y_hi,
-                        SampleKind::Flow,
-                    );
+                let t_hi = clock.at(s_hi);
+                if s_hi < limit && t_hi < t_limit {
+                    let flow = self
+                        .sink
+                        .sample(HybridTime::new(t_hi, j), y_hi, SampleKind::Flow);
                     if flow.is_break() {
                         self.stopped_at = Some(s_hi);
                         return flow;
@@ -313,7 +332,7 @@ impl<'a> Output<'a> {
             Some(dt) => loop {
                 let tg = self.next_k as f64 * dt;
                 let sg = tg - clock.value();
-                if sg > s_hi || sg >= limit {
+                if sg > s_hi || sg >= limit || tg >= t_limit {
                     break;
                 }
                 if sg > s_lo {

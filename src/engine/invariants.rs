@@ -5,7 +5,9 @@
 //!   inequality atom holds exactly at the pre-jump state; an equality atom
 //!   `g = 0`, which the engine meets by a sign change inside an event
 //!   bracket of width `event_tol` in t, is accepted when `|g| ≤ set_tol`;
-//! - samples come in hybrid-time order (t and j nondecreasing);
+//! - samples come in hybrid-time order (t and j nondecreasing), and
+//!   samples at one hybrid time (t, j) hold one state (a solution is a
+//!   function on its hybrid time domain);
 //! - each flow starts in C within [`set_tol`](super::SimSettings::set_tol)
 //!   on C's atoms (a flow starts at the initial point or after a jump when
 //!   the next sample is later in t at the same j).
@@ -44,6 +46,20 @@ pub enum ArcViolation {
         before: HybridTime,
         /// The sample's hybrid time.
         at: HybridTime,
+    },
+    /// Two samples at one hybrid time hold different states.
+    #[error("two samples at {at} hold different states: x = {x:?} ({kind}) and {y:?} ({next})")]
+    TwoStates {
+        /// Their hybrid time.
+        at: HybridTime,
+        /// The first state.
+        x: Vec<f64>,
+        /// The first sample's kind.
+        kind: String,
+        /// The second state.
+        y: Vec<f64>,
+        /// The second sample's kind.
+        next: String,
     },
     /// A flow started from a point outside C (beyond `set_tol`).
     #[error("a flow starts outside the flow set at {at}: x = {x:?}")]
@@ -85,6 +101,20 @@ pub fn check_arc<S: HybridSystem + ?Sized>(
             return Err(ArcViolation::TimeBackwards {
                 before: a.at,
                 at: b.at,
+            });
+        }
+        let same = |p: &[f64], q: &[f64]| {
+            p.iter()
+                .zip(q)
+                .all(|(u, v)| u == v || (u.is_nan() && v.is_nan()))
+        };
+        if b.at == a.at && !same(a.x, b.x) {
+            return Err(ArcViolation::TwoStates {
+                at: a.at,
+                x: a.x.to_vec(),
+                kind: format!("{:?}", a.kind),
+                y: b.x.to_vec(),
+                next: format!("{:?}", b.kind),
             });
         }
         let starts_flow = matches!(a.kind, SampleKind::Initial | SampleKind::PostJump)

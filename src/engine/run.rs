@@ -347,6 +347,11 @@ pub fn simulate<S: HybridSystem + ?Sized>(
         Ok(term)
     };
 
+    // Where the last flow started (W0603 tells a flow that left C where it
+    // started from one that ran along C's boundary for a while).
+    let mut flow_from = 0.0;
+    // The last segment stopped at a chunk's end: the flow goes on.
+    let mut flow_goes_on = false;
     if out
         .sink
         .sample(HybridTime::new(0.0, 0), &x, SampleKind::Initial)
@@ -541,6 +546,7 @@ pub fn simulate<S: HybridSystem + ?Sized>(
                 leaving: left_flow_set,
                 failed: flow_set.failed_atoms(sys, at, &x),
                 state: x.clone(),
+                flow_from: if left_flow_set { flow_from } else { t },
             };
             return finish(&mut out, at, &x, cause);
         }
@@ -583,6 +589,10 @@ pub fn simulate<S: HybridSystem + ?Sized>(
         last_alone = None;
         // A failed evaluation in the flow map makes its NaN an integrator
         // failure; the fault says why.
+        if !std::mem::take(&mut flow_goes_on) {
+            flow_from = t;
+        }
+        out.segment_end(time.at(d_end));
         let end = flows
             .segment(sys, &mut out, rng, t, j, &mut x, d_end)
             .map_err(|e| sys.take_fault().map_or(e, SimError::from))?;
@@ -611,7 +621,7 @@ pub fn simulate<S: HybridSystem + ?Sized>(
                     x[index] = threshold;
                 }
             }
-            EndWhy::Partial => {}
+            EndWhy::Partial => flow_goes_on = true,
             EndWhy::Event(kind) => {
                 match kind {
                     EventKind::Jump(r) => {

@@ -1250,6 +1250,7 @@ impl CompiledModel {
             leaving,
             failed,
             state,
+            flow_from,
         } = &term.cause
         else {
             return None;
@@ -1283,10 +1284,13 @@ impl CompiledModel {
             d = d.primary(*span, label);
         }
         // A flow that left C just past the `set_tol` its atoms were relaxed
-        // by has most likely run along C's boundary (tangent to it, as a
-        // rotation on the circle bounding C), where the integrator's error
-        // alone carries it out; an exit across the boundary fails by a
-        // rounding error instead.
+        // by started within `set_tol` of C's boundary (atoms are relaxed
+        // only there; an exit across the boundary from inside fails by a
+        // rounding error instead). Either it pointed out of C from that
+        // start (a jump landed on the boundary where the flow leaves C):
+        // the state has then barely moved; or it ran along the boundary
+        // (tangent to it, as a rotation on the circle bounding C), where the
+        // integrator's error alone carries it out.
         let set_tol = self.settings().set_tol;
         if *leaving
             && set_tol > 0.0
@@ -1294,13 +1298,31 @@ impl CompiledModel {
                 .iter()
                 .any(|a| (set_tol..=1e3 * set_tol).contains(&a.value.abs()))
         {
-            d = d.note(format!(
-                "C fails by just over `set_tol` = {}, the tolerance its atoms were relaxed by: a \
-                 solution running along C's boundary (a flow tangent to it) leaves C by the \
-                 integrator's error; if the exact solution stays in C, tighten `rtol` and `atol` \
-                 or raise `set_tol`",
-                describe::number(set_tol)
-            ));
+            let flowed = at.t - flow_from;
+            let note = if self.barely_moved(at, state, flowed, 1e3 * set_tol) {
+                format!(
+                    "C fails by just over `set_tol` = {}, the tolerance its atoms were relaxed by \
+                     where this flow started, within `set_tol` of C's boundary, at t = {} \
+                     ({} earlier): the flow points out of C there, so the solution of the exact \
+                     sets ends at that point (with `set_tol = 0` it ends there); to flow on, the \
+                     state must land inside C (check the jump map or initial value that put it on \
+                     C's boundary) or in a jump set",
+                    describe::number(set_tol),
+                    describe::number(*flow_from),
+                    describe::number(flowed)
+                )
+            } else {
+                format!(
+                    "C fails by just over `set_tol` = {}, the tolerance its atoms were relaxed by \
+                     where this flow started, within `set_tol` of C's boundary, at t = {}: a \
+                     solution running along C's boundary (a flow tangent to it) leaves C by the \
+                     integrator's error; if the exact solution stays in C, tighten `rtol` and \
+                     `atol` or raise `set_tol`",
+                    describe::number(set_tol),
+                    describe::number(*flow_from)
+                )
+            };
+            d = d.note(note);
         }
         let names = self.state_names();
         let values: Vec<String> = state
@@ -1312,6 +1334,25 @@ impl CompiledModel {
             })
             .collect();
         Some(d.note(format!("the state there: {}", values.join(", "))))
+    }
+
+    /// Whether a flow of duration `flowed` ending at `x` moved each state
+    /// component by at most `tol` relative to its size (at least 1),
+    /// estimated from the flow's rate at the end: a flow that left C where
+    /// it started, rather than one that ran along C's boundary.
+    fn barely_moved(&self, at: HybridTime, x: &[f64], flowed: f64, tol: f64) -> bool {
+        if flowed.is_nan() || flowed < 0.0 || x.len() != self.state_dim() {
+            return false;
+        }
+        let mut dx = vec![0.0; x.len()];
+        self.flow_map(at, x, &mut dx);
+        // A fault here (a table index) only means no estimate.
+        if self.take_fault().is_some() {
+            return false;
+        }
+        x.iter()
+            .zip(&dx)
+            .all(|(v, r)| flowed * r.abs() <= tol * v.abs().max(1.0))
     }
 
     /// A diagnostic for a simulation error that points into the model: the

@@ -163,6 +163,7 @@ fn eventually_within_fails_past_the_deadline_and_is_inconclusive_when_cut_short(
             leaving: false,
             failed: Vec::new(),
             state: vec![0.5],
+            flow_from: 1.0,
         });
     let v = later.check(&stuck).unwrap_err();
     assert_eq!(v.at, at(1.0, 0));

@@ -372,7 +372,7 @@ impl RunInfo {
         let (output_layout, _) = self.output_layout.select(names);
         let unknown = unknown_states
             .into_iter()
-            .filter(|n| self.output_layout.find(n).is_none())
+            .filter(|n| self.output_layout.find_all(n).is_empty())
             .collect();
         let info = RunInfo {
             state_layout,

@@ -1006,10 +1006,19 @@ impl<'a> PlotSink<'a> {
         }
         let outputs_known = info.output_dim > 0 && with_outputs;
         for name in select {
-            if let Some(e) = info.state_layout.find(name) {
-                panels.extend(entry_panels(&e, Source::State));
-            } else if let (Some(e), true) = (info.output_layout.find(name), outputs_known) {
-                panels.extend(entry_panels(&e, Source::Output));
+            // An entry, or all of a subsystem instance's (states, then outputs).
+            let states = info.state_layout.find_all(name);
+            let outputs = match outputs_known {
+                true => info.output_layout.find_all(name),
+                false => Vec::new(),
+            };
+            if !states.is_empty() || !outputs.is_empty() {
+                for e in &states {
+                    panels.extend(entry_panels(e, Source::State));
+                }
+                for e in &outputs {
+                    panels.extend(entry_panels(e, Source::Output));
+                }
             } else if let Some(c) = component(&info.state_layout, name) {
                 panels.push(component_panel(c, Source::State));
             } else if let (Some(c), true) = (component(&info.output_layout, name), outputs_known) {
@@ -1070,13 +1079,11 @@ impl<'a> PlotSink<'a> {
             select
                 .iter()
                 .map(|n| {
-                    match info
-                        .state_layout
-                        .find(n)
-                        .or_else(|| info.output_layout.find(n))
-                    {
-                        Some(e) => count(&e),
-                        None => usize::from(PlotSink::selects(info, n)),
+                    let mut entries = info.state_layout.find_all(n);
+                    entries.extend(info.output_layout.find_all(n));
+                    match entries.is_empty() {
+                        false => entries.iter().map(count).sum(),
+                        true => usize::from(PlotSink::selects(info, n)),
                     }
                 })
                 .sum()
@@ -1091,7 +1098,7 @@ impl<'a> PlotSink<'a> {
     pub fn selects(info: &RunInfo, name: &str) -> bool {
         [&info.state_layout, &info.output_layout]
             .iter()
-            .any(|l| l.find(name).is_some() || component(l, name).is_some())
+            .any(|l| !l.find_all(name).is_empty() || component(l, name).is_some())
     }
 
     /// Keeps one sample: `x` the state, `y` the outputs (read only if an

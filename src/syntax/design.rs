@@ -227,7 +227,19 @@ fn stmt(p: Pair<'_, Rule>) -> Res<DesignStmt> {
             let c = expr(first(&mut inner, span)?)?;
             DesignStmt::If(c, inner.map(stmt).collect::<Res<_>>()?)
         }
-        Rule::param_decl => DesignStmt::Param(inner.map(definition).collect::<Res<_>>()?),
+        Rule::param_decl => DesignStmt::Param(
+            inner
+                .map(|d| match d.as_rule() {
+                    // A design's results are computed from its solution.
+                    Rule::param_rand => Err(SyntaxError::Unexpected {
+                        span: d.as_span().into(),
+                        found: "a random draw".into(),
+                        expected: "a result `param NAME = expression` of the design".into(),
+                    }),
+                    _ => definition(d),
+                })
+                .collect::<Res<_>>()?,
+        ),
         Rule::param_tuple => {
             let mut parts: Vec<Pair<'_, Rule>> = inner.collect();
             let Some(value) = parts.pop() else {

@@ -1485,7 +1485,7 @@ fn describe(rule: Rule) -> Option<&'static str> {
         | Rule::output_decl
         | Rule::sim_block
         | Rule::for_item
-        | Rule::param_draw
+        | Rule::param_rand
         | Rule::w_check
         | Rule::together_block
         | Rule::w_together

@@ -42,7 +42,7 @@ pub fn parse_model(text: &str) -> Result<Model, SyntaxError> {
     let mut items = Vec::new();
     for p in inner {
         if p.as_rule() != Rule::EOI {
-            items.push(item(p)?);
+            push_items(p, &mut items)?;
         }
     }
     Ok(Model { name, items })
@@ -170,6 +170,54 @@ pub(super) fn significant_span(p: &Pair<'_, Rule>) -> Span {
     }
 }
 
+/// Pushes the items of `p`: one, or for a `param` list that mixes
+/// definitions and draws (`param g = 9.81, lam ~ uniform(0.5, 0.9)`) one per
+/// run of definitions and one per draw, in the list's order.
+fn push_items(p: Pair<'_, Rule>, items: &mut Vec<Item>) -> Res<()> {
+    if p.as_rule() != Rule::param_decl
+        || !p
+            .clone()
+            .into_inner()
+            .any(|d| d.as_rule() == Rule::param_rand)
+    {
+        items.push(item(p)?);
+        return Ok(());
+    }
+    let mut defs: Vec<Definition> = Vec::new();
+    for d in p.into_inner() {
+        if d.as_rule() == Rule::param_rand {
+            if !defs.is_empty() {
+                items.push(Item::Param(std::mem::take(&mut defs)));
+            }
+            items.push(Item::RandomParam(random_param(d)?));
+        } else {
+            defs.push(definition(d)?);
+        }
+    }
+    if !defs.is_empty() {
+        items.push(Item::Param(defs));
+    }
+    Ok(())
+}
+
+/// `lam ~ uniform(0.5, 0.9)` in a `param` list.
+fn random_param(p: Pair<'_, Rule>) -> Res<Definition> {
+    let span = significant_span(&p);
+    let mut inner = p.into_inner();
+    let target = target(first(&mut inner, span)?)?;
+    let value = expr(first(&mut inner, span)?)?;
+    Ok(Definition { target, value })
+}
+
+/// Collects the items of the pairs `ps` (see [`push_items`]).
+fn items_of<'a>(ps: impl Iterator<Item = Pair<'a, Rule>>) -> Res<Vec<Item>> {
+    let mut items = Vec::new();
+    for p in ps {
+        push_items(p, &mut items)?;
+    }
+    Ok(items)
+}
+
 fn item(p: Pair<'_, Rule>) -> Res<Item> {
     let span = significant_span(&p);
     let rule = p.as_rule();
@@ -191,11 +239,6 @@ fn item(p: Pair<'_, Rule>) -> Res<Item> {
             Item::ParamTuple(targets, expr(value)?)
         }
         Rule::graph_decl => Item::Graph(definition(first(&mut inner, span)?)?),
-        Rule::param_draw => {
-            let target = target(first(&mut inner, span)?)?;
-            let value = expr(first(&mut inner, span)?)?;
-            Item::RandomParam(Definition { target, value })
-        }
         Rule::state_decl => Item::State(
             inner
                 .map(|sd| {
@@ -364,7 +407,7 @@ fn item(p: Pair<'_, Rule>) -> Res<Item> {
                         params.push((n, it.next().map(expr).transpose()?));
                     }
                 } else {
-                    items.push(item(p)?);
+                    push_items(p, &mut items)?;
                 }
             }
             Item::Subsystem(SubsystemDecl {
@@ -444,12 +487,12 @@ fn item(p: Pair<'_, Rule>) -> Res<Item> {
         }
         Rule::for_item | Rule::together_for | Rule::sub_for => {
             let b = binder(first(&mut inner, span)?)?;
-            let items = inner.map(item).collect::<Res<_>>()?;
+            let items = items_of(inner)?;
             Item::For(b, items)
         }
         Rule::together_block => {
             let word = first(&mut inner, span)?.as_span().into();
-            let items = inner.map(item).collect::<Res<_>>()?;
+            let items = items_of(inner)?;
             Item::Together(items, word)
         }
         Rule::design_block => {

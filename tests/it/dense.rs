@@ -216,3 +216,70 @@ fn exact_flow_at_rest_reaches_a_far_horizon() {
         );
     }
 }
+
+/// A grid point `k·dt_out` at a jump's time is the jump's pre-jump sample
+/// alone. A timer's event (`x >= c` on `x' = 1`) is met at the grid time
+/// itself, while the grid's local time, `k·dt` less the segment's start,
+/// rounds a few ulps short of it: the flow there was also logged, a second
+/// sample at the pre-jump sample's (t, j) with x a rounding short of c
+/// (`0.4, 3, flow, 0.09999999999999998` before `0.4, 3, pre_jump, 0.1`).
+#[test]
+fn a_grid_point_at_a_jump_is_not_also_a_flow_sample() {
+    // A PWM boost converter (switched affine, exact), its clock `tau`
+    // reset every Ts = dt_out: the timer's expiry lands a few ulps past the
+    // grid point, on a step of its own.
+    let boost = "model boost
+param Vin = 5, L = 1e-4, C = 1e-4, R = 10, Ts = 1e-5, D = 0.5
+state iL = 0, vC = 0, tau = 0, q = 1
+flow {
+  iL' = if q == 1 then Vin/L else (Vin - vC)/L
+  vC' = if q == 1 then -vC/(R*C) else (iL - vC/R)/C
+  tau' = 1
+}
+jump off when q == 1 && tau >= D*Ts { q+ = 0 }
+jump on when tau >= Ts { q+ = 1; tau+ = 0 }
+sim { T = 0.002; dt_out = 1e-5 }
+"
+    .to_string();
+    let ticks = [
+        ("0.1", "dopri5"),
+        ("0.2", "dopri5"),
+        ("0.1", "rk4"),
+        ("0.25", "radau5"),
+    ]
+    .map(|(c, solver)| {
+        (
+            format!("x >= {c}, {solver}"),
+            format!(
+                "model tick\nstate x = 0\nflow {{ x' = 1 }}\njump reset when x >= {c} {{ x+ = 0 }}\n\
+                 sim {{ T = 2; dt_out = 0.1; solver = {solver} }}\n"
+            ),
+        )
+    });
+    for (c, src) in ticks.into_iter().chain([("boost".to_string(), boost)]) {
+        let m = crate::util::compile(&src);
+        let (x0, mut rng) = m.start(m.seed());
+        let arc = simulate_arc(&m, &x0, &m.settings(), &mut rng).unwrap();
+        assert!(arc.jumps().len() >= 7, "{c}");
+        let samples: Vec<_> = arc.samples().collect();
+        for w in samples.windows(2) {
+            let (a, b) = (&w[0], &w[1]);
+            assert!(
+                a.at != b.at || a.x == b.x,
+                "{c}: two states at {}: {:?} {:?} then {:?} {:?}",
+                a.at,
+                a.kind,
+                a.x,
+                b.kind,
+                b.x
+            );
+        }
+        let jump_times: Vec<HybridTime> = arc.jumps().iter().map(|r| r.at).collect();
+        assert!(
+            samples
+                .iter()
+                .all(|s| s.kind != SampleKind::Flow || !jump_times.contains(&s.at)),
+            "{c}: a flow sample at a jump's time"
+        );
+    }
+}

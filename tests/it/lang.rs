@@ -166,3 +166,68 @@ fn a_constant_jerk_reaches_its_guard_at_the_cubic_root() {
         );
     }
 }
+
+/// A `param` list mixes definitions and draws as a `state` list does:
+/// `param g = 9.81, lam ~ uniform(0.5, 0.9), k = 2 * lam` is the three
+/// declarations one by one (it was refused at `~` as MATLAB's `!`), in
+/// the same order: the same draws for a seed, `k` computed from the draw.
+#[test]
+fn a_param_list_mixes_definitions_and_draws() {
+    let body = "state h = 1, v = 0\nflow { h' = v; v' = -g } in h >= 0\n\
+                jump impact when h <= 0 && v <= 0 { v+ = -lam * v }\nsim { T = 3 }\n";
+    let listed = SourceFile::new(
+        "listed.hyb",
+        format!(
+            "model b\nparam g = 9.81, lam ~ uniform(0.5, 0.9), mu ~ normal(1, 0.1), k = 2 * lam\n{body}"
+        ),
+    );
+    let apart = SourceFile::new(
+        "apart.hyb",
+        format!(
+            "model b\nparam g = 9.81\nparam lam ~ uniform(0.5, 0.9)\nparam mu ~ normal(1, 0.1)\n\
+             param k = 2 * lam\n{body}"
+        ),
+    );
+    for seed in [1, 2, 3] {
+        let compiled = |src: &SourceFile| match lang::compile_run(src, &[], Some(seed)) {
+            Ok((m, _)) => m,
+            Err(d) => panic!("{}", hybsim::diagnostics::render(&d, src, false)),
+        };
+        let (a, b) = (compiled(&listed), compiled(&apart));
+        let p = a.parameters_json();
+        assert_eq!(p, b.parameters_json(), "seed {seed}");
+        let lam = p["lam"].as_f64().unwrap();
+        assert!(
+            (0.5..=0.9).contains(&lam) && lam != 0.7,
+            "seed {seed}: {lam}"
+        );
+        assert_eq!(p["k"].as_f64(), Some(2.0 * lam));
+        assert_eq!(run(&a).jumps(), run(&b).jumps(), "seed {seed}");
+    }
+    // In a subsystem (refused at `~` before), each instance draws its own.
+    let src = SourceFile::new(
+        "s.hyb",
+        "model s\nsubsystem Ball(g = 9.81) {\n  param lam ~ uniform(0.5, 0.9), k = 2 * lam\n\
+         state h = 1\n  flow { h' = -k }\n}\nb1 = Ball()\nb2 = Ball()\n",
+    );
+    let (m, _) = lang::compile_run(&src, &[], Some(5)).unwrap();
+    let p = m.parameters_json();
+    let (l1, l2) = (p["b1.lam"].as_f64().unwrap(), p["b2.lam"].as_f64().unwrap());
+    assert!(
+        l1 != l2 && (0.5..=0.9).contains(&l1) && (0.5..=0.9).contains(&l2),
+        "{p}"
+    );
+    assert_eq!(p["b2.k"].as_f64(), Some(2.0 * l2));
+    // Draws stay where they were refused: in a design block's results.
+    let src = SourceFile::new(
+        "d.hyb",
+        "model d\ndesign p {\n  scalar s\n  maximize s\n  s <= 1\n  param r = s, q ~ uniform(0, 1)\n}\n\
+         state x = 1\n",
+    );
+    let d = lang::compile(&src, &[]).map(|_| ()).unwrap_err();
+    let text = hybsim::diagnostics::render(&d, &src, false);
+    assert!(
+        text.contains("a random draw") && text.contains("d.hyb:6:"),
+        "{text}"
+    );
+}

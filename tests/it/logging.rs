@@ -696,6 +696,104 @@ sim { T = 1 }
     assert_eq!(header(&csv), "t,j,kind,f.tau[2]");
 }
 
+/// A subsystem instance's name selects all of its states and outputs, and a
+/// member of a family of instances all of that member's (`--log-vars b1`,
+/// `--plot-vars b1` and `vars = [b1]` were refused: "neither a state nor an
+/// output"), a family inside it whole for that member (`f[2].c`).
+#[test]
+fn an_instance_is_logged_and_plotted_by_its_name() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let model = "model pair
+subsystem Osc(w = 1) {
+    state x = 1, v = 0
+    for m in 1..2 { state c[m] = m }
+    flow { x' = v; v' = -w^2*x }
+    output e = x^2 + v^2
+}
+subsystem Ramp(k = 2) { output y = k*t }
+b1 = Osc(w = 2)
+ramp = Ramp()
+b10 = Osc(w = 3)
+for i in 1..2 { f[i] = Osc(w = i) }
+sim { T = 0.5 }
+";
+    let path = d.join("pair.hyb");
+    std::fs::write(&path, model).unwrap();
+    let path = path.to_str().unwrap();
+    let header = |csv: &str| csv.lines().next().unwrap().to_string();
+    let cases = [
+        ("b1", "t,j,kind,b1.x,b1.v,b1.c[1],b1.c[2],b1.e"),
+        (
+            "f[2]",
+            "t,j,kind,f.x[2],f.v[2],\"f.c[2,1]\",\"f.c[2,2]\",f.e[2]",
+        ),
+        ("f[2].c", "t,j,kind,\"f.c[2,1]\",\"f.c[2,2]\""),
+        ("f.v,b10.e", "t,j,kind,f.v[1],f.v[2],b10.e"),
+        // An instance with outputs alone.
+        ("ramp", "t,j,kind,ramp.y"),
+    ];
+    for (name, expected) in cases {
+        let (_, csv) = run(d, path, &["--log-vars", name]);
+        assert_eq!(header(&csv), expected, "--log-vars {name}");
+    }
+    // The plot draws a panel per entry of the instance.
+    let o = hybsim(
+        d,
+        &[
+            "run",
+            path,
+            "--no-mcap",
+            "--quiet",
+            "--plot",
+            "b1.svg",
+            "--plot-vars",
+            "b1",
+        ],
+    );
+    assert_eq!(code(&o), 0, "{}", stderr(&o));
+    let svg = std::fs::read_to_string(d.join("b1.svg")).unwrap();
+    for panel in ["b1.x", "b1.v", "b1.c[1]", "b1.e"] {
+        assert!(svg.contains(panel), "{panel} missing from the plot");
+    }
+    // A single instance has no members; nothing else is taken for an instance.
+    for bad in ["b1[1]", "f[3]", "b"] {
+        let o = hybsim(
+            d,
+            &[
+                "run",
+                path,
+                "--no-mcap",
+                "--csv",
+                "x.csv",
+                "--log-vars",
+                bad,
+            ],
+        );
+        assert_eq!(code(&o), 2, "--log-vars {bad}: {}", stderr(&o));
+    }
+    // The same names in a `log` block.
+    for (name, expected) in cases.iter().filter(|(n, _)| !n.contains(',')) {
+        std::fs::write(
+            d.join("pair.hyb"),
+            format!("{model}log {{ vars = [{name}] }}\n"),
+        )
+        .unwrap();
+        let (_, csv) = run(d, path, &[]);
+        assert_eq!(header(&csv), *expected, "vars = [{name}]");
+    }
+    for (bad, code_) in [("b1[1]", "E0304"), ("f[3]", "E0402"), ("b", "E0201")] {
+        std::fs::write(
+            d.join("pair.hyb"),
+            format!("{model}log {{ vars = [{bad}] }}\n"),
+        )
+        .unwrap();
+        let o = hybsim(d, &["check", path]);
+        assert_eq!(code(&o), 2, "vars = [{bad}]");
+        assert!(stderr(&o).contains(code_), "vars = [{bad}]: {}", stderr(&o));
+    }
+}
+
 /// `samples` (summary, `--json`, the MCAP's `hybsim.result`) counts the solution's samples before
 /// the log's selection (README): `--log-every` thins the files, not the count.
 #[test]

@@ -321,6 +321,37 @@ fn leaving_c_along_its_boundary_suggests_the_tolerances() {
     );
 }
 
+/// A jump that lands on the boundary of a time-dependent C (`x+ = sin(w*t)`
+/// in `x >= sin(w*t)`, a rounding outside it) where the flow points out:
+/// the relaxed atom fails by `set_tol` 3.8e-10 after the jump, with x not
+/// moved. W0603's note said the integrator's error had carried a flow
+/// tangent to C out; it says that the flow points out of C where it started.
+#[test]
+fn leaving_c_where_a_jump_landed_on_its_boundary_is_not_blamed_on_the_integrator() {
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::write(
+        dir.path().join("edge.hyb"),
+        "model edge\nparam w = 3\nstate x = 0.5, k = 0\nflow { x' = 0 } in x >= sin(w*t)\n\
+         jump land when x <= sin(w*t) && k < 1 { x+ = sin(w*t); k+ = 1 }\nsim { T = 10 }\n",
+    )
+    .unwrap();
+    let o = hybsim(dir.path(), &["run", "edge.hyb", "--no-mcap"]);
+    assert_eq!(code(&o), 0, "{}", stderr(&o));
+    let err = stderr(&o);
+    for want in [
+        "warning[W0603]",
+        "`x >= sin(3*t)` fails",
+        "C fails by just over `set_tol` = 1e-9",
+        // The jump's time, π/18.
+        "where this flow started, within `set_tol` of C's boundary, at t = 0.174532925199",
+        "the flow points out of C there",
+        "check the jump map or initial value",
+    ] {
+        assert!(err.contains(want), "missing {want:?} in\n{err}");
+    }
+    assert!(!err.contains("integrator's error"), "{err}");
+}
+
 /// A model of `design` blocks alone checks (for `hybsim design`); run, it
 /// has no state, and the error points at its name.
 #[test]

@@ -560,6 +560,7 @@ fn set_tol_lets_a_boundary_state_flow() {
                 text: Some("x >= 0".into()),
             }],
             state: vec![-1e-6],
+            flow_from: 0.0,
         }
     );
     // Within set_tol it flows, and the relaxed atom does not end the flow
