@@ -1728,15 +1728,29 @@ impl Watcher {
     /// evaluated): the start evaluates nothing (nothing watched or
     /// scheduled), C has no atoms, or the system has no evaluation of all
     /// sets at once.
+    #[inline]
     pub fn prefetch<S: HybridSystem + ?Sized>(
         &mut self,
         sys: &S,
         at: HybridTime,
         x: &[f64],
     ) -> Option<&[f64]> {
+        // Nothing watched or scheduled (timer rules only): decided without
+        // a call.
         if self.watched.is_empty() && self.timers.is_empty() {
             return None;
         }
+        self.prefetch_flow(sys, at, x)
+    }
+
+    /// [`prefetch`](Self::prefetch) when a start evaluates something.
+    #[inline(never)]
+    fn prefetch_flow<S: HybridSystem + ?Sized>(
+        &mut self,
+        sys: &S,
+        at: HybridTime,
+        x: &[f64],
+    ) -> Option<&[f64]> {
         let fi = self.flow?;
         let off = self.flat_off[fi]?;
         if self.prefetched != Some(at) {
@@ -2896,6 +2910,7 @@ impl FlowSetTest {
     /// without atoms, in its predicate or within `tol` of its guard's zero).
     /// `known`: C's atom values at x if the caller has them
     /// ([`Watcher::prefetch`]).
+    #[inline]
     pub fn contains<S: HybridSystem + ?Sized>(
         &mut self,
         sys: &S,

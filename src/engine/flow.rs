@@ -201,6 +201,13 @@ impl<'a> Output<'a> {
         self.dt.is_none()
     }
 
+    /// Whether a step's [`step`](Self::step) up to its end pushes nothing:
+    /// no output grid, and a sink that wants no points between step ends
+    /// (the step's end itself is the next sample's, a jump's or the run's).
+    fn quiet(&self) -> bool {
+        self.dt.is_none() && !self.points
+    }
+
     /// Number of equal parts of `(s_lo, s_hi]` (the state at `s_hi` is
     /// `y_hi`) for dense output.
     fn dense_parts<P: DensePath>(
@@ -856,6 +863,16 @@ impl Affine {
         g
     }
 
+    /// A step has been taken: the polynomial `guard_step` made serves that
+    /// step only.
+    #[inline]
+    fn step_taken(&mut self) {
+        let tay = self.taylor.get_mut();
+        if !std::mem::take(&mut tay.fresh) {
+            tay.h = f64::NAN;
+        }
+    }
+
     /// `out` = the flow from `x` (finite) after a step `h`; whether `out`
     /// is finite.
     fn advance(&mut self, h: f64, x: &[f64], out: &mut [f64]) -> bool {
@@ -1302,6 +1319,20 @@ pub(crate) fn check_jump_finite<S: HybridSystem + ?Sized>(
     if acc.iter().sum::<f64>() == 0.0 {
         return None;
     }
+    jump_not_finite(sys, at, x, rule)
+}
+
+/// The error of [`check_jump_finite`] once a written component is known not
+/// to be finite: out of line, so that the check of every jump stays small.
+#[cold]
+#[inline(never)]
+fn jump_not_finite<S: HybridSystem + ?Sized>(
+    sys: &S,
+    at: HybridTime,
+    x: &[f64],
+    rule: usize,
+) -> Option<SimError> {
+    let writes = &sys.jump_rules()[rule].writes;
     // The first non-finite component in state order, as the full check.
     let i = writes
         .iter()
@@ -1541,6 +1572,7 @@ impl Flows {
     /// Prepares a segment starting from `x` at ordinary time `clock` and
     /// jump count `j`; returns f(x, t, j) (on the exact path only its timer
     /// components), which give the timers' constant rates.
+    #[inline]
     pub fn start<S: HybridSystem + ?Sized>(
         &mut self,
         sys: &S,
@@ -1635,6 +1667,9 @@ impl Flows {
         x: &mut Vec<f64>,
         d_end: f64,
     ) -> Result<SegmentEnd, SimError> {
+        if let Some(end) = self.one_exact_step(sys, out, t0, j, x, d_end) {
+            return end;
+        }
         // The state moves in and out by swapping buffers (of equal length),
         // not copying: `x` is not read until the segment ends, and `y_end`
         // is written by every segment before it is read.
@@ -1674,6 +1709,58 @@ impl Flows {
         };
         std::mem::swap(x, &mut self.y_end);
         Ok(end)
+    }
+
+    /// The segment of [`segment`](Self::segment) when it is one step of
+    /// an exponential with nothing watched or sampled inside it (sample-and-
+    /// hold loops between their sampling instants): the same step as
+    /// [`ExactSteps::run`]'s, without the per-step machinery that cannot
+    /// act on it. `None` (nothing done) where that does not hold: something
+    /// watched (the step is scanned, and may be shortened for the
+    /// watcher), an output grid or dense points (samples inside the
+    /// segment), the flow's polynomial, the auto choice on the solver, or
+    /// a segment longer than one step (`exact_step_limit` under dense
+    /// output, which `quiet` implies: there is no grid).
+    #[inline]
+    fn one_exact_step<S: HybridSystem + ?Sized>(
+        &mut self,
+        sys: &S,
+        out: &Output<'_>,
+        t0: f64,
+        j: u64,
+        x: &mut Vec<f64>,
+        d_end: f64,
+    ) -> Option<Result<SegmentEnd, SimError>> {
+        if !self.watcher.is_empty() || !out.quiet() {
+            return None;
+        }
+        let aff = match &mut self.method {
+            Method::Affine(aff) => aff,
+            // As `segment` decides it (the polynomial is taken first).
+            Method::Auto(_, aff)
+                if aff.poly.is_none() && self.f_prev_partial && aff.worth(d_end) =>
+            {
+                aff
+            }
+            _ => return None,
+        };
+        // `exact_step_end` from 0 then ends the first step at `d_end`, of
+        // length `d_end` (a NaN `d_end` is not one step).
+        let one_step = d_end <= self.max_step.min(aff.watch_step);
+        if aff.poly.is_some() || !one_step {
+            return None;
+        }
+        if !aff.advance(d_end, x, &mut self.y_end)
+            && let Some(e) = check_finite(sys, HybridTime::new(t0 + d_end, j), &self.y_end, None)
+        {
+            return Some(Err(e));
+        }
+        aff.step_taken();
+        std::mem::swap(x, &mut self.y_end);
+        Some(Ok(SegmentEnd {
+            s: d_end,
+            why: EndWhy::Reached,
+        }))
     }
 
     /// A segment on the solver: the engine's Dopri5, Dop853, Radau5 or Bdf
@@ -2125,11 +2212,7 @@ impl ExactFlow for Affine {
         y0: &'a [f64],
         y1: &'a [f64],
     ) -> AffinePath<'a> {
-        // The polynomial `guard_step` made serves this step only.
-        let tay = self.taylor.get_mut();
-        if !std::mem::take(&mut tay.fresh) {
-            tay.h = f64::NAN;
-        }
+        self.step_taken();
         AffinePath {
             aff: self,
             s0,

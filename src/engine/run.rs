@@ -240,6 +240,7 @@ impl Groups {
 
     /// The rules of `rule`'s group (including it), or `None` if it fires
     /// alone.
+    #[inline]
     fn members_of(&self, rules: &[super::JumpRule], rule: usize) -> Option<&[usize]> {
         let g = rules[rule].group?;
         let i = self.members.binary_search_by_key(&g, |(l, _)| *l).ok()?;

@@ -1836,6 +1836,7 @@ impl HybridSystem for CompiledModel {
         true
     }
 
+    #[inline]
     fn flow_set(&self, at: HybridTime, x: &[f64]) -> bool {
         match &self.flow_set {
             Some((code, _)) => self.scalar(&code.cond, at, x) != 0.0,

@@ -283,3 +283,92 @@ sim { T = 0.002; dt_out = 1e-5 }
         );
     }
 }
+
+/// Sampled-data loops whose segments are one exponential step with nothing
+/// watched or sampled inside them take a short path (`Flows::segment`'s
+/// one exact step) when the sink declines dense points, and the general
+/// step machinery when it wants them: the same steps, so the same jumps,
+/// bit for bit, and the same samples at the step ends. Each model varies
+/// one condition of that path: exact or auto, a held input through a
+/// switched affine flow (its modes), a non-timer guard watched (the short
+/// path declined both ways), periods longer than one step (several steps a
+/// segment), an output grid (its points inside the segments).
+#[test]
+fn one_step_exact_segments_give_the_general_steps() {
+    let key = |at: HybridTime, x: &[f64], kind: SampleKind| {
+        let mut k = vec![at.t.to_bits(), at.j, kind as u64];
+        k.extend(x.iter().map(|v| v.to_bits()));
+        k
+    };
+    let loop_model = |extra: &str, ts: f64, sim: &str| {
+        format!(
+            "model m\n\
+             param A = [0, 1; -1, -0.2]\nparam B = [0; 1]\nparam K = [0.3, 0.05]\n\
+             state xp = [1; 0], u = 0, tau = 0, q = 1\n\
+             flow {{ xp' = A * xp + B * u; tau' = 1 }}\n\
+             jump sample when tau >= {ts} {{ u+ = -K * xp; tau+ = 0 }}\n\
+             {extra}\n\
+             sim {{ T = 20; J = 100000; {sim} }}\n"
+        )
+    };
+    let switched = "model m\nstate x = 1, q = 1, tau = 0\n\
+                    flow { x' = -q * x + 0.5; tau' = 1 }\n\
+                    jump s when tau >= 0.05 { q+ = 3 - q; tau+ = 0 }\n\
+                    sim { T = 10; J = 100000 }\n";
+    let limit_sh = std::fs::read_to_string(
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("benches/models/limit_sh.hyb"),
+    )
+    .expect("benches/models/limit_sh.hyb");
+    let cases = [
+        ("on", loop_model("", 0.01, ""), ExactAffine::On),
+        ("auto", loop_model("", 0.01, ""), ExactAffine::Auto),
+        ("switched", switched.to_string(), ExactAffine::On),
+        ("switched auto", switched.to_string(), ExactAffine::Auto),
+        (
+            "non-timer guard",
+            loop_model("jump far when xp[1] >= 5 { q+ = q + 1 }", 0.01, ""),
+            ExactAffine::On,
+        ),
+        ("long periods", loop_model("", 2.5, ""), ExactAffine::On),
+        (
+            "grid",
+            loop_model("", 0.01, "dt_out = 0.003"),
+            ExactAffine::On,
+        ),
+        ("limit_sh on", limit_sh.clone(), ExactAffine::On),
+        ("limit_sh auto", limit_sh, ExactAffine::Auto),
+    ];
+    for (name, text, mode) in cases {
+        let src = hybsim::source::SourceFile::new("m.hyb", text);
+        let m = match hybsim::lang::compile(&src, &[]) {
+            Ok(m) => m,
+            Err(d) => panic!("{}", hybsim::diagnostics::render(&d, &src, false)),
+        };
+        let s = m.settings().exact_affine(mode);
+        let (x0, mut rng) = m.start(m.seed());
+        let full = simulate_arc(&m, &x0, &s, &mut rng).unwrap();
+        let (x0, mut rng) = m.start(m.seed());
+        let mut ends = StepEnds(HybridArc::new(
+            m.state_dim(),
+            vec![String::new(); m.jump_rules().len()],
+        ));
+        simulate(&m, &x0, &s, &mut rng, &mut ends).unwrap();
+        let ends = ends.0;
+        assert!(
+            ends.jumps().len() > 3,
+            "{name}: {} jumps",
+            ends.jumps().len()
+        );
+        assert_eq!(ends.jumps(), full.jumps(), "{name}");
+        let all: std::collections::HashSet<_> =
+            full.samples().map(|p| key(p.at, p.x, p.kind)).collect();
+        assert!(
+            ends.samples()
+                .all(|p| all.contains(&key(p.at, p.x, p.kind))),
+            "{name}: a step-end sample differs"
+        );
+        let not_flow = |a: &HybridArc| a.samples().filter(|p| p.kind != SampleKind::Flow).count();
+        assert_eq!(not_flow(&ends), not_flow(&full), "{name}");
+        assert_eq!(ends.last().unwrap().x, full.last().unwrap().x, "{name}");
+    }
+}
