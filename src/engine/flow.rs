@@ -202,10 +202,11 @@ impl<'a> Output<'a> {
     }
 
     /// Whether a step's [`step`](Self::step) up to its end pushes nothing:
-    /// no output grid, and a sink that wants no points between step ends
-    /// (the step's end itself is the next sample's, a jump's or the run's).
+    /// no output grid, and a sink that wants neither points between step
+    /// ends nor the steps' paths (the step's end itself is the next
+    /// sample's, a jump's or the run's).
     fn quiet(&self) -> bool {
-        self.dt.is_none() && !self.points
+        self.dt.is_none() && !self.points && !self.pieces
     }
 
     /// Number of equal parts of `(s_lo, s_hi]` (the state at `s_hi` is
