@@ -302,7 +302,10 @@ pub fn simulate<S: HybridSystem + ?Sized>(
     let timer_sets = TimerSets::new(sys);
     let mut flow_set = FlowSetTest::new(sys);
     let mut flows = Flows::new(sys, settings, method, modes, x0)?;
-    let accuracy = settings.solver.tolerances().map_or(f64::NAN, |(rtol, _)| rtol);
+    let accuracy = settings
+        .solver
+        .tolerances()
+        .map_or(f64::NAN, |(rtol, _)| rtol);
     let mut out = Output::new(sink, settings.dt_out, x0, accuracy);
     let mut zeno = ZenoWatch::new(settings);
     let mut x = x0.to_vec();

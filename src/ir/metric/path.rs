@@ -153,7 +153,11 @@ impl Walk<'_, '_> {
 
     /// `[a, b]` with rows `[at a, at the midpoint, at b]`.
     fn interval(&mut self, g: &PathGroup, (a, b): (f64, f64), r: [usize; 3], depth: u32) {
-        let (wa, wm, wb) = (self.holds(g, r[0]), self.holds(g, r[1]), self.holds(g, r[2]));
+        let (wa, wm, wb) = (
+            self.holds(g, r[0]),
+            self.holds(g, r[1]),
+            self.holds(g, r[2]),
+        );
         if wa != wb {
             self.boundary(g, (a, b), (r[0], r[2]), wa, depth);
             return;
@@ -227,7 +231,14 @@ impl Walk<'_, '_> {
 
     /// `[a, b]` (rows `ends`) where the window is `wa` at a and not at b:
     /// bisection to its boundary, then each side.
-    fn boundary(&mut self, g: &PathGroup, (a, b): (f64, f64), ends: (usize, usize), wa: bool, depth: u32) {
+    fn boundary(
+        &mut self,
+        g: &PathGroup,
+        (a, b): (f64, f64),
+        ends: (usize, usize),
+        wa: bool,
+        depth: u32,
+    ) {
         let top = self.scratch.times.len();
         let (mut lo, mut hi) = (a, b);
         // To the rounding of the step's times (θ within an ulp of 1).
