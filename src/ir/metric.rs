@@ -552,7 +552,8 @@ impl ArcSink for MetricSink<'_> {
     }
 
     fn flow_piece(&mut self, piece: &mut FlowPiece<'_>) {
-        if !(piece.t1 > piece.t0) {
+        // An empty (or NaN) step adds nothing.
+        if piece.t1.partial_cmp(&piece.t0) != Some(std::cmp::Ordering::Greater) {
             return;
         }
         self.covered = match self.covered {

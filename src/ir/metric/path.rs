@@ -218,7 +218,8 @@ impl Walk<'_, '_> {
     /// Whether two quadratures of one integral agree to the tolerance.
     fn agree(&self, p: f64, q: f64) -> bool {
         // A NaN agrees: more points do not make it a number.
-        !((p - q).abs() > self.tol * (p.abs() + q.abs()))
+        let diff = (p - q).abs();
+        diff.is_nan() || diff <= self.tol * (p.abs() + q.abs())
     }
 
     /// The trapezoid rule of integral `i` over an interval of length `len`
