@@ -31,6 +31,20 @@ fn ball_height(t: f64, j: u64) -> f64 {
     v_post * s - 0.5 * g * s * s
 }
 
+/// A run's whole arc, and the same run through a sink that declines dense
+/// output's points (`StepEnds`).
+fn whole_and_step_ends(m: &hybsim::ir::CompiledModel, s: &SimSettings) -> (HybridArc, HybridArc) {
+    let (x0, mut rng) = m.start(m.seed());
+    let full = simulate_arc(m, &x0, s, &mut rng).unwrap();
+    let (x0, mut rng) = m.start(m.seed());
+    let mut ends = StepEnds(HybridArc::new(
+        m.state_dim(),
+        vec![String::new(); m.jump_rules().len()],
+    ));
+    simulate(m, &x0, s, &mut rng, &mut ends).unwrap();
+    (full, ends.0)
+}
+
 #[test]
 fn value_at_follows_the_ball_between_samples() {
     let mut ball = BouncingBall::new(9.81, 0.8);
@@ -164,15 +178,7 @@ fn declining_dense_points_drops_only_points_between_step_ends() {
     ] {
         let m = load(name, &[]);
         let s = m.settings().exact_affine(mode);
-        let (x0, mut rng) = m.start(m.seed());
-        let full = simulate_arc(&m, &x0, &s, &mut rng).unwrap();
-        let (x0, mut rng) = m.start(m.seed());
-        let mut ends = StepEnds(HybridArc::new(
-            m.state_dim(),
-            vec![String::new(); m.jump_rules().len()],
-        ));
-        simulate(&m, &x0, &s, &mut rng, &mut ends).unwrap();
-        let ends = ends.0;
+        let (full, ends) = whole_and_step_ends(&m, &s);
         let all: std::collections::HashSet<_> =
             full.samples().map(|p| key(p.at, p.x, p.kind)).collect();
         assert!(
@@ -345,15 +351,7 @@ fn one_step_exact_segments_give_the_general_steps() {
             Err(d) => panic!("{}", hybsim::diagnostics::render(&d, &src, false)),
         };
         let s = m.settings().exact_affine(mode);
-        let (x0, mut rng) = m.start(m.seed());
-        let full = simulate_arc(&m, &x0, &s, &mut rng).unwrap();
-        let (x0, mut rng) = m.start(m.seed());
-        let mut ends = StepEnds(HybridArc::new(
-            m.state_dim(),
-            vec![String::new(); m.jump_rules().len()],
-        ));
-        simulate(&m, &x0, &s, &mut rng, &mut ends).unwrap();
-        let ends = ends.0;
+        let (full, ends) = whole_and_step_ends(&m, &s);
         assert!(
             ends.jumps().len() > 3,
             "{name}: {} jumps",
