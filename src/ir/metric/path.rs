@@ -97,7 +97,13 @@ pub(super) fn integrate_piece(
     walk.eval(1.0);
     ends.end_x.clear();
     ends.end_x.extend_from_slice(&walk.scratch.x);
-    let mid = walk.eval(0.5);
+    // The midpoint serves integrals only: windowed extremes and finals read
+    // the ends (and the boundary between them).
+    let mid = if m.path_groups.iter().any(|g| !g.integrals.is_empty()) {
+        walk.eval(0.5)
+    } else {
+        1
+    };
     for g in &m.path_groups {
         walk.evals = 0;
         walk.interval(g, (0.0, 1.0), [0, mid, 1], 0);
