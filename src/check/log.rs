@@ -491,15 +491,28 @@ impl<'a> RuleSelection<'a> {
     /// stands: the model names a member of an instance family's rule
     /// `f.fire[2]`, the language reads it `f[2].fire`, and the family is
     /// `f.fire` (as a noise family's member is `v[2].redraw`).
+    ///
+    /// A selection also names a subsystem instance: `b1`
+    /// selects `b1.bounce`, `f` every rule of the instance family `f`, and
+    /// `f[2]` those of its member (`f.fire[2]`, `f.g.fire[2][1]`).
     pub fn matches(&self, rule: &str) -> bool {
         let (name, label) = without_index(&self.to_string());
         let (rule_name, rule_label) = without_index(rule);
-        name == rule_name
-            && match (label, rule_label) {
+        let exact = name == rule_name
+            && match (&label, &rule_label) {
                 (None, _) => true,
                 (Some(a), Some(b)) => a == b,
                 (Some(_), None) => false,
-            }
+            };
+        let instance = rule_name
+            .strip_prefix(name.as_str())
+            .is_some_and(|rest| rest.starts_with('.'))
+            && match (&label, &rule_label) {
+                (None, _) => true,
+                (Some(a), Some(b)) => b.starts_with(a),
+                (Some(_), None) => false,
+            };
+        exact || instance
     }
 }
 

@@ -352,7 +352,8 @@ struct ModelChecker<'o> {
     rule_names: HashMap<String, Span>,
     outputs: Vec<OutputField>,
     wiener_dim: usize,
-    sim: Vec<(String, Expr, Span)>,
+    /// The `sim` block's settings: key, value, where, the value as written when a whole number.
+    sim: Vec<(String, Expr, Span, Option<u64>)>,
     params: Vec<(String, Dims, Vec<f64>)>,
     /// Names of the rules declared without one.
     anonymous: super::rule_names::Anonymous,
@@ -793,7 +794,7 @@ impl ModelChecker<'_> {
             Item::Sim(settings) => {
                 for s in settings {
                     self.sim
-                        .push((s.key.name.clone(), s.value.clone(), s.key.span));
+                        .push((s.key.name.clone(), s.value.clone(), s.key.span, s.integer));
                 }
             }
             Item::For(b, items) => {
@@ -2242,15 +2243,15 @@ impl ModelChecker<'_> {
         // Settings given only as overrides.
         for key in SIM_KEYS {
             if let Some(o) = by_key.get(key)
-                && !items.iter().any(|(k, _, _)| canonical_sim_key(k) == *key)
+                && !items.iter().any(|(k, ..)| canonical_sim_key(k) == *key)
             {
-                items.push((key.to_string(), o.expr.clone(), Span::default()));
+                items.push((key.to_string(), o.expr.clone(), Span::default(), None));
             }
         }
         let mut seen: HashMap<String, Span> = HashMap::default();
         // Per canonical key: where its value is, for the checks of the settings as a whole.
         let mut values: HashMap<String, (Span, Option<&Override>)> = HashMap::default();
-        for (key, e, span) in &items {
+        for (key, e, span, integer) in &items {
             if key.starts_with("max_") && Limits::quantity(key).is_some() {
                 continue; // applied by `limit_keys`
             }
@@ -2271,6 +2272,7 @@ impl ModelChecker<'_> {
                 self.used.push(o.name.clone());
             }
             let e = ov.map_or(e, |o| &o.expr);
+            let integer = ov.map_or(*integer, |o| crate::syntax::ast::integer_literal(&o.value));
             values.insert(canon.to_string(), (e.span, ov));
             let before = self.c.errors.len();
             'key: {
@@ -2335,6 +2337,11 @@ impl ModelChecker<'_> {
                         )
                     }
                     _ => {
+                        // Exactly as written: an `f64` rounds seeds above 2^53.
+                        if let ("seed", Some(n)) = (canon, integer) {
+                            seed = n;
+                            break 'key;
+                        }
                         let Some(x) = self.c.const_scalar(e, &format!("`{key}`")) else {
                             break 'key;
                         };

@@ -164,6 +164,8 @@ fn check_block(c: &mut Checker, b: &SweepBlock, settable: &[String]) -> SweepDec
                 Some(_) => bad(c, "at least 1 run per grid point"),
                 None => {}
             },
+            // Exactly as written: an `f64` rounds seeds above 2^53.
+            "seed" if s.integer.is_some() => d.seed = s.integer,
             "seed" => match c.const_scalar(&s.value, "`seed`") {
                 Some(x) if x >= 0.0 && x.fract() == 0.0 && x < 2f64.powi(64) => {
                     d.seed = Some(x as u64)

@@ -293,6 +293,18 @@ pub struct Setting {
     pub key: Ident,
     /// The value.
     pub value: Expr,
+    /// The value exactly, when it is written as a whole number that fits 64
+    /// bits: a `seed` above 2^53 has no exact `f64`.
+    pub integer: Option<u64>,
+}
+
+/// `text` as a whole number written in digits alone, exactly (`None` for
+/// anything else: `1e3`, `2^60`, a number above 2^64 − 1).
+pub fn integer_literal(text: &str) -> Option<u64> {
+    let text = text.trim();
+    (!text.is_empty() && text.bytes().all(|b| b.is_ascii_digit()))
+        .then(|| text.parse().ok())
+        .flatten()
 }
 
 /// The index variables, set and filter of `for`/`sum`.

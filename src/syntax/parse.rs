@@ -318,8 +318,14 @@ fn item(p: Pair<'_, Rule>) -> Res<Item> {
                     let sspan = s.as_span().into();
                     let mut it = s.into_inner();
                     let key = ident(first(&mut it, sspan)?);
-                    let value = expr(first(&mut it, sspan)?)?;
-                    Ok(Setting { key, value })
+                    let v = first(&mut it, sspan)?;
+                    let integer = integer_literal(v.as_str());
+                    let value = expr(v)?;
+                    Ok(Setting {
+                        key,
+                        value,
+                        integer,
+                    })
                 })
                 .collect::<Res<_>>()?,
         ),
@@ -343,6 +349,7 @@ fn item(p: Pair<'_, Rule>) -> Res<Item> {
                 if rule == Rule::sim_setting {
                     settings.push(Setting {
                         key: name,
+                        integer: integer_literal(v.as_str()),
                         value: expr(v)?,
                     });
                 } else if v.as_rule() == Rule::sweep_range {
@@ -458,9 +465,11 @@ fn item(p: Pair<'_, Rule>) -> Res<Item> {
                 let mut it = s.into_inner();
                 let key = ident(first(&mut it, sspan)?);
                 if rule == Rule::log_setting {
+                    let v = first(&mut it, sspan)?;
                     settings.push(Setting {
                         key,
-                        value: expr(first(&mut it, sspan)?)?,
+                        integer: integer_literal(v.as_str()),
+                        value: expr(v)?,
                     });
                     continue;
                 }

@@ -72,6 +72,34 @@ fn overrides_change_parameters_and_settings() {
     assert_eq!(m.parameters_json()["lambda"], serde_json::json!(0.5));
 }
 
+/// Seeds are whole numbers up to 2^64 − 1, exactly as written in `sim { seed }`, in a `sweep`
+/// block and in `--set seed=…` (they went through an `f64`: 12345678901234567891 became
+/// 12345678901234567168, the same run as its neighbours, and 2^64 − 1 was refused as 2^64).
+#[test]
+fn seeds_above_two_to_the_53_are_kept_exactly() {
+    let compile = |sim: &str, overrides: &[&str]| {
+        let text = format!(
+            "model s\nparam k = 1\nstate x ~ uniform(0, k)\nflow {{ x' = 0 }}\nsim {{ T = 1; {sim} }}\nsweep {{ k in [1, 2]; {sim} }}\n"
+        );
+        let src = SourceFile::new("s.hyb", text);
+        let ov: Vec<Override> = overrides.iter().map(|s| s.parse().unwrap()).collect();
+        lang::compile(&src, &ov)
+            .unwrap_or_else(|d| panic!("{}", hybsim::diagnostics::render(&d, &src, false)))
+    };
+    for n in [12_345_678_901_234_567_891_u64, u64::MAX, (1 << 53) + 1] {
+        let m = compile(&format!("seed = {n}"), &[]);
+        assert_eq!(m.seed(), n);
+        assert_eq!(m.sweep().unwrap().seed, Some(n));
+        assert_eq!(compile("seed = 1", &[&format!("seed={n}")]).seed(), n);
+        // Neighbours that one f64 holds give different initial draws.
+        let (a, _) = m.start(m.seed());
+        let (b, _) = m.start(n - 1);
+        assert_ne!(a, b, "seed {n}");
+    }
+    // A seed computed by an expression is still a number (exact below 2^53).
+    assert_eq!(compile("seed = 2^40 + 1", &[]).seed(), (1 << 40) + 1);
+}
+
 /// A `--set` of a name the model declares sets that declaration only, not the `sim` key of
 /// the same name: `param T` (a period), `state h` (a height), `param J` (an inertia) were also
 /// taken as the horizon T, the fixed step h and the horizon J (`--set T=0.25` ended the run at

@@ -794,6 +794,63 @@ sim { T = 0.5 }
     }
 }
 
+/// An instance's name selects its jump rules too (`--log-rules b1`, `--log-marks f[2]`,
+/// `rules = [f]`; `b1` was refused: "no jump rule of the model has that name"), never another
+/// instance's whose name it begins (`b10`).
+#[test]
+fn an_instance_selects_its_rules_by_its_name() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let model = "model clocks
+subsystem Clock(period = 0.1) {
+    state tau = 0
+    flow { tau' = 1 }
+    jump tick when tau >= period { tau+ = 0 }
+}
+b1 = Clock(period = 0.1)
+b10 = Clock(period = 0.3)
+for i in 1..2 { f[i] = Clock(period = 0.2 * i) }
+sim { T = 1 }
+";
+    let path = d.join("clocks.hyb");
+    std::fs::write(&path, model).unwrap();
+    let path = path.to_str().unwrap();
+    let logged = |args: &[&str]| {
+        let (bytes, _) = run(d, path, args);
+        rules_of(&messages(&bytes).0)
+    };
+    let names = |m: &BTreeMap<String, usize>| m.keys().cloned().collect::<Vec<_>>().join(" ");
+    let cases = [
+        ("b1", "b1.tick"),
+        ("b10", "b10.tick"),
+        ("f", "f.tick[1] f.tick[2]"),
+        ("f[2]", "f.tick[2]"),
+        ("b1,f[1]", "b1.tick f.tick[1]"),
+    ];
+    for (name, expected) in cases {
+        let got = logged(&["--log-rules", name]);
+        assert_eq!(names(&got), expected, "--log-rules {name}");
+        assert!(got.values().all(|&n| n >= 2), "--log-rules {name}: {got:?}");
+    }
+    // The clock of period 0.1 ticks 10 times in [0, 1] (the last at t = 1 within rounding).
+    assert!((9..=10).contains(&logged(&["--log-rules", "b1"])["b1.tick"]));
+    // In a `log` block, and refused where nothing has the name.
+    std::fs::write(
+        d.join("clocks.hyb"),
+        format!("{model}log {{ rules = [f] }}\n"),
+    )
+    .unwrap();
+    assert_eq!(names(&logged(&[])), "f.tick[1] f.tick[2]");
+    std::fs::write(d.join("clocks.hyb"), model).unwrap();
+    for bad in ["b", "f[3]", "b1.tock"] {
+        let o = hybsim(
+            d,
+            &["run", path, "--no-mcap", "--quiet", "--log-rules", bad],
+        );
+        assert_eq!(code(&o), 2, "--log-rules {bad}: {}", stderr(&o));
+    }
+}
+
 /// `samples` (summary, `--json`, the MCAP's `hybsim.result`) counts the solution's samples before
 /// the log's selection (README): `--log-every` thins the files, not the count.
 #[test]
