@@ -504,9 +504,10 @@ impl<'a> RuleSelection<'a> {
                 (Some(a), Some(b)) => a == b,
                 (Some(_), None) => false,
             };
+        // (`v` alone is a noise, whose redraws are named `v.redraw`.)
         let instance = rule_name
             .strip_prefix(name.as_str())
-            .is_some_and(|rest| rest.starts_with('.'))
+            .is_some_and(|rest| rest.starts_with('.') && rest != ".redraw")
             && match (&label, &rule_label) {
                 (None, _) => true,
                 (Some(a), Some(b)) => b.starts_with(a),
@@ -594,7 +595,14 @@ mod tests {
         assert!(sel("f[2].fire").matches("f.fire[2]"));
         assert!(sel("f.fire[2]").matches("f.fire[2]"));
         assert!(!sel("f[1].fire").matches("f.fire[2]"));
-        assert!(!sel("f").matches("f.fire[2]"));
+        // An instance's rules by its name, not another's it begins.
+        assert!(sel("f").matches("f.fire[2]"));
+        assert!(sel("f[2]").matches("f.fire[2]"));
+        assert!(!sel("f[1]").matches("f.fire[2]"));
+        assert!(sel("b1").matches("b1.tick"));
+        assert!(sel("b1").matches("b1.v.redraw"));
+        assert!(!sel("b1").matches("b10.tick"));
+        assert!(sel("f[2]").matches("f.g.fire[2][1]"));
         assert!(sel("ball.impact").matches("ball.impact"));
         let block = RuleSelection {
             base: "f",
