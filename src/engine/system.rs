@@ -586,7 +586,9 @@ pub trait HybridSystem {
     /// [`all_atom_values`](Self::all_atom_values) (only the watched atoms
     /// need be written), an interval `(lo, hi)` that contains the value
     /// `all_atom_values` computes at every point of the box, to the last
-    /// bit — `(−∞, ∞)` where it may be NaN — and returns `true`; or
+    /// bit — `(−∞, ∞)` where it may be NaN; points where the evaluation
+    /// records a fault ([`take_fault`](Self::take_fault): the run stops
+    /// there) excepted — and returns `true`; or
     /// returns `false` (the default) if the system cannot bound them. The
     /// engine uses it after a step on which no watched atom without an
     /// affine form changed sign at the checkpoints, to prove that none did
@@ -607,6 +609,17 @@ pub trait HybridSystem {
     /// engine computes none for them. `None` (the default): all of them.
     fn atom_bound_inputs(&self) -> Option<Vec<usize>> {
         None
+    }
+
+    /// The state components whose flow is identically zero (modes,
+    /// counters, held samples): every integrator keeps them exactly along a
+    /// step, so the engine gives [`atom_bounds`](Self::atom_bounds) each
+    /// one's value as a point instead of the hull of its path's control
+    /// points widened by their rounding (a mode `q` widened by a few ulps
+    /// leaves `q == 1` undecided and `d[q]` reading no single entry, so no
+    /// atom that reads it was ever proved). Default: none.
+    fn still_states(&self) -> Vec<usize> {
+        Vec::new()
     }
 
     /// [`jump_sets`](Self::jump_sets) and [`all_atom_values`](Self::all_atom_values)

@@ -517,18 +517,22 @@ fn bin(f: BinFn, a: Interval, b: Interval) -> Interval {
     }
 }
 
-/// The hull of the entries `table[row, col]` the index boxes can reach
-/// (an index that may be out of range or not an integer: NaN too).
+/// The hull of the entries `table[row, col]` at the integer indices in
+/// range that the index boxes hold. Their other points are left out: an
+/// index there is not an integer or out of range, so the evaluation records
+/// a fault (E0604) and the run stops, or the entry is not needed (`when` = 0,
+/// the branch not taken) and its NaN reaches no value. Counting them as
+/// NaN made every bound over a box slightly wider than its point unbounded:
+/// a mode `q` constant along flows, whose box is widened by the rounding of
+/// the path's control points, left `tau >= d[q]` unprovable on every step.
 fn lookup(table: &Table, row: Interval, col: Interval) -> Interval {
     let range = |i: Interval, n: usize| {
         let lo = i.lo.ceil().max(1.0);
         let hi = i.hi.floor().min(n as f64);
-        let bad = i.nan || !i.is_point() || i.lo < 1.0 || i.hi > n as f64 || i.lo.fract() != 0.0;
-        (lo <= hi).then_some((lo as usize, hi as usize, bad))
+        (lo <= hi).then_some((lo as usize, hi as usize))
     };
-    let (Some((r0, r1, rbad)), Some((c0, c1, cbad))) =
-        (range(row, table.rows), range(col, table.cols))
-    else {
+    let (Some((r0, r1)), Some((c0, c1))) = (range(row, table.rows), range(col, table.cols)) else {
+        // No entry can be read: every point faults or is not needed.
         return Interval::ENTIRE;
     };
     let mut acc: Option<Interval> = None;
@@ -538,7 +542,7 @@ fn lookup(table: &Table, row: Interval, col: Interval) -> Interval {
             acc = Some(acc.map_or(v, |a| a.hull(v)));
         }
     }
-    acc.map_or(Interval::ENTIRE, |a| a.with_nan(rbad || cbad))
+    acc.unwrap_or(Interval::ENTIRE)
 }
 
 /// `interp` (or its slope) over `x`: the function is linear between its

@@ -464,6 +464,8 @@ pub struct CompiledModel {
     /// (C's, then each rule's), found on the first request
     /// ([`HybridSystem::atom_affine`]).
     affine_atoms: OnceLock<Vec<Vec<Option<AffineAtom>>>>,
+    /// The states whose flow is identically zero ([`HybridSystem::still_states`]).
+    still: Vec<usize>,
 }
 
 /// How a model's programs get machine code.
@@ -656,6 +658,7 @@ impl CompiledModel {
                         .all(|&d| m.dag.as_const(d) == Some(0.0))
             })
             .collect();
+        let still_states: Vec<usize> = (0..m.dim).filter(|&k| still[k]).collect();
         let mut varying = analysis::Varying::new(still);
         let names = self::state_layout(&m.fields, true).flat_names(m.dim);
         let flow_set = m.flow_set.map(|(cond, span)| {
@@ -821,6 +824,7 @@ impl CompiledModel {
             log: m.log,
             jacobian,
             affine_atoms: OnceLock::new(),
+            still: still_states,
         };
         if let Machine::On(jit) = &model.jit {
             let (programs, hot) = model.programs();
@@ -1927,6 +1931,10 @@ impl HybridSystem for CompiledModel {
 
     fn atom_bound_inputs(&self) -> Option<Vec<usize>> {
         Some(self.atoms.flowing.state_reads())
+    }
+
+    fn still_states(&self) -> Vec<usize> {
+        self.still.clone()
     }
 
     fn jump_sets(&self, at: HybridTime, x: &[f64], inside: &mut [bool]) -> bool {

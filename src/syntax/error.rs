@@ -202,6 +202,11 @@ impl SyntaxError {
                 // After a flow equation's state name.
                 if expected.contains(FLOW_PRIME) {
                     d.help("a flow equation gives a state's derivative: `x' = f(x)` (with `x[i]' = …` for a family member)")
+                } else if found == "`if`" && expected.contains("an expression") {
+                    // `tau >= if q == 1 then a else b`: `if` is an
+                    // expression, but one that reaches to the end, not an
+                    // operand.
+                    d.help("`if c then a else b` extends as far as it can, so it starts an expression, not an operand: write the operand in parentheses, `x >= (if c then a else b)`")
                 } else {
                     d
                 }
@@ -411,6 +416,9 @@ impl SyntaxError {
             return err;
         }
         if let Some(err) = setting_keyword(text, pos) {
+            return err;
+        }
+        if let Some(err) = bare_assignment(text, pos, &expected) {
             return err;
         }
         if let Some(err) = keyword_mistake(text, pos, &keywords, wants_name, &expected) {
@@ -625,6 +633,80 @@ fn keyword_mistake(
         message,
         label,
         help,
+    })
+}
+
+/// A statement `name = value` (or `name[i] = value`) that is not an
+/// instance `name = Subsystem(…)`: MATLAB's and HyEQ's way of defining a
+/// constant (`g = 9.81`) or a set (`C = x >= 0`). The parser read the name
+/// as an instance's and stopped at the `=` (expecting only `[`) or at the
+/// value (expecting a subsystem's name), and said only that.
+fn bare_assignment(text: &str, pos: usize, expected: &str) -> Option<SyntaxError> {
+    if expected != "`[`" && expected != "a name" {
+        return None;
+    }
+    let is_word = |c: char| c.is_ascii_alphanumeric() || c == '_';
+    let before = text.get(..pos)?;
+    let start = before
+        .rfind(['\n', '\r', ';', '{', '}'])
+        .map_or(0, |i| i + 1);
+    let name_start =
+        start + text[start..].len() - text[start..].trim_start_matches([' ', '\t']).len();
+    let rest = &text[name_start..];
+    let name = &rest[..rest.find(|c: char| !is_word(c)).unwrap_or(rest.len())];
+    if !name.starts_with(|c: char| c.is_ascii_alphabetic())
+        || KEYWORDS.contains(&name)
+        || DECLARATION_WORDS.contains(&name)
+    {
+        return None;
+    }
+    let mut end = name_start + name.len();
+    // A family member's index, `x[1] = …`.
+    if text[end..].starts_with('[') {
+        end += text[end..].find([']', '\n'])?;
+        if !text[end..].starts_with(']') {
+            return None;
+        }
+        end += 1;
+    }
+    let eq = end + text[end..].len() - text[end..].trim_start_matches([' ', '\t']).len();
+    if !text[eq..].starts_with('=') || text[eq..].starts_with("==") {
+        return None;
+    }
+    let value_start =
+        eq + 1 + text[eq + 1..].len() - text[eq + 1..].trim_start_matches([' ', '\t']).len();
+    if pos != eq && pos != value_start {
+        return None;
+    }
+    // `name = Sub(…)` is an instance: its errors are elsewhere.
+    let value = &text[value_start..];
+    let head = value.trim_start_matches(is_word);
+    if head.len() < value.len() && head.trim_start_matches([' ', '\t']).starts_with('(') {
+        return None;
+    }
+    let target = &text[name_start..end];
+    // A keyword glued to its name, `paramx = 1`.
+    let glued = DECLARATION_WORDS
+        .iter()
+        .find_map(|w| Some((w, name.strip_prefix(w).filter(|r| !r.is_empty())?)))
+        .map(|(w, r)| format!("if `{name}` is `{w} {r}`, separate the words: `{w} {r} = …`; else "))
+        .unwrap_or_default();
+    let sets = match name {
+        "C" => "; HyEQ's flow set C is written after the flow block, `flow { … } in x >= 0`",
+        "D" => "; HyEQ's jump set D is a jump rule's guard, `jump NAME when x <= 0 { … }`",
+        _ => "",
+    };
+    Some(SyntaxError::NotADeclaration {
+        span: Span::new(name_start, end),
+        message: format!(
+            "`{target} = …` is not a declaration: hybsim declares a name with a keyword"
+        ),
+        label: "a keyword expected before this name",
+        help: format!(
+            "{glued}write `param {target} = …` for a constant, `state {target} = …` for a state and its \
+             initial value, or `output {target} = …` for a logged expression (a statement \
+             without a keyword is an instance of a subsystem, `{target} = Subsystem(…)`){sets}"
+        ),
     })
 }
 

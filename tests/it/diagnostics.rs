@@ -366,6 +366,46 @@ const CASES: &[Case] = &[
     ),
     // A parameter or output without its value: the parser read on into the
     // next statement and said only "expected `[`" there.
+    // MATLAB's and HyEQ's assignments, `g = 9.81` or `C = x >= 0`, were
+    // read as an instance's name: "unexpected `9.81`; expected a name" at
+    // the value, or "unexpected `=`; expected `[`" at the `=`.
+    case(
+        "a constant defined without `param`",
+        "model m\ng = 9.81\nstate x = 1\n",
+        "E0101",
+        "2:1",
+        "`g = …` is not a declaration: hybsim declares a name with a keyword",
+    ),
+    case(
+        "a HyEQ flow set defined by assignment",
+        "model m\nstate x = 1\nflow { x' = -x }\nC = x >= 0\n",
+        "E0101",
+        "4:1",
+        "`C = …` is not a declaration: hybsim declares a name with a keyword",
+    ),
+    case(
+        "a keyword glued to its name",
+        "model m\nparamx = 1\n",
+        "E0101",
+        "2:1",
+        "`paramx = …` is not a declaration: hybsim declares a name with a keyword",
+    ),
+    case(
+        "a family member defined by assignment",
+        "model m\nfor i in 1..2 { y[i] = i + 1 }\n",
+        "E0101",
+        "2:17",
+        "`y[i] = …` is not a declaration: hybsim declares a name with a keyword",
+    ),
+    // `if` is an expression but not an operand: the message alone
+    // ("expected an expression" at an `if`) contradicted itself.
+    case(
+        "an if expression as an operand",
+        "model m\nparam d = [1; 2]\nstate x = 0, q = 1\nflow { x' = 1 }\njump r when x >= if q == 1 then d[1] else d[2] { x+ = 0 }\n",
+        "E0101",
+        "5:18",
+        "unexpected `if`; expected an expression",
+    ),
     case(
         "a parameter without its value",
         "model m\nparam k\nstate x = 1\nflow { x' = -k * x }\n",
@@ -1052,6 +1092,22 @@ fn matlab_and_hyeq_habits_get_hybsims_spelling() {
         ),
         ("HyEQ's tspan", "did you mean `T`?"),
         ("odeset's RelTol", "did you mean `rtol`?"),
+        (
+            "a constant defined without `param`",
+            "write `param g = …` for a constant, `state g = …` for a state and its initial value, or `output g = …` for a logged expression (a statement without a keyword is an instance of a subsystem, `g = Subsystem(…)`)",
+        ),
+        (
+            "a HyEQ flow set defined by assignment",
+            "write `param C = …` for a constant, `state C = …` for a state and its initial value, or `output C = …` for a logged expression (a statement without a keyword is an instance of a subsystem, `C = Subsystem(…)`); HyEQ's flow set C is written after the flow block, `flow { … } in x >= 0`",
+        ),
+        (
+            "a keyword glued to its name",
+            "if `paramx` is `param x`, separate the words: `param x = …`; else write `param paramx = …` for a constant, `state paramx = …` for a state and its initial value, or `output paramx = …` for a logged expression (a statement without a keyword is an instance of a subsystem, `paramx = Subsystem(…)`)",
+        ),
+        (
+            "an if expression as an operand",
+            "`if c then a else b` extends as far as it can, so it starts an expression, not an operand: write the operand in parentheses, `x >= (if c then a else b)`",
+        ),
     ] {
         let c = find(name);
         let d = diagnostics(&SourceFile::new("m.hyb", c.src), c.overrides);
@@ -1061,6 +1117,7 @@ fn matlab_and_hyeq_habits_get_hybsims_spelling() {
     let fixed = "model m\nstate x = [1; 2], h = 1, v = 0\n\
                  flow { x' = -x; h' = v; v' = -1 } in min(x) >= 0 || max(x) >= 0 || x[1] >= 0\n\
                  output s = sum(k in 1..length(x): x[k]), s2 = ones(1, length(x))*x, e = x[length(x)]\n\
+                 param g = 9.81\njump r when h >= (if g > 1 then 2 else 3) { h+ = 0 }\n\
                  sim { T = 10; J = 20; rtol = 1e-8; priority = jumps }\n";
     let src = SourceFile::new("m.hyb", fixed);
     let d = diagnostics(&src, &[]);

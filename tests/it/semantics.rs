@@ -4,8 +4,10 @@
 //! and the set invariants of every arc ([`check_arc`]).
 
 use crate::util::{compile, simulate_arc};
-use hybsim::arc::{FailedAtom, HybridArc, TerminationCause};
-use hybsim::engine::{ExactAffine, SimError, SimSettings, Solver, check_arc};
+use hybsim::arc::{FailedAtom, HybridArc, HybridTime, TerminationCause};
+use hybsim::engine::{
+    ExactAffine, HybridSystem, SetRef, SimError, SimRng, SimSettings, Solver, check_arc,
+};
 use hybsim::ir::CompiledModel;
 use hybsim::lang;
 use hybsim::source::SourceFile;
@@ -1650,6 +1652,114 @@ fn a_hidden_change_after_localized_changes_that_change_no_set_is_found() {
         let arc = run_with(&m, &settings);
         assert_times(&arc, &[2.1], &format!("{exact:?}"));
     }
+}
+
+/// The compiled model with its calls of `atom_bounds` counted, and its
+/// states without flow (`HybridSystem::still_states`) given or not.
+struct BoundCalls<'a> {
+    m: &'a CompiledModel,
+    still: bool,
+    calls: std::cell::Cell<usize>,
+}
+
+impl HybridSystem for BoundCalls<'_> {
+    fn state_dim(&self) -> usize {
+        self.m.state_dim()
+    }
+    fn state_names(&self) -> Vec<String> {
+        self.m.state_names()
+    }
+    fn flow_map(&self, at: HybridTime, x: &[f64], dx: &mut [f64]) {
+        self.m.flow_map(at, x, dx)
+    }
+    fn flow_set(&self, at: HybridTime, x: &[f64]) -> bool {
+        self.m.flow_set(at, x)
+    }
+    fn flow_guard(&self, at: HybridTime, x: &[f64]) -> Option<f64> {
+        self.m.flow_guard(at, x)
+    }
+    fn jump_rules(&self) -> &[hybsim::engine::JumpRule] {
+        self.m.jump_rules()
+    }
+    fn jump_set(&self, rule: usize, at: HybridTime, x: &[f64]) -> bool {
+        self.m.jump_set(rule, at, x)
+    }
+    fn jump_guard(&self, rule: usize, at: HybridTime, x: &[f64]) -> f64 {
+        self.m.jump_guard(rule, at, x)
+    }
+    fn jump_map(&self, rule: usize, at: HybridTime, x: &[f64], rng: &mut SimRng, xp: &mut [f64]) {
+        self.m.jump_map(rule, at, x, rng, xp)
+    }
+    fn set_atoms(&self, set: SetRef) -> Option<hybsim::engine::SetAtoms> {
+        self.m.set_atoms(set)
+    }
+    fn atom_values(&self, set: SetRef, at: HybridTime, x: &[f64], flowing: bool, out: &mut [f64]) {
+        self.m.atom_values(set, at, x, flowing, out)
+    }
+    fn atom_affine(&self, set: SetRef, atom: usize) -> Option<hybsim::engine::AffineAtom> {
+        self.m.atom_affine(set, atom)
+    }
+    fn atom_bounds(&self, t: (f64, f64), j: u64, x: &[(f64, f64)], out: &mut [(f64, f64)]) -> bool {
+        self.calls.set(self.calls.get() + 1);
+        self.m.atom_bounds(t, j, x, out)
+    }
+    fn atom_bound_inputs(&self) -> Option<Vec<usize>> {
+        self.m.atom_bound_inputs()
+    }
+    fn still_states(&self) -> Vec<usize> {
+        if self.still {
+            self.m.still_states()
+        } else {
+            Vec::new()
+        }
+    }
+    fn take_fault(&self) -> Option<hybsim::engine::SystemFault> {
+        self.m.take_fault()
+    }
+}
+
+/// A dwell time chosen by the mode, `tau >= (if q == 1 then … else …)`
+/// with `q` a state without flow: the bounds take `q` at its value, so the
+/// atom is proved on every step but the last of a dwell, about one bound a
+/// step. Over the box of `q`'s control points, widened by their rounding,
+/// `q == 1` was undecided and the bound the hull of all three dwells: the
+/// steps inside it spent the search's budget (48 halvings each; a 10-s run
+/// of 16 dwells took 0.2 s instead of 2 ms). The switching times are the
+/// same either way, the partial sums of the dwells.
+#[test]
+fn a_mode_enters_the_bounds_as_its_value() {
+    let m = compile(
+        "model dwell\nstate tau = 0, q = 1, x = 1\nflow { tau' = 1; x' = -0.1*q*x }\n\
+         jump switch when tau >= (if q == 1 then 0.3 else if q == 2 then 1.1 else 0.45) \
+         { tau+ = 0; q+ = mod(q, 3) + 1 }\nsim { T = 10; rtol = 1e-12; atol = 1e-15 }\n",
+    );
+    assert_eq!(m.still_states(), vec![1]);
+    let (mut t, mut want) = (0.0, vec![]);
+    for k in 0.. {
+        t += [0.3, 1.1, 0.45][k % 3];
+        if t >= 10.0 {
+            break;
+        }
+        want.push(t);
+    }
+    let mut calls = vec![];
+    for still in [true, false] {
+        let sys = BoundCalls {
+            m: &m,
+            still,
+            calls: Default::default(),
+        };
+        let (x0, mut rng) = m.start(m.seed());
+        let arc = simulate_arc(&sys, &x0, &m.settings(), &mut rng).expect("runs");
+        assert_times(&arc, &want, &format!("still states given: {still}"));
+        let steps = arc.samples().count();
+        calls.push((sys.calls.get(), steps));
+    }
+    let ((with, steps), (without, _)) = (calls[0], calls[1]);
+    assert!(
+        with <= 2 * steps && 10 * with < without,
+        "bounds: {with} with the still states, {without} without, {steps} samples"
+    );
 }
 
 /// A change that comes back just before a sampling instant is found: the

@@ -108,6 +108,9 @@ pub(super) struct Hidden {
     /// Per state component read: control points of the step's polynomial,
     /// their number and error bound.
     ctrl: Vec<([f64; MAX_CONTROL], usize, f64)>,
+    /// Per state component: whether its flow is identically zero
+    /// ([`HybridSystem::still_states`]).
+    still: Vec<bool>,
     /// Per state component: its box (those not read: unbounded).
     xbox: Vec<(f64, f64)>,
     bounds: Vec<(f64, f64)>,
@@ -379,6 +382,12 @@ impl Watcher {
         let mut reads = sys.atom_bound_inputs().unwrap_or_else(|| (0..n).collect());
         reads.retain(|&i| i < n);
         h.reads = Some(reads);
+        h.still = vec![false; n];
+        for i in sys.still_states() {
+            if let Some(s) = h.still.get_mut(i) {
+                *s = true;
+            }
+        }
         let all = (f64::NEG_INFINITY, f64::INFINITY);
         h.xbox = vec![all; n];
         h.window.xbox = vec![all; n];
@@ -595,6 +604,12 @@ impl Watcher {
         for &i in reads {
             let (p, k, err) = &h.ctrl[i];
             let p = &p[..*k];
+            // A component without flow is its value all along the step
+            // (its control points all that value: else the box below).
+            if h.still.get(i) == Some(&true) && p.iter().all(|&v| v == p[0]) {
+                h.xbox[i] = (p[0], p[0]);
+                continue;
+            }
             let mut piece = [0.0; MAX_CONTROL];
             let part = ta > 0.0 || tb < 1.0;
             let piece = if part {
