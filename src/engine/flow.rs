@@ -758,9 +758,11 @@ impl Affine {
     }
 
     /// Cache slot of the propagator for a step `h` (computed on a miss).
+    /// Periodic sampling asks for the same step again and again: that hit
+    /// is inlined, the search out of line.
+    #[inline]
     fn propagator(&mut self, h: f64) -> usize {
         let key = h.to_bits();
-        // Periodic sampling asks for the same step again and again.
         if self
             .cache
             .get(self.last_hit)
@@ -768,6 +770,13 @@ impl Affine {
         {
             return self.last_hit;
         }
+        self.propagator_search(key)
+    }
+
+    /// [`propagator`](Self::propagator) other than the last one used.
+    #[inline(never)]
+    fn propagator_search(&mut self, key: u64) -> usize {
+        let h = f64::from_bits(key);
         let slot = match self.cache.iter().position(|(k, _)| *k == key) {
             Some(i) => i,
             None => {
@@ -875,7 +884,9 @@ impl Affine {
     }
 
     /// `out` = the flow from `x` (finite) after a step `h`; whether `out`
-    /// is finite.
+    /// is finite. Inlined, as [`apply`](Self::apply): once per period of a
+    /// sampled loop, their calls' prologues cost a third of the product.
+    #[inline]
     fn advance(&mut self, h: f64, x: &[f64], out: &mut [f64]) -> bool {
         let slot = self.propagator(h);
         self.apply(&self.cache[slot].1, x, out)
@@ -961,6 +972,7 @@ impl Affine {
     /// `v − v` is 0 for a finite `v`, NaN otherwise), so that a step needs
     /// no second pass over the state. With AVX where the processor has it
     /// (as [`euler_step`]: the same products and sums, so the same bits).
+    #[inline]
     fn apply(&self, p: &[f64], x: &[f64], out: &mut [f64]) -> bool {
         let (n, kp) = (self.n, self.padded_rows);
         debug_assert!(p.is_empty() || p.len() == kp * (n + 1));
@@ -1651,12 +1663,18 @@ impl Flows {
 
     /// Schedules the sets' timer atoms of the segment [`start`](Self::start)ed
     /// from `x` ([`Watcher::schedule`]).
+    #[inline]
     pub fn schedule_timers(&mut self, x: &[f64]) -> Option<f64> {
         self.watcher.schedule(x, &self.f_prev)
     }
 
     /// Advances `x` (at global time `t0`, jump count `j`) by at most `d_end`.
-    /// Call [`start`](Self::start) first.
+    /// Call [`start`](Self::start) first. Inlined into the caller: a
+    /// segment of [`one_exact_step`](Self::one_exact_step) (a period of a
+    /// sample-and-hold loop) then costs no call of the general segment,
+    /// whose prologue alone saved and restored as many registers as the
+    /// step's product has rows.
+    #[inline]
     #[allow(clippy::too_many_arguments)]
     pub fn segment<S: HybridSystem + ?Sized>(
         &mut self,
@@ -1668,9 +1686,25 @@ impl Flows {
         x: &mut Vec<f64>,
         d_end: f64,
     ) -> Result<SegmentEnd, SimError> {
-        if let Some(end) = self.one_exact_step(sys, out, t0, j, x, d_end) {
-            return end;
+        match self.one_exact_step(sys, out, t0, j, x, d_end) {
+            Some(end) => end,
+            None => self.steps_segment(sys, out, rng, t0, j, x, d_end),
         }
+    }
+
+    /// [`segment`](Self::segment) on the method's steps.
+    #[inline(never)]
+    #[allow(clippy::too_many_arguments)]
+    fn steps_segment<S: HybridSystem + ?Sized>(
+        &mut self,
+        sys: &S,
+        out: &mut Output<'_>,
+        rng: &mut SimRng,
+        t0: f64,
+        j: u64,
+        x: &mut Vec<f64>,
+        d_end: f64,
+    ) -> Result<SegmentEnd, SimError> {
         // The state moves in and out by swapping buffers (of equal length),
         // not copying: `x` is not read until the segment ends, and `y_end`
         // is written by every segment before it is read.

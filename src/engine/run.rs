@@ -66,6 +66,7 @@ impl ZenoWatch {
     }
 
     /// Records a jump made at time `t`.
+    #[inline]
     fn jumped(&mut self, t: f64) {
         if !self.active {
             return;
@@ -609,12 +610,15 @@ pub fn simulate<S: HybridSystem + ?Sized>(
                 // then fires at this `t`, in declaration order); so do those
                 // of grouped rules due within the event tolerance, which
                 // fire in the same simultaneous jump.
-                let tol = settings
-                    .event_tol
-                    .max(4.0 * f64::EPSILON * time.value().abs());
+                // (Read by grouped rules only.)
+                let tol = || {
+                    settings
+                        .event_tol
+                        .max(4.0 * f64::EPSILON * time.value().abs())
+                };
                 for (k, &(r, index, threshold)) in timers.iter().enumerate() {
                     let late = timer_d[k] - d_end;
-                    let grouped = rules[r].group.is_some() && late <= tol;
+                    let grouped = rules[r].group.is_some() && late <= tol();
                     if late <= timer_slack[k] || grouped {
                         x[index] = threshold;
                         // On its threshold, the rule's set holds.
