@@ -1335,6 +1335,57 @@ pub(crate) fn check_jump_finite<S: HybridSystem + ?Sized>(
     jump_not_finite(sys, at, x, rule)
 }
 
+/// Each rule's components checked by [`check_jump_finite`] (those its map
+/// writes, or the whole state), as runs of consecutive components: the
+/// check of every jump then reads slices (four lanes at a time, no index
+/// per component) instead of gathering the components one by one. Where
+/// [`finite`](Self::finite) finds a non-finite value, `check_jump_finite`
+/// names it.
+pub(crate) struct JumpChecks(Vec<Vec<std::ops::Range<usize>>>);
+
+impl JumpChecks {
+    pub fn new(rules: &[super::JumpRule], n: usize) -> Self {
+        Self(
+            rules
+                .iter()
+                .map(|rule| {
+                    if rule.writes.is_empty() {
+                        return vec![0..n];
+                    }
+                    let mut runs: Vec<std::ops::Range<usize>> = Vec::new();
+                    for &k in &rule.writes {
+                        match runs.last_mut() {
+                            Some(run) if run.end == k => run.end = k + 1,
+                            _ => runs.push(k..k + 1),
+                        }
+                    }
+                    runs
+                })
+                .collect(),
+        )
+    }
+
+    /// Whether every component that [`check_jump_finite`] checks for `rule`
+    /// is finite in `x`: exactly when it returns `None`.
+    #[inline]
+    #[allow(clippy::eq_op)] // `v - v` is the test itself
+    pub fn finite(&self, rule: usize, x: &[f64]) -> bool {
+        let mut acc = [0.0f64; 4];
+        for run in &self.0[rule] {
+            let mut quads = x[run.clone()].chunks_exact(4);
+            for q in &mut quads {
+                for (a, &v) in acc.iter_mut().zip(q) {
+                    *a += v - v;
+                }
+            }
+            for (a, &v) in acc.iter_mut().zip(quads.remainder()) {
+                *a += v - v;
+            }
+        }
+        acc.iter().sum::<f64>() == 0.0
+    }
+}
+
 /// The error of [`check_jump_finite`] once a written component is known not
 /// to be finite: out of line, so that the check of every jump stays small.
 #[cold]
@@ -2765,6 +2816,59 @@ mod tests {
                         }
                         (f, w) => panic!("writes {writes:?}, bad at {k}: {f:?} vs {w:?}"),
                     }
+                }
+            }
+        }
+    }
+
+    /// The engine's check of every jump (`JumpChecks::finite`, on runs of
+    /// consecutive components) fails exactly where `check_jump_finite`
+    /// finds a non-finite component: written components in runs, alone,
+    /// out of order, repeated, or none given (the whole state), with a
+    /// NaN or an infinity at any component.
+    #[test]
+    fn jump_check_runs_fail_exactly_where_the_check_names_a_component() {
+        let n = 23;
+        let writes_of: Vec<Vec<usize>> = vec![
+            vec![],
+            vec![4],
+            vec![0, 1, 2, 3, 4, 5, 6, 7, 8],
+            vec![3, 4, 5, 10, 11, 20, 21, 22],
+            vec![22, 21, 20, 9, 7, 8, 1],
+            vec![2, 3, 3, 4, 2, 17],
+            (0..n).rev().collect(),
+            (0..n).filter(|k| k % 3 != 1).collect(),
+        ];
+        let rules: Vec<JumpRule> = writes_of
+            .iter()
+            .enumerate()
+            .map(|(i, writes)| JumpRule {
+                name: format!("r{i}"),
+                guard: GuardKind::General,
+                group: None,
+                part: None,
+                writes: writes.clone(),
+            })
+            .collect();
+        let checks = super::JumpChecks::new(&rules, n);
+        let sys = Ticks(rules);
+        let at = HybridTime::new(0.5, 1);
+        for rule in 0..writes_of.len() {
+            assert!(checks.finite(rule, &vec![-1.5; n]));
+            for bad in [f64::NAN, f64::INFINITY, f64::NEG_INFINITY] {
+                for k in 0..n {
+                    let mut x: Vec<f64> = (0..n).map(|i| i as f64 - 7.25).collect();
+                    x[k] = bad;
+                    let named = super::check_jump_finite(&sys, at, &x, rule).is_some();
+                    assert_eq!(
+                        !checks.finite(rule, &x),
+                        named,
+                        "writes {:?}, {bad} at {k}",
+                        writes_of[rule]
+                    );
+                    // Consistent with the writes themselves.
+                    let writes = &writes_of[rule];
+                    assert_eq!(named, writes.is_empty() || writes.contains(&k));
                 }
             }
         }

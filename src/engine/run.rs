@@ -8,7 +8,9 @@ use super::affine_modes::ModeAffines;
 use super::clock::TimeSum;
 use super::error::SimError;
 use super::events::{EventKind, FlowSetTest, Watcher};
-use super::flow::{Affine, EndWhy, Flows, Method, Output, check_finite, check_jump_finite};
+use super::flow::{
+    Affine, EndWhy, Flows, JumpChecks, Method, Output, check_finite, check_jump_finite,
+};
 use super::settings::{ExactAffine, JumpChoice, Priority, SimSettings, Solver};
 use super::system::{Cmp, FlowStructure, GuardKind, SetExpr, SetRef, SimRng};
 use crate::arc::{
@@ -300,6 +302,7 @@ pub fn simulate<S: HybridSystem + ?Sized>(
         })
         .collect();
     let groups = Groups::new(rules);
+    let jump_checks = JumpChecks::new(rules, n);
     let timer_sets = TimerSets::new(sys);
     let mut flow_set = FlowSetTest::new(sys);
     let mut flows = Flows::new(sys, settings, method, modes, x0)?;
@@ -507,7 +510,9 @@ pub fn simulate<S: HybridSystem + ?Sized>(
                         if let Some(f) = sys.take_fault() {
                             return Err(f.into());
                         }
-                        if let Some(e) = check_jump_finite(sys, at, &x_rule, r) {
+                        if !jump_checks.finite(r, &x_rule)
+                            && let Some(e) = check_jump_finite(sys, at, &x_rule, r)
+                        {
                             return Err(e);
                         }
                         for &k in &rules[r].writes {
@@ -521,7 +526,9 @@ pub fn simulate<S: HybridSystem + ?Sized>(
                     if let Some(f) = sys.take_fault() {
                         return Err(f.into());
                     }
-                    if let Some(e) = check_jump_finite(sys, at, &x_plus, rule) {
+                    if !jump_checks.finite(rule, &x_plus)
+                        && let Some(e) = check_jump_finite(sys, at, &x_plus, rule)
+                    {
                         return Err(e);
                     }
                 }
