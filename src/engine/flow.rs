@@ -884,8 +884,9 @@ impl Affine {
     }
 
     /// `out` = the flow from `x` (finite) after a step `h`; whether `out`
-    /// is finite. Inlined, as [`apply`](Self::apply): once per period of a
-    /// sampled loop, their calls' prologues cost a third of the product.
+    /// is finite. Inlined, as [`apply`](Self::apply): a period of a
+    /// sampled loop is one such step, and their calls cost about as many
+    /// instructions as a small model's product.
     #[inline]
     fn advance(&mut self, h: f64, x: &[f64], out: &mut [f64]) -> bool {
         let slot = self.propagator(h);
@@ -1722,9 +1723,8 @@ impl Flows {
     /// Advances `x` (at global time `t0`, jump count `j`) by at most `d_end`.
     /// Call [`start`](Self::start) first. Inlined into the caller: a
     /// segment of [`one_exact_step`](Self::one_exact_step) (a period of a
-    /// sample-and-hold loop) then costs no call of the general segment,
-    /// whose prologue alone saved and restored as many registers as the
-    /// step's product has rows.
+    /// sample-and-hold loop) then costs no call; only segments that step
+    /// pay the general segment's call and prologue.
     #[inline]
     #[allow(clippy::too_many_arguments)]
     pub fn segment<S: HybridSystem + ?Sized>(
