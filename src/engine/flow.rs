@@ -2853,7 +2853,7 @@ mod tests {
         let checks = super::JumpChecks::new(&rules, n);
         let sys = Ticks(rules);
         let at = HybridTime::new(0.5, 1);
-        for rule in 0..writes_of.len() {
+        for (rule, writes) in writes_of.iter().enumerate() {
             assert!(checks.finite(rule, &vec![-1.5; n]));
             for bad in [f64::NAN, f64::INFINITY, f64::NEG_INFINITY] {
                 for k in 0..n {
@@ -2863,11 +2863,9 @@ mod tests {
                     assert_eq!(
                         !checks.finite(rule, &x),
                         named,
-                        "writes {:?}, {bad} at {k}",
-                        writes_of[rule]
+                        "writes {writes:?}, {bad} at {k}"
                     );
                     // Consistent with the writes themselves.
-                    let writes = &writes_of[rule];
                     assert_eq!(named, writes.is_empty() || writes.contains(&k));
                 }
             }
