@@ -758,9 +758,11 @@ impl Affine {
     }
 
     /// Cache slot of the propagator for a step `h` (computed on a miss).
+    /// Periodic sampling asks for the same step again and again: that hit
+    /// is inlined, the search out of line.
+    #[inline]
     fn propagator(&mut self, h: f64) -> usize {
         let key = h.to_bits();
-        // Periodic sampling asks for the same step again and again.
         if self
             .cache
             .get(self.last_hit)
@@ -768,6 +770,13 @@ impl Affine {
         {
             return self.last_hit;
         }
+        self.propagator_search(key)
+    }
+
+    /// [`propagator`](Self::propagator) other than the last one used.
+    #[inline(never)]
+    fn propagator_search(&mut self, key: u64) -> usize {
+        let h = f64::from_bits(key);
         let slot = match self.cache.iter().position(|(k, _)| *k == key) {
             Some(i) => i,
             None => {
@@ -875,7 +884,10 @@ impl Affine {
     }
 
     /// `out` = the flow from `x` (finite) after a step `h`; whether `out`
-    /// is finite.
+    /// is finite. Inlined, as [`apply`](Self::apply): a period of a
+    /// sampled loop is one such step, and their calls cost about as many
+    /// instructions as a small model's product.
+    #[inline]
     fn advance(&mut self, h: f64, x: &[f64], out: &mut [f64]) -> bool {
         let slot = self.propagator(h);
         self.apply(&self.cache[slot].1, x, out)
@@ -961,6 +973,7 @@ impl Affine {
     /// `v − v` is 0 for a finite `v`, NaN otherwise), so that a step needs
     /// no second pass over the state. With AVX where the processor has it
     /// (as [`euler_step`]: the same products and sums, so the same bits).
+    #[inline]
     fn apply(&self, p: &[f64], x: &[f64], out: &mut [f64]) -> bool {
         let (n, kp) = (self.n, self.padded_rows);
         debug_assert!(p.is_empty() || p.len() == kp * (n + 1));
@@ -1323,6 +1336,57 @@ pub(crate) fn check_jump_finite<S: HybridSystem + ?Sized>(
     jump_not_finite(sys, at, x, rule)
 }
 
+/// Each rule's components checked by [`check_jump_finite`] (those its map
+/// writes, or the whole state), as runs of consecutive components: the
+/// check of every jump then reads slices (four lanes at a time, no index
+/// per component) instead of gathering the components one by one. Where
+/// [`finite`](Self::finite) finds a non-finite value, `check_jump_finite`
+/// names it.
+pub(crate) struct JumpChecks(Vec<Vec<std::ops::Range<usize>>>);
+
+impl JumpChecks {
+    pub fn new(rules: &[super::JumpRule], n: usize) -> Self {
+        Self(
+            rules
+                .iter()
+                .map(|rule| {
+                    if rule.writes.is_empty() {
+                        return vec![0..n];
+                    }
+                    let mut runs: Vec<std::ops::Range<usize>> = Vec::new();
+                    for &k in &rule.writes {
+                        match runs.last_mut() {
+                            Some(run) if run.end == k => run.end = k + 1,
+                            _ => runs.push(k..k + 1),
+                        }
+                    }
+                    runs
+                })
+                .collect(),
+        )
+    }
+
+    /// Whether every component that [`check_jump_finite`] checks for `rule`
+    /// is finite in `x`: exactly when it returns `None`.
+    #[inline]
+    #[allow(clippy::eq_op)] // `v - v` is the test itself
+    pub fn finite(&self, rule: usize, x: &[f64]) -> bool {
+        let mut acc = [0.0f64; 4];
+        for run in &self.0[rule] {
+            let mut quads = x[run.clone()].chunks_exact(4);
+            for q in &mut quads {
+                for (a, &v) in acc.iter_mut().zip(q) {
+                    *a += v - v;
+                }
+            }
+            for (a, &v) in acc.iter_mut().zip(quads.remainder()) {
+                *a += v - v;
+            }
+        }
+        acc.iter().sum::<f64>() == 0.0
+    }
+}
+
 /// The error of [`check_jump_finite`] once a written component is known not
 /// to be finite: out of line, so that the check of every jump stays small.
 #[cold]
@@ -1651,12 +1715,17 @@ impl Flows {
 
     /// Schedules the sets' timer atoms of the segment [`start`](Self::start)ed
     /// from `x` ([`Watcher::schedule`]).
+    #[inline]
     pub fn schedule_timers(&mut self, x: &[f64]) -> Option<f64> {
         self.watcher.schedule(x, &self.f_prev)
     }
 
     /// Advances `x` (at global time `t0`, jump count `j`) by at most `d_end`.
-    /// Call [`start`](Self::start) first.
+    /// Call [`start`](Self::start) first. Inlined into the caller: a
+    /// segment of [`one_exact_step`](Self::one_exact_step) (a period of a
+    /// sample-and-hold loop) then costs no call; only segments that step
+    /// pay the general segment's call and prologue.
+    #[inline]
     #[allow(clippy::too_many_arguments)]
     pub fn segment<S: HybridSystem + ?Sized>(
         &mut self,
@@ -1668,9 +1737,25 @@ impl Flows {
         x: &mut Vec<f64>,
         d_end: f64,
     ) -> Result<SegmentEnd, SimError> {
-        if let Some(end) = self.one_exact_step(sys, out, t0, j, x, d_end) {
-            return end;
+        match self.one_exact_step(sys, out, t0, j, x, d_end) {
+            Some(end) => end,
+            None => self.steps_segment(sys, out, rng, t0, j, x, d_end),
         }
+    }
+
+    /// [`segment`](Self::segment) on the method's steps.
+    #[inline(never)]
+    #[allow(clippy::too_many_arguments)]
+    fn steps_segment<S: HybridSystem + ?Sized>(
+        &mut self,
+        sys: &S,
+        out: &mut Output<'_>,
+        rng: &mut SimRng,
+        t0: f64,
+        j: u64,
+        x: &mut Vec<f64>,
+        d_end: f64,
+    ) -> Result<SegmentEnd, SimError> {
         // The state moves in and out by swapping buffers (of equal length),
         // not copying: `x` is not read until the segment ends, and `y_end`
         // is written by every segment before it is read.
@@ -2731,6 +2816,57 @@ mod tests {
                         }
                         (f, w) => panic!("writes {writes:?}, bad at {k}: {f:?} vs {w:?}"),
                     }
+                }
+            }
+        }
+    }
+
+    /// The engine's check of every jump (`JumpChecks::finite`, on runs of
+    /// consecutive components) fails exactly where `check_jump_finite`
+    /// finds a non-finite component: written components in runs, alone,
+    /// out of order, repeated, or none given (the whole state), with a
+    /// NaN or an infinity at any component.
+    #[test]
+    fn jump_check_runs_fail_exactly_where_the_check_names_a_component() {
+        let n = 23;
+        let writes_of: Vec<Vec<usize>> = vec![
+            vec![],
+            vec![4],
+            vec![0, 1, 2, 3, 4, 5, 6, 7, 8],
+            vec![3, 4, 5, 10, 11, 20, 21, 22],
+            vec![22, 21, 20, 9, 7, 8, 1],
+            vec![2, 3, 3, 4, 2, 17],
+            (0..n).rev().collect(),
+            (0..n).filter(|k| k % 3 != 1).collect(),
+        ];
+        let rules: Vec<JumpRule> = writes_of
+            .iter()
+            .enumerate()
+            .map(|(i, writes)| JumpRule {
+                name: format!("r{i}"),
+                guard: GuardKind::General,
+                group: None,
+                part: None,
+                writes: writes.clone(),
+            })
+            .collect();
+        let checks = super::JumpChecks::new(&rules, n);
+        let sys = Ticks(rules);
+        let at = HybridTime::new(0.5, 1);
+        for (rule, writes) in writes_of.iter().enumerate() {
+            assert!(checks.finite(rule, &vec![-1.5; n]));
+            for bad in [f64::NAN, f64::INFINITY, f64::NEG_INFINITY] {
+                for k in 0..n {
+                    let mut x: Vec<f64> = (0..n).map(|i| i as f64 - 7.25).collect();
+                    x[k] = bad;
+                    let named = super::check_jump_finite(&sys, at, &x, rule).is_some();
+                    assert_eq!(
+                        !checks.finite(rule, &x),
+                        named,
+                        "writes {writes:?}, {bad} at {k}"
+                    );
+                    // Consistent with the writes themselves.
+                    assert_eq!(named, writes.is_empty() || writes.contains(&k));
                 }
             }
         }

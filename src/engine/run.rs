@@ -8,7 +8,9 @@ use super::affine_modes::ModeAffines;
 use super::clock::TimeSum;
 use super::error::SimError;
 use super::events::{EventKind, FlowSetTest, Watcher};
-use super::flow::{Affine, EndWhy, Flows, Method, Output, check_finite, check_jump_finite};
+use super::flow::{
+    Affine, EndWhy, Flows, JumpChecks, Method, Output, check_finite, check_jump_finite,
+};
 use super::settings::{ExactAffine, JumpChoice, Priority, SimSettings, Solver};
 use super::system::{Cmp, FlowStructure, GuardKind, SetExpr, SetRef, SimRng};
 use crate::arc::{
@@ -66,6 +68,7 @@ impl ZenoWatch {
     }
 
     /// Records a jump made at time `t`.
+    #[inline]
     fn jumped(&mut self, t: f64) {
         if !self.active {
             return;
@@ -299,6 +302,7 @@ pub fn simulate<S: HybridSystem + ?Sized>(
         })
         .collect();
     let groups = Groups::new(rules);
+    let jump_checks = JumpChecks::new(rules, n);
     let timer_sets = TimerSets::new(sys);
     let mut flow_set = FlowSetTest::new(sys);
     let mut flows = Flows::new(sys, settings, method, modes, x0)?;
@@ -506,7 +510,9 @@ pub fn simulate<S: HybridSystem + ?Sized>(
                         if let Some(f) = sys.take_fault() {
                             return Err(f.into());
                         }
-                        if let Some(e) = check_jump_finite(sys, at, &x_rule, r) {
+                        if !jump_checks.finite(r, &x_rule)
+                            && let Some(e) = check_jump_finite(sys, at, &x_rule, r)
+                        {
                             return Err(e);
                         }
                         for &k in &rules[r].writes {
@@ -520,7 +526,9 @@ pub fn simulate<S: HybridSystem + ?Sized>(
                     if let Some(f) = sys.take_fault() {
                         return Err(f.into());
                     }
-                    if let Some(e) = check_jump_finite(sys, at, &x_plus, rule) {
+                    if !jump_checks.finite(rule, &x_plus)
+                        && let Some(e) = check_jump_finite(sys, at, &x_plus, rule)
+                    {
                         return Err(e);
                     }
                 }
@@ -609,12 +617,15 @@ pub fn simulate<S: HybridSystem + ?Sized>(
                 // then fires at this `t`, in declaration order); so do those
                 // of grouped rules due within the event tolerance, which
                 // fire in the same simultaneous jump.
-                let tol = settings
-                    .event_tol
-                    .max(4.0 * f64::EPSILON * time.value().abs());
+                // (Read by grouped rules only.)
+                let tol = || {
+                    settings
+                        .event_tol
+                        .max(4.0 * f64::EPSILON * time.value().abs())
+                };
                 for (k, &(r, index, threshold)) in timers.iter().enumerate() {
                     let late = timer_d[k] - d_end;
-                    let grouped = rules[r].group.is_some() && late <= tol;
+                    let grouped = rules[r].group.is_some() && late <= tol();
                     if late <= timer_slack[k] || grouped {
                         x[index] = threshold;
                         // On its threshold, the rule's set holds.
