@@ -1351,7 +1351,8 @@ impl JumpChecks {
                 .iter()
                 .map(|rule| {
                     if rule.writes.is_empty() {
-                        return vec![0..n];
+                        // One run: the whole state.
+                        return std::iter::once(0..n).collect();
                     }
                     let mut runs: Vec<std::ops::Range<usize>> = Vec::new();
                     for &k in &rule.writes {
