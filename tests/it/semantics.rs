@@ -3,7 +3,7 @@
 //! simulate), against closed forms: jump times to 1e-9, jump counts exact,
 //! and the set invariants of every arc ([`check_arc`]).
 
-use crate::util::{compile, simulate_arc};
+use crate::util::{compile, cyclic_switch_times, simulate_arc};
 use hybsim::arc::{FailedAtom, HybridArc, HybridTime, TerminationCause};
 use hybsim::engine::{
     ExactAffine, HybridSystem, SetRef, SimError, SimRng, SimSettings, Solver, check_arc,
@@ -1734,14 +1734,7 @@ fn a_mode_enters_the_bounds_as_its_value() {
          { tau+ = 0; q+ = mod(q, 3) + 1 }\nsim { T = 10; rtol = 1e-12; atol = 1e-15 }\n",
     );
     assert_eq!(m.still_states(), vec![1]);
-    let (mut t, mut want) = (0.0, vec![]);
-    for k in 0.. {
-        t += [0.3, 1.1, 0.45][k % 3];
-        if t >= 10.0 {
-            break;
-        }
-        want.push(t);
-    }
+    let want = cyclic_switch_times(&[0.3, 1.1, 0.45], 10.0);
     let mut calls = vec![];
     for still in [true, false] {
         let sys = BoundCalls {

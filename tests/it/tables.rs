@@ -360,14 +360,7 @@ sim { T = 10; rtol = 1e-12; atol = 1e-15 }
     );
     let (x0, mut rng) = m.start(m.seed());
     let arc = simulate_arc(&m, &x0, &m.settings(), &mut rng).expect("runs");
-    let (mut t, mut want) = (0.0, vec![]);
-    for k in 0.. {
-        t += [0.3, 1.1, 0.45][k % 3];
-        if t >= 10.0 {
-            break;
-        }
-        want.push(t);
-    }
+    let want = crate::util::cyclic_switch_times(&[0.3, 1.1, 0.45], 10.0);
     let times: Vec<f64> = arc.jumps().iter().map(|j| j.at.t).collect();
     assert_eq!(times.len(), want.len(), "{times:?}");
     for (t, e) in times.iter().zip(&want) {

@@ -15,6 +15,20 @@ pub const G: f64 = 9.81;
 /// Restitution coefficient.
 pub const LAMBDA: f64 = 0.8;
 
+/// The switch times before `horizon` of a mode cycle dwelling `dwells[0]`, `dwells[1]`, … in
+/// turn from t = 0 (the closed form of a dwell timer indexed by the mode).
+pub fn cyclic_switch_times(dwells: &[f64], horizon: f64) -> Vec<f64> {
+    let (mut t, mut times) = (0.0, vec![]);
+    for k in 0.. {
+        t += dwells[k % dwells.len()];
+        if t >= horizon {
+            break;
+        }
+        times.push(t);
+    }
+    times
+}
+
 /// Closed-form impact times of the test ball dropped from `h0` at rest.
 pub fn ball_impacts(h0: f64, n: usize) -> Vec<f64> {
     BouncingBall::new(G, LAMBDA)
