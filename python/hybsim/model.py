@@ -175,7 +175,9 @@ class Counterexample:
     ``property`` failed at hybrid time ``(t, j)`` with state ``state``
     (for jumps: the pre-jump point); ``inputs`` are the shrunk sampled
     values (``sampled`` as first drawn), ``seed`` the case's seed, and
-    ``replay`` the ``hybsim run`` command that reproduces it bit for bit.
+    ``replay`` the ``hybsim run`` command that reproduces it bit for bit
+    (of a model given as text, with ``-`` as the model: pipe
+    ``model.source`` into it).
     """
 
     property: str
@@ -442,7 +444,8 @@ class Model:
         ``grid``, ``runs``, ``seed`` left out comes from the model's
         ``sweep { }`` block, else no axis, one run and the model's seed. Run
         ``r`` of a point has the same seed as in ``hybsim sweep``, so a row's
-        ``command`` replays it.
+        ``command`` replays it (``-`` for a model given as text: its
+        ``source`` on standard input).
 
         Returns a :class:`Sweep` with the tables ``runs`` and ``points``
         (``to_pandas()``/``to_polars()``). A run that fails is a row

@@ -257,6 +257,15 @@ fn replay_command(path: &str, subject: &ModelSubject, case: &hybsim::props::Case
     cmd
 }
 
+impl Model {
+    /// The model argument of the `hybsim run` commands that replay its
+    /// runs: its file, or `-` (the text on standard input) for a model given
+    /// as text, whose label (`<string>`) names no file.
+    pub(crate) fn command_model(&self) -> &str {
+        self.path.as_deref().unwrap_or("-")
+    }
+}
+
 #[pymethods]
 impl Model {
     /// The model's name (`model NAME`).
@@ -498,7 +507,7 @@ impl Model {
         )?;
         out.set_item("counterexample", py.None())?;
         out.set_item("error", py.None())?;
-        let path = self.path.as_deref().unwrap_or(self.source.name());
+        let path = self.command_model();
         // Every failing property's counterexample (`counterexample`: the first).
         let counterexamples = PyList::empty(py);
         out.set_item("outcome", "passed")?;

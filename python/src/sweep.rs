@@ -113,7 +113,7 @@ pub fn sweep<'py>(
     let rows = rows.map_err(|_| PyValueError::new_err("internal error: the sweep panicked"))?;
     let manifest = table::Manifest {
         hybsim: env!("CARGO_PKG_VERSION").to_string(),
-        model: model.path.clone().unwrap_or_else(|| src.name().to_string()),
+        model: model.command_model().to_string(),
         model_sha256: hybsim::source::sha256_hex(src.text().as_bytes()),
         sets: fixed
             .iter()

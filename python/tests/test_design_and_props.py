@@ -98,6 +98,22 @@ def test_false_property_returns_its_shrunk_counterexample(tmp_path):
     assert again["h"][0] == cx.inputs["h"] > 1.5
 
 
+def test_a_text_models_replay_reads_its_text_from_stdin(hybsim_bin, tmp_path):
+    # A model given as text has no file: its replay command reads `-`, the text on stdin (it
+    # named '<string>'), and so do a sweep's commands.
+    m = hybsim.load(FALSE_PROPERTY)
+    cx = m.test(cases=50, seed=7, properties=["low"]).counterexample
+    assert cx.replay_args[:3] == ["hybsim", "run", "-"]
+    out = subprocess.run([hybsim_bin, *cx.replay_args[1:], "--csv", "replay.csv"],
+                         input=m.source, text=True, capture_output=True, cwd=tmp_path)
+    assert out.returncode == 0, out.stderr
+    rows = (tmp_path / "replay.csv").read_text().splitlines()
+    h = rows[0].split(",").index("h")
+    assert float(rows[1].split(",")[h]) == cx.inputs["h"]
+    sw = m.sweep(grid={"h": [1.0]}, runs=1)
+    assert sw.runs["command"][0].startswith("hybsim run - --set h=1 --seed ")
+
+
 def test_every_failing_property_has_its_counterexample():
     # `low` fails from h > 1.5 at (0, 0); `slow` from the first impact (|v| > 5 needs h > 1.27).
     m = hybsim.load(FALSE_PROPERTY.replace("property ground: always h >= -1e-9",

@@ -15,7 +15,7 @@ mod test;
 use std::ffi::OsString;
 use std::process::ExitCode;
 
-use clap::{Parser, Subcommand};
+use clap::{CommandFactory, Parser, Subcommand};
 use hybsim::diagnostics::render;
 use hybsim::lang::{Backend, CheckOptions, Override};
 use hybsim::source::SourceFile;
@@ -142,6 +142,40 @@ pub(crate) fn parse_seed(s: &str) -> Result<u64, String> {
     })
 }
 
+/// A `--set` value: `NAME=VALUE` in one argument. Checked here so that
+/// `--set Ts 2` names the fix instead of clap's "unexpected argument '2'"
+/// (clap reads `Ts` as the value and `2` as a stray positional).
+pub(crate) fn parse_set(s: &str) -> Result<String, String> {
+    if s.contains('=') {
+        Ok(s.to_string())
+    } else {
+        let name = s.trim();
+        Err(format!(
+            "`{name}` has no value: write `--set {name}=VALUE` as one argument (e.g. \
+             `--set {name}=2`; quote values with spaces: `--set \"{name}=[1, 2]\"`)"
+        ))
+    }
+}
+
+/// clap's error for `--set Ts 2`, which it reports as the stray argument `2`
+/// before it checks `Ts` with [`parse_set`]: replaced by [`parse_set`]'s.
+fn set_without_value(e: clap::Error, args: &[OsString]) -> clap::Error {
+    if e.kind() != clap::error::ErrorKind::UnknownArgument {
+        return e;
+    }
+    let no_value = args
+        .windows(2)
+        .filter(|w| w[0] == "--set")
+        .find_map(|w| parse_set(&w[1].to_string_lossy()).err());
+    match no_value {
+        Some(message) => Cli::command().error(
+            clap::error::ErrorKind::ValueValidation,
+            format!("invalid value for '--set <NAME=VALUE>': {message}"),
+        ),
+        None => e,
+    }
+}
+
 /// Replaces the default panic message by a short report: what went wrong
 /// where, the command that led there (with the model file), and what to do.
 /// A panic during a run still completes the output files (see
@@ -175,7 +209,8 @@ where
     I: IntoIterator<Item = T>,
     T: Into<OsString> + Clone,
 {
-    let cli = match Cli::try_parse_from(args) {
+    let args: Vec<OsString> = args.into_iter().map(Into::into).collect();
+    let cli = match Cli::try_parse_from(&args).map_err(|e| set_without_value(e, &args)) {
         Ok(cli) => cli,
         Err(e) => {
             // --help and --version print and succeed; usage errors exit 2.
@@ -198,7 +233,6 @@ where
         Command::Info(args) => info::execute(args),
         Command::Plot(args) => plot::execute(args),
         Command::Completions { shell } => {
-            use clap::CommandFactory;
             clap_complete::generate(shell, &mut Cli::command(), "hybsim", &mut std::io::stdout());
             Ok(EXIT_OK)
         }
@@ -509,8 +543,6 @@ fn load(
 
 #[cfg(test)]
 mod tests {
-    use clap::CommandFactory;
-
     use super::*;
 
     #[test]

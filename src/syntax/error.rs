@@ -854,6 +854,28 @@ fn foreign_spelling(text: &str, pos: usize) -> Option<SyntaxError> {
              `−`, `′`, `≤`, `≥`, `×`): retype them as `-`, `'`, `<=`, `>=`, `*`",
         );
     }
+    // `x+` read in an expression (`x+ = x+ + 1`, `when x+ >= 1`): the
+    // parser took `x +` for a sum and stopped where its right operand was
+    // due. `x+` names the state after a jump, which is only assigned.
+    if let Some(plus) = before.trim_end_matches([' ', '\t']).strip_suffix('+')
+        && !plus.ends_with([' ', '\t', '+'])
+        && let Some(name) = plus
+            .rsplit(|c: char| !(is_word(c) || matches!(c, '[' | ']' | '.')))
+            .next()
+            .filter(|n| n.starts_with(|c: char| c.is_ascii_alphabetic() || c == '_'))
+    {
+        let at = plus.len() - name.len();
+        return foreign(
+            at,
+            plus.len() + 1,
+            &format!("`{name}+` read in an expression; `{name}+` is only assigned"),
+            &format!("`{name}+` is the state after the jump"),
+            &format!(
+                "a reset's right side and a condition read the state before the jump: write \
+                 `{name}` (`{name}+ = {name} + 1` increments it)"
+            ),
+        );
+    }
     // A keyword glued to what follows it (keywords are whole words): other
     // languages' `elseif`, or `else0` for `else 0`.
     let word = &rest[..rest.find(|c: char| !is_word(c)).unwrap_or(rest.len())];

@@ -167,6 +167,32 @@ fn a_flow_equation_without_a_prime_says_how_to_write_it() {
     assert_eq!(err.to_diagnostic().code, "E0109");
 }
 
+/// `x+` read on a reset's right side or in a condition is E0109 at `x+`,
+/// saying to read `x`; a sum `x + 1` and an unfinished `x + }` are not.
+#[test]
+fn reading_the_post_jump_state_says_to_read_the_pre_jump_one() {
+    for (src, name) in [
+        ("model m\nstate x = 0\njump when x >= 1 { x+ = x+ + 1 }\n", "x+"),
+        ("model m\nstate x = 0\njump when x >= 1 { x+ = 2 * x+ }\n", "x+"),
+        ("model m\nstate x[2] = 0\njump when x[1]+ >= 1 { x[1]+ = 0 }\n", "x[1]+"),
+        ("model m\nstate x = 0\njump when x >= 1 { x+ = ball.h+ * 2 }\n", "ball.h+"),
+    ] {
+        let err = parse_model(src).unwrap_err();
+        let d = err.to_diagnostic();
+        assert_eq!(d.code, "E0109", "{src}: {}", d.message);
+        assert_eq!(&src[err.span().start..err.span().end], name, "{src}");
+        let pre = name.trim_end_matches('+');
+        assert!(
+            d.help.iter().any(|h| h.contains(&format!("write `{pre}`"))),
+            "{:?}",
+            d.help
+        );
+    }
+    assert!(parse_model("model m\nstate x = 0\njump when x >= 1 { x+ = x + 1 }\n").is_ok());
+    let err = parse_model("model m\nstate x = 0\nflow { x' = x + }\n").unwrap_err();
+    assert_eq!(err.to_diagnostic().code, "E0101");
+}
+
 /// A block left open where the next declaration (or the flow set, or the
 /// end of the file) begins is E0108 there, pointing at the open `{`.
 #[test]

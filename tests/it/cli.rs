@@ -233,6 +233,34 @@ fn a_bad_seed_says_what_a_seed_is() {
     assert_eq!(code(&out), 0, "{}", stderr(&out));
 }
 
+/// `--set lambda 0.5` (a space for the `=`) names the fix in every command that takes `--set`:
+/// it was clap's "unexpected argument '0.5' found".
+#[test]
+fn a_set_without_equals_says_how_to_write_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let m = ball_model();
+    let m = m.to_str().unwrap();
+    for args in [
+        vec!["run", m, "--no-mcap"],
+        vec!["check", m],
+        vec!["test", m],
+        vec!["design", m],
+        vec!["sweep", m, "-o", "out"],
+    ] {
+        let mut args = args.clone();
+        args.extend(["--set", "lambda", "0.5"]);
+        let out = hybsim(dir.path(), &args);
+        assert_eq!(code(&out), 2, "{args:?}");
+        let err = stderr(&out);
+        assert!(
+            err.contains("`lambda` has no value: write `--set lambda=VALUE`"),
+            "{args:?}: {err}"
+        );
+    }
+    let out = hybsim(dir.path(), &["check", m, "--set", "lambda=0.5"]);
+    assert_eq!(code(&out), 0, "{}", stderr(&out));
+}
+
 /// `--T` and `--J` set the horizons, not the model's own `T` and `J`: a sampling period
 /// `param T` became the horizon too (`--T 3` made a model that ticks every 0.5 end with no
 /// tick), and a `--set` of the state `h` stays the state's when `hybsim test` replays it.
