@@ -172,10 +172,22 @@ fn a_flow_equation_without_a_prime_says_how_to_write_it() {
 #[test]
 fn reading_the_post_jump_state_says_to_read_the_pre_jump_one() {
     for (src, name) in [
-        ("model m\nstate x = 0\njump when x >= 1 { x+ = x+ + 1 }\n", "x+"),
-        ("model m\nstate x = 0\njump when x >= 1 { x+ = 2 * x+ }\n", "x+"),
-        ("model m\nstate x[2] = 0\njump when x[1]+ >= 1 { x[1]+ = 0 }\n", "x[1]+"),
-        ("model m\nstate x = 0\njump when x >= 1 { x+ = ball.h+ * 2 }\n", "ball.h+"),
+        (
+            "model m\nstate x = 0\njump when x >= 1 { x+ = x+ + 1 }\n",
+            "x+",
+        ),
+        (
+            "model m\nstate x = 0\njump when x >= 1 { x+ = 2 * x+ }\n",
+            "x+",
+        ),
+        (
+            "model m\nstate x[2] = 0\njump when x[1]+ >= 1 { x[1]+ = 0 }\n",
+            "x[1]+",
+        ),
+        (
+            "model m\nstate x = 0\njump when x >= 1 { x+ = ball.h+ * 2 }\n",
+            "ball.h+",
+        ),
     ] {
         let err = parse_model(src).unwrap_err();
         let d = err.to_diagnostic();
