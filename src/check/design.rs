@@ -1160,6 +1160,7 @@ impl Checker {
         match &e.kind {
             ExprKind::Name(n) if cx.families.contains_key(n) => {
                 self.err(CheckError::FamilyIndex {
+                    lone: None,
                     name: n.clone(),
                     span: e.span,
                 });
@@ -1187,6 +1188,7 @@ impl Checker {
                         keys.sort();
                         let words: Vec<String> = keys.iter().map(|k| member_key("", k)).collect();
                         self.err(CheckError::FamilyOutOfRange {
+                            lone: None,
                             name: n.clone(),
                             index: member_key("", &key)
                                 .trim_matches(|c| c == '[' || c == ']')

@@ -45,6 +45,30 @@ fn did_you_mean(s: &Option<String>) -> Option<String> {
     s.as_ref().map(|s| format!("did you mean `{s}`?"))
 }
 
+/// A family whose only member has one index n ≥ 2 (`state x[2] = [1; 0]`):
+/// most likely meant as a vector of n entries, which is declared without an
+/// index (`state x = [1; 0]`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct LoneMember {
+    /// The declaration's keyword (`state`, `param`, `output`).
+    pub keyword: &'static str,
+    /// The member's index.
+    pub index: i64,
+}
+
+impl LoneMember {
+    /// The help for family `name`.
+    fn help(&self, name: &str) -> String {
+        let (k, n) = (self.keyword, self.index);
+        format!(
+            "`{k} {name}[{n}] = …` declares one member, `{name}[{n}]`, of a family `{name}` \
+             (families are declared member by member, as in `for i in 1..N {{ {k} {name}[i] = 0 }}`); \
+             a vector of {n} entries is declared without an index, `{k} {name} = [a; b; …]` \
+             (or `zeros({n}, 1)`), and read as `{name}[1]` … `{name}[{n}]`"
+        )
+    }
+}
+
 /// A checker error.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum CheckError {
@@ -232,6 +256,8 @@ pub enum CheckError {
         index: String,
         /// The members, in words.
         members: String,
+        /// Set by the checker when the family has one member.
+        lone: Option<LoneMember>,
         /// Where.
         span: Span,
     },
@@ -240,6 +266,8 @@ pub enum CheckError {
     FamilyIndex {
         /// The family.
         name: String,
+        /// Set by the checker when the family has one member.
+        lone: Option<LoneMember>,
         /// Where.
         span: Span,
     },
@@ -753,10 +781,28 @@ impl CheckError {
                 lifted.key()
             )),
             IndexOutOfRange { span, .. } => d.primary(*span, "out of range"),
-            FamilyOutOfRange { span, members, .. } => d
-                .primary(*span, "no such member")
-                .note(format!("its members are {members}")),
-            FamilyIndex { span, .. } => d.primary(*span, "needs a member index"),
+            FamilyOutOfRange {
+                span,
+                members,
+                name,
+                lone,
+                ..
+            } => {
+                let d = d
+                    .primary(*span, "no such member")
+                    .note(format!("its members are {members}"));
+                match lone {
+                    Some(l) => d.help(l.help(name)),
+                    None => d,
+                }
+            }
+            FamilyIndex { span, name, lone } => {
+                let d = d.primary(*span, "needs a member index");
+                match lone {
+                    Some(l) => d.help(l.help(name)),
+                    None => d,
+                }
+            }
             AssignToNonState { span, .. } => d
                 .primary(*span, "not a state")
                 .help("declare it with `state`, or assign another name"),

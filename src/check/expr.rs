@@ -2,11 +2,12 @@
 //! indices, lowering into the scalar graph.
 
 use super::dag::{BinFn, BlockKind, Dist, NodeId, UnFn};
-use super::error::{CheckError, Dims};
+use super::error::{CheckError, Dims, LoneMember};
 use super::limits::{Limits, Quantity};
 use super::{Checker, Sym};
 use crate::source::Span;
 use crate::syntax::ast::{BinOp, Binder, Expr, ExprKind, Fold, IndexArg, IndexSet, UnOp};
+use std::collections::BTreeMap;
 use std::rc::Rc;
 
 /// The elements of a [`Val`]: small values (scalars, short vectors, the
@@ -190,8 +191,38 @@ impl Checker {
         false
     }
 
-    pub(crate) fn err(&mut self, e: CheckError) {
+    pub(crate) fn err(&mut self, mut e: CheckError) {
+        if let CheckError::FamilyIndex { name, lone, .. }
+        | CheckError::FamilyOutOfRange { name, lone, .. } = &mut e
+        {
+            // The help once per family, at its first error.
+            let hinted = |e: &CheckError| {
+                matches!(e, CheckError::FamilyIndex { name: n, lone: Some(_), .. }
+                    | CheckError::FamilyOutOfRange { name: n, lone: Some(_), .. } if n == name)
+            };
+            *lone = self
+                .lone_member(name)
+                .filter(|_| !self.errors.iter().any(hinted));
+        }
         self.errors.push(e);
+    }
+
+    /// The one member of family `name` if it has one index n ≥ 2 (see
+    /// [`LoneMember`]).
+    fn lone_member(&self, name: &str) -> Option<LoneMember> {
+        fn lone<V>(members: &BTreeMap<Vec<i64>, V>) -> Option<i64> {
+            match members.keys().collect::<Vec<_>>()[..] {
+                [key] if key.len() == 1 && key[0] >= 2 => Some(key[0]),
+                _ => None,
+            }
+        }
+        let (keyword, index) = match self.syms.get(name)? {
+            Sym::ParamFamily { members, .. } => ("param", lone(members)?),
+            Sym::StateFamily { members, .. } => ("state", lone(members)?),
+            Sym::OutputFamily { members, .. } => ("output", lone(members)?),
+            _ => return None,
+        };
+        Some(LoneMember { keyword, index })
     }
 
     /// E0506: the value of setting `key` at `span` is invalid, because `reason`.
@@ -551,6 +582,7 @@ impl Checker {
         if !self.syms.contains_key(name) {
             if self.is_signal_family(name) {
                 self.err(CheckError::FamilyIndex {
+                    lone: None,
                     name: name.to_string(),
                     span,
                 });
@@ -578,6 +610,7 @@ impl Checker {
             | Some(Sym::StateFamily { .. })
             | Some(Sym::OutputFamily { .. }) => {
                 self.err(CheckError::FamilyIndex {
+                    lone: None,
                     name: name.to_string(),
                     span,
                 });
@@ -643,6 +676,7 @@ impl Checker {
             None => {
                 let members = self.family_members_words(name);
                 self.err(CheckError::FamilyOutOfRange {
+                    lone: None,
                     name: name.to_string(),
                     index: key_label(&key),
                     members,

@@ -312,6 +312,7 @@ fn var_name(c: &mut Checker, n: &LogName) -> Option<String> {
             if !present {
                 let members = c.family_members_words(name);
                 c.err(CheckError::FamilyOutOfRange {
+                    lone: None,
                     name: name.to_string(),
                     index: label,
                     members,
@@ -371,6 +372,7 @@ fn instance_var(c: &mut Checker, n: &LogName, name: &str, keys: &[Vec<i64>]) -> 
             firsts.dedup();
             let labels: Vec<String> = firsts.iter().map(|i| i.to_string()).collect();
             c.err(CheckError::FamilyOutOfRange {
+                lone: None,
                 name: name.to_string(),
                 index: label,
                 members: super::expr::members_words(&labels),
@@ -410,6 +412,7 @@ fn rule_indices(c: &mut Checker, n: &LogName, rules: &[CheckedRule]) -> Vec<usiz
                 .collect();
             if !labels.is_empty() {
                 c.err(CheckError::FamilyOutOfRange {
+                    lone: None,
                     name: RuleSelection {
                         label: None,
                         ..selection

@@ -31,7 +31,7 @@ use std::rc::Rc;
 
 pub use crate::design::lmi::Backend;
 pub use design::{DesignError, DesignReport, SolveSummary};
-pub use error::{CheckError, Dims};
+pub use error::{CheckError, Dims, LoneMember};
 pub use expr::Val;
 pub use log::{LogDecl, RuleSelection};
 pub use model::{CheckedModel, CheckedRule, OutputField, Override, SolverKeys, StateField};

@@ -1688,6 +1688,7 @@ impl ModelChecker<'_> {
             Some(Kind::Family) => {
                 let Some(first) = t.indices.first() else {
                     self.c.err(CheckError::FamilyIndex {
+                        lone: None,
                         name: name.clone(),
                         span: t.span,
                     });
@@ -1705,6 +1706,7 @@ impl ModelChecker<'_> {
                     }
                     let members = self.c.family_members_words(name);
                     self.c.err(CheckError::FamilyOutOfRange {
+                        lone: None,
                         name: name.clone(),
                         index: key_label(&key),
                         members,

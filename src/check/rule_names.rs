@@ -123,6 +123,7 @@ impl RuleNames {
             && let Some(labels) = self.member_labels(base).filter(|l| !l.is_empty())
         {
             return CheckError::FamilyOutOfRange {
+                lone: None,
                 name: base.to_string(),
                 index: index.clone(),
                 members: members_words(&labels),

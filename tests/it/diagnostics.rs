@@ -1926,3 +1926,39 @@ fn a_model_emptied_by_an_override_names_it() {
     let d = diagnostics(&src, &[]);
     assert!(d.is_empty(), "{d:#?}");
 }
+
+/// A C or MATLAB habit, `state x[2] = [1; 0]` for a vector of two entries, declares the one
+/// member `x[2]` of a family: the first error at `x` or `x[1]` says so and how to declare the
+/// vector (once per family); a family with several members or only `x[1]` gets no such help.
+#[test]
+fn a_lone_family_member_declared_as_a_vector_says_how_to_declare_one() {
+    let src = SourceFile::new(
+        "m.hyb",
+        "model m\nparam A = [0, 1; -1, 0]\nstate x[2] = [1; 0]\nflow { x' = A*x }\njump when x[1] <= 0 { x+ = -x }\n",
+    );
+    let ds = diagnostics(&src, &[]);
+    let codes: Vec<&str> = ds.iter().map(|d| d.code).collect();
+    assert_eq!(
+        codes,
+        ["E0403", "E0403", "E0402", "E0403", "E0403"],
+        "{ds:?}"
+    );
+    let helped: Vec<_> = ds.iter().filter(|d| d.help.is_some()).collect();
+    assert_eq!(helped.len(), 1, "{ds:?}");
+    let help = helped[0].help.as_deref().unwrap();
+    assert!(
+        help.contains("`state x[2] = …` declares one member")
+            && help.contains("`state x = [a; b; …]` (or `zeros(2, 1)`)"),
+        "{help}"
+    );
+    for text in [
+        "model m\nstate x[1] = 0\nflow { x' = 1 }\n",
+        "model m\nfor i in 1..2 { state x[i] = 0 }\nflow { x[1]' = x[3] }\n",
+    ] {
+        let ds = diagnostics(&SourceFile::new("m.hyb", text), &[]);
+        assert!(
+            !ds.is_empty() && ds.iter().all(|d| d.help.is_none()),
+            "{text}: {ds:?}"
+        );
+    }
+}
