@@ -370,9 +370,11 @@ impl<T: Tableau> Explicit<T> {
     fn chatter(&mut self, h: f64, y: &[f64]) -> Result<(), Failure> {
         let k0 = self.tab.start_rate();
         let (k1, _) = self.tab.end_rates();
+        // The sign first: most steps change no rate's sign.
         let flips = |i: usize| {
-            let scale = self.atol + self.rtol * y[i].abs().max(self.y_new[i].abs());
-            k0[i] * k1[i] < 0.0 && h * (k1[i] - k0[i]).abs() > scale
+            k0[i] * k1[i] < 0.0
+                && h * (k1[i] - k0[i]).abs()
+                    > self.atol + self.rtol * y[i].abs().max(self.y_new[i].abs())
         };
         if self.chatter_steps > 0 {
             self.chatter_idle = if flips(self.chatter_component) {
