@@ -442,6 +442,10 @@ impl Tableau for Dop853Tableau {
         self.pending = true;
     }
 
+    fn start_rate(&self) -> &[f64] {
+        &self.k[0]
+    }
+
     fn fsal(&mut self) {
         self.k.swap(0, 12);
     }

@@ -179,6 +179,9 @@ pub(crate) enum Failure {
     /// The stiffness test fired repeatedly; `component` is where the
     /// stiff mode acts most (see `Explicit::stiffness`).
     Stiff { component: usize },
+    /// The rate of `component` kept changing sign over many accepted
+    /// steps, the last of length `h` (see `Explicit::chatter`).
+    Chatter { component: usize, h: f64 },
 }
 
 /// The engine's Dopri5 stepper.
@@ -298,6 +301,10 @@ impl Tableau for Dopri5Tableau {
             r5[i] =
                 h * (D1 * k1[i] + D3 * k3[i] + D4 * k4[i] + D5 * k5[i] + D6 * k6[i] + D7 * k7[i]);
         }
+    }
+
+    fn start_rate(&self) -> &[f64] {
+        &self.k[0]
     }
 
     fn fsal(&mut self) {

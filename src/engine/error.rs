@@ -77,6 +77,24 @@ pub enum SimError {
         /// Its name from `state_names()`.
         name: String,
     },
+    /// The rate of a component changed sign on every accepted step or
+    /// every other one over many steps (10 000), which an adaptive explicit
+    /// solver takes at the step its tolerance allows for ever: the flow map is
+    /// discontinuous where the solution slides along a switching surface
+    /// (`x' = -sign(x)` at x = 0).
+    #[error(
+        "the flow chatters at {at}: the rate of `{name}` changed sign on every step or every other one over the last 10000 steps (the last {h:e} long)"
+    )]
+    Chatter {
+        /// Hybrid time where the integrator stopped.
+        at: HybridTime,
+        /// The last accepted step size.
+        h: f64,
+        /// The component whose rate changed sign.
+        component: usize,
+        /// Its name from `state_names()`.
+        name: String,
+    },
     /// The system reported a failed evaluation
     /// ([`HybridSystem::take_fault`](super::HybridSystem::take_fault)).
     #[error("{what} at {at}")]
@@ -123,6 +141,11 @@ impl SimError {
             SimError::StepSizeCollapse { .. } => {
                 "the flow may blow up or be discontinuous here: check the flow map, loosen \
                  `rtol`/`atol`, or make the discontinuity a jump"
+            }
+            SimError::Chatter { .. } => {
+                "the flow map switches discontinuously where the solution slides along the \
+                 switching surface (a relay such as `sign(x)` or an `if` on the state): make \
+                 the switch a jump of a mode with hysteresis, or smooth it (`tanh(x/eps)`)"
             }
             SimError::Fault { .. } => {
                 "an expression of the model could not be evaluated here: check the index or \

@@ -33,6 +33,24 @@ pub(crate) struct Gains {
 const STIFF_EVERY: u32 = 1000;
 const STIFF_COUNT: u32 = 15;
 
+/// Accepted steps in a row over which one component's rate changes sign
+/// on every step or every other one (at most [`CHATTER_GAP`] steps in a row
+/// without a change) that make a failure ([`Failure::Chatter`]): a resolved
+/// flow turns a rate around over several steps, a flow map discontinuous
+/// where the solution slides (`x' = -sign(x)`) every step or two (Dopri5's
+/// cycle has period 2, Dop853's 4), which the controller accepts at a step
+/// of about `atol` / |ẋ| for ever (a relay once took 10⁷ Dopri5 steps per
+/// unit of t, 10⁸ of Dop853's). Past Hairer's stiffness test (every 1000
+/// steps, 15 in a row), which a stiff flow at the stability limit meets
+/// first.
+const CHATTER_STEPS: u32 = 10_000;
+const CHATTER_GAP: u32 = 1;
+/// Accepted steps of one flow before the chatter test looks for a
+/// component at all: its scan of every rate is then paid by long flows
+/// only, not by the short flows between jumps (the 42-state agents
+/// benchmark paid 4 % more instructions for it on every step).
+const CHATTER_AFTER: u32 = 1_000;
+
 /// The part of an explicit pair that is its own: the stages of a step
 /// attempt and the dense output of an accepted step, over a fixed number
 /// of state vectors allocated once.
@@ -84,6 +102,9 @@ pub(crate) trait Tableau {
     /// the same time (the stiffness test's pair).
     fn end_rates(&self) -> (&[f64], &[f64]);
 
+    /// f at the start of the accepted step (before [`fsal`](Self::fsal)).
+    fn start_rate(&self) -> &[f64];
+
     /// The dense output of the accepted step of length `h` from `y` to
     /// `yn`, or the part of it that needs no more evaluations of f (the
     /// rest is the path's, on its first read of the step's interior).
@@ -133,6 +154,14 @@ pub(crate) struct Explicit<T> {
     accepted: u32,
     stiff_hits: u32,
     nonstiff_hits: u32,
+    /// The chatter test's state: the component whose rate kept changing
+    /// sign over the last `chatter_steps` accepted steps, and the steps in
+    /// a row since its last change.
+    chatter_component: usize,
+    chatter_steps: u32,
+    chatter_idle: u32,
+    /// Accepted steps since the flow started (saturating).
+    flow_steps: u32,
     tab: T,
     /// The argument of the last stage evaluated.
     y_stage: Vec<f64>,
@@ -160,6 +189,10 @@ impl<T: Tableau> Explicit<T> {
             accepted: 0,
             stiff_hits: 0,
             nonstiff_hits: 0,
+            chatter_component: 0,
+            chatter_steps: 0,
+            chatter_idle: 0,
+            flow_steps: 0,
             tab: T::new(n),
             y_stage: vec![0.0; n],
             y_new: vec![0.0; n],
@@ -196,6 +229,10 @@ impl<T: Tableau> Explicit<T> {
     /// Starts a segment at local time 0 from `y` with `f0 = f(0, y)`; the
     /// carried proposal is kept, or a first step estimated (one more f).
     pub fn start(&mut self, y: &[f64], f0: &[f64], f: &mut Rhs<'_>) {
+        // A chatter is counted within one flow (a jump between steps is
+        // not a discontinuity of the flow map).
+        self.chatter_steps = 0;
+        self.flow_steps = 0;
         let (k1, k2) = self.tab.first_stages();
         k1.copy_from_slice(f0);
         if self.h_next <= 0.0 {
@@ -261,6 +298,7 @@ impl<T: Tableau> Explicit<T> {
             // A step so accurate that the controller would grow it by more
             // than its largest factor is not held back by stability.
             self.stiffness(h, fac_free < 1.0 / g.fac_max)?;
+            self.chatter(h, y)?;
             self.tab.dense_output(y, h, &self.y_new);
             self.tab.fsal();
             if rejected {
@@ -329,6 +367,57 @@ impl<T: Tableau> Explicit<T> {
             if self.nonstiff_hits == 6 {
                 self.stiff_hits = 0;
             }
+        }
+        Ok(())
+    }
+
+    /// The chatter test on the accepted step of length `h` from `y`: a
+    /// component whose rate changed sign across it by more than the step
+    /// can carry smoothly (h·|Δẋᵢ| above its tolerance: a sign that
+    /// rounding flips near ẋᵢ = 0 does not count), the same component on
+    /// every step or every other one for [`CHATTER_STEPS`] steps, looked
+    /// for after the flow's first [`CHATTER_AFTER`] steps.
+    fn chatter(&mut self, h: f64, y: &[f64]) -> Result<(), Failure> {
+        if self.flow_steps < CHATTER_AFTER {
+            self.flow_steps += 1;
+            return Ok(());
+        }
+        let k0 = self.tab.start_rate();
+        let (k1, _) = self.tab.end_rates();
+        // The sign first: most steps change no rate's sign.
+        let flips = |i: usize| {
+            k0[i] * k1[i] < 0.0
+                && h * (k1[i] - k0[i]).abs()
+                    > self.atol + self.rtol * y[i].abs().max(self.y_new[i].abs())
+        };
+        if self.chatter_steps > 0 {
+            self.chatter_idle = if flips(self.chatter_component) {
+                0
+            } else {
+                self.chatter_idle + 1
+            };
+            if self.chatter_idle <= CHATTER_GAP {
+                self.chatter_steps += 1;
+                if self.chatter_steps >= CHATTER_STEPS {
+                    self.chatter_steps = 0;
+                    return Err(Failure::Chatter {
+                        component: self.chatter_component,
+                        h,
+                    });
+                }
+                return Ok(());
+            }
+        }
+        // A new candidate, if a rate changed sign across this step.
+        match (0..y.len()).find(|&i| flips(i)) {
+            Some(i) => {
+                (
+                    self.chatter_component,
+                    self.chatter_steps,
+                    self.chatter_idle,
+                ) = (i, 1, 0)
+            }
+            None => self.chatter_steps = 0,
         }
         Ok(())
     }

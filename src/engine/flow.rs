@@ -1472,6 +1472,9 @@ enum GaveUp {
     Collapse { h: f64 },
     /// The stiffness test fired; the stiff mode acts most on `component`.
     Stiff { component: usize },
+    /// The rate of `component` kept changing sign over a long run of
+    /// steps, the last of length `h`.
+    Chatter { component: usize, h: f64 },
 }
 
 /// The error of an integrator that gave up at `stopped`, `(at, x)` its last accepted point,
@@ -1519,6 +1522,12 @@ fn gave_up<S: HybridSystem + ?Sized>(
         }
         GaveUp::Stiff { component } => SimError::Stiff {
             at: stopped,
+            component,
+            name: name(component),
+        },
+        GaveUp::Chatter { component, h } => SimError::Chatter {
+            at: stopped,
+            h,
             component,
             name: name(component),
         },
@@ -2038,6 +2047,7 @@ impl Flows {
                     let how = match failure {
                         Failure::Underflow => GaveUp::Collapse { h: st.proposal() },
                         Failure::Stiff { component } => GaveUp::Stiff { component },
+                        Failure::Chatter { component, h } => GaveUp::Chatter { component, h },
                     };
                     let at = HybridTime::new(t0 + s, j);
                     return Err(gave_up(sys, (at, &self.y_prev), at, ahead, solver, how));

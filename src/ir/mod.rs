@@ -1492,6 +1492,12 @@ impl CompiledModel {
                 name,
                 ..
             } => Some((component, "is moved most by the stiff mode", at, name)),
+            SimError::Chatter {
+                component,
+                at,
+                name,
+                ..
+            } => Some((component, "has a rate that keeps changing sign", at, name)),
             _ => None,
         };
         if let Some((component, how, at, name)) = located {

@@ -876,6 +876,53 @@ fn foreign_spelling(text: &str, pos: usize) -> Option<SyntaxError> {
             ),
         );
     }
+    // `==` where an equation's `=` is expected (`x' == -x`, `x+ == 0`,
+    // `param k == 2`): the parse stopped at the second `=`.
+    if rest.starts_with('=')
+        && let Some(head) = before.strip_suffix('=')
+        && !head.ends_with(['<', '>', '!', '='])
+        && head
+            .trim_end()
+            .ends_with(|c: char| is_word(c) || matches!(c, '\'' | '+' | ']'))
+    {
+        return foreign(
+            pos - 1,
+            pos + 1,
+            "`==` is a comparison; an equation is written with one `=`",
+            "write `=` here",
+            "`==` compares in conditions (`when q == 1`); a flow equation `x' = …`, a reset \
+             `x+ = …` and a declaration `param k = …` take one `=`",
+        );
+    }
+    // A name written with Greek letters or subscript digits, as in the
+    // equations of a paper (`θ' = ω`, `x₁`): names are ASCII.
+    if let Some(c) = rest.chars().next()
+        && ascii_name(c).is_some()
+    {
+        let word: &str = &rest[..rest
+            .find(|c: char| !(c.is_alphanumeric() || c == '_'))
+            .unwrap_or(rest.len())];
+        let ascii: Option<String> = word
+            .chars()
+            .map(|c| {
+                if c.is_ascii_alphanumeric() || c == '_' {
+                    Some(c.to_string())
+                } else {
+                    ascii_name(c).map(str::to_string)
+                }
+            })
+            .collect();
+        if let Some(ascii) = ascii {
+            return foreign(
+                pos,
+                pos + word.len(),
+                &format!("`{word}` is not an ASCII name; hybsim writes `{ascii}`"),
+                &format!("write `{ascii}` here"),
+                "names are ASCII letters, digits and `_`: write a Greek letter out (`theta`, \
+                 `omega`) and a subscript as a digit (`x1`), in every use of the name",
+            );
+        }
+    }
     // A keyword glued to what follows it (keywords are whole words): other
     // languages' `elseif`, or `else0` for `else 0`.
     let word = &rest[..rest.find(|c: char| !is_word(c)).unwrap_or(rest.len())];
@@ -1344,6 +1391,42 @@ fn typographic(c: char) -> Option<&'static str> {
         'π' => "pi",
         '∞' => "inf",
         '\u{a0}' | '\u{2009}' | '\u{202f}' => " ",
+        _ => return None,
+    })
+}
+
+/// The ASCII spelling of a Greek letter (but `π`, the constant
+/// [`typographic`] reads as `pi`) or a subscript digit in a name.
+fn ascii_name(c: char) -> Option<&'static str> {
+    const LOWER: [&str; 25] = [
+        "alpha", "beta", "gamma", "delta", "epsilon", "zeta", "eta", "theta", "iota", "kappa",
+        "lambda", "mu", "nu", "xi", "omicron", "pi", "rho", "sigma", "sigma", "tau", "upsilon",
+        "phi", "chi", "psi", "omega",
+    ];
+    const SUBSCRIPTS: [&str; 10] = ["0", "1", "2", "3", "4", "5", "6", "7", "8", "9"];
+    Some(match c {
+        // U+03C2 is the final sigma, between rho and sigma.
+        'α'..='ω' if c != 'π' => LOWER[c as usize - 'α' as usize],
+        'Α'..='Ω' if c != 'Π' && c != '\u{3a2}' => {
+            let lower = LOWER[c as usize - 'Α' as usize];
+            // Capital Γ, Δ, … as `Gamma`, `Delta`.
+            match lower {
+                "gamma" => "Gamma",
+                "delta" => "Delta",
+                "theta" => "Theta",
+                "lambda" => "Lambda",
+                "xi" => "Xi",
+                "sigma" => "Sigma",
+                "phi" => "Phi",
+                "psi" => "Psi",
+                "omega" => "Omega",
+                _ => return None,
+            }
+        }
+        'ϕ' => "phi",
+        'ϑ' => "theta",
+        'ϵ' => "epsilon",
+        '₀'..='₉' => SUBSCRIPTS[c as usize - '₀' as usize],
         _ => return None,
     })
 }

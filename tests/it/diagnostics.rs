@@ -341,6 +341,43 @@ const CASES: &[Case] = &[
         "3:7",
         "the space character U+00A0 is a typographic character; hybsim writes an ordinary space",
     ),
+    // "unexpected `=`; expected an expression" at the second `=`.
+    case(
+        "a flow equation written with `==`",
+        "model m\nstate x = 1\nflow { x' == -x }\n",
+        "E0109",
+        "3:11",
+        "`==` is a comparison; an equation is written with one `=`",
+    ),
+    case(
+        "a reset written with `==`",
+        "model m\nstate x = 1\nflow { x' = -x }\njump r when x <= 0.5 { x+ == 1 }\n",
+        "E0109",
+        "4:27",
+        "`==` is a comparison; an equation is written with one `=`",
+    ),
+    // Names as a paper writes them: "unexpected `θ`; expected a name".
+    case(
+        "a Greek letter as a name",
+        "model m\nstate θ = 1, ω = 0\nflow { θ' = ω; ω' = -θ }\n",
+        "E0109",
+        "2:7",
+        "`θ` is not an ASCII name; hybsim writes `theta`",
+    ),
+    case(
+        "a Greek letter with a subscript in an expression",
+        "model m\nparam k = 2\nstate x = 1\nflow { x' = -ω₀ * x }\n",
+        "E0109",
+        "4:14",
+        "`ω₀` is not an ASCII name; hybsim writes `omega0`",
+    ),
+    case(
+        "a capital Greek letter and a subscript in a name",
+        "model m\nparam Δt₁ = 0.1\n",
+        "E0109",
+        "2:7",
+        "`Δt₁` is not an ASCII name; hybsim writes `Deltat1`",
+    ),
     case(
         "misspelt declaration keyword",
         "model m\nstat x = 1\nflow { x' = -x }\n",

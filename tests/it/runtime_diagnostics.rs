@@ -200,6 +200,73 @@ fn a_flow_that_turns_nan_names_its_equation_on_every_adaptive_solver() {
     }
 }
 
+/// A relay, `x' = -sign(x)` from 1: x = 1 − t reaches 0 at t = 1, where the
+/// solution slides (x = 0, a Filippov solution the flow map does not give).
+/// The explicit solvers accepted steps of about `atol` across x = 0 for ever
+/// (Dopri5 1.4·10⁷ steps per unit of t, Dop853 1.2·10⁸: `T = 10` took 80 s
+/// and a sliding-mode controller's `T = 100` a quarter of an hour); now
+/// they stop just past t = 1 with the chatter error at the relay's
+/// equation, also under `auto` (not handed to Radau5 as a stiff flow, where
+/// the steps collapse). `c` is a clock declared first.
+const RELAY: &str = "model relay
+state c = 0, x = 1
+flow {
+    c' = 1
+    x' = -sign(x)
+}
+sim { T = 3 }
+";
+
+#[test]
+fn a_relay_that_chatters_stops_at_its_switching_surface() {
+    for solver in ["dopri5", "dop853", "auto"] {
+        let text = RELAY.replace("T = 3", &format!("T = 3; solver = {solver}"));
+        let (err, d, src) = fail("relay.hyb", &text);
+        let SimError::Chatter {
+            at,
+            component,
+            ref name,
+            h,
+        } = err
+        else {
+            panic!("{solver}: expected the chatter error, got {err:?}")
+        };
+        assert_eq!((component, name.as_str(), at.j), (1, "x", 0), "{solver}");
+        // 10 000 steps of at most 1e-7 past the switch.
+        assert!(at.t > 1.0 && at.t < 1.01, "{solver}: {at}");
+        assert!(h > 0.0 && h < 1e-6, "{solver}: {h}");
+        assert_eq!(d.code, "E0601", "{solver}");
+        assert!(
+            d.message.starts_with("the flow chatters at (t = 1.0")
+                && d.message.contains("the rate of `x` changed sign"),
+            "{solver}: {}",
+            d.message
+        );
+        let lc = d.line_col(&src).unwrap();
+        assert_eq!((lc.line, lc.col), (5, 5), "{solver}: at `x' = -sign(x)`");
+        assert!(
+            d.help.as_deref().unwrap_or("").contains("hysteresis"),
+            "{d:?}"
+        );
+    }
+    // Smooth flows whose rates turn around often do not chatter: 40
+    // oscillators of distinct phases and frequencies at tight tolerances,
+    // and a rate near 0 that changes sign fast (below any tolerance).
+    let mut text = String::from("model many\nstate z = 0\n");
+    for k in 1..=40 {
+        text += &format!("state p{k} = {}, q{k} = 0\n", 1.0 + k as f64 / 40.0);
+        text += &format!(
+            "flow {{ p{k}' = q{k}; q{k}' = -{w}*p{k} }}\n",
+            w = 1.0 + k as f64
+        );
+    }
+    text += "flow { z' = 1e-300*sin(1e3*t) }\nsim { T = 20; rtol = 1e-10; atol = 1e-12 }\n";
+    let m = crate::util::compile(&text);
+    let (x0, mut rng) = m.start(m.seed());
+    let arc = simulate_arc(&m, &x0, &m.settings(), &mut rng).expect("a smooth flow runs");
+    assert_eq!(arc.last().unwrap().at.t, 20.0);
+}
+
 #[test]
 fn the_cli_prints_file_line_and_caret() {
     let dir = tempfile::tempdir().unwrap();
