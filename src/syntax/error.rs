@@ -369,6 +369,9 @@ impl SyntaxError {
             1 => expected[0].to_string(),
             n => format!("{} or {}", expected[..n - 1].join(", "), expected[n - 1]),
         };
+        if let Some(err) = walrus(text, pos) {
+            return err;
+        }
         if let Some((found, write)) = matlab_operator(text, pos) {
             return SyntaxError::MatlabOperator {
                 span: Span::new(pos, pos + found.len()),
@@ -808,6 +811,26 @@ fn unclosed_group(text: &str, pos: usize) -> Option<(usize, char)> {
 
 /// Another language's spelling where the parser stopped at `pos` (see
 /// [`SyntaxError::Foreign`]), with hybsim's.
+/// A `:=` (Pascal's, Modelica's and Python's assignment) on the line where
+/// the parser stopped, at or after where it stopped: pest stops before it,
+/// at the statement it could not complete (`flow { x' := 1 }` stopped at
+/// `x'` and read as a flow equation outside its block).
+fn walrus(text: &str, pos: usize) -> Option<SyntaxError> {
+    let line_start = text.get(..pos)?.rfind('\n').map_or(0, |i| i + 1);
+    let line_end = text[pos..].find('\n').map_or(text.len(), |i| pos + i);
+    let at = pos + text[pos..line_end].find(":=")?;
+    if text[line_start..at].contains('#') {
+        return None;
+    }
+    Some(SyntaxError::Foreign {
+        span: Span::new(at, at + 2),
+        message: "`:=` is the assignment of Pascal, Modelica and Python; hybsim writes `=`".into(),
+        label: "write `=` here".into(),
+        help: "equations, resets and declarations take one `=`: `x' = …`, `x+ = …`, `param k = …`"
+            .into(),
+    })
+}
+
 fn foreign_spelling(text: &str, pos: usize) -> Option<SyntaxError> {
     let rest = text.get(pos..)?;
     let before = text.get(..pos)?;

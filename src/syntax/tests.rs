@@ -205,6 +205,28 @@ fn reading_the_post_jump_state_says_to_read_the_pre_jump_one() {
     assert_eq!(err.to_diagnostic().code, "E0101");
 }
 
+/// `:=` (Pascal, Modelica, Python) is E0109 at the `:=` wherever the parse
+/// stopped on its line: in a flow block it read as a flow equation outside
+/// its block, in a reset as no declaration, in `param` as a missing value.
+#[test]
+fn an_assignment_written_colon_equals_says_to_write_equals() {
+    for body in [
+        "flow { x' := 1 }",
+        "jump when x >= 1 { x+ := 0 }",
+        "param k := 2",
+        "state y := 2",
+    ] {
+        let src = format!("model m\nstate x = 0\n{body}\n");
+        let err = parse_model(&src).unwrap_err();
+        let d = err.to_diagnostic();
+        assert_eq!(d.code, "E0109", "{src}: {}", d.message);
+        assert_eq!(&src[err.span().start..err.span().end], ":=", "{src}");
+    }
+    // In a comment it is not the error.
+    let err = parse_model("model m\nstate x = 0\nflow { x' = } # x := 0\n").unwrap_err();
+    assert_eq!(err.to_diagnostic().code, "E0101");
+}
+
 /// A block left open where the next declaration (or the flow set, or the
 /// end of the file) begins is E0108 there, pointing at the open `{`.
 #[test]
