@@ -15,7 +15,7 @@ pub struct CheckArgs {
     /// The model file (`.hyb`; `-` reads it from standard input).
     pub model: PathBuf,
     /// Check with parameter overrides applied (`--set name=value`, repeatable).
-    #[arg(long = "set", value_name = "NAME=VALUE", value_parser = super::parse_set)]
+    #[arg(long = "set", value_name = "NAME=VALUE")]
     pub set: Vec<String>,
     /// `human` (rendered with the source line and carets, on stderr) or
     /// `json` (one JSON object per diagnostic and line on stdout, for

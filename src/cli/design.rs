@@ -17,7 +17,7 @@ pub struct DesignArgs {
     /// Parameter overrides (`--set name=value`, repeatable); a design result
     /// given here replaces the computed one (a block whose results are all
     /// given is not solved).
-    #[arg(long = "set", value_name = "NAME=VALUE", value_parser = super::parse_set)]
+    #[arg(long = "set", value_name = "NAME=VALUE")]
     pub set: Vec<String>,
     /// Print the results as JSON (the `hybsim.design` metadata of a run).
     #[arg(long)]

@@ -142,23 +142,9 @@ pub(crate) fn parse_seed(s: &str) -> Result<u64, String> {
     })
 }
 
-/// A `--set` value: `NAME=VALUE` in one argument. Checked here so that
-/// `--set Ts 2` names the fix instead of clap's "unexpected argument '2'"
-/// (clap reads `Ts` as the value and `2` as a stray positional).
-pub(crate) fn parse_set(s: &str) -> Result<String, String> {
-    if s.contains('=') {
-        Ok(s.to_string())
-    } else {
-        let name = s.trim();
-        Err(format!(
-            "`{name}` has no value: write `--set {name}=VALUE` as one argument (e.g. \
-             `--set {name}=2`; quote values with spaces: `--set \"{name}=[1, 2]\"`)"
-        ))
-    }
-}
-
-/// clap's error for `--set Ts 2`, which it reports as the stray argument `2`
-/// before it checks `Ts` with [`parse_set`]: replaced by [`parse_set`]'s.
+/// clap's error for `--set Ts 2` (a space for the `=`), "unexpected
+/// argument '2'", replaced by one that names the fix. (A lone `--set Ts`
+/// reaches the override parser, which locates its error.)
 fn set_without_value(e: clap::Error, args: &[OsString]) -> clap::Error {
     if e.kind() != clap::error::ErrorKind::UnknownArgument {
         return e;
@@ -166,11 +152,15 @@ fn set_without_value(e: clap::Error, args: &[OsString]) -> clap::Error {
     let no_value = args
         .windows(2)
         .filter(|w| w[0] == "--set")
-        .find_map(|w| parse_set(&w[1].to_string_lossy()).err());
+        .map(|w| w[1].to_string_lossy())
+        .find(|value| !value.contains('='));
     match no_value {
-        Some(message) => Cli::command().error(
+        Some(name) => Cli::command().error(
             clap::error::ErrorKind::ValueValidation,
-            format!("invalid value for '--set <NAME=VALUE>': {message}"),
+            format!(
+                "`--set {name}` has no value: write `--set {name}=VALUE` as one argument (e.g. \
+                 `--set {name}=2`; quote values with spaces: `--set \"{name}=[1, 2]\"`)"
+            ),
         ),
         None => e,
     }

@@ -101,7 +101,7 @@ pub struct RunArgs {
     pub jit: Option<JitMode>,
     /// Override a parameter: `--set name=value` (repeatable); the value is
     /// an expression of the model language, e.g. `--set K="[1, 2]"`.
-    #[arg(long = "set", value_name = "NAME=VALUE", value_parser = super::parse_set)]
+    #[arg(long = "set", value_name = "NAME=VALUE")]
     pub set: Vec<String>,
     /// Also write the logged samples as CSV.
     #[arg(long, value_name = "OUT.csv")]

@@ -34,7 +34,7 @@ pub struct SweepArgs {
     #[arg(long, value_name = "S", value_parser = super::parse_seed)]
     pub seed: Option<u64>,
     /// A fixed override for every run: `--set name=value` (repeatable).
-    #[arg(long = "set", value_name = "NAME=VALUE", value_parser = super::parse_set)]
+    #[arg(long = "set", value_name = "NAME=VALUE")]
     pub set: Vec<String>,
     /// Run only part k of n of the runs (k = 1…n), e.g. a Slurm array task:
     /// `--shard $SLURM_ARRAY_TASK_ID/$SLURM_ARRAY_TASK_COUNT`.

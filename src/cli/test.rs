@@ -33,7 +33,7 @@ pub struct TestArgs {
     pub property: Vec<String>,
     /// Override a parameter, initial value or `sim` key, as for `hybsim run`
     /// (a pinned initial value is no longer sampled).
-    #[arg(long = "set", value_name = "NAME=VALUE", value_parser = super::parse_set)]
+    #[arg(long = "set", value_name = "NAME=VALUE")]
     pub set: Vec<String>,
     /// Interior-point method of the model's design blocks (solved per case).
     #[arg(long, value_enum, default_value_t = SdpKind::Auto)]

@@ -253,7 +253,7 @@ fn a_set_without_equals_says_how_to_write_it() {
         assert_eq!(code(&out), 2, "{args:?}");
         let err = stderr(&out);
         assert!(
-            err.contains("`lambda` has no value: write `--set lambda=VALUE`"),
+            err.contains("`--set lambda` has no value: write `--set lambda=VALUE`"),
             "{args:?}: {err}"
         );
     }
