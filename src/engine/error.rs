@@ -154,7 +154,9 @@ impl SimError {
             SimError::Stiff { .. } => {
                 "the flow is stiff: use an implicit solver (`solver = radau5` or `bdf`, \
                  `--solver radau5`, `Solver::Radau5`), or `solver = auto` to switch to Radau5 \
-                 where the flow is stiff"
+                 where the flow is stiff; if instead the flow map switches where the solution \
+                 slides along a switching surface (`sign(x)`, an `if` on the state), which looks \
+                 stiff too, make the switch a jump with hysteresis or smooth it (`tanh(x/eps)`)"
             }
         }
     }
