@@ -154,15 +154,25 @@ fn set_without_value(e: clap::Error, args: &[OsString]) -> clap::Error {
         .filter(|w| w[0] == "--set")
         .map(|w| w[1].to_string_lossy())
         .find(|value| !value.contains('='));
-    match no_value {
-        Some(name) => Cli::command().error(
-            clap::error::ErrorKind::ValueValidation,
-            format!(
-                "`--set {name}` has no value: write `--set {name}=VALUE` as one argument (e.g. \
-                 `--set {name}=2`; quote values with spaces: `--set \"{name}=[1, 2]\"`)"
-            ),
-        ),
-        None => e,
+    let Some(name) = no_value else {
+        return e;
+    };
+    let message = format!(
+        "`--set {name}` has no value: write `--set {name}=VALUE` as one argument (e.g. \
+         `--set {name}=2`; quote values with spaces: `--set \"{name}=[1, 2]\"`)"
+    );
+    let kind = clap::error::ErrorKind::ValueValidation;
+    // The usage shown is the subcommand's, as in clap's own error.
+    let mut cli = Cli::command();
+    cli.build();
+    let sub = args
+        .iter()
+        .skip(1)
+        .filter_map(|a| a.to_str())
+        .find(|a| cli.find_subcommand(a).is_some());
+    match sub.and_then(|sub| cli.find_subcommand_mut(sub)) {
+        Some(cmd) => cmd.error(kind, message),
+        None => cli.error(kind, message),
     }
 }
 

@@ -256,6 +256,11 @@ fn a_set_without_equals_says_how_to_write_it() {
             err.contains("`--set lambda` has no value: write `--set lambda=VALUE`"),
             "{args:?}: {err}"
         );
+        // The subcommand's usage, as clap's own errors show it.
+        assert!(
+            err.contains(&format!("Usage: hybsim {} ", args[0])),
+            "{args:?}: {err}"
+        );
     }
     let out = hybsim(dir.path(), &["check", m, "--set", "lambda=0.5"]);
     assert_eq!(code(&out), 0, "{}", stderr(&out));
