@@ -211,10 +211,8 @@ impl Checker {
     /// [`LoneMember`]).
     fn lone_member(&self, name: &str) -> Option<LoneMember> {
         fn lone<V>(members: &BTreeMap<Vec<i64>, V>) -> Option<i64> {
-            match members.keys().collect::<Vec<_>>()[..] {
-                [key] if key.len() == 1 && key[0] >= 2 => Some(key[0]),
-                _ => None,
-            }
+            let key = members.keys().next().filter(|_| members.len() == 1)?;
+            Some(key[0]).filter(|&n| key.len() == 1 && n >= 2)
         }
         let (keyword, index) = match self.syms.get(name)? {
             Sym::ParamFamily { members, .. } => ("param", lone(members)?),

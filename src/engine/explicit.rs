@@ -160,7 +160,7 @@ pub(crate) struct Explicit<T> {
     chatter_component: usize,
     chatter_steps: u32,
     chatter_idle: u32,
-    /// Accepted steps since the flow started (saturating).
+    /// Accepted steps since the flow started, counted up to [`CHATTER_AFTER`].
     flow_steps: u32,
     tab: T,
     /// The argument of the last stage evaluated.
