@@ -46,7 +46,7 @@ use std::ops::ControlFlow;
 use super::HybridSystem;
 use super::clock::TimeSum;
 use super::settings::{Priority, SimSettings};
-use super::system::{AffineAtom, Atom, Cmp, GuardKind, SetAtoms, SetRef, TruthTable};
+use super::system::{AffineAtom, Atom, Cmp, GuardKind, SetAtoms, SetRef, Threshold, TruthTable};
 use crate::arc::{FailedAtom, HybridTime};
 
 mod hidden;
@@ -502,6 +502,9 @@ struct TimerAtom {
     cmp: Cmp,
     index: usize,
     threshold: f64,
+    /// Whether `threshold` is read from the system at each segment's start
+    /// ([`Threshold::PerSegment`]).
+    per_segment: bool,
     /// Local time at which the timer reaches its threshold (∞: never).
     d: f64,
     /// How much later than a segment's end `d` may be for the timer to
@@ -974,6 +977,8 @@ pub(crate) struct Watcher {
     watched: Vec<WAtom>,
     /// The event sources' timer atoms ([`Atom::timer`](super::system::Atom::timer)).
     timers: Vec<TimerAtom>,
+    /// Whether a timer atom's threshold is read at each segment's start.
+    per_segment_timers: bool,
     /// The earliest local time `d` of the timer atoms not crossed yet in
     /// the segment (∞: none due): a checkpoint before it crosses none.
     next_due: f64,
@@ -1153,12 +1158,17 @@ impl Watcher {
             if let (true, Some(spec)) = (ws.source, &ws.spec) {
                 for (k, a) in spec.atoms.iter().enumerate() {
                     if let (true, Some((index, threshold))) = (a.flows, a.timer) {
+                        let (threshold, per_segment) = match threshold {
+                            Threshold::Const(c) => (c, false),
+                            Threshold::PerSegment => (f64::NAN, true),
+                        };
                         timers.push(TimerAtom {
                             set: i,
                             atom: k,
                             cmp: a.cmp,
                             index,
                             threshold,
+                            per_segment,
                             d: f64::INFINITY,
                             slack: 0.0,
                             after: false,
@@ -1285,6 +1295,7 @@ impl Watcher {
             need: vec![false; watched.len()],
             changing: vec![0; set_count],
             watched,
+            per_segment_timers: timers.iter().any(|ta| ta.per_segment),
             timers,
             next_due: f64::INFINITY,
             twin,
@@ -1580,6 +1591,11 @@ impl Watcher {
 
     /// [`start`](Self::start) with something watched or scheduled.
     fn start_sets<S: HybridSystem + ?Sized>(&mut self, sys: &S, at: HybridTime, x: &[f64]) {
+        if self.per_segment_timers {
+            for ta in self.timers.iter_mut().filter(|ta| ta.per_segment) {
+                ta.threshold = sys.timer_threshold(self.sets[ta.set].set, ta.atom, at, x);
+            }
+        }
         let set_tol = self.set_tol;
         // The flow moves the state: nothing is carried past the start.
         self.sets_at = None;

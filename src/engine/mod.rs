@@ -250,5 +250,5 @@ pub use sparsity::{
 };
 pub use system::{
     AffineAtom, Atom, Cmp, FlowStructure, GuardKind, HybridSystem, JumpRule, SetAtoms, SetExpr,
-    SetInputs, SetRef, SimRng, SystemFault, finite_difference_jacobian,
+    SetInputs, SetRef, SimRng, SystemFault, Threshold, finite_difference_jacobian,
 };

@@ -12,7 +12,7 @@ use super::flow::{
     Affine, EndWhy, Flows, JumpChecks, Method, Output, check_finite, check_jump_finite,
 };
 use super::settings::{ExactAffine, JumpChoice, Priority, SimSettings, Solver};
-use super::system::{Cmp, FlowStructure, GuardKind, SetExpr, SetRef, SimRng};
+use super::system::{Cmp, FlowStructure, GuardKind, SetExpr, SetRef, SimRng, Threshold};
 use crate::arc::{
     ArcSink, HybridArc, HybridTime, SampleKind, Termination, TerminationCause, ZenoDetail,
 };
@@ -190,7 +190,11 @@ impl TimerSets {
             .map(|r| {
                 let spec = sys.set_atoms(SetRef::Jump(r))?;
                 match (&spec.expr, &spec.atoms[..]) {
-                    (SetExpr::Atom(0), [atom]) => atom.timer.map(|(k, c)| (k, c, atom.cmp)),
+                    (SetExpr::Atom(0), [atom]) => match atom.timer {
+                        Some((k, Threshold::Const(c))) => Some((k, c, atom.cmp)),
+                        // Read from the system: its set is evaluated.
+                        _ => None,
+                    },
                     _ => None,
                 }
             })

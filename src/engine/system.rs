@@ -206,7 +206,20 @@ pub struct Atom {
     /// `x[index]` set to `threshold`, as for [`GuardKind::Timer`] rules (a
     /// strict atom that holds past its threshold, `tau > Ts` with `tau`
     /// rising: to the first float past it, where it holds).
-    pub timer: Option<(usize, f64)>,
+    pub timer: Option<(usize, Threshold)>,
+}
+
+/// The threshold of a timer atom ([`Atom::timer`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Threshold {
+    /// A constant.
+    Const(f64),
+    /// A function of the jump count and of states whose flow is
+    /// identically zero (a mode's dwell time `d[q]`, a deadline drawn at
+    /// the last jump): constant along each flow segment. The engine reads
+    /// it from [`HybridSystem::timer_threshold`] at each segment's start;
+    /// `g` must be `x[index]` minus exactly that value.
+    PerSegment,
 }
 
 impl Atom {
@@ -501,6 +514,14 @@ pub trait HybridSystem {
     /// what [`atom_values`](Self::atom_values) computes up to rounding.
     fn atom_affine(&self, _set: SetRef, _atom: usize) -> Option<AffineAtom> {
         None
+    }
+
+    /// The threshold at (`at`, `x`) of atom `atom` of `set`, a timer atom
+    /// whose [`Threshold`] is [`PerSegment`](Threshold::PerSegment). Called
+    /// at the start of each flow segment; the default, for systems that
+    /// declare none, is NaN (a timer that never expires).
+    fn timer_threshold(&self, _set: SetRef, _atom: usize, _at: HybridTime, _x: &[f64]) -> f64 {
+        f64::NAN
     }
 
     /// How atom `atom` of `set` reads in the model (`x <= 1`), for

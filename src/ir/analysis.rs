@@ -125,30 +125,59 @@ fn nnf(dag: &mut Dag, cond: NodeId, neg: bool, atoms: &mut Vec<(Cmp, NodeId)>) -
     }
 }
 
+/// The threshold of a timer atom found by [`timer_atom`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) enum TimerThreshold {
+    /// A constant.
+    Const(f64),
+    /// A node that does not vary along flows (of parameters, the jump
+    /// count and states whose flow is identically zero: `d[q]`).
+    Node(NodeId),
+}
+
 /// Atom `g ⋈ 0` as a timer atom if it is one: `⋈` is an inequality
-/// (`<`, `<=`, `>`, `>=`) and `g` is `±x[k] + c` (sums and differences of one such state and constants,
-/// in any order) for a state `k` with `timers[k]` (a constant nonzero rate
+/// (`<`, `<=`, `>`, `>=`) and `g` is `±x[k] + h` (sums and differences of
+/// one such state and terms that do not vary along flows (`varies`), in
+/// any order) for a state `k` with `timers[k]` (a constant nonzero rate
 /// along every flow). Returns the atom written as `x[k] − θ ⋈' 0` (the
 /// comparison flipped with the sign: the same set up to the rounding of
-/// `g`), with `k` and `θ`: at `x[k] = θ` its `g` is exactly zero.
+/// `g`), with `k` and `θ` (a constant where `h` is one): at `x[k] = θ` its
+/// `g` is exactly zero.
 pub(crate) fn timer_atom(
     dag: &mut Dag,
     cmp: Cmp,
     g: NodeId,
     timers: &[bool],
-) -> Option<(Cmp, NodeId, usize, f64)> {
+    varies: &[bool],
+) -> Option<(Cmp, NodeId, usize, TimerThreshold)> {
     if !matches!(cmp, Cmp::Le | Cmp::Ge | Cmp::Lt | Cmp::Gt) {
         return None;
     }
-    let (k, sign, offset) = match one_state_sum(dag, g, 0)? {
-        (Some(k), sign, offset) if timers.get(k) == Some(&true) => (k, sign, offset),
-        _ => return None,
+    let (k, sign, threshold) = match one_state_sum(dag, g, 0) {
+        Some((Some(k), sign, offset)) if timers.get(k) == Some(&true) => {
+            // `+ 0.0`: a zero threshold is +0 (the timer is set to it, and shown).
+            let threshold = -sign * offset + 0.0;
+            if !threshold.is_finite() {
+                return None;
+            }
+            (k, sign, TimerThreshold::Const(threshold))
+        }
+        Some(_) => return None,
+        None => {
+            let mut terms = Vec::new();
+            let (k, sign) = one_state_and_still(dag, g, 1.0, varies, &mut terms, 0)??;
+            if timers.get(k) != Some(&true) {
+                return None;
+            }
+            // θ = −sign · Σ (term signs · terms), in the order written.
+            let mut theta = dag.konst(0.0);
+            for (t, s) in terms {
+                let f = if s * sign < 0.0 { BinFn::Add } else { BinFn::Sub };
+                theta = dag.bin(f, theta, t);
+            }
+            (k, sign, TimerThreshold::Node(theta))
+        }
     };
-    // `+ 0.0`: a zero threshold is +0 (the timer is set to it, and shown).
-    let threshold = -sign * offset + 0.0;
-    if !threshold.is_finite() {
-        return None;
-    }
     let cmp = match (sign > 0.0, cmp) {
         (true, c) => c,
         (false, Cmp::Le) => Cmp::Ge,
@@ -156,8 +185,48 @@ pub(crate) fn timer_atom(
         (false, Cmp::Lt) => Cmp::Gt,
         (false, _) => Cmp::Lt,
     };
-    let (x, c) = (dag.state(k), dag.konst(threshold));
+    let x = dag.state(k);
+    let c = match threshold {
+        TimerThreshold::Const(c) => dag.konst(c),
+        TimerThreshold::Node(n) => n,
+    };
     Some((cmp, dag.bin(BinFn::Sub, x, c), k, threshold))
+}
+
+/// `n` (times `sign`) as `s·x[k] + Σ sᵢ·hᵢ` with `hᵢ` nodes that do not
+/// vary along flows (pushed to `terms` with their signs `sᵢ`): `Some(Some((k,
+/// s)))` if `n` is a sum or difference of exactly one varying state and
+/// such terms, `Some(None)` if `n` is such a term itself, `None` otherwise;
+/// `depth` bounds the recursion.
+fn one_state_and_still(
+    dag: &Dag,
+    n: NodeId,
+    sign: f64,
+    varies: &[bool],
+    terms: &mut Vec<(NodeId, f64)>,
+    depth: u32,
+) -> Option<Option<(usize, f64)>> {
+    if depth > 16 {
+        return None;
+    }
+    if !varies.get(n as usize).copied().unwrap_or(true) {
+        terms.push((n, sign));
+        return Some(None);
+    }
+    match dag.node(n) {
+        Node::State(k) => Some(Some((k as usize, sign))),
+        Node::Un(UnFn::Neg, a) => one_state_and_still(dag, a, -sign, varies, terms, depth + 1),
+        Node::Bin(f @ (BinFn::Add | BinFn::Sub), a, b) => {
+            let sb = if f == BinFn::Sub { -sign } else { sign };
+            let ka = one_state_and_still(dag, a, sign, varies, terms, depth + 1)?;
+            let kb = one_state_and_still(dag, b, sb, varies, terms, depth + 1)?;
+            match (ka, kb) {
+                (Some(_), Some(_)) => None,
+                (k, None) | (None, k) => Some(k),
+            }
+        }
+        _ => None,
+    }
 }
 
 /// `n` as `sign · x[k] + offset` (`sign` ±1, `k` `None` for a constant) if

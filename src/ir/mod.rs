@@ -38,7 +38,7 @@ use crate::check::{CheckedModel, StateField};
 use crate::diagnostics::Diagnostic;
 use crate::engine::{
     AffineAtom, Atom, FlowStructure, GuardKind, HybridSystem, JumpRule, SetAtoms, SetInputs,
-    SetRef, SimError, SimRng, SimSettings, SparsityPattern, finite_difference_jacobian,
+    SetRef, SimError, SimRng, SimSettings, SparsityPattern, Threshold, finite_difference_jacobian,
 };
 use crate::layout::{Declared, Layout, Shape};
 use crate::num::Num;
@@ -157,6 +157,9 @@ struct SetCode {
     nodes: Vec<NodeId>,
     /// The node of the set's condition.
     cond_node: NodeId,
+    /// `(atom, program)`: the threshold of each timer atom whose threshold
+    /// is [`Threshold::PerSegment`].
+    thresholds: Vec<(usize, Program)>,
 }
 
 impl SetCode {
@@ -174,15 +177,34 @@ impl SetCode {
     ) -> Self {
         let g = analysis::guard_of(dag, cond);
         let mut ca = analysis::atoms_of(dag, cond);
-        // Timer atoms written as `x − c`, so that the engine can schedule them.
-        let timer: Vec<Option<(usize, f64)>> = ca
+        // Timer atoms written as `x − θ`, so that the engine can schedule
+        // them; a θ that is not a constant is evaluated at each segment's
+        // start by its own program.
+        let mut thresholds = Vec::new();
+        let varies = varying.of(dag);
+        let timer: Vec<Option<(usize, Threshold)>> = ca
             .atoms
             .iter_mut()
-            .map(|a| {
-                let (cmp, node, index, threshold) = analysis::timer_atom(dag, a.0, a.1, timers)?;
+            .enumerate()
+            .map(|(k, a)| {
+                let (cmp, node, index, threshold) =
+                    analysis::timer_atom(dag, a.0, a.1, timers, varies)?;
                 *a = (cmp, node);
-                Some((index, threshold))
+                Some((
+                    index,
+                    match threshold {
+                        analysis::TimerThreshold::Const(c) => Threshold::Const(c),
+                        analysis::TimerThreshold::Node(n) => {
+                            thresholds.push((k, n));
+                            Threshold::PerSegment
+                        }
+                    },
+                ))
             })
+            .collect();
+        let thresholds = thresholds
+            .into_iter()
+            .map(|(k, n)| (k, Program::compile(dag, frame, &[n])))
             .collect();
         let varying = varying.of(dag);
         let atoms: Vec<Atom> = ca
@@ -225,6 +247,7 @@ impl SetCode {
             flowing_idx,
             nodes,
             cond_node: cond,
+            thresholds,
             atoms: SetAtoms {
                 atoms,
                 expr: ca.expr,
@@ -245,7 +268,11 @@ impl SetCode {
     }
 
     fn nregs(&self) -> usize {
-        self.programs().iter().map(|p| p.nregs).max().unwrap_or(0)
+        let thresholds = self.thresholds.iter().map(|(_, p)| p);
+        (self.programs().into_iter().chain(thresholds))
+            .map(|p| p.nregs)
+            .max()
+            .unwrap_or(0)
     }
 }
 
@@ -1866,6 +1893,11 @@ impl HybridSystem for CompiledModel {
 
     fn atom_text(&self, set: SetRef, atom: usize) -> Option<String> {
         self.set_code(set)?.atom_text.get(atom).cloned()
+    }
+
+    fn timer_threshold(&self, set: SetRef, atom: usize, at: HybridTime, x: &[f64]) -> f64 {
+        let code = self.set_code(set).and_then(|c| c.thresholds.iter().find(|t| t.0 == atom));
+        code.map_or(f64::NAN, |(_, p)| self.scalar(p, at, x))
     }
 
     fn atom_affine(&self, set: SetRef, atom: usize) -> Option<AffineAtom> {

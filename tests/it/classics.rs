@@ -4,8 +4,8 @@
 //! hybsim: event-triggered control, sampled-data feedback with a
 //! transmission delay, impulsively coupled oscillators, the uniting of a
 //! local and a global controller, a set-valued jump map, purely
-//! discrete-time systems (a logistic map, a Kalman filter) and a stiff flow
-//! with resets.
+//! discrete-time systems (a logistic map, a Kalman filter), a stiff flow
+//! with resets and dwell-time switching.
 
 use crate::util::{compile, simulate_arc};
 use hybsim::arc::HybridArc;
@@ -119,6 +119,57 @@ sim { T = 10; rtol = 1e-12; atol = 1e-20 }
         } else {
             u = -k * xs;
         }
+    }
+}
+
+/// Dwell-time switching, HyEQ's way: C = {τ ≤ d_q}, D = {τ ≥ d_q} with the
+/// dwell `d[q]` of the current mode, and a transmission deadline `Tn` drawn
+/// at each jump (`τ ≥ Tn`). Thresholds that change only at jumps are timers
+/// too: every jump lands with τ exactly on its threshold (scheduled, not
+/// localized to a tolerance), at the sums of the dwells, on exact affine
+/// flows and on Dopri5.
+#[test]
+fn timers_with_thresholds_set_at_jumps_expire_exactly_on_them() {
+    let m = compile(
+        "model dwell
+param d = [0.3, 0.7]
+state x = 1, q = 1, tau = 0
+flow { x' = -x; tau' = 1 } in tau <= d[q]
+jump switch when tau >= d[q] { q+ = 3 - q; tau+ = 0 }
+sim { T = 50; rtol = 1e-10; atol = 1e-30 }
+",
+    );
+    let (iq, it, ix) = (index(&m, "q"), index(&m, "tau"), index(&m, "x"));
+    for exact in [true, false] {
+        let arc = run_with(&m, &m.settings().exact_affine(exact));
+        let jumps = arc.jumps();
+        assert_eq!(jumps.len(), 99, "exact_affine {exact}");
+        let mut t = 0.0;
+        for (n, r) in jumps.iter().enumerate() {
+            let dwell = if r.pre[iq] == 1.0 { 0.3 } else { 0.7 };
+            t += dwell;
+            assert_eq!(r.pre[it], dwell, "{exact}: jump {n} with tau = {}", r.pre[it]);
+            assert!((r.at.t - t).abs() <= 1e-12, "jump {n} at {} not {t}", r.at.t);
+            let x = (-t).exp();
+            assert!((r.pre[ix] - x).abs() <= 1e-8 * x, "jump {n}: x = {} not {x}", r.pre[ix]);
+        }
+    }
+    let m = compile(
+        "model deadline
+state tau = 0, Tn = 0.5, k = 0
+flow { tau' = 1 }
+jump send when tau >= Tn { tau+ = 0; Tn+ = uniform(0.1, 0.9); k+ = k + 1 }
+sim { T = 20; seed = 3 }
+",
+    );
+    let (it, itn) = (index(&m, "tau"), index(&m, "Tn"));
+    let arc = run_with(&m, &m.settings());
+    let mut t = 0.0;
+    assert!(arc.jumps().len() > 30);
+    for r in arc.jumps() {
+        assert_eq!(r.pre[it], r.pre[itn]);
+        t += r.pre[itn];
+        assert!((r.at.t - t).abs() <= 1e-12, "jump at {} not {t}", r.at.t);
     }
 }
 

@@ -497,3 +497,38 @@ fn atom_bounds_read_a_state_that_is_an_atom_by_itself() {
     );
     assert_eq!(m.atom_bound_inputs(), Some(vec![0, 1, 2]));
 }
+
+/// Which atoms are timers the engine schedules: a timer against a constant,
+/// or against terms that change only at jumps (parameters indexed by a mode,
+/// states without flow, `j`): the threshold is then read at each segment's
+/// start. Terms that move along flows (another state, `t`) or a scaled
+/// timer leave the atom watched.
+#[test]
+fn timer_atoms_against_terms_fixed_between_jumps_are_scheduled() {
+    use hybsim::engine::{SetRef, Threshold};
+    let m = compile(
+        "model timers
+param d = [0.3, 0.7]
+state x = 1, q = 2, T = 0.25, tau = 0.1
+flow { x' = -x; tau' = 1 }
+jump a when tau >= 0.5 { tau+ = 0 }
+jump b when tau >= d[q] { tau+ = 0 }
+jump c when d[q] + T - tau <= j { tau+ = 0 }
+jump e when tau >= x { tau+ = 0 }
+jump f when tau >= d[q] + t { tau+ = 0 }
+jump g when 2 * tau >= d[q] { tau+ = 0 }
+sim { T = 1 }
+",
+    );
+    let timer = |r: usize| m.set_atoms(SetRef::Jump(r)).expect("atoms").atoms[0].timer;
+    assert_eq!(timer(0), Some((3, Threshold::Const(0.5))));
+    assert_eq!(timer(1), Some((3, Threshold::PerSegment)));
+    assert_eq!(timer(2), Some((3, Threshold::PerSegment)));
+    for r in 3..6 {
+        assert_eq!(timer(r), None, "rule {r}");
+    }
+    let x = [1.0, 2.0, 0.25, 0.1];
+    let at = HybridTime::new(0.0, 3);
+    assert_eq!(m.timer_threshold(SetRef::Jump(1), 0, at, &x), 0.7);
+    assert_eq!(m.timer_threshold(SetRef::Jump(2), 0, at, &x), 0.7 + 0.25 - 3.0);
+}
