@@ -172,7 +172,11 @@ pub(crate) fn timer_atom(
             // θ = −sign · Σ (term signs · terms), in the order written.
             let mut theta = dag.konst(0.0);
             for (t, s) in terms {
-                let f = if s * sign < 0.0 { BinFn::Add } else { BinFn::Sub };
+                let f = if s * sign < 0.0 {
+                    BinFn::Add
+                } else {
+                    BinFn::Sub
+                };
                 theta = dag.bin(f, theta, t);
             }
             (k, sign, TimerThreshold::Node(theta))

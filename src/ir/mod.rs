@@ -181,6 +181,8 @@ impl SetCode {
         // them; a θ that is not a constant is evaluated at each segment's
         // start by its own program.
         let mut thresholds = Vec::new();
+        // The atoms as written, for messages.
+        let written = names.map(|_| ca.atoms.clone());
         let varies = varying.of(dag);
         let timer: Vec<Option<(usize, Threshold)>> = ca
             .atoms
@@ -223,12 +225,13 @@ impl SetCode {
         // What the engine evaluates along flows: the atoms it watches.
         let flowing_idx: Vec<usize> = (0..atoms.len()).filter(|&k| atoms[k].watched()).collect();
         let fnodes: Vec<NodeId> = flowing_idx.iter().map(|&k| nodes[k]).collect();
-        let atom_text = names.map_or_else(Vec::new, |names| {
-            ca.atoms
+        let atom_text = match (names, written) {
+            (Some(names), Some(written)) => written
                 .iter()
                 .map(|&(cmp, g)| describe::atom_text(dag, cmp, g, names))
-                .collect()
-        });
+                .collect(),
+            _ => Vec::new(),
+        };
         let (cond_p, guard) = (
             Program::compile(dag, frame, &[cond]),
             Program::compile(dag, frame, &[g]),
@@ -1896,7 +1899,9 @@ impl HybridSystem for CompiledModel {
     }
 
     fn timer_threshold(&self, set: SetRef, atom: usize, at: HybridTime, x: &[f64]) -> f64 {
-        let code = self.set_code(set).and_then(|c| c.thresholds.iter().find(|t| t.0 == atom));
+        let code = self
+            .set_code(set)
+            .and_then(|c| c.thresholds.iter().find(|t| t.0 == atom));
         code.map_or(f64::NAN, |(_, p)| self.scalar(p, at, x))
     }
 

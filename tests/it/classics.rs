@@ -148,10 +148,22 @@ sim { T = 50; rtol = 1e-10; atol = 1e-30 }
         for (n, r) in jumps.iter().enumerate() {
             let dwell = if r.pre[iq] == 1.0 { 0.3 } else { 0.7 };
             t += dwell;
-            assert_eq!(r.pre[it], dwell, "{exact}: jump {n} with tau = {}", r.pre[it]);
-            assert!((r.at.t - t).abs() <= 1e-12, "jump {n} at {} not {t}", r.at.t);
+            assert_eq!(
+                r.pre[it], dwell,
+                "{exact}: jump {n} with tau = {}",
+                r.pre[it]
+            );
+            assert!(
+                (r.at.t - t).abs() <= 1e-12,
+                "jump {n} at {} not {t}",
+                r.at.t
+            );
             let x = (-t).exp();
-            assert!((r.pre[ix] - x).abs() <= 1e-8 * x, "jump {n}: x = {} not {x}", r.pre[ix]);
+            assert!(
+                (r.pre[ix] - x).abs() <= 1e-8 * x,
+                "jump {n}: x = {} not {x}",
+                r.pre[ix]
+            );
         }
     }
     let m = compile(

@@ -530,5 +530,8 @@ sim { T = 1 }
     let x = [1.0, 2.0, 0.25, 0.1];
     let at = HybridTime::new(0.0, 3);
     assert_eq!(m.timer_threshold(SetRef::Jump(1), 0, at, &x), 0.7);
-    assert_eq!(m.timer_threshold(SetRef::Jump(2), 0, at, &x), 0.7 + 0.25 - 3.0);
+    assert_eq!(
+        m.timer_threshold(SetRef::Jump(2), 0, at, &x),
+        0.7 + 0.25 - 3.0
+    );
 }

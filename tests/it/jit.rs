@@ -411,6 +411,9 @@ impl HybridSystem for SetBySet<'_> {
     fn atom_affine(&self, set: SetRef, atom: usize) -> Option<hybsim::engine::AffineAtom> {
         self.0.atom_affine(set, atom)
     }
+    fn timer_threshold(&self, set: SetRef, atom: usize, at: HybridTime, x: &[f64]) -> f64 {
+        self.0.timer_threshold(set, atom, at, x)
+    }
     fn atom_text(&self, set: SetRef, atom: usize) -> Option<String> {
         self.0.atom_text(set, atom)
     }
@@ -682,6 +685,9 @@ impl HybridSystem for Counting<'_> {
     }
     fn atom_affine(&self, set: SetRef, atom: usize) -> Option<hybsim::engine::AffineAtom> {
         self.m.atom_affine(set, atom)
+    }
+    fn timer_threshold(&self, set: SetRef, atom: usize, at: HybridTime, x: &[f64]) -> f64 {
+        self.m.timer_threshold(set, atom, at, x)
     }
     fn atom_text(&self, set: SetRef, atom: usize) -> Option<String> {
         self.m.atom_text(set, atom)

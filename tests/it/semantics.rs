@@ -1696,6 +1696,9 @@ impl HybridSystem for BoundCalls<'_> {
     fn atom_values(&self, set: SetRef, at: HybridTime, x: &[f64], flowing: bool, out: &mut [f64]) {
         self.m.atom_values(set, at, x, flowing, out)
     }
+    fn timer_threshold(&self, set: SetRef, atom: usize, at: HybridTime, x: &[f64]) -> f64 {
+        self.m.timer_threshold(set, atom, at, x)
+    }
     fn atom_affine(&self, set: SetRef, atom: usize) -> Option<hybsim::engine::AffineAtom> {
         self.m.atom_affine(set, atom)
     }
@@ -1718,8 +1721,9 @@ impl HybridSystem for BoundCalls<'_> {
     }
 }
 
-/// A dwell time chosen by the mode, `tau >= (if q == 1 then … else …)`
-/// with `q` a state without flow: the bounds take `q` at its value, so the
+/// A dwell time chosen by the mode, `tau^2 >= (if q == 1 then … else …)^2`
+/// with `q` a state without flow (squared: `tau >= …` is a timer atom,
+/// scheduled, not watched): the bounds take `q` at its value, so the
 /// atom is proved on every step but the last of a dwell, about one bound a
 /// step. Over the box of `q`'s control points, widened by their rounding,
 /// `q == 1` was undecided and the bound the hull of all three dwells: the
@@ -1730,7 +1734,7 @@ impl HybridSystem for BoundCalls<'_> {
 fn a_mode_enters_the_bounds_as_its_value() {
     let m = compile(
         "model dwell\nstate tau = 0, q = 1, x = 1\nflow { tau' = 1; x' = -0.1*q*x }\n\
-         jump switch when tau >= (if q == 1 then 0.3 else if q == 2 then 1.1 else 0.45) \
+         jump switch when tau^2 >= (if q == 1 then 0.3 else if q == 2 then 1.1 else 0.45)^2 \
          { tau+ = 0; q+ = mod(q, 3) + 1 }\nsim { T = 10; rtol = 1e-12; atol = 1e-15 }\n",
     );
     assert_eq!(m.still_states(), vec![1]);

@@ -323,7 +323,8 @@ sim {{ T = 100; solver = {solver}; h = 0.01 }}
     }
 }
 
-/// A dwell time picked by the mode, `tau >= d[q]`: over a step's box, where
+/// A dwell time picked by the mode, `tau^2 >= d[q]^2` (squared: `tau >=
+/// d[q]` is a timer atom, scheduled, not watched): over a step's box, where
 /// the mode `q` (constant along flows) is its value widened by a few
 /// roundings, the atom's bound reads the one entry the mode can index, so
 /// the search between checkpoints proves the atom's sign on every step but
@@ -339,7 +340,7 @@ fn a_dwell_time_indexed_by_a_mode_is_bounded_on_every_step() {
 param d = [0.3; 1.1; 0.45]
 state tau = 0, q = 1, x = 1
 flow { tau' = 1; x' = -0.1*q*x }
-jump switch when tau >= d[q] { tau+ = 0; q+ = mod(q, 3) + 1 }
+jump switch when tau^2 >= d[q]^2 { tau+ = 0; q+ = mod(q, 3) + 1 }
 sim { T = 10; rtol = 1e-12; atol = 1e-15 }
 ",
     );
@@ -349,8 +350,8 @@ sim { T = 10; rtol = 1e-12; atol = 1e-15 }
     assert!(atoms.atoms[0].watched(), "{atoms:?}");
     let widen = 8.0 * f64::EPSILON;
     let mut out = [(0.0, 0.0)];
-    // tau in [0, 0.5] in mode 2 (d = 1.1): the atom stays 0.6 to 1.1 from
-    // zero.
+    // tau in [0, 0.5] in mode 2 (d = 1.1): the atom stays 0.96 to 1.21
+    // from zero.
     let x = [(0.0, 0.5), (2.0 - widen, 2.0 + widen), (0.1, 0.2)];
     assert!(m.atom_bounds((1.0, 1.5), 3, &x, &mut out));
     let (lo, hi) = out[0];
