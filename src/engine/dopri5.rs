@@ -177,8 +177,13 @@ pub(crate) enum Failure {
     /// The step size fell below the resolution of the local time.
     Underflow,
     /// The stiffness test fired repeatedly; `component` is where the
-    /// stiff mode acts most (see `Explicit::stiffness`).
-    Stiff { component: usize },
+    /// stiff mode acts most, `h_lamb` the last test's estimate of h·|λ|
+    /// on the step of length `h` (see `Explicit::stiffness`).
+    Stiff {
+        component: usize,
+        h: f64,
+        h_lamb: f64,
+    },
     /// The rate of `component` kept changing sign over many accepted
     /// steps, the last of length `h` (see `Explicit::chatter`).
     Chatter { component: usize, h: f64 },

@@ -95,6 +95,25 @@ pub enum SimError {
         /// Its name from `state_names()`.
         name: String,
     },
+    /// The explicit solver's stiffness test fired where the flow's
+    /// Jacobian cannot make it stiff: the rates jump between states a step
+    /// apart because the flow map is discontinuous in the state, as where
+    /// the solution slides along a switching surface (`x' = y - sign(x)` at
+    /// x = 0). Integrating on, with an implicit solver too, would only
+    /// shrink the steps.
+    #[error(
+        "the flow map is discontinuous at {at}: the rate of `{name}` jumps between states a step apart (the last {h:e} long) where the flow's derivative is small"
+    )]
+    Discontinuous {
+        /// Hybrid time where the integrator stopped.
+        at: HybridTime,
+        /// The last accepted step size.
+        h: f64,
+        /// The component whose rate jumps most.
+        component: usize,
+        /// Its name from `state_names()`.
+        name: String,
+    },
     /// The system reported a failed evaluation
     /// ([`HybridSystem::take_fault`](super::HybridSystem::take_fault)).
     #[error("{what} at {at}")]
@@ -142,7 +161,7 @@ impl SimError {
                 "the flow may blow up or be discontinuous here: check the flow map, loosen \
                  `rtol`/`atol`, or make the discontinuity a jump"
             }
-            SimError::Chatter { .. } => {
+            SimError::Chatter { .. } | SimError::Discontinuous { .. } => {
                 "the flow map switches discontinuously where the solution slides along the \
                  switching surface (a relay such as `sign(x)` or an `if` on the state): make \
                  the switch a jump of a mode with hysteresis, or smooth it (`tanh(x/eps)`)"

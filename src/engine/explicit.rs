@@ -336,14 +336,21 @@ impl<T: Tableau> Explicit<T> {
         // Hairer's test: ‖Δk‖ / ‖Δy‖ between the step's last two stage
         // arguments estimates the Jacobian's dominant |λ|.
         let (k_end, k_last) = self.tab.end_rates();
-        let stiff = !free && {
+        let h_lamb = if free {
+            0.0
+        } else {
             let (mut num, mut den) = (0.0, 0.0);
             for i in 0..self.y_new.len() {
                 num += (k_end[i] - k_last[i]).powi(2);
                 den += (self.y_new[i] - self.y_stage[i]).powi(2);
             }
-            den > 0.0 && h * (num / den).sqrt() > self.stiff_hlamb
+            if den > 0.0 {
+                h * (num / den).sqrt()
+            } else {
+                0.0
+            }
         };
+        let stiff = h_lamb > self.stiff_hlamb;
         if stiff {
             self.nonstiff_hits = 0;
             self.stiff_hits += 1;
@@ -360,7 +367,11 @@ impl<T: Tableau> Explicit<T> {
                 let component = (0..self.y_new.len())
                     .max_by(|&a, &b| rate(a).total_cmp(&rate(b)))
                     .unwrap_or(0);
-                return Err(Failure::Stiff { component });
+                return Err(Failure::Stiff {
+                    component,
+                    h,
+                    h_lamb,
+                });
             }
         } else {
             self.nonstiff_hits += 1;

@@ -1475,7 +1475,43 @@ enum GaveUp {
     /// The rate of `component` kept changing sign over a long run of
     /// steps, the last of length `h`.
     Chatter { component: usize, h: f64 },
+    /// The stiffness test fired where the Jacobian is small: the rate of
+    /// `component` jumps (a discontinuous flow map), the last step `h`.
+    Discontinuous { component: usize, h: f64 },
 }
+
+/// Whether the flow's Jacobian at (`s`, `y`) (from `jac`) can make a step
+/// of length `h` as stiff as the stiffness test's estimate `h_lamb`: h·‖J‖
+/// (Frobenius, a bound on every eigenvalue; `len` entries) at least an
+/// eighth of it. The
+/// estimate ‖Δf‖/‖Δy‖ between two states a step apart is at most the
+/// Jacobian's norm along the way where the flow map is smooth; far above
+/// it, the rates jump (a discontinuous flow map: a relay's sliding mode),
+/// which no solver integrates by shrinking its steps. Systems of more
+/// than [`JACOBIAN_CHECK_MAX`] states, and a non-finite Jacobian, are
+/// taken at the test's word.
+fn jacobian_explains(
+    jac: &mut impl FnMut(f64, &[f64], &mut [f64]),
+    len: usize,
+    s: f64,
+    y: &[f64],
+    h: f64,
+    h_lamb: f64,
+) -> bool {
+    if y.len() > JACOBIAN_CHECK_MAX {
+        return true;
+    }
+    // Rare (the stiffness test failed): the buffer of the Jacobian's `len`
+    // entries (all, or its pattern's) is allocated here.
+    let mut m = vec![0.0; len];
+    jac(s, y, &mut m);
+    let norm = m.iter().map(|v| v * v).sum::<f64>().sqrt();
+    // A NaN norm keeps the stiffness verdict.
+    h * norm >= h_lamb / 8.0 || norm.is_nan()
+}
+
+/// The most states for which [`jacobian_explains`] evaluates the Jacobian.
+const JACOBIAN_CHECK_MAX: usize = 1000;
 
 /// The error of an integrator that gave up at `stopped`, `(at, x)` its last accepted point,
 /// where a rejected attempt met the non-finite rate `ahead` (if any; its `s` relative to `at`).
@@ -1526,6 +1562,12 @@ fn gave_up<S: HybridSystem + ?Sized>(
             name: name(component),
         },
         GaveUp::Chatter { component, h } => SimError::Chatter {
+            at: stopped,
+            h,
+            component,
+            name: name(component),
+        },
+        GaveUp::Discontinuous { component, h } => SimError::Discontinuous {
             at: stopped,
             h,
             component,
@@ -2022,6 +2064,7 @@ impl Flows {
             };
             st.start(&self.y_prev, &self.f_prev, &mut f_start, &mut jac_start);
         }
+        let jac_len = self.jac_eval.len(self.y_prev.len());
         let mut jac = |s: f64, y: &[f64], jm: &mut [f64]| {
             self.jac_eval.eval(sys, HybridTime::new(t0 + s, j), y, jm);
         };
@@ -2040,13 +2083,28 @@ impl Flows {
             };
             let h = match st.step(s, &self.y_prev, h_max, &mut f, &mut jac) {
                 Ok(h) => h,
-                Err(Failure::Stiff { .. }) if auto => return Ok(Stepped::Switch(s)),
+                Err(Failure::Stiff { h, h_lamb, .. })
+                    if auto && jacobian_explains(&mut jac, jac_len, s, &self.y_prev, h, h_lamb) =>
+                {
+                    return Ok(Stepped::Switch(s));
+                }
                 Err(failure) => {
                     // A non-finite rate ahead is relative to the attempt's start `s`.
                     let ahead = st.non_finite().map(|r| NonFiniteRate { s: r.s - s, ..r });
                     let how = match failure {
                         Failure::Underflow => GaveUp::Collapse { h: st.proposal() },
-                        Failure::Stiff { component } => GaveUp::Stiff { component },
+                        Failure::Stiff {
+                            component,
+                            h,
+                            h_lamb,
+                        } => {
+                            let y = &self.y_prev;
+                            if jacobian_explains(&mut jac, jac_len, s, y, h, h_lamb) {
+                                GaveUp::Stiff { component }
+                            } else {
+                                GaveUp::Discontinuous { component, h }
+                            }
+                        }
                         Failure::Chatter { component, h } => GaveUp::Chatter { component, h },
                     };
                     let at = HybridTime::new(t0 + s, j);

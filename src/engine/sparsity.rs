@@ -321,6 +321,14 @@ impl JacobianEval {
         }
     }
 
+    /// The length of [`eval`](Self::eval)'s output for `n` states.
+    pub fn len(&self, n: usize) -> usize {
+        match self {
+            Self::Dense => n * n,
+            Self::Pattern { pattern, .. } => pattern.row_idx.len(),
+        }
+    }
+
     /// Writes ∂f/∂x at (`at`, `x`) into `out`: n×n row-major without a
     /// pattern, the pattern's entries with one.
     pub fn eval<S: HybridSystem + ?Sized>(

@@ -1528,6 +1528,12 @@ impl CompiledModel {
                 name,
                 ..
             } => Some((component, "has a rate that keeps changing sign", at, name)),
+            SimError::Discontinuous {
+                component,
+                at,
+                name,
+                ..
+            } => Some((component, "has a rate that jumps", at, name)),
             _ => None,
         };
         if let Some((component, how, at, name)) = located {

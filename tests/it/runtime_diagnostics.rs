@@ -267,6 +267,45 @@ fn a_relay_that_chatters_stops_at_its_switching_surface() {
     assert_eq!(arc.last().unwrap().at.t, 20.0);
 }
 
+/// A relay in a 2-D loop, `x' = y - sign(x); y' = -x` from (1, 0): x
+/// reaches 0 at t = π/4 with y = −(√2 − 1), where the solution slides
+/// (x' is +0.59 below the surface and −1.41 above, so the steps cross it
+/// every second to fourth step, which the chatter test does not count).
+/// Dopri5's stiffness test fired there and the run ended as "stiff"; under
+/// `auto` that handed the flow to Radau5 and back, and the run crawled at
+/// steps of 1e-8 (`T = 10`: half an hour). The Jacobian there, [[0, 1],
+/// [-1, 0]], cannot make a step of 1e-8 stiff: both stop at once with the
+/// discontinuity, at the relay's equation.
+#[test]
+fn a_sliding_mode_that_looks_stiff_stops_as_a_discontinuous_flow() {
+    let text =
+        "model relay2\nstate x = 1, y = 0\nflow { x' = y - sign(x); y' = -x }\nsim { T = 10 }\n";
+    for solver in ["dopri5", "auto"] {
+        let text = text.replace("T = 10", &format!("T = 10; solver = {solver}"));
+        let (err, d, src) = fail("relay2.hyb", &text);
+        let SimError::Discontinuous {
+            at,
+            component,
+            ref name,
+            h,
+        } = err
+        else {
+            panic!("{solver}: expected the discontinuity, got {err:?}")
+        };
+        assert_eq!((component, name.as_str(), at.j), (0, "x", 0), "{solver}");
+        let quarter = std::f64::consts::FRAC_PI_4;
+        assert!(at.t > quarter && at.t < quarter + 1e-4, "{solver}: {at}");
+        assert!(h > 0.0 && h < 1e-6, "{solver}: {h}");
+        assert_eq!(d.code, "E0601", "{solver}");
+        let lc = d.line_col(&src).unwrap();
+        assert_eq!((lc.line, lc.col), (3, 8), "{solver}: at `x' = y - sign(x)`");
+        assert!(
+            d.help.as_deref().unwrap_or("").contains("hysteresis"),
+            "{d:?}"
+        );
+    }
+}
+
 #[test]
 fn the_cli_prints_file_line_and_caret() {
     let dir = tempfile::tempdir().unwrap();
