@@ -185,8 +185,14 @@ pub(crate) enum Failure {
         h_lamb: f64,
     },
     /// The rate of `component` kept changing sign over many accepted
-    /// steps, the last of length `h` (see `Explicit::chatter`).
-    Chatter { component: usize, h: f64 },
+    /// steps, the last of length `h` (see `Explicit::chatter`): on every
+    /// step or every other one (`strict`), or every few steps, a chatter
+    /// only if the flow's Jacobian is small there.
+    Chatter {
+        component: usize,
+        h: f64,
+        strict: bool,
+    },
 }
 
 /// The engine's Dopri5 stepper.

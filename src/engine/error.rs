@@ -78,12 +78,13 @@ pub enum SimError {
         name: String,
     },
     /// The rate of a component changed sign on every accepted step or
-    /// every other one over many steps (10 000), which an adaptive explicit
+    /// every other one over many steps (10 000), or every few steps where
+    /// the flow's Jacobian is small, which an adaptive explicit
     /// solver takes at the step its tolerance allows for ever: the flow map is
     /// discontinuous where the solution slides along a switching surface
     /// (`x' = -sign(x)` at x = 0).
     #[error(
-        "the flow chatters at {at}: the rate of `{name}` changed sign on every step or every other one over the last 10000 steps (the last {h:e} long)"
+        "the flow chatters at {at}: the rate of `{name}` changed sign every few steps over the last 10000 steps (the last {h:e} long)"
     )]
     Chatter {
         /// Hybrid time where the integrator stopped.

@@ -45,6 +45,13 @@ const STIFF_COUNT: u32 = 15;
 /// first.
 const CHATTER_STEPS: u32 = 10_000;
 const CHATTER_GAP: u32 = 1;
+/// The longest run of steps without a change that a slide whose steps
+/// cross the surface less regularly may have (`x' = -sign(x) + 0.5 sin t`:
+/// more steps on the slow side): such a window is a chatter only once the
+/// flow's Jacobian confirms it ([`Failure::Chatter`]'s `strict`), as a
+/// smooth fast oscillation at loose tolerances turns its rates around
+/// every few steps too.
+const CHATTER_LOOSE_GAP: u32 = 8;
 /// Accepted steps of one flow before the chatter test looks for a
 /// component at all: its scan of every rate is then paid by long flows
 /// only, not by the short flows between jumps (the 42-state agents
@@ -160,6 +167,8 @@ pub(crate) struct Explicit<T> {
     chatter_component: usize,
     chatter_steps: u32,
     chatter_idle: u32,
+    /// Whether the current window has had no gap above [`CHATTER_GAP`].
+    chatter_strict: bool,
     /// Accepted steps since the flow started, counted up to [`CHATTER_AFTER`].
     flow_steps: u32,
     tab: T,
@@ -192,6 +201,7 @@ impl<T: Tableau> Explicit<T> {
             chatter_component: 0,
             chatter_steps: 0,
             chatter_idle: 0,
+            chatter_strict: true,
             flow_steps: 0,
             tab: T::new(n),
             y_stage: vec![0.0; n],
@@ -395,38 +405,56 @@ impl<T: Tableau> Explicit<T> {
         }
         let k0 = self.tab.start_rate();
         let (k1, _) = self.tab.end_rates();
-        // The sign first: most steps change no rate's sign.
-        let flips = |i: usize| {
-            k0[i] * k1[i] < 0.0
-                && h * (k1[i] - k0[i]).abs()
-                    > self.atol + self.rtol * y[i].abs().max(self.y_new[i].abs())
+        let tol = |i: usize| self.atol + self.rtol * y[i].abs().max(self.y_new[i].abs());
+        // 1: the rate changed sign across the step, by more than the step
+        // carries smoothly; 2: both end rates have one sign and the state
+        // moved the other way, beyond the tolerance (the rate turned
+        // around inside the step: a slide on one side of the surface, its
+        // stages across it); 0: neither. The sign first: most steps change
+        // no rate's sign.
+        let flips = |i: usize| -> u8 {
+            let (a, b) = (k0[i], k1[i]);
+            if a * b < 0.0 {
+                return u8::from(h * (b - a).abs() > tol(i));
+            }
+            let d = self.y_new[i] - y[i];
+            if d * a < 0.0 && d * b < 0.0 && d.abs() > tol(i) {
+                2
+            } else {
+                0
+            }
         };
         if self.chatter_steps > 0 {
-            self.chatter_idle = if flips(self.chatter_component) {
-                0
-            } else {
-                self.chatter_idle + 1
+            self.chatter_idle = match flips(self.chatter_component) {
+                0 => self.chatter_idle + 1,
+                kind => {
+                    self.chatter_strict &= kind == 1;
+                    0
+                }
             };
-            if self.chatter_idle <= CHATTER_GAP {
+            if self.chatter_idle <= CHATTER_LOOSE_GAP {
+                self.chatter_strict &= self.chatter_idle <= CHATTER_GAP;
                 self.chatter_steps += 1;
                 if self.chatter_steps >= CHATTER_STEPS {
                     self.chatter_steps = 0;
                     return Err(Failure::Chatter {
                         component: self.chatter_component,
                         h,
+                        strict: self.chatter_strict,
                     });
                 }
                 return Ok(());
             }
         }
         // A new candidate, if a rate changed sign across this step.
-        match (0..y.len()).find(|&i| flips(i)) {
-            Some(i) => {
+        match (0..y.len()).find_map(|i| (flips(i) != 0).then(|| (i, flips(i) == 1))) {
+            Some((i, strict)) => {
                 (
                     self.chatter_component,
                     self.chatter_steps,
                     self.chatter_idle,
-                ) = (i, 1, 0)
+                    self.chatter_strict,
+                ) = (i, 1, 0, strict)
             }
             None => self.chatter_steps = 0,
         }
@@ -483,6 +511,10 @@ impl<T: Tableau> OwnStepper for Explicit<T> {
 
     fn limit_proposal(&mut self, h: f64) {
         self.h_next = self.h_next.min(h);
+    }
+
+    fn forgive_chatter(&mut self) {
+        self.chatter_steps = 0;
     }
 
     fn fevals(&self) -> u64 {

@@ -53,6 +53,12 @@ pub(crate) trait OwnStepper {
     /// Evaluations of f so far.
     fn fevals(&self) -> u64;
 
+    /// After a [`Failure::Chatter`](super::dopri5::Failure::Chatter) that
+    /// was not `strict` and that the flow's Jacobian showed smooth: the
+    /// chatter test starts afresh, and the step that failed is taken again
+    /// (it is not yet part of the solution).
+    fn forgive_chatter(&mut self) {}
+
     /// The last non-finite value of the flow a rejected attempt met since
     /// the last accepted step (what a following step-size collapse is).
     fn non_finite(&self) -> Option<NonFiniteRate>;

@@ -306,6 +306,56 @@ fn a_sliding_mode_that_looks_stiff_stops_as_a_discontinuous_flow() {
     }
 }
 
+/// Relays whose two sides have different speeds: x' = −1 above the
+/// surface and +2 below (the solution slides at x = 0 from t = 1), and
+/// x' = −sign(x) + sin(t)/2 (at x = 0 from t ≈ 1.4297). Dopri5 keeps x just
+/// above 0 with stages across the surface (the end rates never change
+/// sign, the state moves against them), Dop853 crosses it every few steps:
+/// the chatter test missed both and the runs crawled at steps of 1e-8 (20
+/// s per 0.2 of t) to the horizon. Rates that turn around every few steps where the
+/// flow's Jacobian is small (h·‖J‖ < 1/20) now stop the run too; a smooth
+/// fast oscillation whose rates turn around every few steps (x, y at 100
+/// rad/s, z' forced at 300 rad/s, loose tolerances) runs to its end, as
+/// its Jacobian explains the turns (it stopped as "chattering" at rtol
+/// 1e-2 and 1e-3).
+#[test]
+fn lopsided_relays_stop_where_they_slide_and_fast_smooth_flows_run() {
+    for (flow, slide) in [
+        ("x' = if x > 0 then -1 else 2", 1.0),
+        ("x' = -sign(x) + 0.5*sin(t)", 1.42967),
+    ] {
+        let text = format!("model lopsided\nstate x = 1\nflow {{ {flow} }}\nsim {{ T = 5 }}\n");
+        for solver in ["dopri5", "dop853", "auto"] {
+            let text = text.replace("T = 5", &format!("T = 5; solver = {solver}"));
+            let (err, d, _) = fail("lopsided.hyb", &text);
+            let SimError::Chatter { at, ref name, .. } = err else {
+                panic!("{flow}, {solver}: expected the chatter error, got {err:?}")
+            };
+            assert_eq!(name, "x");
+            // Dopri5 within 10⁴ steps of the slide's start; Dop853's
+            // steps cross the surface less regularly on the second (its
+            // windows restart for a while).
+            assert!(at.t > slide && at.t < slide + 0.5, "{flow}, {solver}: {at}");
+            assert_eq!(d.code, "E0601");
+        }
+    }
+    for rtol in ["1e-1", "1e-2", "1e-3", "1e-6"] {
+        let text = format!(
+            "model osc\nstate x = 1, y = 0, z = 0\n\
+             flow {{ x' = 100*y; y' = -100*x; z' = 1e-3*sin(300*t) }}\n\
+             sim {{ T = 200; rtol = {rtol}; atol = 1e-9 }}\n"
+        );
+        for solver in ["dopri5", "dop853"] {
+            let m =
+                crate::util::compile(&text.replace("atol", &format!("solver = {solver}; atol")));
+            let (x0, mut rng) = m.start(m.seed());
+            let arc = simulate_arc(&m, &x0, &m.settings(), &mut rng)
+                .unwrap_or_else(|e| panic!("rtol {rtol}, {solver}: {e}"));
+            assert_eq!(arc.last().unwrap().at.t, 200.0);
+        }
+    }
+}
+
 #[test]
 fn the_cli_prints_file_line_and_caret() {
     let dir = tempfile::tempdir().unwrap();
