@@ -388,6 +388,10 @@ impl SyntaxError {
                 lang: "Python",
             };
         }
+        // Before a flow equation's: `for i = 1:N` in a flow block is a loop.
+        if let Some(err) = matlab_range(text, pos) {
+            return err;
+        }
         if let Some((at, name)) = flow_without_prime(text, pos) {
             return SyntaxError::FlowWithoutPrime {
                 span: Span::new(at, at + name.len()),
@@ -1339,6 +1343,69 @@ fn foreign_spelling(text: &str, pos: usize) -> Option<SyntaxError> {
                 first.trim()
             ),
         );
+    }
+    None
+}
+
+/// MATLAB's ranges where the parse stopped at `pos`: `for i = 1:N` (stopped at `=`, where `in` belongs) and `1:N`
+/// after a loop's or a comprehension's `in` (`for i in 1:N`, `sum(k in 1:N: …)`,
+/// stopped at the `:`), where hybsim writes `a..b`.
+fn matlab_range(text: &str, pos: usize) -> Option<SyntaxError> {
+    let is_word = |c: char| c.is_ascii_alphanumeric() || c == '_';
+    let before = text.get(..pos)?;
+    let line = &before[before.rfind('\n').map_or(0, |i| i + 1)..];
+    let rest = text.get(pos..)?;
+    // `head` ends with `for NAME` (`Some(true)`) or `(NAME`, a comprehension's
+    // binder (`Some(false)`).
+    fn binder(head: &str) -> Option<(&str, bool)> {
+        let is_word = |c: char| c.is_ascii_alphanumeric() || c == '_';
+        let head = head.trim_end_matches([' ', '\t']);
+        let name_start = head.trim_end_matches(is_word).len();
+        let name = &head[name_start..];
+        let before = head[..name_start].trim_end_matches([' ', '\t']);
+        let by_for = name_start > before.len()
+            && before
+                .strip_suffix("for")
+                .is_some_and(|b| !b.ends_with(is_word));
+        (name.starts_with(|c: char| c.is_ascii_alphabetic() || c == '_')
+            && (by_for || before.ends_with('(')))
+        .then_some((name, by_for))
+    }
+    let help = "a range is `a..b`, both ends included (`for i in 1..N`, `sum(k in 1..N: x[k])`), \
+                in steps of 1: for another step filter it, `for i in 1..N if mod(i, 2) == 0`";
+    if rest.starts_with('=')
+        && !rest.starts_with("==")
+        && let Some((name, true)) = binder(line)
+    {
+        return Some(SyntaxError::Foreign {
+            span: Span::new(pos, pos + 1),
+            message: format!(
+                "`for {name} = …` is MATLAB's loop; hybsim writes `for {name} in a..b`"
+            ),
+            label: "write `in` here".into(),
+            help: help.into(),
+        });
+    }
+    if rest.starts_with(':') && !rest.starts_with("::") {
+        // The last `in` of the line, as a whole word, bound by `for NAME` or `(NAME`,
+        // and only an operand (no range yet) between it and the `:`.
+        let at = line
+            .rmatch_indices("in")
+            .find(|(i, _)| !line[..*i].ends_with(is_word) && !line[i + 2..].starts_with(is_word))?
+            .0;
+        let operand = line[at + 2..].trim();
+        if binder(&line[..at]).is_some()
+            && !operand.is_empty()
+            && !operand.contains("..")
+            && !operand.contains([':', '{', '}', '<', '>', '=', '!', '&', '|'])
+        {
+            return Some(SyntaxError::Foreign {
+                span: Span::new(pos, pos + 1),
+                message: "`a:b` is MATLAB's range; hybsim writes `a..b`".into(),
+                label: "write `..` here".into(),
+                help: help.into(),
+            });
+        }
     }
     None
 }
