@@ -1347,9 +1347,12 @@ fn foreign_spelling(text: &str, pos: usize) -> Option<SyntaxError> {
     None
 }
 
-/// MATLAB's ranges where the parse stopped at `pos`: `for i = 1:N` (stopped at `=`, where `in` belongs) and `1:N`
-/// after a loop's or a comprehension's `in` (`for i in 1:N`, `sum(k in 1:N: …)`,
-/// stopped at the `:`), where hybsim writes `a..b`.
+/// Other languages' ranges where the parse stopped at `pos`: MATLAB's `for i =
+/// 1:N` (stopped at `=`, where `in` belongs) and `1:N` after a loop's or a
+/// comprehension's `in` (`for i in 1:N`, `sum(k in 1:N: …)`, stopped at the
+/// `:`), Python's `for i in range(N)`, where hybsim writes `a..b`; and `..` in
+/// brackets, a slice `x[1..3]` (hybsim's is `x[1:3]`) or a family declared at
+/// once, `state x[1..N] = 0`.
 fn matlab_range(text: &str, pos: usize) -> Option<SyntaxError> {
     let is_word = |c: char| c.is_ascii_alphanumeric() || c == '_';
     let before = text.get(..pos)?;
@@ -1386,26 +1389,85 @@ fn matlab_range(text: &str, pos: usize) -> Option<SyntaxError> {
             help: help.into(),
         });
     }
-    if rest.starts_with(':') && !rest.starts_with("::") {
-        // The last `in` of the line, as a whole word, bound by `for NAME` or `(NAME`,
-        // and only an operand (no range yet) between it and the `:`.
-        let at = line
-            .rmatch_indices("in")
-            .find(|(i, _)| !line[..*i].ends_with(is_word) && !line[i + 2..].starts_with(is_word))?
-            .0;
-        let operand = line[at + 2..].trim();
-        if binder(&line[..at]).is_some()
-            && !operand.is_empty()
-            && !operand.contains("..")
-            && !operand.contains([':', '{', '}', '<', '>', '=', '!', '&', '|'])
+    // `..` in brackets: a slice (`x[1..3]`, written `x[1:3]`) or a family
+    // declared at once (`state x[1..N] = 0`), where the parse stopped at `..`.
+    if rest.starts_with("..")
+        && let Some(open) = unclosed_bracket(text, pos)
+        && open >= pos - line.len()
+    {
+        let head = &text[pos - line.len()..open];
+        let name = &head[head.trim_end_matches(is_word).len()..];
+        let words: Vec<&str> = head.split_whitespace().collect();
+        if let [kw @ ("state" | "param" | "output"), declared] = words[..]
+            && declared == name
+            && !name.is_empty()
         {
+            let hi = &rest[2..];
+            let hi = hi[..hi.find([']', '\n']).unwrap_or(hi.len())].trim();
+            let range = format!("{}..{hi}", text[open + 1..pos].trim());
             return Some(SyntaxError::Foreign {
-                span: Span::new(pos, pos + 1),
-                message: "`a:b` is MATLAB's range; hybsim writes `a..b`".into(),
-                label: "write `..` here".into(),
-                help: help.into(),
+                span: Span::new(pos, pos + 2),
+                message: format!(
+                    "`{kw} {name}[{range}]` declares no family: its members are declared in a loop"
+                ),
+                label: "a range in a declaration".into(),
+                help: format!(
+                    "write `for i in {range} {{ {kw} {name}[i] = … }}` for a family (read as `{name}[i]`), \
+                     or one vector, `{kw} {name} = zeros({hi}, 1)` (read as `{name}[1]`, …)"
+                ),
             });
         }
+        if !name.is_empty() {
+            return Some(SyntaxError::Foreign {
+                span: Span::new(pos, pos + 2),
+                message: "`..` in an index: a slice is written `a:b`".into(),
+                label: "write `:` here".into(),
+                help: format!(
+                    "`{name}[2:3]` is the entries 2 to 3, `{name}[:, 1]` a column; `a..b` is the range of a loop or a sum"
+                ),
+            });
+        }
+    }
+    // The last `in` of the line, as a whole word, bound by `for NAME` or `(NAME`,
+    // and only an operand (no range yet) between it and where the parse stopped.
+    let at = line
+        .rmatch_indices("in")
+        .find(|(i, _)| !line[..*i].ends_with(is_word) && !line[i + 2..].starts_with(is_word))?
+        .0;
+    let after_in = &line[at + 2..];
+    let operand = after_in.trim();
+    let binder = binder(&line[..at]);
+    if binder.is_none()
+        || operand.is_empty()
+        || operand.contains("..")
+        || operand.contains([':', '{', '}', '<', '>', '=', '!', '&', '|'])
+    {
+        return None;
+    }
+    if rest.starts_with(':') && !rest.starts_with("::") {
+        return Some(SyntaxError::Foreign {
+            span: Span::new(pos, pos + 1),
+            message: "`a:b` is MATLAB's range; hybsim writes `a..b`".into(),
+            label: "write `..` here".into(),
+            help: help.into(),
+        });
+    }
+    // Python's `for i in range(N)`: the parse stopped after it, wanting `..`.
+    if let Some(arg) = operand
+        .strip_prefix("range")
+        .map(|r| r.trim_start())
+        .and_then(|r| r.strip_prefix('('))
+        .and_then(|r| r.strip_suffix(')'))
+    {
+        let from = pos - after_in.trim_start().len();
+        return Some(SyntaxError::Foreign {
+            span: Span::new(from, from + operand.len()),
+            message: format!(
+                "`range({arg})` is Python's range; hybsim writes `1..{arg}` (indices start at 1)"
+            ),
+            label: format!("write `1..{arg}` here"),
+            help: help.into(),
+        });
     }
     None
 }

@@ -714,6 +714,27 @@ const CASES: &[Case] = &[
         "`for i = …` is MATLAB's loop; hybsim writes `for i in a..b`",
     ),
     case(
+        "Python's range in a for loop",
+        "model m\nparam N = 3\nfor i in range(N) { state x[i] = 0 }\n",
+        "E0109",
+        "3:10",
+        "`range(N)` is Python's range; hybsim writes `1..N` (indices start at 1)",
+    ),
+    case(
+        "a family declared with a range",
+        "model m\nparam N = 3\nstate x[1..N] = 0\n",
+        "E0109",
+        "3:10",
+        "`state x[1..N]` declares no family: its members are declared in a loop",
+    ),
+    case(
+        "a slice written with a loop's range",
+        "model m\nstate x = [1; 2; 3]\noutput s = x[1..2]\n",
+        "E0109",
+        "3:15",
+        "`..` in an index: a slice is written `a:b`",
+    ),
+    case(
         "the base-10 logarithm",
         "model m\nparam a = log10(2)\n",
         "E0203",
@@ -1181,6 +1202,14 @@ fn matlab_and_hyeq_habits_get_hybsims_spelling() {
             "MATLAB's for loop",
             "a range is `a..b`, both ends included (`for i in 1..N`, `sum(k in 1..N: x[k])`), in steps of 1: for another step filter it, `for i in 1..N if mod(i, 2) == 0`",
         ),
+        (
+            "a family declared with a range",
+            "write `for i in 1..N { state x[i] = … }` for a family (read as `x[i]`), or one vector, `state x = zeros(N, 1)` (read as `x[1]`, …)",
+        ),
+        (
+            "a slice written with a loop's range",
+            "`x[2:3]` is the entries 2 to 3, `x[:, 1]` a column; `a..b` is the range of a loop or a sum",
+        ),
         // Not the nearest built-in (`log`, `round`, `exp`): another function.
         (
             "the base-10 logarithm",
@@ -1223,6 +1252,7 @@ fn matlab_and_hyeq_habits_get_hybsims_spelling() {
                  output s = sum(k in 1..length(x): x[k]), s2 = ones(1, length(x))*x, e = x[length(x)]\n\
                  param g = 9.81\njump r when h >= (if g > 1 then 2 else 3) { h+ = 0 }\n\
                  param N = 3, l10 = log(2)/log(10)\nfor i in 1..N if mod(i, 2) == 0 { state y[i] = 0 }\n\
+                 state z = zeros(N, 1)\noutput zs = x[1:2]\n\
                  state u = uniform(0, 1), tau = -2*log(uniform(0, 1))\n\
                  sim { T = 10; J = 20; rtol = 1e-8; priority = jumps }\n";
     let src = SourceFile::new("m.hyb", fixed);
