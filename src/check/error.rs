@@ -132,6 +132,10 @@ pub enum CheckError {
         span: Span,
         /// The closest built-in function.
         suggestion: Option<String>,
+        /// How hybsim writes another language's function of this name
+        /// (`log10`, MATLAB's `rand`), in place of the closest spelling, which
+        /// would name a different function (`log`, `round`).
+        foreign: Option<&'static str>,
     },
     /// `x(1)`: a declared name (state, parameter, output, index) called
     /// like a function, MATLAB's indexing.
@@ -670,6 +674,11 @@ impl CheckError {
             UnknownName { name, span, .. } if name == "end" => d
                 .primary(*span, "not found")
                 .help("there is no `end` index: write the last index, `x[length(x)]` (`P[rows(P), :]`, `P[:, cols(P)]` for a matrix)"),
+            UnknownFunction {
+                span,
+                foreign: Some(help),
+                ..
+            } => d.primary(*span, "not found").help(*help),
             UnknownName {
                 span, suggestion, ..
             }

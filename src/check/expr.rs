@@ -60,6 +60,45 @@ pub(crate) struct Ctx {
     pub place: &'static str,
 }
 
+/// How hybsim writes a function that other languages (MATLAB first, then C and
+/// Python) call `name` and hybsim does not have: the help of its E0203. The nearest
+/// built-in's spelling would often name another function (`log10` → `log`, `rand` →
+/// `round`, `exprnd` → `exp`), a wrong value rather than an error if followed.
+fn foreign_function(name: &str) -> Option<&'static str> {
+    Some(match name {
+        "log10" => "`log` is the natural logarithm: the base-10 logarithm is `log(x)/log(10)`",
+        "log2" => "`log` is the natural logarithm: the base-2 logarithm is `log(x)/log(2)`",
+        "ln" => "the natural logarithm is `log(x)`",
+        "rand" => {
+            "MATLAB's `rand` is the draw `uniform(0, 1)` (in initial values and resets; \
+             `noise` for flows)"
+        }
+        "randn" => {
+            "MATLAB's `randn` is the draw `normal(0, 1)` (in initial values and resets; \
+             `noise` for flows)"
+        }
+        "unifrnd" => "MATLAB's `unifrnd(a, b)` is the draw `uniform(a, b)`",
+        "normrnd" => "MATLAB's `normrnd(mu, sigma)` is the draw `normal(mu, sigma)`",
+        "binornd" => "MATLAB's `binornd(1, p)` is the draw `bernoulli(p)`",
+        "exprnd" | "exponential" | "expon" | "exprand" => {
+            "a draw from the exponential distribution of mean m (rate 1/m) is \
+             `-m*log(uniform(0, 1))`; `exp(x)` is the exponential function"
+        }
+        "numel" => "the entries of a vector are `length(x)`, of a matrix `rows(A)*cols(A)`",
+        "size" => "a matrix's dimensions are `rows(A)` and `cols(A)` (`length(x)` of a vector)",
+        "pow" | "power" => "a power is written `a^b`",
+        "sgn" | "signum" => "the sign function is `sign(x)`",
+        "arcsin" => "the inverse sine is `asin(x)`",
+        "arccos" => "the inverse cosine is `acos(x)`",
+        "arctan" => "the inverse tangent is `atan(x)` (`atan2(y, x)` by quadrant)",
+        "fix" | "trunc" => "rounding towards zero is `sign(x)*floor(abs(x))`",
+        "transpose" => "the transpose is written `A'`",
+        "dot" => "the dot product of column vectors is `a'*b`",
+        "heaviside" => "the step function is `if x >= 0 then 1 else 0`",
+        _ => return None,
+    })
+}
+
 /// Names of built-in functions, for suggestions.
 pub(crate) const BUILTINS: &[&str] = &[
     "eye",
@@ -1874,6 +1913,7 @@ impl Checker {
                     name: name.to_string(),
                     span: name_span,
                     suggestion,
+                    foreign: foreign_function(name),
                 });
                 None
             }

@@ -1,6 +1,7 @@
 //! `hybsim run`: compile a model, simulate it into the requested sinks,
 //! print a one-line summary.
 
+use std::collections::{HashMap, HashSet};
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
@@ -789,30 +790,38 @@ pub fn summary_line(model: &str, report: &Report, rule_names: &[String], note: &
 const LISTED_MEMBERS: usize = 8;
 
 /// The summary's jump counts: `rule n` per rule that fired, except that
-/// the members of a family (`fire[1]`, `fire[2]`, … next to each other)
-/// that fired, when more than [`LISTED_MEMBERS`], are one entry with their
-/// total, `fire[…] 50000 (10000 rules)`; `--json` keeps every rule.
+/// the members of a family (`fire[1]`, `fire[2]`, …) that fired, when more
+/// than [`LISTED_MEMBERS`], are one entry with their total, `fire[…] 50000
+/// (10000 rules)`, where the first of them would be; `--json` keeps every rule.
+/// A family's members need not be next to each other: a loop that declares
+/// two rules per member, and a family of instances with two rules, interleave
+/// them (`n.fire[1]`, `n.kicked[1]`, `n.fire[2]`, …).
 fn jump_counts(fired: &[(String, u64)]) -> Vec<String> {
     // The family of a member: its name without the last index (`a.update[3]` → `a.update`).
     let family = |name: &str| -> Option<String> {
         let open = name.rfind('[')?;
         name.ends_with(']').then(|| name[..open].to_string())
     };
+    // (members that fired, their jumps) per family.
+    let mut families: HashMap<String, (usize, u64)> = HashMap::new();
+    for (name, n) in fired {
+        if let Some(fam) = family(name) {
+            let e = families.entry(fam).or_default();
+            e.0 += 1;
+            e.1 += n;
+        }
+    }
     let mut out = Vec::new();
-    let mut k = 0;
-    while k < fired.len() {
-        let fam = family(&fired[k].0);
-        let run = fired[k..]
-            .iter()
-            .take_while(|(name, _)| fam.is_some() && family(name) == fam)
-            .count();
-        if let Some(fam) = fam.filter(|_| run > LISTED_MEMBERS) {
-            let total: u64 = fired[k..k + run].iter().map(|(_, n)| n).sum();
-            out.push(format!("{fam}[…] {total} ({run} rules)"));
-            k += run;
-        } else {
-            out.push(format!("{} {}", fired[k].0, fired[k].1));
-            k += 1;
+    let mut summed = HashSet::new();
+    for (name, n) in fired {
+        match family(name) {
+            Some(fam) if families[&fam].0 > LISTED_MEMBERS => {
+                if summed.insert(fam.clone()) {
+                    let (run, total) = families[&fam];
+                    out.push(format!("{fam}[…] {total} ({run} rules)"));
+                }
+            }
+            _ => out.push(format!("{name} {n}")),
         }
     }
     out
@@ -1358,6 +1367,31 @@ mod tests {
     use hybsim::engine::models::BouncingBall;
 
     use super::*;
+
+    /// A family's members are summed wherever they stand: two rules per
+    /// member of a loop or of a family of instances interleave them.
+    #[test]
+    fn the_summary_sums_interleaved_families() {
+        let mut fired = vec![("start".to_string(), 1)];
+        for i in 1..=10 {
+            fired.push((format!("n.fire[{i}]"), 2));
+            fired.push((format!("n.kicked[{i}]"), 3));
+        }
+        fired.extend((1..=3).map(|i| (format!("reset[{i}]"), 1)));
+        fired.push(("tick".to_string(), 4));
+        assert_eq!(
+            jump_counts(&fired),
+            [
+                "start 1",
+                "n.fire[…] 20 (10 rules)",
+                "n.kicked[…] 30 (10 rules)",
+                "reset[1] 1",
+                "reset[2] 1",
+                "reset[3] 1",
+                "tick 4"
+            ]
+        );
+    }
 
     #[test]
     fn an_unbounded_jump_horizon_is_logged_as_inf() {

@@ -388,6 +388,10 @@ impl SyntaxError {
                 lang: "Python",
             };
         }
+        // Before a flow equation's: `for i = 1:N` in a flow block is a loop.
+        if let Some(err) = matlab_range(text, pos) {
+            return err;
+        }
         if let Some((at, name)) = flow_without_prime(text, pos) {
             return SyntaxError::FlowWithoutPrime {
                 span: Span::new(at, at + name.len()),
@@ -1339,6 +1343,131 @@ fn foreign_spelling(text: &str, pos: usize) -> Option<SyntaxError> {
                 first.trim()
             ),
         );
+    }
+    None
+}
+
+/// Other languages' ranges where the parse stopped at `pos`: MATLAB's `for i =
+/// 1:N` (stopped at `=`, where `in` belongs) and `1:N` after a loop's or a
+/// comprehension's `in` (`for i in 1:N`, `sum(k in 1:N: …)`, stopped at the
+/// `:`), Python's `for i in range(N)`, where hybsim writes `a..b`; and `..` in
+/// brackets, a slice `x[1..3]` (hybsim's is `x[1:3]`) or a family declared at
+/// once, `state x[1..N] = 0`.
+fn matlab_range(text: &str, pos: usize) -> Option<SyntaxError> {
+    let is_word = |c: char| c.is_ascii_alphanumeric() || c == '_';
+    let before = text.get(..pos)?;
+    let line = &before[before.rfind('\n').map_or(0, |i| i + 1)..];
+    let rest = text.get(pos..)?;
+    // `head` ends with `for NAME` (`Some(true)`) or `(NAME`, a comprehension's
+    // binder (`Some(false)`).
+    fn binder(head: &str) -> Option<(&str, bool)> {
+        let is_word = |c: char| c.is_ascii_alphanumeric() || c == '_';
+        let head = head.trim_end_matches([' ', '\t']);
+        let name_start = head.trim_end_matches(is_word).len();
+        let name = &head[name_start..];
+        let before = head[..name_start].trim_end_matches([' ', '\t']);
+        let by_for = name_start > before.len()
+            && before
+                .strip_suffix("for")
+                .is_some_and(|b| !b.ends_with(is_word));
+        (name.starts_with(|c: char| c.is_ascii_alphabetic() || c == '_')
+            && (by_for || before.ends_with('(')))
+        .then_some((name, by_for))
+    }
+    let help = "a range is `a..b`, both ends included (`for i in 1..N`, `sum(k in 1..N: x[k])`), \
+                in steps of 1: for another step filter it, `for i in 1..N if mod(i, 2) == 0`";
+    if rest.starts_with('=')
+        && !rest.starts_with("==")
+        && let Some((name, true)) = binder(line)
+    {
+        return Some(SyntaxError::Foreign {
+            span: Span::new(pos, pos + 1),
+            message: format!(
+                "`for {name} = …` is MATLAB's loop; hybsim writes `for {name} in a..b`"
+            ),
+            label: "write `in` here".into(),
+            help: help.into(),
+        });
+    }
+    // `..` in brackets: a slice (`x[1..3]`, written `x[1:3]`) or a family
+    // declared at once (`state x[1..N] = 0`), where the parse stopped at `..`.
+    if rest.starts_with("..")
+        && let Some(open) = unclosed_bracket(text, pos)
+        && open >= pos - line.len()
+    {
+        let head = &text[pos - line.len()..open];
+        let name = &head[head.trim_end_matches(is_word).len()..];
+        let words: Vec<&str> = head.split_whitespace().collect();
+        if let [kw @ ("state" | "param" | "output"), declared] = words[..]
+            && declared == name
+            && !name.is_empty()
+        {
+            let hi = &rest[2..];
+            let hi = hi[..hi.find([']', '\n']).unwrap_or(hi.len())].trim();
+            let range = format!("{}..{hi}", text[open + 1..pos].trim());
+            return Some(SyntaxError::Foreign {
+                span: Span::new(pos, pos + 2),
+                message: format!(
+                    "`{kw} {name}[{range}]` declares no family: its members are declared in a loop"
+                ),
+                label: "a range in a declaration".into(),
+                help: format!(
+                    "write `for i in {range} {{ {kw} {name}[i] = … }}` for a family (read as `{name}[i]`), \
+                     or one vector, `{kw} {name} = zeros({hi}, 1)` (read as `{name}[1]`, …)"
+                ),
+            });
+        }
+        if !name.is_empty() {
+            return Some(SyntaxError::Foreign {
+                span: Span::new(pos, pos + 2),
+                message: "`..` in an index: a slice is written `a:b`".into(),
+                label: "write `:` here".into(),
+                help: format!(
+                    "`{name}[2:3]` is the entries 2 to 3, `{name}[:, 1]` a column; `a..b` is the range of a loop or a sum"
+                ),
+            });
+        }
+    }
+    // The last `in` of the line, as a whole word, bound by `for NAME` or `(NAME`,
+    // and only an operand (no range yet) between it and where the parse stopped.
+    let at = line
+        .rmatch_indices("in")
+        .find(|(i, _)| !line[..*i].ends_with(is_word) && !line[i + 2..].starts_with(is_word))?
+        .0;
+    let after_in = &line[at + 2..];
+    let operand = after_in.trim();
+    let binder = binder(&line[..at]);
+    if binder.is_none()
+        || operand.is_empty()
+        || operand.contains("..")
+        || operand.contains([':', '{', '}', '<', '>', '=', '!', '&', '|'])
+    {
+        return None;
+    }
+    if rest.starts_with(':') && !rest.starts_with("::") {
+        return Some(SyntaxError::Foreign {
+            span: Span::new(pos, pos + 1),
+            message: "`a:b` is MATLAB's range; hybsim writes `a..b`".into(),
+            label: "write `..` here".into(),
+            help: help.into(),
+        });
+    }
+    // Python's `for i in range(N)`: the parse stopped after it, wanting `..`.
+    if let Some(arg) = operand
+        .strip_prefix("range")
+        .map(|r| r.trim_start())
+        .and_then(|r| r.strip_prefix('('))
+        .and_then(|r| r.strip_suffix(')'))
+    {
+        let from = pos - after_in.trim_start().len();
+        return Some(SyntaxError::Foreign {
+            span: Span::new(from, from + operand.len()),
+            message: format!(
+                "`range({arg})` is Python's range; hybsim writes `1..{arg}` (indices start at 1)"
+            ),
+            label: format!("write `1..{arg}` here"),
+            help: help.into(),
+        });
     }
     None
 }

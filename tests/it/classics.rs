@@ -5,7 +5,9 @@
 //! transmission delay, impulsively coupled oscillators, the uniting of a
 //! local and a global controller, a set-valued jump map, purely
 //! discrete-time systems (a logistic map, a Kalman filter), a stiff flow
-//! with resets and dwell-time switching.
+//! with resets, dwell-time switching, a ball juggled by a sinusoidal
+//! paddle, nonlinear guards (a circle reached from inside, `sin(x) >= 0.5`)
+//! and pulse-coupled integrate-and-fire neurons as a family of instances.
 
 use crate::util::{compile, simulate_arc};
 use hybsim::arc::HybridArc;
@@ -524,4 +526,187 @@ sim { T = 1 }
             assert_eq!(arc.last().unwrap().at.t, 1.0);
         }
     }
+}
+
+/// A ball juggled by a sinusoidal paddle p(t) = A sin(ωt): a moving guard
+/// x1 ≤ p(t) and the impact law v⁺ = (1 + e) p'(t) − e v, with A ω² > g so
+/// that the ball keeps bouncing. The flight is a parabola, so each impact
+/// is the first zero of x0 + v0 s − g s²/2 − A sin(ω(t0 + s)), found here by
+/// scanning and bisecting without hybsim; the motion is chaotic, so the
+/// errors grow by impact (1e-15 at the first, 1e-11 by the eleventh).
+#[test]
+fn a_ball_on_a_sinusoidal_paddle_impacts_at_the_closed_form_times() {
+    let m = compile(
+        "model juggler
+param g = 9.81, e = 0.8, A = 0.1, w = 2*pi*2
+state x1 = 0.5, x2 = 0
+flow { x1' = x2; x2' = -g } in x1 >= A*sin(w*t)
+jump impact when x1 <= A*sin(w*t) && x2 <= A*w*cos(w*t) {
+    x2+ = (1 + e)*A*w*cos(w*t) - e*x2
+}
+sim { T = 9.5; rtol = 1e-12; atol = 1e-12 }
+",
+    );
+    let (g, e, a, w) = (9.81f64, 0.8, 0.1, 2.0 * std::f64::consts::PI * 2.0);
+    let (ix, iv) = (index(&m, "x1"), index(&m, "x2"));
+    let arc = run_with(&m, &m.settings());
+    let jumps = arc.jumps();
+    assert_eq!(jumps.len(), 11);
+    let (mut t0, mut x0, mut v0) = (0.0f64, 0.5f64, 0.0f64);
+    for (n, r) in jumps.iter().enumerate() {
+        let gap = |t: f64| {
+            let s = t - t0;
+            x0 + v0 * s - g / 2.0 * s * s - a * (w * t).sin()
+        };
+        let mut lo = t0 + 1e-9;
+        while gap(lo + 1e-4) >= 0.0 {
+            lo += 1e-4;
+        }
+        let mut hi = lo + 1e-4;
+        for _ in 0..100 {
+            let mid = 0.5 * (lo + hi);
+            if gap(mid) < 0.0 { hi = mid } else { lo = mid }
+        }
+        let (s, pv) = (hi - t0, a * w * (w * hi).cos());
+        let v = v0 - g * s;
+        (t0, x0, v0) = (hi, x0 + v0 * s - g / 2.0 * s * s, (1.0 + e) * pv - e * v);
+        let tol = 1e-14 * 4f64.powi(n as i32);
+        assert!((r.at.t - t0).abs() <= tol, "impact {n}: {} vs {t0}", r.at.t);
+        assert!((r.pre[ix] - x0).abs() <= 20.0 * tol, "impact {n}: height");
+        assert!(
+            (r.post[iv] - v0).abs() <= 100.0 * tol,
+            "impact {n}: {} vs {v0}",
+            r.post[iv]
+        );
+    }
+}
+
+/// Nonlinear guards: the Hopf normal form, whose radius obeys
+/// r(t)² = 1/(1 + (1/r0² − 1) e^{−2t}) and angle ωt, reset from the circle
+/// x² + y² ≥ R² (reached from inside) to radius r0 on the same ray, so that
+/// it jumps every t* = ½ ln((1/r0² − 1)/(1/R² − 1)) at angle ω k t*; and
+/// sin(x) ≥ 0.5 along x' = 1 with x⁺ = x + π, met at t = π/6 + kπ.
+#[test]
+fn nonlinear_guards_are_met_at_the_closed_form_times() {
+    let m = compile(
+        "model hopf_ring
+param w = 3, r0 = 0.1, R = 0.9
+state x = r0, y = 0
+flow { x' = x*(1 - x^2 - y^2) - w*y; y' = y*(1 - x^2 - y^2) + w*x }
+jump shrink when x^2 + y^2 >= R^2 { x+ = x*r0/R; y+ = y*r0/R }
+sim { T = 50; rtol = 1e-10; atol = 1e-12 }
+",
+    );
+    let ts = 0.5 * ((1.0 / 0.01 - 1.0) / (1.0 / 0.81 - 1.0f64)).ln();
+    let (ix, iy) = (index(&m, "x"), index(&m, "y"));
+    let arc = run_with(&m, &m.settings());
+    assert_eq!(arc.jumps().len(), (50.0 / ts) as usize);
+    for (n, r) in arc.jumps().iter().enumerate() {
+        let tk = (n + 1) as f64 * ts;
+        assert!((r.at.t - tk).abs() <= 2e-9, "jump {n}: {} vs {tk}", r.at.t);
+        let (dx, dy) = (
+            r.pre[ix] - 0.9 * (3.0 * tk).cos(),
+            r.pre[iy] - 0.9 * (3.0 * tk).sin(),
+        );
+        assert!(
+            dx.hypot(dy) <= 1e-8,
+            "jump {n}: state off by {dx:e}, {dy:e}"
+        );
+    }
+    let m = compile(
+        "model sin_guard\nstate x = 0\nflow { x' = 1 }\njump up when sin(x) >= 0.5 { x+ = x + pi }\nsim { T = 100 }\n",
+    );
+    let arc = run_with(&m, &m.settings());
+    assert_eq!(arc.jumps().len(), 32);
+    for (n, r) in arc.jumps().iter().enumerate() {
+        let tk = std::f64::consts::PI * (1.0 / 6.0 + n as f64);
+        assert!((r.at.t - tk).abs() <= 1e-13, "jump {n}: {} vs {tk}", r.at.t);
+    }
+}
+
+/// Pulse-coupled integrate-and-fire neurons x' = S − γx as a family of
+/// instances: a neuron at 1 fires (x⁺ = 0) and, in the same jump, every other
+/// one is kicked by ε (up to 1, firing in the next jump at the same t), HyEQ's
+/// composite jump. The reference steps the closed-form flow from threshold to
+/// threshold and applies the same composite jumps: the same rules fire at the
+/// same j, at the same times.
+#[test]
+fn integrate_and_fire_instances_make_the_composite_jumps() {
+    let x0 = [0.05, 0.13, 0.22, 0.31, 0.38, 0.47, 0.55, 0.68, 0.74, 0.9];
+    let m = compile(
+        "model iaf
+param N = 10, eps = 0.04
+param x0 = [0.05; 0.13; 0.22; 0.31; 0.38; 0.47; 0.55; 0.68; 0.74; 0.9]
+subsystem Neuron(S = 2, gam = 1, eps = 0.04, x0 = 0) {
+    input others = 0
+    state x = x0
+    flow { x' = S - gam*x }
+    jump fire when x >= 1 { x+ = 0 }
+    jump kicked when others >= 1 && x < 1 { x+ = min(1, x + eps) }
+    output v = x
+}
+for i in 1..N { n[i] = Neuron(eps = eps, x0 = x0[i], others = max(k in 1..N if k != i: n[k].v)) }
+sim { T = 30; rtol = 1e-12; atol = 1e-12 }
+",
+    );
+    let (s, eps) = (2.0f64, 0.04);
+    let mut x = x0;
+    let (mut t, mut j) = (0.0f64, 0u64);
+    let mut want: Vec<(u64, String, f64)> = Vec::new();
+    loop {
+        while x.iter().any(|&xi| xi >= 1.0) {
+            let pre = x;
+            for i in 0..10 {
+                let others = (0..10)
+                    .filter(|&k| k != i)
+                    .map(|k| pre[k])
+                    .fold(f64::MIN, f64::max);
+                if pre[i] >= 1.0 {
+                    x[i] = 0.0;
+                    want.push((j, format!("n.fire[{}]", i + 1), t));
+                } else if others >= 1.0 {
+                    x[i] = (pre[i] + eps).min(1.0);
+                    want.push((j, format!("n.kicked[{}]", i + 1), t));
+                }
+            }
+            j += 1;
+        }
+        // Time to threshold from x: ln((S − x)/(S − 1)) with γ = 1.
+        let dt = x
+            .iter()
+            .map(|&xi| ((s - xi) / (s - 1.0)).ln())
+            .fold(f64::MAX, f64::min);
+        if t + dt >= 30.0 {
+            break;
+        }
+        t += dt;
+        for xi in &mut x {
+            *xi = s + (*xi - s) * (-dt).exp();
+            if (*xi - 1.0).abs() <= 1e-12 {
+                *xi = 1.0;
+            }
+        }
+    }
+    let arc = run_with(&m, &m.settings());
+    let mut got: Vec<(u64, String, f64)> = arc
+        .jumps()
+        .iter()
+        .map(|r| (r.at.j, arc.rule_name(r.rule).unwrap().to_string(), r.at.t))
+        .collect();
+    got.sort_by(|a, b| (a.0, &a.1).cmp(&(b.0, &b.1)));
+    want.sort_by(|a, b| (a.0, &a.1).cmp(&(b.0, &b.1)));
+    assert_eq!(got.len(), 1980);
+    assert_eq!(arc.jumps().last().unwrap().at.j + 1, 198);
+    for (g, w) in got.iter().zip(&want) {
+        assert_eq!((g.0, &g.1), (w.0, &w.1));
+        assert!(
+            (g.2 - w.2).abs() <= 1e-10,
+            "{} at j = {}: {} vs {}",
+            g.1,
+            g.0,
+            g.2,
+            w.2
+        );
+    }
+    assert_eq!(got.len(), want.len());
 }

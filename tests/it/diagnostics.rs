@@ -693,6 +693,69 @@ const CASES: &[Case] = &[
         "unknown function `sqr`",
     ),
     case(
+        "MATLAB's range in a for loop",
+        "model m\nparam N = 3\nfor i in 1:N { state x[i] = 0 }\n",
+        "E0109",
+        "3:11",
+        "`a:b` is MATLAB's range; hybsim writes `a..b`",
+    ),
+    case(
+        "MATLAB's range in a sum",
+        "model m\nstate x = [1; 2; 3]\noutput s = sum(k in 1:3: x[k])\n",
+        "E0109",
+        "3:22",
+        "`a:b` is MATLAB's range; hybsim writes `a..b`",
+    ),
+    case(
+        "MATLAB's for loop",
+        "model m\nparam N = 3\nflow { for i = 1:N { } }\n",
+        "E0109",
+        "3:14",
+        "`for i = …` is MATLAB's loop; hybsim writes `for i in a..b`",
+    ),
+    case(
+        "Python's range in a for loop",
+        "model m\nparam N = 3\nfor i in range(N) { state x[i] = 0 }\n",
+        "E0109",
+        "3:10",
+        "`range(N)` is Python's range; hybsim writes `1..N` (indices start at 1)",
+    ),
+    case(
+        "a family declared with a range",
+        "model m\nparam N = 3\nstate x[1..N] = 0\n",
+        "E0109",
+        "3:10",
+        "`state x[1..N]` declares no family: its members are declared in a loop",
+    ),
+    case(
+        "a slice written with a loop's range",
+        "model m\nstate x = [1; 2; 3]\noutput s = x[1..2]\n",
+        "E0109",
+        "3:15",
+        "`..` in an index: a slice is written `a:b`",
+    ),
+    case(
+        "the base-10 logarithm",
+        "model m\nparam a = log10(2)\n",
+        "E0203",
+        "2:11",
+        "unknown function `log10`",
+    ),
+    case(
+        "MATLAB's rand",
+        "model m\nstate x = rand()\n",
+        "E0203",
+        "2:11",
+        "unknown function `rand`",
+    ),
+    case(
+        "MATLAB's exponential draw",
+        "model m\nstate tau = exprnd(2)\n",
+        "E0203",
+        "2:13",
+        "unknown function `exprnd`",
+    ),
+    case(
         "unknown reduction in a metric",
         "model m\nstate x = 1\nflow { x' = -x }\nmetric xT = last(x)\n",
         "E0203",
@@ -1127,6 +1190,39 @@ fn matlab_and_hyeq_habits_get_hybsims_spelling() {
             "MATLAB's if block",
             "choose a value with `if c then a else b` (`x' = if x > 0 then -1 else 1`); change the state when a condition holds with a jump guarded by it, `jump when c { x+ = ... }`",
         ),
+        (
+            "MATLAB's range in a for loop",
+            "a range is `a..b`, both ends included (`for i in 1..N`, `sum(k in 1..N: x[k])`), in steps of 1: for another step filter it, `for i in 1..N if mod(i, 2) == 0`",
+        ),
+        (
+            "MATLAB's range in a sum",
+            "a range is `a..b`, both ends included (`for i in 1..N`, `sum(k in 1..N: x[k])`), in steps of 1: for another step filter it, `for i in 1..N if mod(i, 2) == 0`",
+        ),
+        (
+            "MATLAB's for loop",
+            "a range is `a..b`, both ends included (`for i in 1..N`, `sum(k in 1..N: x[k])`), in steps of 1: for another step filter it, `for i in 1..N if mod(i, 2) == 0`",
+        ),
+        (
+            "a family declared with a range",
+            "write `for i in 1..N { state x[i] = … }` for a family (read as `x[i]`), or one vector, `state x = zeros(N, 1)` (read as `x[1]`, …)",
+        ),
+        (
+            "a slice written with a loop's range",
+            "`x[2:3]` is the entries 2 to 3, `x[:, 1]` a column; `a..b` is the range of a loop or a sum",
+        ),
+        // Not the nearest built-in (`log`, `round`, `exp`): another function.
+        (
+            "the base-10 logarithm",
+            "`log` is the natural logarithm: the base-10 logarithm is `log(x)/log(10)`",
+        ),
+        (
+            "MATLAB's rand",
+            "MATLAB's `rand` is the draw `uniform(0, 1)` (in initial values and resets; `noise` for flows)",
+        ),
+        (
+            "MATLAB's exponential draw",
+            "a draw from the exponential distribution of mean m (rate 1/m) is `-m*log(uniform(0, 1))`; `exp(x)` is the exponential function",
+        ),
         ("HyEQ's tspan", "did you mean `T`?"),
         ("odeset's RelTol", "did you mean `rtol`?"),
         (
@@ -1155,6 +1251,9 @@ fn matlab_and_hyeq_habits_get_hybsims_spelling() {
                  flow { x' = -x; h' = v; v' = -1 } in min(x) >= 0 || max(x) >= 0 || x[1] >= 0\n\
                  output s = sum(k in 1..length(x): x[k]), s2 = ones(1, length(x))*x, e = x[length(x)]\n\
                  param g = 9.81\njump r when h >= (if g > 1 then 2 else 3) { h+ = 0 }\n\
+                 param N = 3, l10 = log(2)/log(10)\nfor i in 1..N if mod(i, 2) == 0 { state y[i] = 0 }\n\
+                 state z = zeros(N, 1)\noutput zs = x[1:2]\n\
+                 state u = uniform(0, 1), tau = -2*log(uniform(0, 1))\n\
                  sim { T = 10; J = 20; rtol = 1e-8; priority = jumps }\n";
     let src = SourceFile::new("m.hyb", fixed);
     let d = diagnostics(&src, &[]);
