@@ -954,6 +954,16 @@ impl ArcSink for Fanout<'_> {
             }
         }
     }
+
+    fn poll(&mut self) -> ControlFlow<()> {
+        let mut flow = ControlFlow::Continue(());
+        for s in &mut self.sinks {
+            if s.poll().is_break() {
+                flow = ControlFlow::Break(());
+            }
+        }
+        flow
+    }
 }
 
 /// Pushes a solution held in memory into `sink` in the order the engine
