@@ -232,8 +232,18 @@ fn ctrl_c_stops_a_run_between_samples_far_apart() {
     )
     .unwrap();
     let mut child = Command::new(BIN)
-        .args(["run", "slow.hyb", "-q", "--json", "--no-mcap", "--csv", "slow.csv"])
-        .args(["--T", "1e6", "--dt-out", "1e5", "--solver", "rk4", "--step", "1e-3"])
+        .args([
+            "run",
+            "slow.hyb",
+            "-q",
+            "--json",
+            "--no-mcap",
+            "--csv",
+            "slow.csv",
+        ])
+        .args([
+            "--T", "1e6", "--dt-out", "1e5", "--solver", "rk4", "--step", "1e-3",
+        ])
         .current_dir(dir.path())
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
