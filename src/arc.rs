@@ -233,6 +233,16 @@ pub trait ArcSink {
     /// its steps (Euler–Maruyama): there, and for arcs replayed from memory,
     /// no pieces are pushed. Default: nothing.
     fn flow_piece(&mut self, _piece: &mut FlowPiece<'_>) {}
+
+    /// Called after each accepted integrator step, samples or not: a sink
+    /// that stops the run for a reason outside the solution (Ctrl-C, a
+    /// wall-clock budget) says so here as in [`sample`](Self::sample), so
+    /// that a run whose samples are far apart (a `dt_out` of many steps)
+    /// still stops within a step. The run then ends at the step's end, as
+    /// when a sample stops it. Default: `Continue`.
+    fn poll(&mut self) -> std::ops::ControlFlow<()> {
+        std::ops::ControlFlow::Continue(())
+    }
 }
 
 /// A change of the integrator during a run (`Solver::Auto`): from hybrid

@@ -588,4 +588,11 @@ impl ArcSink for Bounded<'_> {
     fn jump(&mut self, _: HybridTime, _: usize, _: &[f64], _: &[f64]) -> ControlFlow<()> {
         ControlFlow::Continue(())
     }
+
+    fn poll(&mut self) -> ControlFlow<()> {
+        match self.start.elapsed() > self.budget.wall {
+            true => ControlFlow::Break(()),
+            false => ControlFlow::Continue(()),
+        }
+    }
 }

@@ -187,4 +187,8 @@ impl ArcSink for Recorder {
     fn solver_switch(&mut self, switch: &SolverSwitch) {
         self.switches.push(*switch);
     }
+
+    fn poll(&mut self) -> ControlFlow<()> {
+        self.interrupt.poll()
+    }
 }

@@ -674,6 +674,10 @@ impl CheckError {
             UnknownName { name, span, .. } if name == "end" => d
                 .primary(*span, "not found")
                 .help("there is no `end` index: write the last index, `x[length(x)]` (`P[rows(P), :]`, `P[:, cols(P)]` for a matrix)"),
+            // `pre(x)` (Modelica's, or the dual of a property's `post(x)`).
+            UnknownFunction { name, span, .. } if name == "pre" => d
+                .primary(*span, "not found")
+                .help("there is no `pre`: a bare name is the value before the jump (`x`); `post(x)`, in a property `at jumps`, is the value after it"),
             UnknownFunction {
                 span,
                 foreign: Some(help),

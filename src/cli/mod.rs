@@ -142,6 +142,28 @@ pub(crate) fn parse_seed(s: &str) -> Result<u64, String> {
     })
 }
 
+/// A count flag's value (`--runs`, `--threads`, `--cases`, `--log-every`,
+/// `--max-shrink`): a whole number of at least `min`, in digits or, as the
+/// counts among the `sim` keys take it, `1e3` (clap's own message was
+/// "invalid digit found in string" for `-1`, `1.5` or `1e3`).
+pub(crate) fn parse_count(s: &str, min: u64) -> Result<u64, String> {
+    let t = s.trim();
+    // Floats are whole and exact below 2^53.
+    let n = t.parse::<u64>().ok().or_else(|| {
+        let x = t.parse::<f64>().ok()?;
+        (x.fract() == 0.0 && (0.0..9_007_199_254_740_992.0).contains(&x)).then_some(x as u64)
+    });
+    match n {
+        Some(n) if n >= min => Ok(n),
+        _ => Err(format!("`{s}`: a whole number ≥ {min} (such as 20 or 1e3)")),
+    }
+}
+
+/// [`parse_count`] of at least 1.
+pub(crate) fn parse_positive_count(s: &str) -> Result<u64, String> {
+    parse_count(s, 1)
+}
+
 /// clap's error for `--set Ts 2` (a space for the `=`), "unexpected
 /// argument '2'", replaced by one that names the fix. (A lone `--set Ts`
 /// reaches the override parser, which locates its error.)

@@ -25,7 +25,7 @@ pub struct PlotArgs {
     pub kind: PlotKindArg,
     /// States or outputs to draw, comma-separated, by the model's names: an
     /// entry (`h`, `err`), a whole family (`xhat`) or one member (`xhat[2]`).
-    /// Default: the logged states.
+    /// Default: the logged states (its outputs if it logged no state).
     #[arg(long, value_name = "NAMES")]
     pub vars: Option<String>,
     /// The image: `.svg` or `.png` by its extension (`-`: SVG on standard
@@ -87,7 +87,15 @@ pub fn execute(args: PlotArgs) -> anyhow::Result<u8> {
     }
     let kind = args.kind.into();
     if let Err(e) = PlotSink::check_selection(&log.info, &vars, kind) {
-        return usage(e.to_string());
+        let info = &log.info;
+        let empty = info.state_layout.entries.is_empty() && info.output_layout.entries.is_empty();
+        return usage(match empty {
+            false => e.to_string(),
+            true => format!(
+                "{e}; `{}` logged no state or output (a `log` block or `--log-vars` left them out): only `--kind domain` can be drawn from it",
+                args.file.display()
+            ),
+        });
     }
     let mut plot = PlotSink::for_log(&output, &log.info, &vars)?.kind(kind)?;
     if let Err(e) = log.replay(&bytes, |at, kind, x, y| plot.push_logged(at, kind, x, y)) {

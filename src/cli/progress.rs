@@ -138,4 +138,11 @@ impl ArcSink for Progress {
     fn wants_dense_points(&self) -> bool {
         false
     }
+
+    fn poll(&mut self) -> ControlFlow<()> {
+        match self.interrupted.load(Ordering::Relaxed) {
+            true => ControlFlow::Break(()),
+            false => ControlFlow::Continue(()),
+        }
+    }
 }

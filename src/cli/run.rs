@@ -127,7 +127,7 @@ pub struct RunArgs {
     pub plot_kind: PlotKindArg,
     /// Log every N-th flow sample (samples of logged jumps and the first and
     /// last samples are always logged); overrides the model's `log { every }`.
-    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u64).range(1..))]
+    #[arg(long, value_name = "N", value_parser = super::parse_positive_count)]
     pub log_every: Option<u64>,
     /// Log flow samples at least DT apart in t (samples of logged jumps and the
     /// first and last samples are always logged); overrides `log { dt }` (0

@@ -27,7 +27,7 @@ pub struct SweepArgs {
     pub grid: Vec<String>,
     /// Runs per grid point, each with its own seed (default: `runs` of the
     /// model's `sweep` block, else 1).
-    #[arg(long, value_parser = clap::value_parser!(u64).range(1..))]
+    #[arg(long, value_parser = super::parse_positive_count)]
     pub runs: Option<u64>,
     /// Base seed of the run seeds (default: `seed` of the model's `sweep`
     /// block, else its `sim { seed }`).
@@ -48,7 +48,7 @@ pub struct SweepArgs {
     #[arg(short = 'o', long = "output", value_name = "DIR")]
     pub output: PathBuf,
     /// Worker threads, 1 to 1024 (default: all cores, or RAYON_NUM_THREADS).
-    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u64).range(1..))]
+    #[arg(long, value_name = "N", value_parser = super::parse_positive_count)]
     pub threads: Option<u64>,
     /// Interior-point method of the model's design blocks.
     #[arg(long, value_enum, default_value_t = SdpKind::Auto)]

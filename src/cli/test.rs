@@ -43,7 +43,7 @@ pub struct TestArgs {
     #[arg(long, value_enum)]
     pub jit: Option<super::JitMode>,
     /// Most runs spent shrinking a counterexample (0: no shrinking).
-    #[arg(long, value_name = "N", default_value_t = 400)]
+    #[arg(long, value_name = "N", default_value_t = 400, value_parser = count)]
     pub max_shrink: usize,
     #[command(flatten)]
     pub guard: GuardArgs,
@@ -51,11 +51,15 @@ pub struct TestArgs {
 
 /// A count of at least 1: `--cases 0` would pass vacuously.
 fn at_least_one(s: &str) -> Result<usize, String> {
-    match s.parse::<usize>() {
+    match super::parse_count(s, 0) {
         Ok(0) => Err("0 cases would test nothing; give at least 1".into()),
-        Ok(n) => Ok(n),
-        Err(e) => Err(e.to_string()),
+        _ => usize::try_from(super::parse_count(s, 1)?).map_err(|e| e.to_string()),
     }
+}
+
+/// `--max-shrink`: a count, 0 included (no shrinking).
+fn count(s: &str) -> Result<usize, String> {
+    usize::try_from(super::parse_count(s, 0)?).map_err(|e| e.to_string())
 }
 
 /// `hybsim test`.

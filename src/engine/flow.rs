@@ -356,7 +356,7 @@ impl<'a> Output<'a> {
                 self.next_k += 1;
             },
         }
-        ControlFlow::Continue(())
+        self.sink.poll()
     }
 
     /// Local time of the next grid point after `s`, if any.

@@ -133,12 +133,12 @@ pub enum SinkError {
     },
     /// A plot kind needs more components than were selected.
     #[error(
-        "a {kind} plot needs {needed} components, {selected} selected: name them (e.g. `--plot-vars h,v`, `hybsim plot --vars h,v`)"
+        "a {kind} plot needs {needed}, {selected} selected: name them (e.g. `--plot-vars h,v`, `hybsim plot --vars h,v`)"
     )]
     TooFewComponents {
         /// The plot kind (`phase`).
         kind: &'static str,
-        /// Components it draws, in words (`two`).
+        /// Components it draws, in words (`two components`).
         needed: &'static str,
         /// Components selected.
         selected: usize,
@@ -953,6 +953,16 @@ impl ArcSink for Fanout<'_> {
                 s.flow_piece(piece);
             }
         }
+    }
+
+    fn poll(&mut self) -> ControlFlow<()> {
+        let mut flow = ControlFlow::Continue(());
+        for s in &mut self.sinks {
+            if s.poll().is_break() {
+                flow = ControlFlow::Break(());
+            }
+        }
+        flow
     }
 }
 

@@ -918,16 +918,34 @@ impl PlotKind {
     }
 }
 
-/// [`PlotKind::Phase`] needs two components.
+/// [`PlotKind::Phase`] needs two components, the other kinds but
+/// [`PlotKind::Domain`] one: without it they would draw an empty image.
 fn check_kind(kind: PlotKind, components: usize) -> Result<(), SinkError> {
-    if kind == PlotKind::Phase && components < 2 {
+    let needed = match kind {
+        PlotKind::Phase => (2, "two components"),
+        PlotKind::Domain => (0, "no component"),
+        PlotKind::Flows | PlotKind::Jumps | PlotKind::Hybrid => (1, "a component"),
+    };
+    if components < needed.0 {
         return Err(SinkError::TooFewComponents {
             kind: kind.name(),
-            needed: "two",
+            needed: needed.1,
             selected: components,
         });
     }
     Ok(())
+}
+
+/// The entries drawn when no selection is given: the first
+/// [`MAX_DEFAULT_PANELS`] state entries or, of a log that holds no state
+/// (`--log-vars energy`), of its outputs.
+fn default_entries(info: &RunInfo, with_outputs: bool) -> Vec<(&Entry, Source)> {
+    let (layout, source) = match info.state_layout.entries.is_empty() && with_outputs {
+        false => (&info.state_layout, Source::State),
+        true => (&info.output_layout, Source::Output),
+    };
+    let entries = layout.entries.iter().take(MAX_DEFAULT_PANELS);
+    entries.map(|e| (e, source)).collect()
 }
 
 /// Keeps the selected states and outputs of a run and draws them (against
@@ -962,7 +980,8 @@ pub const MAX_DEFAULT_PANELS: usize = 8;
 impl<'a> PlotSink<'a> {
     /// A plot of the entries named in `select` (state or output entries, in
     /// that order of lookup), or of the first [`MAX_DEFAULT_PANELS`] state
-    /// entries if `select` is empty.
+    /// entries if `select` is empty (output entries if there is no state:
+    /// a log may hold outputs only).
     pub fn new(
         path: impl AsRef<Path>,
         info: &RunInfo,
@@ -999,12 +1018,12 @@ impl<'a> PlotSink<'a> {
         info.validate()?;
         decimation.validate()?;
         let mut panels = Vec::new();
+        let outputs_known = info.output_dim > 0 && with_outputs;
         if select.is_empty() {
-            for e in info.state_layout.entries.iter().take(MAX_DEFAULT_PANELS) {
-                panels.extend(entry_panels(e, Source::State));
+            for (e, source) in default_entries(info, outputs_known) {
+                panels.extend(entry_panels(e, source));
             }
         }
-        let outputs_known = info.output_dim > 0 && with_outputs;
         for name in select {
             // An entry, or all of a subsystem instance's (states, then outputs).
             let states = info.state_layout.find_all(name);
@@ -1073,8 +1092,8 @@ impl<'a> PlotSink<'a> {
                 .sum()
         };
         let components: usize = if select.is_empty() {
-            let entries = info.state_layout.entries.iter();
-            entries.take(MAX_DEFAULT_PANELS).map(count).sum()
+            let entries = default_entries(info, info.output_dim > 0);
+            entries.into_iter().map(|(e, _)| count(e)).sum()
         } else {
             select
                 .iter()

@@ -659,7 +659,7 @@ fn run_one(
     Some(row)
 }
 
-/// A sink that stops the run at its next sample once `stop` is set.
+/// A sink that stops the run at its next sample or step once `stop` is set.
 struct Stoppable<'a, S> {
     inner: S,
     stop: &'a AtomicBool,
@@ -695,6 +695,13 @@ impl<S: ArcSink> ArcSink for Stoppable<'_, S> {
 
     fn flow_piece(&mut self, piece: &mut FlowPiece<'_>) {
         self.inner.flow_piece(piece);
+    }
+
+    fn poll(&mut self) -> ControlFlow<()> {
+        if self.stop.load(Ordering::Relaxed) {
+            return ControlFlow::Break(());
+        }
+        self.inner.poll()
     }
 }
 

@@ -564,6 +564,16 @@ pub fn read(dir: &Path) -> Result<(Manifest, Vec<RunRow>), SweepError> {
 /// sets, grid, runs, seed), if a shard is missing or given twice, or if
 /// runs are missing.
 pub fn merge(dirs: &[PathBuf], out: &Path) -> Result<Vec<PathBuf>, SweepError> {
+    // The merged files would replace that shard's own, which a merge redone
+    // later (or one that fails after writing them) still needs.
+    if let Some(dir) = dirs.iter().find(|d| crate::atomic_file::same_file(d, out)) {
+        return Err(SweepError::Merge(format!(
+            "`-o {}` is the shard {} given to merge: its files would be replaced; write the \
+             merged files to another directory",
+            out.display(),
+            dir.display()
+        )));
+    }
     let mut merged: Option<Manifest> = None;
     let mut shards: Vec<Shard> = Vec::new();
     let mut rows = Vec::new();

@@ -950,6 +950,23 @@ fn foreign_spelling(text: &str, pos: usize) -> Option<SyntaxError> {
             );
         }
     }
+    // Any other letter outside ASCII (`été`, `x_日本`): the parse stopped at
+    // it, maybe inside a name begun in ASCII.
+    if rest.starts_with(|c: char| c.is_alphanumeric() && !c.is_ascii()) {
+        let start = before.trim_end_matches(is_word).len();
+        let len = rest
+            .find(|c: char| !(c.is_alphanumeric() || c == '_'))
+            .unwrap_or(rest.len());
+        let word = &text[start..pos + len];
+        return foreign(
+            start,
+            pos + len,
+            &format!("`{word}` is not an ASCII name"),
+            "names are ASCII",
+            "names are ASCII letters, digits and `_` (other characters may stand in comments): \
+             rename it, in every use of the name",
+        );
+    }
     // A keyword glued to what follows it (keywords are whole words): other
     // languages' `elseif`, or `else0` for `else 0`.
     let word = &rest[..rest.find(|c: char| !is_word(c)).unwrap_or(rest.len())];
@@ -1766,6 +1783,14 @@ fn found_at(text: &str, pos: usize) -> (String, usize) {
     };
     if c == '\n' || c == '\r' {
         return ("end of line".into(), c.len_utf8());
+    }
+    // Named, not echoed: a NUL or an escape sequence is invisible (or acts on
+    // the terminal) inside backticks.
+    if c.is_control() {
+        return (
+            format!("control character U+{:04X}", c as u32),
+            c.len_utf8(),
+        );
     }
     let word: String = if c.is_ascii_alphanumeric() || c == '_' {
         rest.chars()

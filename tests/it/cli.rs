@@ -233,6 +233,51 @@ fn a_bad_seed_says_what_a_seed_is() {
     assert_eq!(code(&out), 0, "{}", stderr(&out));
 }
 
+/// A bad count (`--runs`, `--threads`, `--cases`, `--max-shrink`, `--log-every`) says what a
+/// count is: it was clap's "invalid digit found in string" (for `-1`, `1.5`, `1e3`); `1e3` is
+/// taken as 1000, as the counts among the `sim` keys take it.
+#[test]
+fn a_bad_count_says_what_a_count_is() {
+    let dir = tempfile::tempdir().unwrap();
+    let m = ball_model();
+    let m = m.to_str().unwrap();
+    let commands: [(Vec<&str>, &str, &str); 5] = [
+        (vec!["sweep", m, "-o", "out"], "--runs", "1"),
+        (vec!["sweep", m, "-o", "out"], "--threads", "1"),
+        (vec!["test", m], "--cases", "1"),
+        (vec!["test", m], "--max-shrink", "0"),
+        (vec!["run", m, "--no-mcap"], "--log-every", "1"),
+    ];
+    for (args, flag, min) in &commands {
+        for bad in ["-1", "1.5", "abc", "inf"] {
+            let mut args = args.clone();
+            args.extend([*flag, bad]);
+            let out = hybsim(dir.path(), &args);
+            assert_eq!(code(&out), 2, "{args:?}");
+            let err = stderr(&out);
+            assert!(
+                err.contains(&format!("`{bad}`: a whole number ≥ {min}")),
+                "{args:?}: {err}"
+            );
+            assert!(!err.contains("invalid digit"), "{args:?}: {err}");
+        }
+    }
+    assert!(!dir.path().join("out").exists());
+    let out = hybsim(
+        dir.path(),
+        &[
+            "run",
+            m,
+            "--no-mcap",
+            "--csv",
+            "b.csv",
+            "--log-every",
+            "1e1",
+        ],
+    );
+    assert_eq!(code(&out), 0, "{}", stderr(&out));
+}
+
 /// `--set lambda 0.5` (a space for the `=`) names the fix in every command that takes `--set`:
 /// it was clap's "unexpected argument '0.5' found".
 #[test]

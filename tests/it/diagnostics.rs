@@ -379,6 +379,27 @@ const CASES: &[Case] = &[
         "`Δt₁` is not an ASCII name; hybsim writes `Deltat1`",
     ),
     case(
+        "a control character in the text",
+        "model m\nstate x = \u{1b}[31m1\n",
+        "E0101",
+        "2:11",
+        "unexpected control character U+001B; expected an expression",
+    ),
+    case(
+        "an accented letter as a name",
+        "model m\nstate été = 1\nflow { été' = -été }\n",
+        "E0109",
+        "2:7",
+        "`été` is not an ASCII name",
+    ),
+    case(
+        "a name begun in ASCII and continued in another script",
+        "model m\nstate x_日本 = 1\nflow { x_日本' = -x_日本 }\n",
+        "E0109",
+        "2:7",
+        "`x_日本` is not an ASCII name",
+    ),
+    case(
         "misspelt declaration keyword",
         "model m\nstat x = 1\nflow { x' = -x }\n",
         "E0101",
@@ -770,6 +791,13 @@ const CASES: &[Case] = &[
         "unknown function `integrl`",
     ),
     case(
+        "pre-jump value written pre(x)",
+        "model m\nstate x = 1\nflow { x' = -x }\njump r when x <= 0.5 { x+ = 1 }\nproperty p: at jumps r post(x) > pre(x)\n",
+        "E0203",
+        "5:34",
+        "unknown function `pre`",
+    ),
+    case(
         "unknown sim key with a suggestion",
         "model m\nstate x = 0\nsim { seeed = 3 }\n",
         "E0204",
@@ -1134,6 +1162,10 @@ fn unknown_names_come_with_the_closest_declared_name() {
             "did you mean `when`?",
         ),
         ("keyword as a rule name", "choose another name than `out`"),
+        (
+            "pre-jump value written pre(x)",
+            "there is no `pre`: a bare name is the value before the jump (`x`); `post(x)`, in a property `at jumps`, is the value after it",
+        ),
     ] {
         let c = find(name);
         let d = diagnostics(&SourceFile::new("m.hyb", c.src), c.overrides);

@@ -505,6 +505,37 @@ fn unreadable_files_and_unknown_names_exit_2() {
     assert!(d.join("h.svg").exists());
 }
 
+/// A file that logged outputs only draws them by default; one that logged
+/// neither states nor outputs draws only its domain: any other kind is a
+/// usage error, not a blank image.
+#[test]
+fn a_log_without_states_plots_its_outputs_or_refuses_an_empty_image() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let ball = model("bouncing_ball.hyb");
+    let ball = ball.to_str().unwrap();
+    ok(
+        d,
+        &["run", ball, "-q", "-o", "e.mcap", "--log-vars", "energy"],
+    );
+    ok(d, &["plot", "e.mcap", "-o", "e.svg"]);
+    let svg = std::fs::read_to_string(d.join("e.svg")).unwrap();
+    assert!(texts(&svg).iter().any(|t| t.contains("energy")), "{svg}");
+    ok(d, &["run", ball, "-q", "-o", "n.mcap", "--log-vars", ""]);
+    for kind in ["flows", "jumps", "hybrid"] {
+        let out = hybsim(d, &["plot", "n.mcap", "--kind", kind, "-o", "n.svg"]);
+        assert_eq!(code(&out), 2, "{kind}: {}", stderr(&out));
+        assert!(
+            stderr(&out).contains("needs a component, 0 selected")
+                && stderr(&out).contains("logged no state or output"),
+            "{kind}: {}",
+            stderr(&out)
+        );
+        assert!(!d.join("n.svg").exists());
+    }
+    ok(d, &["plot", "n.mcap", "--kind", "domain", "-o", "n.svg"]);
+}
+
 /// Every shipped model's file reads back (every layout shape: matrices,
 /// families of vectors and matrices, subsystem instances, outputs) and
 /// draws, as flows and in 3-D; the values read back are those of the CSV

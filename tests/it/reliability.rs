@@ -221,6 +221,63 @@ fn ctrl_c_ends_the_csv_and_the_mcap_with_the_state_at_the_stop() {
     }
 }
 
+/// Ctrl-C stops a run whose samples are far apart (a `dt_out` of 10^8 steps) within a step, not
+/// at its next sample: the signal was only seen there, so the run went on for minutes.
+#[test]
+fn ctrl_c_stops_a_run_between_samples_far_apart() {
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::write(
+        dir.path().join("slow.hyb"),
+        "model slow\nstate x = 1\nstate v = 0\nflow { x' = v; v' = -sin(x) }\n",
+    )
+    .unwrap();
+    let mut child = Command::new(BIN)
+        .args([
+            "run",
+            "slow.hyb",
+            "-q",
+            "--json",
+            "--no-mcap",
+            "--csv",
+            "slow.csv",
+        ])
+        .args([
+            "--T", "1e6", "--dt-out", "1e5", "--solver", "rk4", "--step", "1e-3",
+        ])
+        .current_dir(dir.path())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let start = Instant::now();
+    while temp_files(dir.path()).is_empty() && start.elapsed() < Duration::from_secs(5) {
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    std::thread::sleep(Duration::from_millis(200));
+    // SAFETY: signalling our own child by its process id.
+    unsafe {
+        libc::kill(child.id() as i32, libc::SIGINT);
+    }
+    let signalled = Instant::now();
+    while child.try_wait().unwrap().is_none() {
+        if signalled.elapsed() > Duration::from_secs(5) {
+            child.kill().unwrap();
+            panic!("the run went on 5 s after Ctrl-C");
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let out = child.wait_with_output().unwrap();
+    assert_eq!(out.status.code(), Some(130), "{}", stderr(&out));
+    let summary: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(summary["cause"], "interrupted");
+    let end_t = summary["end"]["t"].as_f64().unwrap();
+    assert!(end_t > 0.0 && end_t < 1e5, "{end_t}");
+    let csv = std::fs::read_to_string(dir.path().join("slow.csv")).unwrap();
+    let last: Vec<&str> = csv.lines().last().unwrap().split(',').collect();
+    assert_eq!(last[2], "final", "{last:?}");
+    assert_eq!(last[0].parse::<f64>().unwrap(), end_t);
+}
+
 #[test]
 fn a_closed_pipe_ends_quietly() {
     let dir = tempfile::tempdir().unwrap();

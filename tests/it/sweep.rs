@@ -427,6 +427,17 @@ fn sweeps_are_deterministic_over_threads_and_shards() {
     assert!(stderr(&out).contains("3/3 missing"), "{}", stderr(&out));
     let out = hybsim(d, &["sweep", "--merge", "s1", "s1", "s2", "-o", "x"]);
     assert!(stderr(&out).contains("twice"), "{}", stderr(&out));
+    // The output is not one of the shards (it replaced that shard's files,
+    // and a merge redone from the shards then failed).
+    let before = files(&d.join("s2"));
+    let out = hybsim(d, &["sweep", "--merge", "s1", "s2", "s3", "-o", "./s2/"]);
+    assert_eq!(code(&out), 1);
+    assert!(
+        stderr(&out).contains("`-o ./s2/` is the shard s2 given to merge"),
+        "{}",
+        stderr(&out)
+    );
+    assert_eq!(before, files(&d.join("s2")));
 
     // 8 points × 3 runs; the points table has the statistics of each point.
     let runs = String::from_utf8(all[5].1.clone()).unwrap();
