@@ -1241,6 +1241,24 @@ fn foreign_spelling(text: &str, pos: usize) -> Option<SyntaxError> {
             "write `in` between the flow block and its flow set C",
         );
     }
+    // A flow set written after a jump's block (`jump r when g { ... } in C`,
+    // as if C were the jump's): C belongs to the flow block.
+    if rest.starts_with("in")
+        && !rest[2..].starts_with(is_word)
+        && let Some(close) = before.trim_end().strip_suffix('}')
+        && let Some(open) = unclosed_brace(text, close.len())
+        && text[..open][text[..open].rfind('\n').map_or(0, |i| i + 1)..]
+            .trim_start()
+            .starts_with("jump")
+    {
+        return foreign(
+            pos,
+            pos + 2,
+            "a flow set belongs to the flow block, not to a jump",
+            "`in` after a jump's block",
+            "C is written after the flow block, `flow { x' = 1 } in x <= 1`; a jump's set is its `when` condition",
+        );
+    }
     // MATLAB's `end`, alone on its line: read as the start of a declaration.
     let is_end = |at: usize| {
         let ls = text[..at].rfind('\n').map_or(0, |i| i + 1);

@@ -227,6 +227,24 @@ fn an_assignment_written_colon_equals_says_to_write_equals() {
     assert_eq!(err.to_diagnostic().code, "E0101");
 }
 
+/// A flow set written after a jump's block, as if it were the jump's, is
+/// E0109 at the `in`, saying where C is written.
+#[test]
+fn a_flow_set_after_a_jump_block_says_where_c_goes() {
+    for jump in [
+        "jump r when x >= 1 { x+ = 0 } in x <= 1",
+        "jump r when x >= 1 {\n  x+ = 0\n}\nin x <= 1",
+        "jump r every 1 { x+ = 0 } in x <= 1",
+    ] {
+        let src = format!("model m\nstate x = 0\nflow {{ x' = 1 }}\n{jump}\n");
+        let err = parse_model(&src).unwrap_err();
+        let d = err.to_diagnostic();
+        assert_eq!(d.code, "E0109", "{src}: {}", d.message);
+        assert_eq!(&src[err.span().start..err.span().end], "in", "{src}");
+        assert!(d.message.contains("flow set belongs to the flow block"), "{}", d.message);
+    }
+}
+
 /// A block left open where the next declaration (or the flow set, or the
 /// end of the file) begins is E0108 there, pointing at the open `{`.
 #[test]
