@@ -241,7 +241,11 @@ fn a_flow_set_after_a_jump_block_says_where_c_goes() {
         let d = err.to_diagnostic();
         assert_eq!(d.code, "E0109", "{src}: {}", d.message);
         assert_eq!(&src[err.span().start..err.span().end], "in", "{src}");
-        assert!(d.message.contains("flow set belongs to the flow block"), "{}", d.message);
+        assert!(
+            d.message.contains("flow set belongs to the flow block"),
+            "{}",
+            d.message
+        );
     }
 }
 
