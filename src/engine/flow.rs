@@ -1482,20 +1482,21 @@ enum GaveUp {
 
 /// Whether the flow's Jacobian at (`s`, `y`) (from `jac`, `len` entries:
 /// all, or its pattern's) makes `h`·‖J‖ (Frobenius: a bound on every
-/// eigenvalue) reach `h_lamb`. Where the flow map is smooth, the rates of
+/// eigenvalue) reach `bound`. Where the flow map is smooth, the rates of
 /// two states a step apart differ by at most about that much; the
-/// stiffness test's estimate ‖Δf‖/‖Δy‖ far above it (8×), or rates that
-/// turn around every few steps with h·‖J‖ below 1/20, mean the rates jump:
-/// a flow map discontinuous in the state (a relay's sliding mode), which no
-/// solver integrates by shrinking its steps. Systems of more than
-/// [`JACOBIAN_CHECK_MAX`] states, and a NaN Jacobian, count as explained.
+/// stiffness test's estimate ‖Δf‖/‖Δy‖ far above it ([`STIFF_MARGIN`]×),
+/// or rates that turn around every few steps with h·‖J‖ below
+/// [`CHATTER_H_NORM`], mean the rates jump: a flow map discontinuous in
+/// the state (a relay's sliding mode), which no solver integrates by
+/// shrinking its steps. Systems of more than [`JACOBIAN_CHECK_MAX`]
+/// states, and a NaN Jacobian, count as explained.
 fn jacobian_explains(
     jac: &mut impl FnMut(f64, &[f64], &mut [f64]),
     len: usize,
     s: f64,
     y: &[f64],
     h: f64,
-    h_lamb: f64,
+    bound: f64,
 ) -> bool {
     if y.len() > JACOBIAN_CHECK_MAX {
         return true;
@@ -1504,11 +1505,18 @@ fn jacobian_explains(
     let mut m = vec![0.0; len];
     jac(s, y, &mut m);
     let norm = m.iter().map(|v| v * v).sum::<f64>().sqrt();
-    h * norm >= h_lamb || norm.is_nan()
+    h * norm >= bound || norm.is_nan()
 }
 
 /// The most states for which [`jacobian_explains`] evaluates the Jacobian.
 const JACOBIAN_CHECK_MAX: usize = 1000;
+
+/// How far the stiffness test's h·|λ| may exceed h·‖J‖ on a smooth flow.
+const STIFF_MARGIN: f64 = 8.0;
+
+/// h·‖J‖ below which rates that turn around every few steps are a chatter
+/// (a smooth oscillation turning them around every k steps has h·ω ≳ π/k).
+const CHATTER_H_NORM: f64 = 0.05;
 
 /// The error of an integrator that gave up at `stopped`, `(at, x)` its last accepted point,
 /// where a rejected attempt met the non-finite rate `ahead` (if any; its `s` relative to `at`).
@@ -2088,7 +2096,7 @@ impl Flows {
                             s,
                             &self.y_prev,
                             h,
-                            h_lamb / 8.0,
+                            h_lamb / STIFF_MARGIN,
                         ) =>
                 {
                     return Ok(Stepped::Switch(s));
@@ -2099,7 +2107,7 @@ impl Flows {
                 // afresh.
                 Err(Failure::Chatter {
                     h, strict: false, ..
-                }) if jacobian_explains(&mut jac, jac_len, s, &self.y_prev, h, 0.05) => {
+                }) if jacobian_explains(&mut jac, jac_len, s, &self.y_prev, h, CHATTER_H_NORM) => {
                     st.forgive_chatter();
                     continue;
                 }
@@ -2114,7 +2122,8 @@ impl Flows {
                             h_lamb,
                         } => {
                             let y = &self.y_prev;
-                            if jacobian_explains(&mut jac, jac_len, s, y, h, h_lamb / 8.0) {
+                            if jacobian_explains(&mut jac, jac_len, s, y, h, h_lamb / STIFF_MARGIN)
+                            {
                                 GaveUp::Stiff { component }
                             } else {
                                 GaveUp::Discontinuous { component, h }
