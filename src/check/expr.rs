@@ -318,8 +318,15 @@ impl Checker {
     /// `x`, the constant value of `e`, as an integer (else an error at `e`).
     fn int_of(&mut self, x: f64, e: &Expr, what: &str) -> Option<i64> {
         if x.fract() != 0.0 || x.abs() > 1e15 {
+            // A whole number too large to be a count or an index (`2^62`)
+            // is said to be one.
+            let expected = if x.fract() == 0.0 {
+                format!("an integer of magnitude at most 1e15 for {what}")
+            } else {
+                format!("an integer for {what}")
+            };
             self.err(CheckError::Expected {
-                expected: format!("an integer for {what}"),
+                expected,
                 found: crate::num::fmt_num(x),
                 span: e.span,
             });

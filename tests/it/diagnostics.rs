@@ -873,7 +873,7 @@ const CASES: &[Case] = &[
         "model m\nparam N = 1e300\nstate x = zeros(N, 1)\n",
         "E0304",
         "3:17",
-        "expected an integer for a dimension, found 1e300",
+        "expected an integer of magnitude at most 1e15 for a dimension, found 1e300",
     ),
     case(
         "singular matrix in a parameter",
