@@ -112,19 +112,31 @@ fn links_stay_links_and_devices_stay_devices() {
     assert!(temp_files(d).is_empty());
 }
 
+/// `slow.hyb` in `dir`: a pendulum (not affine: no exact propagator) for
+/// horizons it cannot reach in these tests.
+fn slow_pendulum(dir: &std::path::Path) {
+    std::fs::write(
+        dir.join("slow.hyb"),
+        "model slow\nstate x = 1\nstate v = 0\nflow { x' = v; v' = -sin(x) }\n",
+    )
+    .unwrap();
+}
+
+/// Waits (at most 5 s) until a run in `dir` has `n` output files being
+/// written (its temporary files).
+fn wait_for_temp_files(dir: &std::path::Path, n: usize) {
+    let start = Instant::now();
+    while temp_files(dir).len() < n && start.elapsed() < Duration::from_secs(5) {
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
 #[test]
 fn sigterm_and_sighup_complete_the_files_like_ctrl_c() {
     for signal in [libc::SIGTERM, libc::SIGHUP] {
         let dir = tempfile::tempdir().unwrap();
         ball(dir.path());
-        let model = dir.path().join("slow.hyb");
-        // A pendulum (not affine: no exact propagator) for a horizon it
-        // cannot reach in this test.
-        std::fs::write(
-            &model,
-            "model slow\nstate x = 1\nstate v = 0\nflow { x' = v; v' = -sin(x) }\n",
-        )
-        .unwrap();
+        slow_pendulum(dir.path());
         let child = Command::new(BIN)
             .args(["run", "slow.hyb", "-q", "--csv", "slow.csv", "--T", "1e6"])
             .args(["--solver", "rk4", "--step", "1e-3"])
@@ -134,10 +146,7 @@ fn sigterm_and_sighup_complete_the_files_like_ctrl_c() {
             .spawn()
             .unwrap();
         // Wait until the run has started writing.
-        let start = Instant::now();
-        while temp_files(dir.path()).len() < 2 && start.elapsed() < Duration::from_secs(5) {
-            std::thread::sleep(Duration::from_millis(20));
-        }
+        wait_for_temp_files(dir.path(), 2);
         std::thread::sleep(Duration::from_millis(100));
         // SAFETY: signalling our own child by its process id.
         unsafe {
@@ -167,11 +176,7 @@ fn sigterm_and_sighup_complete_the_files_like_ctrl_c() {
 fn ctrl_c_ends_the_csv_and_the_mcap_with_the_state_at_the_stop() {
     for thinning in [&["--log-every", "1000"][..], &["--dt-out", "0.37"]] {
         let dir = tempfile::tempdir().unwrap();
-        std::fs::write(
-            dir.path().join("slow.hyb"),
-            "model slow\nstate x = 1\nstate v = 0\nflow { x' = v; v' = -sin(x) }\n",
-        )
-        .unwrap();
+        slow_pendulum(dir.path());
         let child = Command::new(BIN)
             .args([
                 "run", "slow.hyb", "-q", "--json", "--csv", "slow.csv", "--T", "1e6",
@@ -183,10 +188,7 @@ fn ctrl_c_ends_the_csv_and_the_mcap_with_the_state_at_the_stop() {
             .stderr(Stdio::piped())
             .spawn()
             .unwrap();
-        let start = Instant::now();
-        while temp_files(dir.path()).len() < 2 && start.elapsed() < Duration::from_secs(5) {
-            std::thread::sleep(Duration::from_millis(20));
-        }
+        wait_for_temp_files(dir.path(), 2);
         std::thread::sleep(Duration::from_millis(100));
         // SAFETY: signalling our own child by its process id.
         unsafe {
@@ -226,11 +228,7 @@ fn ctrl_c_ends_the_csv_and_the_mcap_with_the_state_at_the_stop() {
 #[test]
 fn ctrl_c_stops_a_run_between_samples_far_apart() {
     let dir = tempfile::tempdir().unwrap();
-    std::fs::write(
-        dir.path().join("slow.hyb"),
-        "model slow\nstate x = 1\nstate v = 0\nflow { x' = v; v' = -sin(x) }\n",
-    )
-    .unwrap();
+    slow_pendulum(dir.path());
     let mut child = Command::new(BIN)
         .args([
             "run",
@@ -249,10 +247,7 @@ fn ctrl_c_stops_a_run_between_samples_far_apart() {
         .stderr(Stdio::piped())
         .spawn()
         .unwrap();
-    let start = Instant::now();
-    while temp_files(dir.path()).is_empty() && start.elapsed() < Duration::from_secs(5) {
-        std::thread::sleep(Duration::from_millis(20));
-    }
+    wait_for_temp_files(dir.path(), 1);
     std::thread::sleep(Duration::from_millis(200));
     // SAFETY: signalling our own child by its process id.
     unsafe {
